@@ -1,0 +1,256 @@
+"""The error model: a sum of named physical effects (in the manner of lmfit's and pysindy's composite models).
+
+For sensor i of an instrument, with true input u (MB, SI) and everything else the rig knows::
+
+    SF_i y_i = a_i . u + b_i + sum_e  phi_e(segment, sensor) . theta_e  + v_i          (SI domain)
+
+Dividing by SF_i gives a model that is linear in the raw domain::
+
+    y_i = u . w_i + c_i + sum_e phi_e . beta_e + v_i / SF_i,
+    w_i = a_i / SF_i,  c_i = b_i / SF_i,  beta_e = theta_e / SF_i
+
+This is Cho & Park 2005 Eq. 5 (``[s 1] [m/SF; b/SF]``) extended by further columns. Scale factor and unit
+axis follow from |w_i| = 1 / SF_i (the unit-norm constraint, Eq. 10), and every other physical parameter is
+``beta * SF``.
+
+An :class:`Effect` is one small class: it names its parameters (with units and the unit the field reports
+them in) and, for a segment and a sensor, returns the regressor columns ``phi`` in SI (N x k), or ``None``
+when the segment does not carry the inputs it needs. ``model + effect`` makes a composite; name clashes
+raise :class:`~rimu.errors.ParameterNameError`. Adding an effect is a new file in ``rimu/calibration/effects``
+plus one line in its registry.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar, Iterable, Sequence
+
+import numpy as np
+
+from ..epoch import INSTRUMENTS
+from ..errors import ParameterNameError
+from ..geometry import Geometry
+from ..session import Segment, Session
+
+__all__ = ["ParamSpec", "SensorContext", "Effect", "ErrorModel", "EFFECTS", "register_effect", "effect"]
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """A parameter an effect owns.
+
+    Attributes
+    ----------
+    name : str
+        Local name, e.g. ``"bias"``, ``"gsens_x"``; the full name is ``"{sensor}.{name}"``.
+    unit : str
+        SI unit of the value (e.g. ``"rad/s"``, ``"(rad/s)/(m/s^2)"``).
+    report_unit : str
+        Unit the field reports it in (``"deg/h"``, ``"ppm"``, ``"arcsec"``, ``"ug"``, ...).
+    to_report : float
+        Factor from SI to the report unit.
+    """
+
+    name: str
+    unit: str
+    report_unit: str = ""
+    to_report: float = 1.0
+
+
+@dataclass(frozen=True)
+class SensorContext:
+    """What an effect may know about the sensor it builds columns for."""
+
+    instrument: str
+    index: int
+    geometry: Geometry
+    latitude: float | None = None
+    gravity: float = 9.80665
+    reference_temperature: float = 25.0
+
+    @property
+    def name(self) -> str:
+        return self.geometry.names[self.index]
+
+    @property
+    def axis(self) -> np.ndarray:
+        """Nominal sensing axis in MB."""
+        return self.geometry.H[self.index]
+
+    def input(self, segment: Segment) -> np.ndarray | None:
+        """The known true input of this instrument in MB, (N, 3), or None when the segment does not know it.
+
+        Gyros: table rate plus Earth rate where the attitude and latitude are known (a 'rate' segment without
+        attitude gives the table rate alone; Earth rate then counts as a bias-like disturbance the procedure
+        must cancel). Accelerometers: the specific force.
+        """
+        if self.instrument == "gyro":
+            if segment.kind in ("rate", "static"):
+                return segment.angular_rate(self.latitude, include_earth=True)
+            return None
+        return segment.specific_force(self.gravity)
+
+
+class Effect:
+    """Base class of a physical effect. Subclasses set the class attributes and implement two methods.
+
+    Class attributes
+    ----------------
+    name : str
+        Registry key (``"bias"``, ``"g_sensitivity"``, ...).
+    instruments : tuple of str
+        Which instruments it applies to.
+    description : str
+        One plain-language line.
+    physics : str
+        Where it comes from physically, and what test excites it.
+    """
+
+    name: ClassVar[str] = ""
+    instruments: ClassVar[tuple[str, ...]] = INSTRUMENTS
+    description: ClassVar[str] = ""
+    physics: ClassVar[str] = ""
+
+    def parameters(self, ctx: SensorContext) -> list[ParamSpec]:
+        """The linear (raw-domain) parameters, one per column."""
+        raise NotImplementedError
+
+    def physical_parameters(self, ctx: SensorContext) -> list[ParamSpec]:
+        """The physical (SI) parameters reported to users; by default one per column (theta = beta * SF)."""
+        return self.parameters(ctx)
+
+    def columns(self, segment: Segment, ctx: SensorContext) -> np.ndarray | None:
+        """Regressors phi (N, k) in SI for this segment and sensor, or None if the segment lacks the inputs."""
+        raise NotImplementedError
+
+    def applies_to(self, ctx: SensorContext) -> bool:
+        return ctx.instrument in self.instruments
+
+    def __add__(self, other: "Effect | ErrorModel") -> "ErrorModel":
+        return ErrorModel([self]) + other
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}()"
+
+
+class ErrorModel:
+    """A sum of effects. One level deep: adding two models concatenates their effects.
+
+    >>> from rimu.calibration.effects import Bias, ScaleMisalignment
+    >>> m = ScaleMisalignment() + Bias()
+    >>> m
+    ErrorModel(scale_misalignment + bias)
+    >>> m + Bias()
+    Traceback (most recent call last):
+    ...
+    rimu.errors.ParameterNameError: effect 'bias' is already in the model (scale_misalignment + bias)
+    """
+
+    def __init__(self, effects: Iterable[Effect]) -> None:
+        effs: list[Effect] = []
+        for e in effects:
+            if any(x.name == e.name for x in effs):
+                raise ParameterNameError(f"effect {e.name!r} is in the model twice")
+            effs.append(e)
+        self.effects: tuple[Effect, ...] = tuple(effs)
+
+    @classmethod
+    def base(cls) -> "ErrorModel":
+        """Scale factor, misalignment and bias (Cho & Park Eq. 1-2)."""
+        from .effects import Bias, ScaleMisalignment
+
+        return cls([ScaleMisalignment(), Bias()])
+
+    @classmethod
+    def from_names(cls, names: Sequence[str] | str) -> "ErrorModel":
+        """Build from registry names, e.g. ``"bias,scale,misalignment,g_sensitivity"``.
+
+        ``scale`` and ``misalignment`` both mean the joint scale/misalignment effect (they are one linear
+        block: the axis w_i = a_i / SF_i).
+        """
+        if isinstance(names, str):
+            names = [s.strip() for s in names.split(",") if s.strip()]
+        effs: list[Effect] = []
+        for nm in names:
+            e = effect(nm)
+            if not any(x.name == e.name for x in effs):
+                effs.append(e)
+        return cls(effs)
+
+    def __add__(self, other: "Effect | ErrorModel | str") -> "ErrorModel":
+        if isinstance(other, str):
+            other = effect(other)
+        new = list(other.effects) if isinstance(other, ErrorModel) else [other]
+        for e in new:
+            if any(x.name == e.name for x in self.effects):
+                raise ParameterNameError(f"effect {e.name!r} is already in the model ({self.label})")
+        return ErrorModel(list(self.effects) + new)
+
+    def __contains__(self, name: object) -> bool:
+        return any(e.name == name for e in self.effects)
+
+    def __iter__(self):
+        return iter(self.effects)
+
+    def __len__(self) -> int:
+        return len(self.effects)
+
+    @property
+    def label(self) -> str:
+        return " + ".join(e.name for e in self.effects)
+
+    def __repr__(self) -> str:
+        return f"ErrorModel({self.label})"
+
+    # ------------------------------------------------------------------ design
+    def effects_for(self, ctx: SensorContext) -> list[Effect]:
+        return [e for e in self.effects if e.applies_to(ctx)]
+
+    def parameter_names(self, ctx: SensorContext) -> list[str]:
+        """Full names (``"x1.bias"``) of the linear parameters for one sensor, in column order."""
+        names: list[str] = []
+        for e in self.effects_for(ctx):
+            names += [f"{ctx.name}.{p.name}" for p in e.parameters(ctx)]
+        if len(set(names)) != len(names):
+            dup = sorted({x for x in names if names.count(x) > 1})
+            raise ParameterNameError(f"parameter names collide: {dup}")
+        return names
+
+    def design(self, segment: Segment, ctx: SensorContext) -> np.ndarray | None:
+        """Regressor matrix (N, p) of one segment for one sensor, or None if some effect lacks inputs."""
+        cols = []
+        for e in self.effects_for(ctx):
+            c = e.columns(segment, ctx)
+            if c is None:
+                return None
+            cols.append(np.asarray(c, dtype=float).reshape(segment.n_samples, -1))
+        return np.hstack(cols) if cols else np.zeros((segment.n_samples, 0))
+
+
+def contexts(session: Session, instrument: str, reference_temperature: float = 25.0) -> list[SensorContext]:
+    """One :class:`SensorContext` per sensor of ``instrument`` in ``session``."""
+    g = session.geometries[instrument]
+    return [SensorContext(instrument, i, g, session.latitude, session.gravity, reference_temperature) for i in range(g.n)]
+
+
+#: registry: name -> Effect class
+EFFECTS: dict[str, type[Effect]] = {}
+
+
+def register_effect(cls: type[Effect], *aliases: str) -> type[Effect]:
+    """Register an effect class under its ``name`` (and aliases). Returns the class (usable as a decorator)."""
+    for key in (cls.name, *aliases):
+        if key in EFFECTS and EFFECTS[key] is not cls:
+            raise ParameterNameError(f"an effect called {key!r} is already registered ({EFFECTS[key].__name__})")
+        EFFECTS[key] = cls
+    return cls
+
+
+def effect(name: str, **kwargs: Any) -> Effect:
+    """An effect instance by registry name."""
+    from . import effects as _  # noqa: F401  (fills the registry)
+
+    try:
+        return EFFECTS[name](**kwargs)
+    except KeyError:
+        raise ParameterNameError(f"unknown effect {name!r}; known: {sorted(EFFECTS)}") from None

@@ -1,0 +1,365 @@
+"""The calibration result: per-sensor coefficients with units, bound to a geometry, saved as versioned JSON.
+
+Model (Cho & Park 2005, Eq. 1-3), per sensor i of sub-unit j::
+
+    SF_i * y_i = m_i . (C_j u) + b_i + v_i
+
+``y_i`` raw output (counts), ``u`` the true input in MB (rad/s or m/s^2), ``C_j`` the sub-unit basis
+(``mat_sb_mb``), ``m_i`` the misalignment row in the sub-unit basis with |m_i| = 1 (Eq. 10), ``b_i`` the bias
+in SI units, ``SF_i`` the scale factor in SI per raw unit. The calibrated sensing axis in MB is
+``a_i = C_j^T m_i`` and compensation is ``z_i = SF_i y_i - b_i = a_i . u + v_i``.
+
+The estimator (``rimu.calibration`` procedures) and this result are separate things (as in imucal): the
+result is plain data with explicit units, a type tag and a format version, and a checksum over its content.
+Further effects (g-sensitivity, temperature terms, ...) ride along in ``effects`` as named parameters, so the
+file grows without a format change.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ..epoch import INSTRUMENTS
+from ..errors import (
+    CalibrationFileError,
+    ChecksumError,
+    GeometryMismatchError,
+    ShapeError,
+    UnsupportedVersionError,
+)
+from ..geometry import Geometry
+
+__all__ = ["InstrumentCalibration", "Calibration", "FORMAT_TAG", "FORMAT_VERSION", "SI_UNITS"]
+
+FORMAT_TAG = "rimu.calibration"
+FORMAT_VERSION = 1
+#: SI unit of the input of each instrument
+SI_UNITS = {"gyro": "rad/s", "accel": "m/s^2"}
+#: migrations: version -> function turning a payload of that version into one of version + 1
+MIGRATIONS: dict[int, Callable[[dict[str, Any]], dict[str, Any]]] = {}
+
+
+@dataclass
+class InstrumentCalibration:
+    """Coefficients of one instrument kind (all gyros, or all accelerometers) of a unit.
+
+    Attributes
+    ----------
+    instrument : str
+        ``"gyro"`` or ``"accel"``.
+    geometry : Geometry
+    scale : ndarray (n,)
+        Scale factor SF, SI unit per raw unit (rad/s per count, m/s^2 per count).
+    misalignment : ndarray (n, 3)
+        Misalignment rows m_i in each sensor's sub-unit basis, unit norm (Cho & Park Eq. 2, 10).
+    bias : ndarray (n,)
+        Bias b, SI units (rad/s, m/s^2), on the output side: ``SF y = m.(C u) + b``.
+    noise_sigma : ndarray (n,) or None
+        Per-sample white-noise standard deviation of ``SF y``, SI units.
+    covariance : ndarray (p, p) or None
+        Covariance of the parameters named in ``param_names`` (SI; misalignment as the two off-axis
+        components of m_i, in rad).
+    param_names : list of str
+        Names of the covariance's rows, e.g. ``"x1.scale"``, ``"x1.mis_y"``, ``"x1.bias"``.
+    effects : dict
+        Further named effects: ``{effect_name: {param_name: value}}`` in SI units.
+    """
+
+    instrument: str
+    geometry: Geometry
+    scale: np.ndarray
+    misalignment: np.ndarray
+    bias: np.ndarray
+    noise_sigma: np.ndarray | None = None
+    covariance: np.ndarray | None = None
+    param_names: list[str] = field(default_factory=list)
+    effects: dict[str, dict[str, float]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.instrument not in INSTRUMENTS:
+            raise ValueError(f"instrument must be one of {INSTRUMENTS}, got {self.instrument!r}")
+        n = self.geometry.n
+        self.scale = _vec(self.scale, n, "scale")
+        self.bias = _vec(self.bias, n, "bias")
+        m = np.array(self.misalignment, dtype=float)
+        if m.shape != (n, 3):
+            raise ShapeError(f"misalignment must have shape ({n}, 3), got {m.shape}")
+        if not np.all(np.isfinite(m)):
+            raise ShapeError("misalignment has non-finite entries")
+        norms = np.linalg.norm(m, axis=1)
+        if np.any(np.abs(norms - 1.0) > 1e-3):
+            i = int(np.argmax(np.abs(norms - 1.0)))
+            raise ShapeError(
+                f"misalignment row {i} ({self.geometry.names[i]}) has norm {norms[i]:.6f}; rows are unit vectors "
+                "(Cho & Park Eq. 10). Normalise it, moving the norm into the scale factor"
+            )
+        self.misalignment = m / norms[:, None]
+        if np.any(self.scale == 0):
+            raise ShapeError("a scale factor is zero; the sensor's output would carry no information")
+        if self.noise_sigma is not None:
+            self.noise_sigma = _vec(self.noise_sigma, n, "noise_sigma")
+            if np.any(self.noise_sigma <= 0):
+                raise ShapeError("noise_sigma must be positive")
+        if self.covariance is not None:
+            c = np.array(self.covariance, dtype=float)
+            p = len(self.param_names)
+            if c.shape != (p, p):
+                raise ShapeError(f"covariance has shape {c.shape}, but {p} param_names are given")
+            self.covariance = c
+
+    # ------------------------------------------------------------------ constructors
+    @classmethod
+    def nominal(
+        cls, instrument: str, geometry: Geometry, scale: Any = 1.0, bias: Any = 0.0, noise_sigma: Any = None
+    ) -> "InstrumentCalibration":
+        """Coefficients with no misalignment (m_i = nominal row), given scale and bias."""
+        n = geometry.n
+        return cls(
+            instrument,
+            geometry,
+            np.broadcast_to(np.asarray(scale, dtype=float), (n,)).copy(),
+            geometry.nominal_rows(),
+            np.broadcast_to(np.asarray(bias, dtype=float), (n,)).copy(),
+            None if noise_sigma is None else np.broadcast_to(np.asarray(noise_sigma, dtype=float), (n,)).copy(),
+        )
+
+    # ------------------------------------------------------------------ model
+    def axes_mb(self) -> np.ndarray:
+        """Calibrated sensing axes in MB, (n, 3): a_i = C_j^T m_i (the rows of M H in Cho & Park Eq. 1)."""
+        A = np.empty((self.geometry.n, 3))
+        for su in self.geometry.subunits:
+            idx = list(su.members)
+            A[idx] = self.misalignment[idx] @ su.mat_sb_mb
+        return A
+
+    def compensate(self, y: np.ndarray) -> np.ndarray:
+        """``SF * y - B`` for raw outputs ``y`` (..., n): the scale- and bias-compensated outputs, SI units."""
+        return np.asarray(y, dtype=float) * self.scale - self.bias
+
+    def raw_output(self, u: np.ndarray) -> np.ndarray:
+        """Noise-free raw output for true inputs ``u`` (..., 3) in MB: ``(a.u + b) / SF``."""
+        return (np.asarray(u, dtype=float) @ self.axes_mb().T + self.bias) / self.scale
+
+    def std(self) -> dict[str, float]:
+        """Standard deviations of the parameters in ``param_names`` (SI), or {} without a covariance."""
+        if self.covariance is None:
+            return {}
+        return dict(zip(self.param_names, np.sqrt(np.clip(np.diag(self.covariance), 0, None)).tolist()))
+
+    # ------------------------------------------------------------------ serialisation
+    def to_dict(self) -> dict[str, Any]:
+        unit = SI_UNITS[self.instrument]
+        return {
+            "instrument": self.instrument,
+            "geometry": self.geometry.to_dict(),
+            "units": {
+                "scale": f"{unit} per raw unit",
+                "bias": unit,
+                "misalignment": "unit row in sub-unit basis (off-axis components in rad)",
+                "noise_sigma": f"{unit} per sample",
+                "covariance": "SI, in the order of param_names",
+            },
+            "scale": self.scale.tolist(),
+            "misalignment": self.misalignment.tolist(),
+            "bias": self.bias.tolist(),
+            "noise_sigma": None if self.noise_sigma is None else self.noise_sigma.tolist(),
+            "param_names": list(self.param_names),
+            "covariance": None if self.covariance is None else self.covariance.tolist(),
+            "effects": self.effects,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "InstrumentCalibration":
+        g = Geometry.from_dict(d["geometry"])
+        stored = d["geometry"].get("fingerprint")
+        if stored is not None and stored != g.fingerprint():
+            raise CalibrationFileError(
+                f"{d['instrument']}: the stored geometry fingerprint {stored} does not match its own H "
+                f"({g.fingerprint()}); the geometry block was edited"
+            )
+        return cls(
+            d["instrument"],
+            g,
+            np.array(d["scale"], dtype=float),
+            np.array(d["misalignment"], dtype=float),
+            np.array(d["bias"], dtype=float),
+            None if d.get("noise_sigma") is None else np.array(d["noise_sigma"], dtype=float),
+            None if d.get("covariance") is None else np.array(d["covariance"], dtype=float),
+            list(d.get("param_names") or []),
+            dict(d.get("effects") or {}),
+        )
+
+
+@dataclass
+class Calibration:
+    """A unit's calibration: one :class:`InstrumentCalibration` per instrument kind.
+
+    >>> from rimu.geometry import cone6
+    >>> cal = Calibration({"gyro": InstrumentCalibration.nominal("gyro", cone6(), scale=0.01)})
+    >>> cal.instruments
+    ('gyro',)
+    """
+
+    instruments_cal: dict[str, InstrumentCalibration]
+    raw_unit: str = "count"
+    method: str = "nominal"
+    created: str = field(default_factory=lambda: _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"))
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for k, v in self.instruments_cal.items():
+            if k != v.instrument:
+                raise ValueError(f"key {k!r} holds a calibration of {v.instrument!r}")
+
+    @property
+    def instruments(self) -> tuple[str, ...]:
+        return tuple(k for k in INSTRUMENTS if k in self.instruments_cal)
+
+    def __getitem__(self, instrument: str) -> InstrumentCalibration:
+        try:
+            return self.instruments_cal[instrument]
+        except KeyError:
+            raise KeyError(f"this calibration has no {instrument!r}; it has {self.instruments}") from None
+
+    def __contains__(self, instrument: object) -> bool:
+        return instrument in self.instruments_cal
+
+    def check_geometry(self, instrument: str, geometry: Geometry) -> None:
+        """Raise GeometryMismatchError unless this calibration's geometry for ``instrument`` is ``geometry``."""
+        mine = self[instrument].geometry
+        if mine.fingerprint() != geometry.fingerprint():
+            raise GeometryMismatchError(
+                f"the {instrument} calibration belongs to geometry {mine.name!r} (fingerprint {mine.fingerprint()}), "
+                f"not to {geometry.name!r} ({geometry.fingerprint()}); calibrate this unit, or load the file made for it"
+            )
+
+    # ------------------------------------------------------------------ file
+    def to_payload(self) -> dict[str, Any]:
+        return {
+            "raw_unit": self.raw_unit,
+            "method": self.method,
+            "created": self.created,
+            "metadata": self.metadata,
+            "instruments": {k: self.instruments_cal[k].to_dict() for k in self.instruments},
+        }
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write atomically (temporary file in the same folder, then rename) as versioned JSON."""
+        path = Path(path)
+        doc = _document(self.to_payload())
+        text = json.dumps(doc, indent=1, allow_nan=False)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as fh:
+                fh.write(text)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+        return path
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str], geometries: dict[str, Geometry] | None = None) -> "Calibration":
+        """Read a calibration file; refuse a damaged, foreign or unknown-version file with a specific error.
+
+        Parameters
+        ----------
+        geometries : dict, optional
+            The unit's geometries per instrument; each present one must match the file's fingerprint.
+
+        Raises
+        ------
+        CalibrationFileError
+            Not JSON, not a rimu calibration, or malformed.
+        ChecksumError
+            Content altered after writing.
+        UnsupportedVersionError
+            Written by a newer rimu, or an unknown version.
+        GeometryMismatchError
+            Made for another geometry.
+        """
+        path = Path(path)
+        try:
+            raw = path.read_bytes()
+        except OSError as exc:
+            raise CalibrationFileError(f"cannot read calibration file {path}: {exc}") from exc
+        try:
+            doc = json.loads(raw.decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise CalibrationFileError(
+                f"{path} is not valid JSON ({exc}); the file is damaged or not a calibration file. "
+                "Restore it from a copy or calibrate again"
+            ) from exc
+        cal = cls.from_document(doc, source=str(path))
+        for inst, g in (geometries or {}).items():
+            if inst in cal:
+                cal.check_geometry(inst, g)
+        return cal
+
+    @classmethod
+    def from_document(cls, doc: Any, source: str = "<document>") -> "Calibration":
+        if not isinstance(doc, dict) or doc.get("format") != FORMAT_TAG:
+            raise CalibrationFileError(f"{source} is not a rimu calibration file (no 'format': '{FORMAT_TAG}')")
+        version = doc.get("version")
+        expected = _checksum(doc.get("format"), version, doc.get("payload"))
+        if doc.get("checksum") != expected:
+            raise ChecksumError(
+                f"{source}: checksum mismatch (stored {doc.get('checksum')!r}, content gives {expected!r}); "
+                "the file was altered or damaged after it was written. Restore it or calibrate again"
+            )
+        if not isinstance(version, int) or version < 1 or version > FORMAT_VERSION:
+            raise UnsupportedVersionError(
+                f"{source}: format version {version!r} is not known to this rimu (it reads versions 1..{FORMAT_VERSION}); "
+                "upgrade rimu if the file is newer"
+            )
+        payload = doc["payload"]
+        while version < FORMAT_VERSION:
+            payload = MIGRATIONS[version](payload)
+            version += 1
+        try:
+            insts = {k: InstrumentCalibration.from_dict(v) for k, v in payload["instruments"].items()}
+            return cls(
+                insts,
+                raw_unit=payload.get("raw_unit", "count"),
+                method=payload.get("method", "unknown"),
+                created=payload.get("created", ""),
+                metadata=dict(payload.get("metadata") or {}),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            if isinstance(exc, CalibrationFileError):
+                raise
+            raise CalibrationFileError(f"{source}: malformed calibration content ({exc!r})") from exc
+
+
+def _vec(v: Any, n: int, name: str) -> np.ndarray:
+    a = np.array(np.broadcast_to(np.asarray(v, dtype=float), (n,)), dtype=float)
+    if not np.all(np.isfinite(a)):
+        raise ShapeError(f"{name} has non-finite entries: {a.tolist()}")
+    return a
+
+
+def _checksum(fmt: Any, version: Any, payload: Any) -> str:
+    blob = json.dumps({"format": fmt, "version": version, "payload": payload}, sort_keys=True, separators=(",", ":"))
+    return "sha256:" + hashlib.sha256(blob.encode("utf-8")).hexdigest()
+
+
+def _document(payload: dict[str, Any]) -> dict[str, Any]:
+    payload = json.loads(json.dumps(payload, allow_nan=False))  # normalise to what will be read back
+    return {
+        "format": FORMAT_TAG,
+        "version": FORMAT_VERSION,
+        "checksum": _checksum(FORMAT_TAG, FORMAT_VERSION, payload),
+        "payload": payload,
+    }

@@ -1,0 +1,92 @@
+"""The exception tree of rimu.
+
+Every error rimu raises on purpose derives from :class:`RimuError`; each member also subclasses the
+built-in exception a caller would otherwise expect (python-can does the same), so ``except ValueError``
+keeps working. Messages say what was wrong and what to do about it.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "RimuError",
+    "GeometryError",
+    "RankDeficientError",
+    "ShapeError",
+    "NonFiniteError",
+    "CalibrationFileError",
+    "ChecksumError",
+    "GeometryMismatchError",
+    "UnsupportedVersionError",
+    "IdentifiabilityError",
+    "SessionFormatError",
+    "ParameterNameError",
+    "TransportError",
+    "FrameError",
+]
+
+
+class RimuError(Exception):
+    """Root of every error rimu raises on purpose."""
+
+
+class GeometryError(RimuError, ValueError):
+    """A sensor geometry is invalid (non-finite, not unit rows, wrong names, ...)."""
+
+
+class RankDeficientError(GeometryError):
+    """The sensing axes do not span three dimensions; the message names the unobservable directions."""
+
+    def __init__(self, message: str, unobservable: "list[list[float]] | None" = None) -> None:
+        super().__init__(message)
+        self.unobservable = unobservable or []
+
+
+class ShapeError(RimuError, ValueError):
+    """An array has the wrong shape for the geometry or the call."""
+
+
+class NonFiniteError(RimuError, ValueError):
+    """Input contains NaN or infinity where rimu cannot route around it."""
+
+
+class CalibrationFileError(RimuError, ValueError):
+    """A calibration file cannot be used (corrupt, wrong geometry, unknown version, malformed)."""
+
+
+class ChecksumError(CalibrationFileError):
+    """The stored checksum does not match the content: the file was altered or damaged."""
+
+
+class GeometryMismatchError(CalibrationFileError):
+    """A calibration belongs to another geometry than the one it is used with."""
+
+
+class UnsupportedVersionError(CalibrationFileError):
+    """The file's format version is unknown to this rimu (newer, or never existed)."""
+
+
+class IdentifiabilityError(RimuError, ValueError):
+    """A test sequence cannot identify some parameters; ``parameters`` names them."""
+
+    def __init__(self, message: str, parameters: "list[str] | None" = None) -> None:
+        super().__init__(message)
+        self.parameters = list(parameters or [])
+
+
+class SessionFormatError(RimuError, ValueError):
+    """A session file is missing something or malformed; the message gives row and column."""
+
+
+class ParameterNameError(RimuError, KeyError):
+    """Two effects claim the same parameter name, or a name is unknown."""
+
+    def __str__(self) -> str:  # KeyError quotes its message; keep it readable
+        return str(self.args[0]) if self.args else ""
+
+
+class TransportError(RimuError, IOError):
+    """A data source failed (bus off, port closed, ...)."""
+
+
+class FrameError(RimuError, ValueError):
+    """A frame or packet could not be decoded."""

@@ -1,0 +1,17 @@
+"""Runtime pipeline: compensation, projection to the MB frame, parity vector, isolation (Cho & Park Eq. 20-21)."""
+
+from .compensation import cho_park_eq20, eq20_matrix
+from .pipeline import BlockResult, InstrumentPipeline, Pipeline, StepResult
+from .projection import ProjectionTable, bits_mask, mask_bits
+
+__all__ = [
+    "Pipeline",
+    "InstrumentPipeline",
+    "StepResult",
+    "BlockResult",
+    "ProjectionTable",
+    "mask_bits",
+    "bits_mask",
+    "cho_park_eq20",
+    "eq20_matrix",
+]

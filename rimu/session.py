@@ -1,0 +1,255 @@
+"""Calibration data: a :class:`Session` is a list of :class:`Segment` s, each with its samples and what the
+test rig knows about it.
+
+What a segment can know (``kind``):
+
+``"static"``
+    The unit is at rest in a known attitude: the specific force in MB is known (``specific_force_mb``), and
+    where the attitude is known (``mat_ln_mb``) so is the Earth rate seen by the gyros.
+``"static_unknown"``
+    At rest, attitude unknown (Zhang et al. 2010's norm-based method): only |f| = g and |w| = Earth rate.
+``"rate"``
+    Rotating at a known constant table rate ``rate_mb`` (MB frame, rad/s, relative to the local level
+    frame, that is without Earth rate). With ``mat_ln_mb`` (attitude at the segment's first sample) the
+    specific force and Earth rate along the rotation are known sample by sample.
+``"angle"``
+    Rotated through a known total angle (``angle_mb``, a rotation vector in MB, rad) with unknown rate
+    profile: Zhang's integrated CW/CCW rotations, hand turns of a Ferraris-style session.
+
+Frames: ``ln`` is the local level frame, East-North-Up. Gravity points down, so a unit at rest with MB
+aligned to ENU measures specific force ``[0, 0, +g]``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Iterator
+
+import numpy as np
+
+from .epoch import INSTRUMENTS
+from .errors import SessionFormatError, ShapeError
+from .geometry import Geometry
+from .units import EARTH_RATE, G0
+
+__all__ = ["SEGMENT_KINDS", "Segment", "Session", "rotation_matrix", "skew", "earth_rate_ln"]
+
+SEGMENT_KINDS = ("static", "static_unknown", "rate", "angle")
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """Cross-product matrix: ``skew(a) @ b == cross(a, b)``."""
+    x, y, z = np.asarray(v, dtype=float)
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def rotation_matrix(rotvec: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a rotation vector (Rodrigues), vectorised over leading axes.
+
+    >>> np.allclose(rotation_matrix(np.array([0, 0, np.pi / 2])) @ [1, 0, 0], [0, 1, 0])
+    True
+    """
+    r = np.asarray(rotvec, dtype=float)
+    flat = r.reshape(-1, 3)
+    th = np.linalg.norm(flat, axis=1)
+    out = np.empty((flat.shape[0], 3, 3))
+    small = th < 1e-12
+    k = np.zeros_like(flat)
+    k[~small] = flat[~small] / th[~small, None]
+    K = np.zeros((flat.shape[0], 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = k[:, 2], -k[:, 1], k[:, 0]
+    s, c = np.sin(th)[:, None, None], (1.0 - np.cos(th))[:, None, None]
+    out[:] = np.eye(3) + s * K + c * (K @ K)
+    return out.reshape(r.shape[:-1] + (3, 3))
+
+
+def earth_rate_ln(latitude: float) -> np.ndarray:
+    """Earth rate in the local level frame (ENU), rad/s: ``[0, W cos(lat), W sin(lat)]``."""
+    return np.array([0.0, EARTH_RATE * np.cos(latitude), EARTH_RATE * np.sin(latitude)])
+
+
+@dataclass
+class Segment:
+    """One interval of a calibration session.
+
+    Attributes
+    ----------
+    label : str
+    kind : str
+        One of :data:`SEGMENT_KINDS`.
+    t : ndarray (N,)
+        Sample times, s.
+    raw : dict[str, ndarray (N, n)]
+        Raw outputs per instrument.
+    temperature : ndarray (N,) or None
+        degC.
+    specific_force_mb : ndarray (3,) or (N, 3) or None
+        Known specific force in MB, m/s^2.
+    rate_mb : ndarray (3,) or None
+        Known table rate in MB, rad/s, relative to the local level frame.
+    angle_mb : ndarray (3,) or None
+        Known total rotation over the segment (rotation vector in MB), rad.
+    mat_ln_mb : ndarray (3, 3) or None
+        Attitude at the first sample: maps MB vectors to the local level frame (ENU).
+    meta : dict
+        Free-form (procedure step, commanded values in the rig's units, ...).
+    """
+
+    label: str
+    kind: str
+    t: np.ndarray
+    raw: dict[str, np.ndarray]
+    temperature: np.ndarray | None = None
+    specific_force_mb: np.ndarray | None = None
+    rate_mb: np.ndarray | None = None
+    angle_mb: np.ndarray | None = None
+    mat_ln_mb: np.ndarray | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.kind not in SEGMENT_KINDS:
+            raise SessionFormatError(f"segment {self.label!r}: kind {self.kind!r} is not one of {SEGMENT_KINDS}")
+        self.t = np.asarray(self.t, dtype=float)
+        N = self.t.shape[0]
+        if self.t.ndim != 1 or N < 1:
+            raise ShapeError(f"segment {self.label!r}: t must be a non-empty 1-D array, got shape {self.t.shape}")
+        for k in list(self.raw):
+            y = np.asarray(self.raw[k], dtype=float)
+            if y.ndim != 2 or y.shape[0] != N:
+                raise ShapeError(f"segment {self.label!r}: raw[{k!r}] must have shape ({N}, n), got {y.shape}")
+            self.raw[k] = y
+        for name in ("specific_force_mb", "rate_mb", "angle_mb"):
+            v = getattr(self, name)
+            if v is not None:
+                v = np.asarray(v, dtype=float)
+                if v.shape not in ((3,), (N, 3)):
+                    raise ShapeError(f"segment {self.label!r}: {name} must have shape (3,) or ({N}, 3), got {v.shape}")
+                setattr(self, name, v)
+        if self.mat_ln_mb is not None:
+            self.mat_ln_mb = np.asarray(self.mat_ln_mb, dtype=float).reshape(3, 3)
+        if self.temperature is not None:
+            self.temperature = np.asarray(self.temperature, dtype=float).reshape(N)
+        if self.kind == "static" and self.specific_force_mb is None and self.mat_ln_mb is None:
+            raise SessionFormatError(
+                f"segment {self.label!r} is 'static' but gives neither specific_force_mb nor mat_ln_mb; "
+                "use kind 'static_unknown' when the attitude is not known"
+            )
+        if self.kind == "rate" and self.rate_mb is None:
+            raise SessionFormatError(f"segment {self.label!r} is 'rate' but has no rate_mb")
+        if self.kind == "angle" and self.angle_mb is None:
+            raise SessionFormatError(f"segment {self.label!r} is 'angle' but has no angle_mb")
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1] - self.t[0]) if self.n_samples > 1 else 0.0
+
+    def table_rate(self) -> np.ndarray:
+        """Commanded table rate in MB, (3,), rad/s (zero for static segments)."""
+        if self.rate_mb is not None:
+            return np.asarray(self.rate_mb, dtype=float) if self.rate_mb.ndim == 1 else self.rate_mb.mean(axis=0)
+        return np.zeros(3)
+
+    def attitude(self) -> np.ndarray | None:
+        """mat_ln_mb for every sample, (N, 3, 3), or None where the attitude is unknown.
+
+        The body turns at the constant ``rate_mb`` about an axis fixed in MB:
+        ``C(t) = C(t0) exp(skew(rate_mb (t - t0)))``.
+        """
+        if self.mat_ln_mb is None:
+            return None
+        w = self.table_rate()
+        dt = self.t - self.t[0]
+        return self.mat_ln_mb @ rotation_matrix(np.outer(dt, w))
+
+    def specific_force(self, gravity: float = G0) -> np.ndarray | None:
+        """Known specific force in MB, (N, 3), m/s^2, or None."""
+        if self.specific_force_mb is not None:
+            return np.broadcast_to(self.specific_force_mb, (self.n_samples, 3))
+        C = self.attitude()
+        if C is None:
+            return None
+        return np.einsum("nji,j->ni", C, np.array([0.0, 0.0, gravity]))
+
+    def earth_rate(self, latitude: float | None) -> np.ndarray | None:
+        """Earth rate seen in MB, (N, 3), rad/s, or None when attitude or latitude is unknown."""
+        C = self.attitude()
+        if C is None or latitude is None:
+            return None
+        return np.einsum("nji,j->ni", C, earth_rate_ln(latitude))
+
+    def angular_rate(self, latitude: float | None = None, include_earth: bool = True) -> np.ndarray:
+        """Known angular rate in MB, (N, 3): table rate plus, if asked and known, Earth rate."""
+        w = np.broadcast_to(self.table_rate(), (self.n_samples, 3)).copy()
+        if include_earth:
+            we = self.earth_rate(latitude)
+            if we is not None:
+                w += we
+        return w
+
+
+@dataclass
+class Session:
+    """A calibration session: segments plus what holds for all of them.
+
+    Attributes
+    ----------
+    segments : list of Segment
+    geometries : dict[str, Geometry]
+        Geometry per instrument present (``"gyro"``, ``"accel"``).
+    sample_rate : float
+        Hz.
+    latitude : float or None
+        rad, for Earth rate.
+    gravity : float
+        Local gravity magnitude, m/s^2.
+    raw_unit : str
+        Unit of raw outputs (``"count"``).
+    meta : dict
+    """
+
+    segments: list[Segment]
+    geometries: dict[str, Geometry]
+    sample_rate: float
+    latitude: float | None = None
+    gravity: float = G0
+    raw_unit: str = "count"
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        unknown = set(self.geometries) - set(INSTRUMENTS)
+        if unknown:
+            raise SessionFormatError(f"unknown instruments {sorted(unknown)}; use {INSTRUMENTS}")
+        for seg in self.segments:
+            for k, g in self.geometries.items():
+                if k not in seg.raw:
+                    raise SessionFormatError(f"segment {seg.label!r} has no {k} samples")
+                if seg.raw[k].shape[1] != g.n:
+                    raise ShapeError(
+                        f"segment {seg.label!r}: {k} has {seg.raw[k].shape[1]} columns, geometry {g.name!r} has {g.n} sensors"
+                    )
+
+    def __iter__(self) -> Iterator[Segment]:
+        return iter(self.segments)
+
+    def __len__(self) -> int:
+        return len(self.segments)
+
+    @property
+    def instruments(self) -> tuple[str, ...]:
+        return tuple(k for k in INSTRUMENTS if k in self.geometries)
+
+    def segment(self, label: str) -> Segment:
+        for s in self.segments:
+            if s.label == label:
+                return s
+        raise KeyError(f"no segment labelled {label!r}; labels: {[s.label for s in self.segments]}")
+
+    def subset(self, labels: list[str]) -> "Session":
+        """A session with only the named segments (same order as given)."""
+        return Session([self.segment(x) for x in labels], dict(self.geometries), self.sample_rate,
+                       self.latitude, self.gravity, self.raw_unit, dict(self.meta))
