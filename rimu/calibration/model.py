@@ -67,6 +67,9 @@ class SensorContext:
     latitude: float | None = None
     gravity: float = 9.80665
     reference_temperature: float = 25.0
+    #: gyros: whether the known input includes the Earth rate (where attitude and latitude are known). False
+    #: leaves it out, so that the ``earth_rate`` effect can test whether the gyros see it.
+    include_earth_rate: bool = True
 
     @property
     def name(self) -> str:
@@ -86,7 +89,7 @@ class SensorContext:
         """
         if self.instrument == "gyro":
             if segment.kind in ("rate", "static"):
-                return segment.angular_rate(self.latitude, include_earth=True)
+                return segment.angular_rate(self.latitude, include_earth=self.include_earth_rate)
             return None
         return segment.specific_force(self.gravity)
 
@@ -227,10 +230,12 @@ class ErrorModel:
         return np.hstack(cols) if cols else np.zeros((segment.n_samples, 0))
 
 
-def contexts(session: Session, instrument: str, reference_temperature: float = 25.0) -> list[SensorContext]:
+def contexts(session: Session, instrument: str, reference_temperature: float = 25.0,
+             include_earth_rate: bool = True) -> list[SensorContext]:
     """One :class:`SensorContext` per sensor of ``instrument`` in ``session``."""
     g = session.geometries[instrument]
-    return [SensorContext(instrument, i, g, session.latitude, session.gravity, reference_temperature) for i in range(g.n)]
+    return [SensorContext(instrument, i, g, session.latitude, session.gravity, reference_temperature, include_earth_rate)
+            for i in range(g.n)]
 
 
 #: registry: name -> Effect class
