@@ -1,0 +1,53 @@
+"""Helpers shared by the effect files: the nominal input along a sensor's axis, and report units."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...session import Segment
+from ...units import DEG_TO_RAD, G0, MS2_TO_UG, PPM, RS_TO_DH
+from ..model import SensorContext
+
+__all__ = ["axis_input", "output_unit", "input_unit", "per_input_power", "temperature_offset"]
+
+
+def axis_input(segment: Segment, ctx: SensorContext) -> np.ndarray | None:
+    """The known input along the sensor's nominal axis, ``s = h_i . u`` (N,), SI, or None."""
+    u = ctx.input(segment)
+    if u is None:
+        return None
+    return np.asarray(u, dtype=float) @ ctx.axis
+
+
+def output_unit(ctx: SensorContext) -> tuple[str, str, float]:
+    """(SI unit, report unit, factor) of an output error: rad/s -> deg/h, m/s^2 -> ug."""
+    if ctx.instrument == "gyro":
+        return "rad/s", "deg/h", RS_TO_DH
+    return "m/s^2", "ug", MS2_TO_UG
+
+
+def input_unit(ctx: SensorContext) -> tuple[str, str, float]:
+    """(SI input unit, field input unit, SI per field unit): rad/s and deg/s, or m/s^2 and g."""
+    if ctx.instrument == "gyro":
+        return "rad/s", "deg/s", DEG_TO_RAD
+    return "m/s^2", "g", G0
+
+
+def per_input_power(ctx: SensorContext, power: int) -> tuple[str, str, float]:
+    """Units of a coefficient k in ``error = k * s**(power + 1)`` reported as ppm per (field input)**power.
+
+    The error relative to the input is ``k s**power``; in ppm per field unit**power that is
+    ``k * (SI per field unit)**power / PPM``.
+    """
+    si, field, per = input_unit(ctx)
+    suffix = "" if power == 1 else f"^{power}"
+    return f"1/({si}){suffix}", f"ppm/({field}){suffix}", per**power / PPM
+
+
+def temperature_offset(segment: Segment, ctx: SensorContext) -> np.ndarray | None:
+    """``T - T_ref`` (N,), K, or None when the segment has no temperature."""
+    if segment.temperature is None:
+        return None
+    return np.asarray(segment.temperature, dtype=float) - ctx.reference_temperature
+
+

@@ -1,0 +1,24 @@
+"""Bias drift linear in time (warm-up)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...session import Segment
+from ..model import Effect, ParamSpec, SensorContext
+from ._common import output_unit
+
+
+class BiasDrift(Effect):
+    name = "bias_drift"
+    description = "bias drifting linearly in time over the session (warm-up, or a slow trend)"
+    physics = ("Self-heating after switch-on and slow relaxation of the sensing element. Error = d * t with t "
+               "the session time (s); reported in (deg/h)/h or ug/h.")
+    excited_by = "a long session, or the same position repeated at its start and end (the time stamps must be continuous)"
+
+    def parameters(self, ctx: SensorContext) -> list[ParamSpec]:
+        si, rep, f = output_unit(ctx)
+        return [ParamSpec("drift", f"{si}/s", f"{rep}/h", f * 3600.0)]
+
+    def columns(self, segment: Segment, ctx: SensorContext) -> np.ndarray | None:
+        return np.asarray(segment.t, dtype=float)[:, None]

@@ -1,0 +1,25 @@
+"""Temperature coefficient of bias, linear: a bias proportional to T - T_ref."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...session import Segment
+from ..model import Effect, ParamSpec, SensorContext
+from ._common import output_unit, temperature_offset
+
+
+class BiasTemperature(Effect):
+    name = "bias_temperature"
+    description = "bias temperature coefficient (linear): bias changes in proportion to T - T_ref"
+    physics = ("Thermal expansion and temperature-dependent electronics offsets. Error = kb1 (T - T_ref); "
+               "reported in (deg/h)/K or ug/K.")
+    excited_by = "segments at different temperatures: a thermal soak or a temperature ramp in a chamber"
+
+    def parameters(self, ctx: SensorContext) -> list[ParamSpec]:
+        si, rep, f = output_unit(ctx)
+        return [ParamSpec("bias_tc1", f"{si}/K", f"{rep}/K", f)]
+
+    def columns(self, segment: Segment, ctx: SensorContext) -> np.ndarray | None:
+        dT = temperature_offset(segment, ctx)
+        return None if dT is None else dT[:, None]

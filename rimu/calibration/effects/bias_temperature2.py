@@ -1,0 +1,25 @@
+"""Temperature coefficient of bias, quadratic: a bias proportional to (T - T_ref)^2."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...session import Segment
+from ..model import Effect, ParamSpec, SensorContext
+from ._common import output_unit, temperature_offset
+
+
+class BiasTemperature2(Effect):
+    name = "bias_temperature2"
+    description = "bias temperature coefficient (quadratic): bias changes in proportion to (T - T_ref)^2"
+    physics = ("Curvature of the bias-temperature characteristic (MEMS bias curves are rarely straight over a "
+               "wide range). Error = kb2 (T - T_ref)^2; reported in (deg/h)/K^2 or ug/K^2.")
+    excited_by = "segments at three or more temperatures (a thermal soak over a wide range)"
+
+    def parameters(self, ctx: SensorContext) -> list[ParamSpec]:
+        si, rep, f = output_unit(ctx)
+        return [ParamSpec("bias_tc2", f"{si}/K^2", f"{rep}/K^2", f)]
+
+    def columns(self, segment: Segment, ctx: SensorContext) -> np.ndarray | None:
+        dT = temperature_offset(segment, ctx)
+        return None if dT is None else (dT**2)[:, None]

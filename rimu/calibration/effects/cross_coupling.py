@@ -1,0 +1,40 @@
+"""Cross-coupling between the sensors of one sub-unit: output error proportional to the product of the
+input along the sensor's own axis and along each other axis of its sub-unit."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...session import Segment
+from ..model import Effect, ParamSpec, SensorContext
+from ._common import per_input_power
+
+
+class CrossCoupling(Effect):
+    name = "cross_coupling"
+    description = ("cross-coupling: output error proportional to the product of the input along the sensor's axis "
+                   "and along each other sensor axis of the same sub-unit")
+    physics = ("Second-order interaction of inputs on two axes (IEEE Std 528 cross-coupling coefficient): the "
+               "sensing element, deflected by its own input, becomes sensitive to the cross input. Error = "
+               "sum_j k_ij s_i s_j over the other sensors j of the sub-unit (nominal axes); reported in "
+               "ppm per unit of input. Linear cross-axis sensitivity is misalignment, already in the base model.")
+    excited_by = "inputs along directions between two axes of a sub-unit (rates or tilts at 45 deg in the axis planes)"
+
+    def _others(self, ctx: SensorContext) -> list[int]:
+        return [j for j in ctx.geometry.subunit_of(ctx.index).members if j != ctx.index]
+
+    def applies_to(self, ctx: SensorContext) -> bool:
+        return ctx.instrument in self.instruments and bool(self._others(ctx))
+
+    def parameters(self, ctx: SensorContext) -> list[ParamSpec]:
+        unit, rep, f = per_input_power(ctx, 1)
+        return [ParamSpec(f"xc_{ctx.geometry.names[j]}", unit, rep, f) for j in self._others(ctx)]
+
+    def columns(self, segment: Segment, ctx: SensorContext) -> np.ndarray | None:
+        u = ctx.input(segment)
+        if u is None:
+            return None
+        u = np.asarray(u, dtype=float)
+        s_i = u @ ctx.axis
+        H = ctx.geometry.H[self._others(ctx)]
+        return s_i[:, None] * (u @ H.T)

@@ -1,0 +1,25 @@
+"""Gyro g-sensitivity: a bias proportional to the specific force along each MB axis."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...session import Segment
+from ...units import G0, RS_TO_DH
+from ..model import Effect, ParamSpec, SensorContext
+
+
+class GSensitivity(Effect):
+    name = "g_sensitivity"
+    instruments = ("gyro",)
+    description = "gyro g-sensitivity: a bias proportional to the specific force (one coefficient per MB axis)"
+    physics = ("Mass unbalance of a spinning rotor, or a vibrating gyro's proof mass deflected by the specific "
+               "force. Error = g . f with f the specific force in MB; reported in (deg/h)/g.")
+    excited_by = "static positions (or rotations) with gravity along different MB directions and a known attitude"
+
+    def parameters(self, ctx: SensorContext) -> list[ParamSpec]:
+        return [ParamSpec(f"gsens_{a}", "(rad/s)/(m/s^2)", "(deg/h)/g", RS_TO_DH * G0) for a in "xyz"]
+
+    def columns(self, segment: Segment, ctx: SensorContext) -> np.ndarray | None:
+        f = segment.specific_force(ctx.gravity)
+        return None if f is None else np.asarray(f, dtype=float)

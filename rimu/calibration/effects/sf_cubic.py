@@ -1,0 +1,26 @@
+"""Scale-factor nonlinearity, cubic: an output error proportional to the cube of the input."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...session import Segment
+from ..model import Effect, ParamSpec, SensorContext
+from ._common import axis_input, per_input_power
+
+
+class ScaleCubic(Effect):
+    name = "sf_cubic"
+    description = "scale-factor nonlinearity: output error proportional to the input cubed (odd in the input)"
+    physics = ("Third-order terms of a symmetric pick-off or a saturating rebalance loop: the gain falls (or "
+               "rises) at large inputs in both directions. Error = k3 * s^3; reported as ppm of the input per "
+               "(unit of input)^2.")
+    excited_by = "inputs of several magnitudes along the sensing axis, the larger the better (a rate sweep up to full scale)"
+
+    def parameters(self, ctx: SensorContext) -> list[ParamSpec]:
+        unit, rep, f = per_input_power(ctx, 2)
+        return [ParamSpec("k3", unit, rep, f)]
+
+    def columns(self, segment: Segment, ctx: SensorContext) -> np.ndarray | None:
+        s = axis_input(segment, ctx)
+        return None if s is None else (s**3)[:, None]

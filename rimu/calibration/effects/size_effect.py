@@ -1,0 +1,32 @@
+"""Accelerometer size effect (lever arm): centripetal acceleration of an accelerometer off the rotation centre."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...session import Segment, skew
+from ..model import Effect, ParamSpec, SensorContext
+
+
+class SizeEffect(Effect):
+    name = "size_effect"
+    instruments = ("accel",)
+    description = ("accelerometer size effect / lever arm: the sensor sits at r from the rotation centre and "
+                   "measures the centripetal acceleration w x (w x r)")
+    physics = ("Under a rotation w the proof mass at r (MB, from the centre of rotation) accelerates by "
+               "w x (w x r) + dw/dt x r. Along the nominal axis h that is h . [w]x^2 r, linear in r: the columns "
+               "are [w]x^2 h (the tangential term is zero at constant rate). The parameters are the sensor's "
+               "position r_x, r_y, r_z, reported in mm.")
+    excited_by = "constant-rate rotations about at least three different axes (any rate table test; faster is better)"
+
+    def parameters(self, ctx: SensorContext) -> list[ParamSpec]:
+        return [ParamSpec(f"r_{a}", "m", "mm", 1e3) for a in "xyz"]
+
+    def columns(self, segment: Segment, ctx: SensorContext) -> np.ndarray | None:
+        if segment.kind == "static":
+            return np.zeros((segment.n_samples, 3))
+        if segment.kind != "rate":
+            return None
+        W = skew(segment.table_rate())
+        col = (W @ W) @ ctx.axis  # [w]x^2 is symmetric: h . [w]x^2 r = ([w]x^2 h) . r
+        return np.broadcast_to(col, (segment.n_samples, 3)).copy()
