@@ -14,6 +14,7 @@ class BiasTemperature(Effect):
     description = "bias temperature coefficient (linear): bias changes in proportion to T - T_ref"
     physics = ("Thermal expansion and temperature-dependent electronics offsets. Error = kb1 (T - T_ref); "
                "reported in (deg/h)/K or ug/K.")
+    needs = "temperature"
     excited_by = "segments at different temperatures: a thermal soak or a temperature ramp in a chamber"
 
     def parameters(self, ctx: SensorContext) -> list[ParamSpec]:

@@ -14,6 +14,7 @@ class BiasTemperature2(Effect):
     description = "bias temperature coefficient (quadratic): bias changes in proportion to (T - T_ref)^2"
     physics = ("Curvature of the bias-temperature characteristic (MEMS bias curves are rarely straight over a "
                "wide range). Error = kb2 (T - T_ref)^2; reported in (deg/h)/K^2 or ug/K^2.")
+    needs = "temperature"
     excited_by = "segments at three or more temperatures (a thermal soak over a wide range)"
 
     def parameters(self, ctx: SensorContext) -> list[ParamSpec]:

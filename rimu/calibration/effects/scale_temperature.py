@@ -15,6 +15,7 @@ class ScaleTemperature(Effect):
     description = "scale-factor temperature coefficient (linear): the scale changes in proportion to T - T_ref"
     physics = ("Temperature dependence of the pick-off gain and of the reference voltage. Error = "
                "ks1 (T - T_ref) s with s the input along the sensing axis; reported in ppm/K.")
+    needs = "temperature"
     excited_by = "inputs along the sensing axis at different temperatures (rate or tilt tests repeated in a thermal soak)"
 
     def parameters(self, ctx: SensorContext) -> list[ParamSpec]:

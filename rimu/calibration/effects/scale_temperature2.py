@@ -14,6 +14,7 @@ class ScaleTemperature2(Effect):
     name = "scale_temperature2"
     description = "scale-factor temperature coefficient (quadratic): the scale changes in proportion to (T - T_ref)^2"
     physics = "Curvature of the scale-temperature characteristic. Error = ks2 (T - T_ref)^2 s; reported in ppm/K^2."
+    needs = "temperature"
     excited_by = "inputs along the sensing axis at three or more temperatures (a wide thermal soak)"
 
     def parameters(self, ctx: SensorContext) -> list[ParamSpec]:

@@ -1,0 +1,425 @@
+"""Model against measurement: diagnose, add the missing effect, refit, compare, iterate.
+
+>>> # see examples/hidden_effect.py and docs/diagnostics.md for the whole loop
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from ...errors import IdentifiabilityError, ParameterNameError
+from ...session import Session
+from ..effects._common import output_unit
+from ..model import EFFECTS, Effect, ErrorModel, effect
+from .candidates import CandidateTest, confounding, test_candidates
+from .fitting import ModelFit, cached, fit_model
+from .residuals import SensorStats, failures, residual_statistics
+
+__all__ = ["DEFAULT_ALPHA", "Finding", "InstrumentDiagnosis", "Diagnosis", "Comparison", "Iteration", "diagnose",
+           "compare", "iterate", "candidate_effects", "format_p"]
+
+#: default family-wise significance of "something is missing"
+DEFAULT_ALPHA = 0.01
+
+
+def format_p(log10_p: float) -> str:
+    """A p-value in words: ``p < 1e-12`` below 1e-12, else two significant digits.
+
+    >>> format_p(-30.2), format_p(-2.5)
+    ('p < 1e-12', 'p = 0.0032')
+    """
+    if log10_p < -12:
+        return "p < 1e-12"
+    return f"p = {10 ** log10_p:.2g}"
+
+
+def candidate_effects(model: ErrorModel, names: Sequence[str] | None = None) -> list[Effect]:
+    """Instances of the registered effects not in ``model`` (one per class; aliases skipped)."""
+    from .. import effects as _  # noqa: F401  (fills the registry)
+
+    out: list[Effect] = []
+    seen: set[type] = set()
+    keys = list(names) if names is not None else list(EFFECTS)
+    for key in keys:
+        if key not in EFFECTS:
+            raise ParameterNameError(f"unknown effect {key!r}; known: {sorted(EFFECTS)}")
+        cls = EFFECTS[key]
+        if cls in seen or cls.name in model:
+            continue
+        seen.add(cls)
+        out.append(cls())
+    return out
+
+
+@dataclass
+class Finding:
+    """One ranked answer to "which effect is missing": a single effect, or a group the session cannot
+    tell apart (``confounded``)."""
+
+    effects: list[str]
+    tests: list[CandidateTest]
+
+    @property
+    def confounded(self) -> bool:
+        return len(self.effects) > 1
+
+    @property
+    def best(self) -> CandidateTest:
+        return self.tests[0]
+
+
+@dataclass
+class InstrumentDiagnosis:
+    """Diagnosis of one instrument."""
+
+    instrument: str
+    fit: ModelFit
+    stats: list[SensorStats]
+    failures: dict
+    tests: list[CandidateTest]
+    groups: list[list[str]]
+    alpha: float
+
+    @property
+    def model(self) -> ErrorModel:
+        return self.fit.model
+
+    @property
+    def nothing_missing(self) -> bool:
+        return not any(c.significant for c in self.tests)
+
+    @property
+    def findings(self) -> list[Finding]:
+        by = {c.name: c for c in self.tests}
+        return [Finding(g, [by[n] for n in g]) for g in self.groups]
+
+    @property
+    def not_testable(self) -> list[CandidateTest]:
+        return [c for c in self.tests if not c.testable]
+
+    def top(self) -> str | None:
+        """The best clearly identified missing effect, or None (nothing missing, or only confounded groups)."""
+        for f in self.findings:
+            return None if f.confounded else f.effects[0]
+        return None
+
+    def test(self, name: str) -> CandidateTest:
+        for c in self.tests:
+            if c.name == name:
+                return c
+        raise KeyError(f"{name!r} was not a candidate; candidates: {[c.name for c in self.tests]}")
+
+    def lines(self) -> list[str]:
+        """The diagnosis in plain language."""
+        out = [f"{self.instrument}: model {self.model.label}; chi2/dof {self.fit.chi2_dof:.3g} over "
+               f"{len(self.fit.sensors)} sensors and {len(self.fit.segment_labels)} segments"]
+        unit = output_unit(self.fit.contexts[0])
+        for st in self.stats:
+            out.append(f"  {st.name}: rms {st.rms_si * unit[2]:.4g} {unit[1]}, chi2/dof {st.chi2_dof:.3f}, "
+                       f"lag-1 autocorrelation {st.lag1:+.3f}, Ljung-Box p = {st.ljung_box_p:.2g}")
+        fl = self.failures
+        if fl["sensors"]:
+            out.append(f"  the model fails on sensors {fl['sensors']} (chi2/dof above noise)")
+        if fl["segments"]:
+            worst = sorted(fl["segments"].items(), key=lambda kv: -max(abs(z) for _, z in kv[1]))[:5]
+            out.append("  segments with a mean residual off zero: " + ", ".join(
+                f"{lab} ({', '.join(f'{n} {z:+.1f} sigma' for n, z in v[:3])})" for lab, v in worst))
+        if self.nothing_missing:
+            out.append(f"  nothing is missing: no candidate effect explains the residual (Holm, alpha = {self.alpha:g})")
+        for rank, f in enumerate(self.findings, start=1):
+            if f.confounded:
+                out.append(f"  {rank}. confounded, cannot be told apart with this session: {' or '.join(f.effects)} "
+                           f"({format_p(f.best.log10_p_holm)}); to separate them: "
+                           + "; ".join(f"{t.name}: {t.advice}" for t in f.tests if t.advice))
+                continue
+            c = f.best
+            det = [s for s in c.sensors if s.significant]
+            det.sort(key=lambda s: s.log10_p)
+            per = ", ".join(f"{s.sensor} (explains {100 * s.explained_excess:.0f}% of the residual excess over "
+                            f"noise, {format_p(s.log10_p)})" for s in det[:6])
+            out.append(f"  {rank}. missing: {c.name} on {self.instrument} {per}; dBIC {c.dbic:+.1f}; "
+                       f"{format_p(c.log10_p_holm)} after Holm")
+        for c in self.tests:
+            if not c.testable:
+                adv = f"; to test it: {c.advice}" if c.advice else ""
+                out.append(f"  not testable: {c.name}: {c.reason}{adv}")
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "instrument": self.instrument, "model": self.model.label, "chi2_dof": self.fit.chi2_dof,
+            "bic": self.fit.bic, "nothing_missing": self.nothing_missing, "alpha": self.alpha,
+            "sensors": [s.to_dict() for s in self.stats], "failures": _jsonable(self.failures),
+            "findings": [{"effects": f.effects, "confounded": f.confounded} for f in self.findings],
+            "candidates": [c.to_dict() for c in self.tests], "skipped_segments": self.fit.skipped,
+        }
+
+
+@dataclass
+class Diagnosis:
+    """Diagnosis of a session against an error model, per instrument."""
+
+    session: Session
+    instruments: dict[str, InstrumentDiagnosis]
+    settings: dict[str, Any]
+    errors: dict[str, str] = field(default_factory=dict)
+
+    def __getitem__(self, instrument: str) -> InstrumentDiagnosis:
+        return self.instruments[instrument]
+
+    @property
+    def nothing_missing(self) -> bool:
+        return all(d.nothing_missing for d in self.instruments.values())
+
+    @property
+    def models(self) -> dict[str, ErrorModel]:
+        return {k: d.model for k, d in self.instruments.items()}
+
+    def summary(self) -> str:
+        out = []
+        for d in self.instruments.values():
+            out += d.lines()
+        for k, why in self.errors.items():
+            out.append(f"{k}: not diagnosed: {why}")
+        return "\n".join(out)
+
+    def add(self, *effects: Effect | str, instrument: str | None = None) -> dict[str, "Comparison"]:
+        """Add effects to the model, refit, and compare before and after.
+
+        ``instrument`` None adds each effect to every instrument where it applies and was not already in.
+        """
+        out = {}
+        for k, d in self.instruments.items():
+            if instrument is not None and k != instrument:
+                continue
+            new = [effect(e) if isinstance(e, str) else e for e in effects]
+            new = [e for e in new if e.name not in d.model and any(e.applies_to(c) for c in d.fit.contexts)]
+            if not new:
+                continue
+            model = d.model
+            for e in new:
+                model = model + e
+            out[k] = compare(self.session, d.fit, model, **self._fit_kwargs(k))
+        return out
+
+    def _fit_kwargs(self, instrument: str) -> dict[str, Any]:
+        sig = self.settings.get("sigma") or {}
+        return {"sigma": sig.get(instrument), "include_earth_rate": self.settings["include_earth_rate"],
+                "reference_temperature": self.settings["reference_temperature"]}
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"nothing_missing": self.nothing_missing,
+                "instruments": {k: d.to_dict() for k, d in self.instruments.items()},
+                "errors": self.errors,
+                "settings": {k: v for k, v in self.settings.items() if k != "sigma"}}
+
+
+def diagnose(
+    session: Session,
+    model: ErrorModel | str | Mapping[str, ErrorModel | str] | None = None,
+    instruments: Sequence[str] | None = None,
+    candidates: Sequence[str] | None = None,
+    sigma: Mapping[str, Any] | None = None,
+    alpha: float = DEFAULT_ALPHA,
+    include_earth_rate: bool = True,
+    reference_temperature: float = 25.0,
+) -> Diagnosis:
+    """Compare ``model`` with the measurement in ``session`` and find which effect is missing.
+
+    Parameters
+    ----------
+    session : Session
+    model : ErrorModel, str, or dict instrument -> model
+        Default: bias + scale/misalignment (Cho & Park 2005, Eq. 1-2). A string is a comma list of effect names.
+    instruments : sequence of str, optional
+        Default: every instrument of the session.
+    candidates : sequence of str, optional
+        Effect names to test; default every registered effect not in the model.
+    sigma : dict instrument -> float or (n,) array, optional
+        Known white-noise level per sample in raw units. Default: from first differences within segments.
+    alpha : float
+        Family-wise significance of the missing-effect tests (Holm-corrected over candidates).
+    include_earth_rate : bool
+        Whether the gyro input includes the Earth rate; False makes ``earth_rate`` a candidate.
+    reference_temperature : float
+        T_ref of the temperature effects, degC.
+
+    Instruments whose model cannot be fitted from the session are reported in ``Diagnosis.errors``
+    (with the reason) instead of raising, unless none can be fitted.
+    """
+    if not 0 < alpha < 1:
+        raise ValueError(f"alpha must be in (0, 1), got {alpha}")
+    session = cached(session)
+    models = _models(model, session, instruments)
+    settings = {"alpha": alpha, "include_earth_rate": include_earth_rate,
+                "reference_temperature": reference_temperature, "sigma": dict(sigma or {}),
+                "candidates": None if candidates is None else list(candidates)}
+    out: dict[str, InstrumentDiagnosis] = {}
+    errors: dict[str, str] = {}
+    for k, m in models.items():
+        try:
+            fit = fit_model(session, m, k, (sigma or {}).get(k), include_earth_rate, reference_temperature)
+        except IdentifiabilityError as exc:
+            errors[k] = str(exc)
+            continue
+        out[k] = diagnose_fit(session, fit, candidates, alpha)
+    if not out:
+        raise IdentifiabilityError("no instrument could be fitted: " + "; ".join(f"{k}: {v}" for k, v in errors.items()))
+    return Diagnosis(session, out, settings, errors)
+
+
+def diagnose_fit(session: Session, fit: ModelFit, candidates: Sequence[str] | None = None,
+                 alpha: float = DEFAULT_ALPHA) -> InstrumentDiagnosis:
+    """Diagnose an existing :class:`ModelFit` (residual statistics, candidate tests, confounding)."""
+    st = residual_statistics(fit)
+    tests = test_candidates(session, fit, candidate_effects(fit.model, candidates), alpha)
+    groups = confounding(fit, tests, alpha)
+    return InstrumentDiagnosis(fit.instrument, fit, st, failures(st, alpha), tests, groups, alpha)
+
+
+@dataclass
+class Comparison:
+    """Before and after adding effects: the error falls (or does not)."""
+
+    instrument: str
+    added: list[str]
+    before: ModelFit
+    after: ModelFit
+
+    @property
+    def chi2_before(self) -> float:
+        return self.before.chi2_dof
+
+    @property
+    def chi2_after(self) -> float:
+        return self.after.chi2_dof
+
+    @property
+    def dbic(self) -> float:
+        return self.after.bic - self.before.bic
+
+    @property
+    def daic(self) -> float:
+        return self.after.aic - self.before.aic
+
+    def new_parameters(self) -> list[dict[str, Any]]:
+        """The added effects' physical parameters per sensor, in SI and in field units, with 1-sigma."""
+        rows = []
+        for s in self.after.sensors:
+            for e in self.after.model.effects_for(s.ctx):
+                if e.name not in self.added:
+                    continue
+                for p in e.physical_parameters(s.ctx):
+                    v, sd, spec = s.parameter(p.name)
+                    rows.append({"effect": e.name, "sensor": s.name, "parameter": p.name, "value_si": v,
+                                 "std_si": sd, "unit": spec.unit, "value": v * spec.to_report,
+                                 "std": sd * spec.to_report, "report_unit": spec.report_unit or spec.unit,
+                                 "z": v / sd if sd > 0 else float("inf")})
+        return rows
+
+    def lines(self) -> list[str]:
+        u = output_unit(self.before.contexts[0])
+        rb, ra = self.before.rms_si() * u[2], self.after.rms_si() * u[2]
+        out = [f"{self.instrument}: added {', '.join(self.added)}: chi2/dof {self.chi2_before:.4g} -> "
+               f"{self.chi2_after:.4g}, BIC {self.dbic:+.1f}, AIC {self.daic:+.1f}"]
+        for s, b, a in zip(self.before.sensors, rb, ra):
+            out.append(f"  {s.name}: rms {b:.4g} -> {a:.4g} {u[1]} ({100 * (a - b) / b:+.1f}%)")
+        for r in self.new_parameters():
+            out.append(f"  {r['sensor']}.{r['parameter']} = {r['value']:.4g} +- {r['std']:.2g} {r['report_unit']}")
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        u = output_unit(self.before.contexts[0])
+        return {"instrument": self.instrument, "added": self.added, "chi2_before": self.chi2_before,
+                "chi2_after": self.chi2_after, "dbic": self.dbic, "daic": self.daic,
+                "rms_before": (self.before.rms_si() * u[2]).tolist(), "rms_after": (self.after.rms_si() * u[2]).tolist(),
+                "rms_unit": u[1], "parameters": self.new_parameters()}
+
+
+def compare(session: Session, before: ModelFit, model: ErrorModel, sigma: Any = None, include_earth_rate: bool = True,
+            reference_temperature: float = 25.0) -> Comparison:
+    """Refit ``model`` (usually ``before.model + effect``) and compare with ``before``."""
+    after = fit_model(session, model, before.instrument, sigma, include_earth_rate, reference_temperature)
+    added = [e.name for e in model.effects if e.name not in before.model]
+    return Comparison(before.instrument, added, before, after)
+
+
+@dataclass
+class Iteration:
+    """Rounds of diagnose -> add the top effect -> refit, until nothing is missing."""
+
+    rounds: list[tuple[Diagnosis, dict[str, Comparison]]]
+    final: Diagnosis
+
+    @property
+    def added(self) -> dict[str, list[str]]:
+        out: dict[str, list[str]] = {}
+        for _, comps in self.rounds:
+            for k, c in comps.items():
+                out.setdefault(k, []).extend(c.added)
+        return out
+
+    def summary(self) -> str:
+        lines = []
+        for n, (d, comps) in enumerate(self.rounds, start=1):
+            lines.append(f"--- round {n} ---")
+            lines.append(d.summary())
+            for c in comps.values():
+                lines += c.lines()
+        lines.append("--- final ---")
+        lines.append(self.final.summary())
+        return "\n".join(lines)
+
+
+def iterate(session: Session, model: Any = None, max_rounds: int = 6, **kwargs: Any) -> Iteration:
+    """Diagnose, add the best clearly identified missing effect of each instrument, refit; repeat until nothing
+    is missing (or only confounded groups remain, or ``max_rounds``). Keyword arguments go to :func:`diagnose`."""
+    rounds = []
+    d = diagnose(session, model, **kwargs)
+    for _ in range(max_rounds):
+        comps = {}
+        for k, idg in d.instruments.items():
+            top = idg.top()
+            if top is not None:
+                comps.update(d.add(top, instrument=k))
+        if not comps:
+            break
+        rounds.append((d, comps))
+        models = {k: (comps[k].after.model if k in comps else m) for k, m in d.models.items()}
+        kw = dict(kwargs)
+        kw.pop("instruments", None)
+        d = diagnose(session, models, instruments=list(models), **kw)
+    return Iteration(rounds, d)
+
+
+def _models(model: Any, session: Session, instruments: Iterable[str] | None) -> dict[str, ErrorModel]:
+    inst = list(instruments) if instruments is not None else list(session.instruments)
+    for k in inst:
+        if k not in session.geometries:
+            raise IdentifiabilityError(f"the session has no {k} data; instruments: {list(session.geometries)}")
+    if isinstance(model, Mapping):
+        return {k: _one(model[k]) for k in inst if k in model} or {k: ErrorModel.base() for k in inst}
+    return {k: _one(model) for k in inst}
+
+
+def _one(m: Any) -> ErrorModel:
+    if m is None:
+        return ErrorModel.base()
+    if isinstance(m, str):
+        return ErrorModel.from_names(m)
+    if isinstance(m, Effect):
+        return ErrorModel([m])
+    return m
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, (np.floating, np.integer)):
+        return x.item()
+    return x

@@ -1,0 +1,314 @@
+"""Per-sensor least squares for diagnostics: the model's design, its residuals, and the columns of candidate
+effects orthogonalised against it.
+
+The raw-domain model of a sensor is linear (Cho & Park 2005, Eq. 5 extended by further columns, see
+:mod:`rimu.calibration.model`), ``y = X beta + e``. Everything here works on one QR factorisation of the
+model's (column-scaled) design per sensor: the fit, the residual, and for every candidate effect its columns
+with the model's span projected out (``C_perp = C - Q Q^T C``), from which the nested F-tests, the
+identifiability checks and the confounding tests follow without refitting.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from ...errors import IdentifiabilityError
+from ...session import Segment, Session
+from ..lsq import physical_from_beta
+from ..model import Effect, ErrorModel, ParamSpec, SensorContext, contexts
+
+__all__ = ["cached", "SensorFit", "ModelFit", "fit_model", "candidate_columns", "noise_from_differences", "RANK_TOL"]
+
+class _CachedSegment(Segment):
+    """A segment whose attitude history (the costly part of every input) is computed once."""
+
+    def attitude(self) -> np.ndarray | None:  # noqa: D102
+        c = self.__dict__.get("_att_cache", False)
+        if c is False:
+            c = Segment.attitude(self)
+            self.__dict__["_att_cache"] = c
+        return c
+
+    def specific_force(self, gravity: float = 9.80665) -> np.ndarray | None:  # noqa: D102
+        key = ("_f_cache", gravity)
+        if key not in self.__dict__:
+            self.__dict__[key] = Segment.specific_force(self, gravity)
+        return self.__dict__[key]
+
+    def earth_rate(self, latitude: float | None) -> np.ndarray | None:  # noqa: D102
+        key = ("_we_cache", latitude)
+        if key not in self.__dict__:
+            self.__dict__[key] = Segment.earth_rate(self, latitude)
+        return self.__dict__[key]
+
+
+def cached(session: Session) -> Session:
+    """The same session with segments that compute their attitude history once (inputs of many effects
+    for many sensors derive from it). The samples are shared, not copied."""
+    if session.meta.get("_rimu_cached"):
+        return session
+    segs = []
+    for seg in session.segments:
+        c = copy.copy(seg)
+        c.__class__ = _CachedSegment
+        segs.append(c)
+    meta = dict(session.meta)
+    meta["_rimu_cached"] = True
+    return Session(segs, dict(session.geometries), session.sample_rate, session.latitude, session.gravity,
+                   session.raw_unit, meta)
+
+
+#: relative singular-value tolerance below which columns count as linearly dependent
+RANK_TOL = 1e-7
+
+
+def noise_from_differences(r: np.ndarray, seg_index: np.ndarray) -> float:
+    """White-noise level from first differences within segments: ``sigma^2 = mean(diff(r)^2) / 2``.
+
+    Slow systematic errors (a missing effect, constant over a segment or smooth in time) cancel in the
+    differences, so the estimate does not depend on the model being complete. Relative variance of the
+    variance estimate for white noise: 3 / N.
+    """
+    same = seg_index[1:] == seg_index[:-1]
+    d = np.diff(r)[same]
+    if d.size < 2:
+        return float(np.std(r)) if r.size > 1 else 0.0
+    return float(np.sqrt(np.mean(d**2) / 2.0))
+
+
+@dataclass
+class SensorFit:
+    """The fit of one sensor and what diagnostics need of its data."""
+
+    ctx: SensorContext
+    names: list[str]
+    beta: np.ndarray
+    beta_cov: np.ndarray
+    theta: np.ndarray
+    theta_cov: np.ndarray
+    specs: list[ParamSpec]
+    y: np.ndarray = field(repr=False)
+    X: np.ndarray = field(repr=False)
+    Q: np.ndarray = field(repr=False)
+    r: np.ndarray = field(repr=False)
+    seg_index: np.ndarray = field(repr=False)
+    t: np.ndarray = field(repr=False)
+    temperature: np.ndarray | None = field(repr=False)
+    axis_input: np.ndarray | None = field(repr=False)
+    sigma: float = 1.0
+    sigma_known: bool = False
+
+    @property
+    def name(self) -> str:
+        return self.ctx.name
+
+    @property
+    def n_obs(self) -> int:
+        return int(self.y.size)
+
+    @property
+    def n_par(self) -> int:
+        return int(self.beta.size)
+
+    @property
+    def dof(self) -> int:
+        return max(self.n_obs - self.n_par, 1)
+
+    @property
+    def rss(self) -> float:
+        v = self.__dict__.get("_rss")
+        if v is None:
+            v = self.__dict__["_rss"] = float(self.r @ self.r)
+        return v
+
+    @property
+    def scale(self) -> float:
+        """Scale factor SI/raw (1 when the model has no scale block)."""
+        k = [i for i, nm in enumerate(self.names) if nm.endswith((".w_x", ".w_y", ".w_z"))]
+        return 1.0 / float(np.linalg.norm(self.beta[k])) if len(k) == 3 else 1.0
+
+    @property
+    def chi2_dof(self) -> float:
+        """Residual chi-square per degree of freedom against the noise level."""
+        return float(self.rss / (self.sigma**2 * self.dof))
+
+    def aic(self) -> float:
+        """Akaike information criterion of the Gaussian fit with the variance profiled out."""
+        n = self.n_obs
+        return float(n * np.log(self.rss / n) + 2 * self.n_par)
+
+    def bic(self) -> float:
+        """Bayesian (Schwarz) information criterion, ``N ln(RSS/N) + p ln N``."""
+        n = self.n_obs
+        return float(n * np.log(self.rss / n) + self.n_par * np.log(n))
+
+    def parameter(self, local: str) -> tuple[float, float, ParamSpec]:
+        """(value SI, 1-sigma SI, spec) of a physical parameter by local name (``"gsens_x"``)."""
+        full = f"{self.name}.{local}"
+        k = [f"{self.name}.{p.name}" for p in self.specs].index(full)
+        return float(self.theta[k]), float(np.sqrt(self.theta_cov[k, k])), self.specs[k]
+
+
+@dataclass
+class ModelFit:
+    """The fit of one model to one instrument of a session, sensor by sensor."""
+
+    instrument: str
+    model: ErrorModel
+    sensors: list[SensorFit]
+    segment_labels: list[str]
+    skipped: dict[str, str]
+    contexts: list[SensorContext]
+
+    @property
+    def chi2_dof(self) -> float:
+        rss = sum(s.rss / s.sigma**2 for s in self.sensors)
+        dof = sum(s.dof for s in self.sensors)
+        return float(rss / dof)
+
+    @property
+    def bic(self) -> float:
+        return float(sum(s.bic() for s in self.sensors))
+
+    @property
+    def aic(self) -> float:
+        return float(sum(s.aic() for s in self.sensors))
+
+    def rms_si(self) -> np.ndarray:
+        """Residual rms per sensor in SI (raw residual times the scale factor)."""
+        return np.array([np.sqrt(s.rss / s.n_obs) * s.scale for s in self.sensors])
+
+    def sensor(self, name: str) -> SensorFit:
+        for s in self.sensors:
+            if s.name == name:
+                return s
+        raise KeyError(f"no sensor {name!r}; sensors: {[s.name for s in self.sensors]}")
+
+
+def _sigma_vector(sigma: float | Sequence[float] | None, n: int) -> np.ndarray | None:
+    if sigma is None:
+        return None
+    out = np.broadcast_to(np.asarray(sigma, dtype=float), (n,)).copy()
+    if not np.all(np.isfinite(out)) or np.any(out <= 0):
+        raise ValueError(f"noise sigma must be positive and finite, got {out}")
+    return out
+
+
+def fit_model(
+    session: Session,
+    model: ErrorModel,
+    instrument: str,
+    sigma: float | Sequence[float] | None = None,
+    include_earth_rate: bool = True,
+    reference_temperature: float = 25.0,
+    ctxs: list[SensorContext] | None = None,
+) -> ModelFit:
+    """Least-squares fit of ``model`` to one instrument, keeping what the diagnostics need.
+
+    The estimate is the same as :func:`rimu.calibration.lsq.fit_lsq` (ordinary least squares per sensor, the
+    raw-domain model of Cho & Park 2005 Eq. 5 with further effect columns); this version also keeps the QR
+    factor of the design, the residual per sample and the sample's segment, time, temperature and input.
+
+    Parameters
+    ----------
+    sigma : float or sequence, optional
+        Known white-noise level per sample, raw units, per sensor. Default: estimated from the first
+        differences of the residual within segments (:func:`noise_from_differences`).
+    include_earth_rate : bool
+        Whether the gyros' known input includes the Earth rate (False to test the ``earth_rate`` effect).
+
+    Raises
+    ------
+    IdentifiabilityError
+        No segment carries the inputs the model needs, or the usable segments cannot separate its parameters.
+    """
+    if instrument not in session.geometries:
+        raise IdentifiabilityError(f"the session has no {instrument} data; instruments: {list(session.geometries)}")
+    session = cached(session)
+    ctxs = ctxs or contexts(session, instrument, reference_temperature, include_earth_rate)
+    sig = _sigma_vector(sigma, len(ctxs))
+    skipped: dict[str, str] = {}
+    fits: list[SensorFit] = []
+    labels_used: list[str] = []
+    for ctx in ctxs:
+        Xs, ys, idx, ts, Ts, ss, labels = [], [], [], [], [], [], []
+        have_T = True
+        for k, seg in enumerate(session.segments):
+            X = model.design(seg, ctx)
+            if X is None:
+                skipped[seg.label] = "the segment lacks inputs the model needs (a known rate, attitude or temperature)"
+                continue
+            Xs.append(X)
+            ys.append(seg.raw[instrument][:, ctx.index])
+            idx.append(np.full(seg.n_samples, len(labels)))
+            ts.append(seg.t)
+            if seg.temperature is None:
+                have_T = False
+            else:
+                Ts.append(seg.temperature)
+            u = ctx.input(seg)
+            ss.append(np.full(seg.n_samples, np.nan) if u is None else np.asarray(u) @ ctx.axis)
+            labels.append(seg.label)
+        if not Xs:
+            raise IdentifiabilityError(f"{instrument}: no segment of the session carries the inputs the model "
+                                       f"{model.label} needs")
+        X = np.vstack(Xs)
+        y = np.concatenate(ys)
+        names = model.parameter_names(ctx)
+        norms = np.linalg.norm(X, axis=0)
+        if X.shape[0] <= X.shape[1] or np.any(norms == 0):
+            bad = [names[k] for k in np.flatnonzero(norms == 0)]
+            raise IdentifiabilityError(f"{instrument} {ctx.name}: the segments do not excite {bad or names}", bad or names)
+        Xn = X / norms
+        Q, R = np.linalg.qr(Xn)
+        d = np.abs(np.diag(R))
+        if d.min() < RANK_TOL * d.max():
+            _, sv, Vt = np.linalg.svd(Xn, full_matrices=False)
+            null = Vt[sv < RANK_TOL * sv[0]]
+            involved = [names[k] for k in range(len(names)) if np.abs(null[:, k]).max() > 1e-6]
+            raise IdentifiabilityError(
+                f"{instrument} {ctx.name}: the segments cannot separate {involved} (linearly dependent columns); "
+                "add segments whose inputs differ in the directions involved", involved)
+        Rinv = np.linalg.inv(R)
+        beta = (Rinv @ (Q.T @ y)) / norms
+        r = y - X @ beta
+        seg_index = np.concatenate(idx)
+        s_est = noise_from_differences(r, seg_index)
+        known = sig is not None
+        s = float(sig[ctx.index]) if known else max(s_est, np.finfo(float).tiny)
+        # covariance of beta: sigma^2 (X^T X)^-1 = sigma^2 D^-1 R^-1 R^-T D^-1 (D = column norms)
+        B = Rinv / norms[:, None]
+        s_par = s if known else float(np.sqrt((r @ r) / max(len(y) - len(beta), 1)))
+        bcov = s_par**2 * (B @ B.T)
+        theta, J, specs = physical_from_beta(model, ctx, beta)
+        fits.append(SensorFit(ctx, names, beta, bcov, theta, J @ bcov @ J.T, specs, y, X, Q, r, seg_index,
+                              np.concatenate(ts), np.concatenate(Ts) if have_T and Ts else None,
+                              np.concatenate(ss), s, known))
+        labels_used = labels
+    return ModelFit(instrument, model, fits, labels_used, skipped, list(ctxs))
+
+
+def candidate_columns(session: Session, fit: ModelFit, effect: Effect, sensor: int) -> tuple[np.ndarray | None, str]:
+    """Columns of ``effect`` for one sensor over the segments the fit used, or (None, reason)."""
+    ctx = fit.contexts[sensor]
+    if not effect.applies_to(ctx):
+        return None, f"does not apply to {fit.instrument} {ctx.name}"
+    cols = []
+    missing = []
+    for lab in fit.segment_labels:
+        seg = session.segment(lab)
+        c = effect.columns(seg, ctx)
+        if c is None:
+            missing.append(lab)
+            continue
+        cols.append(np.asarray(c, dtype=float).reshape(seg.n_samples, -1))
+    if missing:
+        return None, (f"segments {missing[:4]}{'...' if len(missing) > 4 else ''} lack the inputs it needs"
+                      if len(missing) < len(fit.segment_labels) else "no segment carries the inputs it needs")
+    return np.vstack(cols), ""
+
+
