@@ -14,7 +14,7 @@ from ...errors import IdentifiabilityError, ParameterNameError
 from ...session import Session
 from ..effects._common import output_unit
 from ..model import EFFECTS, Effect, ErrorModel, effect
-from .candidates import CandidateTest, confounding, test_candidates
+from .candidates import CandidateTest, conditional_log10_p, confounding, test_candidates
 from .fitting import ModelFit, cached, fit_model
 from .residuals import SensorStats, failures, residual_statistics
 
@@ -82,6 +82,8 @@ class InstrumentDiagnosis:
     tests: list[CandidateTest]
     groups: list[list[str]]
     alpha: float
+    #: lower-ranked significant candidates that add nothing significant once the top finding is in
+    secondary: dict[str, str] = field(default_factory=dict)
 
     @property
     def model(self) -> ErrorModel:
@@ -136,6 +138,10 @@ class InstrumentDiagnosis:
                            + "; ".join(f"{t.name}: {t.advice}" for t in f.tests if t.advice))
                 continue
             c = f.best
+            if c.name in self.secondary:
+                out.append(f"  {rank}. {c.name} ({format_p(c.log10_p_holm)}) adds nothing significant once "
+                           f"{self.secondary[c.name]} is in the model: probably a shadow of it; retest after adding it")
+                continue
             det = [s for s in c.sensors if s.significant]
             det.sort(key=lambda s: s.log10_p)
             per = ", ".join(f"{s.sensor} (explains {100 * s.explained_excess:.0f}% of the residual excess over "
@@ -153,7 +159,8 @@ class InstrumentDiagnosis:
             "instrument": self.instrument, "model": self.model.label, "chi2_dof": self.fit.chi2_dof,
             "bic": self.fit.bic, "nothing_missing": self.nothing_missing, "alpha": self.alpha,
             "sensors": [s.to_dict() for s in self.stats], "failures": _jsonable(self.failures),
-            "findings": [{"effects": f.effects, "confounded": f.confounded} for f in self.findings],
+            "findings": [{"effects": f.effects, "confounded": f.confounded,
+                          "secondary_to": self.secondary.get(f.effects[0])} for f in self.findings],
             "candidates": [c.to_dict() for c in self.tests], "skipped_segments": self.fit.skipped,
         }
 
@@ -277,7 +284,15 @@ def diagnose_fit(session: Session, fit: ModelFit, candidates: Sequence[str] | No
     st = residual_statistics(fit)
     tests = test_candidates(session, fit, candidate_effects(fit.model, candidates), alpha)
     groups = confounding(fit, tests, alpha)
-    return InstrumentDiagnosis(fit.instrument, fit, st, failures(st, alpha), tests, groups, alpha)
+    secondary: dict[str, str] = {}
+    if groups:
+        by = {c.name: c for c in tests}
+        top = by[groups[0][0]]
+        for g in groups[1:]:
+            for name in g:
+                if conditional_log10_p(fit, by[name], top) > np.log10(alpha):
+                    secondary[name] = top.name
+    return InstrumentDiagnosis(fit.instrument, fit, st, failures(st, alpha), tests, groups, alpha, secondary)
 
 
 @dataclass

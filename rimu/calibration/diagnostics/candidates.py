@@ -97,10 +97,26 @@ class CandidateTest:
         }
 
 
+def _log10_chi2sf(x: float, k: int) -> float:
+    """log10 of the chi-square survival function, with the asymptotic tail where scipy underflows."""
+    if x <= 0:
+        return 0.0
+    v = float(stats.chi2.logsf(x, k))
+    if not np.isfinite(v):
+        from math import lgamma, log
+
+        v = -x / 2 + (k / 2 - 1) * log(x / 2) - lgamma(k / 2)
+    return float(min(0.0, v / _LN10))
+
+
 def _log10_fsf(f: float, d1: int, d2: int) -> float:
+    """log10 of the F(d1, d2) survival function (chi-square tail of d1 F where it underflows)."""
     if f <= 0:
         return 0.0
-    return float(min(0.0, stats.f.logsf(f, d1, d2) / _LN10))
+    v = float(stats.f.logsf(f, d1, d2))
+    if not np.isfinite(v):
+        return _log10_chi2sf(f * d1, d1)
+    return float(min(0.0, v / _LN10))
 
 
 def holm(log10_p: Sequence[float], alpha: float) -> tuple[np.ndarray, np.ndarray]:
@@ -145,7 +161,8 @@ def test_candidates(session: Session, fit: ModelFit, candidates: Sequence[Effect
     """Test every candidate effect against the residual of ``fit``. Returns tests ranked by evidence.
 
     Testable candidates come first, most significant first; ``significant`` is Holm-corrected over the
-    testable candidates at level ``alpha``, and on each sensor Holm-corrected over the sensors.
+    testable candidates at level ``alpha``; a sensor is named (``SensorTest.significant``) when its own
+    p-value passes Bonferroni over the sensors at ``alpha``.
     """
     out: list[CandidateTest] = []
     for eff in candidates:
@@ -207,7 +224,7 @@ def test_candidates(session: Session, fit: ModelFit, candidates: Sequence[Effect
             # pooled statistic over sensors
             chi = sum(x.drss / ((x.rss0 - x.drss) / x.dof1) for x in ct.sensors)
             K = sum(x.k for x in ct.sensors)
-            lp_pool = float(stats.chi2.logsf(chi, K) / _LN10)
+            lp_pool = _log10_chi2sf(chi, K)
             lp_min = float(lp_sens.min() + np.log10(len(ct.sensors)))
             ct.log10_p = float(min(0.0, min(lp_pool, lp_min) + np.log10(2.0)))
             ct.dbic = float(sum(x.dbic for x in ct.sensors))
@@ -217,9 +234,10 @@ def test_candidates(session: Session, fit: ModelFit, candidates: Sequence[Effect
         adj, rej = holm([c.log10_p for c in testable], alpha)
         for c, a, r in zip(testable, adj, rej):
             c.log10_p_holm, c.significant = float(a), bool(r)
-            sadj, srej = holm([x.log10_p for x in c.sensors], alpha)
-            for x, flag in zip(c.sensors, srej):
-                x.significant = bool(flag) and c.significant
+            # attribution: Bonferroni over the sensors (a sensor is named only on its own evidence)
+            thr = np.log10(alpha / len(c.sensors))
+            for x in c.sensors:
+                x.significant = bool(x.log10_p <= thr) and c.significant
     out.sort(key=lambda c: (not (c.testable and c.sensors), not c.significant, c.log10_p, c.dbic))
     return out
 
@@ -250,7 +268,7 @@ def conditional_log10_p(fit: ModelFit, a: CandidateTest, b: CandidateTest) -> fl
         lps.append(_log10_fsf(f, k, dof1))
     if not K:
         return 0.0
-    lp_pool = float(stats.chi2.logsf(chi, K) / _LN10)
+    lp_pool = _log10_chi2sf(chi, K)
     lp_min = float(min(lps) + np.log10(len(lps)))
     return float(min(0.0, min(lp_pool, lp_min) + np.log10(2.0)))
 
