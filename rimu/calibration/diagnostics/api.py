@@ -100,7 +100,12 @@ class InstrumentDiagnosis:
 
     @property
     def not_testable(self) -> list[CandidateTest]:
-        return [c for c in self.tests if not c.testable]
+        """Candidates that apply to this instrument but cannot be estimated from the session."""
+        return [c for c in self.tests if not c.testable and c.applicable]
+
+    @property
+    def not_applicable(self) -> list[CandidateTest]:
+        return [c for c in self.tests if not c.applicable]
 
     def top(self) -> str | None:
         """The best clearly identified missing effect, or None (nothing missing, or only confounded groups)."""
@@ -148,10 +153,12 @@ class InstrumentDiagnosis:
                             f"noise, {format_p(s.log10_p)})" for s in det[:6])
             out.append(f"  {rank}. missing: {c.name} on {self.instrument} {per}; dBIC {c.dbic:+.1f}; "
                        f"{format_p(c.log10_p_holm)} after Holm")
-        for c in self.tests:
-            if not c.testable:
-                adv = f"; to test it: {c.advice}" if c.advice else ""
-                out.append(f"  not testable: {c.name}: {c.reason}{adv}")
+        for c in self.not_testable:
+            adv = f"; to test it: {c.advice}" if c.advice else ""
+            out.append(f"  not testable with this data: {c.name}: {c.reason}{adv}")
+        for c in self.not_applicable:
+            if c.name == "earth_rate" and self.instrument == "gyro":
+                out.append(f"  not a candidate: {c.name}: {c.reason}")
         return out
 
     def to_dict(self) -> dict[str, Any]:

@@ -66,6 +66,7 @@ class CandidateTest:
     name: str
     testable: bool
     reason: str = ""
+    applicable: bool = True
     advice: str = ""
     sensors: list[SensorTest] = field(default_factory=list)
     log10_p: float = 0.0
@@ -90,7 +91,8 @@ class CandidateTest:
 
     def to_dict(self) -> dict:
         return {
-            "name": self.name, "testable": self.testable, "reason": self.reason, "advice": self.advice,
+            "name": self.name, "testable": self.testable, "applicable": self.applicable, "reason": self.reason,
+            "advice": self.advice,
             "log10_p": self.log10_p, "log10_p_holm": self.log10_p_holm, "significant": self.significant,
             "dbic": self.dbic, "detected_sensors": self.detected_sensors(),
             "sensors": [{k: v for k, v in s.__dict__.items()} for s in self.sensors],
@@ -211,8 +213,11 @@ def test_candidates(session: Session, fit: ModelFit, candidates: Sequence[Effect
             ct._bases[i] = U
             ct._gamma[i] = g
         if n_app == 0:
-            ct.testable, ct.reason = False, f"does not apply to {fit.instrument}s" + (
-                " with this model's input (see the effect's description)" if eff.name == "earth_rate" else "")
+            ct.testable, ct.applicable = False, False
+            ct.reason = f"does not apply to {fit.instrument}s"
+            if eff.name == "earth_rate" and fit.instrument == "gyro":
+                ct.reason = ("the Earth rate is already part of the gyro input of this model; diagnose with "
+                             "include_earth_rate=False (rimu diagnose --no-earth-rate) to test whether the gyros see it")
         elif reasons:
             txt = "; ".join(f"{why} (sensors {', '.join(names)})" for why, names in reasons.items())
             if ct.sensors:

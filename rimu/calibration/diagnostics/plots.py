@@ -1,0 +1,211 @@
+"""Figures of the diagnosis (matplotlib, Agg backend; imported only when a figure is drawn).
+
+Every function takes what it draws and a path, writes a PNG and returns the path.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..effects._common import input_unit, output_unit
+from .residuals import input_bins
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .api import Comparison, InstrumentDiagnosis
+    from .candidates import CandidateTest
+    from .fitting import ModelFit
+
+__all__ = ["plot_residual_time", "plot_segment_map", "plot_input", "plot_temperature", "plot_candidate",
+           "plot_regressors", "plot_comparison"]
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _grid(n: int, plt, width: float = 10.0, height: float = 1.8):
+    fig, axes = plt.subplots(n, 1, figsize=(width, max(2.5, height * n)), sharex=True, squeeze=False)
+    return fig, axes[:, 0]
+
+
+def _save(fig, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return path
+
+
+def _decimate(n: int, keep: int = 4000) -> slice:
+    return slice(None, None, max(1, n // keep))
+
+
+def plot_residual_time(fit: "ModelFit", path: str | Path) -> Path:
+    """Residual / noise level against time for every sensor, with each segment's mean (x 10 for visibility
+    is not applied: the mean is drawn in units of its own standard error on the right axis)."""
+    plt = _plt()
+    fig, axes = _grid(len(fit.sensors), plt)
+    for ax, s in zip(axes, fit.sensors):
+        k = _decimate(s.n_obs)
+        ax.plot(s.t[k], (s.r / s.sigma)[k], ".", ms=1, color="0.6")
+        counts = np.bincount(s.seg_index)
+        means = np.bincount(s.seg_index, weights=s.r) / np.maximum(counts, 1)
+        tm = np.bincount(s.seg_index, weights=s.t) / np.maximum(counts, 1)
+        z = means / (s.sigma / np.sqrt(np.maximum(counts, 1)))
+        ax2 = ax.twinx()
+        ax2.plot(tm, z, "o", color="C3", ms=3)
+        ax2.axhline(0, color="C3", lw=0.5)
+        ax2.set_ylabel("segment mean\n[std. err.]", color="C3", fontsize=7)
+        ax.set_ylabel(f"{s.name}\nr/sigma", fontsize=8)
+    axes[-1].set_xlabel("time [s]")
+    fig.suptitle(f"{fit.instrument}: residual of {fit.model.label}")
+    return _save(fig, path)
+
+
+def plot_segment_map(d: "InstrumentDiagnosis", path: str | Path) -> Path:
+    """Mean residual of each sensor on each segment, in units of its standard error (where it fails)."""
+    plt = _plt()
+    labels = d.fit.segment_labels
+    Z = np.zeros((len(d.stats), len(labels)))
+    for i, st in enumerate(d.stats):
+        pos = {g.label: g.mean_z for g in st.segments}
+        Z[i] = [pos.get(lab, 0.0) for lab in labels]
+    lim = max(3.0, float(np.percentile(np.abs(Z), 98)))
+    fig, ax = plt.subplots(figsize=(min(18, 2 + 0.25 * len(labels)), 1 + 0.45 * len(d.stats)))
+    im = ax.imshow(Z, aspect="auto", cmap="RdBu_r", vmin=-lim, vmax=lim)
+    ax.set_yticks(range(len(d.stats)), [s.name for s in d.stats])
+    ax.set_xticks(range(len(labels)), labels, rotation=90, fontsize=6)
+    fig.colorbar(im, ax=ax, label="segment mean / std. err.")
+    ax.set_title(f"{d.instrument}: where the model fails (threshold +-{d.failures['segment_threshold_z']:.1f})")
+    return _save(fig, path)
+
+
+def plot_input(fit: "ModelFit", path: str | Path) -> Path:
+    """Mean residual against the input along the sensing axis (magnitude and sign), per sensor."""
+    plt = _plt()
+    fig, axes = plt.subplots(1, len(fit.sensors), figsize=(2.6 * len(fit.sensors), 2.8), squeeze=False)
+    si, field, per = input_unit(fit.contexts[0])
+    for ax, s in zip(axes[0], fit.sensors):
+        b = input_bins(s, 12)
+        if b:
+            x, m, e, _ = (np.array(v) for v in zip(*b))
+            ax.errorbar(x / per, m, yerr=e, fmt="o-", ms=3)
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set_title(s.name, fontsize=9)
+        ax.set_xlabel(f"input along axis [{field}]", fontsize=7)
+    axes[0][0].set_ylabel("mean residual / sigma")
+    fig.suptitle(f"{fit.instrument}: residual against input")
+    return _save(fig, path)
+
+
+def plot_temperature(fit: "ModelFit", path: str | Path) -> Path | None:
+    """Mean residual against temperature (binned), per sensor; None when temperature never changed."""
+    s0 = fit.sensors[0]
+    if s0.temperature is None or np.ptp(s0.temperature) < 0.1:
+        return None
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    for s in fit.sensors:
+        T = s.temperature
+        edges = np.linspace(T.min(), T.max(), 13)
+        k = np.clip(np.searchsorted(edges, T, side="right") - 1, 0, 11)
+        cnt = np.bincount(k, minlength=12)
+        m = np.bincount(k, weights=s.r / s.sigma, minlength=12) / np.maximum(cnt, 1)
+        ok = cnt > 0
+        ax.plot(0.5 * (edges[:-1] + edges[1:])[ok], m[ok], "o-", ms=3, label=s.name)
+    ax.axhline(0, color="k", lw=0.5)
+    ax.set_xlabel("temperature [degC]")
+    ax.set_ylabel("mean residual / sigma")
+    ax.legend(fontsize=7, ncol=3)
+    ax.set_title(f"{fit.instrument}: residual against temperature")
+    return _save(fig, path)
+
+
+def plot_candidate(fit: "ModelFit", test: "CandidateTest", path: str | Path) -> Path:
+    """The plot that shows a finding: for each sensor, the segment means of the residual against the segment
+    means of the part of it the candidate explains (added-variable plot; points on the diagonal = explained)."""
+    plt = _plt()
+    idx = [i for i, s in enumerate(fit.sensors) if i in test._bases]
+    fig, axes = plt.subplots(1, max(1, len(idx)), figsize=(2.6 * max(1, len(idx)), 2.8), squeeze=False)
+    for ax, i in zip(axes[0], idx):
+        s = fit.sensors[i]
+        part = test._bases[i] @ test._gamma[i]
+        cnt = np.maximum(np.bincount(s.seg_index), 1)
+        ym = np.bincount(s.seg_index, weights=s.r) / cnt / s.sigma
+        xm = np.bincount(s.seg_index, weights=part) / cnt / s.sigma
+        ax.plot(xm, ym, "o", ms=3, color="C3" if any(x.sensor == s.name and x.significant for x in test.sensors) else "C0")
+        lo, hi = float(min(xm.min(), ym.min())), float(max(xm.max(), ym.max()))
+        ax.plot([lo, hi], [lo, hi], "k--", lw=0.6)
+        ax.set_title(s.name, fontsize=9)
+        ax.set_xlabel(f"{test.name} part / sigma", fontsize=7)
+    axes[0][0].set_ylabel("segment mean residual / sigma")
+    fig.suptitle(f"{fit.instrument}: {test.name} against the residual (red: sensors where it is significant)")
+    return _save(fig, path)
+
+
+def plot_regressors(fit: "ModelFit", tests: list["CandidateTest"], path: str | Path, sensor: int = 0) -> Path | None:
+    """Residual of one sensor against each testable candidate's regressor (its first direction outside the
+    model's span), binned: a straight sloped line is an effect the model lacks."""
+    tt = [t for t in tests if sensor in t._bases][:12]
+    if not tt:
+        return None
+    plt = _plt()
+    cols = 4
+    rows = int(np.ceil(len(tt) / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(2.8 * cols, 2.4 * rows), squeeze=False)
+    s = fit.sensors[sensor]
+    z = s.r / s.sigma
+    for ax, t in zip(axes.ravel(), tt):
+        x = t._bases[sensor][:, 0]
+        edges = np.quantile(x, np.linspace(0, 1, 11))
+        k = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, 9)
+        cnt = np.bincount(k, minlength=10)
+        m = np.bincount(k, weights=z, minlength=10) / np.maximum(cnt, 1)
+        cx = np.bincount(k, weights=x, minlength=10) / np.maximum(cnt, 1)
+        ok = cnt > 0
+        ax.errorbar(cx[ok], m[ok], yerr=1 / np.sqrt(np.maximum(cnt[ok], 1)), fmt="o-", ms=3,
+                    color="C3" if t.significant else "C0")
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set_title(t.name, fontsize=8)
+        ax.tick_params(labelsize=6)
+    for ax in axes.ravel()[len(tt):]:
+        ax.axis("off")
+    fig.suptitle(f"{fit.instrument} {s.name}: mean residual / sigma against each candidate's regressor")
+    return _save(fig, path)
+
+
+def plot_comparison(comp: "Comparison", path: str | Path) -> Path:
+    """Before and after: rms per sensor (field units) and the residual of the most improved sensor over time."""
+    plt = _plt()
+    u = output_unit(comp.before.contexts[0])
+    rb, ra = comp.before.rms_si() * u[2], comp.after.rms_si() * u[2]
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 3.4), gridspec_kw={"width_ratios": [1, 2]})
+    x = np.arange(len(rb))
+    a1.bar(x - 0.2, rb, 0.4, label="before")
+    a1.bar(x + 0.2, ra, 0.4, label="after")
+    a1.set_xticks(x, [s.name for s in comp.before.sensors])
+    a1.set_ylabel(f"residual rms [{u[1]}]")
+    a1.legend(fontsize=7)
+    k = int(np.argmax(rb - ra))
+    sb, sa = comp.before.sensors[k], comp.after.sensors[k]
+    cnt = np.maximum(np.bincount(sb.seg_index), 1)
+    tm = np.bincount(sb.seg_index, weights=sb.t) / cnt
+    a2.plot(tm, np.bincount(sb.seg_index, weights=sb.r) / cnt * sb.scale * u[2], "o-", ms=3, label="before")
+    a2.plot(tm, np.bincount(sa.seg_index, weights=sa.r) / cnt * sa.scale * u[2], "o-", ms=3, label="after")
+    a2.axhline(0, color="k", lw=0.5)
+    a2.set_xlabel("time [s]")
+    a2.set_ylabel(f"{sb.name} segment mean residual [{u[1]}]")
+    a2.legend(fontsize=7)
+    fig.suptitle(f"{comp.instrument}: + {', '.join(comp.added)}: chi2/dof {comp.chi2_before:.3g} -> {comp.chi2_after:.3g}")
+    return _save(fig, path)
