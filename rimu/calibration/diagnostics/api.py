@@ -127,6 +127,18 @@ class InstrumentDiagnosis:
         for st in self.stats:
             out.append(f"  {st.name}: rms {st.rms_si * unit[2]:.4g} {unit[1]}, chi2/dof {st.chi2_dof:.3f}, "
                        f"lag-1 autocorrelation {st.lag1:+.3f}, Ljung-Box p = {st.ljung_box_p:.2g}")
+        p = max(s.n_par for s in self.fit.sensors)
+        nseg = len(self.fit.segment_labels)
+        if nseg - p < 5:
+            out.append(f"  caution: {nseg} segments for {p} parameters per sensor leave {nseg - p} segment-level degrees of "
+                       "freedom; an effect constant over each segment is tested against the noise within segments and "
+                       "cannot be told from errors of the rig's positions (e.g. hand-held attitudes); add segments")
+        infl = [s for s in self.fit.sensors if s.inflation > 1.0]
+        if infl:
+            out.append("  the noise is coloured (within-segment lag-1 autocorrelation "
+                       + ", ".join(f"{s.name} {s.lag1_within:+.2f}" for s in infl[:6])
+                       + "); the tests divide by its long-run variance inflation "
+                       + ", ".join(f"{s.inflation:.1f}" for s in infl[:6]))
         fl = self.failures
         if fl["sensors"]:
             out.append(f"  the model fails on sensors {fl['sensors']} (chi2/dof above noise)")

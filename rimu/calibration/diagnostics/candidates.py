@@ -7,7 +7,9 @@ basis of C_perp), and under "e is absent" with Gaussian white noise
 
     F = (dRSS / k) / ((RSS - dRSS) / (N - p - k))  ~  F(k, N - p - k)
 
-(the nested-model F-test; for large N it equals the score/LM test dRSS / sigma^2 ~ chi2(k)). Across sensors
+(the nested-model F-test; for large N it equals the score/LM test dRSS / sigma^2 ~ chi2(k)). Coloured noise
+(significant within-segment autocorrelation) divides F by its long-run variance inflation, so that averages
+over many correlated samples are not taken for independent evidence. Across sensors
 the candidate's evidence is the better of (a) the pooled statistic sum_i dRSS_i / s_i^2 ~ chi2(sum k_i)
 (an effect on every sensor) and (b) the smallest per-sensor p-value, Bonferroni-corrected over sensors (an
 effect on one sensor), the two combined by Bonferroni. Candidates are then ranked and corrected by Holm's
@@ -204,7 +206,7 @@ def test_candidates(session: Session, fit: ModelFit, candidates: Sequence[Effect
             rss0 = s.rss
             dof1 = max(s.n_obs - s.n_par - k, 1)
             rss1 = max(rss0 - drss, np.finfo(float).tiny)
-            f = (drss / k) / (rss1 / dof1)
+            f = (drss / k) / (rss1 / dof1) / s.inflation
             lp = _log10_fsf(f, k, dof1)
             excess = max(rss0 - s.dof * s.sigma**2, np.finfo(float).tiny)
             ct.sensors.append(SensorTest(s.name, k, drss, rss0, dof1, float(f), lp,
@@ -227,7 +229,7 @@ def test_candidates(session: Session, fit: ModelFit, candidates: Sequence[Effect
         if ct.sensors:
             lp_sens = np.array([x.log10_p for x in ct.sensors])
             # pooled statistic over sensors
-            chi = sum(x.drss / ((x.rss0 - x.drss) / x.dof1) for x in ct.sensors)
+            chi = sum(x.f * x.k for x in ct.sensors)
             K = sum(x.k for x in ct.sensors)
             lp_pool = _log10_chi2sf(chi, K)
             lp_min = float(lp_sens.min() + np.log10(len(ct.sensors)))
@@ -267,8 +269,8 @@ def conditional_log10_p(fit: ModelFit, a: CandidateTest, b: CandidateTest) -> fl
         k = U.shape[1]
         dof1 = max(s.n_obs - s.n_par - (0 if Ub is None else Ub.shape[1]) - k, 1)
         rss1 = max(float(r @ r) - drss, np.finfo(float).tiny)
-        f = (drss / k) / (rss1 / dof1)
-        chi += drss / (rss1 / dof1)
+        f = (drss / k) / (rss1 / dof1) / s.inflation
+        chi += f * k
         K += k
         lps.append(_log10_fsf(f, k, dof1))
     if not K:

@@ -21,7 +21,8 @@ from ...session import Segment, Session
 from ..lsq import physical_from_beta
 from ..model import Effect, ErrorModel, ParamSpec, SensorContext, contexts
 
-__all__ = ["cached", "SensorFit", "ModelFit", "fit_model", "candidate_columns", "noise_from_differences", "RANK_TOL"]
+__all__ = ["cached", "SensorFit", "ModelFit", "fit_model", "candidate_columns", "noise_level", "noise_inflation",
+           "noise_from_differences", "within_segment", "RANK_TOL"]
 
 class _CachedSegment(Segment):
     """A segment whose attitude history (the costly part of every input) is computed once."""
@@ -66,6 +67,44 @@ def cached(session: Session) -> Session:
 RANK_TOL = 1e-7
 
 
+def within_segment(r: np.ndarray, seg_index: np.ndarray) -> np.ndarray:
+    """The residual minus its mean on each segment (what no segment-constant error can explain)."""
+    cnt = np.maximum(np.bincount(seg_index), 1)
+    return r - (np.bincount(seg_index, weights=r) / cnt)[seg_index]
+
+
+def noise_level(r: np.ndarray, seg_index: np.ndarray) -> float:
+    """White-noise level from the residual about its segment means: ``sum (r - mean_seg)^2 / (N - n_seg)``.
+
+    Errors that are constant over a segment (most missing effects on static and constant-rate segments) do
+    not enter; coloured noise is counted with its full variance (unlike first differences).
+    """
+    w = within_segment(r, seg_index)
+    nseg = int(np.unique(seg_index).size)
+    return float(np.sqrt((w @ w) / max(r.size - nseg, 1)))
+
+
+def noise_inflation(r: np.ndarray, seg_index: np.ndarray, max_lag: int = 50) -> tuple[float, float]:
+    """(variance inflation factor, lag-1 autocorrelation) of the within-segment residual.
+
+    The factor is the long-run variance over the variance, ``1 + 2 sum_k (1 - k/(L+1)) rho_k`` (Bartlett
+    weights, Newey & West 1987), computed only when the lag-1 autocorrelation is significant
+    (``rho_1 sqrt(N) > 4``); else 1. Statistics built on averages of many samples are divided by it.
+    """
+    from .residuals import autocorrelation
+
+    w = within_segment(r, seg_index)
+    rho = autocorrelation(w, seg_index, 1)
+    r1 = float(rho[0])
+    if r1 * np.sqrt(r.size) <= 4.0:
+        return 1.0, r1
+    L = int(min(max_lag, max(r.size // 50, 1)))
+    rho = autocorrelation(w, seg_index, L)
+    k = np.arange(1, L + 1)
+    c = 1.0 + 2.0 * float(np.sum((1 - k / (L + 1)) * rho))
+    return max(c, 1.0), r1
+
+
 def noise_from_differences(r: np.ndarray, seg_index: np.ndarray) -> float:
     """White-noise level from first differences within segments: ``sigma^2 = mean(diff(r)^2) / 2``.
 
@@ -101,6 +140,10 @@ class SensorFit:
     axis_input: np.ndarray | None = field(repr=False)
     sigma: float = 1.0
     sigma_known: bool = False
+    #: variance inflation of the noise for averages over many samples (1 + 2 sum of Bartlett-weighted
+    #: within-segment autocorrelations; 1 for white noise): coloured noise makes segment means noisier
+    inflation: float = 1.0
+    lag1_within: float = 0.0
 
     @property
     def name(self) -> str:
@@ -216,8 +259,8 @@ def fit_model(
     Parameters
     ----------
     sigma : float or sequence, optional
-        Known white-noise level per sample, raw units, per sensor. Default: estimated from the first
-        differences of the residual within segments (:func:`noise_from_differences`).
+        Known white-noise level per sample, raw units, per sensor. Default: estimated from the residual about
+        its segment means (:func:`noise_level`).
     include_earth_rate : bool
         Whether the gyros' known input includes the Earth rate (False to test the ``earth_rate`` effect).
 
@@ -255,14 +298,15 @@ def fit_model(
             labels.append(seg.label)
         if not Xs:
             raise IdentifiabilityError(f"{instrument}: no segment of the session carries the inputs the model "
-                                       f"{model.label} needs")
+                                       f"{model.label} needs" + _skip_note(session, skipped))
         X = np.vstack(Xs)
         y = np.concatenate(ys)
         names = model.parameter_names(ctx)
         norms = np.linalg.norm(X, axis=0)
         if X.shape[0] <= X.shape[1] or np.any(norms == 0):
             bad = [names[k] for k in np.flatnonzero(norms == 0)]
-            raise IdentifiabilityError(f"{instrument} {ctx.name}: the segments do not excite {bad or names}", bad or names)
+            raise IdentifiabilityError(f"{instrument} {ctx.name}: the segments do not excite {bad or names}"
+                                       + _skip_note(session, skipped), bad or names)
         Xn = X / norms
         Q, R = np.linalg.qr(Xn)
         d = np.abs(np.diag(R))
@@ -277,7 +321,8 @@ def fit_model(
         beta = (Rinv @ (Q.T @ y)) / norms
         r = y - X @ beta
         seg_index = np.concatenate(idx)
-        s_est = noise_from_differences(r, seg_index)
+        s_est = noise_level(r, seg_index)
+        infl, rho1 = noise_inflation(r, seg_index)
         known = sig is not None
         s = float(sig[ctx.index]) if known else max(s_est, np.finfo(float).tiny)
         # covariance of beta: sigma^2 (X^T X)^-1 = sigma^2 D^-1 R^-1 R^-T D^-1 (D = column norms)
@@ -287,9 +332,20 @@ def fit_model(
         theta, J, specs = physical_from_beta(model, ctx, beta)
         fits.append(SensorFit(ctx, names, beta, bcov, theta, J @ bcov @ J.T, specs, y, X, Q, r, seg_index,
                               np.concatenate(ts), np.concatenate(Ts) if have_T and Ts else None,
-                              np.concatenate(ss), s, known))
+                              np.concatenate(ss), s, known, infl, rho1))
         labels_used = labels
     return ModelFit(instrument, model, fits, labels_used, skipped, list(ctxs))
+
+
+def _skip_note(session: Session, skipped: dict[str, str]) -> str:
+    if not skipped:
+        return ""
+    kinds = sorted({session.segment(lab).kind for lab in skipped})
+    note = f"; segments skipped: {', '.join(list(skipped)[:6])}{'...' if len(skipped) > 6 else ''} (kind {', '.join(kinds)})"
+    if "angle" in kinds:
+        note += (": 'angle' segments know only the total angle turned, not the rate sample by sample, so the "
+                 "sample-level diagnostics cannot use them (an integrated-angle estimator can)")
+    return note
 
 
 def candidate_columns(session: Session, fit: ModelFit, effect: Effect, sensor: int) -> tuple[np.ndarray | None, str]:

@@ -77,6 +77,7 @@ class SensorStats:
     lag1_z: float
     ljung_box_q: float
     ljung_box_p: float
+    inflation: float = 1.0
     segments: list[SegmentStat] = field(default_factory=list)
 
     @property
@@ -106,10 +107,11 @@ def sensor_statistics(s: SensorFit, labels: list[str], lags: int = 10) -> Sensor
         if m == 0:
             continue
         mean = sums[k] / m
-        segs.append(SegmentStat(lab, int(m), float(mean), float(mean / (s.sigma / np.sqrt(m))), float(np.sqrt(sq[k] / m))))
+        segs.append(SegmentStat(lab, int(m), float(mean), float(mean / (s.sigma * np.sqrt(s.inflation / m))),
+                                float(np.sqrt(sq[k] / m))))
     return SensorStats(s.name, s.sigma, s.sigma_known, float(np.sqrt(np.mean(r**2))), float(np.sqrt(np.mean(r**2)) * s.scale),
                        c, float((c - 1.0) / np.sqrt(var_c)), float(rho[0]) if lags else 0.0,
-                       float(rho[0] * np.sqrt(n)) if lags else 0.0, q, p, segs)
+                       float(rho[0] * np.sqrt(n)) if lags else 0.0, q, p, s.inflation, segs)
 
 
 def residual_statistics(fit: ModelFit, lags: int = 10) -> list[SensorStats]:

@@ -1,0 +1,126 @@
+"""``rimu diagnose``: compare an error model with a calibration session, find the missing effect, add it,
+and write a report.
+
+SESSION is one of: a Ferraris-style recording folder (the CSV and its section list, as imucal's example),
+or an ``.npz`` written by ``rimu simulate``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import SessionFormatError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("diagnose", help="residual diagnostics: which effect is missing from the error model",
+                       description="Fit an error model to a calibration session, describe the residual, test every "
+                                   "effect of the library that is not in the model, and refit with the ones you add.")
+    p.add_argument("session", help="Ferraris recording folder, or .npz from 'rimu simulate'")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--calibration", help="calibration JSON: its effects define the model, its noise sigma the noise level")
+    g.add_argument("--model", default="bias,scale,misalignment", help="comma list of effect names (default: %(default)s)")
+    p.add_argument("--add", nargs="+", default=[], metavar="EFFECT", help="effects to add and refit (before/after)")
+    p.add_argument("--iterate", action="store_true", help="add the top missing effect and refit until nothing is missing")
+    p.add_argument("--instrument", choices=["gyro", "accel"], action="append", help="restrict to an instrument (repeatable)")
+    p.add_argument("--alpha", type=float, default=0.01, help="family-wise significance (default: %(default)s)")
+    p.add_argument("--no-earth-rate", action="store_true", help="leave the Earth rate out of the gyro input (tests earth_rate)")
+    p.add_argument("--reference-temperature", type=float, default=25.0, help="T_ref of temperature effects, degC")
+    p.add_argument("--report", metavar="DIR", help="write report.md, report.html, figures and diagnosis.json here")
+    p.add_argument("--json", action="store_true", help="print the diagnosis as JSON instead of text")
+    p.add_argument("--list-effects", action="store_true", help="list the effects of the library and exit")
+    p.set_defaults(func=run)
+
+
+def load_session(path: str | Path):
+    """A Session from a Ferraris folder or a ``rimu simulate`` NPZ."""
+    from ..geometry import Geometry
+    from ..session import Segment, Session
+    from ..session_io import load_ferraris
+
+    path = Path(path)
+    if path.is_dir():
+        return load_ferraris(path)
+    if not path.exists():
+        raise SessionFormatError(f"{path} does not exist; give a Ferraris recording folder or an .npz from 'rimu simulate'")
+    if path.suffix != ".npz":
+        raise SessionFormatError(f"{path}: unknown session format; expected a folder (Ferraris) or .npz (rimu simulate)")
+    try:
+        z = np.load(path, allow_pickle=False)
+        meta = json.loads(str(z["meta"]))
+        t, idx = z["t"], z["segment"]
+    except (KeyError, ValueError, OSError) as exc:
+        raise SessionFormatError(f"{path}: not an NPZ written by 'rimu simulate' ({exc})") from exc
+    geos = {k: Geometry.from_dict(d) for k, d in meta["geometries"].items()}
+    temp = z["temperature"] if "temperature" in z.files else None
+    segs = []
+    for k, sd in enumerate(meta["segments"]):
+        sel = idx == k
+        if not np.any(sel):
+            raise SessionFormatError(f"{path}: segment {sd['label']!r} has no samples")
+        raw = {name: z[f"raw_{name}"][sel] for name in geos}
+        segs.append(Segment(sd["label"], sd["kind"], t[sel], raw, None if temp is None else temp[sel],
+                            specific_force_mb=sd.get("specific_force_mb_ms2"), rate_mb=sd.get("rate_mb_rads"),
+                            angle_mb=sd.get("angle_mb_rad"), mat_ln_mb=sd.get("mat_ln_mb"), meta={"source": str(path)}))
+    return Session(segs, geos, float(meta["sample_rate_hz"]), meta.get("latitude_rad"), raw_unit=meta.get("raw_unit", "count"),
+                   meta={"source": str(path)})
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..calibration.diagnostics import diagnose, iterate, write_report
+    from ..calibration.model import EFFECTS, ErrorModel
+
+    if args.list_effects:
+        from ..calibration import effects as _  # noqa: F401
+
+        for name, cls in sorted(EFFECTS.items()):
+            if name == cls.name:
+                print(f"{name:20s} {'/'.join(cls.instruments):11s} {cls.description}")
+        return 0
+    session = load_session(args.session)
+    sigma = None
+    if args.calibration:
+        from ..calibration import Calibration
+
+        cal = Calibration.load(args.calibration, session.geometries)
+        model = {}
+        sigma = {}
+        for k in cal.instruments:
+            names = ["bias", "scale_misalignment"] + list(cal[k].effects)
+            model[k] = ErrorModel.from_names(names)
+            if cal[k].noise_sigma is not None:
+                sigma[k] = cal[k].noise_sigma / cal[k].scale
+    else:
+        model = ErrorModel.from_names(args.model)
+    kw = dict(instruments=args.instrument, alpha=args.alpha, include_earth_rate=not args.no_earth_rate,
+              reference_temperature=args.reference_temperature, sigma=sigma)
+    comparisons = []
+    if args.iterate:
+        result = iterate(session, model, **kw)
+        text = result.summary()
+        data = {"rounds": [{"diagnosis": d.to_dict(), "comparisons": [c.to_dict() for c in cs.values()]}
+                           for d, cs in result.rounds], "final": result.final.to_dict()}
+        target = result
+    else:
+        d = diagnose(session, model, **kw)
+        if args.add:
+            comparisons = list(d.add(*args.add).values())
+            if not comparisons:
+                print(f"rimu diagnose: none of {args.add} applies to the instruments diagnosed or all are in the model",
+                      file=sys.stderr)
+        text = d.summary() + "".join("\n" + "\n".join(c.lines()) for c in comparisons)
+        data = {"diagnosis": d.to_dict(), "comparisons": [c.to_dict() for c in comparisons]}
+        target = d
+    if args.json:
+        print(json.dumps(data, default=float))
+    else:
+        print(text)
+    if args.report:
+        md = write_report(target, args.report, comparisons)
+        print(f"report: {md}", file=sys.stderr if args.json else sys.stdout)
+    return 0
