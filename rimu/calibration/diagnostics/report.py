@@ -123,25 +123,25 @@ def render_markdown(diagnosis: Diagnosis, directory: Path, comparisons: Sequence
 
 
 def write_report(diagnosis: Diagnosis | Iteration, directory: str | Path, comparisons: Sequence[Comparison] = (),
-                 title: str = "rimu diagnosis", html_page: bool = True) -> Path:
+                 title: str = "rimu diagnosis", html_page: bool = True, figures: bool = True) -> Path:
     """Write ``report.md`` (and ``report.html``), the figures and ``diagnosis.json`` into ``directory``.
 
     Pass an :class:`Iteration` to report the starting diagnosis, every refit and the final state.
-    Returns the Markdown path.
+    ``figures=False`` writes the text only. Returns the Markdown path.
     """
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     if isinstance(diagnosis, Iteration):
         first = diagnosis.rounds[0][0] if diagnosis.rounds else diagnosis.final
         comps = [c for _, cs in diagnosis.rounds for c in cs.values()]
-        text = render_markdown(first, directory, comps, title)
+        text = render_markdown(first, directory, comps, title, figures)
         if diagnosis.rounds:
             final_dir = directory / "final"
-            text += "\n\n" + render_markdown(diagnosis.final, final_dir, (), "Final model", figures=True).replace(
+            text += "\n\n" + render_markdown(diagnosis.final, final_dir, (), "Final model", figures).replace(
                 "](figures/", "](final/figures/")
         data = {"start": first.to_dict(), "comparisons": [c.to_dict() for c in comps], "final": diagnosis.final.to_dict()}
     else:
-        text = render_markdown(diagnosis, directory, comparisons, title)
+        text = render_markdown(diagnosis, directory, comparisons, title, figures)
         data = {"diagnosis": diagnosis.to_dict(), "comparisons": [c.to_dict() for c in comparisons]}
     md = directory / "report.md"
     md.write_text(text)
