@@ -260,10 +260,11 @@ def conditional_log10_p(fit: ModelFit, a: CandidateTest, b: CandidateTest) -> fl
         if Ub is not None:
             r = r - Ub @ (Ub.T @ r)
             Ua = Ua - Ub @ (Ub.T @ Ua)
-        U, sv, _ = np.linalg.svd(Ua, full_matrices=False)
-        U = U[:, sv > 1e-6]
-        if U.shape[1] == 0:
+        lam, V = np.linalg.eigh(Ua.T @ Ua)
+        keep = lam > 1e-12
+        if not np.any(keep):
             continue
+        U = Ua @ (V[:, keep] / np.sqrt(lam[keep]))
         g = U.T @ r
         drss = float(g @ g)
         k = U.shape[1]
