@@ -191,8 +191,10 @@ class SensorFit:
 
     def parameter(self, local: str) -> tuple[float, float, ParamSpec]:
         """(value SI, 1-sigma SI, spec) of a physical parameter by local name (``"gsens_x"``)."""
-        full = f"{self.name}.{local}"
-        k = [f"{self.name}.{p.name}" for p in self.specs].index(full)
+        names = [p.name for p in self.specs]
+        if local not in names:
+            raise KeyError(f"{self.name} has no parameter {local!r} in this model; parameters: {names}")
+        k = names.index(local)
         return float(self.theta[k]), float(np.sqrt(self.theta_cov[k, k])), self.specs[k]
 
 
