@@ -193,16 +193,23 @@ class InstrumentPipeline:
         """Process one raw sample ``y`` (n,). Returns :attr:`result` (reused; copy what you keep)."""
         self.samples += 1
         if self._entry >= 0 and (valid is None or valid.all()):
-            out = self._out
-            np.dot(self._Re, y, out=out)
-            out -= self._offe
-            s = out.dot(out)
-            if s - s == 0.0:  # finite: the common path
-                if self._dirty:
-                    self._invalid[:] = False
-                    self._point_result(self._entry)
-                    self._dirty = False
-                return self.result
+            try:
+                yl = y.tolist()
+            except AttributeError:  # not an ndarray: the careful path converts and checks it
+                yl = None
+            if yl is not None and len(yl) == self.n:
+                s = sum(yl)  # Python floats: inf and nan propagate without floating-point warnings
+                if s - s == 0.0:
+                    out = self._out
+                    np.dot(self._Re, y, out=out)
+                    out -= self._offe
+                    s = sum(out.tolist())
+                    if s - s == 0.0:  # finite: the common path
+                        if self._dirty:
+                            self._invalid[:] = False
+                            self._point_result(self._entry)
+                            self._dirty = False
+                        return self.result
         return self._step_slow(np.asarray(y, dtype=float), valid)
 
     def _step_slow(self, y: np.ndarray, valid: np.ndarray | None) -> StepResult:
@@ -237,9 +244,9 @@ class InstrumentPipeline:
         n, r, tab = self.n, self.r, self.table
         out = np.empty((N, 3 + r))
         if self._entry >= 0 and N and (valid is None or np.all(valid)):
-            np.matmul(Y, self._Re.T, out=out)
-            out -= self._offe
             with np.errstate(invalid="ignore", over="ignore"):
+                np.matmul(Y, self._Re.T, out=out)
+                out -= self._offe
                 s = out.sum()
             if s - s == 0.0:
                 e = self._entry
