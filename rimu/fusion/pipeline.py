@@ -244,15 +244,11 @@ class InstrumentPipeline:
         n, r, tab = self.n, self.r, self.table
         out = np.empty((N, 3 + r))
         if self._entry >= 0 and N and (valid is None or np.all(valid)):
-            with np.errstate(invalid="ignore", over="ignore"):
-                np.matmul(Y, self._Re.T, out=out)
-                out -= self._offe
-                s = out.sum()
-            if s - s == 0.0:
+            if self._fast_block(Y, out):
                 e = self._entry
-                return BlockResult(out[:, :3], out[:, 3:], np.full(N, e), np.full(N, tab.dof[e]),
-                                   np.broadcast_to(self._active_of(e), (N, n)), np.zeros((N, n), bool),
-                                   np.full(N, bool(tab.observable[e])), tab)
+                return BlockResult(out[:, :3], out[:, 3:], np.broadcast_to(np.int64(e), (N,)),
+                                   np.broadcast_to(tab.dof[e], (N,)), np.broadcast_to(self._active_of(e), (N, n)),
+                                   np.broadcast_to(False, (N, n)), np.broadcast_to(bool(tab.observable[e]), (N,)), tab)
         good = np.isfinite(Y)
         if valid is not None:
             v = np.asarray(valid, dtype=bool)
@@ -284,6 +280,21 @@ class InstrumentPipeline:
         if not np.all(obs):
             ent[~obs] = self._inf_entry()
         return BlockResult(out[:, :3], out[:, 3:], ent, dof, active, bad, obs, tab)
+
+    _CHUNK = 4096
+
+    def _fast_block(self, Y: np.ndarray, out: np.ndarray) -> bool:
+        """``out = Y @ R.T - off`` in cache-sized chunks; False as soon as a chunk is not finite."""
+        R, off = self._Re.T, self._offe
+        with np.errstate(invalid="ignore", over="ignore"):
+            for a in range(0, Y.shape[0], self._CHUNK):
+                o = out[a:a + self._CHUNK]
+                np.matmul(Y[a:a + self._CHUNK], R, out=o)
+                o -= off
+                s = o.sum()
+                if not s - s == 0.0:
+                    return False
+        return True
 
     def _inf_entry(self) -> int:
         """Index of a table entry whose P is inf (an unobservable set), added on first use."""
