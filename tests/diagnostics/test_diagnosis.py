@@ -14,13 +14,14 @@ from rimu.calibration.model import ErrorModel
 from rimu.errors import IdentifiabilityError
 from rimu.geometry import preset
 from rimu.sim import Simulator, TruthEffect
-from rimu.sim.procedures import rotation, static
+from rimu.sim.procedures import cho_park_procedure, rotation, static
 from rimu.units import DEG_TO_RAD, DH_TO_RS, G0, PPM
 
 
 def _clean_run(seed, **kw):
+    """Cho & Park's procedure (Table 1 + Table 2, 5 s steps at 10 Hz) with a temperature profile."""
     sim = Simulator({"gyro": preset("cone6")}, sample_rate=10.0, arw_deg_sqrt_h=0.15, temperature=_temp, seed=seed, **kw)
-    return sim.run(rich_procedure(static_s=3.0, rate_s=3.0))
+    return sim.run(cho_park_procedure(duration=5.0))
 
 
 def test_clean_data_nothing_missing_in_95_percent_and_null_p_values_uniform():

@@ -21,14 +21,14 @@ from .api import (
     format_p,
     iterate,
 )
-from .candidates import CandidateTest, SensorTest, holm, test_candidates
+from .candidates import CandidateTest, SensorTest, holm, score_candidates
 from .fitting import ModelFit, SensorFit, fit_model, noise_from_differences
 from .report import render_markdown, write_report
 from .residuals import SensorStats, autocorrelation, ljung_box, residual_statistics
 
 __all__ = [
     "DEFAULT_ALPHA", "Comparison", "Diagnosis", "Finding", "InstrumentDiagnosis", "Iteration", "candidate_effects",
-    "compare", "diagnose", "format_p", "iterate", "CandidateTest", "SensorTest", "holm", "test_candidates",
+    "compare", "diagnose", "format_p", "iterate", "CandidateTest", "SensorTest", "holm", "score_candidates",
     "ModelFit", "SensorFit", "fit_model", "noise_from_differences", "SensorStats", "autocorrelation", "ljung_box",
     "residual_statistics", "render_markdown", "write_report",
 ]

@@ -14,7 +14,7 @@ from ...errors import IdentifiabilityError, ParameterNameError
 from ...session import Session
 from ..effects._common import output_unit
 from ..model import EFFECTS, Effect, ErrorModel, effect
-from .candidates import CandidateTest, conditional_log10_p, confounding, test_candidates
+from .candidates import CandidateTest, conditional_log10_p, confounding, score_candidates
 from .fitting import ModelFit, cached, fit_model
 from .residuals import SensorStats, failures, residual_statistics
 
@@ -301,7 +301,7 @@ def diagnose_fit(session: Session, fit: ModelFit, candidates: Sequence[str] | No
                  alpha: float = DEFAULT_ALPHA) -> InstrumentDiagnosis:
     """Diagnose an existing :class:`ModelFit` (residual statistics, candidate tests, confounding)."""
     st = residual_statistics(fit)
-    tests = test_candidates(session, fit, candidate_effects(fit.model, candidates), alpha)
+    tests = score_candidates(session, fit, candidate_effects(fit.model, candidates), alpha)
     groups = confounding(fit, tests, alpha)
     secondary: dict[str, str] = {}
     if groups:

@@ -34,7 +34,7 @@ from ...session import Session
 from ..model import Effect
 from .fitting import RANK_TOL, ModelFit, candidate_columns
 
-__all__ = ["SensorTest", "CandidateTest", "test_candidates", "holm", "confounding", "conditional_log10_p",
+__all__ = ["SensorTest", "CandidateTest", "score_candidates", "holm", "confounding", "conditional_log10_p",
            "canonical_correlation"]
 
 _LN10 = np.log(10.0)
@@ -128,7 +128,7 @@ def holm(log10_p: Sequence[float], alpha: float) -> tuple[np.ndarray, np.ndarray
 
     >>> adj, rej = holm(np.log10([0.001, 0.04, 0.03]), 0.05)
     >>> np.round(10 ** adj, 3).tolist(), rej.tolist()
-    [[0.003, 0.06, 0.06], [True, False, False]]
+    ([0.003, 0.06, 0.06], [True, False, False])
     """
     lp = np.asarray(log10_p, dtype=float)
     m = lp.size
@@ -161,7 +161,7 @@ def _basis(C: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray | None, list[int]]:
     return U, dead
 
 
-def test_candidates(session: Session, fit: ModelFit, candidates: Sequence[Effect], alpha: float = 0.01) -> list[CandidateTest]:
+def score_candidates(session: Session, fit: ModelFit, candidates: Sequence[Effect], alpha: float = 0.01) -> list[CandidateTest]:
     """Test every candidate effect against the residual of ``fit``. Returns tests ranked by evidence.
 
     Testable candidates come first, most significant first; ``significant`` is Holm-corrected over the
@@ -251,7 +251,7 @@ def test_candidates(session: Session, fit: ModelFit, candidates: Sequence[Effect
 
 def conditional_log10_p(fit: ModelFit, a: CandidateTest, b: CandidateTest) -> float:
     """Evidence for candidate ``a`` given the model plus candidate ``b`` (pooled and min-over-sensors, as
-    in :func:`test_candidates`). 0 (p = 1) when ``a`` adds nothing outside ``b``'s span."""
+    in :func:`score_candidates`). 0 (p = 1) when ``a`` adds nothing outside ``b``'s span."""
     chi, K, lps = 0.0, 0, []
     for i, Ua in a._bases.items():
         s = fit.sensors[i]
