@@ -11,7 +11,7 @@ from rimu.calibration.diagnostics.residuals import autocorrelation, ljung_box
 from rimu.calibration.effects import BiasTemperature, GSensitivity, ScaleQuadratic
 from rimu.calibration.lsq import fit_lsq
 from rimu.calibration.model import ErrorModel
-from rimu.errors import IdentifiabilityError
+from rimu.errors import IdentifiabilityError, SessionFormatError
 from rimu.geometry import preset
 from rimu.sim import Simulator, TruthEffect
 from rimu.sim.procedures import cho_park_procedure, rotation, static
@@ -172,6 +172,8 @@ def test_bad_inputs_raise_specific_errors():
     run = simulate("g_sensitivity", "triad3", seed=0)[0]
     with pytest.raises(ValueError):
         diagnose(run.session, alpha=1.5)
+    with pytest.raises(SessionFormatError, match="pass its .session"):
+        diagnose(run)
     with pytest.raises(IdentifiabilityError):
         diagnose(run.session, instruments=["accel"])
     with pytest.raises(ValueError):

@@ -10,7 +10,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from ...errors import IdentifiabilityError, ParameterNameError
+from ...errors import IdentifiabilityError, ParameterNameError, SessionFormatError
 from ...session import Session
 from ..effects._common import output_unit
 from ..model import EFFECTS, Effect, ErrorModel, effect
@@ -278,6 +278,9 @@ def diagnose(
     """
     if not 0 < alpha < 1:
         raise ValueError(f"alpha must be in (0, 1), got {alpha}")
+    if not isinstance(session, Session):
+        hint = " (a simulation result: pass its .session)" if hasattr(session, "session") else ""
+        raise SessionFormatError(f"diagnose needs a rimu.session.Session, got {type(session).__name__}{hint}")
     session = cached(session)
     models = _models(model, session, instruments)
     settings = {"alpha": alpha, "include_earth_rate": include_earth_rate,
