@@ -83,3 +83,25 @@ def test_report_of_simulated_hidden_effect(tmp_path):
     text = md.read_text()
     assert "missing: size_effect" in text
     assert "r_x" in text and "mm" in text
+
+
+def test_cli_with_calibration_file_defines_model_and_noise(tmp_path, capsys):
+    from rimu.calibration import Calibration
+    from rimu.calibration.lsq import fit_lsq
+    from rimu.calibration.model import ErrorModel
+    from rimu.cli.diagnose import load_session
+
+    npz = tmp_path / "s.npz"
+    assert main(["simulate", "--procedure", "cho_park", "--sample-rate", "10", "--seed", "2", "-o", str(npz)]) == 0
+    session = load_session(npz)
+    cals = {k: fit_lsq(session, ErrorModel.base() + "g_sensitivity" if k == "gyro" else None, k).to_calibration()
+            for k in ("gyro", "accel")}
+    path = Calibration(cals, method="test").save(tmp_path / "cal.json")
+    capsys.readouterr()
+    assert main(["diagnose", str(npz), "--calibration", str(path), "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert "g_sensitivity" in data["diagnosis"]["instruments"]["gyro"]["model"]
+    assert "g_sensitivity" not in data["diagnosis"]["instruments"]["accel"]["model"]
+    # noise from the file: sigma known, chi2/dof near 1
+    assert all(s["sigma_known"] for s in data["diagnosis"]["instruments"]["gyro"]["sensors"])
+    assert abs(data["diagnosis"]["instruments"]["gyro"]["chi2_dof"] - 1.0) < 0.05

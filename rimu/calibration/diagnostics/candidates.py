@@ -25,7 +25,7 @@ excite it. Confounded: two significant candidates neither of which adds signific
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from scipy import stats
@@ -76,9 +76,31 @@ class CandidateTest:
     significant: bool = False
     dbic: float = 0.0
     description: str = ""
-    # per sensor: (Qc basis, projected residual share) kept for conditional tests and plots
-    _bases: dict[int, np.ndarray] = field(default_factory=dict, repr=False)
+    # per sensor index: whitener W (U = C_perp W), U^T r, and the sensor's workspace of inner products
+    _W: dict[int, np.ndarray] = field(default_factory=dict, repr=False)
     _gamma: dict[int, np.ndarray] = field(default_factory=dict, repr=False)
+    _ws: dict[int, "_Workspace"] = field(default_factory=dict, repr=False)
+    _effect: Any = field(default=None, repr=False)
+    _session: Any = field(default=None, repr=False)
+    _fit: Any = field(default=None, repr=False)
+
+    @property
+    def sensor_indices(self) -> list[int]:
+        """Indices of the sensors the candidate was tested on."""
+        return list(self._W)
+
+    def basis(self, i: int) -> np.ndarray:
+        """Orthonormal basis U (N x k) of the candidate's columns outside the model's span on sensor i
+        (recomputed on demand, for plots)."""
+        s = self._fit.sensors[i]
+        C, _ = candidate_columns(self._session, self._fit, self._effect, i)
+        norms = np.linalg.norm(C, axis=0)
+        Cn = C / np.where(norms == 0, 1.0, norms)
+        return (Cn - s.Q @ (s.Q.T @ Cn)) @ self._W[i]
+
+    def explained(self, i: int) -> np.ndarray:
+        """The part of sensor i's residual the candidate explains, per sample (raw units)."""
+        return self.basis(i) @ self._gamma[i]
 
     @property
     def p(self) -> float:
@@ -141,24 +163,46 @@ def holm(log10_p: Sequence[float], alpha: float) -> tuple[np.ndarray, np.ndarray
     return adj, adj <= np.log10(alpha)
 
 
-def _basis(C: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray | None, list[int]]:
-    """Orthonormal basis of the part of C outside span(Q), and the columns that add nothing to the model."""
-    norms = np.linalg.norm(C, axis=0)
-    dead = [j for j in range(C.shape[1]) if norms[j] == 0]
-    if len(dead) == C.shape[1]:
-        return None, dead
-    Cn = C / np.where(norms == 0, 1.0, norms)
-    Cp = Cn - Q @ (Q.T @ Cn)
-    # orthonormal basis from the small Gram matrix: U = Cp V diag(1/sv)
-    lam, V = np.linalg.eigh(Cp.T @ Cp)
+@dataclass
+class _Workspace:
+    """Inner products of one sensor's candidate columns (normalised, N x K stacked) with themselves, with the
+    model's orthonormal basis Q and with the residual: everything the tests need, in the small space."""
+
+    BtB: np.ndarray
+    QtB: np.ndarray
+    Btr: np.ndarray
+    slices: dict[str, slice]
+
+    def perp_gram(self, a: str, b: str) -> np.ndarray:
+        """``C_a_perp^T C_b_perp`` with ``C_perp = (I - Q Q^T) C``."""
+        sa, sb = self.slices[a], self.slices[b]
+        return self.BtB[sa, sb] - self.QtB[:, sa].T @ self.QtB[:, sb]
+
+
+def _workspace(blocks: dict[str, np.ndarray], Q: np.ndarray, r: np.ndarray) -> _Workspace:
+    B = np.hstack(list(blocks.values()))
+    slices, k = {}, 0
+    for name, c in blocks.items():
+        slices[name] = slice(k, k + c.shape[1])
+        k += c.shape[1]
+    QtB = Q.T @ B
+    Btr = B.T @ r - QtB.T @ (Q.T @ r)  # r is orthogonal to Q up to rounding; remove that rounding
+    return _Workspace(B.T @ B, QtB, Btr, slices)
+
+
+def _whitener(ws: _Workspace, name: str, n_cols: int) -> tuple[np.ndarray | None, list[int]]:
+    """W (k x k) such that ``U = C_perp W`` is an orthonormal basis of the candidate's columns outside the
+    model's span, or None and the columns that add nothing (zero, or a combination of the model's)."""
+    G = ws.perp_gram(name, name)
+    lam, V = np.linalg.eigh(G)
     sv = np.sqrt(np.clip(lam, 0.0, None))
     bad = sv < 1e-6
     if np.any(bad):
+        dead: list[int] = []
         for v in V.T[bad]:
-            dead += [j for j in range(C.shape[1]) if abs(v[j]) > 0.1 and j not in dead]
+            dead += [j for j in range(n_cols) if abs(v[j]) > 0.1 and j not in dead]
         return None, sorted(set(dead))
-    U = Cp @ (V / sv)
-    return U, dead
+    return V / sv, []
 
 
 def score_candidates(session: Session, fit: ModelFit, candidates: Sequence[Effect], alpha: float = 0.01) -> list[CandidateTest]:
@@ -168,14 +212,17 @@ def score_candidates(session: Session, fit: ModelFit, candidates: Sequence[Effec
     testable candidates at level ``alpha``; a sensor is named (``SensorTest.significant``) when its own
     p-value passes Bonferroni over the sensors at ``alpha``.
     """
-    out: list[CandidateTest] = []
+    tests: dict[str, CandidateTest] = {}
+    reasons: dict[str, dict[str, list[str]]] = {}
+    n_app: dict[str, int] = {}
+    active: list[Effect] = []
     for eff in candidates:
         ct = CandidateTest(eff.name, True, description=getattr(eff, "description", ""),
                            advice=getattr(eff, "excited_by", ""))
-        reasons: dict[str, list[str]] = {}
-        n_app = 0
-        need = getattr(eff, "needs", "")
-        if need == "temperature":
+        ct._effect, ct._session, ct._fit = eff, session, fit
+        tests[eff.name] = ct
+        reasons[eff.name], n_app[eff.name] = {}, 0
+        if getattr(eff, "needs", "") == "temperature":
             temps = [seg.temperature for seg in session.segments if seg.temperature is not None]
             if not temps:
                 ct.testable, ct.reason = False, "the session has no temperature"
@@ -183,26 +230,39 @@ def score_candidates(session: Session, fit: ModelFit, candidates: Sequence[Effec
                 ct.testable, ct.reason = False, (f"the temperature never changed "
                                                  f"({float(np.min(np.concatenate(temps))):.1f} degC throughout)")
             if not ct.testable:
-                out.append(ct)
                 continue
-        for i, s in enumerate(fit.sensors):
+        active.append(eff)
+    for i, s in enumerate(fit.sensors):
+        blocks: dict[str, np.ndarray] = {}
+        for eff in active:
             if not eff.applies_to(s.ctx):
                 continue
-            n_app += 1
+            n_app[eff.name] += 1
             C, why = candidate_columns(session, fit, eff, i)
             if C is None:
-                reasons.setdefault(why, []).append(s.name)
+                reasons[eff.name].setdefault(why, []).append(s.name)
                 continue
-            U, dead = _basis(C, s.Q)
-            if U is None:
+            norms = np.linalg.norm(C, axis=0)
+            if np.all(norms == 0):
+                pn = [p.name for p in eff.parameters(s.ctx)]
+                reasons[eff.name].setdefault(f"the session does not excite {pn} (their columns are zero)", []).append(s.name)
+                continue
+            blocks[eff.name] = C / np.where(norms == 0, 1.0, norms)
+        if not blocks:
+            continue
+        ws = _workspace(blocks, s.Q, s.r)
+        for name, Cn in blocks.items():
+            ct, eff = tests[name], next(e for e in active if e.name == name)
+            W, dead = _whitener(ws, name, Cn.shape[1])
+            if W is None:
                 pn = [p.name for p in eff.parameters(s.ctx)]
                 what = [pn[j] for j in dead] if dead else pn
-                reasons.setdefault(f"the session does not excite {what} apart from the model's own parameters "
-                                   "(their columns are zero or a combination of the model's)", []).append(s.name)
+                reasons[name].setdefault(f"the session does not excite {what} apart from the model's own parameters "
+                                         "(their columns are zero or a combination of the model's)", []).append(s.name)
                 continue
-            g = U.T @ s.r
+            g = W.T @ ws.Btr[ws.slices[name]]
             drss = float(g @ g)
-            k = U.shape[1]
+            k = W.shape[1]
             rss0 = s.rss
             dof1 = max(s.n_obs - s.n_par - k, 1)
             rss1 = max(rss0 - drss, np.finfo(float).tiny)
@@ -212,16 +272,19 @@ def score_candidates(session: Session, fit: ModelFit, candidates: Sequence[Effec
             ct.sensors.append(SensorTest(s.name, k, drss, rss0, dof1, float(f), lp,
                                          float(s.n_obs * np.log(rss1 / rss0) + k * np.log(s.n_obs)),
                                          drss / rss0, 1.0 if drss >= excess else drss / excess))
-            ct._bases[i] = U
-            ct._gamma[i] = g
-        if n_app == 0:
+            ct._W[i], ct._gamma[i], ct._ws[i] = W, g, ws
+    out = list(tests.values())
+    for ct in out:
+        if not ct.testable:
+            continue
+        if n_app[ct.name] == 0:
             ct.testable, ct.applicable = False, False
             ct.reason = f"does not apply to {fit.instrument}s"
-            if eff.name == "earth_rate" and fit.instrument == "gyro":
+            if ct.name == "earth_rate" and fit.instrument == "gyro":
                 ct.reason = ("the Earth rate is already part of the gyro input of this model; diagnose with "
                              "include_earth_rate=False (rimu diagnose --no-earth-rate) to test whether the gyros see it")
-        elif reasons:
-            txt = "; ".join(f"{why} (sensors {', '.join(names)})" for why, names in reasons.items())
+        elif reasons[ct.name]:
+            txt = "; ".join(f"{why} (sensors {', '.join(names)})" for why, names in reasons[ct.name].items())
             if ct.sensors:
                 ct.reason = "only partly testable: " + txt
             else:
@@ -235,7 +298,6 @@ def score_candidates(session: Session, fit: ModelFit, candidates: Sequence[Effec
             lp_min = float(lp_sens.min() + np.log10(len(ct.sensors)))
             ct.log10_p = float(min(0.0, min(lp_pool, lp_min) + np.log10(2.0)))
             ct.dbic = float(sum(x.dbic for x in ct.sensors))
-        out.append(ct)
     testable = [c for c in out if c.testable and c.sensors]
     if testable:
         adj, rej = holm([c.log10_p for c in testable], alpha)
@@ -251,25 +313,36 @@ def score_candidates(session: Session, fit: ModelFit, candidates: Sequence[Effec
 
 def conditional_log10_p(fit: ModelFit, a: CandidateTest, b: CandidateTest) -> float:
     """Evidence for candidate ``a`` given the model plus candidate ``b`` (pooled and min-over-sensors, as
-    in :func:`score_candidates`). 0 (p = 1) when ``a`` adds nothing outside ``b``'s span."""
+    in :func:`score_candidates`). 0 (p = 1) when ``a`` adds nothing outside ``b``'s span.
+
+    Computed in the small space: with ``U_a = C_a_perp W_a`` and ``U_b`` orthonormal, the residual's projection
+    on their joint span has squared norm ``g^T G^+ g`` with ``G = [[I, M], [M^T, I]]``, ``M = U_a^T U_b``,
+    ``g = (U_a^T r, U_b^T r)``; ``a`` explains what it adds beyond ``|U_b^T r|^2``.
+    """
     chi, K, lps = 0.0, 0, []
-    for i, Ua in a._bases.items():
+    for i, Wa in a._W.items():
         s = fit.sensors[i]
-        Ub = b._bases.get(i)
-        r = s.r
-        if Ub is not None:
-            r = r - Ub @ (Ub.T @ r)
-            Ua = Ua - Ub @ (Ub.T @ Ua)
-        lam, V = np.linalg.eigh(Ua.T @ Ua)
-        keep = lam > 1e-12
-        if not np.any(keep):
+        ga = a._gamma[i]
+        Wb = b._W.get(i)
+        if Wb is None:
+            lam = np.ones(ga.size)
+            drss, k, kb, gb2 = float(ga @ ga), ga.size, 0, 0.0
+        else:
+            ws = a._ws[i]
+            M = Wa.T @ ws.perp_gram(a.name, b.name) @ Wb
+            ka, kb = Wa.shape[1], Wb.shape[1]
+            G = np.block([[np.eye(ka), M], [M.T, np.eye(kb)]])
+            g = np.concatenate([ga, b._gamma[i]])
+            lam, V = np.linalg.eigh(G)
+            keep = lam > 1e-9
+            proj = float(np.sum((V[:, keep].T @ g) ** 2 / lam[keep]))
+            gb2 = float(b._gamma[i] @ b._gamma[i])
+            drss = max(proj - gb2, 0.0)
+            k = int(keep.sum()) - kb
+        if k <= 0:
             continue
-        U = Ua @ (V[:, keep] / np.sqrt(lam[keep]))
-        g = U.T @ r
-        drss = float(g @ g)
-        k = U.shape[1]
-        dof1 = max(s.n_obs - s.n_par - (0 if Ub is None else Ub.shape[1]) - k, 1)
-        rss1 = max(float(r @ r) - drss, np.finfo(float).tiny)
+        dof1 = max(s.n_obs - s.n_par - kb - k, 1)
+        rss1 = max(s.rss - gb2 - drss, np.finfo(float).tiny)
         f = (drss / k) / (rss1 / dof1) / s.inflation
         chi += f * k
         K += k
@@ -285,11 +358,12 @@ def canonical_correlation(a: CandidateTest, b: CandidateTest) -> float:
     """Largest canonical correlation between two candidates' columns after the model's span is removed
     (cosine of the smallest principal angle), the largest over sensors both apply to."""
     best = 0.0
-    for i, Ua in a._bases.items():
-        Ub = b._bases.get(i)
-        if Ub is None:
+    for i, Wa in a._W.items():
+        Wb = b._W.get(i)
+        if Wb is None:
             continue
-        best = max(best, float(np.linalg.svd(Ua.T @ Ub, compute_uv=False).max()))
+        M = Wa.T @ a._ws[i].perp_gram(a.name, b.name) @ Wb
+        best = max(best, float(np.linalg.svd(M, compute_uv=False).max()))
     return best
 
 

@@ -136,11 +136,11 @@ def plot_candidate(fit: "ModelFit", test: "CandidateTest", path: str | Path) -> 
     """The plot that shows a finding: for each sensor, the segment means of the residual against the segment
     means of the part of it the candidate explains (added-variable plot; points on the diagonal = explained)."""
     plt = _plt()
-    idx = [i for i, s in enumerate(fit.sensors) if i in test._bases]
+    idx = test.sensor_indices
     fig, axes = plt.subplots(1, max(1, len(idx)), figsize=(2.6 * max(1, len(idx)), 2.8), squeeze=False)
     for ax, i in zip(axes[0], idx):
         s = fit.sensors[i]
-        part = test._bases[i] @ test._gamma[i]
+        part = test.explained(i)
         cnt = np.maximum(np.bincount(s.seg_index), 1)
         ym = np.bincount(s.seg_index, weights=s.r) / cnt / s.sigma
         xm = np.bincount(s.seg_index, weights=part) / cnt / s.sigma
@@ -157,7 +157,7 @@ def plot_candidate(fit: "ModelFit", test: "CandidateTest", path: str | Path) -> 
 def plot_regressors(fit: "ModelFit", tests: list["CandidateTest"], path: str | Path, sensor: int = 0) -> Path | None:
     """Residual of one sensor against each testable candidate's regressor (its first direction outside the
     model's span), binned: a straight sloped line is an effect the model lacks."""
-    tt = [t for t in tests if sensor in t._bases][:12]
+    tt = [t for t in tests if sensor in t.sensor_indices][:12]
     if not tt:
         return None
     plt = _plt()
@@ -167,7 +167,7 @@ def plot_regressors(fit: "ModelFit", tests: list["CandidateTest"], path: str | P
     s = fit.sensors[sensor]
     z = s.r / s.sigma
     for ax, t in zip(axes.ravel(), tt):
-        x = t._bases[sensor][:, 0]
+        x = t.basis(sensor)[:, 0]
         edges = np.quantile(x, np.linspace(0, 1, 11))
         k = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, 9)
         cnt = np.bincount(k, minlength=10)
