@@ -354,7 +354,7 @@ class Comparison:
                     rows.append({"effect": e.name, "sensor": s.name, "parameter": p.name, "value_si": v,
                                  "std_si": sd, "unit": spec.unit, "value": v * spec.to_report,
                                  "std": sd * spec.to_report, "report_unit": spec.report_unit or spec.unit,
-                                 "z": v / sd if sd > 0 else float("inf")})
+                                 "z": v / sd if sd > 0 else None})
         return rows
 
     def lines(self) -> list[str]:

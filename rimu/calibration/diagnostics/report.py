@@ -114,7 +114,7 @@ def render_markdown(diagnosis: Diagnosis, directory: Path, comparisons: Sequence
             md += ["", "New parameters (1-sigma):", ""]
             md += _table(["sensor", "parameter", "value", "1-sigma", "unit", "z"],
                          [(r["sensor"], r["parameter"], f"{r['value']:.4g}", f"{r['std']:.2g}", r["report_unit"],
-                           f"{r['z']:+.1f}") for r in c.new_parameters()])
+                           f"{r['z']:+.1f}" if r['z'] is not None else "-") for r in c.new_parameters()])
             md += [""]
             if figures:
                 p = plots.plot_comparison(c, directory / "figures" / f"compare_{n}_{c.instrument}.png")

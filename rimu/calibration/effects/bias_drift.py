@@ -9,6 +9,9 @@ from ..model import Effect, ParamSpec, SensorContext
 from ._common import output_unit
 
 
+__all__ = ["BiasDrift"]
+
+
 class BiasDrift(Effect):
     name = "bias_drift"
     description = "bias drifting linearly in time over the session (warm-up, or a slow trend)"

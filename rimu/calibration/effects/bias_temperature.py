@@ -9,6 +9,9 @@ from ..model import Effect, ParamSpec, SensorContext
 from ._common import output_unit, temperature_offset
 
 
+__all__ = ["BiasTemperature"]
+
+
 class BiasTemperature(Effect):
     name = "bias_temperature"
     description = "bias temperature coefficient (linear): bias changes in proportion to T - T_ref"

@@ -9,6 +9,9 @@ from ..model import Effect, ParamSpec, SensorContext
 from ._common import output_unit, temperature_offset
 
 
+__all__ = ["BiasTemperature2"]
+
+
 class BiasTemperature2(Effect):
     name = "bias_temperature2"
     description = "bias temperature coefficient (quadratic): bias changes in proportion to (T - T_ref)^2"

@@ -10,6 +10,9 @@ from ..model import Effect, ParamSpec, SensorContext
 from ._common import per_input_power
 
 
+__all__ = ["CrossCoupling"]
+
+
 class CrossCoupling(Effect):
     name = "cross_coupling"
     description = ("cross-coupling: output error proportional to the product of the input along the sensor's axis "

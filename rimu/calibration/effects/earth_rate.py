@@ -8,6 +8,9 @@ from ...session import Segment
 from ..model import Effect, ParamSpec, SensorContext
 
 
+__all__ = ["EarthRate"]
+
+
 class EarthRate(Effect):
     name = "earth_rate"
     instruments = ("gyro",)

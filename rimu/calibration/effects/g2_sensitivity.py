@@ -9,6 +9,9 @@ from ...units import G0, RS_TO_DH
 from ..model import Effect, ParamSpec, SensorContext
 
 
+__all__ = ["G2Sensitivity"]
+
+
 class G2Sensitivity(Effect):
     name = "g2_sensitivity"
     instruments = ("gyro",)

@@ -9,6 +9,9 @@ from ...units import G0, RS_TO_DH
 from ..model import Effect, ParamSpec, SensorContext
 
 
+__all__ = ["GSensitivity"]
+
+
 class GSensitivity(Effect):
     name = "g_sensitivity"
     instruments = ("gyro",)

@@ -10,6 +10,9 @@ from ..model import Effect, ParamSpec, SensorContext
 from ._common import axis_input, temperature_offset
 
 
+__all__ = ["ScaleTemperature"]
+
+
 class ScaleTemperature(Effect):
     name = "scale_temperature"
     description = "scale-factor temperature coefficient (linear): the scale changes in proportion to T - T_ref"

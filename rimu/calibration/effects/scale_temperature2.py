@@ -10,6 +10,9 @@ from ..model import Effect, ParamSpec, SensorContext
 from ._common import axis_input, temperature_offset
 
 
+__all__ = ["ScaleTemperature2"]
+
+
 class ScaleTemperature2(Effect):
     name = "scale_temperature2"
     description = "scale-factor temperature coefficient (quadratic): the scale changes in proportion to (T - T_ref)^2"

@@ -10,6 +10,9 @@ from ..model import Effect, ParamSpec, SensorContext
 from ._common import axis_input
 
 
+__all__ = ["ScaleAsymmetry"]
+
+
 class ScaleAsymmetry(Effect):
     name = "sf_asymmetry"
     description = "scale-factor asymmetry: the scale for positive inputs differs from the scale for negative inputs"

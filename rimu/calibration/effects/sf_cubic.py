@@ -9,6 +9,9 @@ from ..model import Effect, ParamSpec, SensorContext
 from ._common import axis_input, per_input_power
 
 
+__all__ = ["ScaleCubic"]
+
+
 class ScaleCubic(Effect):
     name = "sf_cubic"
     description = "scale-factor nonlinearity: output error proportional to the input cubed (odd in the input)"

@@ -9,6 +9,9 @@ from ..model import Effect, ParamSpec, SensorContext
 from ._common import axis_input, per_input_power
 
 
+__all__ = ["ScaleQuadratic"]
+
+
 class ScaleQuadratic(Effect):
     name = "sf_quadratic"
     description = "scale-factor nonlinearity: output error proportional to the input squared (even in the input)"

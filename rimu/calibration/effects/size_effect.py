@@ -8,6 +8,9 @@ from ...session import Segment, skew
 from ..model import Effect, ParamSpec, SensorContext
 
 
+__all__ = ["SizeEffect"]
+
+
 class SizeEffect(Effect):
     name = "size_effect"
     instruments = ("accel",)
