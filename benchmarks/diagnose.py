@@ -18,18 +18,18 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from rimu.calibration.diagnostics import diagnose  # noqa: E402
-from rimu.calibration.diagnostics.fitting import cached  # noqa: E402
-from rimu.calibration.effects import GSensitivity  # noqa: E402
-from rimu.calibration.model import ErrorModel, contexts  # noqa: E402
-from rimu.geometry import cone6  # noqa: E402
-from rimu.sim import Simulator, TruthEffect  # noqa: E402
-from rimu.sim.procedures import cho_park_procedure  # noqa: E402
-from rimu.units import DH_TO_RS, G0  # noqa: E402
+from rimu.calibration.diagnostics import diagnose
+from rimu.calibration.diagnostics.fitting import cached
+from rimu.calibration.effects import GSensitivity
+from rimu.calibration.model import ErrorModel, contexts
+from rimu.geometry import cone6
+from rimu.sim import Simulator, TruthEffect
+from rimu.sim.procedures import cho_park_procedure
+from rimu.units import DH_TO_RS, G0
 
 
 def session():

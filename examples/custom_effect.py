@@ -17,12 +17,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from rimu.calibration.diagnostics import diagnose  # noqa: E402
-from rimu.calibration.model import Effect, ParamSpec, register_effect  # noqa: E402
-from rimu.geometry import tetrad4  # noqa: E402
-from rimu.sim import Simulator, TruthEffect  # noqa: E402
-from rimu.sim.procedures import oliveira_table1  # noqa: E402
-from rimu.units import DEG_TO_RAD, RS_TO_DH  # noqa: E402
+from rimu.calibration.diagnostics import diagnose
+from rimu.calibration.model import Effect, ParamSpec, register_effect
+from rimu.geometry import tetrad4
+from rimu.sim import Simulator, TruthEffect
+from rimu.sim.procedures import oliveira_table1
+from rimu.units import DEG_TO_RAD, RS_TO_DH
 
 
 class RateSquaredBias(Effect):

@@ -11,12 +11,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from rimu.calibration.diagnostics import diagnose, iterate, write_report  # noqa: E402
-from rimu.calibration.effects import GSensitivity, ScaleQuadratic  # noqa: E402
-from rimu.geometry import cone6  # noqa: E402
-from rimu.sim import Simulator, TruthEffect  # noqa: E402
-from rimu.sim.procedures import cho_park_procedure, cho_park_table2  # noqa: E402
-from rimu.units import DEG_TO_RAD, DH_TO_RS, G0, PPM  # noqa: E402
+from rimu.calibration.diagnostics import diagnose, iterate, write_report
+from rimu.calibration.effects import GSensitivity, ScaleQuadratic
+from rimu.geometry import cone6
+from rimu.sim import Simulator, TruthEffect
+from rimu.sim.procedures import cho_park_procedure, cho_park_table2
+from rimu.units import DEG_TO_RAD, DH_TO_RS, G0, PPM
 
 
 def main(report_dir: str | None = None) -> None:

@@ -4,8 +4,9 @@ sizes a real sensor of the stated grade shows, and the sensors they sit on."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -15,7 +16,7 @@ from rimu.sim import Simulator, TruthEffect
 from rimu.sim.procedures import SegmentSpec, rotation, static
 from rimu.units import DEG_TO_RAD, DH_TO_RS, G0, PPM, UG_TO_MS2
 
-__all__ = ["rich_procedure", "Scenario", "SCENARIOS", "simulate", "known_sigma"]
+__all__ = ["SCENARIOS", "Scenario", "known_sigma", "rich_procedure", "simulate"]
 
 
 def rich_procedure(static_s: float = 5.0, rate_s: float = 5.0, rates_dps: tuple[float, ...] = (50.0, 200.0),

@@ -3,7 +3,7 @@ null, two hidden effects in two rounds, confounded and untestable candidates, ag
 
 import numpy as np
 import pytest
-from scenarios import SCENARIOS, _temp, known_sigma, rich_procedure, simulate
+from scenarios import _temp, known_sigma, rich_procedure, simulate
 from scipy import stats
 
 from rimu.calibration.diagnostics import diagnose, fit_model, iterate, noise_from_differences

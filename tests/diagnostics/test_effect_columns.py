@@ -6,8 +6,17 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rimu.calibration.effects import (
-    BiasDrift, BiasTemperature2, CrossCoupling, EarthRate, G2Sensitivity, GSensitivity, ScaleAsymmetry, ScaleCubic,
-    ScaleQuadratic, ScaleTemperature, SizeEffect,
+    BiasDrift,
+    BiasTemperature2,
+    CrossCoupling,
+    EarthRate,
+    G2Sensitivity,
+    GSensitivity,
+    ScaleAsymmetry,
+    ScaleCubic,
+    ScaleQuadratic,
+    ScaleTemperature,
+    SizeEffect,
 )
 from rimu.calibration.model import EFFECTS, ErrorModel, SensorContext
 from rimu.geometry import preset

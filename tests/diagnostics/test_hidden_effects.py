@@ -4,7 +4,7 @@ parameters within 3 sigma of the truth."""
 
 import numpy as np
 import pytest
-from scenarios import SCENARIOS, simulate, known_sigma
+from scenarios import SCENARIOS, known_sigma, simulate
 
 from rimu.calibration.diagnostics import diagnose
 
@@ -44,9 +44,10 @@ def test_physical_lever_arm_of_the_simulator_is_recovered(geometry):
     """The simulator's own centripetal term (lever_arm_m, w x (w x r) along the TRUE axis) is found as the
     size effect, and r recovered within 3 sigma plus the bias the nominal-axis column carries (about the
     sensor's misalignment angle times |r|; Cho & Park Table 3's accelerometers are up to 20 mrad off)."""
+    from scenarios import rich_procedure
+
     from rimu.geometry import preset
     from rimu.sim import Simulator
-    from scenarios import rich_procedure
 
     g = preset(geometry)
     lever = np.zeros((g.n, 3))

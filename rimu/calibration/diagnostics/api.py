@@ -5,8 +5,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -18,8 +19,19 @@ from .candidates import CandidateTest, conditional_log10_p, confounding, score_c
 from .fitting import ModelFit, cached, fit_model
 from .residuals import SensorStats, failures, residual_statistics
 
-__all__ = ["DEFAULT_ALPHA", "Finding", "InstrumentDiagnosis", "Diagnosis", "Comparison", "Iteration", "diagnose",
-           "compare", "iterate", "candidate_effects", "format_p"]
+__all__ = [
+    "DEFAULT_ALPHA",
+    "Comparison",
+    "Diagnosis",
+    "Finding",
+    "InstrumentDiagnosis",
+    "Iteration",
+    "candidate_effects",
+    "compare",
+    "diagnose",
+    "format_p",
+    "iterate",
+]
 
 #: default family-wise significance of "something is missing"
 DEFAULT_ALPHA = 0.01
@@ -212,7 +224,7 @@ class Diagnosis:
             out.append(f"{k}: not diagnosed: {why}")
         return "\n".join(out)
 
-    def add(self, *effects: Effect | str, instrument: str | None = None) -> dict[str, "Comparison"]:
+    def add(self, *effects: Effect | str, instrument: str | None = None) -> dict[str, Comparison]:
         """Add effects to the model, refit, and compare before and after.
 
         ``instrument`` None adds each effect to every instrument where it applies and was not already in.

@@ -24,18 +24,26 @@ excite it. Confounded: two significant candidates neither of which adds signific
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from scipy import stats
 
 from ...session import Session
 from ..model import Effect
-from .fitting import RANK_TOL, ModelFit, candidate_columns
+from .fitting import ModelFit, candidate_columns
 
-__all__ = ["SensorTest", "CandidateTest", "score_candidates", "holm", "confounding", "conditional_log10_p",
-           "canonical_correlation"]
+__all__ = [
+    "CandidateTest",
+    "SensorTest",
+    "canonical_correlation",
+    "conditional_log10_p",
+    "confounding",
+    "holm",
+    "score_candidates",
+]
 
 _LN10 = np.log(10.0)
 
@@ -79,7 +87,7 @@ class CandidateTest:
     # per sensor index: whitener W (U = C_perp W), U^T r, and the sensor's workspace of inner products
     _W: dict[int, np.ndarray] = field(default_factory=dict, repr=False)
     _gamma: dict[int, np.ndarray] = field(default_factory=dict, repr=False)
-    _ws: dict[int, "_Workspace"] = field(default_factory=dict, repr=False)
+    _ws: dict[int, _Workspace] = field(default_factory=dict, repr=False)
     _effect: Any = field(default=None, repr=False)
     _session: Any = field(default=None, repr=False)
     _fit: Any = field(default=None, repr=False)

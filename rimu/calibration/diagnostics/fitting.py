@@ -11,8 +11,8 @@ identifiability checks and the confounding tests follow without refitting.
 from __future__ import annotations
 
 import copy
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 
@@ -21,26 +21,36 @@ from ...session import Segment, Session
 from ..lsq import physical_from_beta
 from ..model import Effect, ErrorModel, ParamSpec, SensorContext, contexts
 
-__all__ = ["cached", "SensorFit", "ModelFit", "fit_model", "candidate_columns", "noise_level", "noise_inflation",
-           "noise_from_differences", "within_segment", "RANK_TOL"]
+__all__ = [
+    "RANK_TOL",
+    "ModelFit",
+    "SensorFit",
+    "cached",
+    "candidate_columns",
+    "fit_model",
+    "noise_from_differences",
+    "noise_inflation",
+    "noise_level",
+    "within_segment",
+]
 
 class _CachedSegment(Segment):
     """A segment whose attitude history (the costly part of every input) is computed once."""
 
-    def attitude(self) -> np.ndarray | None:  # noqa: D102
+    def attitude(self) -> np.ndarray | None:
         c = self.__dict__.get("_att_cache", False)
         if c is False:
             c = Segment.attitude(self)
             self.__dict__["_att_cache"] = c
         return c
 
-    def specific_force(self, gravity: float = 9.80665) -> np.ndarray | None:  # noqa: D102
+    def specific_force(self, gravity: float = 9.80665) -> np.ndarray | None:
         key = ("_f_cache", gravity)
         if key not in self.__dict__:
             self.__dict__[key] = Segment.specific_force(self, gravity)
         return self.__dict__[key]
 
-    def earth_rate(self, latitude: float | None) -> np.ndarray | None:  # noqa: D102
+    def earth_rate(self, latitude: float | None) -> np.ndarray | None:
         key = ("_we_cache", latitude)
         if key not in self.__dict__:
             self.__dict__[key] = Segment.earth_rate(self, latitude)

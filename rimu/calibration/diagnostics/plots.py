@@ -18,8 +18,15 @@ if TYPE_CHECKING:  # pragma: no cover
     from .candidates import CandidateTest
     from .fitting import ModelFit
 
-__all__ = ["plot_residual_time", "plot_segment_map", "plot_input", "plot_temperature", "plot_candidate",
-           "plot_regressors", "plot_comparison"]
+__all__ = [
+    "plot_candidate",
+    "plot_comparison",
+    "plot_input",
+    "plot_regressors",
+    "plot_residual_time",
+    "plot_segment_map",
+    "plot_temperature",
+]
 
 
 def _plt():
@@ -51,7 +58,7 @@ def _decimate(n: int, keep: int = 4000) -> slice:
     return slice(None, None, max(1, n // keep))
 
 
-def plot_residual_time(fit: "ModelFit", path: str | Path) -> Path:
+def plot_residual_time(fit: ModelFit, path: str | Path) -> Path:
     """Residual / noise level against time for every sensor, with each segment's mean (x 10 for visibility
     is not applied: the mean is drawn in units of its own standard error on the right axis)."""
     plt = _plt()
@@ -73,7 +80,7 @@ def plot_residual_time(fit: "ModelFit", path: str | Path) -> Path:
     return _save(fig, path)
 
 
-def plot_segment_map(d: "InstrumentDiagnosis", path: str | Path) -> Path:
+def plot_segment_map(d: InstrumentDiagnosis, path: str | Path) -> Path:
     """Mean residual of each sensor on each segment, in units of its standard error (where it fails)."""
     plt = _plt()
     labels = d.fit.segment_labels
@@ -91,7 +98,7 @@ def plot_segment_map(d: "InstrumentDiagnosis", path: str | Path) -> Path:
     return _save(fig, path)
 
 
-def plot_input(fit: "ModelFit", path: str | Path) -> Path:
+def plot_input(fit: ModelFit, path: str | Path) -> Path:
     """Mean residual against the input along the sensing axis (magnitude and sign), per sensor."""
     plt = _plt()
     fig, axes = plt.subplots(1, len(fit.sensors), figsize=(2.6 * len(fit.sensors), 2.8), squeeze=False)
@@ -109,7 +116,7 @@ def plot_input(fit: "ModelFit", path: str | Path) -> Path:
     return _save(fig, path)
 
 
-def plot_temperature(fit: "ModelFit", path: str | Path) -> Path | None:
+def plot_temperature(fit: ModelFit, path: str | Path) -> Path | None:
     """Mean residual against temperature (binned), per sensor; None when temperature never changed."""
     s0 = fit.sensors[0]
     if s0.temperature is None or np.ptp(s0.temperature) < 0.1:
@@ -132,7 +139,7 @@ def plot_temperature(fit: "ModelFit", path: str | Path) -> Path | None:
     return _save(fig, path)
 
 
-def plot_candidate(fit: "ModelFit", test: "CandidateTest", path: str | Path) -> Path:
+def plot_candidate(fit: ModelFit, test: CandidateTest, path: str | Path) -> Path:
     """The plot that shows a finding: for each sensor, the segment means of the residual against the segment
     means of the part of it the candidate explains (added-variable plot; points on the diagonal = explained)."""
     plt = _plt()
@@ -154,7 +161,7 @@ def plot_candidate(fit: "ModelFit", test: "CandidateTest", path: str | Path) -> 
     return _save(fig, path)
 
 
-def plot_regressors(fit: "ModelFit", tests: list["CandidateTest"], path: str | Path, sensor: int = 0) -> Path | None:
+def plot_regressors(fit: ModelFit, tests: list[CandidateTest], path: str | Path, sensor: int = 0) -> Path | None:
     """Residual of one sensor against each testable candidate's regressor (its first direction outside the
     model's span), binned: a straight sloped line is an effect the model lacks."""
     tt = [t for t in tests if sensor in t.sensor_indices][:12]
@@ -185,7 +192,7 @@ def plot_regressors(fit: "ModelFit", tests: list["CandidateTest"], path: str | P
     return _save(fig, path)
 
 
-def plot_comparison(comp: "Comparison", path: str | Path) -> Path:
+def plot_comparison(comp: Comparison, path: str | Path) -> Path:
     """Before and after: rms per sensor (field units) and the residual of the most improved sensor over time."""
     plt = _plt()
     u = output_unit(comp.before.contexts[0])

@@ -4,14 +4,15 @@ from __future__ import annotations
 
 import html
 import json
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 from ..effects._common import output_unit
 from . import plots
 from .api import Comparison, Diagnosis, Iteration, format_p
 
-__all__ = ["write_report", "render_markdown"]
+__all__ = ["render_markdown", "write_report"]
 
 
 def _table(head: Sequence[str], rows: Sequence[Sequence[Any]]) -> list[str]:

@@ -19,8 +19,16 @@ from scipy import stats
 
 from .fitting import ModelFit, SensorFit
 
-__all__ = ["SensorStats", "SegmentStat", "residual_statistics", "sensor_statistics", "failures", "input_bins",
-           "autocorrelation", "ljung_box"]
+__all__ = [
+    "SegmentStat",
+    "SensorStats",
+    "autocorrelation",
+    "failures",
+    "input_bins",
+    "ljung_box",
+    "residual_statistics",
+    "sensor_statistics",
+]
 
 
 def autocorrelation(r: np.ndarray, seg_index: np.ndarray, lags: int) -> np.ndarray:

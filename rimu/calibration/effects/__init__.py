@@ -37,7 +37,20 @@ register_effect(EarthRate)
 register_effect(CrossCoupling)
 
 __all__ = [
-    "EFFECTS", "Bias", "ScaleMisalignment", "ScaleQuadratic", "ScaleCubic", "ScaleAsymmetry", "GSensitivity",
-    "G2Sensitivity", "BiasTemperature", "BiasTemperature2", "ScaleTemperature", "ScaleTemperature2", "BiasDrift",
-    "SizeEffect", "EarthRate", "CrossCoupling",
+    "EFFECTS",
+    "Bias",
+    "BiasDrift",
+    "BiasTemperature",
+    "BiasTemperature2",
+    "CrossCoupling",
+    "EarthRate",
+    "G2Sensitivity",
+    "GSensitivity",
+    "ScaleAsymmetry",
+    "ScaleCubic",
+    "ScaleMisalignment",
+    "ScaleQuadratic",
+    "ScaleTemperature",
+    "ScaleTemperature2",
+    "SizeEffect",
 ]

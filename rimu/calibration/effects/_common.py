@@ -8,7 +8,7 @@ from ...session import Segment
 from ...units import DEG_TO_RAD, G0, MS2_TO_UG, PPM, RS_TO_DH
 from ..model import SensorContext
 
-__all__ = ["axis_input", "output_unit", "input_unit", "per_input_power", "temperature_offset"]
+__all__ = ["axis_input", "input_unit", "output_unit", "per_input_power", "temperature_offset"]
 
 
 def axis_input(segment: Segment, ctx: SensorContext) -> np.ndarray | None:

@@ -8,7 +8,6 @@ from ...session import Segment
 from ..model import Effect, ParamSpec, SensorContext
 from ._common import output_unit, temperature_offset
 
-
 __all__ = ["BiasTemperature"]
 
 

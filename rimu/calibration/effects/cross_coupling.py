@@ -9,7 +9,6 @@ from ...session import Segment
 from ..model import Effect, ParamSpec, SensorContext
 from ._common import per_input_power
 
-
 __all__ = ["CrossCoupling"]
 
 

@@ -8,7 +8,6 @@ from ...session import Segment
 from ...units import G0, RS_TO_DH
 from ..model import Effect, ParamSpec, SensorContext
 
-
 __all__ = ["GSensitivity"]
 
 

@@ -9,7 +9,6 @@ from ...units import PPM
 from ..model import Effect, ParamSpec, SensorContext
 from ._common import axis_input, temperature_offset
 
-
 __all__ = ["ScaleTemperature"]
 
 

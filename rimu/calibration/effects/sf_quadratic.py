@@ -8,7 +8,6 @@ from ...session import Segment
 from ..model import Effect, ParamSpec, SensorContext
 from ._common import axis_input, per_input_power
 
-
 __all__ = ["ScaleQuadratic"]
 
 

@@ -7,7 +7,6 @@ import numpy as np
 from ...session import Segment, skew
 from ..model import Effect, ParamSpec, SensorContext
 
-
 __all__ = ["SizeEffect"]
 
 
