@@ -228,18 +228,24 @@ def save_session(session: Session, path: str | Path) -> Path:
         return path
     if path.suffix != ".csv":
         raise SessionFormatError(f"{path}: use a .csv (with a .json sidecar) or .npz file name")
+    for s in session.segments:
+        if any(ch in s.label for ch in ',"\n\r') or s.label != s.label.strip():
+            raise SessionFormatError(f"segment label {s.label!r} cannot be written to CSV: no commas, quotes, line "
+                                     "breaks or surrounding spaces")
     side = session_sidecar(session, path.name)
     header = ["t", "segment"] + cols + (["temperature"] if has_temp else [])
     with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(header)
+        fh.write(",".join(header) + "\n")
         for s in session.segments:
-            block = [s.t[:, None]] + [s.raw[k] for k in session.instruments]
+            block = [s.raw[k] for k in session.instruments]
             if has_temp:
                 block.append(s.temperature[:, None])
             data = np.hstack(block)
-            for row in data:
-                w.writerow([repr(float(row[0])), s.label] + [repr(float(v)) for v in row[1:]])
+            tcol = np.char.mod("%.17g", s.t)
+            body = np.char.mod("%.17g", data)
+            lab = s.label
+            for k in range(s.n_samples):
+                fh.write(f"{tcol[k]},{lab}," + ",".join(body[k]) + "\n")
     path.with_suffix(".json").write_text(_readable_json(side))
     return path
 
@@ -377,15 +383,28 @@ def _load_csv(path: Path, side: dict, src: Path) -> Session:
         num_cols = [c for c in need if c != "segment"] + (["temperature"] if "temperature" in header else [])
         idx = {c: header.index(c) for c in header}
         labels = {str(d["label"]): k for k, d in enumerate(side["segments"])}
-        vals, segi = [], []
-        for r, line in enumerate(reader, start=2):
-            if len(line) != len(header):
-                raise SessionFormatError(f"{path}: row {r} has {len(line)} fields, the header has {len(header)}")
-            lab = line[idx["segment"]].strip()
-            if lab not in labels:
-                raise SessionFormatError(f"{path}: row {r}, column 'segment': label {lab!r} is not a segment of "
-                                         f"the sidecar ({sorted(labels)})")
-            row = []
+        lines = list(reader)
+    if not lines:
+        raise SessionFormatError(f"{path}: no data rows")
+    nh = len(header)
+    for r, line in enumerate(lines, start=2):
+        if len(line) != nh:
+            raise SessionFormatError(f"{path}: row {r} has {len(line)} fields, the header has {nh}")
+    ci = [idx[c] for c in num_cols]
+    si = idx["segment"]
+    segi = []
+    for r, line in enumerate(lines, start=2):
+        k = labels.get(line[si].strip())
+        if k is None:
+            raise SessionFormatError(f"{path}: row {r}, column 'segment': label {line[si].strip()!r} is not a "
+                                     f"segment of the sidecar ({sorted(labels)})")
+        segi.append(k)
+    try:
+        vals = np.array([[line[c] for c in ci] for line in lines], dtype=float)
+    except ValueError:
+        vals = None
+    if vals is None or (vals.size and not np.all(np.isfinite(vals))):
+        for r, line in enumerate(lines, start=2):  # find the first bad cell for the message
             for c in num_cols:
                 try:
                     v = float(line[idx[c]])
@@ -393,12 +412,7 @@ def _load_csv(path: Path, side: dict, src: Path) -> Session:
                     raise SessionFormatError(f"{path}: row {r}, column {c!r}: {line[idx[c]]!r} is not a number") from None
                 if not math.isfinite(v):
                     raise SessionFormatError(f"{path}: row {r}, column {c!r} is not finite ({v})")
-                row.append(v)
-            vals.append(row)
-            segi.append(labels[lab])
-    if not vals:
-        raise SessionFormatError(f"{path}: no data rows")
-    data = np.array(vals)
+    data = vals
     t = data[:, 0]
     seg_idx = np.array(segi)
     bad = np.flatnonzero((np.diff(t) <= 0) & (np.diff(seg_idx) == 0))

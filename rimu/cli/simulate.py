@@ -15,6 +15,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--geometry", default=None, help="geometry preset for gyros and accelerometers "
                    "(default: cone6; tetrad4 gyros + triad3 accelerometers for oliveira_table1; triad3 for zhang)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--duration", type=float, default=None,
+                   help="s per static position and rate step (cho_park procedures; default 60)")
     p.add_argument("--sample-rate", type=float, default=100.0, help="Hz")
     p.add_argument("--arw", type=float, default=3.0, help="gyro angle random walk, deg/sqrt(h)")
     p.add_argument("--vrw", type=float, default=200.0, help="accelerometer noise density, micro-g/sqrt(Hz)")
@@ -43,7 +45,8 @@ def run(args: argparse.Namespace) -> int:
 
     sim = Simulator(geometries_for(args.procedure, args.geometry), arw_deg_sqrt_h=args.arw, vrw_ug_sqrt_hz=args.vrw,
                     sample_rate=args.sample_rate, latitude_deg=args.latitude, seed=args.seed)
-    result = sim.run(PROCEDURES[args.procedure]())
+    kw = {"duration": args.duration} if (args.duration and args.procedure.startswith("cho_park")) else {}
+    result = sim.run(PROCEDURES[args.procedure](**kw))
     s = result.session
     out = save_session(s, Path(args.output))
     side = f" + sidecar {out.with_suffix('.json')}" if out.suffix == ".csv" else ""
