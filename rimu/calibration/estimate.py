@@ -71,7 +71,7 @@ def segment_residuals(model: ErrorModel, ctx: SensorContext, segments: Sequence[
     for seg in segments:
         if base and cache is not None:
             if seg.label not in cache:
-                cache[seg.label] = ctx.input(seg)
+                cache[seg.label] = _known_input(ctx, seg)
             u = cache[seg.label]
             if u is None:
                 continue
@@ -82,6 +82,20 @@ def segment_residuals(model: ErrorModel, ctx: SensorContext, segments: Sequence[
             continue
         out[seg.label] = seg.raw[instrument][:, ctx.index] - X @ beta
     return out
+
+
+def _known_input(ctx: SensorContext, seg: Segment) -> np.ndarray | None:
+    """``ctx.input(seg)``, without building a rotation matrix per sample when the segment is static."""
+    if seg.kind == "static" and not np.any(seg.table_rate()):
+        if ctx.instrument == "gyro":
+            if seg.mat_ln_mb is not None and ctx.latitude is not None:
+                from ..session import earth_rate_ln
+
+                return np.broadcast_to(seg.mat_ln_mb.T @ earth_rate_ln(ctx.latitude), (seg.n_samples, 3))
+            return np.zeros((seg.n_samples, 3))
+        if seg.specific_force_mb is None and seg.mat_ln_mb is not None:
+            return np.broadcast_to(seg.mat_ln_mb.T @ np.array([0.0, 0.0, ctx.gravity]), (seg.n_samples, 3))
+    return ctx.input(seg)
 
 
 def make_sensor_fit(model: ErrorModel, ctx: SensorContext, beta: np.ndarray, beta_cov: np.ndarray, sigma: float,
@@ -261,10 +275,18 @@ class LeastSquares:
             sig = _sigma_for(self.sigma, session, inst)
             fits = []
             skipped: dict[str, str] = {}
+            cache: dict[str, np.ndarray | None] = {}
+            base = [e.name for e in model.effects] == ["scale_misalignment", "bias"]
             for ctx in contexts(session, inst):
                 Xs, ys, labels = [], [], []
                 for seg in segs:
-                    X = model.design(seg, ctx)
+                    if base:  # the known input is the same for every sensor of the instrument: compute it once
+                        if seg.label not in cache:
+                            cache[seg.label] = _known_input(ctx, seg)
+                        u = cache[seg.label]
+                        X = None if u is None else np.column_stack([u, np.ones(seg.n_samples)])
+                    else:
+                        X = model.design(seg, ctx)
                     y = seg.raw[inst][:, ctx.index]
                     if X is not None:
                         Xs.append(X)
