@@ -106,7 +106,7 @@ class Oliveira:
     >>> from rimu.sim import Simulator, oliveira_table1
     >>> run = Simulator({"gyro": tetrad4(), "accel": triad3()}, seed=1).run(oliveira_table1(turns=1))
     >>> res = Oliveira().fit(run.session)
-    >>> [round(x, 3) for x in res.extra["parity"]["v"][0]]
+    >>> [round(float(x), 3) for x in res.extra["parity"]["v"][0]]
     [-0.408, -0.408, -0.408, 0.707]
     """
 
