@@ -47,7 +47,7 @@ def test_earth_rate_is_subtracted_and_documented(run60):
 
 def test_normalised_error_rms_over_seeds():
     """Over 200 seeds rms(error/sigma) is within [0.85, 1.15]: the reported uncertainties are honest."""
-    proc = cho_park_procedure(duration=5.0)
+    proc = cho_park_procedure(duration=3.0)
 
     def simulate(seed):
         r = Simulator(seed=1000 + seed).run(proc)
