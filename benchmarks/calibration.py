@@ -21,10 +21,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from rimu.calibration import ChoPark, LeastSquares  # noqa: E402
-from rimu.geometry import cone6, triad3  # noqa: E402
-from rimu.sim import Simulator, cho_park_procedure, rotation, static  # noqa: E402
-from rimu.units import DEG_TO_RAD, G0, MS2_TO_UG, RAD_TO_ARCSEC, RS_TO_DH  # noqa: E402
+from rimu.calibration import ChoPark, LeastSquares
+from rimu.geometry import triad3
+from rimu.sim import Simulator, cho_park_procedure, rotation, static
+from rimu.units import DEG_TO_RAD, G0, MS2_TO_UG, RS_TO_DH
 
 try:  # optional reference
     from imucal import FerrarisCalibration, FerrarisSignalRegions
@@ -65,7 +65,7 @@ def errors(truth, sf_a, ax_a, b_a, sf_g, ax_g, b_g) -> dict[str, float]:
         return np.degrees(np.arccos(np.clip(np.sum(A * B, axis=1), -1, 1))) * 3600
 
     ta, tg = truth["accel"], truth["gyro"]
-    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
+    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))
     return {
         "acc_scale_ppm": rms((sf_a / ta.scale - 1) * 1e6), "acc_axis_arcsec": rms(ang(ax_a, ta.axes_mb())),
         "acc_bias_ug": rms((b_a - ta.bias) * MS2_TO_UG),

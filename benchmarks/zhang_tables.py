@@ -25,12 +25,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from rimu.calibration import ChoPark, Zhang  # noqa: E402
-from rimu.calibration.montecarlo import progress  # noqa: E402
-from rimu.calibration.zhang import zhang_parameters  # noqa: E402
-from rimu.geometry import triad3  # noqa: E402
-from rimu.sim import Simulator, cho_park_procedure, zhang_scheme  # noqa: E402
-from rimu.units import MS2_TO_UG, RAD_TO_ARCSEC, RS_TO_DH  # noqa: E402
+from rimu.calibration import ChoPark, Zhang
+from rimu.calibration.montecarlo import progress
+from rimu.calibration.zhang import zhang_parameters
+from rimu.geometry import triad3
+from rimu.sim import Simulator, cho_park_procedure, zhang_scheme
+from rimu.units import MS2_TO_UG, RAD_TO_ARCSEC, RS_TO_DH
 
 #: Zhang et al. 2010, Table 3 (0.1 deg/h/sqrt(Hz), 500 ug/sqrt(Hz)) and Table 4 (0.03, 100): standard deviations
 PAPER = {

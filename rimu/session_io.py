@@ -18,8 +18,15 @@ from .geometry import triad3
 from .session import Segment, Session
 from .units import G0
 
-__all__ = ["load_ferraris", "FERRARIS_SECTIONS", "save_session", "load_session", "session_sidecar", "SESSION_FORMAT",
-           "SESSION_FORMAT_VERSION"]
+__all__ = [
+    "FERRARIS_SECTIONS",
+    "SESSION_FORMAT",
+    "SESSION_FORMAT_VERSION",
+    "load_ferraris",
+    "load_session",
+    "save_session",
+    "session_sidecar",
+]
 
 #: section name -> (kind, known input in the sensor frame): static sections give the direction of the
 #: specific force (the named axis points up, p, or down, a); rotation sections the axis of a full turn.

@@ -27,7 +27,8 @@ and Eq. 13. Covariances follow from ``sigma^2 (S^T W S)^-1`` and ``(R^T W R)^-1`
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -37,7 +38,7 @@ from .estimate import CalibrationResult, _sigma_for, make_sensor_fit, segment_re
 from .lsq import LsqResult
 from .model import ErrorModel, SensorContext, contexts
 
-__all__ = ["ChoPark", "rate_pairs", "accel_rows", "gyro_rows"]
+__all__ = ["ChoPark", "accel_rows", "gyro_rows", "rate_pairs"]
 
 
 def rate_pairs(segments: Sequence[Segment], tol: float = 1e-6) -> tuple[list[tuple[Segment, Segment]], list[str]]:

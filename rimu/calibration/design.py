@@ -17,8 +17,9 @@ splits into each sensor's scale factor and misalignment angles).
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any, Iterable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -28,14 +29,14 @@ from ..units import G0
 
 __all__ = [
     "ProcedureInputs",
-    "procedure_inputs",
     "eq19",
-    "predicted_std",
     "fig3_curve",
-    "turntable_candidates",
     "greedy_d_optimal",
     "log_det_information",
     "plot_fig3",
+    "predicted_std",
+    "procedure_inputs",
+    "turntable_candidates",
 ]
 
 

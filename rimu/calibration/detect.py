@@ -24,7 +24,7 @@ import numpy as np
 from ..errors import ShapeError
 from ..session import Segment, Session
 
-__all__ = ["Interval", "Detection", "detect_intervals", "plot_detection", "session_from_detection"]
+__all__ = ["Detection", "Interval", "detect_intervals", "plot_detection", "session_from_detection"]
 
 
 @dataclass(frozen=True)

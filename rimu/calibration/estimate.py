@@ -13,8 +13,9 @@ Eq. 5): ``y_i = u . w_i + c_i + ...`` with ``SF_i = 1/|w_i|`` (Eq. 10).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -28,9 +29,9 @@ __all__ = [
     "CalibrationResult",
     "LeastSquares",
     "estimate_noise_sigma",
+    "field_value",
     "make_sensor_fit",
     "segment_residuals",
-    "field_value",
 ]
 
 

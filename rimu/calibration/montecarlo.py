@@ -8,14 +8,15 @@ tqdm when it is installed, else with a plain counter.
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any
 
 import numpy as np
 
 from .result import Calibration, InstrumentCalibration
 
-__all__ = ["physical_vector", "calibration_errors", "normalised_errors", "MonteCarlo", "MonteCarloResult", "progress"]
+__all__ = ["MonteCarlo", "MonteCarloResult", "calibration_errors", "normalised_errors", "physical_vector", "progress"]
 
 
 def physical_vector(cal: InstrumentCalibration, names: Sequence[str]) -> np.ndarray:

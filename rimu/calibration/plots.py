@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["residual_table", "plot_residuals"]
+__all__ = ["plot_residuals", "residual_table"]
 
 
 def residual_table(result: Any, instrument: str) -> tuple[list[str], list[str], np.ndarray, np.ndarray]:

@@ -35,7 +35,8 @@ Steps (each names its equations):
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -47,8 +48,17 @@ from .lsq import LsqResult
 from .model import ErrorModel, contexts
 from .result import Calibration, InstrumentCalibration
 
-__all__ = ["Zhang", "solve_ma", "solve_mg", "lower_factor", "rotation_pairs", "accel_rotation_axis", "wahba",
-           "platform_frame", "zhang_parameters"]
+__all__ = [
+    "Zhang",
+    "accel_rotation_axis",
+    "lower_factor",
+    "platform_frame",
+    "rotation_pairs",
+    "solve_ma",
+    "solve_mg",
+    "wahba",
+    "zhang_parameters",
+]
 
 
 # ---------------------------------------------------------------------- algebra
@@ -188,7 +198,7 @@ def accel_rotation_axis(f: np.ndarray) -> tuple[np.ndarray, float]:
     about a fixed axis: the null vector of ``[f^T, -1]``. Returns (unit axis, angular variance estimate)."""
     A = np.column_stack([f, -np.ones(len(f))])
     sc = np.array([1.0, 1.0, 1.0, float(np.median(np.linalg.norm(f, axis=1)))])
-    _, s, Vt = np.linalg.svd(A * sc, full_matrices=False)
+    _, _, Vt = np.linalg.svd(A * sc, full_matrices=False)
     v = Vt[-1] * sc
     n = float(np.linalg.norm(v[:3]))
     l = v[:3] / n
@@ -433,8 +443,8 @@ class Zhang:
                                             nobs, 0.0, {}))
             out[inst] = LsqResult(inst, model, fits, [s.label for s in statics], {})
         # residuals of the norms per segment, in units of their standard deviation
-        notes = ["MB is Zhang's platform frame p: x along the x accelerometer, y in the x-y accelerometer plane; "
-                 "x.mis_y, x.mis_z, y.mis_z of the accelerometers are zero by that definition"]
+        notes = [("MB is Zhang's platform frame p: x along the x accelerometer, y in the x-y accelerometer plane; "
+                  "x.mis_y, x.mis_z, y.mis_z of the accelerometers are zero by that definition")]
         if dur_mismatch:
             notes.append(f"CW/CCW segments of unequal length ({dur_mismatch}): the gyro bias does not cancel "
                          "exactly in Eq. 18")

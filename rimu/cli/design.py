@@ -34,10 +34,11 @@ def run(args: argparse.Namespace) -> int:
         procedure_inputs,
         turntable_candidates,
     )
+    from ..errors import IdentifiabilityError
     from ..geometry import preset
-    from ..sim import PROCEDURES, cho_park_table1, cho_park_table2, zhang_scheme
+    from ..sim import PROCEDURES, zhang_scheme
     from ..sim.procedures import CHO_PARK_TABLE1, CHO_PARK_TABLE2
-    from ..units import ARW_DSQH_TO_RSQS, G0, RAD_TO_ARCSEC, RS_TO_DH, UG_TO_MS2, MS2_TO_UG, white_noise_sigma
+    from ..units import ARW_DSQH_TO_RSQS, G0, MS2_TO_UG, RAD_TO_ARCSEC, RS_TO_DH, UG_TO_MS2, white_noise_sigma
 
     geo = preset(args.geometry)
     proc = PROCEDURES[args.procedure]()
@@ -51,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
           f"{inp.n_pairs} +/- rate pairs, {n} samples each")
     try:
         pred = predicted_std(geo, inp, sa, sg, n)
-    except Exception as exc:  # IdentifiabilityError: say which parameters, then continue with the design part
+    except IdentifiabilityError as exc:  # say which parameters, then continue with the design part
         print(f"  this procedure cannot identify the model: {exc}")
         pred = None
     if pred:
@@ -73,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     t2 = np.array(CHO_PARK_TABLE2)
     t2 = ProcedureInputs(np.zeros((0, 3)), t2[0::2] - t2[1::2])
     z = procedure_inputs(zhang_scheme())
-    print(f"\nD-optimal design (sum over sensors of log det of the Eq. 19 information; larger is better)")
+    print("\nD-optimal design (sum over sensors of log det of the Eq. 19 information; larger is better)")
     print(f"  static: greedy {k} positions {log_det_information(geo, ProcedureInputs(U[sel] * G0, np.zeros((0, 3))), 'static'):.2f}"
           f" | Cho & Park Table 1 (10) {log_det_information(geo, t1, 'static'):.2f}"
           f" | Zhang's 9 attitudes {log_det_information(geo, ProcedureInputs(z.forces, np.zeros((0, 3))), 'static'):.2f}")
