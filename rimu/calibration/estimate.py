@@ -305,7 +305,10 @@ class LeastSquares:
                 X = np.vstack(Xs)
                 y = np.concatenate(ys)
                 names = model.parameter_names(ctx)
-                _check_identifiable(X, names, inst)
+                try:
+                    _check_identifiable(X, names, inst)
+                except IdentifiabilityError as exc:
+                    raise IdentifiabilityError(str(exc), _physical_names(model, ctx, exc.parameters)) from None
                 beta, *_ = np.linalg.lstsq(X, y, rcond=None)
                 r = y - X @ beta
                 s = float(sig[ctx.index])
@@ -320,6 +323,22 @@ class LeastSquares:
             if skipped:
                 notes.append(f"{inst}: segments not used: {sorted(skipped)}")
         return CalibrationResult(f"least squares ({model.label})", out, session.raw_unit, notes)
+
+
+def _physical_names(model: ErrorModel, ctx: SensorContext, raw_names: Sequence[str]) -> list[str]:
+    """Physical parameter names for raw-domain ones: an involved axis coefficient ``w_*`` means the scale factor
+    and both misalignment angles; every other effect's parameters keep their names."""
+    out: list[str] = []
+    for n in raw_names:
+        local = n.split(".", 1)[1] if "." in n else n
+        if local.startswith("w_"):
+            _, mis = ctx.geometry.off_axis_basis(ctx.index)
+            for x in ("scale", *mis):
+                if f"{ctx.name}.{x}" not in out:
+                    out.append(f"{ctx.name}.{x}")
+        elif n not in out:
+            out.append(n)
+    return out
 
 
 def _angle_row(seg: Segment, model: ErrorModel, ctx: SensorContext) -> np.ndarray:
