@@ -102,3 +102,36 @@ def test_npz_errors(tmp_path, session):
     np.savez(tmp_path / "bad2.npz", **z)
     with pytest.raises(SessionFormatError, match="meta"):
         load_session(tmp_path / "bad2.npz")
+
+
+def test_round_trip_property(tmp_path_factory):
+    """Any session of static segments with plain labels survives CSV and NPZ exactly (hypothesis)."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from rimu.geometry import triad3
+    from rimu.session import Segment, Session
+
+    label = st.text("abcdefghijklmnopqrstuvwxyzABC0123456789_-", min_size=1, max_size=8)
+
+    @settings(max_examples=15, deadline=None)
+    @given(st.lists(label, min_size=1, max_size=4, unique=True), st.integers(1, 30), st.integers(0, 2**31 - 1))
+    def check(labels, n, seed):
+        rng = np.random.default_rng(seed)
+        segs, t0 = [], 0.0
+        for lab in labels:
+            t = t0 + np.arange(n) * 0.01
+            t0 = t[-1] + 0.01
+            f = rng.standard_normal(3)
+            segs.append(Segment(lab, "static", t, {"gyro": rng.standard_normal((n, 3)) * 1e3,
+                                                  "accel": rng.standard_normal((n, 3))}, specific_force_mb=f))
+        s = Session(segs, {"gyro": triad3(), "accel": triad3()}, 100.0, None)
+        d = tmp_path_factory.mktemp("rt")
+        for suffix in (".csv", ".npz"):
+            back = load_session(save_session(s, d / f"s{suffix}"))
+            for a, b in zip(s, back):
+                assert a.label == b.label
+                assert np.array_equal(a.t, b.t) and np.array_equal(a.raw["gyro"], b.raw["gyro"])
+                assert np.allclose(a.specific_force_mb, b.specific_force_mb, rtol=1e-15, atol=0)
+
+    check()
