@@ -2,7 +2,8 @@
 and write a report.
 
 SESSION is one of: a Ferraris-style recording folder (the CSV and its section list, as imucal's example),
-or an ``.npz`` written by ``rimu simulate``.
+or a rimu session file (``.csv`` + ``.json`` sidecar, or ``.npz``; ``docs/session-format.md``), as
+``rimu simulate`` writes.
 """
 
 from __future__ import annotations
@@ -12,8 +13,6 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from ..errors import SessionFormatError
 
 
@@ -21,7 +20,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("diagnose", help="residual diagnostics: which effect is missing from the error model",
                        description="Fit an error model to a calibration session, describe the residual, test every "
                                    "effect of the library that is not in the model, and refit with the ones you add.")
-    p.add_argument("session", help="Ferraris recording folder, or .npz from 'rimu simulate'")
+    p.add_argument("session", help="Ferraris recording folder, or a rimu session file (.csv/.json/.npz)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--calibration", help="calibration JSON: its effects define the model, its noise sigma the noise level")
     g.add_argument("--model", default="bias,scale,misalignment", help="comma list of effect names (default: %(default)s)")
@@ -38,37 +37,18 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def load_session(path: str | Path):
-    """A Session from a Ferraris folder or a ``rimu simulate`` NPZ."""
-    from ..geometry import Geometry
-    from ..session import Segment, Session
+    """A Session from a Ferraris recording folder, or a rimu session file (``.csv`` with its ``.json``
+    sidecar, the sidecar itself, or ``.npz``; see ``docs/session-format.md``)."""
     from ..session_io import load_ferraris
+    from ..session_io import load_session as _load
 
     path = Path(path)
     if path.is_dir():
         return load_ferraris(path)
     if not path.exists():
-        raise SessionFormatError(f"{path} does not exist; give a Ferraris recording folder or an .npz from 'rimu simulate'")
-    if path.suffix != ".npz":
-        raise SessionFormatError(f"{path}: unknown session format; expected a folder (Ferraris) or .npz (rimu simulate)")
-    try:
-        z = np.load(path, allow_pickle=False)
-        meta = json.loads(str(z["meta"]))
-        t, idx = z["t"], z["segment"]
-    except (KeyError, ValueError, OSError) as exc:
-        raise SessionFormatError(f"{path}: not an NPZ written by 'rimu simulate' ({exc})") from exc
-    geos = {k: Geometry.from_dict(d) for k, d in meta["geometries"].items()}
-    temp = z["temperature"] if "temperature" in z.files else None
-    segs = []
-    for k, sd in enumerate(meta["segments"]):
-        sel = idx == k
-        if not np.any(sel):
-            raise SessionFormatError(f"{path}: segment {sd['label']!r} has no samples")
-        raw = {name: z[f"raw_{name}"][sel] for name in geos}
-        segs.append(Segment(sd["label"], sd["kind"], t[sel], raw, None if temp is None else temp[sel],
-                            specific_force_mb=sd.get("specific_force_mb_ms2"), rate_mb=sd.get("rate_mb_rads"),
-                            angle_mb=sd.get("angle_mb_rad"), mat_ln_mb=sd.get("mat_ln_mb"), meta={"source": str(path)}))
-    return Session(segs, geos, float(meta["sample_rate_hz"]), meta.get("latitude_rad"), raw_unit=meta.get("raw_unit", "count"),
-                   meta={"source": str(path)})
+        raise SessionFormatError(f"{path} does not exist; give a Ferraris recording folder or a rimu session file "
+                                 "(.csv + .json sidecar, or .npz, as 'rimu simulate' writes)")
+    return _load(path)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -67,6 +67,16 @@ def test_cli_on_simulated_npz_with_add_report_and_json(tmp_path, capsys):
     assert comp["added"] == ["g_sensitivity"] and abs(comp["chi2_after"] - comp["chi2_before"]) < 0.01
 
 
+def test_cli_reads_the_csv_session_format(tmp_path, capsys):
+    csv = tmp_path / "run.csv"
+    assert main(["simulate", "--procedure", "cho_park", "--sample-rate", "10", "--seed", "3", "-o", str(csv)]) == 0
+    capsys.readouterr()
+    assert main(["diagnose", str(csv), "--instrument", "accel", "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert list(data["diagnosis"]["instruments"]) == ["accel"]
+    assert data["diagnosis"]["nothing_missing"]
+
+
 def test_cli_text_lists_effects_and_errors(tmp_path, capsys):
     assert main(["diagnose", "x", "--list-effects"]) == 0
     out = capsys.readouterr().out
