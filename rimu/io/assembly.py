@@ -23,8 +23,8 @@ sample periods also restarts the count (event ``resync``), so gaps longer than t
 mistaken for short ones.
 
 Epoch time: the layout's ``time`` signal if the frame carrying it arrived (unwrapped past its modulus),
-otherwise the previous epoch's time plus the sequence step times the period (event ``time_extrapolated``),
-otherwise the receive time of the epoch's first frame.
+otherwise the previous epoch's time plus the sequence step times the period (event ``time_extrapolated``;
+not across a restart), otherwise the receive time of the epoch's first frame.
 """
 
 from __future__ import annotations
@@ -118,9 +118,11 @@ class EpochAssembler:
         out.extend(self.flush())
         base = (self.last_emitted + 1) if self.last_emitted is not None else 0
         # new numbering that continues after everything emitted and is congruent to the counter
-        self._seq_base = base + ((counter - base) % self.M if self.M else 0)
+        self._seq_base = base + ((counter - base) % self.M if self.M else 0) - counter
         self.newest = None
         self.newest_ts = None
+        self.last_emitted = None   # no gap is counted across a restart: its length is unknown
+        self._last_t = None        # nor is time extrapolated across it
         self.recent.clear()
         self.acc.event("resync")
 

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from ..epoch import INSTRUMENTS
-from ..errors import FrameError
+from ..errors import FrameError, ShapeError
 from .checksum import CHECKSUMS, crc8_columns
 
 __all__ = ["Signal", "Message", "Layout", "CanCodec", "DecodedFrames", "load_layout", "LAYOUT_FORMAT",
@@ -223,6 +223,27 @@ class Layout:
                 "instruments": dict(self.instruments), "geometry": dict(self.geometry),
                 "raw_unit": dict(self.raw_unit), "sample_rate_hz": self.sample_rate_hz,
                 "messages": [m.to_dict() for m in self.messages]}
+
+    def to_cantools(self) -> Any:
+        """The layout as a cantools ``Database`` (needs cantools, extra ``dbc``); checksum bytes become 8-bit
+        signals named ``<message>_CHECKSUM``. ``db.as_dbc_string()`` writes it as a DBC file."""
+        try:
+            import cantools
+            from cantools.database.can import Message as CtMessage
+            from cantools.database.can import Signal as CtSignal
+            from cantools.database.conversion import BaseConversion
+        except ImportError as exc:  # pragma: no cover
+            raise FrameError("exporting to DBC needs cantools: pip install 'rimu[dbc]'") from exc
+        msgs = []
+        for m in self.messages:
+            sigs = [CtSignal(s.name if s.role != "counter" else f"{m.name}_{s.name}", s.start_bit, s.length,
+                             s.byte_order, s.signed, conversion=BaseConversion.factory(s.scale, s.offset))
+                    for s in m.signals]
+            if m.checksum is not None:
+                b = m.checksum["byte"]
+                sigs.append(CtSignal(f"{m.name}_CHECKSUM", 8 * b, 8, "little_endian", False))
+            msgs.append(CtMessage(m.id, m.name, m.length, sigs, is_extended_frame=m.extended, strict=False))
+        return cantools.database.Database(msgs)
 
     def save(self, path: str | os.PathLike[str]) -> Path:
         p = Path(path)
@@ -518,6 +539,9 @@ class CanCodec:
         """
         counters = np.asarray(counters, dtype=np.int64)
         N = len(counters)
+        for k, y in raw.items():
+            if np.shape(y)[0] != N:
+                raise ShapeError(f"raw[{k!r}] has {np.shape(y)[0]} samples, counters has {N}")
         out = []
         for mi, m in enumerate(self.layout.messages):
             word = np.zeros(N, dtype=np.uint64)
