@@ -158,8 +158,9 @@ class EpochAssembler:
         bit = 1 << message
         if ep is None:
             ep = _Open(self.codec.n_slots, ts, counter)
+            out_of_order = bool(self.open) and seq < next(reversed(self.open))
             self.open[seq] = ep
-            if len(self.open) > 1 and next(reversed(self.open)) != seq:
+            if out_of_order:
                 self.open = OrderedDict(sorted(self.open.items()))
         elif ep.have & bit:
             self.acc.reject("duplicate", 1, data, ts, message=message, counter=counter)

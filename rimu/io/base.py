@@ -78,6 +78,13 @@ class Source(ABC):
                 return
             yield ep  # type: ignore[misc]
 
+    def open(self) -> "Source":
+        """Open the transport now (otherwise the first read opens it); returns the source."""
+        opener = getattr(self, "_open", None)
+        if opener is not None:
+            opener()
+        return self
+
     def stop(self) -> None:
         self.stop_event.set()
 

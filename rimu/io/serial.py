@@ -124,6 +124,8 @@ class SerialDecoder:
 
     def feed(self, chunk: bytes | bytearray | memoryview) -> list[Epoch]:
         """Add bytes; returns the epochs of every frame completed by them."""
+        if not isinstance(chunk, (bytes, bytearray)):
+            chunk = memoryview(chunk).tobytes()
         a = self.accounting
         a.received += len(chunk)
         self._buf += chunk

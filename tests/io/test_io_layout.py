@@ -36,15 +36,16 @@ def test_crc_check_values():
 
 @given(st.binary(min_size=0, max_size=12), st.integers(0, 95), st.integers(1, 8))
 def test_crc8_detects_every_burst_up_to_8_bits(data, pos, width):
-    """A degree-8 CRC with a non-zero constant term detects every error burst of length <= 8."""
+    """A degree-8 CRC with a non-zero constant term detects every error burst of length <= 8 (bits counted in the
+    CRC's order: most significant bit of each byte first)."""
     frame = bytearray(data + bytes([crc8(data)]))
     nbits = 8 * len(frame)
     pos = pos % max(nbits - width + 1, 1)
     if nbits < width:
         return
     pattern = (1 | (1 << (width - 1)))  # first and last bit of the burst flipped
-    v = int.from_bytes(frame, "little") ^ (pattern << pos)
-    bad = v.to_bytes(len(frame), "little")
+    v = int.from_bytes(frame, "big") ^ (pattern << pos)
+    bad = v.to_bytes(len(frame), "big")
     assert crc8(bad[:-1]) != bad[-1]
 
 
