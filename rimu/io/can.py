@@ -228,6 +228,7 @@ class CanSource(Source):
         self.recv_timeout = recv_timeout
         self.idle_timeout = idle_timeout
         self.batch = batch
+        self._bus_offs = 0
 
     def _open(self) -> None:
         if self.bus is None:
@@ -262,9 +263,10 @@ class CanSource(Source):
         self._open()
         last_frame = time.monotonic()
         while not self.stop_event.is_set():
+            batch: list = []
+            error: BaseException | None = None
             try:
                 msg = self.bus.recv(self.recv_timeout)
-                batch = []
                 if msg is not None:
                     batch.append(msg)
                     while len(batch) < self.batch:
@@ -273,17 +275,22 @@ class CanSource(Source):
                             break
                         batch.append(m)
             except (can.CanError, OSError) as exc:
+                error = exc
+            if batch:  # frames read before an error are still counted and used
+                last_frame = time.monotonic()
+                yield from self.proc.process(batch)
+            if error is not None:
                 self.accounting.event("bus_error")
-                self._recover(exc)
+                self._recover(error)
                 continue
             if not batch:
-                yield from self.proc.expire(time.time())
+                newest = self.proc.assembler.newest_ts
+                if newest is not None:  # frame clock = newest frame time + wall time since it (any bus clock)
+                    yield from self.proc.expire(newest + time.monotonic() - last_frame)
                 if self.idle_timeout is not None and time.monotonic() - last_frame > self.idle_timeout:
                     break
                 continue
-            last_frame = time.monotonic()
-            yield from self.proc.process(batch)
-            if self.accounting.events.get("bus_off", 0) > getattr(self, "_bus_offs", 0):
+            if self.accounting.events.get("bus_off", 0) > self._bus_offs:
                 self._bus_offs = self.accounting.events["bus_off"]
                 self._recover(TransportError("bus off"))
         yield from self.proc.flush()
