@@ -40,7 +40,9 @@ def test_virtual_can_fault_detected_and_isolated():
     channel = f"rimu-e2e-{uuid.uuid4().hex}"
     rx = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
     tx = can.Bus(interface="virtual", channel=channel)
-    src = CanSource("cone6_rimu", bus=rx, idle_timeout=1.0)
+    # sent as fast as possible: frame times are wall-clock, so the epoch time window is widened to 1 s lest a
+    # scheduler stall of the sending thread look like a late frame (the counter window still closes epochs)
+    src = CanSource("cone6_rimu", bus=rx, idle_timeout=1.0, timeout=1.0)
     sender = dev.start(tx, run.block)                               # as fast as possible, in a thread
     pipe = Pipeline(truth)
     streak = {k: (-1, 0) for k in pipe.instruments}
