@@ -61,20 +61,33 @@ class CanFrameProcessor:
                 return []
         else:
             keep = messages
-        dec = self.codec.decode_messages(keep)
-        if len(keep) >= 4 * self.codec.n_messages:
-            fast = self._fast(keep, dec)
-            if fast is not None:
-                return fast
         out: list[Epoch] = []
-        status = dec.status.tolist()
-        msgi = dec.message.tolist()
-        cnt = dec.counter.tolist()
-        vals = dec.values.tolist()
-        flags = dec.flags_ok.tolist()
-        add = self.assembler.add
         side = acc.side_log is not None
-        for i, m in enumerate(keep):
+        add = self.assembler.add
+        if len(keep) < 16:  # live buses: a few frames at a time, decoded in pure Python
+            one = self.codec.decode_one
+            for m in keep:
+                st, mi, cnt, vals, flags = one(m.arbitration_id, m.is_extended_id, m.data)
+                if st != STATUS_OK:
+                    acc.reject(STATUS_REASONS[st], 1, bytes(m.data) if side else None, m.timestamp, id=m.arbitration_id)
+                else:
+                    out.extend(add(mi, cnt, m.timestamp, vals, flags, bytes(m.data) if side else None))
+            return out
+        dec = self.codec.decode_messages(keep)
+        start = 0
+        if not self.assembler.open:
+            E = self._clean_prefix(dec)
+            if E >= 4:
+                out = self._fast(keep[:E * self.codec.n_messages], dec, E)
+                start = E * self.codec.n_messages
+        if start == len(keep):
+            return out
+        status = dec.status[start:].tolist()
+        msgi = dec.message[start:].tolist()
+        cnt = dec.counter[start:].tolist()
+        vals = dec.values[start:].tolist()
+        flags = dec.flags_ok[start:].tolist()
+        for i, m in enumerate(keep[start:]):
             st = status[i]
             if st != STATUS_OK:
                 acc.reject(STATUS_REASONS[st], 1, bytes(m.data) if side else None, m.timestamp, id=m.arbitration_id)
@@ -82,46 +95,64 @@ class CanFrameProcessor:
             out.extend(add(msgi[i], cnt[i], m.timestamp, vals[i], flags[i], bytes(m.data) if side else None))
         return out
 
-    def _fast(self, msgs: list, dec: Any) -> list[Epoch] | None:
-        """Vectorised assembly of a clean batch: every frame valid, every sample complete, in layout order,
-        counters consecutive and continuing the stream. Returns None (use the per-frame path) otherwise; the
-        result and the assembler's state are then exactly those of the per-frame path."""
+    def _clean_prefix(self, dec: Any) -> int:
+        """Number of whole samples at the start of a decoded batch that are clean: every frame valid, in
+        layout order, one counter per sample, counters consecutive."""
+        K = self.codec.n_messages
+        M = self.assembler.M
+        E = len(dec.status) // K
+        if E == 0 or not M:
+            return 0
+        st = dec.status[:E * K].reshape(E, K)
+        mi = dec.message[:E * K].reshape(E, K)
+        cnt = dec.counter[:E * K].reshape(E, K)
+        good = (st == STATUS_OK).all(axis=1) & (mi == np.arange(K)).all(axis=1) & (cnt == cnt[:, :1]).all(axis=1)
+        step = np.ones(E, bool)
+        step[1:] = np.diff(cnt[:, 0]) % M == 1
+        ok = good & step
+        bad = np.flatnonzero(~ok)
+        return int(E if not len(bad) else bad[0])
+
+    def _fast(self, msgs: list, dec: Any, E: int) -> list[Epoch]:
+        """Vectorised assembly of the clean prefix of a batch (``E`` whole samples, see :meth:`_clean_prefix`),
+        continuing the stream. Gives the same epochs, counts and assembler state as the per-frame path; where
+        the prefix cannot be proven equivalent (time gaps, a jump from the last epoch) it hands the frames to
+        the per-frame path instead."""
         a = self.assembler
         c = self.codec
         K = c.n_messages
-        N = len(msgs)
-        if a.open or N % K or not a.M or (dec.status != STATUS_OK).any():
-            return None
-        E = N // K
-        mi = dec.message.reshape(E, K)
-        if not (mi == np.arange(K)).all():
-            return None
-        cnt = dec.counter.reshape(E, K)
-        if not (cnt == cnt[:, :1]).all():
-            return None
+        N = E * K
+        cnt = dec.counter[:N].reshape(E, K)
         c0 = cnt[:, 0]
-        if E > 1 and not (np.diff(c0) % a.M == 1).all():
-            return None
         ts = np.fromiter((m.timestamp for m in msgs), dtype=float, count=N).reshape(E, K)
         per = a.period
+        ok = True
         if per and E > 1 and (np.diff(ts[:, 0]) > (a.M // 2) * per).any():
-            return None
+            ok = False
         if a.timeout is not None and (ts[:, -1] - ts[:, 0] > a.timeout).any():
-            return None
+            ok = False
         if a.newest is not None:
             if int(c0[0]) != (a.newest + 1) % a.M or a.last_emitted != a.newest:
-                return None
+                ok = False
             if per and ts[0, 0] - a.newest_ts > (a.M // 2) * per:
-                return None
+                ok = False
             seq0 = a.newest + 1
         else:
             if a.last_emitted is not None:
-                return None
+                ok = False
             seq0 = a._seq_base + int(c0[0])
+        if not ok:
+            out: list[Epoch] = []
+            vl, fl, ml, cl = (dec.values[:N].tolist(), dec.flags_ok[:N].tolist(), dec.message[:N].tolist(),
+                              dec.counter[:N].tolist())
+            side = self.acc.side_log is not None
+            for i, m in enumerate(msgs):
+                out.extend(a.add(ml[i], cl[i], m.timestamp, vl[i], fl[i], bytes(m.data) if side else None))
+            return out
         vals = np.zeros((E, c.n_slots))
         valid = np.ones((E, c.n_sensors), dtype=bool)
-        V = dec.values.reshape(E, K, -1)
-        F = dec.flags_ok.reshape(E, K, -1)
+        V = dec.values[:N].reshape(E, K, -1)
+        F = dec.flags_ok[:N].reshape(E, K, -1)
         for m in range(K):
             sl = c.slots[m]
             vals[:, sl] = V[:, m, :len(sl)]

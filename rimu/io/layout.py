@@ -425,6 +425,20 @@ class CanCodec:
         self.time_modulus = None if ts is None else float((1 << ts.length) * ts.scale) if not ts.signed else None
         self.sensor_names = [f"{k}[{i}]" for k in offs for i in range(layout.instruments[k])]
         self.message_index = {m.name: i for i, m in enumerate(layout.messages)}
+        # scalar plans for decoding frames one at a time (live buses): pure Python integer arithmetic
+        def plan(sg: Signal) -> tuple:
+            return (sg.byte_order == "little_endian", sg.lsb_shift, (1 << sg.length) - 1,
+                    (1 << (sg.length - 1)) if sg.signed else 0, 1 << sg.length, sg.scale, sg.offset)
+        self._plans = {}
+        for mi, m in enumerate(layout.messages):
+            ck = None
+            if m.checksum is not None:
+                tab, init, xorout = CHECKSUMS[m.checksum["algorithm"]]
+                ck = (m.checksum["byte"], m.checksum["algorithm"], None if tab is None else tab.tolist(), init,
+                      xorout, m.data_id_bytes())
+            self._plans[(m.id, m.extended)] = (mi, m.length, ck, plan(m.counter) if m.counter else None,
+                                               [plan(sg) for sg in self.value_signals[mi]],
+                                               [(plan(sg), sg.ok_mask) for sg in self.flag_signals[mi]])
 
     # ------------------------------------------------------------------ helpers
     @staticmethod
@@ -511,6 +525,47 @@ class CanCodec:
             for j, s in enumerate(self.flag_signals[mi]):
                 flags_ok[rows, j] = (self._extract(lw, bw, s).astype(np.int64) & int(s.ok_mask)) == 0
         return DecodedFrames(status, msg, counter, values, flags_ok)
+
+    @staticmethod
+    def _scalar(wle: int, wbe: int, p: tuple) -> int:
+        little, shift, mask, sign, span, _, _ = p
+        v = ((wle if little else wbe) >> shift) & mask
+        return v - span if sign and v & sign else v
+
+    def decode_one(self, arbitration_id: int, extended: bool, data: bytes) -> tuple:
+        """One frame in pure Python (cheaper than numpy for a single frame): ``(status, message, counter,
+        values, flags_ok)`` as :meth:`decode` gives them for one row."""
+        pl = self._plans.get((arbitration_id, bool(extended)))
+        if pl is None:
+            return STATUS_UNKNOWN_ID, -1, 0, [], []
+        mi, length, ck, cplan, vplans, fplans = pl
+        if len(data) != length:
+            return STATUS_BAD_LENGTH, mi, 0, [], []
+        d8 = bytes(data).ljust(8, b"\0")
+        wle = int.from_bytes(d8, "little")
+        wbe = int.from_bytes(d8, "big")
+        sc = self._scalar
+        status = STATUS_OK
+        if ck is not None:
+            cb, alg, tab, init, xorout, did = ck
+            body = did + data[:cb] + data[cb + 1:]
+            if alg == "xor8":
+                c = 0
+                for b in body:
+                    c ^= b
+            elif alg == "sum8":
+                c = sum(body) & 0xFF
+            else:
+                c = init
+                for b in body:
+                    c = tab[c ^ b]
+                c ^= xorout
+            if c != data[cb]:
+                status = STATUS_CHECKSUM
+        counter = sc(wle, wbe, cplan) if cplan else 0
+        values = [sc(wle, wbe, p) * p[5] + p[6] for p in vplans]
+        flags = [(sc(wle, wbe, p) & okm) == 0 for p, okm in fplans]
+        return status, mi, counter, values, flags
 
     def decode_messages(self, messages: list) -> DecodedFrames:
         ids, data, dlc = self.pack(messages)
