@@ -117,6 +117,8 @@ class SerialDecoder:
         self.max_payload = int(max_payload)
         self._buf = bytearray()
         self._last_seq: int | None = None
+        self._fmts: dict[int, struct.Struct] = {}
+        self._masks: dict[tuple[int, int], np.ndarray] = {}
 
     def _rej(self, reason: str, start: int, stop: int) -> None:
         a = self.accounting
@@ -207,17 +209,34 @@ class SerialDecoder:
             elif d > 0x8000:
                 a.event("counter_jump")
         self._last_seq = seq
-        vals = np.frombuffer(buf, dtype="<f4", count=ng + na, offset=p + _SAMPLE_HEAD.size).astype(float)
+        fmt = self._fmts.get(ng + na)
+        if fmt is None:
+            fmt = self._fmts[ng + na] = struct.Struct(f"<{ng + na}f")
+        vals = fmt.unpack_from(buf, p + _SAMPLE_HEAD.size)
         raw: dict[str, np.ndarray] = {}
         valid: dict[str, np.ndarray] = {}
+        tot = sum(vals)
+        finite = tot - tot == 0.0
         for k, n, m, o in (("gyro", ng, mg, 0), ("accel", na, ma, ng)):
             if n:
-                y = vals[o:o + n]
-                v = ((m >> np.arange(n)) & 1).astype(bool) & np.isfinite(y)
-                y[~v] = 0.0
+                y = np.array(vals[o:o + n])
+                v = self._mask(m, n)
+                if not finite:
+                    v &= np.isfinite(y)
+                if not finite or m != (1 << n) - 1:
+                    y[~v] = 0.0
                 raw[k], valid[k] = y, v
         a.epochs += 1
         return None, Epoch(float(t), raw, valid, None if math.isnan(temp) else float(temp), {"seq": seq})
+
+    def _mask(self, m: int, n: int) -> np.ndarray:
+        key = (m, n)
+        v = self._masks.get(key)
+        if v is None:
+            if len(self._masks) > 4096:
+                self._masks.clear()
+            v = self._masks[key] = ((m >> np.arange(n)) & 1).astype(bool)
+        return v.copy()
 
 
 class SerialSource(Source):
