@@ -9,6 +9,7 @@ with :class:`~rimu.io.layout.CanCodec`, epoch assembly with :class:`~rimu.io.ass
 
 from __future__ import annotations
 
+import operator
 import os
 import time
 from dataclasses import dataclass
@@ -17,20 +18,77 @@ from typing import Any, Callable, Iterator
 import numpy as np
 
 from ..epoch import Epoch, EpochBlock
-from ..errors import TransportError
+from ..errors import ShapeError, TransportError
 from .accounting import Accounting, SideLog
 from .assembly import EpochAssembler
 from .base import Source
-from .layout import STATUS_OK, STATUS_REASONS, CanCodec, Layout, load_layout
+from .layout import STATUS_OK, STATUS_REASONS, CanCodec, DecodedFrames, Layout, load_layout
 
-__all__ = ["CanFrameProcessor", "CanSource", "CanReplaySource", "ReconnectPolicy", "decode_log"]
+__all__ = ["CanFrameProcessor", "EpochChunk", "items_to_block", "CanSource", "CanReplaySource", "ReconnectPolicy", "decode_log"]
 
 #: SocketCAN error class bit for bus-off in an error frame's identifier (linux/can/error.h, CAN_ERR_BUSOFF)
 CAN_ERR_BUSOFF = 0x040
 
 
+_IS_ERROR = operator.attrgetter("is_error_frame")
+_IS_REMOTE = operator.attrgetter("is_remote_frame")
+
+
+def _slice(dec: DecodedFrames, start: int) -> DecodedFrames:
+    return DecodedFrames(dec.status[start:], dec.message[start:], dec.counter[start:], dec.values[start:],
+                         dec.flags_ok[start:])
+
+
+@dataclass
+class EpochChunk:
+    """Many consecutive epochs as arrays (what the vectorised path makes; :meth:`epochs` turns them into
+    :class:`~rimu.epoch.Epoch` objects)."""
+
+    t: np.ndarray
+    raw: dict[str, np.ndarray]
+    valid: dict[str, np.ndarray]
+    temperature: np.ndarray | None
+    counter: np.ndarray
+    seq: np.ndarray
+    frames: np.ndarray
+    other: dict[str, np.ndarray]
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def epochs(self) -> list[Epoch]:
+        out = []
+        tl, cl, sl, fl = self.t.tolist(), self.counter.tolist(), self.seq.tolist(), self.frames.tolist()
+        temp = self.temperature.tolist() if self.temperature is not None else [None] * len(tl)
+        others = {k: v.tolist() for k, v in self.other.items()}
+        for e in range(len(tl)):
+            counters = {"counter": cl[e], "seq": sl[e], "frames": fl[e]}
+            for k, v in others.items():
+                counters[k] = v[e]
+            out.append(Epoch(tl[e], {k: y[e].copy() for k, y in self.raw.items()},
+                             {k: v[e].copy() for k, v in self.valid.items()}, temp[e], counters))
+        return out
+
+    @staticmethod
+    def from_epochs(eps: list[Epoch], others: list[str]) -> "EpochChunk":
+        keys = list(eps[0].raw)
+        temps = [e.temperature for e in eps]
+        return EpochChunk(
+            np.array([e.t for e in eps]), {k: np.vstack([e.raw[k] for e in eps]) for k in keys},
+            {k: np.vstack([e.valid_mask(k) for e in eps]) for k in keys},
+            None if any(x is None for x in temps) else np.array(temps, dtype=float),
+            np.array([e.counters["counter"] for e in eps]), np.array([e.counters["seq"] for e in eps]),
+            np.array([e.counters["frames"] for e in eps]), {k: np.array([e.counters[k] for e in eps]) for k in others})
+
+
 class CanFrameProcessor:
-    """Accounting, decoding and assembly of python-can messages into epochs."""
+    """Accounting, decoding and assembly of python-can messages into epochs.
+
+    A batch is decoded at once with numpy. Where it holds whole, clean samples (every frame valid, in layout
+    order, one counter per sample, counters consecutive) and the assembler holds nothing open, those samples
+    are assembled vectorised (:meth:`_fast`); everything else goes frame by frame through the
+    :class:`~rimu.io.assembly.EpochAssembler`. Both give the same epochs, counts and state (tested).
+    """
 
     def __init__(self, layout: "Layout | str | os.PathLike[str]", accounting: Accounting, max_lag: int = 2,
                  timeout: float | None = None) -> None:
@@ -40,13 +98,22 @@ class CanFrameProcessor:
         self.assembler = EpochAssembler(self.codec, accounting, max_lag=max_lag, timeout=timeout)
 
     def process(self, messages: list) -> list[Epoch]:
-        """Count, decode and assemble a batch of messages (in arrival order)."""
+        """Count, decode and assemble a batch of messages (in arrival order); the epochs completed."""
+        out: list[Epoch] = []
+        for item in self.process_items(messages):
+            if isinstance(item, EpochChunk):
+                out.extend(item.epochs())
+            else:
+                out.append(item)
+        return out
+
+    def process_items(self, messages: list) -> "list[Epoch | EpochChunk]":
+        """As :meth:`process`, but runs of clean epochs come as :class:`EpochChunk` arrays (block replay)."""
         acc = self.acc
         acc.received += len(messages)
         if not messages:
             return []
-        flagged = [m for m in messages if m.is_error_frame or m.is_remote_frame]
-        if flagged:
+        if any(map(_IS_ERROR, messages)) or any(map(_IS_REMOTE, messages)):
             keep = []
             for m in messages:
                 if m.is_error_frame:
@@ -61,7 +128,7 @@ class CanFrameProcessor:
                 return []
         else:
             keep = messages
-        out: list[Epoch] = []
+        out: list = []
         side = acc.side_log is not None
         add = self.assembler.add
         if len(keep) < 16:  # live buses: a few frames at a time, decoded in pure Python
@@ -73,29 +140,38 @@ class CanFrameProcessor:
                 else:
                     out.extend(add(mi, cnt, m.timestamp, vals, flags, bytes(m.data) if side else None))
             return out
-        dec = self.codec.decode_messages(keep)
-        start = 0
-        if not self.assembler.open:
-            E = self._clean_prefix(dec)
-            if E >= 4:
-                out = self._fast(keep[:E * self.codec.n_messages], dec, E)
-                start = E * self.codec.n_messages
-        if start == len(keep):
-            return out
-        status = dec.status[start:].tolist()
-        msgi = dec.message[start:].tolist()
-        cnt = dec.counter[start:].tolist()
-        vals = dec.values[start:].tolist()
-        flags = dec.flags_ok[start:].tolist()
-        for i, m in enumerate(keep[start:]):
-            st = status[i]
+        ids, data, dlc, ext, ts = self.codec.pack_all(keep)
+        dec = self.codec.decode(ids, data, dlc, ext)
+        K = self.codec.n_messages
+        n = len(keep)
+        status = msgi = cnt = vals = flags = None
+        base = 0
+        pos = 0
+        retry_at = 0
+        while pos < n:
+            if pos >= retry_at and not self.assembler.open:
+                E = self._clean_prefix(_slice(dec, pos))
+                if E >= 4:
+                    out.extend(self._fast(keep[pos:pos + E * K], _slice(dec, pos), ts[pos:pos + E * K], E))
+                    pos += E * K
+                    continue
+                retry_at = pos + 16 * K   # damaged stretch: frame by frame for a while before trying again
+            if vals is None or pos - base >= len(vals):
+                # Python lists for the per-frame path, a window at a time, made when needed
+                base, w = pos, pos + 64 * K
+                status, msgi, cnt = dec.status[pos:w].tolist(), dec.message[pos:w].tolist(), dec.counter[pos:w].tolist()
+                vals, flags = dec.values[pos:w].tolist(), dec.flags_ok[pos:w].tolist()
+            m = keep[pos]
+            j = pos - base
+            st = status[j]
             if st != STATUS_OK:
                 acc.reject(STATUS_REASONS[st], 1, bytes(m.data) if side else None, m.timestamp, id=m.arbitration_id)
-                continue
-            out.extend(add(msgi[i], cnt[i], m.timestamp, vals[i], flags[i], bytes(m.data) if side else None))
+            else:
+                out.extend(add(msgi[j], cnt[j], m.timestamp, vals[j], flags[j], bytes(m.data) if side else None))
+            pos += 1
         return out
 
-    def _clean_prefix(self, dec: Any) -> int:
+    def _clean_prefix(self, dec: DecodedFrames) -> int:
         """Number of whole samples at the start of a decoded batch that are clean: every frame valid, in
         layout order, one counter per sample, counters consecutive."""
         K = self.codec.n_messages
@@ -109,27 +185,26 @@ class CanFrameProcessor:
         good = (st == STATUS_OK).all(axis=1) & (mi == np.arange(K)).all(axis=1) & (cnt == cnt[:, :1]).all(axis=1)
         step = np.ones(E, bool)
         step[1:] = np.diff(cnt[:, 0]) % M == 1
-        ok = good & step
-        bad = np.flatnonzero(~ok)
+        bad = np.flatnonzero(~(good & step))
         return int(E if not len(bad) else bad[0])
 
-    def _fast(self, msgs: list, dec: Any, E: int) -> list[Epoch]:
-        """Vectorised assembly of the clean prefix of a batch (``E`` whole samples, see :meth:`_clean_prefix`),
-        continuing the stream. Gives the same epochs, counts and assembler state as the per-frame path; where
-        the prefix cannot be proven equivalent (time gaps, a jump from the last epoch) it hands the frames to
-        the per-frame path instead."""
+    def _fast(self, msgs: list, dec: DecodedFrames, ts: np.ndarray, E: int) -> list:
+        """Vectorised assembly of ``E`` clean samples (see :meth:`_clean_prefix`) continuing the stream: one
+        :class:`EpochChunk`, with the same epochs, counts and assembler state as the per-frame path. Where that
+        cannot be proven (a time gap, a jump from the last epoch, a sample spread beyond the time window) the
+        frames go through the per-frame path instead."""
         a = self.assembler
         c = self.codec
         K = c.n_messages
         N = E * K
         cnt = dec.counter[:N].reshape(E, K)
         c0 = cnt[:, 0]
-        ts = np.fromiter((m.timestamp for m in msgs), dtype=float, count=N).reshape(E, K)
+        ts = ts[:N].reshape(E, K)
         per = a.period
         ok = True
         if per and E > 1 and (np.diff(ts[:, 0]) > (a.M // 2) * per).any():
             ok = False
-        if a.timeout is not None and (ts[:, -1] - ts[:, 0] > a.timeout).any():
+        if a.timeout is not None and (ts.max(axis=1) - ts[:, 0] > a.timeout).any():
             ok = False
         if a.newest is not None:
             if int(c0[0]) != (a.newest + 1) % a.M or a.last_emitted != a.newest:
@@ -142,7 +217,7 @@ class CanFrameProcessor:
                 ok = False
             seq0 = a._seq_base + int(c0[0])
         if not ok:
-            out: list[Epoch] = []
+            out: list = []
             vl, fl, ml, cl = (dec.values[:N].tolist(), dec.flags_ok[:N].tolist(), dec.message[:N].tolist(),
                               dec.counter[:N].tolist())
             side = self.acc.side_log is not None
@@ -169,35 +244,26 @@ class CanFrameProcessor:
             a._last_raw_t = float(raw_t[-1])
         else:
             t = ts[:, 0].copy()
-        temp = vals[:, c.temp_slot].tolist() if c.message_has_temp.any() else [None] * E
-        seqs = range(seq0, seq0 + E)
-        out: list[Epoch] = []
-        inst = a._inst
-        tl = t.tolist()
-        c0l = c0.tolist()
-        others = [(name, c.n_sensors + 2 + j) for j, name in enumerate(c.other_names)]
-        anybad = not valid.all()
-        if anybad:
+        if not valid.all():
             vals[:, :c.n_sensors][~valid] = 0.0
-        for e, seq in enumerate(seqs):
-            row = vals[e]
-            raw = {k: row[o:o + n].copy() for k, o, n in inst}
-            vd = {k: valid[e, o:o + n].copy() for k, o, n in inst}
-            counters = {"counter": c0l[e], "seq": seq, "frames": K}
-            for name, sl in others:
-                counters[name] = int(row[sl])
-            out.append(Epoch(tl[e], raw, vd, temp[e], counters))
-        a.newest = a.last_emitted = seq0 + E - 1
-        a.newest_ts = float(ts[-1, -1])
-        for seq in seqs[-max(a.M // 2, 4):]:
-            a.recent[seq] = a._full
-        while len(a.recent) > max(a.M // 2, 4):
+        seq = np.arange(seq0, seq0 + E)
+        chunk = EpochChunk(
+            t, {k: vals[:, o:o + n] for k, o, n in a._inst}, {k: valid[:, o:o + n] for k, o, n in a._inst},
+            vals[:, c.temp_slot].copy() if c.message_has_temp.any() else None, c0.copy(), seq, np.full(E, K),
+            {name: vals[:, c.n_sensors + 2 + j].astype(np.int64) for j, name in enumerate(c.other_names)})
+        last = seq0 + E - 1
+        a.newest = a.last_emitted = last
+        a.newest_ts = float(ts[-1].max())
+        keep_n = max(a.M // 2, 4)
+        for s_ in range(max(seq0, last - keep_n + 1), last + 1):
+            a.recent[s_] = a._full
+        while len(a.recent) > keep_n:
             a.recent.popitem(last=False)
-        a._last_t, a._last_t_seq = tl[-1], seq0 + E - 1
+        a._last_t, a._last_t_seq = float(t[-1]), last
         a._far = 0
         self.acc.accepted += N
         self.acc.epochs += E
-        return out
+        return [chunk]
 
     def expire(self, now: float) -> list[Epoch]:
         return self.assembler.expire(now)
@@ -389,6 +455,60 @@ class CanReplaySource(Source):
             stop = getattr(reader, "stop", None)
             if stop is not None:
                 stop()
+
+    def read_block(self, max_epochs: int | None = None) -> EpochBlock:
+        """The whole log (or its first ``max_epochs`` epochs) as a block, through the vectorised path."""
+        if self.realtime or max_epochs is not None:
+            return super().read_block(max_epochs)
+        import can
+
+        reader = can.LogReader(self.path)
+        items: list = []
+        try:
+            buf = []
+            for m in reader:
+                buf.append(m)
+                if len(buf) >= self.chunk:
+                    items.extend(self.proc.process_items(buf))
+                    buf = []
+            items.extend(self.proc.process_items(buf))
+            items.extend(self.proc.flush())
+        finally:
+            stop = getattr(reader, "stop", None)
+            if stop is not None:
+                stop()
+        block = items_to_block(items, self.proc.codec.other_names)
+        block.meta["accounting"] = self.accounting.as_dict()
+        return block
+
+
+def items_to_block(items: "list[Epoch | EpochChunk]", other_names: list[str]) -> EpochBlock:
+    """One :class:`EpochBlock` from the output of :meth:`CanFrameProcessor.process_items` (arrays kept as
+    they are; loose epochs stacked); ``meta`` holds ``counter``, ``seq``, ``frames`` and other signals."""
+    chunks: list[EpochChunk] = []
+    loose: list[Epoch] = []
+    for it in items:
+        if isinstance(it, EpochChunk):
+            if loose:
+                chunks.append(EpochChunk.from_epochs(loose, other_names))
+                loose = []
+            chunks.append(it)
+        else:
+            loose.append(it)
+    if loose:
+        chunks.append(EpochChunk.from_epochs(loose, other_names))
+    if not chunks:
+        raise ShapeError("the replay produced no epochs")
+    keys = list(chunks[0].raw)
+    temp = None if any(c.temperature is None for c in chunks) else np.concatenate([c.temperature for c in chunks])
+    block = EpochBlock(np.concatenate([c.t for c in chunks]), {k: np.concatenate([c.raw[k] for c in chunks]) for k in keys},
+                       {k: np.concatenate([c.valid[k] for c in chunks]) for k in keys}, temp)
+    block.meta.update({"counter": np.concatenate([c.counter for c in chunks]),
+                       "seq": np.concatenate([c.seq for c in chunks]),
+                       "frames": np.concatenate([c.frames for c in chunks])})
+    for k in other_names:
+        block.meta[k] = np.concatenate([c.other[k] for c in chunks])
+    return block
 
 
 def decode_log(path: "str | os.PathLike[str]", layout: Any, **kwargs: Any) -> tuple[EpochBlock, Accounting]:

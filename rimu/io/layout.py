@@ -443,13 +443,21 @@ class CanCodec:
     # ------------------------------------------------------------------ helpers
     @staticmethod
     def pack(messages: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Identifiers, (N, 8) zero-padded data and DLC of python-can messages (one Python pass)."""
+        """Identifiers, (N, 8) zero-padded data and DLC of python-can messages."""
+        return CanCodec.pack_all(messages)[:3]
+
+    @staticmethod
+    def pack_all(messages: list) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Identifiers, (N, 8) data, DLC, extended flags and timestamps of python-can messages, in one pass."""
         n = len(messages)
-        ids = np.fromiter((m.arbitration_id for m in messages), dtype=np.int64, count=n)
-        dlc = np.fromiter((len(m.data) for m in messages), dtype=np.int64, count=n)
-        buf = b"".join(bytes(m.data[:8]).ljust(8, b"\0") for m in messages)
-        data = np.frombuffer(buf, dtype=np.uint8).reshape(n, 8) if n else np.zeros((0, 8), np.uint8)
-        return ids, data, dlc
+        datas = [m.data for m in messages]
+        dlc = np.fromiter(map(len, datas), dtype=np.int64, count=n)
+        parts = datas if n and dlc.min() == 8 == dlc.max() else [bytes(d[:8]).ljust(8, b"\0") for d in datas]
+        data = np.frombuffer(b"".join(parts), dtype=np.uint8).reshape(n, 8) if n else np.zeros((0, 8), np.uint8)
+        ids = np.fromiter([m.arbitration_id for m in messages], dtype=np.int64, count=n)
+        ext = np.fromiter([m.is_extended_id for m in messages], dtype=bool, count=n)
+        ts = np.fromiter([m.timestamp for m in messages], dtype=float, count=n)
+        return ids, data, dlc, ext, ts
 
     @staticmethod
     def _extract(words_le: np.ndarray, words_be: np.ndarray, s: Signal) -> np.ndarray:
@@ -568,8 +576,8 @@ class CanCodec:
         return status, mi, counter, values, flags
 
     def decode_messages(self, messages: list) -> DecodedFrames:
-        ids, data, dlc = self.pack(messages)
-        ext = np.fromiter((m.is_extended_id for m in messages), dtype=bool, count=len(messages))
+        """:meth:`decode` of python-can messages."""
+        ids, data, dlc, ext, _ = self.pack_all(messages)
         return self.decode(ids, data, dlc, ext)
 
     # ------------------------------------------------------------------ encode

@@ -258,3 +258,23 @@ def test_fast_path_equals_per_frame_path(cone6_block):
         for k in ("gyro", "accel"):
             assert np.array_equal(x.raw[k], y.raw[k]) and np.array_equal(x.valid[k], y.valid[k])
     assert a.acc.as_dict() == b.acc.as_dict()
+
+
+def test_block_replay_equals_epoch_replay(cone6_block, tmp_path):
+    """read_block (vectorised, EpochChunk arrays) and iteration (Epoch objects) give the same data, also with
+    defects in the log."""
+    msgs = CanDevice("cone6_rimu").frames(cone6_block)
+    m = msgs[:300] + msgs[301:700] + [msgs[700]] + msgs[700:]        # a missing frame and a duplicate
+    path = _write(m, tmp_path, "blf")
+    a = CanReplaySource(path, "cone6_rimu", chunk=333)
+    b = CanReplaySource(path, "cone6_rimu", chunk=333)
+    block = a.read_block()
+    eps = list(b)
+    assert len(block) == len(eps) == len(cone6_block)
+    np.testing.assert_array_equal(block.t, [e.t for e in eps])
+    for k in ("gyro", "accel"):
+        np.testing.assert_array_equal(block.raw[k], [e.raw[k] for e in eps])
+        np.testing.assert_array_equal(block.valid[k], [e.valid[k] for e in eps])
+    np.testing.assert_array_equal(block.meta["seq"], [e.counters["seq"] for e in eps])
+    assert a.accounting.as_dict() == b.accounting.as_dict()
+    assert a.accounting.rejected == {"duplicate": 1} and a.accounting.events["missing_frame"] == 1
