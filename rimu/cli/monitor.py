@@ -109,6 +109,7 @@ def _open(args: argparse.Namespace) -> tuple[Any, Any, dict]:
                         timeout=None if args.realtime else 1.0)
         extra["thread"] = CanDevice(args.layout, fault=fault).start(tx, run.block, realtime=args.realtime)
         extra["tx"] = tx
+        extra["n_expected"] = len(run.block)
         return src, run.truth, extra
     if args.can:
         from ..io.can import CanSource
@@ -225,6 +226,8 @@ def run(args: argparse.Namespace) -> int:
                 w_status, n_status = now, n
             if args.duration is not None and ep.t - t0 >= args.duration:
                 break
+            if n == extra.get("n_expected"):   # --simulate: the whole simulated run has arrived
+                break
     except KeyboardInterrupt:
         interrupted = True
     finally:
@@ -237,6 +240,11 @@ def run(args: argparse.Namespace) -> int:
             th.join(2)
         if extra.get("tx") is not None:
             extra["tx"].shutdown()
+    if n:  # the last status line, so that the final state is always shown
+        now = time.monotonic()
+        rate = (n - n_status) / max(now - w_status, 1e-9)
+        line = _status(t_last, rate, src, pipe, fdi)
+        print(("\r" + line) if tty else line, end="" if tty else "\n", flush=True)
     a = src.accounting
     wall = time.monotonic() - w0
     summary = {"epochs": n, "data_span_s": (t_last - t0) if n else 0.0, "wall_s": wall,

@@ -42,7 +42,7 @@ def test_virtual_can_fault_detected_and_isolated():
     tx = can.Bus(interface="virtual", channel=channel)
     # sent as fast as possible: frame times are wall-clock, so the epoch time window is widened to 1 s lest a
     # scheduler stall of the sending thread look like a late frame (the counter window still closes epochs)
-    src = CanSource("cone6_rimu", bus=rx, idle_timeout=1.0, timeout=1.0)
+    src = CanSource("cone6_rimu", bus=rx, idle_timeout=10.0, timeout=1.0)   # ends at N epochs
     sender = dev.start(tx, run.block)                               # as fast as possible, in a thread
     pipe = Pipeline(truth)
     streak = {k: (-1, 0) for k in pipe.instruments}

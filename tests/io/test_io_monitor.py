@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def test_monitor_simulated_device_isolates_the_fault(tmp_path, capsys):
     rec = tmp_path / "rec.csv"
-    rc = main(["monitor", "--simulate", "--sim-duration", "12", "--idle-timeout", "0.5", "--record", str(rec),
+    rc = main(["monitor", "--simulate", "--sim-duration", "12", "--idle-timeout", "10", "--record", str(rec),
                "--json", "--status-interval", "0.2"])
     out = capsys.readouterr().out
     assert rc == 0

@@ -136,7 +136,7 @@ def test_pseudo_terminal_pair_realtime():
     name = os.ttyname(slave)
     block = _block(40)
     garbage = b"\x00\xa5\xa5\x5a\xff" * 3
-    src = SerialSource(name, baudrate=115200, idle_timeout=0.5).open()   # raw mode set before any byte
+    src = SerialSource(name, baudrate=115200, idle_timeout=10.0).open()   # raw mode set before any byte
     eps = []
 
     class _Fd:
