@@ -500,25 +500,31 @@ class CanCodec:
         """
         N = len(ids)
         K = self.n_messages
-        E = N // K
+        ids = np.asarray(ids)
+        exp_ids = np.array([m.id for m in self.layout.messages], dtype=np.int64)
+        # where the layout's order starts (a batch may begin part-way through a sample)
+        o = next((j for j in range(min(K, N)) if N - j >= K and np.array_equal(ids[j:j + K], exp_ids)), -1)
+        E = (N - o) // K if o >= 0 else 0
         if E >= 2:
-            exp_ids = np.array([m.id for m in self.layout.messages], dtype=np.int64)
-            reg = (np.asarray(ids[:E * K]).reshape(E, K) == exp_ids).all(axis=1)
+            reg = (ids[o:o + E * K].reshape(E, K) == exp_ids).all(axis=1)
             if extended is not None:
                 exp_ext = np.array([m.extended for m in self.layout.messages])
-                reg &= (np.asarray(extended[:E * K], dtype=bool).reshape(E, K) == exp_ext).all(axis=1)
+                reg &= (np.asarray(extended[o:o + E * K], dtype=bool).reshape(E, K) == exp_ext).all(axis=1)
             bad = np.flatnonzero(~reg)
             E = int(E if not len(bad) else bad[0])
         if E < 2:
             return self._decode_general(ids, data, dlc, extended)
-        head = self._decode_regular(np.ascontiguousarray(data[:E * K], dtype=np.uint8), np.asarray(dlc[:E * K]), E)
-        if E * K == N:
-            return head
-        tail = self._decode_general(ids[E * K:], data[E * K:], dlc[E * K:],
-                                    None if extended is None else extended[E * K:])
-        return DecodedFrames(*(np.concatenate([a, b]) for a, b in zip(
-            (head.status, head.message, head.counter, head.values, head.flags_ok),
-            (tail.status, tail.message, tail.counter, tail.values, tail.flags_ok))))
+        lo, hi = o, o + E * K
+        parts = []
+        if lo:
+            parts.append(self._decode_general(ids[:lo], data[:lo], dlc[:lo], None if extended is None else extended[:lo]))
+        parts.append(self._decode_regular(np.ascontiguousarray(data[lo:hi], dtype=np.uint8), np.asarray(dlc[lo:hi]), E))
+        if hi < N:
+            parts.append(self._decode_general(ids[hi:], data[hi:], dlc[hi:], None if extended is None else extended[hi:]))
+        if len(parts) == 1:
+            return parts[0]
+        return DecodedFrames(*(np.concatenate([getattr(p, f) for p in parts])
+                               for f in ("status", "message", "counter", "values", "flags_ok")))
 
     def _decode_regular(self, data: np.ndarray, dlc: np.ndarray, E: int) -> DecodedFrames:
         """E samples of K frames in layout order: message m is every K-th frame from m (strided views)."""

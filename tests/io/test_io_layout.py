@@ -241,8 +241,9 @@ def test_regular_decode_equals_general_decode(name, n_samples, seed, extra, p_da
         i = int(rng.integers(0, len(ids) - 1))
         for arr in (ids, data, dlc):
             arr[[i, i + 1]] = arr[[i + 1, i]]
-    a = codec.decode(ids, data, dlc, ext)
-    b = codec._decode_general(ids, data, dlc, ext)
-    for f in ("status", "message", "counter", "values", "flags_ok"):
-        np.testing.assert_array_equal(getattr(a, f), getattr(b, f))
+    for start in range(K + 1):     # batches beginning part-way through a sample
+        a = codec.decode(ids[start:], data[start:], dlc[start:], ext[start:])
+        b = codec._decode_general(ids[start:], data[start:], dlc[start:], ext[start:])
+        for f in ("status", "message", "counter", "values", "flags_ok"):
+            np.testing.assert_array_equal(getattr(a, f), getattr(b, f))
     assert K >= 3
