@@ -20,9 +20,14 @@ from rimu.io.recorded import CsvSource, NpzSource, write_csv
 
 
 def test_registry_is_lazy_and_extensible():
+    import subprocess
     import sys
 
-    assert "rimu.io.ulog" not in sys.modules or True
+    code = ("import sys, rimu.io; print(sorted(m for m in ('rimu.io.ulog', 'pyulog', 'serial', 'can', 'cantools', "
+            "'rimu.io.can', 'rimu.io.serial', 'rimu.sim') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=str(__import__("pathlib").Path(__file__).resolve().parents[2]))
+    assert out.stdout.strip() == "[]", out.stderr       # importing rimu.io loads no transport
     assert source_class("serial").__name__ == "SerialSource"
     with pytest.raises(TransportError, match="no source named"):
         open_source("carrier-pigeon")
@@ -170,3 +175,18 @@ def test_stop_event_ends_a_live_source(cone6_block):
     timer.start()
     assert list(src) == []
     src.close()
+
+
+def test_io_never_imports_sim():
+    """Import rule: nothing in rimu/io imports rimu.sim (the simulated device takes a block from the caller)."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2] / "rimu" / "io"
+    for f in root.glob("*.py"):
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, ast.ImportFrom):
+                mod = ("." * node.level) + (node.module or "")
+                assert not mod.startswith("..sim") and not mod.startswith("rimu.sim"), (f.name, mod)
+            elif isinstance(node, ast.Import):
+                assert not any(a.name.startswith("rimu.sim") for a in node.names), f.name
