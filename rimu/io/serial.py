@@ -281,27 +281,34 @@ class SerialSource(Source):
         self._open()
         last = time.monotonic()
         attempt = 0
+        error: BaseException | None = None
         while not self.stop_event.is_set():
+            if self.ser is None:  # reconnect policy: wait, reopen; TransportError when the attempts are used up
+                if attempt >= self.reconnect.max_attempts:
+                    raise TransportError(f"serial port {self.port} failed and could not be reopened after "
+                                         f"{attempt} attempts: {error}") from error
+                if self.stop_event.wait(self.reconnect.delay(attempt)):
+                    break
+                attempt += 1
+                try:
+                    self._open()
+                    self.accounting.event("reconnect")
+                except (serial.SerialException, OSError) as exc:
+                    self.accounting.event("reconnect_failed")
+                    error = exc
+                    continue
             try:
                 waiting = self.ser.in_waiting
                 data = self.ser.read(min(max(waiting, 1), self.read_size))
                 attempt = 0
             except (serial.SerialException, OSError) as exc:
                 self.accounting.event("port_error")
-                if attempt >= self.reconnect.max_attempts:
-                    raise TransportError(f"serial port {self.port} failed: {exc}") from exc
+                error = exc
                 try:
                     self.ser.close()
-                except Exception:  # noqa: BLE001
+                except Exception:  # noqa: BLE001 - a failed port may fail to close too
                     pass
                 self.ser = None
-                self.stop_event.wait(self.reconnect.delay(attempt))
-                attempt += 1
-                try:
-                    self._open()
-                    self.accounting.event("reconnect")
-                except (serial.SerialException, OSError):
-                    self.accounting.event("reconnect_failed")
                 continue
             if data:
                 last = time.monotonic()

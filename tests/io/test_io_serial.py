@@ -175,3 +175,68 @@ def test_file_source(tmp_path):
     got = src.read_block()
     np.testing.assert_array_equal(got.t, block.t)
     assert src.accounting.rejected == {"garbage": 5}
+
+
+class _FailingPort:
+    """Delivers its bytes, then fails like an unplugged USB adapter."""
+
+    def __init__(self, data):
+        self.data = data
+        self.calls = 0
+
+    @property
+    def in_waiting(self):
+        return len(self.data)
+
+    def read(self, n):
+        import serial
+
+        self.calls += 1
+        if self.calls > 1:
+            raise serial.SerialException("device reports readiness to read but returned no data")
+        d, self.data = self.data[:n], self.data[n:]
+        return d
+
+    def close(self):
+        pass
+
+
+def test_serial_port_error_reconnects_then_gives_up():
+    from rimu.errors import TransportError
+    from rimu.io.can import ReconnectPolicy
+
+    block = _block(5)
+    stream = SerialDevice().stream(block)
+    # reopening "loop://" works: the source goes on until idle
+    src = SerialSource("loop://", serial_port=_FailingPort(stream[:200]), idle_timeout=0.2,
+                       reconnect=ReconnectPolicy(max_attempts=2, backoff_s=0.001))
+    eps = list(src)
+    assert len(eps) == 2                       # 200 bytes = two whole 74-byte frames and part of a third
+    acc = src.accounting
+    assert acc.events["port_error"] == 1 and acc.events["reconnect"] == 1
+    assert acc.rejected == {"truncated": 1, "garbage": 200 - 2 * 74 - 1} and acc.identity_holds()
+    # a port that cannot be reopened: TransportError after the attempts
+    bad = SerialSource("/nonexistent/tty", serial_port=_FailingPort(stream), idle_timeout=0.2,
+                       reconnect=ReconnectPolicy(max_attempts=2, backoff_s=0.001))
+    with pytest.raises(TransportError, match="after 2 attempts"):
+        list(bad)
+    assert bad.accounting.events["reconnect_failed"] == 2
+
+
+def test_serial_side_log_keeps_rejected_bytes(tmp_path):
+    import json
+
+    from rimu.io.accounting import Accounting, SideLog
+
+    f = SerialDevice().frames(_block(2))
+    bad = bytearray(f[1])
+    bad[30] ^= 0x40
+    side = SideLog(tmp_path / "rejected.jsonl")
+    dec = SerialDecoder(Accounting("byte", side_log=side))
+    eps = dec.feed(b"xyz" + f[0] + bytes(bad)) + dec.flush()
+    side.close()
+    assert len(eps) == 1
+    recs = [json.loads(line) for line in (tmp_path / "rejected.jsonl").read_text().splitlines()]
+    kept = b"".join(bytes.fromhex(r["data"]) for r in recs)
+    assert len(kept) == dec.accounting.rejected_total == 3 + len(bad)     # every rejected byte is in the log
+    assert recs[0] == {"reason": "garbage", "t": None, "data": b"xyz".hex()}
