@@ -15,7 +15,7 @@ import importlib
 from typing import Any
 
 from .accounting import Accounting, AccountingError, SideLog
-from .base import Source
+from .base import ReconnectPolicy, Source
 from .layout import CanCodec, Layout, Message, Signal, load_layout
 from .registry import SOURCES, open_source, register_source, source_class
 
@@ -45,7 +45,7 @@ __all__ = [
 ]
 
 _LAZY = {
-    "CanSource": "can", "CanReplaySource": "can", "ReconnectPolicy": "can",
+    "CanSource": "can", "CanReplaySource": "can",
     "SerialSource": "serial", "SerialFileSource": "serial", "SerialDecoder": "serial",
     "CanDevice": "device", "SerialDevice": "device", "BlockSource": "device",
 }

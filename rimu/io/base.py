@@ -10,13 +10,14 @@ from __future__ import annotations
 import asyncio
 import threading
 from abc import ABC, abstractmethod
+from dataclasses import dataclass
 from typing import AsyncIterator, Callable, Iterator
 
 from ..epoch import Epoch, EpochBlock
 from ..errors import ShapeError
 from .accounting import Accounting, SideLog
 
-__all__ = ["Source"]
+__all__ = ["Source", "ReconnectPolicy"]
 
 
 class Source(ABC):
@@ -99,3 +100,17 @@ class Source(ABC):
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+@dataclass
+class ReconnectPolicy:
+    """What a live source does when the bus fails (bus error, bus-off): up to ``max_attempts`` reopenings in
+    a row, waiting ``backoff_s * 2**k`` (capped at ``max_backoff_s``) before attempt k; then
+    :class:`~rimu.errors.TransportError`. ``max_attempts = 0`` fails at the first error."""
+
+    max_attempts: int = 5
+    backoff_s: float = 0.1
+    max_backoff_s: float = 5.0
+
+    def delay(self, attempt: int) -> float:
+        return min(self.backoff_s * (2 ** attempt), self.max_backoff_s)

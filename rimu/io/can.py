@@ -21,7 +21,7 @@ from ..epoch import Epoch, EpochBlock
 from ..errors import ShapeError, TransportError
 from .accounting import Accounting, SideLog
 from .assembly import EpochAssembler
-from .base import Source
+from .base import ReconnectPolicy, Source
 from .layout import STATUS_OK, STATUS_REASONS, CanCodec, DecodedFrames, Layout, load_layout
 
 __all__ = ["CanFrameProcessor", "EpochChunk", "items_to_block", "CanSource", "CanReplaySource", "ReconnectPolicy", "decode_log"]
@@ -270,20 +270,6 @@ class CanFrameProcessor:
 
     def flush(self) -> list[Epoch]:
         return self.assembler.flush()
-
-
-@dataclass
-class ReconnectPolicy:
-    """What a live source does when the bus fails (bus error, bus-off): up to ``max_attempts`` reopenings in
-    a row, waiting ``backoff_s * 2**k`` (capped at ``max_backoff_s``) before attempt k; then
-    :class:`~rimu.errors.TransportError`. ``max_attempts = 0`` fails at the first error."""
-
-    max_attempts: int = 5
-    backoff_s: float = 0.1
-    max_backoff_s: float = 5.0
-
-    def delay(self, attempt: int) -> float:
-        return min(self.backoff_s * (2 ** attempt), self.max_backoff_s)
 
 
 class CanSource(Source):

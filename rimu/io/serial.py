@@ -36,7 +36,7 @@ import numpy as np
 from ..epoch import Epoch, EpochBlock
 from ..errors import FrameError, TransportError
 from .accounting import Accounting, SideLog
-from .base import Source
+from .base import ReconnectPolicy, Source
 from .checksum import crc16_ccitt
 
 __all__ = ["SYNC", "TYPE_SAMPLE", "encode_frame", "encode_sample", "encode_block", "SerialDecoder",
@@ -261,8 +261,6 @@ class SerialSource(Source):
                  read_size: int = 4096, read_timeout: float = 0.05, idle_timeout: float | None = None,
                  reconnect: Any = None, max_payload: int = 255, side_log: SideLog | None = None) -> None:
         super().__init__(side_log)
-        from .can import ReconnectPolicy
-
         self.port, self.baudrate = port, baudrate
         self.ser = serial_port
         self.read_size, self.read_timeout, self.idle_timeout = read_size, read_timeout, idle_timeout
