@@ -226,8 +226,10 @@ class SerialDecoder:
                 if not finite or m != (1 << n) - 1:
                     y[~v] = 0.0
                 raw[k], valid[k] = y, v
+        if math.isinf(temp):
+            a.event("nonfinite_temperature")
         a.epochs += 1
-        return None, Epoch(float(t), raw, valid, None if math.isnan(temp) else float(temp), {"seq": seq})
+        return None, Epoch(float(t), raw, valid, float(temp) if math.isfinite(temp) else None, {"seq": seq})
 
     def _mask(self, m: int, n: int) -> np.ndarray:
         key = (m, n)

@@ -109,9 +109,10 @@ def test_duplicate_and_bad_payloads_are_rejected():
 
 
 def test_nonfinite_value_marks_sensor_invalid():
-    payload = encode_sample(0.1, {"gyro": np.array([1.0, np.inf, 3.0])})
-    (e,), _ = _decode_all([encode_frame(1, 0, payload)])
+    payload = encode_sample(0.1, {"gyro": np.array([1.0, np.inf, 3.0])}, temperature=float("inf"))
+    (e,), acc = _decode_all([encode_frame(1, 0, payload)])
     assert e.valid["gyro"].tolist() == [True, False, True] and e.raw["gyro"].tolist() == [1.0, 0.0, 3.0]
+    assert e.temperature is None and acc.events["nonfinite_temperature"] == 1
 
 
 def test_loop_url_source():
