@@ -97,12 +97,13 @@ class CanDevice:
 class SerialDevice:
     """Encodes a block in rimu's serial framing and writes it to a port (or returns the bytes)."""
 
-    def __init__(self, fault: FaultHook | None = None, seq0: int = 0) -> None:
+    def __init__(self, fault: FaultHook | None = None, seq0: int = 0, framing: str = "sync") -> None:
         self.fault = fault
         self.seq0 = seq0
+        self.framing = framing
 
     def frames(self, block: EpochBlock) -> list[bytes]:
-        return encode_block(_prepare(block, self.fault), self.seq0)
+        return encode_block(_prepare(block, self.fault), self.seq0, self.framing)
 
     def stream(self, block: EpochBlock) -> bytes:
         return b"".join(self.frames(block))

@@ -142,34 +142,53 @@ class SerialOracle:
     received: int = 0
 
 
-def mutate_serial(frames: Sequence[bytes], actions: Sequence[str], rng: np.random.Generator) -> tuple[bytes, SerialOracle]:
+def mutate_serial(frames: Sequence[bytes], actions: Sequence[str], rng: np.random.Generator,
+                  framing: str = "sync") -> tuple[bytes, SerialOracle]:
     """Damage a framed byte stream: ``keep``, ``drop``, ``dup``, ``flip`` (a burst of 1..16 bits: always caught
     by the CRC-16), ``truncate`` (the frame cut short, the next one follows), ``garbage_before`` (1..40 random
-    bytes before the frame, kept)."""
-    parts: list[bytes] = []
-    o = SerialOracle()
+    bytes before the frame, kept).
+
+    The oracle: with the sync framing every intact frame is recovered; with COBS an intact frame is recovered
+    only if the byte before it is a delimiter (0x00) or it starts the stream (damage before a frame merges
+    with it up to the next delimiter). A recovered frame with the same SEQ as the last accepted one is a
+    duplicate."""
+    parts: list[tuple[bytes, int]] = []   # (bytes, sample index or -1 for damaged / garbage)
     for k, (f, act) in enumerate(zip(frames, actions)):
         if act == "drop":
             continue
         if act == "garbage_before":
-            parts.append(rng.integers(0, 256, int(rng.integers(1, 41)), dtype=np.uint8).tobytes())
+            parts.append((rng.integers(0, 256, int(rng.integers(1, 41)), dtype=np.uint8).tobytes(), -1))
         if act in ("keep", "dup", "garbage_before"):
-            parts.append(f)
-            o.intact.append(k)
-            o.accepted_bytes += len(f)
+            parts.append((f, k))
             if act == "dup":
-                parts.append(f)
-                o.duplicate_bytes += len(f)
+                parts.append((f, k))
         elif act == "flip":
             width = int(rng.integers(1, 17))
             pos = int(rng.integers(0, 8 * len(f) - width + 1))
             pattern = int(rng.integers(0, 1 << width)) | 1 | (1 << (width - 1))
-            parts.append((int.from_bytes(f, "big") ^ (pattern << pos)).to_bytes(len(f), "big"))
+            parts.append(((int.from_bytes(f, "big") ^ (pattern << pos)).to_bytes(len(f), "big"), -1))
         elif act == "truncate":
-            parts.append(f[: int(rng.integers(1, len(f)))])
+            parts.append((f[: int(rng.integers(1, len(f)))], -1))
         else:
             raise ValueError(f"unknown action {act!r}")
-    stream = b"".join(parts)
+    o = SerialOracle()
+    prev: int | None = None
+    last_seq: int | None = None
+    for b, k in parts:
+        recoverable = framing == "sync" or prev is None or prev == 0
+        if k >= 0 and recoverable:
+            if last_seq == k:
+                o.duplicate_bytes += len(b)
+            else:
+                o.intact.append(k)
+                o.accepted_bytes += len(b)
+                last_seq = k
+        if b:
+            prev = b[-1]
+    stream = b"".join(b for b, _ in parts)
+    if framing == "cobs":   # lone delimiters (a 0x00 right after another, or first) are accepted as framing
+        z = np.frombuffer(stream, np.uint8) == 0
+        o.accepted_bytes += int((z & np.concatenate([[True], z[:-1]])).sum())
     o.received = len(stream)
     return stream, o
 

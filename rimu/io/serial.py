@@ -15,6 +15,9 @@ Sample payload (TYPE 0x01)::
     float64 t (s, device time) | float32 temperature (degC, NaN = not sent) | uint8 n_gyro | uint8 n_accel |
     uint16 gyro valid mask | uint16 accel valid mask | float32 gyro[n_gyro] | float32 accel[n_accel]
 
+COBS variant (``framing="cobs"``, :class:`CobsDecoder`): ``COBS(TYPE, SEQ, payload, CRC-16) 0x00``, the CRC
+over TYPE, SEQ and payload; no sync word or length: every 0x00 ends a frame.
+
 Decoding (:class:`SerialDecoder`) works on any chunking of the byte stream: it searches the sync word,
 waits for the whole frame, checks the CRC, and on a failed check drops one byte and searches again, so a
 frame starting inside a damaged one is still found (resynchronisation). Every byte is counted: accepted (part
@@ -40,6 +43,7 @@ from .base import ReconnectPolicy, Source
 from .checksum import crc16_ccitt
 
 __all__ = ["SYNC", "TYPE_SAMPLE", "encode_frame", "encode_sample", "encode_block", "SerialDecoder",
+           "cobs_encode", "cobs_decode", "encode_frame_cobs", "CobsDecoder", "make_decoder", "FRAMINGS",
            "SerialSource", "SerialFileSource"]
 
 SYNC = b"\xa5\x5a"
@@ -49,6 +53,7 @@ OVERHEAD = 8
 _SAMPLE_HEAD = struct.Struct("<dfBBHH")
 _HDR = struct.Struct("<BBH")
 MAX_SENSORS = 16
+FRAMINGS = ("sync", "cobs")
 
 
 def encode_frame(ftype: int, seq: int, payload: bytes) -> bytes:
@@ -81,14 +86,17 @@ def encode_sample(t: float, raw: dict[str, np.ndarray], valid: dict[str, np.ndar
     return _SAMPLE_HEAD.pack(float(t), temp, len(g), len(a), mg, ma) + g.tobytes() + a.tobytes()
 
 
-def encode_block(block: EpochBlock, seq0: int = 0) -> list[bytes]:
-    """Frames of every sample of a block (sequence numbers from ``seq0``)."""
+def encode_block(block: EpochBlock, seq0: int = 0, framing: str = "sync") -> list[bytes]:
+    """Frames of every sample of a block (sequence numbers from ``seq0``); ``framing`` ``"sync"`` or ``"cobs"``."""
+    if framing not in FRAMINGS:
+        raise FrameError(f"framing must be one of {sorted(FRAMINGS)}, got {framing!r}")
+    enc = encode_frame if framing == "sync" else encode_frame_cobs
     out = []
     for k in range(len(block)):
         raw = {i: y[k] for i, y in block.raw.items()}
         val = {i: v[k] for i, v in block.valid.items()}
         temp = None if block.temperature is None else float(block.temperature[k])
-        out.append(encode_frame(TYPE_SAMPLE, seq0 + k, encode_sample(float(block.t[k]), raw, val, temp)))
+        out.append(enc(TYPE_SAMPLE, seq0 + k, encode_sample(float(block.t[k]), raw, val, temp)))
     return out
 
 
@@ -241,6 +249,127 @@ class SerialDecoder:
         return v.copy()
 
 
+def cobs_encode(data: bytes) -> bytes:
+    """Consistent Overhead Byte Stuffing (Cheshire & Baker 1999): ``data`` without zero bytes, one byte longer
+    per 254 bytes; the frame is then ended by a single 0x00.
+
+    >>> cobs_encode(b"\\x11\\x00\\x22").hex(), cobs_decode(cobs_encode(b"\\x11\\x00\\x22")).hex()
+    ('02110222', '110022')
+    """
+    out = bytearray()
+    block = bytearray()
+    for b in data:
+        if b == 0:
+            out.append(len(block) + 1)
+            out += block
+            block.clear()
+        else:
+            block.append(b)
+            if len(block) == 254:
+                out.append(255)
+                out += block
+                block.clear()
+    out.append(len(block) + 1)
+    out += block
+    return bytes(out)
+
+
+def cobs_decode(data: bytes | bytearray | memoryview) -> bytes | None:
+    """Inverse of :func:`cobs_encode` (without the delimiter); None if ``data`` is not a valid encoding."""
+    out = bytearray()
+    i, n = 0, len(data)
+    while i < n:
+        code = data[i]
+        j = i + code
+        if code == 0 or j > n:
+            return None
+        block = data[i + 1:j]
+        if 0 in block:
+            return None
+        out += block
+        i = j
+        if code < 255 and i < n:
+            out.append(0)
+    return bytes(out)
+
+
+def encode_frame_cobs(ftype: int, seq: int, payload: bytes) -> bytes:
+    """The COBS variant of a frame: ``COBS(TYPE, SEQ, payload, CRC-16) 0x00`` (CRC over TYPE, SEQ, payload).
+
+    >>> f = encode_frame_cobs(TYPE_SAMPLE, 1, b"\\x00\\x00")
+    >>> f[-1], 0 in f[:-1]
+    (0, False)
+    """
+    body = struct.pack("<BH", ftype, seq & 0xFFFF) + payload
+    return cobs_encode(body + crc16_ccitt(body).to_bytes(2, "little")) + b"\x00"
+
+
+class CobsDecoder(SerialDecoder):
+    """Streaming decoder of the COBS variant of the framing (see the module docstring): frames end at every
+    0x00 byte, so resynchronisation happens at the next delimiter: bytes damaged or inserted before a frame
+    without a delimiter in between make that frame invalid too. Rejections: ``cobs`` (not a valid encoding),
+    ``checksum``, ``bad_length`` (longer than any valid frame), ``truncated`` (bytes after the last delimiter
+    at the end of a stream), and the payload reasons of :class:`SerialDecoder`. A lone delimiter (an empty
+    frame: idle line or a leading delimiter) is accepted as framing.
+
+    >>> dec = CobsDecoder()
+    >>> frame = encode_frame_cobs(TYPE_SAMPLE, 3, encode_sample(1.5, {"gyro": np.zeros(3)}))
+    >>> eps = dec.feed(b"noise\\x00" + frame[:7]) + dec.feed(frame[7:])
+    >>> [e.t for e in eps], dict(dec.accounting.rejected), dec.accounting.identity_holds()
+    ([1.5], {'cobs': 6}, True)
+    """
+
+    def _scan(self, final: bool) -> list[Epoch]:
+        buf = self._buf
+        n = len(buf)
+        pos = 0
+        out: list[Epoch] = []
+        max_enc = self.max_payload + 5 + (self.max_payload + 5) // 254 + 1
+        while True:
+            z = buf.find(b"\x00", pos)
+            if z < 0:
+                if n - pos > max_enc:        # no delimiter in reach: this cannot be a frame
+                    self._rej("bad_length", pos, n)
+                    pos = n
+                elif final and n > pos:
+                    self._rej("truncated", pos, n)
+                    pos = n
+                break
+            end = z + 1
+            if z == pos:   # an empty frame: a lone delimiter (idle line, or a sender that also leads with 0x00)
+                self.accounting.accepted += 1
+            elif z - pos > max_enc:
+                self._rej("bad_length", pos, end)
+            else:
+                body = cobs_decode(memoryview(buf)[pos:z])
+                if body is None or len(body) < 5:
+                    self._rej("cobs", pos, end)
+                elif crc16_ccitt(body[:-2]) != body[-2] | (body[-1] << 8):
+                    self._rej("checksum", pos, end)
+                else:
+                    L = len(body) - 5
+                    pseudo = bytearray(SYNC) + bytes([L]) + body[:-2]
+                    reason, ep = self._frame(pseudo, 0, L)
+                    if reason is None:
+                        self.accounting.accepted += end - pos
+                        if ep is not None:
+                            out.append(ep)
+                    else:
+                        self._rej(reason, pos, end)
+            pos = end
+        del buf[:pos]
+        return out
+
+
+def make_decoder(framing: str, accounting: Accounting | None = None, max_payload: int = 255) -> SerialDecoder:
+    """The decoder of a framing: ``"sync"`` (:class:`SerialDecoder`) or ``"cobs"`` (:class:`CobsDecoder`)."""
+    if framing == "sync":
+        return SerialDecoder(accounting, max_payload)
+    if framing == "cobs":
+        return CobsDecoder(accounting, max_payload)
+    raise FrameError(f"framing must be one of {FRAMINGS}, got {framing!r}")
+
+
 class SerialSource(Source):
     """Live serial port (any pyserial URL: ``/dev/ttyUSB0``, ``COM3``, ``loop://``, ``socket://host:port``).
 
@@ -261,13 +390,14 @@ class SerialSource(Source):
 
     def __init__(self, port: str = "loop://", baudrate: int = 921600, serial_port: Any = None,
                  read_size: int = 4096, read_timeout: float = 0.05, idle_timeout: float | None = None,
-                 reconnect: Any = None, max_payload: int = 255, side_log: SideLog | None = None) -> None:
+                 reconnect: Any = None, max_payload: int = 255, framing: str = "sync",
+                 side_log: SideLog | None = None) -> None:
         super().__init__(side_log)
         self.port, self.baudrate = port, baudrate
         self.ser = serial_port
         self.read_size, self.read_timeout, self.idle_timeout = read_size, read_timeout, idle_timeout
         self.reconnect = reconnect or ReconnectPolicy()
-        self.decoder = SerialDecoder(self.accounting, max_payload)
+        self.decoder = make_decoder(framing, self.accounting, max_payload)
 
     def _open(self) -> None:
         if self.ser is None:
@@ -330,13 +460,13 @@ class SerialFileSource(Source):
     unit = "byte"
 
     def __init__(self, path: "str | os.PathLike[str]", chunk: int = 1 << 16, max_payload: int = 255,
-                 side_log: SideLog | None = None) -> None:
+                 framing: str = "sync", side_log: SideLog | None = None) -> None:
         super().__init__(side_log)
         self.path = os.fspath(path)
         if not os.path.exists(self.path):
             raise TransportError(f"no serial capture at {self.path}")
         self.chunk = chunk
-        self.decoder = SerialDecoder(self.accounting, max_payload)
+        self.decoder = make_decoder(framing, self.accounting, max_payload)
 
     def _epochs(self) -> Iterator[Epoch]:
         with open(self.path, "rb") as fh:

@@ -241,3 +241,89 @@ def test_serial_side_log_keeps_rejected_bytes(tmp_path):
     kept = b"".join(bytes.fromhex(r["data"]) for r in recs)
     assert len(kept) == dec.accounting.rejected_total == 3 + len(bad)     # every rejected byte is in the log
     assert recs[0] == {"reason": "garbage", "t": None, "data": b"xyz".hex()}
+
+
+# ---------------------------------------------------------------------------------------------- COBS variant
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from rimu.io.fuzz import SERIAL_ACTIONS, check_serial, draw_actions, mutate_serial  # noqa: E402
+from rimu.io.serial import CobsDecoder, cobs_decode, cobs_encode  # noqa: E402
+
+
+@given(st.binary(max_size=700))
+def test_cobs_roundtrip(data):
+    enc = cobs_encode(data)
+    assert 0 not in enc and len(enc) <= len(data) + 1 + len(data) // 254
+    assert cobs_decode(enc) == data
+
+
+def _decode_cobs(chunks):
+    dec = CobsDecoder()
+    eps = []
+    for c in chunks:
+        eps += dec.feed(c)
+        dec.accounting.check()
+    eps += dec.flush()
+    dec.accounting.check()
+    return eps, dec.accounting
+
+
+def test_cobs_every_cut_position_decodes_the_same():
+    block = _block(10)
+    parts = []
+    for k, f in enumerate(SerialDevice(framing="cobs").frames(block)):
+        parts.append(b"\x13\x37\x00" if k % 3 == 1 else b"")   # delimited noise before some frames
+        parts.append(f)
+    stream = b"".join(parts) + b"\x05\x01"                       # an unfinished frame at the end
+    ref, acc_ref = _decode_cobs([stream])
+    assert len(ref) == 10 and acc_ref.rejected == {"cobs": 3 * 3, "truncated": 2}
+    for k in range(len(stream) + 1):
+        eps, acc = _decode_cobs([stream[:k], stream[k:]])
+        assert _key(eps) == _key(ref) and acc.as_dict() == acc_ref.as_dict()
+
+
+def test_cobs_seeded_fuzz():
+    block = _block(3000, seed=9)
+    rng = np.random.default_rng(5)
+    frames = SerialDevice(framing="cobs").frames(block)
+    stream, oracle = mutate_serial(frames, draw_actions(rng, len(frames), SERIAL_ACTIONS), rng, framing="cobs")
+    cuts = np.unique(np.concatenate([[0, len(stream)], rng.integers(0, len(stream), 300)])).tolist()
+    dec = CobsDecoder()
+    eps = []
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        eps += dec.feed(stream[a:b])
+        dec.accounting.check()
+    eps += dec.flush()
+    check_serial(eps, dec.accounting, oracle, block)
+    assert 0.7 * len(frames) < len(eps) < len(frames)
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.lists(st.sampled_from(list(SERIAL_ACTIONS)), min_size=15, max_size=15), st.integers(0, 2**32 - 1),
+       st.lists(st.integers(0, 1500), max_size=8))
+def test_cobs_mutations_hypothesis(actions, seed, cuts):
+    block = _block(15)
+    stream, oracle = mutate_serial(SerialDevice(framing="cobs").frames(block), actions,
+                                   np.random.default_rng(seed), framing="cobs")
+    bounds = sorted({0, len(stream), *[c for c in cuts if c < len(stream)]})
+    eps, acc = _decode_cobs([stream[a:b] for a, b in zip(bounds[:-1], bounds[1:])])
+    check_serial(eps, acc, oracle, block)
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.binary(max_size=800))
+def test_cobs_arbitrary_bytes_never_raise(data):
+    eps, acc = _decode_cobs([data[: len(data) // 2], data[len(data) // 2:]])
+    assert acc.pending == 0
+
+
+def test_cobs_over_loop_url():
+    import serial
+
+    block = _block(12)
+    port = serial.serial_for_url("loop://", timeout=0.05)
+    SerialDevice(framing="cobs").write(port, block)
+    src = SerialSource("loop://", serial_port=port, idle_timeout=0.3, framing="cobs")
+    assert [e.counters["seq"] for e in src] == list(range(12))
+    src.close()
