@@ -22,11 +22,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from rimu.epoch import EpochBlock  # noqa: E402
-from rimu.io.accounting import Accounting  # noqa: E402
-from rimu.io.can import CanFrameProcessor, CanReplaySource, items_to_block  # noqa: E402
-from rimu.io.device import CanDevice, SerialDevice  # noqa: E402
-from rimu.io.fuzz import (  # noqa: E402
+from rimu.epoch import EpochBlock
+from rimu.io.accounting import Accounting
+from rimu.io.can import CanFrameProcessor, CanReplaySource, items_to_block
+from rimu.io.device import CanDevice, SerialDevice
+from rimu.io.fuzz import (
     CAN_ACTIONS,
     SERIAL_ACTIONS,
     check_can,
@@ -35,8 +35,8 @@ from rimu.io.fuzz import (  # noqa: E402
     mutate_can,
     mutate_serial,
 )
-from rimu.io.layout import load_layout  # noqa: E402
-from rimu.io.serial import CobsDecoder, SerialDecoder  # noqa: E402
+from rimu.io.layout import load_layout
+from rimu.io.serial import CobsDecoder, SerialDecoder
 
 
 def timeit(fn, repeat):

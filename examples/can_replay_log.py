@@ -13,9 +13,9 @@ import sys
 import tempfile
 from pathlib import Path
 
+import can
 import numpy as np
 
-import can
 from rimu.fusion import Pipeline
 from rimu.io import CanDevice, CanReplaySource
 from rimu.sim import Simulator, rotation

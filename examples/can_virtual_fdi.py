@@ -10,9 +10,9 @@ frames into epochs, the runtime pipeline compensates and projects them, and the 
 
 from __future__ import annotations
 
+import can
 import numpy as np
 
-import can
 from rimu.epoch import EpochBlock
 from rimu.fdi import glt_snapshot
 from rimu.fusion import Pipeline

@@ -80,11 +80,11 @@ class EpochAssembler:
         self.max_lag = max(1, int(max_lag))
         self.timeout = timeout if timeout is not None else (3 * self.period if self.period else None)
         self.resync_after = resync_after or codec.n_messages
-        self.open: "OrderedDict[int, _Open]" = OrderedDict()
+        self.open: OrderedDict[int, _Open] = OrderedDict()
         self.newest: int | None = None
         self.newest_ts: float | None = None
         self.last_emitted: int | None = None
-        self.recent: "OrderedDict[int, np.ndarray]" = OrderedDict()  # emitted seq -> have mask
+        self.recent: OrderedDict[int, np.ndarray] = OrderedDict()  # emitted seq -> have mask
         self._far = 0
         self._seq_base = 0
         self._last_t: float | None = None
@@ -127,7 +127,7 @@ class EpochAssembler:
         self.acc.event("resync")
 
     # ------------------------------------------------------------------ frames in
-    def add(self, message: int, counter: int, ts: float, values: "list[float]", flags_ok: "list[bool]",
+    def add(self, message: int, counter: int, ts: float, values: list[float], flags_ok: list[bool],
             data: bytes | None = None) -> list[Epoch]:
         """Add one decoded, checksum-valid frame (its value and flag rows of
         :class:`~rimu.io.layout.DecodedFrames`); returns the epochs it completes or closes."""

@@ -10,8 +10,8 @@ from __future__ import annotations
 import asyncio
 import threading
 from abc import ABC, abstractmethod
+from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass
-from typing import AsyncIterator, Callable, Iterator
 
 from ..epoch import Epoch, EpochBlock
 from ..errors import ShapeError
@@ -79,7 +79,7 @@ class Source(ABC):
                 return
             yield ep  # type: ignore[misc]
 
-    def open(self) -> "Source":
+    def open(self) -> Source:
         """Open the transport now (otherwise the first read opens it); returns the source."""
         opener = getattr(self, "_open", None)
         if opener is not None:
@@ -95,7 +95,7 @@ class Source(ABC):
         if self.accounting.side_log is not None:
             self.accounting.side_log.close()
 
-    def __enter__(self) -> "Source":
+    def __enter__(self) -> Source:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -12,8 +12,9 @@ from __future__ import annotations
 import operator
 import os
 import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Any, Callable, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -70,7 +71,7 @@ class EpochChunk:
         return out
 
     @staticmethod
-    def from_epochs(eps: list[Epoch], others: list[str]) -> "EpochChunk":
+    def from_epochs(eps: list[Epoch], others: list[str]) -> EpochChunk:
         keys = list(eps[0].raw)
         temps = [e.temperature for e in eps]
         return EpochChunk(
@@ -90,7 +91,7 @@ class CanFrameProcessor:
     :class:`~rimu.io.assembly.EpochAssembler`. Both give the same epochs, counts and state (tested).
     """
 
-    def __init__(self, layout: "Layout | str | os.PathLike[str]", accounting: Accounting, max_lag: int = 2,
+    def __init__(self, layout: Layout | str | os.PathLike[str], accounting: Accounting, max_lag: int = 2,
                  timeout: float | None = None) -> None:
         self.layout = load_layout(layout)
         self.codec = CanCodec(self.layout)
@@ -107,7 +108,7 @@ class CanFrameProcessor:
                 out.append(item)
         return out
 
-    def process_items(self, messages: list) -> "list[Epoch | EpochChunk]":
+    def process_items(self, messages: list) -> list[Epoch | EpochChunk]:
         """As :meth:`process`, but runs of clean epochs come as :class:`EpochChunk` arrays (block replay)."""
         acc = self.acc
         acc.received += len(messages)
@@ -325,7 +326,7 @@ class CanSource(Source):
             try:
                 if self.bus is not None:
                     self.bus.shutdown()
-            except Exception:  # noqa: BLE001 - a failed bus may fail to shut down too
+            except Exception:
                 pass
             self.bus = None
             if self.stop_event.wait(self.reconnect.delay(attempt)):
@@ -334,7 +335,7 @@ class CanSource(Source):
                 self._open()
                 self.accounting.event("reconnect")
                 return
-            except Exception as e:  # noqa: BLE001
+            except Exception as e:
                 self.accounting.event("reconnect_failed")
                 exc = e
         raise TransportError(f"CAN bus {self.interface}:{self.channel} failed and could not be reopened after "
@@ -398,7 +399,7 @@ class CanReplaySource(Source):
         Frames decoded together (vectorised) when not in real time.
     """
 
-    def __init__(self, path: "str | os.PathLike[str]", layout: Any, realtime: bool = False, speed: float = 1.0,
+    def __init__(self, path: str | os.PathLike[str], layout: Any, realtime: bool = False, speed: float = 1.0,
                  chunk: int = 8192, max_lag: int = 2, timeout: float | None = None,
                  side_log: SideLog | None = None) -> None:
         super().__init__(side_log)
@@ -468,7 +469,7 @@ class CanReplaySource(Source):
         return block
 
 
-def items_to_block(items: "list[Epoch | EpochChunk]", other_names: list[str]) -> EpochBlock:
+def items_to_block(items: list[Epoch | EpochChunk], other_names: list[str]) -> EpochBlock:
     """One :class:`EpochBlock` from the output of :meth:`CanFrameProcessor.process_items` (arrays kept as
     they are; loose epochs stacked); ``meta`` holds ``counter``, ``seq``, ``frames`` and other signals."""
     chunks: list[EpochChunk] = []
@@ -497,7 +498,7 @@ def items_to_block(items: "list[Epoch | EpochChunk]", other_names: list[str]) ->
     return block
 
 
-def decode_log(path: "str | os.PathLike[str]", layout: Any, **kwargs: Any) -> tuple[EpochBlock, Accounting]:
+def decode_log(path: str | os.PathLike[str], layout: Any, **kwargs: Any) -> tuple[EpochBlock, Accounting]:
     """Replay a whole log as fast as possible: its epochs as a block, and the accounting."""
     src = CanReplaySource(path, layout, **kwargs)
     block = src.read_block()

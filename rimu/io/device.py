@@ -10,7 +10,8 @@ from __future__ import annotations
 import os
 import threading
 import time
-from typing import Any, Callable, Iterator
+from collections.abc import Callable, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -60,7 +61,7 @@ class CanDevice:
         b = _prepare(block, self.fault)
         return {k: self.codec.quantize(k, y) for k, y in b.raw.items()}
 
-    def write_log(self, path: "str | os.PathLike[str]", block: EpochBlock, t0: float = 0.0) -> None:
+    def write_log(self, path: str | os.PathLike[str], block: EpochBlock, t0: float = 0.0) -> None:
         """Write the frames to a python-can log (format by extension: .asc, .blf, .csv, .log)."""
         import can
 

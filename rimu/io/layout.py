@@ -251,7 +251,7 @@ class Layout:
         return p
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any], source: str = "<layout>") -> "Layout":
+    def from_dict(cls, d: dict[str, Any], source: str = "<layout>") -> Layout:
         if d.get("format") != LAYOUT_FORMAT:
             raise FrameError(f"{source}: not a rimu CAN layout (format must be {LAYOUT_FORMAT!r})")
         if d.get("version") != 1:
@@ -271,7 +271,7 @@ class Layout:
 
     @classmethod
     def from_dbc(cls, path: str | os.PathLike[str], roles: dict[str, dict[str, Any]], name: str | None = None,
-                 sample_rate_hz: float | None = None, checksums: dict[str, dict[str, Any]] | None = None) -> "Layout":
+                 sample_rate_hz: float | None = None, checksums: dict[str, dict[str, Any]] | None = None) -> Layout:
         """Build a layout from a DBC file (needs cantools, extra ``dbc``).
 
         Parameters
@@ -307,7 +307,7 @@ class Layout:
         return cls(name or Path(path).stem, msgs, n, sample_rate_hz)
 
 
-def load_layout(layout: "str | os.PathLike[str] | dict | Layout") -> Layout:
+def load_layout(layout: str | os.PathLike[str] | dict | Layout) -> Layout:
     """A layout from a file path, a dict, or the name of a shipped example (``cone6_rimu``, ``mm7_automotive``).
 
     >>> load_layout("cone6_rimu").instruments

@@ -16,8 +16,9 @@ from __future__ import annotations
 import csv
 import math
 import os
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator, TextIO
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -33,7 +34,7 @@ CSV_MAGIC = "# rimu epochs v1"
 class CsvRecorder:
     """Appends epochs to a CSV file as they come (call :meth:`close`, or use as a context manager)."""
 
-    def __init__(self, path: "str | os.PathLike[str]") -> None:
+    def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
         self._fh: TextIO = open(self.path, "w", newline="", encoding="utf-8")
         self._w = csv.writer(self._fh)
@@ -55,14 +56,14 @@ class CsvRecorder:
     def close(self) -> None:
         self._fh.close()
 
-    def __enter__(self) -> "CsvRecorder":
+    def __enter__(self) -> CsvRecorder:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
 
 
-def write_csv(path: "str | os.PathLike[str]", block: EpochBlock) -> Path:
+def write_csv(path: str | os.PathLike[str], block: EpochBlock) -> Path:
     """Write a block in the CSV format (round-trips exactly through :class:`CsvSource`)."""
     with CsvRecorder(path) as rec:
         for ep in block.epochs():
@@ -75,7 +76,7 @@ class CsvSource(Source):
 
     unit = "row"
 
-    def __init__(self, path: "str | os.PathLike[str]") -> None:
+    def __init__(self, path: str | os.PathLike[str]) -> None:
         super().__init__()
         self.path = Path(path)
         if not self.path.exists():
@@ -140,7 +141,7 @@ class NpzSource(Source):
 
     unit = "epoch"
 
-    def __init__(self, path: "str | os.PathLike[str]") -> None:
+    def __init__(self, path: str | os.PathLike[str]) -> None:
         super().__init__()
         self.path = Path(path)
         if not self.path.exists():
@@ -178,7 +179,7 @@ class NpzSource(Source):
             yield ep
 
     @staticmethod
-    def meta(path: "str | os.PathLike[str]") -> dict[str, Any]:
+    def meta(path: str | os.PathLike[str]) -> dict[str, Any]:
         """The JSON metadata ``rimu simulate`` stores (empty dict if none)."""
         import json
 

@@ -32,7 +32,8 @@ import math
 import os
 import struct
 import time
-from typing import Any, Iterator
+from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 
@@ -436,7 +437,7 @@ class SerialSource(Source):
                 error = exc
                 try:
                     self.ser.close()
-                except Exception:  # noqa: BLE001 - a failed port may fail to close too
+                except Exception:
                     pass
                 self.ser = None
                 continue
@@ -459,7 +460,7 @@ class SerialFileSource(Source):
 
     unit = "byte"
 
-    def __init__(self, path: "str | os.PathLike[str]", chunk: int = 1 << 16, max_payload: int = 255,
+    def __init__(self, path: str | os.PathLike[str], chunk: int = 1 << 16, max_payload: int = 255,
                  framing: str = "sync", side_log: SideLog | None = None) -> None:
         super().__init__(side_log)
         self.path = os.fspath(path)

@@ -13,7 +13,8 @@ accepted, one never used is rejected with reason ``unmatched``.
 from __future__ import annotations
 
 import os
-from typing import Any, Iterator
+from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 
@@ -26,7 +27,7 @@ __all__ = ["ULogSource", "read_ulog_instances"]
 TOPICS = {"gyro": "sensor_gyro", "accel": "sensor_accel"}
 
 
-def read_ulog_instances(path: "str | os.PathLike[str]") -> dict[str, list[dict[str, Any]]]:
+def read_ulog_instances(path: str | os.PathLike[str]) -> dict[str, list[dict[str, Any]]]:
     """Per instrument, the instances of its topic: ``{"t", "xyz" (N, 3), "temperature", "device_id",
     "multi_id"}``, sorted by ``multi_id``."""
     try:
@@ -35,7 +36,7 @@ def read_ulog_instances(path: "str | os.PathLike[str]") -> dict[str, list[dict[s
         raise TransportError("reading ULog files needs pyulog: pip install 'rimu[ulog]'") from exc
     try:
         ulog = ULog(os.fspath(path), list(TOPICS.values()))
-    except Exception as exc:  # noqa: BLE001 - pyulog raises many kinds on corrupt files
+    except Exception as exc:
         raise SessionFormatError(f"{path}: not a readable ULog file ({exc})") from exc
     out: dict[str, list[dict[str, Any]]] = {}
     for inst, topic in TOPICS.items():
@@ -83,7 +84,7 @@ class ULogSource(Source):
 
     unit = "sample"
 
-    def __init__(self, path: "str | os.PathLike[str]", tolerance: float | None = None) -> None:
+    def __init__(self, path: str | os.PathLike[str], tolerance: float | None = None) -> None:
         super().__init__()
         self.path = os.fspath(path)
         if not os.path.exists(self.path):

@@ -244,11 +244,11 @@ def test_serial_side_log_keeps_rejected_bytes(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------- COBS variant
-from hypothesis import given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from rimu.io.fuzz import SERIAL_ACTIONS, check_serial, draw_actions, mutate_serial  # noqa: E402
-from rimu.io.serial import CobsDecoder, cobs_decode, cobs_encode  # noqa: E402
+from rimu.io.fuzz import SERIAL_ACTIONS, check_serial, draw_actions, mutate_serial
+from rimu.io.serial import CobsDecoder, cobs_decode, cobs_encode
 
 
 @given(st.binary(max_size=700))

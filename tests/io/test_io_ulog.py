@@ -10,7 +10,7 @@ import pytest
 
 pytest.importorskip("pyulog")
 
-from rimu.io.ulog import ULogSource  # noqa: E402
+from rimu.io.ulog import ULogSource
 
 FIELDS = "uint64_t timestamp;uint64_t timestamp_sample;uint32_t device_id;float x;float y;float z;float temperature"
 
