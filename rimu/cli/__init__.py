@@ -18,6 +18,7 @@ COMMANDS = [
     "calibrate",
     "design",
     "diagnose",
+    "monitor",
 ]
 
 

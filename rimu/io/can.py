@@ -1,0 +1,505 @@
+"""CAN sources through python-can: live buses (any interface) and recorded logs (ASC, BLF, CSV, candump .log).
+
+Frames -> :class:`CanFrameProcessor` (accounting, error/remote frames, vectorised decoding and checksum check
+with :class:`~rimu.io.layout.CanCodec`, epoch assembly with :class:`~rimu.io.assembly.EpochAssembler`)
+-> epochs. Rejection reasons counted: ``error_frame``, ``remote_frame``, ``unknown_id``, ``bad_length``,
+``checksum``, ``duplicate``, ``late``, ``counter_jump``. Events: ``bus_error``, ``bus_off``, ``reconnect``,
+``missing_frame``, ``counter_gap``, ``missing_epochs``, ``resync``, ``time_extrapolated``.
+"""
+
+from __future__ import annotations
+
+import operator
+import os
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..epoch import Epoch, EpochBlock
+from ..errors import ShapeError, TransportError
+from .accounting import Accounting, SideLog
+from .assembly import EpochAssembler
+from .base import ReconnectPolicy, Source
+from .layout import STATUS_OK, STATUS_REASONS, CanCodec, DecodedFrames, Layout, load_layout
+
+__all__ = ["CanFrameProcessor", "EpochChunk", "items_to_block", "CanSource", "CanReplaySource", "ReconnectPolicy", "decode_log"]
+
+#: SocketCAN error class bit for bus-off in an error frame's identifier (linux/can/error.h, CAN_ERR_BUSOFF)
+CAN_ERR_BUSOFF = 0x040
+
+
+_IS_ERROR = operator.attrgetter("is_error_frame")
+_IS_REMOTE = operator.attrgetter("is_remote_frame")
+
+
+def _slice(dec: DecodedFrames, start: int) -> DecodedFrames:
+    return DecodedFrames(dec.status[start:], dec.message[start:], dec.counter[start:], dec.values[start:],
+                         dec.flags_ok[start:])
+
+
+@dataclass
+class EpochChunk:
+    """Many consecutive epochs as arrays (what the vectorised path makes; :meth:`epochs` turns them into
+    :class:`~rimu.epoch.Epoch` objects)."""
+
+    t: np.ndarray
+    raw: dict[str, np.ndarray]
+    valid: dict[str, np.ndarray]
+    temperature: np.ndarray | None
+    counter: np.ndarray
+    seq: np.ndarray
+    frames: np.ndarray
+    other: dict[str, np.ndarray]
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def epochs(self) -> list[Epoch]:
+        out = []
+        tl, cl, sl, fl = self.t.tolist(), self.counter.tolist(), self.seq.tolist(), self.frames.tolist()
+        temp = self.temperature.tolist() if self.temperature is not None else [None] * len(tl)
+        others = {k: v.tolist() for k, v in self.other.items()}
+        for e in range(len(tl)):
+            counters = {"counter": cl[e], "seq": sl[e], "frames": fl[e]}
+            for k, v in others.items():
+                counters[k] = v[e]
+            out.append(Epoch(tl[e], {k: y[e].copy() for k, y in self.raw.items()},
+                             {k: v[e].copy() for k, v in self.valid.items()}, temp[e], counters))
+        return out
+
+    @staticmethod
+    def from_epochs(eps: list[Epoch], others: list[str]) -> EpochChunk:
+        keys = list(eps[0].raw)
+        temps = [e.temperature for e in eps]
+        return EpochChunk(
+            np.array([e.t for e in eps]), {k: np.vstack([e.raw[k] for e in eps]) for k in keys},
+            {k: np.vstack([e.valid_mask(k) for e in eps]) for k in keys},
+            None if any(x is None for x in temps) else np.array(temps, dtype=float),
+            np.array([e.counters["counter"] for e in eps]), np.array([e.counters["seq"] for e in eps]),
+            np.array([e.counters["frames"] for e in eps]), {k: np.array([e.counters[k] for e in eps]) for k in others})
+
+
+class CanFrameProcessor:
+    """Accounting, decoding and assembly of python-can messages into epochs.
+
+    A batch is decoded at once with numpy. Where it holds whole, clean samples (every frame valid, in layout
+    order, one counter per sample, counters consecutive) and the assembler holds nothing open, those samples
+    are assembled vectorised (:meth:`_fast`); everything else goes frame by frame through the
+    :class:`~rimu.io.assembly.EpochAssembler`. Both give the same epochs, counts and state (tested).
+    """
+
+    def __init__(self, layout: Layout | str | os.PathLike[str], accounting: Accounting, max_lag: int = 2,
+                 timeout: float | None = None) -> None:
+        self.layout = load_layout(layout)
+        self.codec = CanCodec(self.layout)
+        self.acc = accounting
+        self.assembler = EpochAssembler(self.codec, accounting, max_lag=max_lag, timeout=timeout)
+
+    def process(self, messages: list) -> list[Epoch]:
+        """Count, decode and assemble a batch of messages (in arrival order); the epochs completed."""
+        out: list[Epoch] = []
+        for item in self.process_items(messages):
+            if isinstance(item, EpochChunk):
+                out.extend(item.epochs())
+            else:
+                out.append(item)
+        return out
+
+    def process_items(self, messages: list) -> list[Epoch | EpochChunk]:
+        """As :meth:`process`, but runs of clean epochs come as :class:`EpochChunk` arrays (block replay)."""
+        acc = self.acc
+        acc.received += len(messages)
+        if not messages:
+            return []
+        if any(map(_IS_ERROR, messages)) or any(map(_IS_REMOTE, messages)):
+            keep = []
+            for m in messages:
+                if m.is_error_frame:
+                    acc.reject("error_frame", 1, bytes(m.data), m.timestamp, id=m.arbitration_id)
+                    if m.arbitration_id & CAN_ERR_BUSOFF:
+                        acc.event("bus_off")
+                elif m.is_remote_frame:
+                    acc.reject("remote_frame", 1, b"", m.timestamp, id=m.arbitration_id)
+                else:
+                    keep.append(m)
+            if not keep:
+                return []
+        else:
+            keep = messages
+        out: list = []
+        side = acc.side_log is not None
+        add = self.assembler.add
+        if len(keep) < 16:  # live buses: a few frames at a time, decoded in pure Python
+            one = self.codec.decode_one
+            for m in keep:
+                st, mi, cnt, vals, flags = one(m.arbitration_id, m.is_extended_id, m.data)
+                if st != STATUS_OK:
+                    acc.reject(STATUS_REASONS[st], 1, bytes(m.data) if side else None, m.timestamp, id=m.arbitration_id)
+                else:
+                    out.extend(add(mi, cnt, m.timestamp, vals, flags, bytes(m.data) if side else None))
+            return out
+        ids, data, dlc, ext, ts = self.codec.pack_all(keep)
+        dec = self.codec.decode(ids, data, dlc, ext)
+        K = self.codec.n_messages
+        n = len(keep)
+        status = msgi = cnt = vals = flags = None
+        base = 0
+        pos = 0
+        retry_at = 0
+        while pos < n:
+            if pos >= retry_at and not self.assembler.open:
+                E = self._clean_prefix(_slice(dec, pos))
+                if E >= 4:
+                    out.extend(self._fast(keep[pos:pos + E * K], _slice(dec, pos), ts[pos:pos + E * K], E))
+                    pos += E * K
+                    continue
+                retry_at = pos + 16 * K   # damaged stretch: frame by frame for a while before trying again
+            if vals is None or pos - base >= len(vals):
+                # Python lists for the per-frame path, a window at a time, made when needed
+                base, w = pos, pos + 64 * K
+                status, msgi, cnt = dec.status[pos:w].tolist(), dec.message[pos:w].tolist(), dec.counter[pos:w].tolist()
+                vals, flags = dec.values[pos:w].tolist(), dec.flags_ok[pos:w].tolist()
+            m = keep[pos]
+            j = pos - base
+            st = status[j]
+            if st != STATUS_OK:
+                acc.reject(STATUS_REASONS[st], 1, bytes(m.data) if side else None, m.timestamp, id=m.arbitration_id)
+            else:
+                out.extend(add(msgi[j], cnt[j], m.timestamp, vals[j], flags[j], bytes(m.data) if side else None))
+            pos += 1
+        return out
+
+    def _clean_prefix(self, dec: DecodedFrames) -> int:
+        """Number of whole samples at the start of a decoded batch that are clean: every frame valid, in
+        layout order, one counter per sample, counters consecutive."""
+        K = self.codec.n_messages
+        M = self.assembler.M
+        E = len(dec.status) // K
+        if E == 0 or not M:
+            return 0
+        st = dec.status[:E * K].reshape(E, K)
+        mi = dec.message[:E * K].reshape(E, K)
+        cnt = dec.counter[:E * K].reshape(E, K)
+        good = (st == STATUS_OK).all(axis=1) & (mi == np.arange(K)).all(axis=1) & (cnt == cnt[:, :1]).all(axis=1)
+        step = np.ones(E, bool)
+        step[1:] = np.diff(cnt[:, 0]) % M == 1
+        bad = np.flatnonzero(~(good & step))
+        return int(E if not len(bad) else bad[0])
+
+    def _fast(self, msgs: list, dec: DecodedFrames, ts: np.ndarray, E: int) -> list:
+        """Vectorised assembly of ``E`` clean samples (see :meth:`_clean_prefix`) continuing the stream: one
+        :class:`EpochChunk`, with the same epochs, counts and assembler state as the per-frame path. Where that
+        cannot be proven (a time gap, a jump from the last epoch, a sample spread beyond the time window) the
+        frames go through the per-frame path instead."""
+        a = self.assembler
+        c = self.codec
+        K = c.n_messages
+        N = E * K
+        cnt = dec.counter[:N].reshape(E, K)
+        c0 = cnt[:, 0]
+        ts = ts[:N].reshape(E, K)
+        per = a.period
+        ok = True
+        if per and E > 1 and (np.diff(ts[:, 0]) > (a.M // 2) * per).any():
+            ok = False
+        if a.timeout is not None and (ts.max(axis=1) - ts[:, 0] > a.timeout).any():
+            ok = False
+        if a.newest is not None:
+            if int(c0[0]) != (a.newest + 1) % a.M or a.last_emitted != a.newest:
+                ok = False
+            if per and ts[0, 0] - a.newest_ts > (a.M // 2) * per:
+                ok = False
+            seq0 = a.newest + 1
+        else:
+            if a.last_emitted is not None:
+                ok = False
+            seq0 = a._seq_base + int(c0[0])
+        if not ok:
+            out: list = []
+            vl, fl, ml, cl = (dec.values[:N].tolist(), dec.flags_ok[:N].tolist(), dec.message[:N].tolist(),
+                              dec.counter[:N].tolist())
+            side = self.acc.side_log is not None
+            for i, m in enumerate(msgs):
+                out.extend(a.add(ml[i], cl[i], m.timestamp, vl[i], fl[i], bytes(m.data) if side else None))
+            return out
+        vals = np.zeros((E, c.n_slots))
+        valid = np.ones((E, c.n_sensors), dtype=bool)
+        V = dec.values[:N].reshape(E, K, -1)
+        F = dec.flags_ok[:N].reshape(E, K, -1)
+        for m in range(K):
+            sl = c.slots[m]
+            vals[:, sl] = V[:, m, :len(sl)]
+            for j, fm in enumerate(c.flag_sensors[m]):
+                valid[:, fm] &= F[:, m, j][:, None]
+        # time, as EpochAssembler._emit does it
+        if c.message_has_time.any():
+            raw_t = vals[:, c.time_slot]
+            mod = c.time_modulus or 0.0
+            prev = np.concatenate([[a._last_raw_t if a._last_raw_t is not None else raw_t[0]], raw_t[:-1]])
+            wraps = a._t_wraps + np.cumsum(raw_t < prev - mod / 2) if mod else np.zeros(E)
+            t = raw_t + wraps * mod
+            a._t_wraps = int(wraps[-1]) if mod else 0
+            a._last_raw_t = float(raw_t[-1])
+        else:
+            t = ts[:, 0].copy()
+        if not valid.all():
+            vals[:, :c.n_sensors][~valid] = 0.0
+        seq = np.arange(seq0, seq0 + E)
+        chunk = EpochChunk(
+            t, {k: vals[:, o:o + n] for k, o, n in a._inst}, {k: valid[:, o:o + n] for k, o, n in a._inst},
+            vals[:, c.temp_slot].copy() if c.message_has_temp.any() else None, c0.copy(), seq, np.full(E, K),
+            {name: vals[:, c.n_sensors + 2 + j].astype(np.int64) for j, name in enumerate(c.other_names)})
+        last = seq0 + E - 1
+        a.newest = a.last_emitted = last
+        a.newest_ts = float(ts[-1].max())
+        keep_n = max(a.M // 2, 4)
+        for s_ in range(max(seq0, last - keep_n + 1), last + 1):
+            a.recent[s_] = a._full
+        while len(a.recent) > keep_n:
+            a.recent.popitem(last=False)
+        a._last_t, a._last_t_seq = float(t[-1]), last
+        a._far = 0
+        self.acc.accepted += N
+        self.acc.epochs += E
+        return [chunk]
+
+    def expire(self, now: float) -> list[Epoch]:
+        return self.assembler.expire(now)
+
+    def flush(self) -> list[Epoch]:
+        return self.assembler.flush()
+
+
+class CanSource(Source):
+    """Live CAN through python-can.
+
+    Parameters
+    ----------
+    layout : Layout, path or shipped layout name
+    interface, channel : str
+        python-can interface (``"virtual"``, ``"socketcan"``, ``"pcan"``, ...) and channel.
+    bus : can.BusABC, optional
+        An open bus to read from (then ``bus_factory`` is needed for reconnects).
+    bus_factory : callable returning a bus, optional
+        How to (re)open the bus; default ``can.Bus(interface=..., channel=..., **bus_kwargs)``.
+    reconnect : ReconnectPolicy
+    recv_timeout : float
+        s per blocking read; on silence, epochs older than the assembler's timeout are closed.
+    idle_timeout : float, optional
+        End the iteration after this long without any frame (s); None = until :meth:`stop`.
+    batch : int
+        Frames read without blocking after the first one of a batch.
+    """
+
+    def __init__(self, layout: Any, interface: str = "virtual", channel: Any = "rimu", bus: Any = None,
+                 bus_factory: Callable[[], Any] | None = None, reconnect: ReconnectPolicy | None = None,
+                 recv_timeout: float = 0.05, idle_timeout: float | None = None, batch: int = 256, max_lag: int = 2,
+                 timeout: float | None = None, side_log: SideLog | None = None, **bus_kwargs: Any) -> None:
+        super().__init__(side_log)
+        self.proc = CanFrameProcessor(layout, self.accounting, max_lag, timeout)
+        self.layout = self.proc.layout
+        self.interface, self.channel, self.bus_kwargs = interface, channel, bus_kwargs
+        if bus_factory is None and bus is None:
+            def bus_factory() -> Any:
+                import can
+                return can.Bus(interface=interface, channel=channel, **bus_kwargs)
+        self.bus_factory = bus_factory
+        self.bus = bus
+        self.reconnect = reconnect or ReconnectPolicy()
+        self.recv_timeout = recv_timeout
+        self.idle_timeout = idle_timeout
+        self.batch = batch
+        self._bus_offs = 0
+
+    def _open(self) -> None:
+        if self.bus is None:
+            if self.bus_factory is None:
+                raise TransportError("the bus failed and no bus_factory was given to reopen it")
+            self.bus = self.bus_factory()
+
+    def _recover(self, exc: BaseException) -> None:
+        """Reconnect policy: close, wait, reopen; TransportError when the attempts are used up."""
+        for attempt in range(self.reconnect.max_attempts):
+            try:
+                if self.bus is not None:
+                    self.bus.shutdown()
+            except Exception:
+                pass
+            self.bus = None
+            if self.stop_event.wait(self.reconnect.delay(attempt)):
+                return
+            try:
+                self._open()
+                self.accounting.event("reconnect")
+                return
+            except Exception as e:
+                self.accounting.event("reconnect_failed")
+                exc = e
+        raise TransportError(f"CAN bus {self.interface}:{self.channel} failed and could not be reopened after "
+                             f"{self.reconnect.max_attempts} attempts: {exc}") from exc
+
+    def _epochs(self) -> Iterator[Epoch]:
+        import can
+
+        self._open()
+        last_frame = time.monotonic()
+        while not self.stop_event.is_set():
+            batch: list = []
+            error: BaseException | None = None
+            try:
+                msg = self.bus.recv(self.recv_timeout)
+                if msg is not None:
+                    batch.append(msg)
+                    while len(batch) < self.batch:
+                        m = self.bus.recv(0.0)
+                        if m is None:
+                            break
+                        batch.append(m)
+            except (can.CanError, OSError) as exc:
+                error = exc
+            if batch:  # frames read before an error are still counted and used
+                last_frame = time.monotonic()
+                yield from self.proc.process(batch)
+            if error is not None:
+                self.accounting.event("bus_error")
+                self._recover(error)
+                continue
+            if not batch:
+                newest = self.proc.assembler.newest_ts
+                if newest is not None:  # frame clock = newest frame time + wall time since it (any bus clock)
+                    yield from self.proc.expire(newest + time.monotonic() - last_frame)
+                if self.idle_timeout is not None and time.monotonic() - last_frame > self.idle_timeout:
+                    break
+                continue
+            if self.accounting.events.get("bus_off", 0) > self._bus_offs:
+                self._bus_offs = self.accounting.events["bus_off"]
+                self._recover(TransportError("bus off"))
+        yield from self.proc.flush()
+
+    def close(self) -> None:
+        super().close()
+        if self.bus is not None:
+            self.bus.shutdown()
+            self.bus = None
+
+
+class CanReplaySource(Source):
+    """Replay of a python-can log file (ASC, BLF, CSV, candump .log, ... anything ``can.LogReader`` reads).
+
+    Parameters
+    ----------
+    path : path of the log
+    layout : Layout, path or shipped layout name
+    realtime : bool
+        Pace the frames by their timestamps (scaled by ``speed``) instead of as fast as possible.
+    chunk : int
+        Frames decoded together (vectorised) when not in real time.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], layout: Any, realtime: bool = False, speed: float = 1.0,
+                 chunk: int = 8192, max_lag: int = 2, timeout: float | None = None,
+                 side_log: SideLog | None = None) -> None:
+        super().__init__(side_log)
+        self.path = os.fspath(path)
+        if not os.path.exists(self.path):
+            raise TransportError(f"no CAN log at {self.path}")
+        self.proc = CanFrameProcessor(layout, self.accounting, max_lag, timeout)
+        self.layout = self.proc.layout
+        self.realtime, self.speed, self.chunk = realtime, float(speed), int(chunk)
+
+    def _epochs(self) -> Iterator[Epoch]:
+        import can
+
+        reader = can.LogReader(self.path)
+        try:
+            if self.realtime:
+                t0 = w0 = None
+                for m in reader:
+                    if self.stop_event.is_set():
+                        break
+                    if t0 is None:
+                        t0, w0 = m.timestamp, time.monotonic()
+                    wait = (m.timestamp - t0) / self.speed - (time.monotonic() - w0)
+                    if wait > 0 and self.stop_event.wait(wait):
+                        break
+                    yield from self.proc.process([m])
+            else:
+                buf = []
+                for m in reader:
+                    buf.append(m)
+                    if len(buf) >= self.chunk:
+                        yield from self.proc.process(buf)
+                        buf = []
+                        if self.stop_event.is_set():
+                            break
+                if buf:
+                    yield from self.proc.process(buf)
+            yield from self.proc.flush()
+        finally:
+            stop = getattr(reader, "stop", None)
+            if stop is not None:
+                stop()
+
+    def read_block(self, max_epochs: int | None = None) -> EpochBlock:
+        """The whole log (or its first ``max_epochs`` epochs) as a block, through the vectorised path."""
+        if self.realtime or max_epochs is not None:
+            return super().read_block(max_epochs)
+        import can
+
+        reader = can.LogReader(self.path)
+        items: list = []
+        try:
+            buf = []
+            for m in reader:
+                buf.append(m)
+                if len(buf) >= self.chunk:
+                    items.extend(self.proc.process_items(buf))
+                    buf = []
+            items.extend(self.proc.process_items(buf))
+            items.extend(self.proc.flush())
+        finally:
+            stop = getattr(reader, "stop", None)
+            if stop is not None:
+                stop()
+        block = items_to_block(items, self.proc.codec.other_names)
+        block.meta["accounting"] = self.accounting.as_dict()
+        return block
+
+
+def items_to_block(items: list[Epoch | EpochChunk], other_names: list[str]) -> EpochBlock:
+    """One :class:`EpochBlock` from the output of :meth:`CanFrameProcessor.process_items` (arrays kept as
+    they are; loose epochs stacked); ``meta`` holds ``counter``, ``seq``, ``frames`` and other signals."""
+    chunks: list[EpochChunk] = []
+    loose: list[Epoch] = []
+    for it in items:
+        if isinstance(it, EpochChunk):
+            if loose:
+                chunks.append(EpochChunk.from_epochs(loose, other_names))
+                loose = []
+            chunks.append(it)
+        else:
+            loose.append(it)
+    if loose:
+        chunks.append(EpochChunk.from_epochs(loose, other_names))
+    if not chunks:
+        raise ShapeError("the replay produced no epochs")
+    keys = list(chunks[0].raw)
+    temp = None if any(c.temperature is None for c in chunks) else np.concatenate([c.temperature for c in chunks])
+    block = EpochBlock(np.concatenate([c.t for c in chunks]), {k: np.concatenate([c.raw[k] for c in chunks]) for k in keys},
+                       {k: np.concatenate([c.valid[k] for c in chunks]) for k in keys}, temp)
+    block.meta.update({"counter": np.concatenate([c.counter for c in chunks]),
+                       "seq": np.concatenate([c.seq for c in chunks]),
+                       "frames": np.concatenate([c.frames for c in chunks])})
+    for k in other_names:
+        block.meta[k] = np.concatenate([c.other[k] for c in chunks])
+    return block
+
+
+def decode_log(path: str | os.PathLike[str], layout: Any, **kwargs: Any) -> tuple[EpochBlock, Accounting]:
+    """Replay a whole log as fast as possible: its epochs as a block, and the accounting."""
+    src = CanReplaySource(path, layout, **kwargs)
+    block = src.read_block()
+    return block, src.accounting

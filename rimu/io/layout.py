@@ -1,0 +1,736 @@
+"""Declarative CAN frame layouts and their vectorised codec.
+
+A layout file (JSON, format ``rimu.can_layout`` version 1, documented in ``docs/io.md``) says which frames a
+device sends per sample, where each value sits in the 8 data bytes, and how to check the frame::
+
+    {"format": "rimu.can_layout", "version": 1, "name": "cone6-rimu",
+     "instruments": {"gyro": 6, "accel": 6}, "geometry": {"gyro": "cone6", "accel": "cone6"},
+     "raw_unit": {"gyro": "count", "accel": "count"}, "sample_rate_hz": 100,
+     "messages": [
+       {"name": "GYRO_1", "id": "0x101", "length": 8,
+        "checksum": {"algorithm": "crc8_sae_j1850", "byte": 7, "data_id": 1},
+        "signals": [
+          {"name": "G_X1", "role": "sample", "instrument": "gyro", "index": 0,
+           "start_bit": 0, "length": 16, "byte_order": "little_endian", "signed": true,
+           "scale": 0.03125, "offset": 0.0},
+          {"name": "CNT", "role": "counter", "start_bit": 48, "length": 8}]}]}
+
+Signal roles: ``sample`` (raw output of sensor ``index`` of ``instrument``), ``flag`` (sensor status: the
+sensor is valid when ``raw & ok_mask == 0``; ``sensors`` lists ``[instrument, index]`` pairs it covers),
+``time`` (device time, s after scaling; wraps at ``2**length * scale``), ``temperature`` (degC), ``counter``
+(rolling sample counter, the same in every frame of one sample), ``other`` (decoded into ``Epoch.counters``).
+Bit numbering follows DBC files: ``little_endian`` (Intel) signals give their least significant bit,
+``big_endian`` (Motorola) ones their most significant bit, bit ``8*k + b`` being bit b of data byte k.
+Checksums are whole bytes, computed over the other data bytes in order, preceded by ``data_id`` if given.
+
+:class:`CanCodec` decodes many frames at once with numpy (8 data bytes as one 64-bit word, shifts and
+masks per signal); :meth:`CanCodec.encode` is the inverse, used by the simulated device.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..epoch import INSTRUMENTS
+from ..errors import FrameError, ShapeError
+from .checksum import CHECKSUMS, crc8_columns
+
+__all__ = ["Signal", "Message", "Layout", "CanCodec", "DecodedFrames", "load_layout", "LAYOUT_FORMAT",
+           "STATUS_OK", "STATUS_UNKNOWN_ID", "STATUS_BAD_LENGTH", "STATUS_CHECKSUM", "STATUS_REASONS"]
+
+LAYOUT_FORMAT = "rimu.can_layout"
+ROLES = ("sample", "flag", "time", "temperature", "counter", "other")
+
+STATUS_OK = 0
+STATUS_UNKNOWN_ID = 1
+STATUS_BAD_LENGTH = 2
+STATUS_CHECKSUM = 3
+#: status code -> rejection reason counted by the sources
+STATUS_REASONS = {STATUS_UNKNOWN_ID: "unknown_id", STATUS_BAD_LENGTH: "bad_length", STATUS_CHECKSUM: "checksum"}
+
+
+@dataclass
+class Signal:
+    """One field of a frame (see the module docstring for the meaning of each attribute)."""
+
+    name: str
+    start_bit: int
+    length: int
+    role: str = "other"
+    byte_order: str = "little_endian"
+    signed: bool = False
+    scale: float = 1.0
+    offset: float = 0.0
+    instrument: str | None = None
+    index: int | None = None
+    ok_mask: int = 0
+    sensors: list[tuple[str, int]] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if self.role not in ROLES:
+            raise FrameError(f"signal {self.name!r}: role must be one of {ROLES}, got {self.role!r}")
+        if self.byte_order not in ("little_endian", "big_endian"):
+            raise FrameError(f"signal {self.name!r}: byte_order must be little_endian or big_endian")
+        if not 1 <= self.length <= 64:
+            raise FrameError(f"signal {self.name!r}: length must be 1..64 bits, got {self.length}")
+        if not (self.scale != 0 and np.isfinite(self.scale) and np.isfinite(self.offset)):
+            raise FrameError(f"signal {self.name!r}: scale must be finite and non-zero, offset finite")
+        lo = self.lsb_shift
+        if lo < 0 or lo + self.length > 64:
+            raise FrameError(f"signal {self.name!r}: bits {self.start_bit}+{self.length} ({self.byte_order}) do "
+                             "not fit in 8 data bytes")
+        if self.role == "sample" and (self.instrument not in INSTRUMENTS or self.index is None):
+            raise FrameError(f"sample signal {self.name!r} needs instrument in {INSTRUMENTS} and an index")
+        self.sensors = [(str(a), int(b)) for a, b in self.sensors]
+
+    @property
+    def lsb_shift(self) -> int:
+        """Position of the least significant bit in the 64-bit word of the frame's byte order."""
+        if self.byte_order == "little_endian":
+            return self.start_bit
+        msb = 8 * (7 - self.start_bit // 8) + self.start_bit % 8
+        return msb - self.length + 1
+
+    @property
+    def resolution(self) -> float:
+        return abs(self.scale)
+
+    def raw_range(self) -> tuple[int, int]:
+        if self.signed:
+            return -(1 << (self.length - 1)), (1 << (self.length - 1)) - 1
+        return 0, (1 << self.length) - 1
+
+    def to_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"name": self.name, "role": self.role, "start_bit": self.start_bit, "length": self.length,
+                             "byte_order": self.byte_order, "signed": self.signed, "scale": self.scale,
+                             "offset": self.offset}
+        if self.instrument is not None:
+            d["instrument"], d["index"] = self.instrument, self.index
+        if self.role == "flag":
+            d["ok_mask"], d["sensors"] = self.ok_mask, [list(s) for s in self.sensors]
+        return d
+
+
+@dataclass
+class Message:
+    """One frame of a sample: its identifier, length, signals and checksum."""
+
+    name: str
+    id: int
+    signals: list[Signal]
+    length: int = 8
+    extended: bool = False
+    checksum: dict[str, Any] | None = None
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.length <= 8:
+            raise FrameError(f"message {self.name!r}: length must be 1..8 bytes (classical CAN), got {self.length}")
+        if self.checksum is not None:
+            alg = self.checksum.get("algorithm", "crc8_sae_j1850")
+            if alg not in CHECKSUMS:
+                raise FrameError(f"message {self.name!r}: unknown checksum {alg!r}; known: {sorted(CHECKSUMS)}")
+            b = int(self.checksum.get("byte", self.length - 1))
+            if not 0 <= b < self.length:
+                raise FrameError(f"message {self.name!r}: checksum byte {b} outside the frame")
+            self.checksum = {"algorithm": alg, "byte": b, "data_id": self.checksum.get("data_id")}
+        for s in self.signals:
+            if s.lsb_shift + s.length > 64 or (s.byte_order == "little_endian" and s.start_bit + s.length > 8 * self.length):
+                raise FrameError(f"signal {s.name!r} lies outside the {self.length} bytes of {self.name!r}")
+        if sum(s.role == "counter" for s in self.signals) > 1:
+            raise FrameError(f"message {self.name!r} has more than one counter signal")
+
+    @property
+    def counter(self) -> Signal | None:
+        return next((s for s in self.signals if s.role == "counter"), None)
+
+    def data_id_bytes(self) -> bytes:
+        d = self.checksum.get("data_id") if self.checksum else None
+        if d is None:
+            return b""
+        d = int(d, 0) if isinstance(d, str) else int(d)
+        return d.to_bytes(2, "little") if d > 0xFF else bytes([d])
+
+    def to_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"name": self.name, "id": hex(self.id), "length": self.length,
+                             "signals": [s.to_dict() for s in self.signals]}
+        if self.extended:
+            d["extended"] = True
+        if self.checksum:
+            d["checksum"] = {k: v for k, v in self.checksum.items() if v is not None}
+        return d
+
+
+@dataclass
+class Layout:
+    """What one device sends per sample: its messages, instruments and nominal rate."""
+
+    name: str
+    messages: list[Message]
+    instruments: dict[str, int]
+    sample_rate_hz: float | None = None
+    geometry: dict[str, str] = field(default_factory=dict)
+    raw_unit: dict[str, str] = field(default_factory=dict)
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.messages:
+            raise FrameError(f"layout {self.name!r} has no messages")
+        ids = [(m.id, m.extended) for m in self.messages]
+        if len(set(ids)) != len(ids):
+            raise FrameError(f"layout {self.name!r}: two messages share an identifier")
+        for k in self.instruments:
+            if k not in INSTRUMENTS:
+                raise FrameError(f"layout {self.name!r}: unknown instrument {k!r}; use {INSTRUMENTS}")
+        seen: set[tuple[str, int]] = set()
+        for m in self.messages:
+            for s in m.signals:
+                if s.role == "sample":
+                    key = (s.instrument, int(s.index))
+                    if s.instrument not in self.instruments or not 0 <= s.index < self.instruments[s.instrument]:
+                        raise FrameError(f"signal {s.name!r}: sensor {key} is not among {self.instruments}")
+                    if key in seen:
+                        raise FrameError(f"sensor {key} is sent by two signals; each sensor is in one frame")
+                    seen.add(key)
+        missing = [(k, i) for k, n in self.instruments.items() for i in range(n) if (k, i) not in seen]
+        if missing:
+            raise FrameError(f"layout {self.name!r}: no signal carries sensors {missing}")
+        counters = [m.counter for m in self.messages]
+        if any(c is None for c in counters) and len(self.messages) > 1:
+            raise FrameError(f"layout {self.name!r}: a sample spread over several frames needs a counter in each")
+        if len({(c.length if c else 0) for c in counters}) > 1:
+            raise FrameError(f"layout {self.name!r}: all counters must have the same length")
+        if sum(s.role == "time" for m in self.messages for s in m.signals) > 1:
+            raise FrameError(f"layout {self.name!r}: at most one time signal")
+
+    @property
+    def counter_modulus(self) -> int | None:
+        c = self.messages[0].counter
+        return None if c is None else 1 << c.length
+
+    @property
+    def period(self) -> float | None:
+        return None if not self.sample_rate_hz else 1.0 / float(self.sample_rate_hz)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"format": LAYOUT_FORMAT, "version": 1, "name": self.name, "description": self.description,
+                "instruments": dict(self.instruments), "geometry": dict(self.geometry),
+                "raw_unit": dict(self.raw_unit), "sample_rate_hz": self.sample_rate_hz,
+                "messages": [m.to_dict() for m in self.messages]}
+
+    def to_cantools(self) -> Any:
+        """The layout as a cantools ``Database`` (needs cantools, extra ``dbc``); checksum bytes become 8-bit
+        signals named ``<message>_CHECKSUM``. ``db.as_dbc_string()`` writes it as a DBC file."""
+        try:
+            import cantools
+            from cantools.database.can import Message as CtMessage
+            from cantools.database.can import Signal as CtSignal
+            from cantools.database.conversion import BaseConversion
+        except ImportError as exc:  # pragma: no cover
+            raise FrameError("exporting to DBC needs cantools: pip install 'rimu[dbc]'") from exc
+        msgs = []
+        for m in self.messages:
+            sigs = [CtSignal(s.name if s.role != "counter" else f"{m.name}_{s.name}", s.start_bit, s.length,
+                             s.byte_order, s.signed, conversion=BaseConversion.factory(s.scale, s.offset))
+                    for s in m.signals]
+            if m.checksum is not None:
+                b = m.checksum["byte"]
+                sigs.append(CtSignal(f"{m.name}_CHECKSUM", 8 * b, 8, "little_endian", False))
+            msgs.append(CtMessage(m.id, m.name, m.length, sigs, is_extended_frame=m.extended, strict=False))
+        return cantools.database.Database(msgs)
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        p = Path(path)
+        p.write_text(json.dumps(self.to_dict(), indent=1))
+        return p
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], source: str = "<layout>") -> Layout:
+        if d.get("format") != LAYOUT_FORMAT:
+            raise FrameError(f"{source}: not a rimu CAN layout (format must be {LAYOUT_FORMAT!r})")
+        if d.get("version") != 1:
+            raise FrameError(f"{source}: layout version {d.get('version')!r} unknown; this rimu reads version 1")
+        try:
+            msgs = []
+            for m in d["messages"]:
+                sigs = [Signal(**{k: v for k, v in s.items()}) for s in m["signals"]]
+                mid = m["id"]
+                msgs.append(Message(m["name"], int(mid, 0) if isinstance(mid, str) else int(mid), sigs,
+                                    int(m.get("length", 8)), bool(m.get("extended", False)), m.get("checksum")))
+            return cls(d.get("name", source), msgs, {k: int(v) for k, v in d["instruments"].items()},
+                       d.get("sample_rate_hz"), dict(d.get("geometry", {})), dict(d.get("raw_unit", {})),
+                       d.get("description", ""))
+        except (KeyError, TypeError) as exc:
+            raise FrameError(f"{source}: malformed layout ({exc!r}); see docs/io.md for the format") from exc
+
+    @classmethod
+    def from_dbc(cls, path: str | os.PathLike[str], roles: dict[str, dict[str, Any]], name: str | None = None,
+                 sample_rate_hz: float | None = None, checksums: dict[str, dict[str, Any]] | None = None) -> Layout:
+        """Build a layout from a DBC file (needs cantools, extra ``dbc``).
+
+        Parameters
+        ----------
+        roles : dict
+            Signal name -> ``{"role": ..., "instrument": ..., "index": ...}`` for the signals rimu uses; the
+            signals of those messages not named here become ``other``.
+        checksums : dict, optional
+            Message name -> checksum spec (DBC files do not say how a CRC is computed).
+        """
+        try:
+            import cantools
+        except ImportError as exc:  # pragma: no cover
+            raise FrameError("reading DBC files needs cantools: pip install 'rimu[dbc]'") from exc
+        db = cantools.database.load_file(str(path))
+        msgs = []
+        used = {s for s in roles}
+        for m in db.messages:
+            if not any(s.name in used for s in m.signals):
+                continue
+            sigs = []
+            for s in m.signals:
+                r = roles.get(s.name, {})
+                sigs.append(Signal(s.name, s.start, s.length, r.get("role", "other"), s.byte_order, s.is_signed,
+                                   float(s.scale), float(s.offset), r.get("instrument"), r.get("index"),
+                                   int(r.get("ok_mask", 0)), r.get("sensors", [])))
+            msgs.append(Message(m.name, m.frame_id, sigs, m.length, m.is_extended_frame,
+                                (checksums or {}).get(m.name)))
+        n: dict[str, int] = {}
+        for r in roles.values():
+            if r.get("role") == "sample":
+                n[r["instrument"]] = max(n.get(r["instrument"], 0), int(r["index"]) + 1)
+        return cls(name or Path(path).stem, msgs, n, sample_rate_hz)
+
+
+def load_layout(layout: str | os.PathLike[str] | dict | Layout) -> Layout:
+    """A layout from a file path, a dict, or the name of a shipped example (``cone6_rimu``, ``mm7_automotive``).
+
+    >>> load_layout("cone6_rimu").instruments
+    {'gyro': 6, 'accel': 6}
+    """
+    if isinstance(layout, Layout):
+        return layout
+    if isinstance(layout, dict):
+        return Layout.from_dict(layout)
+    p = Path(layout)
+    if not p.exists():
+        shipped = resources.files("rimu.io") / "layouts" / f"{layout}.json"
+        if shipped.is_file():
+            return Layout.from_dict(json.loads(shipped.read_text()), str(layout))
+        raise FrameError(f"layout {str(layout)!r} is neither a file nor a shipped layout (cone6_rimu, mm7_automotive)")
+    try:
+        d = json.loads(p.read_text())
+    except json.JSONDecodeError as exc:
+        raise FrameError(f"{p}: not valid JSON ({exc})") from exc
+    return Layout.from_dict(d, str(p))
+
+
+@dataclass
+class DecodedFrames:
+    """Result of :meth:`CanCodec.decode` for N frames.
+
+    Attributes
+    ----------
+    status : ndarray (N,) int8
+        ``STATUS_OK`` or the reason a frame is rejected (``STATUS_REASONS``).
+    message : ndarray (N,) int
+        Index of the frame's message in the layout (-1 for unknown identifiers).
+    counter : ndarray (N,) int64
+        Rolling counter (0 where the message has none).
+    values : ndarray (N, k) float
+        Decoded physical values of the message's value slots (see :attr:`CanCodec.slots`); 0 where unused.
+    flags_ok : ndarray (N, f) bool
+        Status flags of the message: True where the flag says the sensors it covers are valid.
+    """
+
+    status: np.ndarray
+    message: np.ndarray
+    counter: np.ndarray
+    values: np.ndarray
+    flags_ok: np.ndarray
+
+
+class CanCodec:
+    """Vectorised decoding and encoding of the frames of a :class:`Layout`.
+
+    Slots: every message's non-counter signals get a column in :attr:`DecodedFrames.values`, in signal order;
+    :attr:`slots` maps each message's columns to a place in the epoch vector (``instrument`` sensors first,
+    then ``time``, ``temperature``, then ``other`` signals by name).
+
+    Examples
+    --------
+    >>> codec = CanCodec(load_layout("mm7_automotive"))
+    >>> msgs = codec.encode({"gyro": np.array([[1.0, -2.0, 3.5]]), "accel": np.array([[0.1, 0.2, -1.0]])},
+    ...                     counters=np.array([5]))
+    >>> ids, data, dlc = codec.pack(codec.to_messages(msgs, np.array([0.0])))
+    >>> dec = codec.decode(ids, data, dlc)
+    >>> dec.status.tolist(), dec.counter.tolist()
+    ([0, 0, 0], [5, 5, 5])
+    """
+
+    def __init__(self, layout: Layout) -> None:
+        self.layout = layout
+        self.n_messages = len(layout.messages)
+        offs, o = {}, 0
+        for k in INSTRUMENTS:
+            if k in layout.instruments:
+                offs[k] = o
+                o += layout.instruments[k]
+        self.instrument_offsets = offs
+        self.n_sensors = o
+        self.time_slot = o
+        self.temp_slot = o + 1
+        others = sorted({s.name for m in layout.messages for s in m.signals if s.role == "other"})
+        self.other_names = others
+        self.n_slots = o + 2 + len(others)
+        self._by_key = {(m.id, m.extended): i for i, m in enumerate(layout.messages)}
+        self._id_lookup = {m.id: i for i, m in enumerate(layout.messages)}
+        self.value_signals: list[list[Signal]] = []
+        self.slots: list[np.ndarray] = []
+        self.flag_signals: list[list[Signal]] = []
+        self.message_sensors = np.zeros((self.n_messages, self.n_sensors), dtype=bool)
+        self.flag_sensors: list[np.ndarray] = []   # per message: (f, n_sensors) bool
+        for mi, m in enumerate(layout.messages):
+            vs = [s for s in m.signals if s.role in ("sample", "time", "temperature", "other")]
+            self.value_signals.append(vs)
+            sl = []
+            for s in vs:
+                if s.role == "sample":
+                    sl.append(offs[s.instrument] + int(s.index))
+                    self.message_sensors[mi, sl[-1]] = True
+                elif s.role == "time":
+                    sl.append(self.time_slot)
+                elif s.role == "temperature":
+                    sl.append(self.temp_slot)
+                else:
+                    sl.append(o + 2 + others.index(s.name))
+            self.slots.append(np.array(sl, dtype=np.int64))
+            fs = [s for s in m.signals if s.role == "flag"]
+            self.flag_signals.append(fs)
+            fm = np.zeros((len(fs), self.n_sensors), dtype=bool)
+            for j, s in enumerate(fs):
+                for inst, idx in s.sensors:
+                    fm[j, offs[inst] + idx] = True
+            self.flag_sensors.append(fm)
+        self.max_values = max(len(v) for v in self.value_signals)
+        self.max_flags = max([len(f) for f in self.flag_signals] + [0])
+        self.message_has_time = np.array([any(s.role == "time" for s in vs) for vs in self.value_signals])
+        self.message_has_temp = np.array([any(s.role == "temperature" for s in vs) for vs in self.value_signals])
+        ts = next((s for m in layout.messages for s in m.signals if s.role == "time"), None)
+        self.time_modulus = None if ts is None else float((1 << ts.length) * ts.scale) if not ts.signed else None
+        self.sensor_names = [f"{k}[{i}]" for k in offs for i in range(layout.instruments[k])]
+        self.message_index = {m.name: i for i, m in enumerate(layout.messages)}
+        # scalar plans for decoding frames one at a time (live buses): pure Python integer arithmetic
+        def plan(sg: Signal) -> tuple:
+            return (sg.byte_order == "little_endian", sg.lsb_shift, (1 << sg.length) - 1,
+                    (1 << (sg.length - 1)) if sg.signed else 0, 1 << sg.length, sg.scale, sg.offset)
+        self._plans = {}
+        for mi, m in enumerate(layout.messages):
+            ck = None
+            if m.checksum is not None:
+                tab, init, xorout = CHECKSUMS[m.checksum["algorithm"]]
+                ck = (m.checksum["byte"], m.checksum["algorithm"], None if tab is None else tab.tolist(), init,
+                      xorout, m.data_id_bytes())
+            self._plans[(m.id, m.extended)] = (mi, m.length, ck, plan(m.counter) if m.counter else None,
+                                               [plan(sg) for sg in self.value_signals[mi]],
+                                               [(plan(sg), sg.ok_mask) for sg in self.flag_signals[mi]])
+
+    # ------------------------------------------------------------------ helpers
+    @staticmethod
+    def pack(messages: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Identifiers, (N, 8) zero-padded data and DLC of python-can messages."""
+        return CanCodec.pack_all(messages)[:3]
+
+    @staticmethod
+    def pack_all(messages: list) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Identifiers, (N, 8) data, DLC, extended flags and timestamps of python-can messages, in one pass."""
+        n = len(messages)
+        datas = [m.data for m in messages]
+        dlc = np.fromiter(map(len, datas), dtype=np.int64, count=n)
+        parts = datas if n and dlc.min() == 8 == dlc.max() else [bytes(d[:8]).ljust(8, b"\0") for d in datas]
+        data = np.frombuffer(b"".join(parts), dtype=np.uint8).reshape(n, 8) if n else np.zeros((0, 8), np.uint8)
+        ids = np.fromiter([m.arbitration_id for m in messages], dtype=np.int64, count=n)
+        ext = np.fromiter([m.is_extended_id for m in messages], dtype=bool, count=n)
+        ts = np.fromiter([m.timestamp for m in messages], dtype=float, count=n)
+        return ids, data, dlc, ext, ts
+
+    @staticmethod
+    def _extract(words_le: np.ndarray, words_be: np.ndarray, s: Signal) -> np.ndarray:
+        w = words_le if s.byte_order == "little_endian" else words_be
+        sh = np.uint64(s.lsb_shift)
+        raw = w >> sh
+        if s.length < 64:
+            raw = raw & np.uint64((1 << s.length) - 1)
+        if s.signed:
+            v = raw.astype(np.int64)
+            if s.length < 64:
+                v = v - ((v >> (s.length - 1)) & 1) * (1 << s.length)
+            return v
+        return raw
+
+    def to_messages(self, encoded: list[tuple[int, np.ndarray]], timestamps: np.ndarray,
+                    spacing: float = 1e-5) -> list:
+        """python-can messages of :meth:`encode`'s output, sample by sample in layout order; message j of
+        sample k is stamped ``timestamps[k] + j * spacing``."""
+        import can
+
+        ts = np.asarray(timestamps, dtype=float).tolist()
+        msgs = self.layout.messages
+        rows = [(msgs[mi], d.tobytes(), d.shape[1]) for mi, d in encoded]
+        out = []
+        for k, t in enumerate(ts):
+            for j, (m, b, L) in enumerate(rows):
+                out.append(can.Message(timestamp=t + j * spacing, arbitration_id=m.id, is_extended_id=m.extended,
+                                       data=b[k * L:(k + 1) * L], dlc=L))
+        return out
+
+    # ------------------------------------------------------------------ decode
+    def decode(self, ids: np.ndarray, data: np.ndarray, dlc: np.ndarray,
+               extended: np.ndarray | None = None) -> DecodedFrames:
+        """Decode N frames at once: status, message index, counter, values, flags.
+
+        Where the frames come in the layout's order, sample after sample (the common case of a clean log), the
+        leading whole samples are decoded on strided views without gathering frames per identifier; the rest
+        (or everything, for any other order) per identifier. Both give identical results.
+        """
+        N = len(ids)
+        K = self.n_messages
+        ids = np.asarray(ids)
+        exp_ids = np.array([m.id for m in self.layout.messages], dtype=np.int64)
+        # where the layout's order starts (a batch may begin part-way through a sample)
+        o = next((j for j in range(min(K, N)) if N - j >= K and np.array_equal(ids[j:j + K], exp_ids)), -1)
+        E = (N - o) // K if o >= 0 else 0
+        if E >= 2:
+            reg = (ids[o:o + E * K].reshape(E, K) == exp_ids).all(axis=1)
+            if extended is not None:
+                exp_ext = np.array([m.extended for m in self.layout.messages])
+                reg &= (np.asarray(extended[o:o + E * K], dtype=bool).reshape(E, K) == exp_ext).all(axis=1)
+            bad = np.flatnonzero(~reg)
+            E = int(E if not len(bad) else bad[0])
+        if E < 2:
+            return self._decode_general(ids, data, dlc, extended)
+        lo, hi = o, o + E * K
+        parts = []
+        if lo:
+            parts.append(self._decode_general(ids[:lo], data[:lo], dlc[:lo], None if extended is None else extended[:lo]))
+        parts.append(self._decode_regular(np.ascontiguousarray(data[lo:hi], dtype=np.uint8), np.asarray(dlc[lo:hi]), E))
+        if hi < N:
+            parts.append(self._decode_general(ids[hi:], data[hi:], dlc[hi:], None if extended is None else extended[hi:]))
+        if len(parts) == 1:
+            return parts[0]
+        return DecodedFrames(*(np.concatenate([getattr(p, f) for p in parts])
+                               for f in ("status", "message", "counter", "values", "flags_ok")))
+
+    def _decode_regular(self, data: np.ndarray, dlc: np.ndarray, E: int) -> DecodedFrames:
+        """E samples of K frames in layout order: message m is every K-th frame from m (strided views)."""
+        K = self.n_messages
+        N = E * K
+        status = np.empty((E, K), dtype=np.int8)
+        counter = np.zeros((E, K), dtype=np.int64)
+        values = np.zeros((E, K, self.max_values))
+        flags_ok = np.ones((E, K, self.max_flags), dtype=bool)
+        wle = data.view("<u8").reshape(E, K)
+        wbe = data.view(">u8").reshape(E, K)
+        d3 = data.reshape(E, K, 8)
+        dl = dlc.reshape(E, K)
+        for mi, m in enumerate(self.layout.messages):
+            st = np.where(dl[:, mi] == m.length, STATUS_OK, STATUS_BAD_LENGTH).astype(np.int8)
+            if m.checksum is not None:
+                cb = m.checksum["byte"]
+                tab, init, xorout = CHECKSUMS[m.checksum["algorithm"]]
+                cols = [d3[:, mi, j] for j in range(m.length) if j != cb]
+                did = m.data_id_bytes()
+                if tab is None:
+                    crc = crc8_columns(np.column_stack(cols), m.checksum["algorithm"])
+                    if did:
+                        crc = crc8_columns(np.column_stack([np.full(E, b, np.uint8) for b in did] + cols),
+                                           m.checksum["algorithm"])
+                else:
+                    c = np.uint8(init)
+                    for b in did:
+                        c = tab[c ^ np.uint8(b)]
+                    c = np.full(E, c, dtype=np.uint8)
+                    for col in cols:
+                        c = tab[c ^ col]
+                    crc = c ^ np.uint8(xorout)
+                st[(st == STATUS_OK) & (crc != d3[:, mi, cb])] = STATUS_CHECKSUM
+            status[:, mi] = st
+            lw, bw = wle[:, mi], wbe[:, mi]
+            c_ = m.counter
+            if c_ is not None:
+                counter[:, mi] = self._extract(lw, bw, c_)
+            for j, sg in enumerate(self.value_signals[mi]):
+                values[:, mi, j] = self._extract(lw, bw, sg) * sg.scale + sg.offset
+            for j, sg in enumerate(self.flag_signals[mi]):
+                flags_ok[:, mi, j] = (self._extract(lw, bw, sg).astype(np.int64) & int(sg.ok_mask)) == 0
+        msg = np.tile(np.arange(K, dtype=np.int64), E)
+        return DecodedFrames(status.reshape(N), msg, counter.reshape(N), values.reshape(N, self.max_values),
+                             flags_ok.reshape(N, self.max_flags))
+
+    def _decode_general(self, ids: np.ndarray, data: np.ndarray, dlc: np.ndarray,
+                        extended: np.ndarray | None = None) -> DecodedFrames:
+        """Any frames in any order: frames gathered per message identifier."""
+        N = len(ids)
+        status = np.full(N, STATUS_UNKNOWN_ID, dtype=np.int8)
+        msg = np.full(N, -1, dtype=np.int64)
+        counter = np.zeros(N, dtype=np.int64)
+        values = np.zeros((N, self.max_values))
+        flags_ok = np.ones((N, self.max_flags), dtype=bool)
+        if N == 0:
+            return DecodedFrames(status, msg, counter, values, flags_ok)
+        data = np.ascontiguousarray(data, dtype=np.uint8)
+        wle = data.view("<u8").reshape(N)
+        wbe = data.view(">u8").reshape(N)
+        for mi, m in enumerate(self.layout.messages):
+            sel = ids == m.id
+            if extended is not None:
+                sel &= np.asarray(extended, dtype=bool) == m.extended
+            if not sel.any():
+                continue
+            rows = np.flatnonzero(sel)
+            msg[rows] = mi
+            ok_len = dlc[rows] == m.length
+            st = np.where(ok_len, STATUS_OK, STATUS_BAD_LENGTH).astype(np.int8)
+            if m.checksum is not None:
+                cb = m.checksum["byte"]
+                cols = [j for j in range(m.length) if j != cb]
+                d = data[rows][:, cols]
+                did = m.data_id_bytes()
+                if did:
+                    d = np.concatenate([np.broadcast_to(np.frombuffer(did, np.uint8), (len(rows), len(did))), d], axis=1)
+                crc = crc8_columns(d, m.checksum["algorithm"])
+                st[(st == STATUS_OK) & (crc != data[rows, cb])] = STATUS_CHECKSUM
+            status[rows] = st
+            lw, bw = wle[rows], wbe[rows]
+            c = m.counter
+            if c is not None:
+                counter[rows] = self._extract(lw, bw, c)
+            for j, s in enumerate(self.value_signals[mi]):
+                values[rows, j] = self._extract(lw, bw, s) * s.scale + s.offset
+            for j, s in enumerate(self.flag_signals[mi]):
+                flags_ok[rows, j] = (self._extract(lw, bw, s).astype(np.int64) & int(s.ok_mask)) == 0
+        return DecodedFrames(status, msg, counter, values, flags_ok)
+
+    @staticmethod
+    def _scalar(wle: int, wbe: int, p: tuple) -> int:
+        little, shift, mask, sign, span, _, _ = p
+        v = ((wle if little else wbe) >> shift) & mask
+        return v - span if sign and v & sign else v
+
+    def decode_one(self, arbitration_id: int, extended: bool, data: bytes) -> tuple:
+        """One frame in pure Python (cheaper than numpy for a single frame): ``(status, message, counter,
+        values, flags_ok)`` as :meth:`decode` gives them for one row."""
+        pl = self._plans.get((arbitration_id, bool(extended)))
+        if pl is None:
+            return STATUS_UNKNOWN_ID, -1, 0, [], []
+        mi, length, ck, cplan, vplans, fplans = pl
+        if len(data) != length:
+            return STATUS_BAD_LENGTH, mi, 0, [], []
+        d8 = bytes(data).ljust(8, b"\0")
+        wle = int.from_bytes(d8, "little")
+        wbe = int.from_bytes(d8, "big")
+        sc = self._scalar
+        status = STATUS_OK
+        if ck is not None:
+            cb, alg, tab, init, xorout, did = ck
+            body = did + data[:cb] + data[cb + 1:]
+            if alg == "xor8":
+                c = 0
+                for b in body:
+                    c ^= b
+            elif alg == "sum8":
+                c = sum(body) & 0xFF
+            else:
+                c = init
+                for b in body:
+                    c = tab[c ^ b]
+                c ^= xorout
+            if c != data[cb]:
+                status = STATUS_CHECKSUM
+        counter = sc(wle, wbe, cplan) if cplan else 0
+        values = [sc(wle, wbe, p) * p[5] + p[6] for p in vplans]
+        flags = [(sc(wle, wbe, p) & okm) == 0 for p, okm in fplans]
+        return status, mi, counter, values, flags
+
+    def decode_messages(self, messages: list) -> DecodedFrames:
+        """:meth:`decode` of python-can messages."""
+        ids, data, dlc, ext, _ = self.pack_all(messages)
+        return self.decode(ids, data, dlc, ext)
+
+    # ------------------------------------------------------------------ encode
+    def quantize(self, instrument: str, values: np.ndarray) -> np.ndarray:
+        """What the layout can carry: ``values`` (N, n) rounded to each signal's resolution and saturated."""
+        out = np.array(values, dtype=float, copy=True)
+        for m in self.layout.messages:
+            for s in m.signals:
+                if s.role == "sample" and s.instrument == instrument:
+                    lo, hi = s.raw_range()
+                    r = np.clip(np.round((out[:, s.index] - s.offset) / s.scale), lo, hi)
+                    out[:, s.index] = r * s.scale + s.offset
+        return out
+
+    def encode(self, raw: dict[str, np.ndarray], counters: np.ndarray, t: np.ndarray | None = None,
+               temperature: np.ndarray | None = None, valid: dict[str, np.ndarray] | None = None,
+               other: dict[str, np.ndarray] | None = None) -> list[tuple[int, np.ndarray]]:
+        """Frames for N samples: a list, per message, of ``(message index, (N, length) uint8 data)``.
+
+        Values are rounded to the signal's resolution and saturated to its range. A sensor marked invalid
+        in ``valid`` gets its flag signals (if any) set to ``ok_mask`` (not ok).
+        """
+        counters = np.asarray(counters, dtype=np.int64)
+        N = len(counters)
+        for k, y in raw.items():
+            if np.shape(y)[0] != N:
+                raise ShapeError(f"raw[{k!r}] has {np.shape(y)[0]} samples, counters has {N}")
+        out = []
+        for mi, m in enumerate(self.layout.messages):
+            word = np.zeros(N, dtype=np.uint64)
+            for s in m.signals:
+                if s.role == "sample":
+                    v = np.asarray(raw[s.instrument], dtype=float)[:, s.index]
+                elif s.role == "time":
+                    v = np.zeros(N) if t is None else np.asarray(t, dtype=float)
+                    if not s.signed:
+                        v = np.mod(v, (1 << s.length) * s.scale)
+                elif s.role == "temperature":
+                    v = np.zeros(N) if temperature is None else np.asarray(temperature, dtype=float)
+                elif s.role == "counter":
+                    v = counters % (1 << s.length)
+                elif s.role == "flag":
+                    bad = np.zeros(N, dtype=bool)
+                    for inst, idx in s.sensors:
+                        if valid is not None and inst in valid:
+                            bad |= ~np.asarray(valid[inst], dtype=bool)[:, idx]
+                    v = np.where(bad, s.ok_mask, 0)
+                else:
+                    v = np.zeros(N) if not other or s.name not in other else np.asarray(other[s.name], float)
+                if s.role in ("counter", "flag"):
+                    r = np.asarray(v, dtype=np.int64)
+                else:
+                    lo, hi = s.raw_range()
+                    r = np.clip(np.round((np.asarray(v, dtype=float) - s.offset) / s.scale), lo, hi).astype(np.int64)
+                u = r.astype(np.uint64) if s.length == 64 else (r & ((1 << s.length) - 1)).astype(np.uint64)
+                word |= u << np.uint64(s.lsb_shift)
+            if all(s.byte_order == "little_endian" for s in m.signals):
+                data = word.astype("<u8").view(np.uint8).reshape(N, 8).copy()
+            else:
+                le = [s for s in m.signals if s.byte_order == "little_endian"]
+                if le:
+                    raise FrameError(f"message {m.name!r} mixes byte orders; encode supports one per message")
+                data = word.astype(">u8").view(np.uint8).reshape(N, 8).copy()
+            data = data[:, : m.length]
+            if m.checksum is not None:
+                cb = m.checksum["byte"]
+                cols = [j for j in range(m.length) if j != cb]
+                d = data[:, cols]
+                did = m.data_id_bytes()
+                if did:
+                    d = np.concatenate([np.broadcast_to(np.frombuffer(did, np.uint8), (N, len(did))), d], axis=1)
+                data[:, cb] = crc8_columns(d, m.checksum["algorithm"])
+            out.append((mi, data))
+        return out
