@@ -15,6 +15,7 @@ __all__ = ["main", "COMMANDS"]
 COMMANDS = [
     "demo",
     "simulate",
+    "replay", "campaign", "check",
 ]
 
 

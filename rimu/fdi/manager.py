@@ -379,10 +379,15 @@ class RedundancyManager:
         n_act = np.zeros(N, np.int8)
         h = self.health
         first = len(self.events)
-        for k in range(N):
+        with np.errstate(invalid="ignore", over="ignore"):  # non-finite raw values are routed around, not warned
+            self._run_loop(Y, valid, t, x, stat, thr, alarm, state, n_act)
+        return ReplayResult(np.asarray(t, float), x, stat, thr, alarm, state, n_act, self.events[first:], self.names)
+
+    def _run_loop(self, Y, valid, t, x, stat, thr, alarm, state, n_act) -> None:  # type: ignore[no-untyped-def]
+        h = self.health
+        for k in range(len(Y)):
             r = self.step(Y[k], None if valid is None else valid[k], float(t[k]))
             x[k] = r.x
             stat[k], thr[k], alarm[k] = h.statistic, h.threshold, h.alarm
             state[k] = STATE_CODES[h.state]
             n_act[k] = r.active.sum()
-        return ReplayResult(np.asarray(t, float), x, stat, thr, alarm, state, n_act, self.events[first:], self.names)
