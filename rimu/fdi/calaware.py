@@ -3,7 +3,7 @@
 With calibration errors ``d_theta`` (true minus estimated: relative scale, misalignment, bias), the
 compensated output of sensor i (Cho & Park 2005, Eq. 1 and 20) is, to first order::
 
-    z_i = a_i . u + e_i + v_i,   e_i = -(dSF_i / SF_i) (a_i . u) + dm_i . (E_i C_j u) + db_i
+    z_i = a_i . u + e_i + v_i,   e_i = -(dSF_i / SF_i) (a_i . u + b_i) + dm_i . (E_i C_j u) + db_i
 
 so the normalised parity ``p = Vz z`` carries ``Vz D(u) d_theta`` with D(u) linear in the true input u
 (E_i: the off-axis basis of sensor i, C_j its sub-unit's ``mat_sb_mb``; de Oliveira et al. 2012, Eq. 11 with
@@ -85,8 +85,9 @@ class CalibrationCovariance:
             if i is None:
                 self.ignored.append(full)
                 continue
-            if par == "scale":
+            if par == "scale":  # a scale error scales the whole output, bias included
                 D[:3, i, k] = -A[i] / cal.scale[i]
+                D[3, i, k] = -cal.bias[i] / cal.scale[i]
             elif par == "bias":
                 D[3, i, k] = 1.0
             elif par.startswith("mis_"):
