@@ -50,7 +50,7 @@ def clopper_pearson(k: int, n: int, level: float = 0.99) -> tuple[float, float]:
 
     >>> lo, hi = clopper_pearson(10, 10000)
     >>> round(lo, 5), round(hi, 5)
-    (0.00036, 0.00213)
+    (0.00037, 0.00214)
     """
     if n <= 0:
         return 0.0, 1.0

@@ -146,28 +146,38 @@ class CusumBank:
     def configure(self, Vz: np.ndarray, dof: int) -> None:
         """Use the parity rows of a new active set; every statistic restarts at zero."""
         self._dof = int(dof)
-        self._S = np.zeros((2, Vz.shape[1]))
+        n = Vz.shape[1]
+        self._n = n
+        self._S = np.zeros(2 * n)  # [S+ of every sensor, S- of every sensor]
+        self._X = np.zeros(2 * n)
+        self._R = np.zeros(2 * n)
         if dof >= 1:
-            self._U, self._delta, self._thr, _ = self.design(Vz, dof)
+            U, d, thr, _ = self.design(Vz, dof)
+            self._thr = np.concatenate([thr, thr])
+            self._W = np.ascontiguousarray(np.concatenate([U * d, -U * d], axis=1))  # LLR slope per statistic
+            self._half = np.concatenate([d * d / 2, d * d / 2])
+            inv = np.where(np.isfinite(thr), 1.0 / thr, 0.0)
+            self._inv = np.concatenate([inv, inv])
 
     def update(self, parity: np.ndarray) -> tuple[float, float]:
         """Advance the bank by one sample; returns (largest statistic / its threshold, 1.0)."""
         if self._dof < 1:
             return 0.0, float("inf")
-        X = parity[:self._dof] @ self._U
+        X = self._X
+        np.dot(parity[:self._dof], self._W, out=X)
+        X -= self._half
         S = self._S
-        d = self._delta
-        S[0] += d * (X - d / 2)
-        S[1] += d * (-X - d / 2)
+        S += X
         np.maximum(S, 0.0, out=S)
-        r = S / self._thr
-        k = int(np.argmax(r))
-        self._last = k % S.shape[1]
-        return float(r.flat[k]), 1.0
+        R = self._R
+        np.multiply(S, self._inv, out=R)
+        k = int(R.argmax())
+        self._last = k % self._n
+        return R.item(k), 1.0
 
     def isolate(self, parity: np.ndarray) -> tuple[int, np.ndarray]:
         """The sensor whose statistic crossed (isolable only where ``dof >= 2``)."""
-        ratios = (self._S / self._thr).max(axis=0)
+        ratios = np.maximum(self._R[: self._n], self._R[self._n:])
         return (self._last if self._dof >= 2 else -1), ratios
 
     def block(self, P: np.ndarray, Vz: np.ndarray, dof: int) -> tuple[np.ndarray, float, np.ndarray]:

@@ -206,6 +206,7 @@ class RedundancyManager:
         self._unisolable_streak = 0
         self._not_isolable_reported = False
         self._invalid_run = np.zeros(n, dtype=np.int64)
+        self._invalid_pending = False
         self._clean = np.zeros(n, dtype=np.int64)
         self._clean_sum = np.zeros(n)
         self.events.clear()
@@ -229,7 +230,9 @@ class RedundancyManager:
     def _update_state(self, log: bool = True, t: float = float("nan")) -> None:
         tab = self.pipeline.table
         iso = self.pipeline.isolated
-        e = tab.lookup(tab.full_code & ~sum(1 << i for i in np.flatnonzero(iso)))
+        e = tab.lookup(tab.full_code & ~sum(1 << int(i) for i in np.flatnonzero(iso)))
+        self._iso_entry = e
+        self._n_isolated = int(iso.sum())
         n_act = int((~iso).sum())
         if e < 0 or not tab.observable[e]:
             st = HealthState.UNOBSERVABLE
@@ -259,20 +262,21 @@ class RedundancyManager:
         h = self.health
         if t is None:
             t = (self.samples - 1) / self.sample_rate if self.sample_rate else float(self.samples - 1)
-        if r.entry != self._entry:
-            self._entry = r.entry
-            self.detector.configure(pipe.table.Vz[r.entry] if r.entry >= 0 else np.zeros((0, pipe.n)), r.dof)
+        e = r.entry
+        if e != self._entry:
+            self._entry = e
+            self.detector.configure(pipe.table.Vz[e] if e >= 0 else np.zeros((0, pipe.n)), r.dof)
             self._streak = 0
-        inv = r.invalid
-        if inv.any() or self._invalid_run.any():
-            self._invalid(inv, t)
+        if e != self._iso_entry or self._invalid_pending:
+            self._invalid(r.invalid, t)
         if r.dof >= 1:
             if self._uses_input:
                 self.detector.set_input(r.x)
             stat, thr = self.detector.update(r.parity)
         else:
             stat, thr = 0.0, float("inf")
-        h.statistic, h.threshold = stat, thr
+        h.statistic = stat
+        h.threshold = thr
         alarm = stat > thr
         h.alarm = alarm
         if alarm:
@@ -283,7 +287,7 @@ class RedundancyManager:
             self._streak = 0
             self._unisolable_streak = 0
             self._suspect = -1
-        if self.readmit_after is not None and pipe._isolated.any():
+        if self._n_isolated and self.readmit_after is not None:
             self._readmission(np.asarray(y, dtype=float), valid, r, t)
         return r
 
@@ -321,6 +325,7 @@ class RedundancyManager:
             self._log("invalid_transient", int(i), f"{int(run[i])} invalid sample(s), routed around", t)
         run[ended] = 0
         run[inv] += 1
+        self._invalid_pending = bool(run.any())
         iso = self.pipeline._isolated
         for i in np.flatnonzero((run >= self.invalid_persist) & ~iso):
             tab = self.pipeline.table
@@ -329,6 +334,7 @@ class RedundancyManager:
                 continue  # isolating it would leave the unit blind; the pipeline routes around it per sample
             self.pipeline.isolate(int(i))
             run[i] = 0
+            self._invalid_pending = bool(run.any())
             self._clean[i] = 0
             self._clean_sum[i] = 0.0
             self._log("invalid_isolated", int(i), f"output invalid for {self.invalid_persist} samples", t)
@@ -385,9 +391,11 @@ class RedundancyManager:
 
     def _run_loop(self, Y, valid, t, x, stat, thr, alarm, state, n_act) -> None:  # type: ignore[no-untyped-def]
         h = self.health
+        codes = self.pipeline.table.codes
+        nact = np.array([bin(int(c)).count("1") if c >= 0 else 0 for c in codes])
         for k in range(len(Y)):
             r = self.step(Y[k], None if valid is None else valid[k], float(t[k]))
             x[k] = r.x
             stat[k], thr[k], alarm[k] = h.statistic, h.threshold, h.alarm
             state[k] = STATE_CODES[h.state]
-            n_act[k] = r.active.sum()
+            n_act[k] = nact[r.entry] if r.entry >= 0 else 0
