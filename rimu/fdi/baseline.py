@@ -20,11 +20,14 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.optimize import brentq
-from scipy.stats import norm
+from scipy.special import ndtr
 
 from .cusum import markov_arl
 
 __all__ = ["MeanDisagreement"]
+
+#: thresholds already designed: (residual std, members, dead band, arl0) -> h (shared by all instances)
+_H_CACHE: dict[tuple[float, int, float, float], float] = {}
 
 
 class MeanDisagreement:
@@ -48,24 +51,24 @@ class MeanDisagreement:
         self.dead_band = float(dead_band)
         self.arl0 = float(arl0)
         self._dof = 0
-        self._cache: dict[tuple[float, int], float] = {}
 
     def _h(self, s: float, members: int) -> float:
-        key = (round(s, 6), members)
-        if key not in self._cache:
+        s = round(s, 3)  # thresholds change negligibly below 0.1 % of sigma; designs are shared
+        key = (s, members, self.dead_band, self.arl0)
+        if key not in _H_CACHE:
             c = self.dead_band
 
             def cdf(x: np.ndarray) -> np.ndarray:  # increment |N(0, s^2)| - c
                 y = np.maximum(x + c, 0.0)
-                return 2 * norm.cdf(y / s) - 1
+                return 2 * ndtr(y / s) - 1
 
             target = members * self.arl0
             hi = 1.0
-            while markov_arl(hi, cdf, 200) < target:
+            while markov_arl(hi, cdf, 120) < target:
                 hi *= 2
-            self._cache[key] = float(brentq(lambda h: markov_arl(h, cdf, 200) - target, hi / 2 if hi > 1 else 1e-3, hi,
+            _H_CACHE[key] = float(brentq(lambda h: markov_arl(h, cdf, 120) - target, hi / 2 if hi > 1 else 1e-3, hi,
                                             xtol=1e-3))
-        return self._cache[key]
+        return _H_CACHE[key]
 
     def design(self, Vz: np.ndarray, dof: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         ckey = (np.asarray(Vz)[:dof].tobytes(), int(dof))

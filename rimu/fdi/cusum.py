@@ -78,12 +78,10 @@ def markov_arl(h: float, cdf: Callable[[np.ndarray], np.ndarray], states: int = 
     centres = np.arange(states) * w  # cell 0 is the atom at 0 (width w/2)
     edges_hi = centres + w / 2
     edges_lo = centres - w / 2
-    R = np.empty((states, states))
-    for i, c in enumerate(centres):
-        hi = cdf(edges_hi - c)
-        lo = cdf(edges_lo - c)
-        R[i] = hi - lo
-        R[i, 0] = hi[0]  # everything below w/2 (incl. the reflection at 0)
+    hi = cdf(edges_hi[None, :] - centres[:, None])
+    lo = cdf(edges_lo[None, :] - centres[:, None])
+    R = hi - lo
+    R[:, 0] = hi[:, 0]  # everything below w/2 (incl. the reflection at 0)
     L = np.linalg.solve(np.eye(states) - R, np.ones(states))
     return float(L[0])
 

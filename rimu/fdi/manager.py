@@ -194,6 +194,22 @@ class RedundancyManager:
         self.health = Health(HealthState.NOMINAL, False, 0.0, float("inf"), [])
         self.reset()
 
+    @classmethod
+    def for_unit(cls, pipeline: Any, **kwargs: Any) -> dict[str, "RedundancyManager"]:
+        """One manager per instrument of a :class:`rimu.fusion.Pipeline` (same settings for each; a detector
+        object cannot be shared, so pass ``detector_factory=lambda instrument_pipeline: ...`` instead).
+
+        >>> from rimu.calibration import Calibration, InstrumentCalibration
+        >>> from rimu.fusion import Pipeline
+        >>> from rimu.geometry import cone6
+        >>> cal = Calibration({k: InstrumentCalibration.nominal(k, cone6(), 1.0, noise_sigma=0.01)
+        ...                    for k in ("gyro", "accel")})
+        >>> sorted(RedundancyManager.for_unit(Pipeline(cal), confirm=3))
+        ['accel', 'gyro']
+        """
+        factory = kwargs.pop("detector_factory", None)
+        return {k: cls(ip, factory(ip) if factory else None, **kwargs) for k, ip in pipeline.instruments.items()}
+
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
         """Forget everything: all sensors re-admitted, counters and events cleared."""
