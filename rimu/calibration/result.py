@@ -102,7 +102,9 @@ class InstrumentCalibration:
                 f"misalignment row {i} ({self.geometry.names[i]}) has norm {norms[i]:.6f}; rows are unit vectors "
                 "(Cho & Park Eq. 10). Normalise it, moving the norm into the scale factor"
             )
-        self.misalignment = m / norms[:, None]
+        off = np.abs(norms - 1.0) > 4e-16
+        m[off] /= norms[off, None]
+        self.misalignment = m
         if np.any(self.scale == 0):
             raise ShapeError("a scale factor is zero; the sensor's output would carry no information")
         if self.noise_sigma is not None:
@@ -255,8 +257,7 @@ class Calibration:
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write atomically (temporary file in the same folder, then rename) as versioned JSON."""
         path = Path(path)
-        doc = _document(self.to_payload())
-        text = json.dumps(doc, indent=1, allow_nan=False)
+        text = document_text(self.to_payload())
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
         try:
             with os.fdopen(fd, "w", encoding="utf-8") as fh:
@@ -296,12 +297,22 @@ class Calibration:
         except OSError as exc:
             raise CalibrationFileError(f"cannot read calibration file {path}: {exc}") from exc
         try:
-            doc = json.loads(raw.decode("utf-8"))
+            text = raw.decode("utf-8")
+            doc = json.loads(text)
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise CalibrationFileError(
                 f"{path} is not valid JSON ({exc}); the file is damaged or not a calibration file. "
                 "Restore it from a copy or calibrate again"
             ) from exc
+        if not isinstance(doc, dict) or doc.get("format") != FORMAT_TAG:
+            raise CalibrationFileError(f"{path} is not a rimu calibration file (no 'format': '{FORMAT_TAG}')")
+        stored = doc.get("checksum")
+        expected = _checksum(FORMAT_TAG, doc.get("version"), _payload_text(text))
+        if stored != expected:
+            raise ChecksumError(
+                f"{path}: checksum mismatch (stored {stored!r}, content gives {expected!r}); "
+                "the file was altered or damaged after it was written. Restore it or calibrate again"
+            )
         cal = cls.from_document(doc, source=str(path))
         for inst, g in (geometries or {}).items():
             if inst in cal:
@@ -310,15 +321,10 @@ class Calibration:
 
     @classmethod
     def from_document(cls, doc: Any, source: str = "<document>") -> "Calibration":
+        """Build from a parsed document (format tag and version checked; the byte checksum is :meth:`load`'s)."""
         if not isinstance(doc, dict) or doc.get("format") != FORMAT_TAG:
             raise CalibrationFileError(f"{source} is not a rimu calibration file (no 'format': '{FORMAT_TAG}')")
         version = doc.get("version")
-        expected = _checksum(doc.get("format"), version, doc.get("payload"))
-        if doc.get("checksum") != expected:
-            raise ChecksumError(
-                f"{source}: checksum mismatch (stored {doc.get('checksum')!r}, content gives {expected!r}); "
-                "the file was altered or damaged after it was written. Restore it or calibrate again"
-            )
         if not isinstance(version, int) or version < 1 or version > FORMAT_VERSION:
             raise UnsupportedVersionError(
                 f"{source}: format version {version!r} is not known to this rimu (it reads versions 1..{FORMAT_VERSION}); "
@@ -350,16 +356,25 @@ def _vec(v: Any, n: int, name: str) -> np.ndarray:
     return a
 
 
-def _checksum(fmt: Any, version: Any, payload: Any) -> str:
-    blob = json.dumps({"format": fmt, "version": version, "payload": payload}, sort_keys=True, separators=(",", ":"))
+def _checksum(fmt: Any, version: Any, payload_text: str | None) -> str:
+    """sha256 over the format tag, the version and the exact bytes of the payload as written."""
+    blob = f"{fmt}\n{version}\n{payload_text}"
     return "sha256:" + hashlib.sha256(blob.encode("utf-8")).hexdigest()
 
 
-def _document(payload: dict[str, Any]) -> dict[str, Any]:
-    payload = json.loads(json.dumps(payload, allow_nan=False))  # normalise to what will be read back
-    return {
-        "format": FORMAT_TAG,
-        "version": FORMAT_VERSION,
-        "checksum": _checksum(FORMAT_TAG, FORMAT_VERSION, payload),
-        "payload": payload,
-    }
+_PAYLOAD_KEY = '\n"payload": '
+
+
+def document_text(payload: dict[str, Any], version: int = FORMAT_VERSION) -> str:
+    """The file's text: format, version and checksum first, then the payload (whose bytes the checksum covers)."""
+    body = json.dumps(payload, indent=1, sort_keys=True, allow_nan=False)
+    head = json.dumps({"format": FORMAT_TAG, "version": version, "checksum": _checksum(FORMAT_TAG, version, body)})
+    return head[:-1] + "," + _PAYLOAD_KEY + body + "\n}\n"
+
+
+def _payload_text(text: str) -> str | None:
+    k = text.find(_PAYLOAD_KEY)
+    end = text.rstrip().rfind("}")
+    if k < 0 or end < 0:
+        return None
+    return text[k + len(_PAYLOAD_KEY):end].rstrip("\n")

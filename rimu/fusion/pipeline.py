@@ -193,16 +193,23 @@ class InstrumentPipeline:
         """Process one raw sample ``y`` (n,). Returns :attr:`result` (reused; copy what you keep)."""
         self.samples += 1
         if self._entry >= 0 and (valid is None or valid.all()):
-            out = self._out
-            np.dot(self._Re, y, out=out)
-            out -= self._offe
-            s = out.dot(out)
-            if s - s == 0.0:  # finite: the common path
-                if self._dirty:
-                    self._invalid[:] = False
-                    self._point_result(self._entry)
-                    self._dirty = False
-                return self.result
+            try:
+                yl = y.tolist()
+            except AttributeError:  # not an ndarray: the careful path converts and checks it
+                yl = None
+            if yl is not None and len(yl) == self.n:
+                s = sum(yl)  # Python floats: inf and nan propagate without floating-point warnings
+                if s - s == 0.0:
+                    out = self._out
+                    np.dot(self._Re, y, out=out)
+                    out -= self._offe
+                    s = sum(out.tolist())
+                    if s - s == 0.0:  # finite: the common path
+                        if self._dirty:
+                            self._invalid[:] = False
+                            self._point_result(self._entry)
+                            self._dirty = False
+                        return self.result
         return self._step_slow(np.asarray(y, dtype=float), valid)
 
     def _step_slow(self, y: np.ndarray, valid: np.ndarray | None) -> StepResult:
@@ -237,15 +244,11 @@ class InstrumentPipeline:
         n, r, tab = self.n, self.r, self.table
         out = np.empty((N, 3 + r))
         if self._entry >= 0 and N and (valid is None or np.all(valid)):
-            np.matmul(Y, self._Re.T, out=out)
-            out -= self._offe
-            with np.errstate(invalid="ignore", over="ignore"):
-                s = out.sum()
-            if s - s == 0.0:
+            if self._fast_block(Y, out):
                 e = self._entry
-                return BlockResult(out[:, :3], out[:, 3:], np.full(N, e), np.full(N, tab.dof[e]),
-                                   np.broadcast_to(self._active_of(e), (N, n)), np.zeros((N, n), bool),
-                                   np.full(N, bool(tab.observable[e])), tab)
+                return BlockResult(out[:, :3], out[:, 3:], np.broadcast_to(np.int64(e), (N,)),
+                                   np.broadcast_to(tab.dof[e], (N,)), np.broadcast_to(self._active_of(e), (N, n)),
+                                   np.broadcast_to(False, (N, n)), np.broadcast_to(bool(tab.observable[e]), (N,)), tab)
         good = np.isfinite(Y)
         if valid is not None:
             v = np.asarray(valid, dtype=bool)
@@ -277,6 +280,21 @@ class InstrumentPipeline:
         if not np.all(obs):
             ent[~obs] = self._inf_entry()
         return BlockResult(out[:, :3], out[:, 3:], ent, dof, active, bad, obs, tab)
+
+    _CHUNK = 4096
+
+    def _fast_block(self, Y: np.ndarray, out: np.ndarray) -> bool:
+        """``out = Y @ R.T - off`` in cache-sized chunks; False as soon as a chunk is not finite."""
+        R, off = self._Re.T, self._offe
+        with np.errstate(invalid="ignore", over="ignore"):
+            for a in range(0, Y.shape[0], self._CHUNK):
+                o = out[a:a + self._CHUNK]
+                np.matmul(Y[a:a + self._CHUNK], R, out=o)
+                o -= off
+                s = o.sum()
+                if not s - s == 0.0:
+                    return False
+        return True
 
     def _inf_entry(self) -> int:
         """Index of a table entry whose P is inf (an unobservable set), added on first use."""

@@ -46,7 +46,7 @@ def cho_park_table3(geometry: Geometry | None = None, gyro_sigma: float | None =
     and accelerometer SF_z^2 (not legible).
 
     >>> cal = cho_park_table3()
-    >>> round(cal["gyro"].scale[0] / DS_TO_RS, 5), round(cal["accel"].bias[0] / G0, 4)
+    >>> round(float(cal["gyro"].scale[0] / DS_TO_RS), 5), round(float(cal["accel"].bias[0] / G0), 4)
     (0.38228, 3.6463)
     """
     g = geometry or cone6()

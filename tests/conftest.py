@@ -1,0 +1,16 @@
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def shared_data(name: str) -> Path:
+    """A folder of ../shared/data, or skip the test when it is absent."""
+    for base in (ROOT / ".." / "shared" / "data", Path("/work/shared/data")):
+        p = (base / name).resolve()
+        if p.exists():
+            return p
+    pytest.skip(f"shared data {name!r} is not available on this machine")

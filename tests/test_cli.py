@@ -1,0 +1,41 @@
+"""The command line: the demo runs end to end and tells the truth; simulate writes data."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import numpy as np
+
+from rimu.cli import main
+
+
+def test_demo_end_to_end(tmp_path, capsys):
+    t0 = time.perf_counter()
+    code = main(["demo", "--out", str(tmp_path / "demo")])
+    elapsed = time.perf_counter() - t0
+    assert code == 0
+    rep = json.loads((tmp_path / "demo" / "report.json").read_text())
+    assert {(e["instrument"], e["sensor"]) for e in rep["events"]} == {("gyro", "y2"), ("accel", "x1")}
+    assert all(0 <= e["delay_s"] < 0.5 for e in rep["events"])
+    # the uncertainty the calibration reports is honest: normalised errors of rms about 1
+    assert 0.5 < rep["calibration"]["normalised_error_rms"] < 1.6
+    for k in ("gyro", "accel"):
+        s = rep["std"][k]
+        ratio = np.array(s["ratio_measured"]) / np.array(s["ratio_predicted"])
+        assert np.all(np.abs(ratio - 1) < 0.15), (k, ratio)
+    assert (tmp_path / "demo" / "demo.png").stat().st_size > 10_000
+    assert (tmp_path / "demo" / "calibration.json").exists()
+    assert elapsed < 60
+    assert "isolated" in capsys.readouterr().out
+
+
+def test_simulate_writes_a_file(tmp_path):
+    out = tmp_path / "s.npz"
+    assert main(["simulate", "--procedure", "cho_park_table1", "-o", str(out)]) == 0
+    d = np.load(out)
+    assert d["raw_gyro"].shape[1] == 6 and np.all(np.isfinite(d["raw_gyro"]))
+
+
+def test_no_command_prints_help():
+    assert main([]) == 2
