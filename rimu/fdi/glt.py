@@ -117,10 +117,13 @@ class GltSnapshot:
 
     def update(self, parity: np.ndarray) -> tuple[float, float]:
         """Statistic and threshold of one sample (the fast path: no isolation work)."""
-        if self._dof < 1:
+        d = self._dof
+        if d < 1:
             return 0.0, float("inf")
-        p = parity[:self._dof]
-        return float(p @ p), self._t
+        s = 0.0
+        for x in parity.tolist()[:d]:  # a few components: Python floats beat numpy's per-call overhead
+            s += x * x
+        return s, self._t
 
     def isolate(self, parity: np.ndarray) -> tuple[int, np.ndarray]:
         """Most likely faulty sensor for the current sample (call after an alarm), and the ratios."""
@@ -163,8 +166,10 @@ class GltWindow(GltSnapshot):
 
     def configure(self, Vz: np.ndarray, dof: int) -> None:
         super().configure(Vz, dof)
-        self._buf = np.zeros((self.window, max(dof, 0)))
-        self._sum = np.zeros(max(dof, 0))
+        d = max(dof, 0)
+        # plain Python lists: for a parity vector of a few components they beat numpy's per-call overhead
+        self._buf = [[0.0] * d for _ in range(self.window)]
+        self._sum = [0.0] * d
         self._k = 0
         self._count = 0
 
@@ -172,21 +177,25 @@ class GltWindow(GltSnapshot):
         d = self._dof
         if d < 1:
             return 0.0, float("inf")
-        p = parity[:d]
+        p = parity.tolist()[:d]
+        k = self._k
+        old = self._buf[k]
+        self._buf[k] = p
         s = self._sum
-        s -= self._buf[self._k]
-        self._buf[self._k] = p
-        s += p
-        self._k += 1
-        if self._k == self.window:  # refresh the running sum once per turn (no drift)
-            self._k = 0
-            np.sum(self._buf, axis=0, out=s)
+        for i in range(d):
+            s[i] += p[i] - old[i]
+        k += 1
+        if k == self.window:  # refresh the running sum once per turn (no drift)
+            k = 0
+            for i in range(d):
+                s[i] = sum(b[i] for b in self._buf)
+        self._k = k
         if self._count < self.window:
             self._count += 1
-        return float(s @ s) / self._count, self._t
+        return sum(x * x for x in s) / self._count, self._t
 
     def isolate(self, parity: np.ndarray) -> tuple[int, np.ndarray]:
-        return isolate_argmax(self._sum, self._V)
+        return isolate_argmax(np.array(self._sum), self._V)
 
     def block(self, P: np.ndarray, Vz: np.ndarray, dof: int) -> tuple[np.ndarray, float, np.ndarray]:
         """Sliding-window statistics of N samples, (N,); the first ``window - 1`` use the samples available."""
