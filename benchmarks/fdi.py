@@ -51,7 +51,8 @@ def main() -> None:
     for name, make in (("+ GLT snapshot, confirmation, isolation", lambda p: GltSnapshot(1e-3)),
                        ("+ GLT window 5", lambda p: GltWindow(5)),
                        ("+ CUSUM bank", lambda p: CusumBank(p.table.sigma, 1e5)),
-                       ("+ Kalman (filterpy)", lambda p: ParityKalman(20.0))):
+                       ("+ Kalman (filterpy)", lambda p: ParityKalman(20.0)),
+                       ("+ Kalman (steady-state engine)", lambda p: ParityKalman(20.0, engine="steady"))):
         p2 = InstrumentPipeline(cal)
         mgr = RedundancyManager(p2, make(p2))
 

@@ -45,12 +45,19 @@ class ParityKalman:
         Time constant of the bias estimate, samples (sets ``q = K^2 / (1 - K)`` with ``K = 1 / tau``).
     p_fa : float
         Per-sample false-alarm probability of the test on the estimate.
+    engine : {"filterpy", "steady"}
+        ``filterpy``: a ``filterpy.kalman.KalmanFilter`` per active set (predict/update each sample);
+        ``steady``: the same filter written out at its steady-state gain on Python floats (identical numbers,
+        some 20x cheaper per sample; the tests check the two agree).
     """
 
     name = "kalman"
     window = 1
 
-    def __init__(self, tau: float = 20.0, p_fa: float = 1e-3) -> None:
+    def __init__(self, tau: float = 20.0, p_fa: float = 1e-3, engine: str = "filterpy") -> None:
+        if engine not in ("filterpy", "steady"):
+            raise ValueError(f"engine must be 'filterpy' or 'steady', got {engine!r}")
+        self.engine = engine
         if not tau > 1:
             raise ValueError(f"tau must exceed one sample, got {tau}")
         self.tau = float(tau)
@@ -67,8 +74,14 @@ class ParityKalman:
         self._dof = int(dof)
         self._V = np.asarray(Vz)[:dof]
         self._thr = glt_threshold(self.p_fa, dof) if dof >= 1 else float("inf")
+        self._x = [0.0] * max(dof, 0)
         if dof < 1:
             self.kf = None
+            return
+        self._S_inv = 1.0 / (self.K + self.q + 1.0)  # innovation covariance (P_pred + 1) I, inverted
+        if self.engine == "steady":
+            self.kf = None
+            self._scale = (2 - self.K) / self.K
             return
         kf = KalmanFilter(dim_x=dof, dim_z=dof)
         kf.F = np.eye(dof)
@@ -83,7 +96,19 @@ class ParityKalman:
     def update(self, parity: np.ndarray) -> tuple[float, float]:
         kf = self.kf
         if kf is None:
-            return 0.0, float("inf")
+            d = self._dof
+            if d < 1:
+                return 0.0, float("inf")
+            x = self._x
+            K = self.K
+            t = nu2 = 0.0
+            for i, z in enumerate(parity.tolist()[:d]):
+                nu = z - x[i]
+                nu2 += nu * nu
+                x[i] += K * nu
+                t += x[i] * x[i]
+            self.innovation_statistic = nu2 * self._S_inv
+            return t * self._scale, self._thr
         z = parity[:self._dof]
         kf.predict()
         kf.update(z)
@@ -95,10 +120,12 @@ class ParityKalman:
     @property
     def bias(self) -> np.ndarray:
         """Current parity-space bias estimate (dof,)."""
-        return np.zeros(0) if self.kf is None else self.kf.x.copy()
+        return np.array(self._x) if self.kf is None else self.kf.x.copy()
 
     def isolate(self, parity: np.ndarray) -> tuple[int, np.ndarray]:
-        return isolate_argmax(self.kf.x, self._V) if self.kf is not None else (-1, np.zeros(self._V.shape[1]))
+        if self._dof < 1:
+            return -1, np.zeros(self._V.shape[1])
+        return isolate_argmax(self.bias, self._V)
 
     def block(self, P: np.ndarray, Vz: np.ndarray, dof: int) -> tuple[np.ndarray, float, np.ndarray]:
         """The same filter over N samples (steady gain, vectorised): (statistic, threshold, isolated)."""

@@ -98,6 +98,10 @@ def test_kalman_filterpy_step_equals_block_and_false_alarms():
     block, thr, iso = kf.block(P, V6, 3)
     np.testing.assert_allclose(step, block, rtol=1e-9)
     assert kf.isolate(P[-1])[0] == 2
+    fast = ParityKalman(20, 1e-2, engine="steady")
+    fast.configure(V6, 3)
+    np.testing.assert_allclose([fast.update(p)[0] for p in P], step, rtol=1e-9)
+    assert fast.innovation_statistic == pytest.approx(kf.innovation_statistic, rel=1e-9)
     # marginal false-alarm rate: the statistic at one instant of many independent streams
     Q = rng.standard_normal((400, 20_000, 3))
     from scipy.signal import lfilter
