@@ -18,6 +18,7 @@ from .kalman import ParityKalman
 from .manager import FdiEvent, Health, HealthState, RedundancyManager, ReplayResult
 from .noise import NoiseEstimator
 from .parity import IsolabilityReport, detection_probability, isolability, wrong_isolation_bounds
+from .quality import QualityReport, parity_quality
 
 __all__ = [
     "glt_threshold",
@@ -44,4 +45,6 @@ __all__ = [
     "isolability",
     "detection_probability",
     "wrong_isolation_bounds",
+    "parity_quality",
+    "QualityReport",
 ]

@@ -9,8 +9,11 @@ Tests (thresholds from the design false-alarm probability, per sample):
 
 * the bias estimate: without a fault ``beta_hat`` is stationary with covariance ``K / (2 - K) I``, so
   ``T = (2 - K) / K |beta_hat|^2 ~ chi2(dof)``; isolation by ``argmax_j (v_j^T beta_hat)^2 / |v_j|^2``;
-* the innovations ``nu = p - beta_pred`` with covariance ``S = P_pred + I`` (``nu^T S^-1 nu ~ chi2(dof)``),
-  exposed as :attr:`ParityKalman.innovation_statistic` (sensitive to abrupt changes).
+* the innovations ``nu = p - beta_pred``. The filter's own ``S = P_pred + I = (1 + K / (1 - K)) I`` assumes a
+  wandering bias; without a fault the innovations are white with covariance ``(1 + K / (2 - K)) I``, so the
+  test uses ``T_nu = (2 - K) / 2 |nu|^2 ~ chi2(dof)`` (exact per sample), :attr:`ParityKalman.innovation_statistic`,
+  and ``test="innovation"`` makes it the detector's statistic (sensitive to abrupt changes; the estimate test
+  to slow ones).
 
 A persistent bias b on sensor j makes ``beta_hat -> b v_j``; a drift (ramp) is followed with a lag of about
 ``rate / K``. The detector restarts when the active set changes.
@@ -54,10 +57,14 @@ class ParityKalman:
     name = "kalman"
     window = 1
 
-    def __init__(self, tau: float = 20.0, p_fa: float = 1e-3, engine: str = "filterpy") -> None:
+    def __init__(self, tau: float = 20.0, p_fa: float = 1e-3, engine: str = "filterpy",
+                 test: str = "estimate") -> None:
         if engine not in ("filterpy", "steady"):
             raise ValueError(f"engine must be 'filterpy' or 'steady', got {engine!r}")
+        if test not in ("estimate", "innovation"):
+            raise ValueError(f"test must be 'estimate' or 'innovation', got {test!r}")
         self.engine = engine
+        self.test = test
         if not tau > 1:
             raise ValueError(f"tau must exceed one sample, got {tau}")
         self.tau = float(tau)
@@ -78,7 +85,7 @@ class ParityKalman:
         if dof < 1:
             self.kf = None
             return
-        self._S_inv = 1.0 / (self.K + self.q + 1.0)  # innovation covariance (P_pred + 1) I, inverted
+        self._S_inv = (2.0 - self.K) / 2.0  # inverse of the innovations' variance without a fault
         if self.engine == "steady":
             self.kf = None
             self._scale = (2 - self.K) / self.K
@@ -108,12 +115,16 @@ class ParityKalman:
                 x[i] += K * nu
                 t += x[i] * x[i]
             self.innovation_statistic = nu2 * self._S_inv
+            if self.test == "innovation":
+                return self.innovation_statistic, self._thr
             return t * self._scale, self._thr
         z = parity[:self._dof]
         kf.predict()
         kf.update(z)
         y = kf.y
-        self.innovation_statistic = float(y @ kf.SI @ y)
+        self.innovation_statistic = float(y @ y) * self._S_inv
+        if self.test == "innovation":
+            return self.innovation_statistic, self._thr
         x = kf.x
         return float(x @ x) * self._scale, self._thr
 
@@ -131,5 +142,10 @@ class ParityKalman:
         """The same filter over N samples (steady gain, vectorised): (statistic, threshold, isolated)."""
         K = self.K
         B = lfilter([K], [1.0, -(1.0 - K)], P[:, :dof], axis=0)
+        if self.test == "innovation":
+            prev = np.vstack([np.zeros((1, dof)), B[:-1]])
+            nu = P[:, :dof] - prev
+            stat = np.einsum("ij,ij->i", nu, nu) * (2 - K) / 2
+            return stat, glt_threshold(self.p_fa, dof), block_isolate(nu, Vz[:dof])
         stat = np.einsum("ij,ij->i", B, B) * (2 - K) / K
         return stat, glt_threshold(self.p_fa, dof), block_isolate(B, Vz[:dof])

@@ -110,6 +110,13 @@ def test_kalman_filterpy_step_equals_block_and_false_alarms():
     T = (B * B).sum(1) * (2 - kf.K) / kf.K
     lo, hi = clopper_pearson(int((T > thr).sum()), len(T))
     assert lo <= 1e-2 <= hi
+    # the innovation test: white without a fault, chi-square per sample
+    inn = ParityKalman(20, 1e-2, test="innovation")
+    s_i, thr_i, _ = inn.block(Q[:, :, :].reshape(-1, 3)[:200_000], V6, 3)
+    lo, hi = clopper_pearson(int((s_i[100:] > thr_i).sum()), len(s_i) - 100)
+    assert lo <= 1e-2 <= hi
+    inn.configure(V6, 3)
+    np.testing.assert_allclose([inn.update(p)[0] for p in Q[:50, 0]], inn.block(Q[:50, 0], V6, 3)[0], rtol=1e-9)
 
 
 def test_unequal_noise_estimated_online_restores_false_alarm_rate():
