@@ -134,3 +134,39 @@ def test_other_detectors_in_the_manager(manoeuvre, det):
     res = mgr.run(blk.raw["gyro"], None, blk.t)
     iso = [e for e in res.events if e.kind == "isolated"]
     assert [e.sensor for e in iso] == ["y2"] and iso[0].t >= 15.0
+
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from rimu.fdi.faults import FAULTS
+
+# (type, sensor, start s, size sigma, duration s or None)
+_fault = st.tuples(st.sampled_from(sorted(FAULTS)), st.integers(0, 5), st.floats(0.2, 2.5),
+                   st.floats(0.0, 30.0), st.one_of(st.none(), st.floats(0.01, 1.0)))
+
+
+@settings(max_examples=15, deadline=None)
+@given(faults=st.lists(_fault, min_size=1, max_size=4), seed=st.integers(0, 1000))
+def test_any_fault_sequence_keeps_the_invariants(faults, seed):
+    """Whatever happens: outputs finite, the state matches the active set, isolation only where isolable."""
+    cal = InstrumentCalibration.nominal("gyro", cone6(), 0.001, bias=0.1, noise_sigma=0.01)
+    rng = np.random.default_rng(seed)
+    N = 300
+    t = np.arange(N) / 100.0
+    u = np.array([0.3, -0.2, 0.5]) + 0.1 * np.sin(t)[:, None]
+    from rimu.epoch import EpochBlock
+    from rimu.calibration import Calibration
+
+    blk = EpochBlock(t, {"gyro": cal.raw_output(u) + 0.01 / 0.001 * rng.standard_normal((N, 6))})
+    inj = [Injection(k, "gyro", i, start, size, True, dur) for k, i, start, size, dur in faults]
+    blk = inject(blk, inj, Calibration({"gyro": cal}), seed=seed)
+    mgr = RedundancyManager(InstrumentPipeline(cal), confirm=2, invalid_persist=5, readmit_after=50,
+                            sample_rate=100.0)
+    res = mgr.run(blk.raw["gyro"], blk.valid["gyro"], t)
+    assert np.all(np.isfinite(res.x)) and np.all(np.isfinite(res.statistic))
+    assert sum(1 for e in res.events if e.kind == "isolated") <= 2 + sum(1 for e in res.events if e.kind == "readmitted")
+    n_act = 6 - len(mgr.health.isolated)
+    expect = {6: {"nominal", "fault_isolated"}, 5: {"fault_isolated"}, 4: {"detection_only"},
+              3: {"no_redundancy"}}.get(n_act, {"unobservable"})
+    assert mgr.state.value in expect
