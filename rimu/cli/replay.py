@@ -62,6 +62,9 @@ def run(args: argparse.Namespace) -> int:
             print(f"  injected {inj.fault} on {inj.instrument} {inj.sensor} at {inj.start:g} s, size "
                   f"{inj.size:g}{' sigma' if inj.in_sigma else ' SI'}")
     fs = 1.0 / float(np.median(np.diff(block.t))) if len(block) > 1 else 1.0
+    if args.detector in ("kalman", "glt_window") and args.p_fa > 1e-4:
+        print(f"  note: --p-fa is per sample; the {args.detector} statistic is correlated over several samples, so "
+              "alarms come in episodes that confirmation does not filter; consider --p-fa 1e-5")
     results = {}
     for k in insts:
         pipe = InstrumentPipeline(cal[k])

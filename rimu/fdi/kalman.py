@@ -15,6 +15,11 @@ Tests (thresholds from the design false-alarm probability, per sample):
   and ``test="innovation"`` makes it the detector's statistic (sensitive to abrupt changes; the estimate test
   to slow ones).
 
+``p_fa`` is the marginal probability per sample. The estimate statistic is correlated over about ``tau``
+samples, so false alarms come in episodes of several samples, and the manager's confirmation (consecutive
+alarms) does little against them: in closed loop choose ``p_fa`` about ``tau`` times lower than for the snapshot
+GLT (at 1e-3 and tau = 20 a replay of 8400 samples showed two false isolations; at 1e-4, none in 24 000).
+
 A persistent bias b on sensor j makes ``beta_hat -> b v_j``; a drift (ramp) is followed with a lag of about
 ``rate / K``. The detector restarts when the active set changes.
 """
