@@ -50,6 +50,11 @@ def run(args: argparse.Namespace) -> int:
                         detector=args.detector, window=args.window, p_fa=args.p_fa, arl0=args.arl0,
                         confirm=args.confirm, duration=args.duration, fault_start=args.fault_start,
                         closed_loop=not args.open_loop_only, base_seed=args.seed)
+    from ..fdi import isolability
+    from ..fdi.campaign import _setup
+
+    truth, pipe, _ = _setup(spec)
+    print(isolability(pipe.table, truth[spec.instrument].geometry.names, spec.geometry).summary())
     res = run_campaign(spec, workers=args.workers, scheduler=args.scheduler, progress=True)
     print(res.table())
     if args.json:

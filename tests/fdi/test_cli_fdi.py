@@ -59,7 +59,8 @@ def test_campaign_cli_json(files, capsys):
     assert rc == 0
     doc = json.loads(out.read_text())
     assert doc["summary"][0]["pd_theory"] > 0.9 and len(doc["rows"]) == 2
-    assert "Pd" in capsys.readouterr().out
+    text = capsys.readouterr().out
+    assert "Pd" in text and "successive faults that can be isolated: 2" in text
 
 
 def test_check_good_and_bad(files, capsys):
