@@ -146,36 +146,36 @@ class CusumBank:
         self._dof = int(dof)
         n = Vz.shape[1]
         self._n = n
-        self._S = np.zeros(2 * n)  # [S+ of every sensor, S- of every sensor]
-        self._X = np.zeros(2 * n)
-        self._R = np.zeros(2 * n)
+        self._S = [0.0] * (2 * n)  # [S+ of every sensor, S- of every sensor], plain floats (cheap per sample)
         if dof >= 1:
             U, d, thr, _ = self.design(Vz, dof)
-            self._thr = np.concatenate([thr, thr])
             self._W = np.ascontiguousarray(np.concatenate([U * d, -U * d], axis=1))  # LLR slope per statistic
-            self._half = np.concatenate([d * d / 2, d * d / 2])
+            self._half = np.concatenate([d * d / 2, d * d / 2]).tolist()
             inv = np.where(np.isfinite(thr), 1.0 / thr, 0.0)
-            self._inv = np.concatenate([inv, inv])
+            self._inv = np.concatenate([inv, inv]).tolist()
 
     def update(self, parity: np.ndarray) -> tuple[float, float]:
         """Advance the bank by one sample; returns (largest statistic / its threshold, 1.0)."""
         if self._dof < 1:
             return 0.0, float("inf")
-        X = self._X
-        np.dot(parity[:self._dof], self._W, out=X)
-        X -= self._half
-        S = self._S
-        S += X
-        np.maximum(S, 0.0, out=S)
-        R = self._R
-        np.multiply(S, self._inv, out=R)
-        k = int(R.argmax())
-        self._last = k % self._n
-        return R.item(k), 1.0
+        X = (parity[:self._dof] @ self._W).tolist()
+        S, half, inv = self._S, self._half, self._inv
+        best, kb = 0.0, 0
+        for k in range(len(S)):
+            v = S[k] + X[k] - half[k]
+            if v < 0.0:
+                v = 0.0
+            S[k] = v
+            r = v * inv[k]
+            if r > best:
+                best, kb = r, k
+        self._last = kb % self._n
+        return best, 1.0
 
     def isolate(self, parity: np.ndarray) -> tuple[int, np.ndarray]:
         """The sensor whose statistic crossed (isolable only where ``dof >= 2``)."""
-        ratios = np.maximum(self._R[: self._n], self._R[self._n:])
+        R = np.array(self._S) * np.array(self._inv) if self._dof >= 1 else np.zeros(2 * self._n)
+        ratios = np.maximum(R[: self._n], R[self._n:])
         return (self._last if self._dof >= 2 else -1), ratios
 
     def block(self, P: np.ndarray, Vz: np.ndarray, dof: int) -> tuple[np.ndarray, float, np.ndarray]:

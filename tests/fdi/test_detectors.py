@@ -71,6 +71,19 @@ def test_cusum_delay_matches_lorden_at_arl0_1e5():
     assert abs(np.mean(delays) / lorden - 1) < 0.15
 
 
+def test_cusum_step_equals_block_until_the_first_alarm():
+    rng = np.random.default_rng(7)
+    P = rng.standard_normal((400, 3))
+    P[200:] += 1.5 * V6[:, 3]
+    bank = CusumBank(1.0, 1e4)
+    blk, _, iso = bank.block(P, V6, 3)
+    first = int(np.argmax(blk > 1))
+    bank.configure(V6, 3)
+    step = np.array([bank.update(p)[0] for p in P[: first + 1]])
+    np.testing.assert_allclose(step, blk[: first + 1], rtol=1e-10)
+    assert bank.isolate(P[first])[0] == iso[first] == 3
+
+
 def test_cusum_bank_in_control_run_length():
     """The bank designed for ARL0 = 300 alarms no more often than that (members' union is conservative)."""
     rng = np.random.default_rng(3)
