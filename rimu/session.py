@@ -163,6 +163,8 @@ class Segment:
         if self.mat_ln_mb is None:
             return None
         w = self.table_rate()
+        if not np.any(w):  # at rest: one attitude for every sample
+            return np.broadcast_to(self.mat_ln_mb, (self.n_samples, 3, 3))
         dt = self.t - self.t[0]
         return self.mat_ln_mb @ rotation_matrix(np.outer(dt, w))
 

@@ -1,5 +1,16 @@
-"""Calibration: sessions in, error models as sums of effects, estimators, results with uncertainties."""
+"""Calibration: sessions in, error models as sums of effects, estimators, results with uncertainties.
 
+Estimators (constructor stores settings, ``fit(session)`` returns a :class:`CalibrationResult`):
+:class:`ChoPark` (Cho & Park 2005), :class:`Oliveira` (de Oliveira et al. 2012),
+:class:`Zhang` (Zhang et al. 2010), :class:`LeastSquares` (generic,
+any effect model).
+"""
+
+from .cho_park import ChoPark
+from .estimate import CalibrationResult, LeastSquares
+from .oliveira import Oliveira
+from .zhang import Zhang
 from .result import FORMAT_VERSION, Calibration, InstrumentCalibration
 
-__all__ = ["Calibration", "InstrumentCalibration", "FORMAT_VERSION"]
+__all__ = ["Calibration", "InstrumentCalibration", "FORMAT_VERSION", "CalibrationResult", "ChoPark",
+           "LeastSquares", "Oliveira", "Zhang"]

@@ -15,6 +15,8 @@ __all__ = ["main", "COMMANDS"]
 COMMANDS = [
     "demo",
     "simulate",
+    "calibrate",
+    "design",
     "replay", "campaign", "check",
 ]
 

@@ -1,12 +1,9 @@
-"""``rimu simulate``: write a simulated calibration session or stream to an NPZ file."""
+"""``rimu simulate``: write a simulated calibration session in rimu's session format (CSV + JSON sidecar, or NPZ)."""
 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
-
-import numpy as np
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -18,11 +15,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--geometry", default=None, help="geometry preset for gyros and accelerometers "
                    "(default: cone6; tetrad4 gyros + triad3 accelerometers for oliveira_table1; triad3 for zhang)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--duration", type=float, default=None,
+                   help="s per static position and rate step (cho_park procedures; default 60)")
     p.add_argument("--sample-rate", type=float, default=100.0, help="Hz")
     p.add_argument("--arw", type=float, default=3.0, help="gyro angle random walk, deg/sqrt(h)")
     p.add_argument("--vrw", type=float, default=200.0, help="accelerometer noise density, micro-g/sqrt(Hz)")
     p.add_argument("--latitude", type=float, default=36.37, help="deg")
-    p.add_argument("-o", "--output", default="session.npz", help="output .npz file")
+    p.add_argument("-o", "--output", default="session.npz",
+                   help="output file: .npz, or .csv (a .json sidecar is written beside it); see docs/session-format.md")
+    p.add_argument("--truth", default=None, help="also write the true coefficients as a calibration file")
     p.set_defaults(func=run)
 
 
@@ -39,32 +40,19 @@ def geometries_for(procedure: str, geometry: str | None) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..session_io import save_session
     from ..sim import PROCEDURES, Simulator
 
     sim = Simulator(geometries_for(args.procedure, args.geometry), arw_deg_sqrt_h=args.arw, vrw_ug_sqrt_hz=args.vrw,
                     sample_rate=args.sample_rate, latitude_deg=args.latitude, seed=args.seed)
-    result = sim.run(PROCEDURES[args.procedure]())
+    kw = {"duration": args.duration} if (args.duration and args.procedure.startswith("cho_park")) else {}
+    result = sim.run(PROCEDURES[args.procedure](**kw))
     s = result.session
-    out = Path(args.output)
-    arrays = {"t": result.block.t, "segment": result.segment_index}
-    for k, y in result.block.raw.items():
-        arrays[f"raw_{k}"] = y
-    meta = {
-        "sample_rate_hz": s.sample_rate,
-        "latitude_rad": s.latitude,
-        "raw_unit": s.raw_unit,
-        "geometries": {k: g.to_dict() for k, g in s.geometries.items()},
-        "segments": [
-            {"label": seg.label, "kind": seg.kind,
-             "specific_force_mb_ms2": None if seg.specific_force_mb is None else np.asarray(seg.specific_force_mb).tolist(),
-             "rate_mb_rads": None if seg.rate_mb is None else np.asarray(seg.rate_mb).tolist(),
-             "angle_mb_rad": None if seg.angle_mb is None else np.asarray(seg.angle_mb).tolist(),
-             "mat_ln_mb": None if seg.mat_ln_mb is None else seg.mat_ln_mb.tolist()}
-            for seg in s.segments
-        ],
-        "simulator": sim.settings(),
-    }
-    np.savez_compressed(out, meta=np.array(json.dumps(meta)), **arrays)
+    out = save_session(s, Path(args.output))
+    side = f" + sidecar {out.with_suffix('.json')}" if out.suffix == ".csv" else ""
     print(f"simulated {args.procedure}: {len(s)} segments, {len(result.block)} samples at {s.sample_rate:g} Hz "
-          f"-> {out}")
+          f"-> {out}{side} (rimu session format, docs/session-format.md)")
+    if args.truth:
+        result.truth.save(args.truth)
+        print(f"true coefficients -> {args.truth}")
     return 0

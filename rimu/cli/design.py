@@ -1,0 +1,90 @@
+"""``rimu design``: predicted uncertainties of a turntable procedure (Cho & Park 2005, Eq. 19 and Fig. 3) and a
+greedy D-optimal choice of static attitudes and rotation axes, compared with the papers' procedures."""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("design", help="predict calibration uncertainties of a procedure; D-optimal test design",
+                       description=__doc__)
+    p.add_argument("--geometry", default="cone6", help="geometry preset (cone6, tetrad4, triad3, ...)")
+    p.add_argument("--procedure", default="cho_park",
+                   choices=["cho_park", "cho_park_table1", "cho_park_table2", "oliveira_table1", "zhang"])
+    p.add_argument("--duration", type=float, default=60.0, help="s per position / rate step (cho_park)")
+    p.add_argument("--sample-rate", type=float, default=100.0, help="Hz")
+    p.add_argument("--arw", type=float, default=3.0, help="gyro angle random walk, deg/sqrt(h)")
+    p.add_argument("--vrw", type=float, default=200.0, help="accelerometer noise density, micro-g/sqrt(Hz)")
+    p.add_argument("--greedy", type=int, default=10, help="number of static positions to select (rate pairs: 7)")
+    p.add_argument("--plot", default=None, help="write Cho & Park's Fig. 3 for this geometry (PNG)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..calibration.design import (
+        ProcedureInputs,
+        fig3_curve,
+        greedy_d_optimal,
+        log_det_information,
+        plot_fig3,
+        predicted_std,
+        procedure_inputs,
+        turntable_candidates,
+    )
+    from ..errors import IdentifiabilityError
+    from ..geometry import preset
+    from ..sim import PROCEDURES, zhang_scheme
+    from ..sim.procedures import CHO_PARK_TABLE1, CHO_PARK_TABLE2
+    from ..units import ARW_DSQH_TO_RSQS, G0, MS2_TO_UG, RAD_TO_ARCSEC, RS_TO_DH, UG_TO_MS2, white_noise_sigma
+
+    geo = preset(args.geometry)
+    proc = PROCEDURES[args.procedure]()
+    if args.procedure.startswith("cho_park"):
+        proc = PROCEDURES[args.procedure](duration=args.duration)
+    inp = procedure_inputs(proc)
+    n = int(round(args.duration * args.sample_rate))
+    sa = white_noise_sigma(args.vrw * UG_TO_MS2, args.sample_rate)
+    sg = white_noise_sigma(args.arw * ARW_DSQH_TO_RSQS, args.sample_rate)
+    print(f"rimu design: {geo.name} ({geo.n} sensors), procedure {args.procedure}: {inp.n_static} static positions, "
+          f"{inp.n_pairs} +/- rate pairs, {n} samples each")
+    try:
+        pred = predicted_std(geo, inp, sa, sg, n)
+    except IdentifiabilityError as exc:  # say which parameters, then continue with the design part
+        print(f"  this procedure cannot identify the model: {exc}")
+        pred = None
+    if pred:
+        print("\npredicted standard deviations (Cho & Park Eq. 19), field units")
+        print(f"  {'sensor':<8} {'acc SF ppm':>11} {'acc mis arcsec':>16} {'acc bias ug':>12} "
+              f"{'gyro SF ppm':>12} {'gyro mis arcsec':>16} {'gyro bias deg/h':>16}")
+        for name in geo.names:
+            a, g = pred["accel"], pred["gyro"]
+            am = [v for k, v in a.items() if k.startswith(name + ".mis")]
+            gm = [v for k, v in g.items() if k.startswith(name + ".mis")]
+            print(f"  {name:<8} {a[name + '.scale'] * 1e6:>11.1f} {max(am) * RAD_TO_ARCSEC:>16.2f} "
+                  f"{a[name + '.bias'] * MS2_TO_UG:>12.1f} {g[name + '.scale'] * 1e6:>12.1f} "
+                  f"{max(gm) * RAD_TO_ARCSEC:>16.2f} {g[name + '.bias'] * RS_TO_DH:>16.2f}")
+    U, A = turntable_candidates()
+    k = args.greedy
+    sel = greedy_d_optimal(geo, U, k, "static")
+    selr = greedy_d_optimal(geo, A, 7, "rate")
+    t1 = ProcedureInputs(np.array(CHO_PARK_TABLE1) * G0, np.zeros((0, 3)))
+    t2 = np.array(CHO_PARK_TABLE2)
+    t2 = ProcedureInputs(np.zeros((0, 3)), t2[0::2] - t2[1::2])
+    z = procedure_inputs(zhang_scheme())
+    print("\nD-optimal design (sum over sensors of log det of the Eq. 19 information; larger is better)")
+    print(f"  static: greedy {k} positions {log_det_information(geo, ProcedureInputs(U[sel] * G0, np.zeros((0, 3))), 'static'):.2f}"
+          f" | Cho & Park Table 1 (10) {log_det_information(geo, t1, 'static'):.2f}"
+          f" | Zhang's 9 attitudes {log_det_information(geo, ProcedureInputs(z.forces, np.zeros((0, 3))), 'static'):.2f}")
+    print(f"  rate:   greedy 7 pairs {log_det_information(geo, ProcedureInputs(np.zeros((0, 3)), 2 * A[selr]), 'rate'):.2f}"
+          f" | Cho & Park Table 2 (7) {log_det_information(geo, t2, 'rate'):.2f}"
+          f" | Zhang's 6 axes {log_det_information(geo, ProcedureInputs(np.zeros((0, 3)), z.rate_diffs / np.linalg.norm(z.rate_diffs, axis=1)[:, None] * 2), 'rate'):.2f}")
+    print("  greedy static 'up' directions (MB): " + ", ".join(str(np.round(U[i], 2).tolist()) for i in sel))
+    print("  greedy rotation axes (MB):          " + ", ".join(str(np.round(A[i], 2).tolist()) for i in selr))
+    if args.plot:
+        curve = fig3_curve(geo, np.array(CHO_PARK_TABLE1), t2.rate_diffs)
+        plot_fig3(curve, args.plot, f"Cho & Park Fig. 3 for {geo.name}")
+        print(f"\nFig. 3 written to {args.plot}")
+    return 0
