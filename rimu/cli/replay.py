@@ -7,7 +7,8 @@ time, and a JSON file of the events.
 
 Injection: ``TYPE:INSTRUMENT:SENSOR:START[:SIZE[:DURATION]]``, SIZE in SI or as ``10sigma``; types: bias, ramp,
 stuck, scale, noise, spikes, dropout, zero, saturation, nonfinite. Example: ``--inject bias:gyro:y2:15:10sigma``.
-DATA is, until the io layer's readers are wired here, the NPZ written by ``rimu simulate``.
+DATA is a session file in rimu's format (``.npz``, or ``.csv`` with its ``.json`` sidecar; docs/session-format.md),
+as ``rimu simulate`` writes it; the segments are replayed back to back.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import numpy as np
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("replay", help="replay data through pipeline + FDI, optionally injecting faults",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("data", help="data file (NPZ from 'rimu simulate')")
+    p.add_argument("data", help="session file (.npz, or .csv/.json with sidecar)")
     p.add_argument("--calibration", required=True, help="calibration JSON file")
     p.add_argument("--inject", action="append", default=[], metavar="SPEC", help="fault to inject (repeatable)")
     p.add_argument("--detector", default="glt", choices=["glt", "glt_window", "cusum", "kalman", "baseline"])
@@ -43,9 +44,9 @@ def run(args: argparse.Namespace) -> int:
     from ..fdi.campaign import CampaignSpec, make_detector
     from ..fdi.faults import inject, parse_injection
     from ..fusion import InstrumentPipeline
-    from .check import read_simulated_npz
+    from .check import read_session
 
-    _, block = read_simulated_npz(args.data)
+    _, block = read_session(args.data)
     cal = Calibration.load(args.calibration)
     insts = [k for k in cal.instruments if k in block.raw]
     for k in insts:

@@ -193,6 +193,9 @@ def parity_quality(session: Session, calibration: InstrumentCalibration, p_fa: f
                                  "rates (+w, -w); the parity check needs them (de Oliveira Table 1)")
     v = null_space_rows(g.H)                    # Eq. 24 (nominal)
     vc = null_space_rows(cal.axes_mb())         # Eq. 25 (calibrated)
+    for k in range(min(len(v), len(vc))):       # the sign convention of v, so the two compare entry by entry
+        if vc[k] @ v[k] < 0:
+            vc[k] = -vc[k]
     r = vc.shape[0]
     covm = None
     notes = []
