@@ -62,3 +62,17 @@ def test_needs_opposite_rate_pairs():
     r = sim.run(cho_park_table1(duration=2.0))
     with pytest.raises(SessionFormatError, match="opposite"):
         parity_quality(r.session, r.truth["gyro"])
+
+
+def test_with_the_de_oliveira_estimator_output(run):
+    """The calibration the estimator makes from the same Table 1 run (with its own covariance) passes; the same
+    calibration with 0.5 deg more on g3 fails."""
+    from rimu.calibration.oliveira import Oliveira
+
+    cal = Oliveira().fit(run.session).to_calibration()["gyro"]
+    assert cal.covariance is not None
+    assert parity_quality(run.session, cal).good
+    bad, err_mb = _misaligned(cal, 2, 1, 0.5 * DEG_TO_RAD)
+    rep = parity_quality(run.session, bad)
+    assert not rep.good
+    assert abs(err_mb @ rep.worst().direction) == pytest.approx(max(abs(err_mb @ p.direction) for p in rep.pairs))
