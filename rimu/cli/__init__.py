@@ -19,6 +19,7 @@ COMMANDS = [
     "design",
     "diagnose",
     "monitor",
+    "replay", "campaign", "check",
 ]
 
 

@@ -1,5 +1,50 @@
-"""Fault detection and isolation on the parity vector."""
+"""Fault detection and isolation on the parity vector.
 
-from .glt import GltDecision, glt_snapshot, glt_threshold
+* :class:`RedundancyManager` wraps an :class:`rimu.fusion.InstrumentPipeline`: detection, confirmation,
+  isolation (Cho & Park 2005, Eq. 21), reconfiguration, re-admission, explicit :class:`HealthState` and events.
+* Detectors, thresholds from a stated false-alarm probability or ARL0: :class:`GltSnapshot`,
+  :class:`GltWindow` (Daly, Gai & Harrison 1979), :class:`CusumBank`, :class:`ParityKalman` (filterpy),
+  :class:`CalibrationAwareGlt`, and the autopilot-style baseline :class:`MeanDisagreement`.
+* :func:`isolability`: what a geometry can detect and isolate, with wrong-isolation bounds.
+* :mod:`rimu.fdi.faults`: fault injection; :mod:`rimu.fdi.campaign`: campaigns; :mod:`rimu.fdi.quality`:
+  parity-based calibration quality (de Oliveira et al. 2012, Eq. 21-25).
+"""
 
-__all__ = ["glt_threshold", "glt_snapshot", "GltDecision"]
+from .baseline import MeanDisagreement
+from .calaware import CalibrationAwareGlt, CalibrationCovariance, stated_covariance
+from .cusum import CusumBank, cusum_threshold, markov_arl, siegmund_arl
+from .glt import GltDecision, GltSnapshot, GltWindow, glt_snapshot, glt_threshold
+from .kalman import ParityKalman
+from .manager import FdiEvent, Health, HealthState, RedundancyManager, ReplayResult
+from .noise import NoiseEstimator
+from .parity import IsolabilityReport, detection_probability, isolability, wrong_isolation_bounds
+from .quality import QualityReport, parity_quality
+
+__all__ = [
+    "glt_threshold",
+    "glt_snapshot",
+    "GltDecision",
+    "GltSnapshot",
+    "GltWindow",
+    "CusumBank",
+    "cusum_threshold",
+    "siegmund_arl",
+    "markov_arl",
+    "ParityKalman",
+    "MeanDisagreement",
+    "CalibrationAwareGlt",
+    "CalibrationCovariance",
+    "stated_covariance",
+    "NoiseEstimator",
+    "RedundancyManager",
+    "HealthState",
+    "Health",
+    "FdiEvent",
+    "ReplayResult",
+    "IsolabilityReport",
+    "isolability",
+    "detection_probability",
+    "wrong_isolation_bounds",
+    "parity_quality",
+    "QualityReport",
+]

@@ -1,0 +1,156 @@
+"""A Kalman filter (filterpy) tracking slowly varying sensor biases in parity space, testing its estimate.
+
+State: the parity-space bias ``beta`` (dof,), a random walk ``beta_k = beta_{k-1} + w``, ``w ~ N(0, q I)``;
+measurement: the normalised parity ``p_k = beta_k + e``, ``e ~ N(0, I)``. The filter runs at its steady-state
+gain ``K = (-q + sqrt(q^2 + 4 q)) / 2`` (scalar Riccati; the filter starts from the steady covariance), so
+``beta_hat_k = (1 - K) beta_hat_{k-1} + K p_k``: an exponential average with time constant ``~ 1/K`` samples.
+
+Tests (thresholds from the design false-alarm probability, per sample):
+
+* the bias estimate: without a fault ``beta_hat`` is stationary with covariance ``K / (2 - K) I``, so
+  ``T = (2 - K) / K |beta_hat|^2 ~ chi2(dof)``; isolation by ``argmax_j (v_j^T beta_hat)^2 / |v_j|^2``;
+* the innovations ``nu = p - beta_pred``. The filter's own ``S = P_pred + I = (1 + K / (1 - K)) I`` assumes a
+  wandering bias; without a fault the innovations are white with covariance ``(1 + K / (2 - K)) I``, so the
+  test uses ``T_nu = (2 - K) / 2 |nu|^2 ~ chi2(dof)`` (exact per sample), :attr:`ParityKalman.innovation_statistic`,
+  and ``test="innovation"`` makes it the detector's statistic (sensitive to abrupt changes; the estimate test
+  to slow ones).
+
+``p_fa`` is the marginal probability per sample. The estimate statistic is correlated over about ``tau``
+samples, so false alarms come in episodes of several samples, and the manager's confirmation (consecutive
+alarms) does little against them: in closed loop choose ``p_fa`` about ``tau`` times lower than for the snapshot
+GLT (at 1e-3 and tau = 20 a replay of 8400 samples showed two false isolations; at 1e-4, none in 24 000).
+
+A persistent bias b on sensor j makes ``beta_hat -> b v_j``; a drift (ramp) is followed with a lag of about
+``rate / K``. The detector restarts when the active set changes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from filterpy.kalman import KalmanFilter
+from scipy.signal import lfilter
+
+from .glt import block_isolate, glt_threshold, isolate_argmax
+
+__all__ = ["ParityKalman", "steady_gain"]
+
+
+def steady_gain(q: float) -> float:
+    """Steady-state Kalman gain of a random walk of variance q per step observed in unit noise.
+
+    >>> round(steady_gain(0.01), 6)
+    0.095125
+    """
+    return float((-q + np.sqrt(q * q + 4 * q)) / 2)
+
+
+class ParityKalman:
+    """Kalman filter of parity-space biases with a chi-square test on its estimate (see module doc).
+
+    Parameters
+    ----------
+    tau : float
+        Time constant of the bias estimate, samples (sets ``q = K^2 / (1 - K)`` with ``K = 1 / tau``).
+    p_fa : float
+        Per-sample false-alarm probability of the test on the estimate.
+    engine : {"filterpy", "steady"}
+        ``filterpy``: a ``filterpy.kalman.KalmanFilter`` per active set (predict/update each sample);
+        ``steady``: the same filter written out at its steady-state gain on Python floats (identical numbers,
+        some 20x cheaper per sample; the tests check the two agree).
+    """
+
+    name = "kalman"
+    window = 1
+
+    def __init__(self, tau: float = 20.0, p_fa: float = 1e-3, engine: str = "filterpy",
+                 test: str = "estimate") -> None:
+        if engine not in ("filterpy", "steady"):
+            raise ValueError(f"engine must be 'filterpy' or 'steady', got {engine!r}")
+        if test not in ("estimate", "innovation"):
+            raise ValueError(f"test must be 'estimate' or 'innovation', got {test!r}")
+        self.engine = engine
+        self.test = test
+        if not tau > 1:
+            raise ValueError(f"tau must exceed one sample, got {tau}")
+        self.tau = float(tau)
+        K = 1.0 / tau
+        self.q = K * K / (1 - K)
+        self.K = steady_gain(self.q)
+        self.p_fa = p_fa
+        self._dof = 0
+        self.kf: KalmanFilter | None = None
+        self.innovation_statistic = 0.0
+
+    def configure(self, Vz: np.ndarray, dof: int) -> None:
+        """New active set: a fresh filter in the new parity basis."""
+        self._dof = int(dof)
+        self._V = np.asarray(Vz)[:dof]
+        self._thr = glt_threshold(self.p_fa, dof) if dof >= 1 else float("inf")
+        self._x = [0.0] * max(dof, 0)
+        if dof < 1:
+            self.kf = None
+            return
+        self._S_inv = (2.0 - self.K) / 2.0  # inverse of the innovations' variance without a fault
+        if self.engine == "steady":
+            self.kf = None
+            self._scale = (2 - self.K) / self.K
+            return
+        kf = KalmanFilter(dim_x=dof, dim_z=dof)
+        kf.F = np.eye(dof)
+        kf.H = np.eye(dof)
+        kf.R = np.eye(dof)
+        kf.Q = self.q * np.eye(dof)
+        kf.P = self.K * np.eye(dof)  # steady state: P = K for unit measurement noise
+        kf.x = np.zeros(dof)
+        self.kf = kf
+        self._scale = (2 - self.K) / self.K
+
+    def update(self, parity: np.ndarray) -> tuple[float, float]:
+        kf = self.kf
+        if kf is None:
+            d = self._dof
+            if d < 1:
+                return 0.0, float("inf")
+            x = self._x
+            K = self.K
+            t = nu2 = 0.0
+            for i, z in enumerate(parity.tolist()[:d]):
+                nu = z - x[i]
+                nu2 += nu * nu
+                x[i] += K * nu
+                t += x[i] * x[i]
+            self.innovation_statistic = nu2 * self._S_inv
+            if self.test == "innovation":
+                return self.innovation_statistic, self._thr
+            return t * self._scale, self._thr
+        z = parity[:self._dof]
+        kf.predict()
+        kf.update(z)
+        y = kf.y
+        self.innovation_statistic = float(y @ y) * self._S_inv
+        if self.test == "innovation":
+            return self.innovation_statistic, self._thr
+        x = kf.x
+        return float(x @ x) * self._scale, self._thr
+
+    @property
+    def bias(self) -> np.ndarray:
+        """Current parity-space bias estimate (dof,)."""
+        return np.array(self._x) if self.kf is None else self.kf.x.copy()
+
+    def isolate(self, parity: np.ndarray) -> tuple[int, np.ndarray]:
+        if self._dof < 1:
+            return -1, np.zeros(self._V.shape[1])
+        return isolate_argmax(self.bias, self._V)
+
+    def block(self, P: np.ndarray, Vz: np.ndarray, dof: int) -> tuple[np.ndarray, float, np.ndarray]:
+        """The same filter over N samples (steady gain, vectorised): (statistic, threshold, isolated)."""
+        K = self.K
+        B = lfilter([K], [1.0, -(1.0 - K)], P[:, :dof], axis=0)
+        if self.test == "innovation":
+            prev = np.vstack([np.zeros((1, dof)), B[:-1]])
+            nu = P[:, :dof] - prev
+            stat = np.einsum("ij,ij->i", nu, nu) * (2 - K) / 2
+            return stat, glt_threshold(self.p_fa, dof), block_isolate(nu, Vz[:dof])
+        stat = np.einsum("ij,ij->i", B, B) * (2 - K) / K
+        return stat, glt_threshold(self.p_fa, dof), block_isolate(B, Vz[:dof])

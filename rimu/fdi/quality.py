@@ -1,0 +1,231 @@
+"""Parity-based calibration quality: de Oliveira et al. 2012, Eq. 21-25, as a check a user can run.
+
+For each pair of rate sequences of a calibration session with opposite commanded rates (+w, -w about the
+same MB direction; de Oliveira's Table 1 pairs 1-2, 3-4, ...), with ``g_n`` the mean raw output of sequence n:
+
+* ``g_b = 1/2 SF (g_n + g_n+1)``: bias and Earth rate, the commanded rate removed (Eq. 21);
+* ``g_w = 1/2 SF (g_n - g_n+1)``: the commanded rate only, bias and Earth rate removed (Eq. 22-23; the sign
+  that removes the bias);
+* ``v g_w`` with the nominal parity vector v of H (Eq. 23, 24) and ``v_c g_w`` with the parity vector of the
+  calibrated axes M H (Eq. 22, 25).
+
+With a correct calibration ``v_c`` annihilates the calibrated axes, so ``v_c g_w`` is noise only; a
+misalignment or scale error left in the calibration shows as ``v_c (A_true - A_cal) w``, largest for rates
+along the direction of the error. The quality index of a pair is the chi-square statistic
+``q^T (C_noise + C_cal)^-1 q`` of ``q = v_c g_w`` (noise of the means, and the calibration's own stated
+uncertainty propagated through w, :mod:`rimu.fdi.calaware`), and the equivalent misalignment
+``|v_c g_w| / |w|`` (arcsec). The verdict is "bad" when a pair exceeds the chi-square threshold at
+``p_fa / pairs`` (Bonferroni), and the report names the rate directions where the error shows.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.stats import chi2
+
+from ..calibration.result import InstrumentCalibration
+from ..errors import SessionFormatError
+from ..geometry import null_space_rows
+from ..session import Session
+from ..units import RAD_TO_ARCSEC, RAD_TO_DEG
+from .calaware import CalibrationCovariance
+
+__all__ = ["PairQuality", "QualityReport", "parity_quality"]
+
+
+@dataclass
+class PairQuality:
+    """One +w / -w pair."""
+
+    labels: tuple[str, str]
+    rate_mb: np.ndarray
+    parity_nominal: np.ndarray
+    parity_calibrated: np.ndarray
+    bias_parity: np.ndarray
+    statistic: float
+    threshold: float
+    misalignment_arcsec: float
+    nominal_arcsec: float
+
+    @property
+    def direction(self) -> np.ndarray:
+        return self.rate_mb / np.linalg.norm(self.rate_mb)
+
+    @property
+    def bad(self) -> bool:
+        return self.statistic > self.threshold
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"labels": list(self.labels), "rate_mb_dps": (self.rate_mb * RAD_TO_DEG).tolist(),
+                "direction": self.direction.tolist(), "parity_nominal": self.parity_nominal.tolist(),
+                "parity_calibrated": self.parity_calibrated.tolist(), "bias_parity": self.bias_parity.tolist(),
+                "statistic": self.statistic, "threshold": self.threshold, "bad": self.bad,
+                "misalignment_arcsec": self.misalignment_arcsec, "nominal_arcsec": self.nominal_arcsec}
+
+
+@dataclass
+class QualityReport:
+    """Per-pair quality indices and the overall verdict."""
+
+    instrument: str
+    pairs: list[PairQuality]
+    p_fa: float
+    uses_calibration_covariance: bool
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def good(self) -> bool:
+        return not any(p.bad for p in self.pairs)
+
+    @property
+    def verdict(self) -> str:
+        return "good" if self.good else "bad"
+
+    def worst(self) -> PairQuality:
+        """The pair where the error shows most: the largest equivalent misalignment among the failing pairs
+        (the largest statistic when none fails)."""
+        bad = [p for p in self.pairs if p.bad]
+        if bad:
+            return max(bad, key=lambda p: p.misalignment_arcsec)
+        return max(self.pairs, key=lambda p: p.statistic)
+
+    def bad_directions(self) -> list[np.ndarray]:
+        return [p.direction for p in self.pairs if p.bad]
+
+    def summary(self) -> str:
+        lines = [f"parity calibration check ({self.instrument}): de Oliveira et al. 2012, Eq. 21-25",
+                 f"{'pair':>10} {'rate direction (MB)':>24} | {'|v g_w|/|w|':>12} {'|v_c g_w|/|w|':>14} | "
+                 f"{'chi2':>9} {'limit':>7}"]
+        for p in self.pairs:
+            d = ", ".join(f"{c:+.2f}" for c in p.direction)
+            flag = "  <-- error shows here" if p.bad else ""
+            lines.append(f"{p.labels[0] + '/' + p.labels[1]:>10} {('(' + d + ')'):>24} | {p.nominal_arcsec:10.1f}\" "
+                         f"{p.misalignment_arcsec:12.1f}\" | {p.statistic:9.1f} {p.threshold:7.1f}{flag}")
+        w = self.worst()
+        lines.append(f"verdict: {self.verdict.upper()}"
+                     + ("" if self.good else f"; largest misfit for rates along MB ({', '.join(f'{c:+.2f}' for c in w.direction)})"
+                        f" [{w.labels[0]}/{w.labels[1]}], about {w.misalignment_arcsec:.0f} arcsec"))
+        lines += [f"note: {n}" for n in self.notes]
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"instrument": self.instrument, "verdict": self.verdict, "p_fa": self.p_fa,
+                "uses_calibration_covariance": self.uses_calibration_covariance,
+                "pairs": [p.to_dict() for p in self.pairs], "notes": self.notes}
+
+    def plot(self, path: str | Path) -> Path | None:
+        """Bar chart of the equivalent misalignment per pair, nominal and calibrated parity (their Fig. 5)."""
+        try:
+            import matplotlib
+
+            matplotlib.use("Agg")
+            import matplotlib.pyplot as plt
+        except ImportError:
+            return None
+        fig, ax = plt.subplots(figsize=(8, 4))
+        k = np.arange(len(self.pairs))
+        ax.bar(k - 0.2, [p.nominal_arcsec for p in self.pairs], 0.4, label="nominal parity v (Eq. 23)")
+        ax.bar(k + 0.2, [p.misalignment_arcsec for p in self.pairs], 0.4,
+               color=["r" if p.bad else "g" for p in self.pairs], label="calibrated parity v_c (Eq. 22)")
+        ax.set_xticks(k)
+        ax.set_xticklabels([f"{p.labels[0]}/{p.labels[1]}" for p in self.pairs], rotation=45, fontsize=7)
+        ax.set_ylabel("|parity of g_w| / |w|, arcsec")
+        ax.set_yscale("symlog", linthresh=10)
+        ax.set_title(f"parity calibration check: {self.verdict}")
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        path = Path(path)
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        return path
+
+
+def _pairs(session: Session) -> list[tuple[int, int]]:
+    """Consecutive rate segments with opposite commanded rates."""
+    segs = session.segments
+    out = []
+    k = 0
+    while k + 1 < len(segs):
+        a, b = segs[k], segs[k + 1]
+        ra = _rate(a)
+        rb = _rate(b)
+        if ra is not None and rb is not None and np.linalg.norm(ra) > 0 and np.allclose(ra, -rb, atol=1e-9 + 1e-6 * np.linalg.norm(ra)):
+            out.append((k, k + 1))
+            k += 2
+        else:
+            k += 1
+    return out
+
+
+def _rate(seg: Any) -> np.ndarray | None:
+    if seg.rate_mb is not None:
+        return np.asarray(seg.table_rate(), dtype=float)
+    c = seg.meta.get("commanded_rate_mb")
+    return None if c is None else np.asarray(c, dtype=float)
+
+
+def parity_quality(session: Session, calibration: InstrumentCalibration, p_fa: float = 1e-3) -> QualityReport:
+    """The parity check of a calibration on its session (see the module docstring).
+
+    Parameters
+    ----------
+    session : Session
+        With pairs of rate segments at opposite commanded rates (de Oliveira Table 1, Cho & Park Table 2).
+    calibration : InstrumentCalibration
+        Needs ``noise_sigma`` (per-sample noise, SI); its covariance, if any, widens the tolerance.
+    p_fa : float
+        False-alarm probability of the whole check (Bonferroni over the pairs).
+    """
+    cal = calibration
+    inst = cal.instrument
+    g = cal.geometry
+    if g.n < 4:
+        raise SessionFormatError(f"a parity check needs at least four sensors; {g.name} has {g.n}")
+    if cal.noise_sigma is None:
+        raise SessionFormatError("the calibration states no noise_sigma; the check needs the noise of each sensor")
+    pairs = _pairs(session)
+    if not pairs:
+        raise SessionFormatError("the session has no pair of consecutive rate segments with opposite commanded "
+                                 "rates (+w, -w); the parity check needs them (de Oliveira Table 1)")
+    v = null_space_rows(g.H)                    # Eq. 24 (nominal)
+    vc = null_space_rows(cal.axes_mb())         # Eq. 25 (calibrated)
+    for k in range(min(len(v), len(vc))):       # the sign convention of v, so the two compare entry by entry
+        if vc[k] @ v[k] < 0:
+            vc[k] = -vc[k]
+    r = vc.shape[0]
+    covm = None
+    notes = []
+    if cal.covariance is not None and cal.param_names:
+        covm = CalibrationCovariance(cal)
+        if covm.ignored:
+            notes.append(f"parameters not propagated: {', '.join(covm.ignored[:6])}"
+                         + (" ..." if len(covm.ignored) > 6 else ""))
+    else:
+        notes.append("no calibration covariance: the tolerance is the noise of the means only")
+    thr = float(chi2.isf(p_fa / len(pairs), r))
+    out = []
+    sig2 = cal.noise_sigma**2
+    for a, b in pairs:
+        sa, sb = session.segments[a], session.segments[b]
+        ya, yb = sa.raw[inst], sb.raw[inst]
+        ma, mb = ya.mean(axis=0), yb.mean(axis=0)
+        g_w = 0.5 * cal.scale * (ma - mb)            # Eq. 22-23: commanded rate only
+        g_b = 0.5 * cal.scale * (ma + mb) - cal.bias  # Eq. 21: bias (and Earth rate) with the rate removed
+        w = _rate(sa)
+        q = vc @ g_w
+        var = 0.25 * sig2 * (1.0 / len(ya) + 1.0 / len(yb))
+        C = (vc * var) @ vc.T
+        if covm is not None:
+            D = np.einsum("c,cnp->np", w, covm.D[:3])
+            L = vc @ D
+            C = C + L @ covm.Sigma @ L.T
+        stat = float(q @ np.linalg.solve(C, q))
+        nw = float(np.linalg.norm(w))
+        out.append(PairQuality((sa.label, sb.label), w, v @ g_w, q, vc @ g_b, stat, thr,
+                               float(np.linalg.norm(q) / nw * RAD_TO_ARCSEC),
+                               float(np.linalg.norm(v @ g_w) / nw * RAD_TO_ARCSEC)))
+    return QualityReport(inst, out, p_fa, covm is not None, notes)
