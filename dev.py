@@ -37,8 +37,13 @@ def ensure_env(extras: str) -> None:
     STAMP.write_text(want)
 
 
-def run(args: list[str]) -> int:
-    return subprocess.call([str(PY), *args], cwd=ROOT)
+def run(args: list[str], single_thread_blas: bool = False) -> int:
+    env = dict(os.environ)
+    if single_thread_blas:
+        # the suite runs many small matrix products; a threaded BLAS on 2 cores only oversubscribes them
+        for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+            env.setdefault(k, "1")
+    return subprocess.call([str(PY), *args], cwd=ROOT, env=env)
 
 
 def main(argv: list[str]) -> int:
@@ -49,7 +54,7 @@ def main(argv: list[str]) -> int:
         return run(["-m", "rimu.cli", "demo", *rest])
     if cmd == "test":
         ensure_env("test")
-        return run(["-m", "pytest", *rest])
+        return run(["-m", "pytest", *rest], single_thread_blas=True)
     if cmd == "bench":
         ensure_env("test")
         code = 0

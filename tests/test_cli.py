@@ -19,7 +19,14 @@ def test_demo_end_to_end(tmp_path, capsys):
     assert {(e["instrument"], e["sensor"]) for e in rep["events"]} == {("gyro", "y2"), ("accel", "x1")}
     assert all(0 <= e["delay_s"] < 0.5 for e in rep["events"])
     # the uncertainty the calibration reports is honest: normalised errors of rms about 1
-    assert 0.5 < rep["calibration"]["normalised_error_rms"] < 1.6
+    assert 0.5 < rep["calibration"]["normalised_error_rms_without_x2_gyro"] < 1.6
+    # the hidden gyro g-sensitivity is named, on the right sensor, and recovered within 3 sigma
+    dg = rep["diagnosis"]
+    assert dg["top"] == "g_sensitivity" and dg["sensor"] == "x2"
+    assert dg["chi2_after"] < dg["chi2_before"] and 0.8 < dg["chi2_after"] < 1.25
+    for (v, sd), truth in zip([dg["gsens_x2"][f"gsens_{a}"] for a in "xyz"], dg["gsens_x2_truth_si"]):
+        assert abs(v - truth) < 3 * sd
+    assert rep["states"] == {"gyro": "fault_isolated", "accel": "fault_isolated"}
     for k in ("gyro", "accel"):
         s = rep["std"][k]
         ratio = np.array(s["ratio_measured"]) / np.array(s["ratio_predicted"])

@@ -146,6 +146,9 @@ def test_non_finite_never_reaches_an_output():
         p.step(np.ones(5) * np.nan)
     with pytest.raises(ShapeError):
         p.process(np.ones((3, 5)))
+    for bad in (-1, 6, 2.0, True):
+        with pytest.raises(IndexError):
+            p.isolate(bad)
 
 
 def test_valid_mask_from_a_source_is_honoured():

@@ -1,11 +1,14 @@
 """``rimu demo``: rimu's main job end to end on simulated data, no hardware needed.
 
 1. simulate the cone6 unit of Cho & Park 2005 on a 2-axis turntable (Table 1 + Table 2, Table 3 as truth);
-2. calibrate it (least squares on the effect model) and save the calibration file;
-3. run a 30 s manoeuvre through the runtime pipeline, sample by sample, with the faults of Cho & Park's
+2. calibrate it with Cho & Park's estimator and save the calibration file;
+3. compare the error model with the measurements: the unit has one effect the base model lacks (a gyro
+   g-sensitivity), and the diagnosis names it, adds it and shows the error fall;
+4. run a 30 s manoeuvre through the runtime pipeline, sample by sample, with the faults of Cho & Park's
    Fig. 6 injected (gyro y2 at 15 s, accelerometer x1 at 20 s);
-4. detect and isolate them with the generalized likelihood test on the parity vector (Eq. 21 isolation);
-5. print a short report and write a plot.
+5. detect and isolate them with the redundancy manager (generalized likelihood test on the parity vector,
+   confirmation, Eq. 21 isolation) and keep going on the remaining sensors;
+6. print a short report and write a plot.
 """
 
 from __future__ import annotations
@@ -30,61 +33,102 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..calibration import Calibration
-    from ..calibration.lsq import fit_lsq
-    from ..fdi import glt_snapshot
+    t_start = time.perf_counter()
+    from ..calibration import Calibration, ChoPark
+    from ..calibration.diagnostics import diagnose
+    from ..calibration.effects import GSensitivity
+    from ..fdi import RedundancyManager
     from ..fusion import Pipeline
     from ..geometry import cone6
-    from ..sim import Simulator, cho_park_procedure, rotation
-    from ..units import DS_TO_RS, G0, MS2_TO_UG, RAD_TO_ARCSEC, RS_TO_DS, RS_TO_DH
+    from ..sim import Simulator, TruthEffect, cho_park_procedure, rotation
+    from ..units import DS_TO_RS, G0, MS2_TO_UG, RS_TO_DS, RS_TO_DH
 
-    t_start = time.perf_counter()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     geo = cone6()
-    sim = Simulator({"gyro": geo, "accel": geo}, seed=args.seed)
+    # the unit: Cho & Park's Table 3 coefficients, and one effect the base model does not have: gyro x2 is
+    # sensitive to specific force, (0.10, -0.05, 0.08) (deg/s)/g, as MEMS rate gyros of the ADXRS class are
+    gsens_true = np.array([0.10, -0.05, 0.08]) * DS_TO_RS / G0
+    hidden = {"gyro": [TruthEffect(GSensitivity(), {geo.index("x2"): gsens_true})]}
+    sim = Simulator({"gyro": geo, "accel": geo}, effects=hidden, seed=args.seed)
     report: dict = {"geometry": geo.name, "seed": args.seed}
 
-    # 1-2. calibration run and fit --------------------------------------------------------------------
+    # 1-2. calibration run and Cho & Park's estimator -----------------------------------------------------
     print("rimu demo: cone6 redundant IMU (Cho & Park 2005), simulated on a 2-axis turntable")
     cal_run = sim.run(cho_park_procedure(duration=args.segment_duration))
     print(f"  calibration session: {len(cal_run.session)} segments (Table 1 + Table 2), "
           f"{len(cal_run.block)} samples at {sim.sample_rate:g} Hz")
-    fits = {k: fit_lsq(cal_run.session, instrument=k) for k in ("gyro", "accel")}
-    cal = Calibration({k: f.to_calibration() for k, f in fits.items()}, method="lsq (scale_misalignment + bias)")
+    res = ChoPark().fit(cal_run.session)
+    cal = res.to_calibration()
     path = cal.save(out / "calibration.json")
     cal = Calibration.load(path, geometries={"gyro": geo, "accel": geo})
-    print(f"  calibrated, saved and reloaded (checksum verified): {path}")
-    print("\n  sensor | gyro dSF ppm (3s) | gyro mis arcsec | gyro bias deg/h | acc dSF ppm | acc bias ug")
+    print(f"  calibrated (Cho & Park Eq. 5-17), saved and reloaded (checksum verified): {path}")
+    print("\n  errors against the truth, (3 sigma) as reported by the estimator:")
+    print("  sensor | gyro dSF ppm     | gyro mis arcsec | gyro bias deg/h  | acc dSF ppm   | acc bias ug")
     truth = cal_run.truth
-    norm_errs = []
+    norm_errs: dict[str, list[float]] = {"all": [], "without_x2_gyro": []}
     for i, nm in enumerate(geo.names):
         row = []
         for k in ("gyro", "accel"):
-            f = fits[k].sensors[i]
+            f = res[k].sensors[i]
             tr = truth[k]
             e_sf = (cal[k].scale[i] / tr.scale[i] - 1) / 1e-6
             s_sf = f.std("scale") / cal[k].scale[i] / 1e-6
             e_b = cal[k].bias[i] - tr.bias[i]
             s_b = f.std("bias")
-            norm_errs += [e_sf / s_sf, e_b / s_b]
+            norm_errs["all"] += [e_sf / s_sf, e_b / s_b]
+            if not (k == "gyro" and nm == "x2"):
+                norm_errs["without_x2_gyro"] += [e_sf / s_sf, e_b / s_b]
             if k == "gyro":
                 mis_err = np.degrees(np.arccos(np.clip(cal[k].misalignment[i] @ tr.misalignment[i], -1, 1))) * 3600
-                row.append(f"{e_sf:+8.0f} ({3 * s_sf:5.0f})")
-                row.append(f"{mis_err:8.1f}")
-                row.append(f"{e_b * RS_TO_DH:+9.0f} ({3 * s_b * RS_TO_DH:4.0f})")
+                row.append(f"{e_sf:+7.0f} ({3 * s_sf:5.0f})")
+                row.append(f"{mis_err:15.1f}")
+                row.append(f"{e_b * RS_TO_DH:+7.0f} ({3 * s_b * RS_TO_DH:5.0f})")
             else:
-                row.append(f"{e_sf:+8.0f} ({3 * s_sf:4.0f})")
-                row.append(f"{e_b * MS2_TO_UG:+7.0f} ({3 * s_b * MS2_TO_UG:4.0f})")
+                row.append(f"{e_sf:+6.0f} ({3 * s_sf:4.0f})")
+                row.append(f"{e_b * MS2_TO_UG:+6.0f} ({3 * s_b * MS2_TO_UG:4.0f})")
         print(f"  {nm:>6} | " + " | ".join(row))
-    ne = np.array(norm_errs)
-    report["calibration"] = {"normalised_error_rms": float(np.sqrt(np.mean(ne**2))),
-                             "max_abs_normalised_error": float(np.abs(ne).max()),
-                             "chi2_dof": {k: f.chi2_dof for k, f in fits.items()}}
-    print(f"  errors / reported sigma: rms {report['calibration']['normalised_error_rms']:.2f}, "
-          f"max {report['calibration']['max_abs_normalised_error']:.2f} (honest uncertainties give rms ~ 1)")
+    ne = {k: np.array(v) for k, v in norm_errs.items()}
+    report["calibration"] = {
+        "method": res.method,
+        "normalised_error_rms": float(np.sqrt(np.mean(ne["all"] ** 2))),
+        "normalised_error_rms_without_x2_gyro": float(np.sqrt(np.mean(ne["without_x2_gyro"] ** 2))),
+        "max_abs_normalised_error": float(np.abs(ne["all"]).max()),
+        "chi2_dof": res.chi2_dof,
+    }
+    c = report["calibration"]
+    print(f"  errors / reported sigma: rms {c['normalised_error_rms']:.2f} over all coefficients, "
+          f"{c['normalised_error_rms_without_x2_gyro']:.2f} without gyro x2 (honest uncertainties give ~1)")
 
-    # 3. the manoeuvre with faults ------------------------------------------------------------------------
+    # 3. model against measurement: which effect is missing ------------------------------------------------
+    print("\n  model against measurement (gyros): residuals of the base model, candidate effects tested")
+    d = diagnose(cal_run.session, "bias,scale,misalignment", instruments=["gyro"])
+    dg = d["gyro"]
+    top = dg.top()
+    best = dg.test(top) if top else None
+    strongest = max(best.sensors, key=lambda s: s.explained_total) if best else None
+    if best is not None:
+        print(f"  missing: {top} on gyro {strongest.sensor}: explains {100 * strongest.explained_total:.0f}% of the "
+              f"residual variance (p ~ 1e{strongest.log10_p:.0f})")
+    comp = d.add(top)["gyro"] if top else None
+    if comp is not None:
+        print(f"  added {top}: chi2/dof {comp.chi2_before:.4f} -> {comp.chi2_after:.4f}, BIC {comp.dbic:+.0f}")
+        for line in comp.lines()[1:]:
+            if line.strip().startswith("x2: rms"):
+                print(f"  {line.strip()}")
+        for r in comp.new_parameters():
+            if r["sensor"] == "x2":
+                print(f"    x2.{r['parameter']} = {r['value']:+.1f} +- {r['std']:.1f} {r['report_unit']}")
+    report["diagnosis"] = {
+        "top": top, "sensor": None if strongest is None else strongest.sensor,
+        "chi2_before": None if comp is None else comp.chi2_before,
+        "chi2_after": None if comp is None else comp.chi2_after,
+        "gsens_x2": None if comp is None else {r["parameter"]: [r["value_si"], r["std_si"]]
+                                                for r in comp.new_parameters() if r["sensor"] == "x2"},
+        "gsens_x2_truth_si": gsens_true.tolist(),
+    }
+
+    # 4. the manoeuvre with faults ------------------------------------------------------------------------
     man = sim.run([rotation("manoeuvre", [0, 30 * DS_TO_RS, 0], duration=30.0)])
     Y = {k: man.block.raw[k].copy() for k in ("gyro", "accel")}
     t = man.block.t
@@ -92,60 +136,53 @@ def run(args: argparse.Namespace) -> int:
               "accel": (geo.index("x1"), 20.0, 10.0 * sim.noise_sigma("accel"))}
     for k, (i, t_f, size) in faults.items():
         Y[k][t >= t_f, i] += size / truth[k].scale[i]  # a step bias of 10 sigma in the sensor's raw output
-    print(f"\n  manoeuvre: 30 deg/s about MB y for 30 s; faults injected (10 sigma step bias): "
-          f"gyro y2 at 15 s, accelerometer x1 at 20 s")
+    print("\n  manoeuvre: 30 deg/s about MB y for 30 s; faults injected (10 sigma step bias): "
+          "gyro y2 at 15 s, accelerometer x1 at 20 s")
 
-    # 4. runtime pipeline, sample by sample, with GLT detection and Eq. 21 isolation -----------------------
+    # 5. runtime pipeline and redundancy management (GLT, confirmation, Cho & Park Eq. 21 isolation) --------
     pipe = Pipeline(cal)
-    N = len(t)
-    xs = {k: np.zeros((N, 3)) for k in Y}
-    stats = {k: np.zeros(N) for k in Y}
-    thresholds = {k: np.zeros(N) for k in Y}
+    managers = RedundancyManager.for_unit(pipe, p_fa=args.p_fa, confirm=args.confirm, sample_rate=sim.sample_rate)
+    runs = {k: m.run(Y[k], None, t) for k, m in managers.items()}
     events = []
-    streak = {k: (-1, 0) for k in Y}
-    for n in range(N):
-        for k, ip in pipe.instruments.items():
-            r = ip.step(Y[k][n])
-            xs[k][n] = r.x
-            d = glt_snapshot(r.parity, ip.table.Vz[r.entry], r.dof, args.p_fa, r.active)
-            stats[k][n], thresholds[k][n] = d.statistic, d.threshold
-            last, count = streak[k]
-            if d.detected and d.isolated >= 0:
-                count = count + 1 if d.isolated == last else 1
-                streak[k] = (d.isolated, count)
-                if count >= args.confirm:
-                    ip.isolate(d.isolated)
-                    events.append({"instrument": k, "sensor": geo.names[d.isolated], "t": float(t[n]),
-                                   "delay_s": float(t[n] - faults[k][1])})
-                    streak[k] = (-1, 0)
-            else:
-                streak[k] = (-1, 0)
-    for e in events:
+    for k, r in runs.items():
+        for e in r.events:
+            if e.kind == "isolated":
+                events.append({"instrument": k, "sensor": e.sensor, "t": float(e.t),
+                               "delay_s": float(e.t - faults[k][1])})
+    for e in sorted(events, key=lambda e: e["t"]):
         print(f"  t = {e['t']:6.2f} s  {e['instrument']:5s} {e['sensor']} isolated "
               f"(fault at {faults[e['instrument']][1]:.0f} s, delay {e['delay_s'] * 1000:.0f} ms)")
+    for k, m in managers.items():
+        print(f"  {k}: state {m.health.state.value}, isolated {m.health.isolated}")
     report["events"] = events
+    report["states"] = {k: m.health.state.value for k, m in managers.items()}
 
-    # 5. accuracy before/after isolation -----------------------------------------------------------------
+    # 6. accuracy before/after isolation -----------------------------------------------------------------
     print("\n  MB-frame error std before / after isolation, and the ratio (H_r^T H_r)^-1 predicts:")
     report["std"] = {}
     for k, (i, t_f, _) in faults.items():
-        err = xs[k] - man.truth_inputs[k]
+        err = runs[k].x - man.truth_inputs[k]
         unit, conv = ("deg/s", RS_TO_DS) if k == "gyro" else ("mg", 1e3 / G0)
         iso_t = next((e["t"] for e in events if e["instrument"] == k), None)
         before = err[(t > 1.0) & (t < t_f)]
         after = err[t > iso_t + 0.1] if iso_t is not None else err[:0]
-        P_full = pipe[k].table.P[pipe[k].table.lookup(pipe[k].table.full_code)]
-        P_red = pipe[k].table.P[pipe[k].table.lookup(pipe[k].table.full_code & ~(1 << i))]
+        tab = pipe[k].table
+        P_full = tab.P[tab.lookup(tab.full_code)]
+        P_red = tab.P[tab.lookup(tab.full_code & ~(1 << i))]
         pred = np.sqrt(np.diag(P_red) / np.diag(P_full))
-        meas = after.std(axis=0) / before.std(axis=0) if len(after) else np.full(3, np.nan)
-        report["std"][k] = {"before": (before.std(axis=0) * conv).tolist(), "after": (after.std(axis=0) * conv).tolist(),
-                            "ratio_measured": meas.tolist(), "ratio_predicted": pred.tolist(),
-                            "mean_after": (after.mean(axis=0) * conv).tolist()}
+        meas = after.std(axis=0) / before.std(axis=0) if len(after) else np.zeros(3)
+        report["std"][k] = {"before": (before.std(axis=0) * conv).tolist(),
+                            "after": (after.std(axis=0) * conv).tolist() if len(after) else [],
+                            "ratio_measured": meas.tolist(), "ratio_predicted": pred.tolist()}
         for a, ax in enumerate("xyz"):
-            print(f"  {k:5s} {ax}: {before[:, a].std() * conv:7.4f} -> {after[:, a].std() * conv:7.4f} {unit}"
+            aft = after[:, a].std() * conv if len(after) else float("nan")
+            print(f"  {k:5s} {ax}: {before[:, a].std() * conv:7.4f} -> {aft:7.4f} {unit}"
                   f"   ratio {meas[a]:.3f} (predicted {pred[a]:.3f})")
     report["elapsed_s"] = time.perf_counter() - t_start
     (out / "report.json").write_text(json.dumps(report, indent=1))
+    xs = {k: r.x for k, r in runs.items()}
+    stats = {k: r.statistic for k, r in runs.items()}
+    thresholds = {k: r.threshold for k, r in runs.items()}
     png = _plot(out, t, xs, man.truth_inputs, stats, thresholds, events, faults)
     print(f"\n  report: {out / 'report.json'}" + (f"\n  plot:   {png}" if png else "  (matplotlib not installed: no plot)"))
     print(f"  done in {report['elapsed_s']:.1f} s")

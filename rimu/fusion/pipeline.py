@@ -146,13 +146,20 @@ class InstrumentPipeline:
         """Sensors currently excluded (copy)."""
         return self._isolated.copy()
 
+    def _check_index(self, i: int) -> int:
+        if isinstance(i, (bool, np.bool_)) or not isinstance(i, (int, np.integer)) or not 0 <= i < self.n:
+            raise IndexError(f"sensor index must be an integer in 0..{self.n - 1}, got {i!r}")
+        return int(i)
+
     def isolate(self, i: int) -> None:
         """Exclude sensor ``i`` from now on (Cho & Park Eq. 21: its row of H and its output set to zero)."""
+        i = self._check_index(i)
         self._isolated[i] = True
         self._select(mask_bits(~self._isolated))
 
     def readmit(self, i: int) -> None:
         """Bring sensor ``i`` back."""
+        i = self._check_index(i)
         self._isolated[i] = False
         self._select(mask_bits(~self._isolated))
 
@@ -281,20 +288,35 @@ class InstrumentPipeline:
             ent[~obs] = self._inf_entry()
         return BlockResult(out[:, :3], out[:, 3:], ent, dof, active, bad, obs, tab)
 
-    _CHUNK = 4096
+    _CHUNK = 8192
 
     def _fast_block(self, Y: np.ndarray, out: np.ndarray) -> bool:
-        """``out = Y @ R.T - off`` in cache-sized chunks; False as soon as a chunk is not finite."""
-        R, off = self._Re.T, self._offe
+        """``out = Y @ R.T - off`` in cache-sized chunks; False as soon as a chunk is not finite.
+
+        The offset is subtracted from the flat chunk with a pre-tiled copy (a broadcast over rows of six
+        would iterate row by row), and the finiteness check is a flat sum while the chunk is in cache.
+        """
+        R = self._Re.T
+        m = out.shape[1]
+        tiled = self._tiled_offset()
+        flat = out.reshape(-1)
+        C = self._CHUNK
         with np.errstate(invalid="ignore", over="ignore"):
-            for a in range(0, Y.shape[0], self._CHUNK):
-                o = out[a:a + self._CHUNK]
-                np.matmul(Y[a:a + self._CHUNK], R, out=o)
-                o -= off
-                s = o.sum()
+            for a in range(0, Y.shape[0], C):
+                np.matmul(Y[a:a + C], R, out=out[a:a + C])
+                fo = flat[m * a:m * (a + C)]
+                np.subtract(fo, tiled[:fo.size], out=fo)
+                s = np.add.reduce(fo)
                 if not s - s == 0.0:
                     return False
         return True
+
+    def _tiled_offset(self) -> np.ndarray:
+        key = (self._entry, self._CHUNK)
+        if getattr(self, "_tiled_key", None) != key:
+            self._tiled = np.tile(self._offe, self._CHUNK)
+            self._tiled_key = key
+        return self._tiled
 
     def _inf_entry(self) -> int:
         """Index of a table entry whose P is inf (an unobservable set), added on first use."""
