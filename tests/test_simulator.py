@@ -9,7 +9,7 @@ import pytest
 from scipy.stats import chi2
 
 from rimu.calibration.result import InstrumentCalibration
-from rimu.geometry import cone6, tetrad4, triad3
+from rimu.geometry import tetrad4, triad3
 from rimu.session import earth_rate_ln
 from rimu.sim import (
     REFERENCE_ATTITUDE,

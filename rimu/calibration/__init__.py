@@ -9,8 +9,8 @@ any effect model).
 from .cho_park import ChoPark
 from .estimate import CalibrationResult, LeastSquares
 from .oliveira import Oliveira
-from .zhang import Zhang
 from .result import FORMAT_VERSION, Calibration, InstrumentCalibration
+from .zhang import Zhang
 
 __all__ = ["Calibration", "InstrumentCalibration", "FORMAT_VERSION", "CalibrationResult", "ChoPark",
            "LeastSquares", "Oliveira", "Zhang"]

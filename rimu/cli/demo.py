@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     from ..fusion import Pipeline
     from ..geometry import cone6
     from ..sim import Simulator, TruthEffect, cho_park_procedure, rotation
-    from ..units import DS_TO_RS, G0, MS2_TO_UG, RS_TO_DS, RS_TO_DH
+    from ..units import DS_TO_RS, G0, MS2_TO_UG, RS_TO_DH, RS_TO_DS
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -38,7 +38,7 @@ from .cusum import CusumBank
 from .faults import FAULTS
 from .glt import GltSnapshot, GltWindow, glt_threshold
 from .kalman import ParityKalman
-from .manager import STATE_CODES, HealthState, RedundancyManager
+from .manager import HealthState, RedundancyManager
 
 __all__ = ["CampaignSpec", "CampaignResult", "run_campaign", "run_task", "clopper_pearson", "make_detector"]
 
@@ -420,7 +420,6 @@ def run_campaign(spec: CampaignSpec, workers: int | None = None, scheduler: str 
         Show progress (tqdm if installed, else a counter on stderr), or call ``progress(done, total)``.
     """
     import os
-    import sys
     import time
 
     tasks = spec.tasks()

@@ -27,7 +27,6 @@ from typing import Callable
 
 import numpy as np
 from scipy.optimize import brentq
-from scipy.stats import norm
 
 __all__ = ["siegmund_arl", "cusum_threshold", "markov_arl", "CusumBank"]
 

@@ -24,7 +24,7 @@ sensors), ``no_redundancy`` (three sensors), ``unobservable`` (fewer than three,
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import Enum
 from typing import Any, Protocol
 
@@ -399,7 +399,6 @@ class RedundancyManager:
         alarm = np.zeros(N, bool)
         state = np.zeros(N, np.int8)
         n_act = np.zeros(N, np.int8)
-        h = self.health
         first = len(self.events)
         with np.errstate(invalid="ignore", over="ignore"):  # non-finite raw values are routed around, not warned
             self._run_loop(Y, valid, t, x, stat, thr, alarm, state, n_act)

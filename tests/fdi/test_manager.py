@@ -155,8 +155,8 @@ def test_any_fault_sequence_keeps_the_invariants(faults, seed):
     N = 300
     t = np.arange(N) / 100.0
     u = np.array([0.3, -0.2, 0.5]) + 0.1 * np.sin(t)[:, None]
-    from rimu.epoch import EpochBlock
     from rimu.calibration import Calibration
+    from rimu.epoch import EpochBlock
 
     blk = EpochBlock(t, {"gyro": cal.raw_output(u) + 0.01 / 0.001 * rng.standard_normal((N, 6))})
     inj = [Injection(k, "gyro", i, start, size, True, dur) for k, i, start, size, dur in faults]
