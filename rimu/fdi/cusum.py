@@ -27,6 +27,7 @@ from typing import Callable
 
 import numpy as np
 from scipy.optimize import brentq
+from scipy.stats import norm  # noqa: F401  (used by the doctests)
 
 __all__ = ["siegmund_arl", "cusum_threshold", "markov_arl", "CusumBank"]
 
