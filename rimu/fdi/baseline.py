@@ -22,7 +22,7 @@ import numpy as np
 from scipy.optimize import brentq
 from scipy.special import ndtr
 
-from .cusum import markov_arl
+from .cusum import cached_design, markov_arl
 
 __all__ = ["MeanDisagreement"]
 
@@ -71,13 +71,7 @@ class MeanDisagreement:
         return _H_CACHE[key]
 
     def design(self, Vz: np.ndarray, dof: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        ckey = (np.asarray(Vz)[:dof].tobytes(), int(dof))
-        cache = self.__dict__.setdefault("_designs", {})
-        if ckey in cache:
-            return cache[ckey]
-        out = self._design(Vz, dof)
-        cache[ckey] = out
-        return out
+        return cached_design(self, Vz, dof)
 
     def _design(self, Vz: np.ndarray, dof: int):  # type: ignore[no-untyped-def]
         V = np.asarray(Vz)[:dof]

@@ -86,6 +86,16 @@ def markov_arl(h: float, cdf: Callable[[np.ndarray], np.ndarray], states: int = 
     return float(L[0])
 
 
+def cached_design(detector: object, Vz: np.ndarray, dof: int):  # type: ignore[no-untyped-def]
+    """``detector._design(Vz, dof)``, computed once per active set (keyed by the parity rows) and kept on the
+    detector: designs depend only on the set, and the per-sample path must not redo them."""
+    key = (np.asarray(Vz)[:dof].tobytes(), int(dof))
+    cache = detector.__dict__.setdefault("_designs", {})
+    if key not in cache:
+        cache[key] = detector._design(Vz, dof)  # type: ignore[attr-defined]
+    return cache[key]
+
+
 class CusumBank:
     """Two one-sided CUSUMs per sensor on the normalised parity vector (see the module docstring).
 
@@ -118,13 +128,7 @@ class CusumBank:
     # ---------------------------------------------------------------- design per active set
     def design(self, Vz: np.ndarray, dof: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Unit columns U (dof, n), delta (n,), LLR thresholds (n,) and an active mask for one set."""
-        ckey = (np.asarray(Vz)[:dof].tobytes(), int(dof))
-        cache = self.__dict__.setdefault("_designs", {})
-        if ckey in cache:
-            return cache[ckey]
-        out = self._design(Vz, dof)
-        cache[ckey] = out
-        return out
+        return cached_design(self, Vz, dof)
 
     def _design(self, Vz: np.ndarray, dof: int):  # type: ignore[no-untyped-def]
         V = Vz[:dof]

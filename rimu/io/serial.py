@@ -185,16 +185,20 @@ class SerialDecoder:
                 self._rej("checksum", pos, pos + 1)
                 pos += 1
                 continue
-            reason, ep = self._frame(buf, pos, L)
-            if reason is None:
-                self.accounting.accepted += end - pos
-                if ep is not None:
-                    out.append(ep)
-            else:
-                self._rej(reason, pos, end)
+            self._settle(self._frame(buf, pos, L), pos, end, out)
             pos = end
         del buf[:pos]
         return out
+
+    def _settle(self, decoded: tuple[str | None, Epoch | None], pos: int, end: int, out: list[Epoch]) -> None:
+        """Account the bytes pos..end of one frame: accepted (with its epoch, if it completed one) or rejected."""
+        reason, ep = decoded
+        if reason is None:
+            self.accounting.accepted += end - pos
+            if ep is not None:
+                out.append(ep)
+        else:
+            self._rej(reason, pos, end)
 
     def _frame(self, buf: bytearray, pos: int, L: int) -> tuple[str | None, Epoch | None]:
         ftype = buf[pos + 3]
@@ -350,13 +354,7 @@ class CobsDecoder(SerialDecoder):
                 else:
                     L = len(body) - 5
                     pseudo = bytearray(SYNC) + bytes([L]) + body[:-2]
-                    reason, ep = self._frame(pseudo, 0, L)
-                    if reason is None:
-                        self.accounting.accepted += end - pos
-                        if ep is not None:
-                            out.append(ep)
-                    else:
-                        self._rej(reason, pos, end)
+                    self._settle(self._frame(pseudo, 0, L), pos, end, out)
             pos = end
         del buf[:pos]
         return out
