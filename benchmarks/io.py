@@ -32,6 +32,7 @@ from rimu.io.fuzz import (
     check_can,
     check_serial,
     draw_actions,
+    layout_stream,
     mutate_can,
     mutate_serial,
 )
@@ -48,22 +49,11 @@ def timeit(fn, repeat):
     return statistics.median(ts)
 
 
-def stream(layout, n, seed=0):
-    rng = np.random.default_rng(seed)
-    lay = load_layout(layout)
-    ng, na = lay.instruments["gyro"], lay.instruments["accel"]
-    if layout == "cone6_rimu":
-        raw = {"gyro": rng.normal(500, 50, (n, ng)), "accel": rng.normal(16000, 3000, (n, na))}
-    else:
-        raw = {"gyro": rng.uniform(-150, 150, (n, ng)), "accel": rng.uniform(-4, 4, (n, na))}
-    block = EpochBlock(np.arange(n) / 100.0, raw, temperature=np.full(n, 20.0))
-    dev = CanDevice(layout)
-    return block, dev.frames(block), dev.expected(block), len(lay.messages)
 
 
 def bench_can(layout, n_frames, repeat):
     K = len(load_layout(layout).messages)
-    block, msgs, exp, K = stream(layout, n_frames // K)
+    block, msgs, exp, K = layout_stream(layout, n_frames // K)
     N = len(msgs)
     db = load_layout(layout).to_cantools()
     proc = CanFrameProcessor(layout, Accounting())
@@ -160,7 +150,7 @@ def bench_serial(n_bytes, repeat):
 
 def fuzz_can(layout, n_frames, seed=2024):
     K = len(load_layout(layout).messages)
-    block, msgs, exp, K = stream(layout, n_frames // K, seed=1)
+    block, msgs, exp, K = layout_stream(layout, n_frames // K, seed=1)
     rng = np.random.default_rng(seed)
     bad, oracle = mutate_can(msgs, K, draw_actions(rng, len(msgs), CAN_ACTIONS), rng)
     p = CanFrameProcessor(layout, Accounting())

@@ -20,7 +20,7 @@ from ..epoch import EpochBlock
 from .accounting import Accounting
 from .layout import CanCodec, load_layout
 
-__all__ = ["CAN_ACTIONS", "SERIAL_ACTIONS", "CanOracle", "SerialOracle", "draw_actions", "mutate_can",
+__all__ = ["layout_stream", "CAN_ACTIONS", "SERIAL_ACTIONS", "CanOracle", "SerialOracle", "draw_actions", "mutate_can",
            "check_can", "mutate_serial", "check_serial"]
 
 #: action -> probability in the seeded runs
@@ -209,3 +209,24 @@ def check_serial(epochs: list, accounting: Accounting, oracle: SerialOracle, blo
             assert np.array_equal(e.raw[inst][v], y[k][v].astype(np.float32))
     return {"bytes": oracle.received, "accepted": accounting.accepted, "rejected": accounting.rejected_total,
             "epochs": len(epochs)}
+
+
+def layout_stream(layout: str, n: int, seed: int = 0) -> tuple[EpochBlock, list[Any], Any, int]:
+    """A seeded stream of ``n`` epochs for a shipped layout, as frames: what the fuzz tests and the benchmark feed in.
+
+    Raw values are drawn in each layout's range (counts around the cone6 unit's zero-rate outputs, physical
+    units for the automotive layout). Returns the block, its frames, the values a receiver must decode (to the
+    layout's resolution) and the number of messages per epoch.
+    """
+    from .device import CanDevice
+
+    rng = np.random.default_rng(seed)
+    lay = load_layout(layout)
+    ng, na = lay.instruments["gyro"], lay.instruments["accel"]
+    if layout == "cone6_rimu":
+        raw = {"gyro": rng.normal(500, 50, (n, ng)), "accel": rng.normal(16000, 3000, (n, na))}
+    else:
+        raw = {"gyro": rng.uniform(-150, 150, (n, ng)), "accel": rng.uniform(-4, 4, (n, na))}
+    block = EpochBlock(np.arange(n) / 100.0, raw, temperature=np.full(n, 20.0))
+    dev = CanDevice(layout)
+    return block, dev.frames(block), dev.expected(block), len(lay.messages)

@@ -19,33 +19,22 @@ from hypothesis import strategies as st
 from rimu.epoch import EpochBlock
 from rimu.io.accounting import Accounting
 from rimu.io.can import CanFrameProcessor
-from rimu.io.device import CanDevice, SerialDevice
+from rimu.io.device import SerialDevice
 from rimu.io.fuzz import (
     CAN_ACTIONS,
     SERIAL_ACTIONS,
     check_can,
     check_serial,
     draw_actions,
+    layout_stream,
     mutate_can,
     mutate_serial,
 )
-from rimu.io.layout import load_layout
 from rimu.io.serial import SerialDecoder
 
 FULL = os.environ.get("RIMU_FULL_FUZZ") == "1"
 
 
-def _stream(n, layout, seed=0):
-    rng = np.random.default_rng(seed)
-    lay = load_layout(layout)
-    ng, na = lay.instruments["gyro"], lay.instruments["accel"]
-    if layout == "cone6_rimu":
-        raw = {"gyro": rng.normal(500, 50, (n, ng)), "accel": rng.normal(16000, 3000, (n, na))}
-    else:
-        raw = {"gyro": rng.uniform(-150, 150, (n, ng)), "accel": rng.uniform(-4, 4, (n, na))}
-    block = EpochBlock(np.arange(n) / 100.0, raw, temperature=np.full(n, 20.0))
-    dev = CanDevice(layout)
-    return block, dev.frames(block), dev.expected(block), len(lay.messages)
 
 
 def _run_can(msgs, layout, chunk):
@@ -63,7 +52,7 @@ def _run_can(msgs, layout, chunk):
        st.lists(st.sampled_from(list(CAN_ACTIONS)), min_size=40, max_size=40),
        st.integers(0, 2**32 - 1), st.sampled_from([1, 7, 1000]))
 def test_can_mutations_hypothesis(layout, actions, seed, chunk):
-    block, msgs, exp, K = _stream(40 // (5 if layout == "cone6_rimu" else 3) + 1, layout)
+    block, msgs, exp, K = layout_stream(layout, 40 // (5 if layout == "cone6_rimu" else 3) + 1)
     msgs = msgs[:40]
     acts = (actions + ["keep"] * len(msgs))[:len(msgs)]
     bad, oracle = mutate_can(msgs, K, acts, np.random.default_rng(seed), swap_p=0.2)
@@ -75,7 +64,7 @@ def test_can_mutations_hypothesis(layout, actions, seed, chunk):
 def test_can_seeded_long_run(layout):
     n_frames = 100_000 if (FULL or layout == "cone6_rimu") else 30_000
     K = 5 if layout == "cone6_rimu" else 3
-    block, msgs, exp, K = _stream(n_frames // K, layout, seed=1)
+    block, msgs, exp, K = layout_stream(layout, n_frames // K, seed=1)
     rng = np.random.default_rng(2024)
     bad, oracle = mutate_can(msgs, K, draw_actions(rng, len(msgs), CAN_ACTIONS), rng)
     eps, acc = _run_can(bad, layout, 4096)
