@@ -22,10 +22,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from rimu.calibration.diagnostics import diagnose
-from rimu.calibration.diagnostics.fitting import cached
 from rimu.calibration.effects import GSensitivity
 from rimu.calibration.model import ErrorModel, contexts
+from rimu.diagnose import diagnose
+from rimu.diagnose.fitting import cached
 from rimu.geometry import cone6
 from rimu.sim import Simulator, TruthEffect
 from rimu.sim.procedures import cho_park_procedure

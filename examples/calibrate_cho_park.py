@@ -15,7 +15,7 @@ import numpy as np
 from rimu.calibration import ChoPark
 from rimu.calibration.montecarlo import normalised_errors
 from rimu.calibration.plots import plot_residuals
-from rimu.session_io import save_session
+from rimu.session import save_session
 from rimu.sim import Simulator, cho_park_procedure
 
 out = Path(sys.argv[1] if len(sys.argv) > 1 else "rimu-example")

@@ -15,7 +15,7 @@ import numpy as np
 from rimu.calibration import LeastSquares
 from rimu.calibration.detect import detect_intervals, plot_detection
 from rimu.calibration.plots import plot_residuals
-from rimu.session_io import load_ferraris
+from rimu.session import load_ferraris
 from rimu.units import G0
 
 folder = Path(sys.argv[1] if len(sys.argv) > 1 else "../shared/data/imucal_ferraris_session")

@@ -17,8 +17,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from rimu.calibration.diagnostics import diagnose
 from rimu.calibration.model import Effect, ParamSpec, register_effect
+from rimu.diagnose import diagnose
 from rimu.geometry import tetrad4
 from rimu.sim import Simulator, TruthEffect
 from rimu.sim.procedures import oliveira_table1

@@ -11,8 +11,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from rimu.calibration.diagnostics import diagnose, iterate, write_report
 from rimu.calibration.effects import GSensitivity, ScaleQuadratic
+from rimu.diagnose import diagnose, iterate, write_report
 from rimu.geometry import cone6
 from rimu.sim import Simulator, TruthEffect
 from rimu.sim.procedures import cho_park_procedure, cho_park_table2

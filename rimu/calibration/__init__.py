@@ -6,6 +6,7 @@ Estimators (constructor stores settings, ``fit(session)`` returns a :class:`Cali
 any effect model).
 """
 
+from . import effects  # noqa: F401  (first: fills the effect registry)
 from .cho_park import ChoPark
 from .estimate import CalibrationResult, LeastSquares
 from .oliveira import Oliveira

@@ -160,9 +160,7 @@ class ErrorModel:
     @classmethod
     def base(cls) -> "ErrorModel":
         """Scale factor, misalignment and bias (Cho & Park Eq. 1-2)."""
-        from .effects import Bias, ScaleMisalignment
-
-        return cls([ScaleMisalignment(), Bias()])
+        return cls([effect("scale_misalignment"), effect("bias")])
 
     @classmethod
     def from_names(cls, names: Sequence[str] | str) -> "ErrorModel":
@@ -252,9 +250,8 @@ def register_effect(cls: type[Effect], *aliases: str) -> type[Effect]:
 
 
 def effect(name: str, **kwargs: Any) -> Effect:
-    """An effect instance by registry name."""
-    from . import effects as _  # noqa: F401  (fills the registry)
-
+    """An effect instance by registry name (the registry is filled by ``rimu.calibration.effects``, which
+    ``rimu.calibration`` imports first)."""
     try:
         return EFFECTS[name](**kwargs)
     except KeyError:

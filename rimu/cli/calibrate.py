@@ -40,7 +40,7 @@ def estimator(method: str, instruments=None, effects: str | None = None, wavelet
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..session_io import load_session
+    from ..session import load_session
 
     session = load_session(args.session)
     inst = args.instruments.split(",") if args.instruments else None

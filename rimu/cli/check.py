@@ -5,7 +5,7 @@ part with the nominal and with the calibrated geometry; a quality index per dire
 overall verdict, without a reference. Prints a table, and writes a plot and a JSON report with ``--out``.
 
 SESSION is a session file in rimu's format (docs/session-format.md): ``.npz``, or ``.csv`` with its ``.json``
-sidecar, as written by ``rimu simulate`` or ``rimu.session_io.save_session``.
+sidecar, as written by ``rimu simulate`` or ``rimu.session.save_session``.
 """
 
 from __future__ import annotations
@@ -32,9 +32,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def read_session(path: str | Path) -> tuple[Any, Any]:
     """(Session, EpochBlock) of a session file in rimu's format (``.npz``, or ``.csv`` / ``.json`` with its
-    sidecar; :func:`rimu.session_io.load_session`), the samples of every segment back to back."""
+    sidecar; :func:`rimu.session.load_session`), the samples of every segment back to back."""
     from ..epoch import EpochBlock
-    from ..session_io import load_session
+    from ..session import load_session
 
     session = load_session(path)
     segs = session.segments

@@ -35,8 +35,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     t_start = time.perf_counter()
     from ..calibration import Calibration, ChoPark
-    from ..calibration.diagnostics import diagnose
     from ..calibration.effects import GSensitivity
+    from ..diagnose import diagnose
     from ..fdi import RedundancyManager
     from ..fusion import Pipeline
     from ..geometry import cone6

@@ -39,8 +39,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def load_session(path: str | Path):
     """A Session from a Ferraris recording folder, or a rimu session file (``.csv`` with its ``.json``
     sidecar, the sidecar itself, or ``.npz``; see ``docs/session-format.md``)."""
-    from ..session_io import load_ferraris
-    from ..session_io import load_session as _load
+    from ..session import load_ferraris
+    from ..session import load_session as _load
 
     path = Path(path)
     if path.is_dir():
@@ -52,8 +52,8 @@ def load_session(path: str | Path):
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..calibration.diagnostics import diagnose, iterate, write_report
     from ..calibration.model import EFFECTS, ErrorModel
+    from ..diagnose import diagnose, iterate, write_report
 
     if args.list_effects:
         from ..calibration import effects as _  # noqa: F401

@@ -40,7 +40,7 @@ def geometries_for(procedure: str, geometry: str | None) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..session_io import save_session
+    from ..session import save_session
     from ..sim import PROCEDURES, Simulator
 
     sim = Simulator(geometries_for(args.procedure, args.geometry), arw_deg_sqrt_h=args.arw, vrw_ug_sqrt_hz=args.vrw,

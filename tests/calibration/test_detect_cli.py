@@ -74,7 +74,7 @@ def test_simulate_calibrate_design_commands(tmp_path, capsys):
     assert rc == 0
     # short sessions of the other procedures, written in the official format by the library
     from rimu.geometry import tetrad4
-    from rimu.session_io import save_session
+    from rimu.session import save_session
     from rimu.sim import Simulator, oliveira_table1, zhang_scheme
 
     g = triad3()

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from rimu.calibration import LeastSquares
-from rimu.session_io import load_ferraris
+from rimu.session import load_ferraris
 from rimu.units import DEG_TO_RAD, G0
 
 # imucal 2.x FerrarisCalibration (grav=9.81, expected_angle=-360) on the same file; reproduced by

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scenarios import SCENARIOS, known_sigma, simulate
 
-from rimu.calibration.diagnostics import diagnose
+from rimu.diagnose import diagnose
 
 CASES = [(e, g, 0) for e in SCENARIOS for g in ("cone6", "tetrad4", "triad3")]
 CASES += [(e, "cone6", s) for e in SCENARIOS for s in (1, 2)]

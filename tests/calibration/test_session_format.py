@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from rimu.errors import SessionFormatError
-from rimu.session_io import load_session, save_session
+from rimu.session import load_session, save_session
 from rimu.sim import Simulator, cho_park_procedure
 
 

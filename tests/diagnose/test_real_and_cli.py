@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scenarios import known_sigma, simulate
 
-from rimu.calibration.diagnostics import diagnose, iterate, write_report
 from rimu.cli import main
-from rimu.session_io import load_ferraris
+from rimu.diagnose import diagnose, iterate, write_report
+from rimu.session import load_ferraris
 
 
 def _ferraris() -> Path:

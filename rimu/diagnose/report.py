@@ -8,7 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from ..effects._common import output_unit
+from ..calibration.effects._common import output_unit
 from . import plots
 from .api import Comparison, Diagnosis, Iteration, format_p
 

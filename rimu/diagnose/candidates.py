@@ -31,8 +31,8 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from ...session import Session
-from ..model import Effect
+from ..calibration.model import Effect
+from ..session import Session
 from .fitting import ModelFit, candidate_columns
 
 __all__ = [

@@ -27,10 +27,10 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from .epoch import INSTRUMENTS
-from .errors import SessionFormatError, ShapeError
-from .geometry import Geometry
-from .units import EARTH_RATE, G0
+from ..epoch import INSTRUMENTS
+from ..errors import SessionFormatError, ShapeError
+from ..geometry import Geometry
+from ..units import EARTH_RATE, G0
 
 __all__ = ["SEGMENT_KINDS", "Segment", "Session", "rotation_matrix", "skew", "earth_rate_ln"]
 

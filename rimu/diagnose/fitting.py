@@ -16,10 +16,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...errors import IdentifiabilityError
-from ...session import Segment, Session
-from ..lsq import physical_from_beta
-from ..model import Effect, ErrorModel, ParamSpec, SensorContext, contexts
+from ..calibration.lsq import physical_from_beta
+from ..calibration.model import Effect, ErrorModel, ParamSpec, SensorContext, contexts
+from ..errors import IdentifiabilityError
+from ..session import Segment, Session
+from .series import autocorrelation
 
 __all__ = [
     "RANK_TOL",
@@ -101,8 +102,6 @@ def noise_inflation(r: np.ndarray, seg_index: np.ndarray, max_lag: int = 50) -> 
     weights, Newey & West 1987), computed only when the lag-1 autocorrelation is significant
     (``rho_1 sqrt(N) > 4``); else 1. Statistics built on averages of many samples are divided by it.
     """
-    from .residuals import autocorrelation
-
     w = within_segment(r, seg_index)
     rho = autocorrelation(w, seg_index, 1)
     r1 = float(rho[0])

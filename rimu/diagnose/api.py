@@ -11,10 +11,10 @@ from typing import Any
 
 import numpy as np
 
-from ...errors import IdentifiabilityError, ParameterNameError, SessionFormatError
-from ...session import Session
-from ..effects._common import output_unit
-from ..model import EFFECTS, Effect, ErrorModel, effect
+from ..calibration.effects._common import output_unit
+from ..calibration.model import EFFECTS, Effect, ErrorModel, effect
+from ..errors import IdentifiabilityError, ParameterNameError, SessionFormatError
+from ..session import Session
 from .candidates import CandidateTest, conditional_log10_p, confounding, score_candidates
 from .fitting import ModelFit, cached, fit_model
 from .residuals import SensorStats, failures, residual_statistics
@@ -50,8 +50,6 @@ def format_p(log10_p: float) -> str:
 
 def candidate_effects(model: ErrorModel, names: Sequence[str] | None = None) -> list[Effect]:
     """Instances of the registered effects not in ``model`` (one per class; aliases skipped)."""
-    from .. import effects as _  # noqa: F401  (fills the registry)
-
     out: list[Effect] = []
     seen: set[type] = set()
     keys = list(names) if names is not None else list(EFFECTS)

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..effects._common import input_unit, output_unit
+from ..calibration.effects._common import input_unit, output_unit
 from .residuals import input_bins
 
 if TYPE_CHECKING:  # pragma: no cover

@@ -6,11 +6,11 @@ import pytest
 from scenarios import _temp, known_sigma, rich_procedure, simulate
 from scipy import stats
 
-from rimu.calibration.diagnostics import diagnose, fit_model, iterate, noise_from_differences
-from rimu.calibration.diagnostics.residuals import autocorrelation, ljung_box
 from rimu.calibration.effects import BiasTemperature, GSensitivity, ScaleQuadratic
 from rimu.calibration.lsq import fit_lsq
 from rimu.calibration.model import ErrorModel
+from rimu.diagnose import diagnose, fit_model, iterate, noise_from_differences
+from rimu.diagnose.residuals import autocorrelation, ljung_box
 from rimu.errors import IdentifiabilityError, SessionFormatError
 from rimu.geometry import preset
 from rimu.sim import Simulator, TruthEffect

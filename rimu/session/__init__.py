@@ -1,0 +1,25 @@
+"""Sessions: recorded segments of raw samples with their known inputs, rimu's file format, third-party loaders.
+
+``rimu.session.model`` holds the data model (:class:`Segment`, :class:`Session`), ``rimu.session.native``
+rimu's own CSV/NPZ format, and ``rimu.session.loaders`` one module per third-party recording format.
+"""
+
+from .loaders import FERRARIS_SECTIONS, load_ferraris
+from .model import SEGMENT_KINDS, Segment, Session, earth_rate_ln, rotation_matrix, skew
+from .native import SESSION_FORMAT, SESSION_FORMAT_VERSION, load_session, save_session, session_sidecar
+
+__all__ = [
+    "FERRARIS_SECTIONS",
+    "SEGMENT_KINDS",
+    "SESSION_FORMAT",
+    "SESSION_FORMAT_VERSION",
+    "Segment",
+    "Session",
+    "earth_rate_ln",
+    "load_ferraris",
+    "load_session",
+    "rotation_matrix",
+    "save_session",
+    "session_sidecar",
+    "skew",
+]

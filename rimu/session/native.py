@@ -1,0 +1,362 @@
+"""rimu's own session formats: CSV with a JSON sidecar, and NPZ (see ``docs/session-format.md``)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import SessionFormatError
+from ..units import G0
+from .model import Segment, Session
+
+__all__ = ["SESSION_FORMAT", "SESSION_FORMAT_VERSION", "load_session", "save_session", "session_sidecar"]
+
+#: format tag and version of the JSON sidecar (and of the NPZ ``meta`` entry)
+SESSION_FORMAT = "rimu.session"
+SESSION_FORMAT_VERSION = 1
+
+#: accepted spellings of the known inputs of a segment in the sidecar: key -> (attribute, factor to SI)
+_INPUT_KEYS = {
+    "specific_force_mb_m_s2": ("specific_force_mb", 1.0),
+    "specific_force_mb_g": ("specific_force_mb", None),  # times the session's gravity
+    "rate_mb_rad_s": ("rate_mb", 1.0),
+    "rate_mb_deg_s": ("rate_mb", math.pi / 180.0),
+    "angle_mb_rad": ("angle_mb", 1.0),
+    "angle_mb_deg": ("angle_mb", math.pi / 180.0),
+}
+
+
+def session_sidecar(session: Session, data_name: str | None = None) -> dict:
+    """The JSON sidecar of a session (everything but the samples): geometry, units, sample rate, latitude,
+    gravity, and per segment its label, kind and known inputs (SI, with the unit in the key)."""
+    segs = []
+    for s in session.segments:
+        d: dict = {"label": s.label, "kind": s.kind}
+        if s.specific_force_mb is not None:
+            d["specific_force_mb_m_s2"] = np.asarray(s.specific_force_mb).reshape(-1, 3).mean(axis=0).tolist()
+        if s.rate_mb is not None:
+            d["rate_mb_rad_s"] = s.table_rate().tolist()
+        if s.angle_mb is not None:
+            d["angle_mb_rad"] = np.asarray(s.angle_mb).reshape(-1, 3)[-1].tolist()
+        if s.mat_ln_mb is not None:
+            d["mat_ln_mb"] = s.mat_ln_mb.tolist()
+        if s.meta:
+            d["meta"] = _plain(s.meta)
+        segs.append(d)
+    out = {
+        "format": SESSION_FORMAT,
+        "version": SESSION_FORMAT_VERSION,
+        "sample_rate_hz": session.sample_rate,
+        "latitude_deg": None if session.latitude is None else math.degrees(session.latitude),
+        "gravity_m_s2": session.gravity,
+        "raw_unit": session.raw_unit,
+        "frames": "MB: the unit's master-body frame; local level frame ENU (mat_ln_mb maps MB to ENU)",
+        "geometries": {k: g.to_dict() for k, g in session.geometries.items()},
+        "segments": segs,
+        "meta": _plain(session.meta),
+    }
+    if data_name is not None:
+        out["data"] = data_name
+    return out
+
+
+def _readable_json(d: dict) -> str:
+    """JSON with one key per line but short lists of numbers kept on one line."""
+    import re
+
+    text = json.dumps(d, indent=1)
+    pat = re.compile(r"\[\s*((?:-?[\d.eE+-]+|null)(?:,\s*(?:-?[\d.eE+-]+|null))*)\s*\]")
+    for _ in range(2):
+        text = pat.sub(lambda m: "[" + ", ".join(x.strip() for x in m.group(1).split(",")) + "]", text)
+        text = re.sub(r"\[\s*(\[[^\[\]]*\](?:,\s*\[[^\[\]]*\])*)\s*\]",
+                      lambda m: "[" + re.sub(r"\],\s*\[", "], [", m.group(1)) + "]", text)
+    return text + "\n"
+
+
+def _plain(x):
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, (np.floating, np.integer)):
+        return x.item()
+    if isinstance(x, (str, int, float, bool)) or x is None:
+        return x
+    return str(x)
+
+
+def _columns(session_or_geoms) -> list[str]:
+    geoms = session_or_geoms.geometries if isinstance(session_or_geoms, Session) else session_or_geoms
+    cols = []
+    for k in ("gyro", "accel"):
+        if k in geoms:
+            cols += [f"{k}_{n}" for n in geoms[k].names]
+    return cols
+
+
+def save_session(session: Session, path: str | Path) -> Path:
+    """Write a session in rimu's format: ``.csv`` (plus a ``.json`` sidecar beside it) or ``.npz``.
+
+    CSV: one header row ``t,segment,gyro_<sensor>...,accel_<sensor>...[,temperature]``, one row per sample,
+    ``segment`` the label of the segment the sample belongs to. The sidecar ``<name>.json`` holds the rest
+    (see :func:`session_sidecar` and docs/session-format.md). NPZ: arrays ``t``, ``segment`` (index into the
+    sidecar's segment list), ``raw_gyro``, ``raw_accel``, optional ``temperature``, and ``meta`` (the sidecar as
+    a JSON string). Returns the path of the data file.
+    """
+    path = Path(path)
+    cols = _columns(session)
+    t = np.concatenate([s.t for s in session.segments])
+    has_temp = all(s.temperature is not None for s in session.segments)
+    if path.suffix == ".npz":
+        side = session_sidecar(session)
+        arrays = {"t": t, "segment": np.concatenate([np.full(s.n_samples, k) for k, s in enumerate(session.segments)])}
+        for k in session.instruments:
+            arrays[f"raw_{k}"] = np.vstack([s.raw[k] for s in session.segments])
+        if has_temp:
+            arrays["temperature"] = np.concatenate([s.temperature for s in session.segments])
+        np.savez_compressed(path, meta=np.array(json.dumps(side)), **arrays)
+        return path
+    if path.suffix != ".csv":
+        raise SessionFormatError(f"{path}: use a .csv (with a .json sidecar) or .npz file name")
+    for s in session.segments:
+        if any(ch in s.label for ch in ',"\n\r') or s.label != s.label.strip():
+            raise SessionFormatError(f"segment label {s.label!r} cannot be written to CSV: no commas, quotes, line "
+                                     "breaks or surrounding spaces")
+    side = session_sidecar(session, path.name)
+    header = ["t", "segment"] + cols + (["temperature"] if has_temp else [])
+    with path.open("w", newline="") as fh:
+        fh.write(",".join(header) + "\n")
+        for s in session.segments:
+            block = [s.raw[k] for k in session.instruments]
+            if has_temp:
+                block.append(s.temperature[:, None])
+            data = np.hstack(block)
+            tcol = np.char.mod("%.17g", s.t)
+            body = np.char.mod("%.17g", data)
+            lab = s.label
+            for k in range(s.n_samples):
+                fh.write(f"{tcol[k]},{lab}," + ",".join(body[k]) + "\n")
+    path.with_suffix(".json").write_text(_readable_json(side))
+    return path
+
+
+def load_session(path: str | Path) -> Session:
+    """Read a session written by :func:`save_session` or by any tool following docs/session-format.md.
+
+    ``path`` is the ``.csv`` (its sidecar ``.json`` beside it), the ``.json`` sidecar (naming its ``data``
+    file), or an ``.npz``.
+
+    Raises
+    ------
+    SessionFormatError
+        Missing file, sidecar key, column or segment; a malformed value (the row and column are named).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise SessionFormatError(f"{path} does not exist")
+    if path.suffix == ".npz":
+        return _load_npz(path)
+    if path.suffix == ".json":
+        side = _read_sidecar(path)
+        if "data" not in side:
+            raise SessionFormatError(f"{path}: the sidecar has no 'data' key naming its CSV file")
+        return _load_csv(path.parent / side["data"], side, path)
+    if path.suffix == ".csv":
+        sp = path.with_suffix(".json")
+        if not sp.exists():
+            raise SessionFormatError(f"{path}: its sidecar {sp.name} is missing (geometry, sample rate, segments)")
+        return _load_csv(path, _read_sidecar(sp), sp)
+    raise SessionFormatError(f"{path}: unknown session file type {path.suffix!r}; use .csv/.json or .npz")
+
+
+def _read_sidecar(path: Path) -> dict:
+    try:
+        side = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise SessionFormatError(f"{path}: not valid JSON ({exc})") from exc
+    _check_sidecar(side, str(path))
+    return side
+
+
+def _check_sidecar(side: object, src: str) -> None:
+    if not isinstance(side, dict):
+        raise SessionFormatError(f"{src}: the sidecar must be a JSON object")
+    if side.get("format") != SESSION_FORMAT:
+        raise SessionFormatError(f"{src}: 'format' must be {SESSION_FORMAT!r}, got {side.get('format')!r}")
+    v = side.get("version")
+    if v != SESSION_FORMAT_VERSION:
+        raise SessionFormatError(f"{src}: session format version {v!r} is not known (this rimu reads "
+                                 f"{SESSION_FORMAT_VERSION})")
+    missing = [k for k in ("sample_rate_hz", "geometries", "segments") if k not in side]
+    if missing:
+        raise SessionFormatError(f"{src}: the sidecar lacks the keys {missing}")
+    sr = side["sample_rate_hz"]
+    if not isinstance(sr, (int, float)) or not sr > 0:
+        raise SessionFormatError(f"{src}: sample_rate_hz must be a positive number, got {sr!r}")
+    if not isinstance(side["geometries"], dict) or not side["geometries"]:
+        raise SessionFormatError(f"{src}: 'geometries' must map 'gyro'/'accel' to a preset name or a geometry")
+    if not isinstance(side["segments"], list) or not side["segments"]:
+        raise SessionFormatError(f"{src}: 'segments' must be a non-empty list")
+    for k, seg in enumerate(side["segments"]):
+        if not isinstance(seg, dict) or "label" not in seg or "kind" not in seg:
+            raise SessionFormatError(f"{src}: segments[{k}] needs 'label' and 'kind'")
+
+
+def _geometries(side: dict, src: str) -> dict:
+    from ..errors import GeometryError
+    from ..geometry import Geometry, preset
+
+    out = {}
+    for k, g in side["geometries"].items():
+        try:
+            out[k] = preset(g) if isinstance(g, str) else Geometry.from_dict(g)
+        except GeometryError as exc:
+            raise SessionFormatError(f"{src}: geometries[{k!r}]: {exc}") from exc
+    return out
+
+
+def _segment_from_sidecar(d: dict, t: np.ndarray, raw: dict, temp, gravity: float, src: str, k: int) -> Segment:
+    kw: dict = {}
+    for key, (attr, fac) in _INPUT_KEYS.items():
+        if key in d and d[key] is not None:
+            try:
+                v = np.asarray(d[key], dtype=float)
+            except (TypeError, ValueError):
+                raise SessionFormatError(f"{src}: segments[{k}] ({d['label']!r}): {key} is not numeric") from None
+            if v.shape != (3,) or not np.all(np.isfinite(v)):
+                raise SessionFormatError(f"{src}: segments[{k}] ({d['label']!r}): {key} must be 3 finite numbers")
+            kw[attr] = v * (gravity if fac is None else fac)
+    if d.get("mat_ln_mb") is not None:
+        m = np.asarray(d["mat_ln_mb"], dtype=float)
+        if m.shape != (3, 3) or np.abs(m @ m.T - np.eye(3)).max() > 1e-6:
+            raise SessionFormatError(f"{src}: segments[{k}] ({d['label']!r}): mat_ln_mb must be a 3x3 rotation")
+        kw["mat_ln_mb"] = m
+    try:
+        return Segment(str(d["label"]), str(d["kind"]), t, raw, temp, meta=dict(d.get("meta") or {}), **kw)
+    except (SessionFormatError, ValueError) as exc:
+        raise SessionFormatError(f"{src}: segments[{k}]: {exc}") from exc
+
+
+def _build(side: dict, t: np.ndarray, seg_idx: np.ndarray, raw: dict, temp, src: str) -> Session:
+    geoms = _geometries(side, src)
+    gravity = float(side.get("gravity_m_s2") or G0)
+    lat = side.get("latitude_deg")
+    segs = []
+    for k, d in enumerate(side["segments"]):
+        rows = np.flatnonzero(seg_idx == k)
+        if rows.size == 0:
+            raise SessionFormatError(f"{src}: segment {d['label']!r} (segments[{k}]) has no samples in the data")
+        segs.append(_segment_from_sidecar(d, t[rows], {i: raw[i][rows] for i in geoms}, None if temp is None else
+                                          temp[rows], gravity, src, k))
+    meta = dict(side.get("meta") or {})
+    return Session(segs, geoms, float(side["sample_rate_hz"]), None if lat is None else math.radians(float(lat)),
+                   gravity, str(side.get("raw_unit", "count")), meta)
+
+
+def _load_csv(path: Path, side: dict, src: Path) -> Session:
+    if not path.exists():
+        raise SessionFormatError(f"{src}: its data file {path} does not exist")
+    geoms = _geometries(side, str(src))
+    need = ["t", "segment"] + _columns(geoms)
+    with path.open(newline="") as fh:
+        reader = csv.reader(fh)
+        header = next(reader, None)
+        if header is None:
+            raise SessionFormatError(f"{path} is empty; the first row must be the header {need}")
+        header = [h.strip() for h in header]
+        missing = [c for c in need if c not in header]
+        if missing:
+            raise SessionFormatError(f"{path}: header lacks the columns {missing} (header is {header})")
+        unknown = [c for c in header if c not in need and c != "temperature"]
+        if unknown:
+            raise SessionFormatError(f"{path}: unknown columns {unknown}; expected {need} and optionally 'temperature'")
+        num_cols = [c for c in need if c != "segment"] + (["temperature"] if "temperature" in header else [])
+        idx = {c: header.index(c) for c in header}
+        labels = {str(d["label"]): k for k, d in enumerate(side["segments"])}
+        lines = list(reader)
+    if not lines:
+        raise SessionFormatError(f"{path}: no data rows")
+    nh = len(header)
+    for r, line in enumerate(lines, start=2):
+        if len(line) != nh:
+            raise SessionFormatError(f"{path}: row {r} has {len(line)} fields, the header has {nh}")
+    ci = [idx[c] for c in num_cols]
+    si = idx["segment"]
+    segi = []
+    for r, line in enumerate(lines, start=2):
+        k = labels.get(line[si].strip())
+        if k is None:
+            raise SessionFormatError(f"{path}: row {r}, column 'segment': label {line[si].strip()!r} is not a "
+                                     f"segment of the sidecar ({sorted(labels)})")
+        segi.append(k)
+    try:
+        vals = np.array([[line[c] for c in ci] for line in lines], dtype=float)
+    except ValueError:
+        vals = None
+    if vals is None or (vals.size and not np.all(np.isfinite(vals))):
+        for r, line in enumerate(lines, start=2):  # find the first bad cell for the message
+            for c in num_cols:
+                try:
+                    v = float(line[idx[c]])
+                except ValueError:
+                    raise SessionFormatError(f"{path}: row {r}, column {c!r}: {line[idx[c]]!r} is not a number") from None
+                if not math.isfinite(v):
+                    raise SessionFormatError(f"{path}: row {r}, column {c!r} is not finite ({v})")
+    data = vals
+    t = data[:, 0]
+    seg_idx = np.array(segi)
+    bad = np.flatnonzero((np.diff(t) <= 0) & (np.diff(seg_idx) == 0))
+    if bad.size:
+        raise SessionFormatError(f"{path}: row {bad[0] + 3}, column 't': time does not increase within segment "
+                                 f"{side['segments'][seg_idx[bad[0]]]['label']!r}")
+    raw, c0 = {}, 1
+    for k in ("gyro", "accel"):
+        if k in geoms:
+            raw[k] = data[:, c0:c0 + geoms[k].n]
+            c0 += geoms[k].n
+    temp = data[:, c0] if "temperature" in header else None
+    return _build(side, t, seg_idx, raw, temp, str(src))
+
+
+def _load_npz(path: Path) -> Session:
+    try:
+        z = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise SessionFormatError(f"{path}: not a readable NPZ file ({exc})") from exc
+    with z:
+        if "meta" not in z.files:
+            raise SessionFormatError(f"{path}: no 'meta' entry (the JSON sidecar); arrays present: {z.files}")
+        try:
+            side = json.loads(str(z["meta"]))
+        except json.JSONDecodeError as exc:
+            raise SessionFormatError(f"{path}: 'meta' is not valid JSON ({exc})") from exc
+        _check_sidecar(side, str(path))
+        geoms = _geometries(side, str(path))
+        need = ["t", "segment"] + [f"raw_{k}" for k in geoms]
+        missing = [c for c in need if c not in z.files]
+        if missing:
+            raise SessionFormatError(f"{path}: arrays {missing} are missing; present: {z.files}")
+        t = np.asarray(z["t"], dtype=float)
+        seg_idx = np.asarray(z["segment"]).astype(int)
+        N = t.shape[0]
+        raw = {}
+        for k, g in geoms.items():
+            y = np.asarray(z[f"raw_{k}"], dtype=float)
+            if y.shape != (N, g.n):
+                raise SessionFormatError(f"{path}: raw_{k} has shape {y.shape}, expected ({N}, {g.n}) "
+                                         f"(columns {list(g.names)})")
+            if not np.all(np.isfinite(y)):
+                r, c = np.argwhere(~np.isfinite(y))[0]
+                raise SessionFormatError(f"{path}: raw_{k} row {r}, column {g.names[c]!r} is not finite")
+            raw[k] = y
+        if seg_idx.shape != (N,) or seg_idx.min() < 0 or seg_idx.max() >= len(side["segments"]):
+            raise SessionFormatError(f"{path}: 'segment' must hold N={N} indices into the {len(side['segments'])} "
+                                     "segments of meta")
+        temp = np.asarray(z["temperature"], dtype=float) if "temperature" in z.files else None
+    return _build(side, t, seg_idx, raw, temp, str(path))
