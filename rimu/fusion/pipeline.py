@@ -297,9 +297,8 @@ class InstrumentPipeline:
         self._dirty = True
         s = self.table.get(mask_bits(use & ~self._isolated))
         self._point_result(s)
-        if bad.any() or sat.any():
-            if self.result.validity == Validity.NOMINAL:
-                self.result.validity = Validity.DEGRADED
+        if (bad.any() or sat.any()) and self.result.validity == Validity.NOMINAL:
+            self.result.validity = Validity.DEGRADED
         if not s.observable:
             self._out[:] = 0.0
             return self.result

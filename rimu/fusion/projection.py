@@ -32,15 +32,16 @@ from __future__ import annotations
 
 import warnings
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from ..errors import RankDeficientError, ShapeError
 from ..geometry import null_space_rows
 
-__all__ = ["ProjectionTable", "ActiveSet", "mask_bits", "bits_mask"]
+__all__ = ["ActiveSet", "ProjectionTable", "bits_mask", "mask_bits"]
 
 #: sets kept by default besides the full set (a few isolations times the invalid/saturated patterns seen)
 DEFAULT_CACHE_SIZE = 64
@@ -117,7 +118,7 @@ class ActiveSet:
 class _Field:
     """``table.G[e]``, ``table.Vz[e, :d]``, ``table.P[entries]``: one attribute of the cached sets by entry."""
 
-    def __init__(self, table: "ProjectionTable", name: str) -> None:
+    def __init__(self, table: ProjectionTable, name: str) -> None:
         self._table = table
         self._name = name
 

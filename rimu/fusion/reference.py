@@ -75,7 +75,7 @@ class FullProjectionTable:
         self.sigma = s
         max_ex = n - 3 if max_excluded is None else min(int(max_excluded), n)
         sets: list[tuple[int, ...]] = []
-        for k in range(0, max_ex + 1):
+        for k in range(max_ex + 1):
             for excl in combinations(range(n), k):
                 sets.append(tuple(i for i in range(n) if i not in excl))
         K = len(sets)

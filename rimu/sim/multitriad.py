@@ -21,7 +21,7 @@ from ..calibration.result import InstrumentCalibration
 from ..geometry import Geometry, SubUnit
 from ..units import DS_TO_RS
 
-__all__ = ["triad_array", "Motion", "handheld_motion", "MultiTriadTruth", "random_multitriad"]
+__all__ = ["Motion", "MultiTriadTruth", "handheld_motion", "random_multitriad", "triad_array"]
 
 
 def triad_array(k: int, orientation: str = "skewed", seed: int = 0) -> Geometry:
@@ -68,7 +68,7 @@ class Motion:
         return np.einsum("cm,ncm->nc", self.amp * 2 * np.pi * self.freq, np.cos(arg))
 
     @classmethod
-    def still(cls) -> "Motion":
+    def still(cls) -> Motion:
         return cls(np.zeros((3, 1)), np.ones((3, 1)), np.zeros((3, 1)))
 
 
