@@ -15,6 +15,7 @@ from .calaware import CalibrationAwareGlt, CalibrationCovariance, stated_covaria
 from .cusum import CusumBank, cusum_threshold, markov_arl, siegmund_arl
 from .glt import GltDecision, GltSnapshot, GltWindow, glt_snapshot, glt_threshold
 from .kalman import ParityKalman
+from .motion import MotionAwareGlt, MotionNoiseModel, fit_motion_terms
 from .manager import FdiEvent, Health, HealthState, RedundancyManager, ReplayResult
 from .noise import NoiseEstimator
 from .parity import IsolabilityReport, detection_probability, isolability, wrong_isolation_bounds
@@ -33,6 +34,9 @@ __all__ = [
     "ParityKalman",
     "MeanDisagreement",
     "CalibrationAwareGlt",
+    "MotionAwareGlt",
+    "MotionNoiseModel",
+    "fit_motion_terms",
     "CalibrationCovariance",
     "stated_covariance",
     "NoiseEstimator",
