@@ -15,8 +15,8 @@ from .calaware import CalibrationAwareGlt, CalibrationCovariance, stated_covaria
 from .cusum import CusumBank, cusum_threshold, markov_arl, siegmund_arl
 from .glt import GltDecision, GltSnapshot, GltWindow, glt_snapshot, glt_threshold
 from .kalman import ParityKalman
-from .motion import MotionAwareGlt, MotionNoiseModel, fit_motion_terms
 from .manager import FdiEvent, Health, HealthState, RedundancyManager, ReplayResult
+from .motion import MotionAwareGlt, MotionNoiseModel, fit_motion_terms
 from .noise import NoiseEstimator
 from .parity import IsolabilityReport, detection_probability, isolability, wrong_isolation_bounds
 from .quality import QualityReport, parity_quality

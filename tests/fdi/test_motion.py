@@ -95,7 +95,7 @@ def test_statistic_is_chi_square_under_its_model():
 
 
 def test_hand_held_motion_raises_no_isolation(unit):
-    truth, cal, stated, fitted, Y = unit
+    _truth, cal, stated, fitted, Y = unit
     mgr, res = _run(cal, None, Y)
     assert len([e for e in res.events if e.kind == "isolated"]) >= 3  # the still-unit model fails in motion
     for model in (stated, fitted):
@@ -117,7 +117,7 @@ def test_ten_sigma_bias_at_rest_is_isolated_within_5_samples(unit, sensor):
 
 
 def test_fit_recovers_time_offsets_and_misalignment(unit):
-    truth, cal, stated, fitted, _ = unit
+    truth, _cal, _stated, fitted, _ = unit
     # |tau_j| from the spread t_j of each triad's offset (it is fixed, so the fit sees its square)
     np.testing.assert_allclose(fitted.time_offset_s, np.abs(truth.time_offset_s), atol=0.35e-3)
     rms_mis = np.sqrt(np.mean(truth.misalignment_rad**2, axis=1))
