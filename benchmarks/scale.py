@@ -6,8 +6,9 @@ For each unit (cone6, then 8, 16 and 32 skewed triads):
 * build: ``InstrumentPipeline`` + ``RedundancyManager`` (active sets computed when they occur), median time
   and tracemalloc peak;
 * set change: computing the matrices of one new active set (what an isolation or an invalid sample costs once);
-* per sample: ``InstrumentPipeline.step`` and ``RedundancyManager.step`` (default GLT), next to the bare numpy
-  reference ``R @ y - off`` with the same matrix in the same run;
+* per sample: ``InstrumentPipeline.step`` and ``RedundancyManager.step`` (default GLT; and with the motion-aware
+  GLT of :mod:`rimu.fdi.motion`), next to the bare numpy reference ``R @ y - off`` with the same matrix in the
+  same run;
 * the former full table (:class:`rimu.fusion.reference.FullProjectionTable`) where it fits: its build time and
   peak memory with every exclusion set up to the largest ``max_excluded`` that keeps it under 3000 sets, and the
   memory the table of every observable set would need (its parity array alone, n > 6).
@@ -104,9 +105,19 @@ def one(n: int) -> dict:
     t_bare = median_time(bare_loop, 5) / M
     mgr.reset()
     t_mgr = median_time(lambda: (mgr.reset(), mgr_loop()), 3) / M
+    model = MotionNoiseModel(cal, scale_rel=0.005, misalignment_rad=0.005, time_offset_s=1e-3, rate_var=1e-6)
+    mmgr = RedundancyManager(InstrumentPipeline(cal), MotionAwareGlt(model, sample_rate=100.0))
+    Mm = 1000
+
+    def motion_loop():
+        mmgr.reset()
+        for y in rows[:Mm]:
+            mmgr.step(y)
+
+    t_motion = median_time(motion_loop, 3) / Mm
 
     res = {"n": n, "geometry": cal.geometry.name, "build_s": t_build, "build_peak_MB": mem_build / 1e6,
-           "new_set_s": t_set, "step_us": t_step * 1e6, "manager_step_us": t_mgr * 1e6,
+           "new_set_s": t_set, "step_us": t_step * 1e6, "manager_step_us": t_mgr * 1e6, "motion_manager_step_us": t_motion * 1e6,
            "reference_matvec_us": t_bare * 1e6, "step_over_reference": t_step / t_bare}
     # the former table of every exclusion set, where it fits
     if n <= 62:
@@ -127,13 +138,14 @@ def one(n: int) -> dict:
 def main() -> list[dict]:
     out = [one(n) for n in (6, 24, 48, 96)]
     print(f"{'n':>3} {'build ms':>9} {'peak MB':>8} {'new set ms':>10} {'step us':>8} {'mgr step us':>11} "
-          f"{'matvec us':>9} {'ratio':>6} | {'full table: max_excl':>20} {'sets':>6} {'build ms':>9} {'peak MB':>8} "
+          f"{'motion mgr us':>13} {'matvec us':>9} {'ratio':>6} | {'full table: max_excl':>20} {'sets':>6} {'build ms':>9} {'peak MB':>8} "
           f"| {'every set: count':>16} {'parity GiB':>11}")
     for r in out:
         ft = (f"{r['full_table_max_excluded']:>20d} {r['full_table_sets']:>6d} {1e3 * r['full_table_build_s']:>9.1f} "
               f"{r['full_table_peak_MB']:>8.2f}") if "full_table_sets" in r else f"{'-':>20} {'-':>6} {'-':>9} {'-':>8}"
         print(f"{r['n']:>3} {1e3 * r['build_s']:>9.2f} {r['build_peak_MB']:>8.2f} {1e3 * r['new_set_s']:>10.3f} "
-              f"{r['step_us']:>8.2f} {r['manager_step_us']:>11.2f} {r['reference_matvec_us']:>9.2f} "
+              f"{r['step_us']:>8.2f} {r['manager_step_us']:>11.2f} {r['motion_manager_step_us']:>13.1f} "
+              f"{r['reference_matvec_us']:>9.2f} "
               f"{r['step_over_reference']:>6.2f} | {ft} | {r['all_sets']:>16.3g} {r['all_sets_parity_GiB']:>11.3g}")
     print(json.dumps({"benchmark": "scale", "results": out}))
     return out

@@ -69,6 +69,9 @@ class MotionNoiseModel:
         Std of each component of each sub-unit's residual rotation, rad.
     time_offset_s : float or ndarray (k,)
         Std of each sub-unit's residual time offset, s.
+    extra_var : float or ndarray (n,)
+        Constant variance added to the white noise (output units^2): vibration that does not follow the rate
+        (rotors), or a noise level the calibration under-states. The projection keeps its own sigma.
     rate_var : float or ndarray (n,)
         Vibration variance per |angular rate|^2 (output units^2 per (rad/s)^2).
     accel_var : float or ndarray (n,)
@@ -81,7 +84,7 @@ class MotionNoiseModel:
 
     def __init__(self, calibration: InstrumentCalibration, scale_rel: Any = 0.0, misalignment_rad: Any = 0.0,
                  time_offset_s: Any = 0.0, rate_var: Any = 0.0, accel_var: Any = 0.0,
-                 calibration_covariance: bool = False, sigma: Any = None) -> None:
+                 calibration_covariance: bool = False, sigma: Any = None, extra_var: Any = 0.0) -> None:
         g = calibration.geometry
         n, k = g.n, len(g.subunits)
         if sigma is None:
@@ -92,6 +95,7 @@ class MotionNoiseModel:
         self.misalignment_rad = _per(misalignment_rad, k, "misalignment_rad")
         self.time_offset_s = _per(time_offset_s, k, "time_offset_s")
         self.rate_var = _per(rate_var, n, "rate_var")
+        self.extra_var = _per(extra_var, n, "extra_var")
         self.accel_var = _per(accel_var, n, "accel_var")
         self.axes = calibration.axes_mb()
         gs = max(len(su.members) for su in g.subunits)
@@ -119,7 +123,7 @@ class MotionNoiseModel:
         self._p0 = p0
         self._Ab = self.axes[p0] * real[..., None]  # (k, g, 3)
         self._AAt = np.einsum("jga,jha->jgh", self._Ab, self._Ab)
-        self._s2 = np.where(real, self.sigma[p0] ** 2, 1.0)
+        self._s2 = np.where(real, self.sigma[p0] ** 2 + self.extra_var[p0], 1.0)
         self._sc2 = self.scale_rel[p0] ** 2 * real
         self._qw = self.rate_var[p0] * real
         self._qa = self.accel_var[p0] * real
@@ -132,7 +136,7 @@ class MotionNoiseModel:
         new = object.__new__(MotionNoiseModel)
         new.__dict__.update(self.__dict__)
         for key, v in kw.items():
-            if key not in ("scale_rel", "misalignment_rad", "time_offset_s", "rate_var", "accel_var", "sigma"):
+            if key not in ("scale_rel", "misalignment_rad", "time_offset_s", "rate_var", "accel_var", "extra_var"):
                 raise TypeError(f"unknown term {key!r}")
             m = self.k if key in ("misalignment_rad", "time_offset_s") else self.n
             setattr(new, key, _per(v, m, key))
@@ -315,7 +319,7 @@ class MotionAwareGlt:
         return stat, self._thr, iso
 
 
-_FIT_TERMS = ("scale", "misalignment", "time_offset", "rate", "accel")
+_FIT_TERMS = ("white", "scale", "misalignment", "time_offset", "rate", "accel")
 
 
 def fit_motion_terms(model: MotionNoiseModel, residuals: np.ndarray, G: np.ndarray, rate: np.ndarray,
@@ -326,7 +330,7 @@ def fit_motion_terms(model: MotionNoiseModel, residuals: np.ndarray, G: np.ndarr
 
     The WLS residual ``r = Q z``, ``Q = I - A G``, has ``E[r_i^2] = (Q Sigma(t) Q^T)_ii``, and every term of
     Sigma(t) is linear in its variance parameter, so the expected squared residual of each sensor and sample is
-    a linear function of the parameters: per sensor ``s_i^2`` (scale, feature ``Q_ik^2 (a_k.u)^2``), ``q_w,i``
+    a linear function of the parameters: per sensor ``extra_var_i`` (white, feature ``Q_ik^2``), ``s_i^2`` (scale, feature ``Q_ik^2 (a_k.u)^2``), ``q_w,i``
     (``Q_ik^2 |w|^2``), ``q_a,i`` (``Q_ik^2 |dw/dt|^2``); per sub-unit ``m_j^2`` (misalignment,
     ``|u|^2 (Q_j A_j A_j^T Q_j^T)_ii - (Q_j A_j u)_i^2``) and ``t_j^2`` (time offset, ``(Q_j A_j du)_i^2``).
     The parameters named in ``terms`` are the non-negative least-squares fit of ``r_i(t)^2`` minus the white noise
@@ -345,7 +349,7 @@ def fit_motion_terms(model: MotionNoiseModel, residuals: np.ndarray, G: np.ndarr
     u, du : ndarray (N, 3), optional
         The instrument's input and its derivative (default: rate and angular acceleration, i.e. gyros).
     terms : tuple of str
-        Which of ``scale``, ``misalignment``, ``time_offset``, ``rate``, ``accel`` to fit.
+        Which of ``white``, ``scale``, ``misalignment``, ``time_offset``, ``rate``, ``accel`` to fit.
     margin : float
         Factor on the fitted variances (1: the least-squares fit; a fit is a mean, and a real unit's residual
         errors are fixed rather than random, so a margin of 2-4 buys robustness at the cost of sensitivity in
@@ -378,8 +382,8 @@ def fit_motion_terms(model: MotionNoiseModel, residuals: np.ndarray, G: np.ndarr
         idx = model.pos[j][model.real[j]]
         AAt[np.ix_(idx, idx)] = A[idx] @ A[idx].T
     Dm = np.stack([np.einsum("ia,ab,ib->i", Q * Gm[:, j], AAt, Q * Gm[:, j]) for j in range(k)], axis=1)
-    sizes = {"scale": n, "misalignment": k, "time_offset": k, "rate": n, "accel": n}
-    stated = {"scale": model.scale_rel**2, "misalignment": model.misalignment_rad**2,
+    sizes = {"white": n, "scale": n, "misalignment": k, "time_offset": k, "rate": n, "accel": n}
+    stated = {"white": model.extra_var, "scale": model.scale_rel**2, "misalignment": model.misalignment_rad**2,
               "time_offset": model.time_offset_s**2, "rate": model.rate_var, "accel": model.accel_var}
     order = list(_FIT_TERMS)
     fit = [t in terms for t in order]
@@ -395,6 +399,7 @@ def fit_motion_terms(model: MotionNoiseModel, residuals: np.ndarray, G: np.ndarr
         a2 = np.einsum("ta,ta->t", angular_acceleration[t], angular_acceleration[t])
         u2 = np.einsum("ta,ta->t", u[t], u[t])
         feats = {
+            "white": np.broadcast_to(Q2, (len(t), n, n)),
             "scale": Q2[None] * (Au**2)[:, None, :],
             "misalignment": u2[:, None, None] * Dm[None] - np.einsum("ia,ta,aj->tij", Q, Au, Gm) ** 2,
             "time_offset": np.einsum("ia,ta,aj->tij", Q, Adu, Gm) ** 2,
@@ -421,6 +426,8 @@ def fit_motion_terms(model: MotionNoiseModel, residuals: np.ndarray, G: np.ndarr
             out[name] = q[pos:pos + sizes[name]]
             pos += sizes[name]
     kw = {}
+    if "white" in out:
+        kw["extra_var"] = out["white"]
     if "scale" in out:
         kw["scale_rel"] = np.sqrt(out["scale"])
     if "misalignment" in out:
