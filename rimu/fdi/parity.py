@@ -1,7 +1,7 @@
 """Parity space of every active set, and what a geometry can detect and isolate.
 
 For the calibrated axes A (rows a_i) and noise sigma_i, the normalised parity rows ``Vz = V_w W`` of
-every active set are precomputed by :class:`rimu.fusion.ProjectionTable` (de Oliveira et al. 2012,
+each active set are computed by :class:`rimu.fusion.ProjectionTable` when the set occurs (de Oliveira et al. 2012,
 Eq. 6-11, on the whitened rows). A bias ``b`` (SI) on sensor j moves the normalised parity vector by
 ``b Vz[:, j]``; this module derives from those columns:
 
