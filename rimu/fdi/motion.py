@@ -324,7 +324,7 @@ _FIT_TERMS = ("white", "scale", "misalignment", "time_offset", "rate", "accel")
 
 def fit_motion_terms(model: MotionNoiseModel, residuals: np.ndarray, G: np.ndarray, rate: np.ndarray,
                      angular_acceleration: np.ndarray, u: np.ndarray | None = None, du: np.ndarray | None = None,
-                     terms: tuple[str, ...] = _FIT_TERMS, margin: float = 1.0,
+                     terms: tuple[str, ...] = _FIT_TERMS[1:], margin: float = 1.0,
                      max_samples: int = 4000) -> MotionNoiseModel:
     """Fit motion terms of the model (variances, non-negative) on fault-free data with every sensor active.
 
@@ -349,7 +349,9 @@ def fit_motion_terms(model: MotionNoiseModel, residuals: np.ndarray, G: np.ndarr
     u, du : ndarray (N, 3), optional
         The instrument's input and its derivative (default: rate and angular acceleration, i.e. gyros).
     terms : tuple of str
-        Which of ``white``, ``scale``, ``misalignment``, ``time_offset``, ``rate``, ``accel`` to fit.
+        Which of ``white``, ``scale``, ``misalignment``, ``time_offset``, ``rate``, ``accel`` to fit. Default: all
+        but ``white`` (the noise at rest is the calibration's; a fitted constant variance would also blunt the test
+        at rest). Add ``white`` where vibration does not follow the rate (rotors) and no still data exist.
     margin : float
         Factor on the fitted variances (1: the least-squares fit; a fit is a mean, and a real unit's residual
         errors are fixed rather than random, so a margin of 2-4 buys robustness at the cost of sensitivity in

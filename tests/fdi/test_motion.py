@@ -33,7 +33,7 @@ def unit():
     pipe = InstrumentPipeline(cal)
     blk = pipe.process(other)
     res = cal.noise_sigma**2 * (blk.parity @ pipe.table.Vz[0])
-    # every term fitted on another fault-free recording of 30 s, the gyro estimate as the rate
+    # the motion terms fitted on another fault-free recording of 30 s, the gyro estimate as the rate
     fitted = fit_motion_terms(MotionNoiseModel(cal), res, pipe.table.G[0], blk.x, np.gradient(blk.x, 1 / FS, axis=0))
     return truth, cal, stated, fitted, moving
 
