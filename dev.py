@@ -56,7 +56,7 @@ def main(argv: list[str]) -> int:
         ensure_env("test")
         return run(["-m", "pytest", *rest], single_thread_blas=True)
     if cmd == "bench":
-        ensure_env("test")
+        ensure_env("test,bench")
         code = 0
         for b in sorted((ROOT / "benchmarks").glob("*.py")):
             print(f"[dev] benchmark {b.name}", flush=True)
