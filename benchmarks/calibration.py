@@ -65,7 +65,9 @@ def errors(truth, sf_a, ax_a, b_a, sf_g, ax_g, b_g) -> dict[str, float]:
         return np.degrees(np.arccos(np.clip(np.sum(A * B, axis=1), -1, 1))) * 3600
 
     ta, tg = truth["accel"], truth["gyro"]
-    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))
+    def rms(x):
+        return float(np.sqrt(np.mean(np.square(x))))
+
     return {
         "acc_scale_ppm": rms((sf_a / ta.scale - 1) * 1e6), "acc_axis_arcsec": rms(ang(ax_a, ta.axes_mb())),
         "acc_bias_ug": rms((b_a - ta.bias) * MS2_TO_UG),

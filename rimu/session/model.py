@@ -22,8 +22,9 @@ aligned to ENU measures specific force ``[0, 0, +g]``.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
