@@ -53,7 +53,7 @@ def timeit(fn, repeat):
 
 def bench_can(layout, n_frames, repeat):
     K = len(load_layout(layout).messages)
-    block, msgs, exp, K = layout_stream(layout, n_frames // K)
+    block, msgs, _exp, K = layout_stream(layout, n_frames // K)
     N = len(msgs)
     db = load_layout(layout).to_cantools()
     proc = CanFrameProcessor(layout, Accounting())
@@ -162,7 +162,7 @@ def bench_serial(n_bytes, repeat):
 
 def fuzz_can(layout, n_frames, seed=2024):
     K = len(load_layout(layout).messages)
-    block, msgs, exp, K = layout_stream(layout, n_frames // K, seed=1)
+    _block, msgs, exp, K = layout_stream(layout, n_frames // K, seed=1)
     rng = np.random.default_rng(seed)
     bad, oracle = mutate_can(msgs, K, draw_actions(rng, len(msgs), CAN_ACTIONS), rng)
     p = CanFrameProcessor(layout, Accounting())

@@ -7,10 +7,23 @@ import threading
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from rimu.epoch import EpochBlock
 from rimu.io.device import SerialDevice
-from rimu.io.serial import SYNC, SerialDecoder, SerialFileSource, SerialSource, encode_frame, encode_sample
+from rimu.io.fuzz import SERIAL_ACTIONS, check_serial, draw_actions, mutate_serial
+from rimu.io.serial import (
+    SYNC,
+    CobsDecoder,
+    SerialDecoder,
+    SerialFileSource,
+    SerialSource,
+    cobs_decode,
+    cobs_encode,
+    encode_frame,
+    encode_sample,
+)
 
 
 def _block(n=20, seed=0):
@@ -244,11 +257,6 @@ def test_serial_side_log_keeps_rejected_bytes(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------- COBS variant
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
-from rimu.io.fuzz import SERIAL_ACTIONS, check_serial, draw_actions, mutate_serial
-from rimu.io.serial import CobsDecoder, cobs_decode, cobs_encode
 
 
 @given(st.binary(max_size=700))
@@ -314,7 +322,7 @@ def test_cobs_mutations_hypothesis(actions, seed, cuts):
 @settings(max_examples=80, deadline=None)
 @given(st.binary(max_size=800))
 def test_cobs_arbitrary_bytes_never_raise(data):
-    eps, acc = _decode_cobs([data[: len(data) // 2], data[len(data) // 2:]])
+    _eps, acc = _decode_cobs([data[: len(data) // 2], data[len(data) // 2:]])
     assert acc.pending == 0
 
 
