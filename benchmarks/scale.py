@@ -31,7 +31,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from rimu.calibration import InstrumentCalibration
-from rimu.fdi import RedundancyManager
+from rimu.fdi import MotionAwareGlt, MotionNoiseModel, RedundancyManager
 from rimu.fusion import InstrumentPipeline
 from rimu.fusion.reference import FullProjectionTable
 from rimu.geometry import cone6

@@ -48,6 +48,8 @@ from .glt import glt_threshold
 
 __all__ = ["MotionAwareGlt", "MotionNoiseModel", "fit_motion_terms"]
 
+_EYE3 = np.eye(3)
+
 
 def _per(v: Any, m: int, name: str) -> np.ndarray:
     a = np.broadcast_to(np.asarray(v, dtype=float), (m,)).copy()
@@ -122,13 +124,13 @@ class MotionNoiseModel:
         p0 = np.where(real, self.pos, 0)
         self._p0 = p0
         self._Ab = self.axes[p0] * real[..., None]  # (k, g, 3)
-        self._AAt = np.einsum("jga,jha->jgh", self._Ab, self._Ab)
+        self._AbT = np.ascontiguousarray(self._Ab.transpose(0, 2, 1))
         self._s2 = np.where(real, self.sigma[p0] ** 2 + self.extra_var[p0], 1.0)
         self._sc2 = self.scale_rel[p0] ** 2 * real
         self._qw = self.rate_var[p0] * real
         self._qa = self.accel_var[p0] * real
         self._m2 = self.misalignment_rad[:, None, None] ** 2
-        self._t2 = self.time_offset_s[:, None] ** 2
+        self._t2 = self.time_offset_s[:, None] ** 2  # (k, 1)
         self._diag = (slice(None), np.arange(self.pos.shape[1]), np.arange(self.pos.shape[1]))
 
     def with_terms(self, **kw: Any) -> MotionNoiseModel:
@@ -151,17 +153,13 @@ class MotionNoiseModel:
         dgyro = du if dgyro is None else dgyro
         Ab = self._Ab
         Au = Ab @ u
-        Adu = Ab @ du
-        diag = self._sc2 * Au * Au + self._qw * float(rate @ rate) + self._qa * float(dgyro @ dgyro)
-        if white:
-            diag += self._s2
-        else:
-            diag += ~self.real
-        B = (self._m2 * float(u @ u)) * self._AAt
-        Au *= np.sqrt(self._m2[:, :, 0])
-        Adu *= np.sqrt(self._t2)
-        B -= Au[:, :, None] * Au[:, None, :]
-        B += Adu[:, :, None] * Adu[:, None, :]
+        diag = self._sc2 * Au * Au + (self._qw * float(rate @ rate) + self._qa * float(dgyro @ dgyro))
+        diag += self._s2 if white else ~self.real
+        # misalignment and time offset: A_j (m_j^2 (|u|^2 I - u u^T) + t_j^2 du du^T) A_j^T, one 3 x 3 per block
+        K1 = float(u @ u) * _EYE3 - np.outer(u, u)
+        K2 = np.outer(du, du)
+        C = self._m2 * K1 + self._t2[:, :, None] * K2
+        B = Ab @ C @ self._AbT
         if self.cal_blocks is not None:
             ut = np.array([u[0], u[1], u[2], 1.0])
             B += np.einsum("c,d,jcdgh->jgh", ut, ut, self.cal_blocks)
@@ -237,6 +235,7 @@ class MotionAwareGlt:
         self._act = a
         self._pair = a[:, :, None] & a[:, None, :]
         self._pad = (~a).astype(float)
+        self._all = bool(a.sum() == mdl.real.sum())
         self._Ab = mdl._Ab * a[..., None]
         self._rhs = np.zeros(a.shape + (4,))
         self._rhs[..., 1:] = self._Ab
@@ -268,8 +267,9 @@ class MotionAwareGlt:
             dg = self._dgyro if self._dgyro is not None else np.zeros(3)
             B = mdl.blocks(self._u, self._du, rate, dg)
         # inactive slots: identity rows and columns, zero residual and zero axis
-        B *= self._pair
-        B[mdl._diag] += self._pad
+        if not self._all:
+            B *= self._pair
+            B[mdl._diag] += self._pad
         rhs = self._rhs
         rb = r[mdl._p0] * self._act
         rhs[..., 0] = rb
