@@ -156,3 +156,22 @@ def test_max_excluded_is_deprecated_and_without_effect():
         tab = ProjectionTable(g.H, 0.01, max_excluded=1)
     e = tab.lookup(tab.full_code & ~0b111)  # three excluded: computed anyway
     assert bool(tab.observable[e]) and int(tab.dof[e]) == 0
+
+
+def test_isolability_report_of_many_axes():
+    """Every pair at once: 32 skewed triads isolate two successive faults; two parallel triads (a dual-IMU
+    autopilot) detect but cannot isolate; the report is plain JSON."""
+    import json
+
+    from rimu.fdi import isolability
+
+    g = triad_array(32)
+    rep = isolability(ProjectionTable(g.H, 0.01), g.names, g.name)
+    assert rep.full.dof == 93 and rep.full.detect_two and rep.faults_isolable == 2
+    lo, hi = rep.full.wrong_isolation_10sigma
+    assert 0.0 <= lo <= hi < 1e-3
+    json.dumps(rep.to_dict())
+    g2 = triad_array(2, "parallel")
+    rep2 = isolability(ProjectionTable(g2.H, 0.01), g2.names, g2.name)
+    assert rep2.full.detect_one and not rep2.full.isolate_one and rep2.faults_isolable == 0
+    assert rep2.full.max_abs_correlation == pytest.approx(1.0)
