@@ -175,3 +175,20 @@ def test_isolability_report_of_many_axes():
     rep2 = isolability(ProjectionTable(g2.H, 0.01), g2.names, g2.name)
     assert rep2.full.detect_one and not rep2.full.isolate_one and rep2.faults_isolable == 0
     assert rep2.full.max_abs_correlation == pytest.approx(1.0)
+
+
+def test_single_dropouts_of_any_sensor_are_computed_once():
+    """96 axes, one random sensor invalid in every other sample: the default cache holds every single exclusion,
+    so each set is decomposed once, not once per sample."""
+    g = triad_array(32)
+    cal = InstrumentCalibration.nominal("gyro", g, 1.0, 0.0, 0.01)
+    pipe = InstrumentPipeline(cal)
+    rng = np.random.default_rng(6)
+    y0 = cal.raw_output(np.array([0.1, 0.2, 0.3]))
+    for k in range(1000):
+        y = y0.copy()
+        if k % 2:
+            y[rng.integers(96)] = np.nan
+        pipe.step(y)
+    seen = 1 + len({int(i) for i in np.flatnonzero(pipe.invalid_count)})
+    assert pipe.table.computed == seen and pipe.table.evictions == 0 and pipe.table.cache_size == 192

@@ -43,7 +43,7 @@ import numpy as np
 from ..calibration.result import Calibration, InstrumentCalibration
 from ..epoch import Epoch, EpochBlock
 from ..errors import ShapeError
-from .projection import DEFAULT_CACHE_SIZE, ActiveSet, ProjectionTable, mask_bits
+from .projection import ActiveSet, ProjectionTable, mask_bits
 from .validity import Validity
 
 __all__ = ["InstrumentPipeline", "Pipeline", "StepResult", "BlockResult"]
@@ -147,8 +147,8 @@ class InstrumentPipeline:
     range_raw : float or ndarray (n,), optional
         Range limit of each sensor in RAW output units (the units of ``y``, before scale and bias): a sample
         with ``|y_i| >= range_raw_i`` is saturated. Default: the calibration's ``range_raw``; None: no limit.
-    cache_size : int
-        Active sets kept by the projection table besides the full set.
+    cache_size : int, optional
+        Active sets kept by the projection table besides the full set (default ``max(64, 2 n)``).
 
     Examples
     --------
@@ -170,7 +170,7 @@ class InstrumentPipeline:
         sigma: float | np.ndarray | None = None,
         max_excluded: int | None = None,
         range_raw: float | np.ndarray | None = None,
-        cache_size: int = DEFAULT_CACHE_SIZE,
+        cache_size: int | None = None,
     ) -> None:
         self.calibration = calibration
         n = calibration.geometry.n
@@ -412,13 +412,13 @@ class Pipeline:
         Deprecated, without effect.
     range_raw : dict[str, float or ndarray], optional
         Range limit per instrument in raw output units, overriding the calibration's ``range_raw``.
-    cache_size : int
-        Active sets cached per instrument besides the full set.
+    cache_size : int, optional
+        Active sets cached per instrument besides the full set (default ``max(64, 2 n)``).
     """
 
     def __init__(self, calibration: Calibration, sigma: dict[str, Any] | None = None,
                  max_excluded: int | None = None, range_raw: dict[str, Any] | None = None,
-                 cache_size: int = DEFAULT_CACHE_SIZE) -> None:
+                 cache_size: int | None = None) -> None:
         sigma = sigma or {}
         range_raw = range_raw or {}
         self.calibration = calibration

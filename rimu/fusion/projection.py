@@ -43,7 +43,8 @@ from ..geometry import null_space_rows
 
 __all__ = ["ActiveSet", "ProjectionTable", "bits_mask", "mask_bits"]
 
-#: sets kept by default besides the full set (a few isolations times the invalid/saturated patterns seen)
+#: sets kept by default besides the full set: at least this many, and 2 n (every single exclusion fits, so a
+#: sensor dropping out now and then, whichever it is, never makes the cache recompute a set per sample)
 DEFAULT_CACHE_SIZE = 64
 
 
@@ -155,9 +156,9 @@ class ProjectionTable:
     max_excluded : int, optional
         Deprecated, without effect: every set is computed when it occurs. (It bounded the former table of
         every exclusion set up front; a set beyond it was treated as unobservable.)
-    cache_size : int
-        Sets kept besides the full set (least recently used evicted first). A set that occurs again after
-        eviction is computed again (a new entry number).
+    cache_size : int, optional
+        Sets kept besides the full set (least recently used evicted first); default ``max(64, 2 n)``. A set that
+        occurs again after eviction is computed again (a new entry number).
     scale, bias : ndarray (n,), optional
         Fold the compensation ``z = scale * y - bias`` into each set (:attr:`ActiveSet.R`, :attr:`ActiveSet.off`).
 
@@ -183,7 +184,7 @@ class ProjectionTable:
     """
 
     def __init__(self, axes: np.ndarray, sigma: float | np.ndarray = 1.0, max_excluded: int | None = None, *,
-                 cache_size: int = DEFAULT_CACHE_SIZE, scale: np.ndarray | None = None,
+                 cache_size: int | None = None, scale: np.ndarray | None = None,
                  bias: np.ndarray | None = None) -> None:
         A = np.asarray(axes, dtype=float)
         if A.ndim != 2 or A.shape[1] != 3:
@@ -197,6 +198,8 @@ class ProjectionTable:
         if max_excluded is not None:
             warnings.warn("max_excluded has no effect any more: active sets are computed when they occur "
                           "(rimu.fusion.ProjectionTable); drop the argument", DeprecationWarning, stacklevel=2)
+        if cache_size is None:
+            cache_size = max(DEFAULT_CACHE_SIZE, 2 * n)
         if int(cache_size) < 1:
             raise ValueError(f"cache_size must be at least 1 set, got {cache_size}")
         self.n = n
