@@ -14,9 +14,9 @@ is one matrix-vector product into a preallocated buffer and one finiteness check
 Invalid and saturated samples. A non-finite raw value (or one marked invalid) makes that sensor invalid for
 that sample (counted in ``invalid_count``); a raw value at the sensor's range limit, ``|y_i| >= range_raw_i``,
 makes it saturated for that sample (counted in ``saturated_count``): a clipped output is not a measurement but
-says nothing about the sensor's health. Both are routed around -- the estimate uses the rest -- and neither is
-a fault: saturation is reported in ``saturated``, not ``invalid``, so the redundancy manager never isolates a
-sensor for it.
+says nothing about the sensor's health. Both are routed around for that sample -- the estimate uses the rest.
+A sensor that stays invalid is isolated by the redundancy manager after ``invalid_persist`` samples; a saturated
+one never is (saturation is reported in ``saturated``, not ``invalid``).
 
 Validity (:class:`~rimu.fusion.validity.Validity`) of each output: ``NOMINAL`` when every sensor is used,
 ``DEGRADED`` when some are isolated, invalid or saturated, ``UNOBSERVABLE`` when the sensors in use do not span
