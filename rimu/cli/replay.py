@@ -7,6 +7,10 @@ time, and a JSON file of the events.
 
 Injection: ``TYPE:INSTRUMENT:SENSOR:START[:SIZE[:DURATION]]``, SIZE in SI or as ``10sigma``; types: bias, ramp,
 stuck, scale, noise, spikes, dropout, zero, saturation, nonfinite. Example: ``--inject bias:gyro:y2:15:10sigma``.
+``--motion-fit SECONDS`` fits motion-aware thresholds for the gyros on the first SECONDS of the data (taken as
+fault-free): the test then allows for the residual scale, misalignment, time offset and vibration of the unit in
+motion (docs/many-sensors.md). A range limit in the calibration (``range_raw``) makes clipped samples count as
+saturated: routed around, never isolated.
 DATA is a session file in rimu's format (``.npz``, or ``.csv`` with its ``.json`` sidecar; docs/session-format.md),
 as ``rimu simulate`` writes it; the segments are replayed back to back.
 """
@@ -34,6 +38,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--readmit-after", type=int, default=None, help="clean samples before re-admission")
     p.add_argument("--noise", type=float, default=None, help="per-sample noise (SI) if the calibration has none")
     p.add_argument("--seed", type=int, default=0, help="seed of random fault types")
+    p.add_argument("--motion-fit", type=float, default=None, metavar="SECONDS",
+                   help="gyros: fit motion-aware thresholds (rimu.fdi.motion: scale, misalignment, time offset, "
+                        "vibration) on the first SECONDS of the data, taken as fault-free, and test with them "
+                        "(docs/many-sensors.md)")
+    p.add_argument("--motion-margin", type=float, default=3.0, help="factor on the fitted motion variances")
     p.add_argument("--out", default=None, help="folder for the plot and the events JSON")
     p.set_defaults(func=run)
 
@@ -70,12 +79,15 @@ def run(args: argparse.Namespace) -> int:
     for k in insts:
         pipe = InstrumentPipeline(cal[k])
         spec = CampaignSpec(detector=args.detector, window=args.window, p_fa=args.p_fa, arl0=args.arl0)
-        mgr = RedundancyManager(pipe, make_detector(spec, pipe.table.sigma), p_fa=args.p_fa,
+        det = make_detector(spec, pipe.table.sigma)
+        if args.motion_fit is not None and k == "gyro":
+            det = _motion_detector(cal[k], block, args.motion_fit, args.motion_margin, args.p_fa, fs)
+        mgr = RedundancyManager(pipe, det, p_fa=args.p_fa,
                                 confirm=1 if args.detector == "cusum" else args.confirm,
                                 readmit_after=args.readmit_after, sample_rate=fs)
         res = mgr.run(block.raw[k], block.valid.get(k), block.t)
         results[k] = res
-        print(f"\n  {k}: {len(block)} samples, detector {args.detector}; final state {mgr.state.value}"
+        print(f"\n  {k}: {len(block)} samples, detector {getattr(det, 'name', args.detector)}; final state {mgr.state.value}"
               + (f", isolated {', '.join(mgr.health.isolated)}" if mgr.health.isolated else ""))
         shown = [e for e in res.events if e.kind != "transient"]
         n_tr = sum(1 for e in res.events if e.kind == "transient")
@@ -93,6 +105,30 @@ def run(args: argparse.Namespace) -> int:
         png = _plot(out / "replay.png", results)
         print(f"\n  events: {out / 'replay.json'}" + (f"\n  plot:   {png}" if png else ""))
     return 0
+
+
+def _motion_detector(cal, block, seconds: float, margin: float, p_fa: float, fs: float):  # type: ignore[no-untyped-def]
+    """Motion-aware GLT with the motion terms fitted on the first ``seconds`` of the gyro data (every sensor valid)."""
+    from ..errors import ShapeError
+    from ..fdi.motion import MotionAwareGlt, MotionNoiseModel, fit_motion_terms
+    from ..fusion import InstrumentPipeline, Validity
+
+    sel = block.t < block.t[0] + seconds
+    pipe = InstrumentPipeline(cal)
+    blk = pipe.process(block.raw["gyro"][sel], None if block.valid.get("gyro") is None else block.valid["gyro"][sel])
+    full = np.asarray(blk.validity) == Validity.NOMINAL
+    if full.sum() < 50:
+        raise ShapeError(f"--motion-fit {seconds:g}: only {int(full.sum())} samples with every gyro valid in that "
+                         "span; give a longer fault-free span (at least 50 samples)")
+    res = pipe.table.sigma**2 * (blk.parity @ pipe.table.Vz[0])
+    alpha = np.gradient(blk.x, 1.0 / fs, axis=0)
+    model = fit_motion_terms(MotionNoiseModel(cal, sigma=pipe.table.sigma), res[full], pipe.table.G[0], blk.x[full],
+                             alpha[full], margin=margin)
+    print(f"  gyro: motion terms fitted on {int(full.sum())} samples (first {seconds:g} s, margin {margin:g}): "
+          f"scale {1e2 * float(np.median(model.scale_rel)):.2f} %, misalignment "
+          f"{1e3 * float(np.median(model.misalignment_rad)):.2f} mrad, time offset "
+          f"{1e3 * float(np.median(model.time_offset_s)):.2f} ms (medians)")
+    return MotionAwareGlt(model, p_fa, sample_rate=fs)
 
 
 def _plot(path: Path, results: dict) -> Path | None:

@@ -157,3 +157,21 @@ def test_accelerometers_take_the_rate_from_outside():
     moving = det.update(r.parity)[0]
     assert still > det._thr > moving
     assert abs(still / moving - 26.0) < 1e-9 * 26  # the whole covariance scales by 1 + 25
+
+
+def test_replay_cli_fits_motion_terms_and_still_isolates(tmp_path, capsys):
+    from rimu.cli import main
+    from rimu.sim import Simulator
+
+    assert main(["simulate", "--procedure", "cho_park_table2", "--sample-rate", "10", "-o",
+                 str(tmp_path / "t2.npz")]) == 0
+    Simulator(seed=0, sample_rate=10.0).truth_calibration().save(tmp_path / "cal.json")
+    rc = main(["replay", str(tmp_path / "t2.npz"), "--calibration", str(tmp_path / "cal.json"),
+               "--motion-fit", "12", "--inject", "bias:gyro:y2:15:10sigma"])
+    out = capsys.readouterr().out
+    assert rc == 0 and "motion terms fitted on 120 samples" in out
+    gyro = out.split("  gyro:", 2)[-1]
+    assert "detector glt_motion" in gyro and "isolated" in gyro and "y2" in gyro
+    rc = main(["replay", str(tmp_path / "t2.npz"), "--calibration", str(tmp_path / "cal.json"),
+               "--motion-fit", "0.05"])
+    assert rc == 1 and "at least 50 samples" in capsys.readouterr().err
