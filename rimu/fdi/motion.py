@@ -325,7 +325,7 @@ _FIT_TERMS = ("white", "scale", "misalignment", "time_offset", "rate", "accel")
 def fit_motion_terms(model: MotionNoiseModel, residuals: np.ndarray, G: np.ndarray, rate: np.ndarray,
                      angular_acceleration: np.ndarray, u: np.ndarray | None = None, du: np.ndarray | None = None,
                      terms: tuple[str, ...] = _FIT_TERMS[1:], margin: float = 1.0,
-                     max_samples: int = 4000) -> MotionNoiseModel:
+                     max_samples: int | None = None) -> MotionNoiseModel:
     """Fit motion terms of the model (variances, non-negative) on fault-free data with every sensor active.
 
     The WLS residual ``r = Q z``, ``Q = I - A G``, has ``E[r_i^2] = (Q Sigma(t) Q^T)_ii``, and every term of
@@ -356,8 +356,9 @@ def fit_motion_terms(model: MotionNoiseModel, residuals: np.ndarray, G: np.ndarr
         Factor on the fitted variances (1: the least-squares fit; a fit is a mean, and a real unit's residual
         errors are fixed rather than random, so a margin of 2-4 buys robustness at the cost of sensitivity in
         motion).
-    max_samples : int
-        Samples used (evenly spaced).
+    max_samples : int, optional
+        Samples used (evenly spaced); default ``min(4000, max(500, 100000 // n))`` (the normal equations cost
+        about ``9 N n^3``).
 
     Returns
     -------
@@ -392,7 +393,9 @@ def fit_motion_terms(model: MotionNoiseModel, residuals: np.ndarray, G: np.ndarr
     p = sum(sizes[t] for t, f in zip(order, fit) if f)
     XtX = np.zeros((p, p))
     Xty = np.zeros(p)
-    sel = np.unique(np.linspace(0, N - 1, min(N, max_samples)).astype(int))
+    if max_samples is None:
+        max_samples = min(4000, max(500, 100_000 // n))
+    sel = np.unique(np.linspace(0, N - 1, min(N, int(max_samples))).astype(int))
     white = Q2 @ model.sigma**2
     for c0 in range(0, len(sel), 64):
         t = sel[c0:c0 + 64]
@@ -413,8 +416,9 @@ def fit_motion_terms(model: MotionNoiseModel, residuals: np.ndarray, G: np.ndarr
             if not f:
                 y -= feats[name] @ stated[name]
         X = np.concatenate([feats[name] for name, f in zip(order, fit) if f], axis=2)
-        XtX += np.einsum("tip,tiq->pq", X, X)
-        Xty += np.einsum("tip,ti->p", X, y)
+        X2 = X.reshape(-1, p)
+        XtX += X2.T @ X2
+        Xty += X2.T @ y.reshape(-1)
     scale = np.sqrt(np.clip(np.diag(XtX), 1e-300, None))  # column scaling: the terms differ by many decades
     XtXs = XtX / np.outer(scale, scale) + 1e-10 * np.eye(p)
     c, low = cho_factor(XtXs)
