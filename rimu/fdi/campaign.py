@@ -328,7 +328,9 @@ class CampaignResult:
                "summary": self.summary(), "rows": self.rows}
         text = json.dumps(doc, indent=1, default=_jsonable)
         if path is not None:
-            Path(path).write_text(text)
+            from ..atomic import write_text
+
+            write_text(path, text)
         return text
 
     def plot(self, path: str | Path) -> Path | None:
@@ -369,7 +371,10 @@ class CampaignResult:
         ax.legend(fontsize=8, loc="lower right")
         fig.tight_layout()
         path = Path(path)
-        fig.savefig(path, dpi=110)
+        from ..atomic import atomic_path
+
+        with atomic_path(path) as _tmp:  # whole or not at all
+            fig.savefig(_tmp, dpi=110)
         plt.close(fig)
         return path
 

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomic import atomic_files, atomic_path
 from ..errors import SessionFormatError
 from ..units import G0
 from .model import Segment, Session
@@ -120,7 +121,8 @@ def save_session(session: Session, path: str | Path) -> Path:
             arrays[f"raw_{k}"] = np.vstack([s.raw[k] for s in session.segments])
         if has_temp:
             arrays["temperature"] = np.concatenate([s.temperature for s in session.segments])
-        np.savez_compressed(path, meta=np.array(json.dumps(side)), **arrays)
+        with atomic_path(path) as tmp:  # whole or not at all (Ctrl-C, full disk)
+            np.savez_compressed(tmp, meta=np.array(json.dumps(side)), **arrays)
         return path
     if path.suffix != ".csv":
         raise SessionFormatError(f"{path}: use a .csv (with a .json sidecar) or .npz file name")
@@ -130,7 +132,8 @@ def save_session(session: Session, path: str | Path) -> Path:
                                      "breaks or surrounding spaces")
     side = session_sidecar(session, path.name)
     header = ["t", "segment"] + cols + (["temperature"] if has_temp else [])
-    with path.open("w", newline="") as fh:
+    with atomic_files() as tx, tx.path(path).open("w", newline="") as fh:  # CSV and sidecar appear together
+        tx.path(path.with_suffix(".json")).write_text(_readable_json(side))
         fh.write(",".join(header) + "\n")
         for s in session.segments:
             block = [s.raw[k] for k in session.instruments]
@@ -142,7 +145,6 @@ def save_session(session: Session, path: str | Path) -> Path:
             lab = s.label
             for k in range(s.n_samples):
                 fh.write(f"{tcol[k]},{lab}," + ",".join(body[k]) + "\n")
-    path.with_suffix(".json").write_text(_readable_json(side))
     return path
 
 
