@@ -25,6 +25,7 @@ __all__ = [
     "PlausibilityError",
     "OptionError",
     "OutputPathError",
+    "NotApplicableError",
 ]
 
 
@@ -114,3 +115,8 @@ class OptionError(RimuError, ValueError):
 class OutputPathError(RimuError, OSError):
     """An output path cannot be written (its folder is missing or read-only, it is a folder, or it would overwrite
     another output of the same run). Raised before any work is done."""
+
+
+class NotApplicableError(RimuError, ValueError):
+    """A check or method does not apply to this data (a parity check on a triad, a rate-pair check without rate
+    pairs); the message says why and what would apply."""

@@ -40,6 +40,10 @@ EXIT_INTERRUPTED = 130
 
 log = logging.getLogger("rimu.cli")
 
+#: optional modules and the extra that installs them (pyproject.toml)
+_EXTRAS = {"matplotlib": "plots", "pywt": "wavelets", "cantools": "dbc", "pyulog": "ulog", "distributed": "distributed",
+           "dask": "distributed", "tqdm": "progress"}
+
 
 def _common_options(p: argparse.ArgumentParser, top: bool) -> None:
     # on the subcommands the defaults are SUPPRESS so that `rimu -v calibrate` and `rimu calibrate -v` both work
@@ -73,7 +77,10 @@ def _describe(exc: BaseException) -> tuple[str, int]:
     if isinstance(exc, RimuError):
         return str(exc), EXIT_BAD_INPUT
     if isinstance(exc, ImportError):
-        return f"{exc} (a missing optional dependency: install the extra the message names)", EXIT_BAD_INPUT
+        mod = (getattr(exc, "name", None) or "").split(".")[0]
+        extra = _EXTRAS.get(mod)
+        how = f"pip install 'rimu[{extra}]'" if extra else "install the extra the message names"
+        return f"{exc} (an optional dependency is missing: {how})", EXIT_BAD_INPUT
     if isinstance(exc, OSError):
         name = getattr(exc, "filename", None)
         why = exc.strerror or str(exc)

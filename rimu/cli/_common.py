@@ -177,6 +177,7 @@ def json_dump(doc: Any, target: str, **kw: Any) -> str:
     if target == "-":
         print(text)
         return "stdout"
+    Path(target).parent.mkdir(parents=True, exist_ok=True)  # inside a --report folder (checked before the work)
     write_text(target, text + "\n")
     return str(target)
 
@@ -231,24 +232,29 @@ def check_outputs(args: argparse.Namespace, files: Iterable[str] = OUTPUT_FILE_O
     ------
     OutputPathError
     """
-    seen: dict[Path, str] = {}
+    planned = []
+    for name in dirs:
+        v = getattr(args, name, None)
+        if v and isinstance(v, (str, os.PathLike)):
+            _check_dir(name.replace("_", "-"), Path(v))
+            planned.append(Path(v).resolve())
+    seen: dict[Path, tuple[str, str]] = {}
     for name in files:
         v = getattr(args, name, None)
         if not v or v == "-" or not isinstance(v, (str, os.PathLike)):
             continue
         opt = name.replace("_", "-")
         p = Path(v)
-        _check_file(opt, p)
+        if not any(p.parent.resolve() == d or d in p.parent.resolve().parents for d in planned):
+            _check_file(opt, p)  # (a file inside a --report folder about to be created is checked with it)
+        elif p.is_dir():
+            raise OutputPathError(f"--{opt} {p}: is a folder; give a file name")
         for q in _sidecar(p):
             r = q.resolve()
+            what = f"{q} (the sidecar of --{opt} {p})" if q != p else f"--{opt} {q}"
             if r in seen:
-                what = f"{q} (the sidecar of --{opt} {p})" if q != p else str(q)
-                raise OutputPathError(f"--{opt} and --{seen[r]} both write {what}; give them different names")
-            seen[r] = opt
-    for name in dirs:
-        v = getattr(args, name, None)
-        if v and isinstance(v, (str, os.PathLike)):
-            _check_dir(name.replace("_", "-"), Path(v))
+                raise OutputPathError(f"{what} would overwrite {seen[r][1]}; give them different names")
+            seen[r] = (opt, what)
     for name in inputs:
         v = getattr(args, name, None)
         if not v or not isinstance(v, (str, os.PathLike)):
@@ -257,7 +263,7 @@ def check_outputs(args: argparse.Namespace, files: Iterable[str] = OUTPUT_FILE_O
         for q in _sidecar(p) + ([p.with_suffix(".csv")] if p.suffix == ".json" else []):
             r = q.resolve()
             if r in seen and q.exists():
-                raise OutputPathError(f"--{seen[r]} would overwrite the input {q}; write the output elsewhere")
+                raise OutputPathError(f"{seen[r][1]} would overwrite the input {q}; write the output elsewhere")
 
 
 # ---------------------------------------------------------------- logging

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..atomic import atomic_files, atomic_path
-from ..errors import SessionFormatError
+from ..errors import RimuError, SessionFormatError
 from ..units import G0
 from .model import Segment, Session
 
@@ -148,25 +148,54 @@ def save_session(session: Session, path: str | Path) -> Path:
     return path
 
 
-def load_session(path: str | Path) -> Session:
+def load_session(path: str | Path, checks: str = "strict") -> Session:
     """Read a session written by :func:`save_session` or by any tool following docs/session-format.md.
 
     ``path`` is the ``.csv`` (its sidecar ``.json`` beside it), the ``.json`` sidecar (naming its ``data``
     file), or an ``.npz``.
 
+    Parameters
+    ----------
+    checks : {"strict", "warn", "off"}
+        What to do with the plausibility checks of :mod:`rimu.session.checks` (declared units against gravity and
+        commanded rates, ``sample_rate_hz`` against the time column, dead columns): refuse implausible data
+        (default), only log them, or skip the checks. Format errors, non-finite values and time running backwards
+        are refused whatever this says.
+
     Raises
     ------
     SessionFormatError
         Missing file, sidecar key, column or segment; a malformed value (the row and column are named).
+    PlausibilityError
+        The data contradict what the file declares (``checks="strict"``); the message names the column and the
+        likely cause.
     """
+    from .checks import check_session, enforce
+
     path = Path(path)
     if not path.exists():
         raise SessionFormatError(f"{path} does not exist")
+    if path.is_dir():
+        raise SessionFormatError(f"{path} is a folder; give a session file (.csv with its .json sidecar, or .npz)")
+    try:
+        session = _load_any(path)
+    except RimuError:
+        raise
+    except (ValueError, TypeError, KeyError, IndexError, AttributeError, UnicodeDecodeError) as exc:
+        # the specific checks above name row and column; this net catches the malformed content they do not foresee
+        raise SessionFormatError(f"{path}: malformed session file ({type(exc).__name__}: {exc}); see "
+                                 "docs/session-format.md") from exc
+    if checks != "off":
+        enforce(check_session(session, str(path)), checks)
+    return session
+
+
+def _load_any(path: Path) -> Session:
     if path.suffix == ".npz":
         return _load_npz(path)
     if path.suffix == ".json":
         side = _read_sidecar(path)
-        if "data" not in side:
+        if "data" not in side or not isinstance(side["data"], str) or not side["data"]:
             raise SessionFormatError(f"{path}: the sidecar has no 'data' key naming its CSV file")
         return _load_csv(path.parent / side["data"], side, path)
     if path.suffix == ".csv":
@@ -327,38 +356,70 @@ def _load_csv(path: Path, side: dict, src: Path) -> Session:
 
 
 def _load_npz(path: Path) -> Session:
+    import zipfile
+    import zlib
+
     try:
-        z = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise SessionFormatError(f"{path}: not a readable NPZ file ({exc})") from exc
-    with z:
-        if "meta" not in z.files:
-            raise SessionFormatError(f"{path}: no 'meta' entry (the JSON sidecar); arrays present: {z.files}")
-        try:
-            side = json.loads(str(z["meta"]))
-        except json.JSONDecodeError as exc:
-            raise SessionFormatError(f"{path}: 'meta' is not valid JSON ({exc})") from exc
-        _check_sidecar(side, str(path))
-        geoms = _geometries(side, str(path))
-        need = ["t", "segment"] + [f"raw_{k}" for k in geoms]
-        missing = [c for c in need if c not in z.files]
-        if missing:
-            raise SessionFormatError(f"{path}: arrays {missing} are missing; present: {z.files}")
+        with np.load(path, allow_pickle=False) as npz:
+            if not hasattr(npz, "files"):
+                raise ValueError("a single .npy array, not an .npz archive")
+            arrays = {name: npz[name] for name in npz.files}  # read every member now: damage shows here
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+        raise SessionFormatError(f"{path}: not a readable NPZ file ({exc or type(exc).__name__}); it may be "
+                                 "truncated or not written by rimu: write it again with 'rimu simulate' or "
+                                 "rimu.session.save_session") from exc
+
+    z, files = arrays, list(arrays)
+    if "meta" not in files:
+        raise SessionFormatError(f"{path}: no 'meta' entry (the JSON sidecar); arrays present: {files}")
+    try:
+        side = json.loads(str(z["meta"]))
+    except json.JSONDecodeError as exc:
+        raise SessionFormatError(f"{path}: 'meta' is not valid JSON ({exc})") from exc
+    _check_sidecar(side, str(path))
+    geoms = _geometries(side, str(path))
+    need = ["t", "segment"] + [f"raw_{k}" for k in geoms]
+    missing = [c for c in need if c not in files]
+    if missing:
+        raise SessionFormatError(f"{path}: arrays {missing} are missing; present: {files}")
+    try:
         t = np.asarray(z["t"], dtype=float)
-        seg_idx = np.asarray(z["segment"]).astype(int)
-        N = t.shape[0]
-        raw = {}
-        for k, g in geoms.items():
-            y = np.asarray(z[f"raw_{k}"], dtype=float)
-            if y.shape != (N, g.n):
-                raise SessionFormatError(f"{path}: raw_{k} has shape {y.shape}, expected ({N}, {g.n}) "
-                                         f"(columns {list(g.names)})")
-            if not np.all(np.isfinite(y)):
-                r, c = np.argwhere(~np.isfinite(y))[0]
-                raise SessionFormatError(f"{path}: raw_{k} row {r}, column {g.names[c]!r} is not finite")
-            raw[k] = y
-        if seg_idx.shape != (N,) or seg_idx.min() < 0 or seg_idx.max() >= len(side["segments"]):
-            raise SessionFormatError(f"{path}: 'segment' must hold N={N} indices into the {len(side['segments'])} "
-                                     "segments of meta")
-        temp = np.asarray(z["temperature"], dtype=float) if "temperature" in z.files else None
+        seg_idx = np.asarray(z["segment"])
+    except (ValueError, TypeError, OSError, EOFError) as exc:
+        raise SessionFormatError(f"{path}: arrays 't' and 'segment' cannot be read as numbers ({exc})") from exc
+    if t.ndim != 1:
+        raise SessionFormatError(f"{path}: 't' must be one-dimensional, got shape {t.shape}")
+    N = t.shape[0]
+    if N == 0:
+        raise SessionFormatError(f"{path}: no samples ('t' is empty)")
+    if not np.all(np.isfinite(t)):
+        raise SessionFormatError(f"{path}: t[{int(np.argmax(~np.isfinite(t)))}] is not finite")
+    if seg_idx.shape != (N,) or not (np.issubdtype(seg_idx.dtype, np.integer)
+                                     or (np.issubdtype(seg_idx.dtype, np.floating) and np.all(seg_idx == np.round(seg_idx)))):
+        raise SessionFormatError(f"{path}: 'segment' must hold N={N} integer indices into the segments of meta")
+    seg_idx = seg_idx.astype(int)
+    raw = {}
+    for k, g in geoms.items():
+        y = np.asarray(z[f"raw_{k}"], dtype=float)
+        if y.shape != (N, g.n):
+            raise SessionFormatError(f"{path}: raw_{k} has shape {y.shape}, expected ({N}, {g.n}) "
+                                     f"(columns {list(g.names)})")
+        if not np.all(np.isfinite(y)):
+            r, c = np.argwhere(~np.isfinite(y))[0]
+            raise SessionFormatError(f"{path}: raw_{k} row {r}, column {g.names[c]!r} is not finite")
+        raw[k] = y
+    if seg_idx.shape != (N,) or seg_idx.min() < 0 or seg_idx.max() >= len(side["segments"]):
+        raise SessionFormatError(f"{path}: 'segment' must hold N={N} indices into the {len(side['segments'])} "
+                                 "segments of meta")
+    bad = np.flatnonzero((np.diff(t) <= 0) & (np.diff(seg_idx) == 0))
+    if bad.size:
+        raise SessionFormatError(f"{path}: t[{bad[0] + 1}] = {t[bad[0] + 1]:.9g} s does not increase after "
+                                 f"t[{bad[0]}] = {t[bad[0]]:.9g} s within segment "
+                                 f"{side['segments'][seg_idx[bad[0]]]['label']!r}: time must increase within a "
+                                 "segment (sort the samples or fix the clock)")
+    temp = None
+    if "temperature" in files:
+        temp = np.asarray(z["temperature"], dtype=float)
+        if temp.shape != (N,) or not np.all(np.isfinite(temp)):
+            raise SessionFormatError(f"{path}: 'temperature' must hold N={N} finite values, got shape {temp.shape}")
     return _build(side, t, seg_idx, raw, temp, str(path))
