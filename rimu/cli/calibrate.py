@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import numpy as np
+
 from ._common import Deprecated, add_accept_implausible, add_json_option, add_report_option
 
 METHODS = ("cho", "oliveira", "zhang", "lsq")
@@ -57,6 +59,47 @@ def _instruments(text: str | None, session) -> list[str] | None:
     return inst
 
 
+def bias_at_zero_input(res) -> dict[str, dict[str, tuple[float, float]]]:  # type: ignore[no-untyped-def]
+    """Per instrument and sensor: (std of the compensated output at zero input, marginal std of B), SI.
+
+    The calibration stores ``B = SF * c`` (c: the raw offset, Cho & Park Eq. 20 ``SF y - B``), so the marginal
+    std of B carries the scale-factor uncertainty times the raw offset, and B and SF are strongly correlated. What
+    the compensated output gets wrong at rest is ``d(SF y - B)`` at ``y = B / SF``:
+    ``var = (B/SF)^2 var(SF) + var(B) - 2 (B/SF) cov(SF, B)``; the prediction of ``rimu design`` (Cho & Park
+    Eq. 19) is this figure.
+    """
+    out: dict[str, dict[str, tuple[float, float]]] = {}
+    for k, r in res.instruments.items():
+        for sf in r.sensors:
+            names = list(sf.theta_names)
+            try:
+                i, j = names.index(f"{sf.name}.scale"), names.index(f"{sf.name}.bias")
+            except ValueError:
+                continue
+            S, B = float(sf.theta[i]), float(sf.theta[j])
+            C = np.asarray(sf.theta_cov)
+            c = B / S
+            var = c * c * C[i, i] + C[j, j] - 2 * c * C[i, j]
+            out.setdefault(k, {})[sf.name] = (float(np.sqrt(max(var, 0.0))), float(np.sqrt(max(C[j, j], 0.0))))
+    return out
+
+
+def _print_bias_note(zero: dict) -> None:
+    from ..units import MS2_TO_UG, RS_TO_DH
+
+    unit = {"gyro": ("deg/h", RS_TO_DH), "accel": ("ug", MS2_TO_UG)}
+    for k, per in zero.items():
+        u, f = unit.get(k, ("SI", 1.0))
+        ratio = max(m / z for z, m in per.values() if z > 0) if per else 1.0
+        if ratio < 1.5:
+            continue
+        row = ", ".join(f"{n} {z * f:.3g}" for n, (z, _) in per.items())
+        print(f"note: {k} bias std at zero input (the error of SF*y - B at rest; what 'rimu design' predicts, Cho & Park"
+              f" Eq. 19), {u}: {row}. The bias column above is the marginal std of B = SF x raw offset, up to "
+              f"{ratio:.3g} times larger: it also carries the scale-factor uncertainty times the raw offset, which "
+              "the correlation of B with SF cancels in the compensated output")
+
+
 def run(args: argparse.Namespace) -> int:
     from ..errors import OptionError
     from ..session import load_session
@@ -69,6 +112,8 @@ def run(args: argparse.Namespace) -> int:
     inst = _instruments(args.instruments, session)
     res = estimator(args.method, inst, args.effects, args.wavelet).fit(session)
     print(res.table())
+    zero = bias_at_zero_input(res)
+    _print_bias_note(zero)
     out = res.to_calibration().save(Path(args.output))
     print(f"\ncalibration written to {out}")
     if args.json:
@@ -76,7 +121,9 @@ def run(args: argparse.Namespace) -> int:
 
         doc = {"method": res.method, "session": str(args.session), "calibration": str(out),
                "chi2_dof": res.chi2_dof, "notes": list(res.notes),
-               "instruments": {k: {"values_si": res.values(k), "std_si": res.std(k)} for k in res.instruments}}
+               "instruments": {k: {"values_si": res.values(k), "std_si": res.std(k),
+                                   "bias_std_at_zero_input_si": {n: z for n, (z, _) in zero.get(k, {}).items()}}
+                               for k in res.instruments}}
         print(f"summary written to {json_dump(doc, args.json)}")
     png = Path(args.plot) if args.plot else (Path(args.report) / "residuals.png" if args.report else None)
     if png is not None:

@@ -32,11 +32,18 @@ CSV_MAGIC = "# rimu epochs v1"
 
 
 class CsvRecorder:
-    """Appends epochs to a CSV file as they come (call :meth:`close`, or use as a context manager)."""
+    """Appends epochs to a CSV file as they come (call :meth:`close`, or use as a context manager).
+
+    The rows go to a temporary file beside ``path`` that :meth:`close` moves over ``path`` (rimu.atomic): the
+    recording appears whole; an exception inside the ``with`` block discards it (:meth:`abort`).
+    """
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
+        from ..atomic import AtomicFiles
+
         self.path = Path(path)
-        self._fh: TextIO = open(self.path, "w", newline="", encoding="utf-8")
+        self._tx = AtomicFiles()
+        self._fh: TextIO = open(self._tx.path(self.path), "w", newline="", encoding="utf-8")
         self._w = csv.writer(self._fh)
         self._sizes: dict[str, int] | None = None
         self.rows = 0
@@ -54,13 +61,25 @@ class CsvRecorder:
         self.rows += 1
 
     def close(self) -> None:
-        self._fh.close()
+        """Finish the recording: the file appears under its name."""
+        if not self._fh.closed:
+            self._fh.close()
+            self._tx.commit()
+
+    def abort(self) -> None:
+        """Discard the recording (the temporary file is removed, ``path`` is untouched)."""
+        if not self._fh.closed:
+            self._fh.close()
+        self._tx.abort()
 
     def __enter__(self) -> CsvRecorder:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
 
 
 def write_csv(path: str | os.PathLike[str], block: EpochBlock) -> Path:
