@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import sys
 
 from ..errors import RimuError
@@ -81,6 +82,9 @@ def _describe(exc: BaseException) -> tuple[str, int]:
         extra = _EXTRAS.get(mod)
         how = f"pip install 'rimu[{extra}]'" if extra else "install the extra the message names"
         return f"{exc} (an optional dependency is missing: {how})", EXIT_BAD_INPUT
+    if type(exc).__module__.split(".")[0] in ("can", "serial", "distributed"):  # device/cluster libraries
+        return (f"{exc} ({type(exc).__name__}); check the interface or address and that the device is there",
+                EXIT_BAD_INPUT)
     if isinstance(exc, OSError):
         name = getattr(exc, "filename", None)
         why = exc.strerror or str(exc)
@@ -108,6 +112,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         check_outputs(args)
         return int(args.func(args) or 0)
+    except BrokenPipeError:  # `rimu ... | head`: the reader left; nothing to say
+        try:
+            sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - keeps the interpreter's final flush quiet
+        except OSError:
+            pass
+        return EXIT_OK
     except KeyboardInterrupt:
         if args.debug:
             raise

@@ -266,6 +266,12 @@ def run(args: argparse.Namespace) -> int:
         print(("\r" + line) if tty else line, end="" if tty else "\n", flush=True)
     a = src.accounting
     wall = time.monotonic() - w0
+    if n == 0 and not interrupted:
+        from ..errors import TransportError
+
+        raise TransportError(f"no epoch came out of the source ({a.summary()}); check that --layout matches the data "
+                             "and that the source sends" + (f" within --idle-timeout {args.idle_timeout:g} s"
+                                                           if (args.can or args.serial) else ""))
     summary = {"epochs": n, "data_span_s": (t_last - t0) if n else 0.0, "wall_s": wall,
                "interrupted": interrupted, "accounting": a.as_dict(), "isolations": fdi.events,
                "record": args.record}

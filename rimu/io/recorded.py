@@ -167,15 +167,27 @@ class NpzSource(Source):
             raise TransportError(f"no NPZ file at {self.path}")
 
     def _epochs(self) -> Iterator[Epoch]:
-        with np.load(self.path, allow_pickle=False) as z:
-            if "t" not in z:
-                raise SessionFormatError(f"{self.path}: no 't' array")
-            raw = {k: z[f"raw_{k}"] for k in INSTRUMENTS if f"raw_{k}" in z}
-            if not raw:
-                raise SessionFormatError(f"{self.path}: no raw_gyro / raw_accel arrays")
-            valid = {k: z[f"valid_{k}"] for k in raw if f"valid_{k}" in z}
-            temp = z["temperature"] if "temperature" in z else None
-            block = EpochBlock(z["t"], raw, valid, temp)
+        import zipfile
+        import zlib
+
+        try:
+            z = np.load(self.path, allow_pickle=False)
+            if not hasattr(z, "files"):
+                raise ValueError("a single .npy array, not an .npz archive")
+            with z:
+                if "t" not in z:
+                    raise SessionFormatError(f"{self.path}: no 't' array")
+                raw = {k: z[f"raw_{k}"] for k in INSTRUMENTS if f"raw_{k}" in z}
+                if not raw:
+                    raise SessionFormatError(f"{self.path}: no raw_gyro / raw_accel arrays")
+                valid = {k: z[f"valid_{k}"] for k in raw if f"valid_{k}" in z}
+                temp = z["temperature"] if "temperature" in z else None
+                block = EpochBlock(z["t"], raw, valid, temp)
+        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+            if isinstance(exc, SessionFormatError):
+                raise
+            raise SessionFormatError(f"{self.path}: not a readable NPZ recording ({exc or type(exc).__name__}); it "
+                                     "may be truncated") from exc
         acc = self.accounting
         for k, ep in enumerate(block.epochs()):
             if self.stop_event.is_set():

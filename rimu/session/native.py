@@ -276,8 +276,24 @@ def _segment_from_sidecar(d: dict, t: np.ndarray, raw: dict, temp, gravity: floa
 
 def _build(side: dict, t: np.ndarray, seg_idx: np.ndarray, raw: dict, temp, src: str) -> Session:
     geoms = _geometries(side, src)
-    gravity = float(side.get("gravity_m_s2") or G0)
+    gravity = side.get("gravity_m_s2") or G0
+    if not isinstance(gravity, (int, float)) or not 9.0 < gravity < 10.5:
+        raise SessionFormatError(f"{src}: gravity_m_s2 must be the local gravity in m/s^2 (about 9.78 to 9.83), got "
+                                 f"{gravity!r}")
+    gravity = float(gravity)
     lat = side.get("latitude_deg")
+    if lat is not None and (not isinstance(lat, (int, float)) or not -90 <= lat <= 90):
+        raise SessionFormatError(f"{src}: latitude_deg must be a number in [-90, 90] or null, got {lat!r}")
+    raw_unit = side.get("raw_unit", "count")
+    meta = dict(side.get("meta") or {}) if isinstance(side.get("meta") or {}, dict) else {}
+    if isinstance(raw_unit, dict):  # one unit per instrument: {"gyro": "deg/s", "accel": "g"}
+        if not all(isinstance(v, str) for v in raw_unit.values()) or set(raw_unit) - set(geoms):
+            raise SessionFormatError(f"{src}: raw_unit must be a string or map instruments {sorted(geoms)} to unit "
+                                     f"strings, got {raw_unit!r}")
+        meta["raw_units"] = dict(raw_unit)
+        raw_unit = "; ".join(f"{k}: {v}" for k, v in raw_unit.items())
+    elif not isinstance(raw_unit, str):
+        raise SessionFormatError(f"{src}: raw_unit must be a string such as 'count', 'g' or 'rad/s', got {raw_unit!r}")
     segs = []
     for k, d in enumerate(side["segments"]):
         rows = np.flatnonzero(seg_idx == k)
@@ -285,9 +301,8 @@ def _build(side: dict, t: np.ndarray, seg_idx: np.ndarray, raw: dict, temp, src:
             raise SessionFormatError(f"{src}: segment {d['label']!r} (segments[{k}]) has no samples in the data")
         segs.append(_segment_from_sidecar(d, t[rows], {i: raw[i][rows] for i in geoms}, None if temp is None else
                                           temp[rows], gravity, src, k))
-    meta = dict(side.get("meta") or {})
     return Session(segs, geoms, float(side["sample_rate_hz"]), None if lat is None else math.radians(float(lat)),
-                   gravity, str(side.get("raw_unit", "count")), meta)
+                   gravity, raw_unit, meta)
 
 
 def _load_csv(path: Path, side: dict, src: Path) -> Session:
@@ -360,9 +375,10 @@ def _load_npz(path: Path) -> Session:
     import zlib
 
     try:
-        with np.load(path, allow_pickle=False) as npz:
-            if not hasattr(npz, "files"):
-                raise ValueError("a single .npy array, not an .npz archive")
+        npz = np.load(path, allow_pickle=False)
+        if not hasattr(npz, "files"):
+            raise ValueError("a single .npy array, not an .npz archive")
+        with npz:
             arrays = {name: npz[name] for name in npz.files}  # read every member now: damage shows here
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
         raise SessionFormatError(f"{path}: not a readable NPZ file ({exc or type(exc).__name__}); it may be "
