@@ -167,6 +167,7 @@ class NpzSource(Source):
             raise TransportError(f"no NPZ file at {self.path}")
 
     def _epochs(self) -> Iterator[Epoch]:
+        import tokenize
         import zipfile
         import zlib
 
@@ -183,7 +184,9 @@ class NpzSource(Source):
                 valid = {k: z[f"valid_{k}"] for k in raw if f"valid_{k}" in z}
                 temp = z["temperature"] if "temperature" in z else None
                 block = EpochBlock(z["t"], raw, valid, temp)
-        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+        except (OSError, ValueError, EOFError, KeyError, SyntaxError, tokenize.TokenError, zipfile.BadZipFile,
+            zlib.error) as exc:
+        # (numpy parses each member's header with ast: a damaged header is a SyntaxError)
             if isinstance(exc, SessionFormatError):
                 raise
             raise SessionFormatError(f"{self.path}: not a readable NPZ recording ({exc or type(exc).__name__}); it "

@@ -371,6 +371,7 @@ def _load_csv(path: Path, side: dict, src: Path) -> Session:
 
 
 def _load_npz(path: Path) -> Session:
+    import tokenize
     import zipfile
     import zlib
 
@@ -380,15 +381,23 @@ def _load_npz(path: Path) -> Session:
             raise ValueError("a single .npy array, not an .npz archive")
         with npz:
             arrays = {name: npz[name] for name in npz.files}  # read every member now: damage shows here
-    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+    except (OSError, ValueError, EOFError, KeyError, SyntaxError, tokenize.TokenError, zipfile.BadZipFile,
+            zlib.error) as exc:
+        # (numpy parses each member's header with ast: a damaged header is a SyntaxError)
         raise SessionFormatError(f"{path}: not a readable NPZ file ({exc or type(exc).__name__}); it may be "
                                  "truncated or not written by rimu: write it again with 'rimu simulate' or "
                                  "rimu.session.save_session") from exc
 
     z, files = arrays, list(arrays)
+    for name, a in arrays.items():
+        if name != "meta" and a.dtype.kind not in "iuf":
+            raise SessionFormatError(f"{path}: array {name!r} holds {a.dtype} values; rimu's NPZ arrays are real "
+                                     "numbers (see docs/session-format.md)")
     if "meta" not in files:
         raise SessionFormatError(f"{path}: no 'meta' entry (the JSON sidecar); arrays present: {files}")
     try:
+        if z["meta"].dtype.kind not in "US" or z["meta"].ndim != 0:
+            raise json.JSONDecodeError("'meta' must be one string", "", 0)
         side = json.loads(str(z["meta"]))
     except json.JSONDecodeError as exc:
         raise SessionFormatError(f"{path}: 'meta' is not valid JSON ({exc})") from exc
@@ -410,9 +419,11 @@ def _load_npz(path: Path) -> Session:
         raise SessionFormatError(f"{path}: no samples ('t' is empty)")
     if not np.all(np.isfinite(t)):
         raise SessionFormatError(f"{path}: t[{int(np.argmax(~np.isfinite(t)))}] is not finite")
-    if seg_idx.shape != (N,) or not (np.issubdtype(seg_idx.dtype, np.integer)
-                                     or (np.issubdtype(seg_idx.dtype, np.floating) and np.all(seg_idx == np.round(seg_idx)))):
-        raise SessionFormatError(f"{path}: 'segment' must hold N={N} integer indices into the segments of meta")
+    n_seg = len(side["segments"])
+    if (seg_idx.shape != (N,) or not np.all(np.isfinite(seg_idx)) or not np.all(seg_idx == np.round(seg_idx))
+            or seg_idx.min() < 0 or seg_idx.max() >= n_seg):
+        raise SessionFormatError(f"{path}: 'segment' must hold N={N} integer indices into the {n_seg} segments "
+                                 "of meta")
     seg_idx = seg_idx.astype(int)
     raw = {}
     for k, g in geoms.items():
