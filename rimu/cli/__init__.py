@@ -80,6 +80,8 @@ def _describe(exc: BaseException) -> tuple[str, int]:
     if isinstance(exc, ImportError):
         mod = (getattr(exc, "name", None) or "").split(".")[0]
         extra = _EXTRAS.get(mod)
+        if "pip install" in str(exc):
+            return str(exc), EXIT_BAD_INPUT
         how = f"pip install 'rimu[{extra}]'" if extra else "install the extra the message names"
         return f"{exc} (an optional dependency is missing: {how})", EXIT_BAD_INPUT
     if type(exc).__module__.split(".")[0] in ("can", "serial", "distributed"):  # device/cluster libraries

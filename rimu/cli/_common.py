@@ -28,6 +28,7 @@ from ..errors import OutputPathError
 __all__ = [
     "Parser",
     "positive_float",
+    "finite_float",
     "nonnegative_float",
     "probability",
     "positive_int",
@@ -77,6 +78,11 @@ def positive_float(text: str) -> float:
     if not v > 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
     return v
+
+
+def finite_float(text: str) -> float:
+    """A finite number."""
+    return _number(float, text)
 
 
 def nonnegative_float(text: str) -> float:

@@ -70,6 +70,12 @@ def run(args: argparse.Namespace) -> int:
     from ..fdi.faults import FAULTS
     from ..geometry import preset
 
+    if args.scheduler:  # the extra, before any work
+        try:
+            import distributed  # noqa: F401
+        except ImportError as exc:
+            raise ImportError("--scheduler needs the 'distributed' extra: pip install 'rimu[distributed]'",
+                              name="distributed") from exc
     faults = sorted(FAULTS) if args.faults == "all" else [f.strip() for f in args.faults.split(",") if f.strip()]
     unknown = [f for f in faults if f not in FAULTS]
     if unknown or not faults:

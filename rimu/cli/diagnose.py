@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 from ..errors import SessionFormatError
-from ._common import add_accept_implausible, add_json_option, add_report_option, probability
+from ._common import add_accept_implausible, add_json_option, add_report_option, finite_float, probability
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -30,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--instrument", choices=["gyro", "accel"], action="append", help="restrict to an instrument (repeatable)")
     p.add_argument("--alpha", type=probability, default=0.01, help="family-wise significance (default: %(default)s)")
     p.add_argument("--no-earth-rate", action="store_true", help="leave the Earth rate out of the gyro input (tests earth_rate)")
-    p.add_argument("--reference-temperature", type=float, default=25.0, help="T_ref of temperature effects, degC")
+    p.add_argument("--reference-temperature", type=finite_float, default=25.0, help="T_ref of temperature effects, degC")
     add_report_option(p, "report.md, report.html, figures and diagnosis.json")
     add_json_option(p, "the diagnosis ('-': on stdout instead of the text)", allow_bare=True)
     p.add_argument("--list-effects", action="store_true", help="list the effects of the library and exit")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import nonnegative_float, positive_float
+from ._common import finite_float, nonnegative_float, positive_float
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -22,7 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sample-rate", type=positive_float, default=100.0, help="Hz")
     p.add_argument("--arw", type=nonnegative_float, default=3.0, help="gyro angle random walk, deg/sqrt(h)")
     p.add_argument("--vrw", type=nonnegative_float, default=200.0, help="accelerometer noise density, micro-g/sqrt(Hz)")
-    p.add_argument("--latitude", type=float, default=36.37, help="deg, in [-90, 90]")
+    p.add_argument("--latitude", type=finite_float, default=36.37, help="deg, in [-90, 90]")
     p.add_argument("-o", "--output", default="session.npz",
                    help="output file: .npz, or .csv (a .json sidecar is written beside it); see docs/session-format.md")
     p.add_argument("--truth", default=None, metavar="FILE",

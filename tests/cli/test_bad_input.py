@@ -119,7 +119,7 @@ MINIMAL = {
     "check": ["{s}", "--calibration", "{cal}"],
 }
 
-_VALIDATORS = {common.positive_float: ["0", "-1", "nan", "abc"], common.nonnegative_float: ["-1", "inf", "x"],
+_VALIDATORS = {common.positive_float: ["0", "-1", "nan", "abc"], common.finite_float: ["nan", "inf", "x"], common.nonnegative_float: ["-1", "inf", "x"],
                common.probability: ["0", "1", "1.5", "-0.1", "p"], common.positive_int: ["0", "-3", "2.5", "x"],
                common.nonnegative_int: ["-1", "x"]}
 
@@ -426,3 +426,27 @@ def test_python_m_rimu_works_like_rimu(f):
     assert r.returncode == 2 and "Traceback" not in r.stderr and r.stderr.count("\n") == 1 and "truncated" in r.stderr
     r = _proc("-m", "rimu.cli", "simulate", "--duration", "0")
     assert r.returncode == 2 and "Traceback" not in r.stderr and "--duration" in r.stderr
+
+
+def test_a_long_replay_in_chunks_gives_the_same_events(f, tmp_path, capsys, monkeypatch):
+    """Long replays run in chunks (for the progress bar); the manager keeps its state, so events and states are
+    those of one run over the whole block."""
+    import rimu.cli.replay as replay
+
+    argv = ["replay", f["s"], "--calibration", f["cal"], "--inject", "bias:gyro:y2:30:10sigma",
+            "--inject", "bias:accel:x1:50:8sigma"]
+    assert run(argv + ["--json", str(tmp_path / "one.json")], capsys)[0] == 0
+    monkeypatch.setattr(replay, "_CHUNK", 997)
+    assert run(argv + ["--json", str(tmp_path / "chunks.json")], capsys)[0] == 0
+    one, chunks = (json.loads((tmp_path / n).read_text()) for n in ("one.json", "chunks.json"))
+    assert one == chunks and any(e["kind"] == "isolated" for e in one["accel"]["events"])
+
+
+def test_a_scheduler_without_the_extra_is_refused_before_any_work(capsys):
+    try:
+        import distributed  # noqa: F401
+        pytest.skip("dask.distributed is installed here")
+    except ImportError:
+        pass
+    code, out, err = run(["campaign", "--scheduler", "tcp://127.0.0.1:1", "--workers", "0"], capsys)
+    assert code == 2 and out == "" and "pip install 'rimu[distributed]'" in assert_one_error(err, "campaign")
