@@ -111,6 +111,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return EXIT_BAD_INPUT
     configure_logging(args.command, args.verbose, args.quiet)
+    log.debug("arguments: %s", {k: v for k, v in vars(args).items() if k != "func"})
     try:
         check_outputs(args)
         return int(args.func(args) or 0)

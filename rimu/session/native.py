@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 import math
 from pathlib import Path
 
@@ -15,6 +16,8 @@ from ..units import G0
 from .model import Segment, Session
 
 __all__ = ["SESSION_FORMAT", "SESSION_FORMAT_VERSION", "load_session", "save_session", "session_sidecar"]
+
+log = logging.getLogger(__name__)
 
 #: format tag and version of the JSON sidecar (and of the NPZ ``meta`` entry)
 SESSION_FORMAT = "rimu.session"
@@ -123,6 +126,7 @@ def save_session(session: Session, path: str | Path) -> Path:
             arrays["temperature"] = np.concatenate([s.temperature for s in session.segments])
         with atomic_path(path) as tmp:  # whole or not at all (Ctrl-C, full disk)
             np.savez_compressed(tmp, meta=np.array(json.dumps(side)), **arrays)
+        log.info("wrote %s (%d samples)", path, len(t))
         return path
     if path.suffix != ".csv":
         raise SessionFormatError(f"{path}: use a .csv (with a .json sidecar) or .npz file name")
@@ -145,6 +149,7 @@ def save_session(session: Session, path: str | Path) -> Path:
             lab = s.label
             for k in range(s.n_samples):
                 fh.write(f"{tcol[k]},{lab}," + ",".join(body[k]) + "\n")
+    log.info("wrote %s and its sidecar %s (%d samples)", path, path.with_suffix(".json").name, len(t))
     return path
 
 
@@ -187,6 +192,8 @@ def load_session(path: str | Path, checks: str = "strict") -> Session:
                                  "docs/session-format.md") from exc
     if checks != "off":
         enforce(check_session(session, str(path)), checks)
+    log.info("read %s: %d segments, %d samples at %g Hz, instruments %s", path, len(session),
+             sum(s.n_samples for s in session.segments), session.sample_rate, ", ".join(session.instruments))
     return session
 
 

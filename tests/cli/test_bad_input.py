@@ -450,3 +450,12 @@ def test_a_scheduler_without_the_extra_is_refused_before_any_work(capsys):
         pass
     code, out, err = run(["campaign", "--scheduler", "tcp://127.0.0.1:1", "--workers", "0"], capsys)
     assert code == 2 and out == "" and "pip install 'rimu[distributed]'" in assert_one_error(err, "campaign")
+
+
+def test_verbose_and_quiet(f, tmp_path, capsys):
+    code, _, err = run(["-v", "calibrate", f["s"], "-o", str(tmp_path / "c.json")], capsys)
+    assert code == 0 and "rimu calibrate: info: read " in err and "24 segments, 7200 samples" in err
+    code, _, err = run(["calibrate", f["s"], "-o", str(tmp_path / "c.json"), "-vv"], capsys)
+    assert code == 0 and "rimu calibrate: debug: arguments" in err
+    code, _, err = run(["calibrate", f["s"], "-o", str(tmp_path / "c.json")], capsys)
+    assert code == 0 and err == ""
