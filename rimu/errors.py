@@ -8,6 +8,7 @@ keeps working. Messages say what was wrong and what to do about it.
 from __future__ import annotations
 
 __all__ = [
+    "ExportError",
     "RimuError",
     "GeometryError",
     "RankDeficientError",
@@ -120,3 +121,7 @@ class OutputPathError(RimuError, OSError):
 class NotApplicableError(RimuError, ValueError):
     """A check or method does not apply to this data (a parity check on a triad, a rate-pair check without rate
     pairs); the message says why and what would apply."""
+
+
+class ExportError(RimuError, ValueError):
+    """A calibration cannot be exported as flight code (an effect without a C compensation, missing noise, ...)."""

@@ -31,6 +31,7 @@ COMMANDS = [
     "diagnose",
     "monitor",
     "replay", "campaign", "check",
+    "export_c",
 ]
 
 EXIT_OK = 0

@@ -238,6 +238,10 @@ def check_outputs(args: argparse.Namespace, files: Iterable[str] = OUTPUT_FILE_O
     ------
     OutputPathError
     """
+    files, dirs = list(files), list(dirs)
+    if getattr(args, "output_is_dir", False):  # a command whose main artifact is a folder (export-c)
+        files.remove("output")
+        dirs.append("output")
     planned = []
     for name in dirs:
         v = getattr(args, name, None)

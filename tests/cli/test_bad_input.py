@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rimu.cli import COMMANDS, build_parser, main
+from rimu.cli import build_parser, main
 from rimu.cli import _common as common
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -106,6 +106,10 @@ def _subparsers() -> dict[str, argparse.ArgumentParser]:
     return dict(sub.choices)
 
 
+#: every registered subcommand, by its command-line name
+COMMANDS = sorted(_subparsers())
+
+
 #: an invocation that gets past argument parsing, per subcommand ({name} = a file of the fixture)
 MINIMAL = {
     "demo": [],
@@ -117,6 +121,7 @@ MINIMAL = {
     "replay": ["{s}", "--calibration", "{cal}"],
     "campaign": ["--workers", "0", "--repetitions", "1", "--sizes", "6", "--duration", "1", "--fault-start", "0.5"],
     "check": ["{s}", "--calibration", "{cal}"],
+    "export-c": ["{cal}", "-o", "{dir}/export"],
 }
 
 _VALIDATORS = {common.positive_float: ["0", "-1", "nan", "abc"], common.finite_float: ["nan", "inf", "x"], common.nonnegative_float: ["-1", "inf", "x"],
@@ -125,7 +130,9 @@ _VALIDATORS = {common.positive_float: ["0", "-1", "nan", "abc"], common.finite_f
 
 
 def test_every_registered_command_has_a_minimal_invocation():
-    assert set(_subparsers()) == set(COMMANDS)
+    from rimu.cli import COMMANDS as MODULES
+
+    assert len(COMMANDS) == len(MODULES)
     missing = sorted(set(COMMANDS) - set(MINIMAL))
     assert not missing, f"add a MINIMAL invocation (and CASES) for {missing}"
 
@@ -168,8 +175,9 @@ def test_output_paths_are_checked_before_any_work(command, f, capsys):
         if opt not in opts:
             continue
         for target in (os.path.join(f["afile"], "x.json"), os.path.join(f["dir"], "missing", "deeper", "x.json")):
-            if opt == "--report" and "missing" in target:
-                continue  # a report folder is created with its parents
+            is_dir = opt == "--report" or (opt == "-o" and p.get_default("output_is_dir"))
+            if is_dir and "missing" in target:
+                continue  # a report (or output) folder is created with its parents
             code, _, err = run([command, *base, opt, target], capsys)
             line = assert_one_error(err, command)
             assert code == 2 and ("not a folder" in line or "does not exist" in line or "is a file" in line), err
@@ -262,6 +270,11 @@ CASES = [
     (["monitor", "--simulate", "--fault", "gyro:zz:1:1"], 2, ["--fault", "INSTRUMENT:SENSOR"]),
     (["monitor", "--ulog", "{s}", "--calibration", "{cal}"], 2, ["ULog"]),
     (["monitor", "--can", "virtual:x", "--calibration", "{cal}", "--layout", "{notjson}"], 2, ["notjson.json"]),
+    # export-c
+    (["export-c", "{tampered}", "-o", "{dir}/x"], 2, ["checksum"]),
+    (["export-c", "{dir}/nocal.json", "-o", "{dir}/x"], 2, ["nocal.json"]),
+    (["export-c", "{cal}", "-o", "{afile}"], 2, ["--output", "not a folder"]),
+    (["export-c", "{cal}", "-o", "{dir}/x", "--real", "half"], 2, ["--real", "half"]),
     # demo
     (["demo", "--report", "{afile}"], 2, ["--report", "not a folder"]),
     (["demo", "--segment-duration", "0"], 2, ["--segment-duration"]),
