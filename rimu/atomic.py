@@ -23,8 +23,9 @@ from __future__ import annotations
 import contextlib
 import os
 import secrets
+from collections.abc import Iterator
 from pathlib import Path
-from typing import IO, Iterator
+from typing import IO
 
 __all__ = ["atomic_files", "atomic_path", "atomic_open", "write_text", "write_bytes", "AtomicFiles", "file_mode"]
 

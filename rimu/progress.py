@@ -11,7 +11,8 @@ stderr is not a terminal, they degrade silently to nothing. The command line swi
 from __future__ import annotations
 
 import sys
-from typing import Any, Iterable, Iterator
+from collections.abc import Iterable, Iterator
+from typing import Any
 
 __all__ = ["bar", "set_enabled", "enabled"]
 

@@ -16,7 +16,6 @@ sidecar, as written by ``rimu simulate`` or ``rimu.session.save_session``.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
 

@@ -40,13 +40,11 @@ def run(args: argparse.Namespace) -> int:
         procedure_inputs,
         turntable_candidates,
     )
-    from ..errors import IdentifiabilityError
+    from ..errors import IdentifiabilityError, OptionError
     from ..geometry import preset
     from ..sim import PROCEDURES, zhang_scheme
     from ..sim.procedures import CHO_PARK_TABLE1, CHO_PARK_TABLE2
     from ..units import ARW_DSQH_TO_RSQS, G0, MS2_TO_UG, RAD_TO_ARCSEC, RS_TO_DH, UG_TO_MS2, white_noise_sigma
-
-    from ..errors import OptionError
 
     geo = preset(args.geometry)
     if args.duration is not None and not args.procedure.startswith("cho_park"):

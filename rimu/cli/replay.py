@@ -14,7 +14,6 @@ as ``rimu simulate`` writes it; the segments are replayed back to back.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np

@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rimu.cli import build_parser, main
 from rimu.cli import _common as common
+from rimu.cli import build_parser, main
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -326,7 +326,7 @@ def test_check_fails_on_a_miscalibrated_accelerometer(f, capsys, tmp_path):
 
 
 def test_check_on_a_triad_says_not_applicable(f, capsys):
-    code, out, err = run(["check", f["tri"], "--calibration", f["trical"]], capsys)
+    code, _, err = run(["check", f["tri"], "--calibration", f["trical"]], capsys)
     line = assert_one_error(err, "check")
     assert code == 2 and "gyro: not applicable" in line and "accel: not applicable" in line
 
@@ -334,6 +334,7 @@ def test_check_on_a_triad_says_not_applicable(f, capsys):
 def test_simulate_truth_cannot_overwrite_the_sidecar(f, capsys):
     d = Path(f["dir"])
     code, _, err = run(["simulate", "--duration", "1", "-o", str(d / "t1.csv"), "--truth", str(d / "t1.json")], capsys)
+    assert "t1.json" in assert_one_error(err, "simulate")
     assert code == 2 and not (d / "t1.csv").exists() and not (d / "t1.json").exists()
 
 
@@ -360,7 +361,7 @@ def test_events_carry_time_and_sample(f, tmp_path, capsys):
     code, out, _ = run(["replay", f["s"], "--calibration", f["cal"], "--inject", "bias:gyro:y2:30:10sigma",
                         "--json", str(tmp_path / "ev.json")], capsys)
     assert code == 0 and "(sample" in out
-    ev = [e for e in json.loads((tmp_path / "ev.json").read_text())["gyro"]["events"] if e["kind"] == "isolated"][0]
+    ev = next(e for e in json.loads((tmp_path / "ev.json").read_text())["gyro"]["events"] if e["kind"] == "isolated")
     assert ev["sensor"] == "y2" and 30.0 <= ev["t"] < 30.5 and ev["sample"] == int(round(ev["t"] * 100))
 
 
@@ -399,7 +400,7 @@ def test_ctrl_c_during_a_write_leaves_no_file(f, tmp_path, capsys, monkeypatch):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(np, "savez_compressed", interrupted)
-    code, out, err = run(["simulate", "--duration", "1", "-o", str(tmp_path / "s.npz")], capsys)
+    code, _, err = run(["simulate", "--duration", "1", "-o", str(tmp_path / "s.npz")], capsys)
     assert code == 130 and err.strip() == "rimu simulate: interrupted; no partial output file was left behind"
     assert list(tmp_path.iterdir()) == []
     monkeypatch.setattr(np, "savez_compressed", real)
