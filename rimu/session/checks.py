@@ -15,7 +15,9 @@ session they load. Each check compares the data with physics the file itself sta
     ``sample_rate_hz`` against the median step of the time column within segments; a factor of 1000 names
     milliseconds.
 ``constant``
-    A sensor column that never changes (a dead sensor, an unconnected channel, a column of zeros).
+    A sensor column that never changes: an error when the known input along its axis changes between segments
+    (a dead sensor, an unconnected channel, a placeholder column), else a warning (noise-free synthetic data can
+    be constant).
 
 Findings have a level: ``"error"`` (the data cannot be right as declared unless the declaration is wrong; the
 readers refuse them with :class:`rimu.errors.PlausibilityError` unless told ``checks="warn"``, CLI
@@ -191,6 +193,21 @@ def _check_sample_rate(session: Session, source: str) -> list[Finding]:
                     f"(median within segments), that is {fs_t:.6g} Hz ({100 * rel:+.1f}%){hint}", "sample_rate_hz")]
 
 
+def _excitation(session: Session, instrument: str, i: int) -> float:
+    """Range over the segments of the known input along sensor i's nominal axis (m/s^2 or rad/s); 0 when no
+    segment knows its input."""
+    h = session.geometries[instrument].H[i]
+    vals = []
+    for s in session.segments:
+        if instrument == "accel":
+            f = s.specific_force(session.gravity) if s.kind in ("static", "rate") else None
+            if f is not None:
+                vals.append(float(np.mean(f @ h)))
+        elif s.kind == "rate" or (s.kind == "static" and s.rate_mb is None):
+            vals.append(float(s.table_rate() @ h))
+    return float(np.ptp(vals)) if vals else 0.0
+
+
 def _check_constant(session: Session, source: str) -> list[Finding]:
     out = []
     for k in session.instruments:
@@ -200,9 +217,16 @@ def _check_constant(session: Session, source: str) -> list[Finding]:
         dead = np.flatnonzero(np.ptp(y, axis=0) == 0)
         for i in dead:
             name = session.geometries[k].names[i]
-            out.append(Finding("constant", "error", f"column {k}_{name} is constant ({y[0, i]:g} in all {y.shape[0]} "
-                               "samples): a dead sensor, an unconnected channel or a column filled with a placeholder;"
-                               " remove the sensor from the geometry or fix the recording", f"{k}_{name}"))
+            # constant although the known input along its axis changes: the sensor does not respond. A constant
+            # without such a change may be noise-free synthetic data: a warning
+            limit = 0.1 * session.gravity if k == "accel" else 1.0 * DEG_TO_RAD
+            level = "error" if _excitation(session, k, i) > limit else "warning"
+            why = ("although the known input along its axis changes between segments: a dead sensor, an unconnected"
+                   " channel or a placeholder column; remove the sensor from the geometry or fix the recording"
+                   if level == "error" else "(noise-free data, or a dead sensor the inputs of this session do not "
+                   "reveal)")
+            out.append(Finding("constant", level, f"column {k}_{name} is constant ({y[0, i]:g} in all {y.shape[0]} "
+                               f"samples) {why}", f"{k}_{name}"))
     return out
 
 

@@ -225,6 +225,9 @@ def _read_sidecar(path: Path) -> dict:
 def _check_sidecar(side: object, src: str) -> None:
     if not isinstance(side, dict):
         raise SessionFormatError(f"{src}: the sidecar must be a JSON object")
+    if side.get("format") == "rimu.calibration":
+        raise SessionFormatError(f"{src} is a calibration file, not a session; give the session it was made from "
+                                 "(.csv with its .json sidecar, or .npz)")
     if side.get("format") != SESSION_FORMAT:
         raise SessionFormatError(f"{src}: 'format' must be {SESSION_FORMAT!r}, got {side.get('format')!r}")
     v = side.get("version")

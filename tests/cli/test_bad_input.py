@@ -207,6 +207,7 @@ CASES = [
     (["calibrate", "{label_csv}"], 2, ["row 4", "'P99'", "not a segment"]),
     (["calibrate", "{cell_csv}"], 2, ["row 4", "not a number"]),
     (["calibrate", "{folder}"], 2, ["folder"]),
+    (["calibrate", "{cal}"], 2, ["cal.json is a calibration file, not a session"]),
     (["calibrate", "{dir}/nothing.npz"], 2, ["nothing.npz does not exist"]),
     (["calibrate", "{s}", "--instruments", "gyr"], 2, ["--instruments", "gyr"]),
     (["calibrate", "{s}", "--effects", "foo", "--method", "lsq"], 2, ["unknown effect 'foo'"]),

@@ -86,6 +86,12 @@ def test_dead_column_is_named(tmp_path):
         seg.raw["gyro"][:, 2] = 0.0
     (f,) = _errors(s)
     assert f.check == "constant" and "gyro_z1" in f.message
+    s = si_session()
+    for seg in s.segments:  # an axis the session never excites (no rate along z): noise-free data may be constant
+        seg.raw["gyro"][:, 2] = 0.25
+        if seg.kind == "rate" and abs(seg.rate_mb @ s.geometries["gyro"].H[2]) > 0:
+            seg.rate_mb = seg.rate_mb - (seg.rate_mb @ s.geometries["gyro"].H[2]) * s.geometries["gyro"].H[2]
+    assert [(f.check, f.level) for f in check_session(s) if f.check == "constant"] == [("constant", "warning")]
 
 
 def test_npz_time_running_backwards_is_refused_whatever_the_mode(tmp_path):
