@@ -21,7 +21,14 @@ from typing import Any
 
 import numpy as np
 
-from ._common import Deprecated, add_accept_implausible, add_json_option, add_report_option, probability
+from ._common import (
+    Deprecated,
+    add_accept_implausible,
+    add_json_option,
+    add_report_option,
+    positive_float,
+    probability,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -32,18 +39,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--instrument", default=None, choices=["gyro", "accel"],
                    help="check only this instrument (default: every one the calibration and the session share)")
     p.add_argument("--p-fa", type=probability, default=1e-3, help="false-alarm probability of the whole check")
-    p.add_argument("--noise", type=_positive, default=None, help="per-sample noise (SI) if the calibration has none")
+    p.add_argument("--noise", type=positive_float, default=None, help="per-sample noise (SI) if the calibration has none")
     add_report_option(p, "the plots (check-<instrument>.png)")
     add_json_option(p, "the figures of every check")
     p.add_argument("--out", action=Deprecated, new="--report DIR and --json FILE", convert=_old_out, metavar="DIR")
     add_accept_implausible(p)
     p.set_defaults(func=run)
-
-
-def _positive(text: str) -> float:
-    from ._common import positive_float
-
-    return positive_float(text)
 
 
 def _old_out(ns: argparse.Namespace, value: str) -> None:
