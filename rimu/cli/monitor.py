@@ -233,8 +233,9 @@ def run(args: argparse.Namespace) -> int:
             t_last = ep.t
             n += 1
             for ev in fdi.step(ep.t, pipe.step(ep)):
-                print(("\n" if tty else "") + f"  t = {ev['t']:.2f} s: {ev['instrument']} {ev['sensor']} isolated",
-                      flush=True)
+                ev["sample"] = n - 1  # events carry the epoch index as well as the time
+                print(("\n" if tty else "") + f"  t = {ev['t']:.2f} s (epoch {n - 1}): {ev['instrument']} "
+                      f"{ev['sensor']} isolated", flush=True)
             if rec is not None:
                 rec.write(ep)
             now = time.monotonic()
@@ -283,7 +284,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"  accounting identity received = accepted + rejected + pending: "
           f"{'holds' if a.identity_holds() else 'BROKEN'}")
     for ev in fdi.events:
-        print(f"  isolated: {ev['instrument']} {ev['sensor']} at t = {ev['t']:.2f} s")
+        print(f"  isolated: {ev['instrument']} {ev['sensor']} at t = {ev['t']:.2f} s (epoch {ev.get('sample')})")
     if not fdi.events:
         print("  no sensor isolated")
     if args.record:

@@ -25,12 +25,15 @@ readers refuse them with :class:`rimu.errors.PlausibilityError` unless told ``ch
 by the readers themselves and are never overridable.
 
 >>> from rimu.sim import Simulator, cho_park_table1
->>> s = Simulator(seed=1).run(cho_park_table1(duration=2.0)).session
+>>> run = Simulator(seed=1).run(cho_park_table1(duration=2.0))
+>>> s = run.session
 >>> [f.check for f in check_session(s)]     # raw outputs in counts: nothing to compare
 []
->>> s.raw_unit = "g"                         # the simulator's counts are scaled like m/s^2, not like g
+>>> for seg in s.segments:                   # accelerometer outputs in m/s^2 (the true calibration applied) ...
+...     seg.raw["accel"] = run.truth["accel"].compensate(seg.raw["accel"])
+>>> s.raw_unit = {"accel": "g"}              # ... declared in g
 >>> print(check_session(s)[0].message)  # doctest: +ELLIPSIS
-accel: ... magnitude 9.8 g ... the values look like m/s^2 ...
+accel: columns accel_* are declared in 'g' but the specific force at rest has magnitude 9.8 g ... look like m/s^2...
 """
 
 from __future__ import annotations
