@@ -186,5 +186,8 @@ def plot_detection(det: Detection, accel: np.ndarray, sample_rate: float, labell
                     f"{det.dropped_short} short still runs dropped")
     fig.tight_layout()
     if path:
-        fig.savefig(path, dpi=110)
+        from ..atomic import atomic_path
+
+        with atomic_path(path) as _tmp:  # whole or not at all
+            fig.savefig(_tmp, dpi=110)
     return fig

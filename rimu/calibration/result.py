@@ -21,7 +21,6 @@ import datetime as _dt
 import hashlib
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -268,19 +267,14 @@ class Calibration:
 
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write atomically (temporary file in the same folder, then rename) as versioned JSON."""
+        from ..atomic import atomic_open
+
         path = Path(path)
         text = document_text(self.to_payload())
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as fh:
-                fh.write(text)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        with atomic_open(path, "w", encoding="utf-8") as fh:  # normal file mode, not mkstemp's 0600
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
         return path
 
     @classmethod
