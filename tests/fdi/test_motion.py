@@ -174,4 +174,4 @@ def test_replay_cli_fits_motion_terms_and_still_isolates(tmp_path, capsys):
     assert "detector glt_motion" in gyro and "isolated" in gyro and "y2" in gyro
     rc = main(["replay", str(tmp_path / "t2.npz"), "--calibration", str(tmp_path / "cal.json"),
                "--motion-fit", "0.05"])
-    assert rc == 1 and "at least 50 samples" in capsys.readouterr().err
+    assert rc == 2 and "at least 50 samples" in capsys.readouterr().err  # bad input: exit status 2
