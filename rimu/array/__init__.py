@@ -1,0 +1,32 @@
+"""The array as one instrument: k triads on one board.
+
+* :mod:`rimu.array.layout`: :class:`ArrayLayout` (rotations, positions), ``from_geometry``.
+* :mod:`rimu.array.runtime`: lever-arm removal and the maximum-likelihood angular rate, angular acceleration and
+  specific force of Skog et al. 2016, with the Cramer-Rao bound.
+"""
+
+from .layout import ArrayLayout
+from .runtime import (
+    ArrayMotion,
+    accel_jacobian,
+    accel_model,
+    crb,
+    fisher_information,
+    lever_arm_acceleration,
+    ml_motion,
+    remove_lever_arms,
+    skew,
+)
+
+__all__ = [
+    "ArrayLayout",
+    "ArrayMotion",
+    "accel_jacobian",
+    "accel_model",
+    "crb",
+    "fisher_information",
+    "lever_arm_acceleration",
+    "ml_motion",
+    "remove_lever_arms",
+    "skew",
+]
