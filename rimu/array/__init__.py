@@ -30,3 +30,18 @@ __all__ = [
     "remove_lever_arms",
     "skew",
 ]
+from .relative import (  # noqa: E402
+    BASE_TERMS,
+    CANDIDATE_TERMS,
+    CandidateScore,
+    RelativeFit,
+    derivative,
+    fit_relative_gyro,
+    rank_candidates,
+    time_shift,
+    to_array_gauge,
+)
+from .terms import GYRO_TERMS, Signals, Term  # noqa: E402
+
+__all__ += ["BASE_TERMS", "CANDIDATE_TERMS", "CandidateScore", "RelativeFit", "derivative", "fit_relative_gyro",
+            "rank_candidates", "time_shift", "to_array_gauge", "GYRO_TERMS", "Signals", "Term"]
