@@ -45,3 +45,6 @@ from .terms import GYRO_TERMS, Signals, Term  # noqa: E402
 
 __all__ += ["BASE_TERMS", "CANDIDATE_TERMS", "CandidateScore", "RelativeFit", "derivative", "fit_relative_gyro",
             "rank_candidates", "time_shift", "to_array_gauge", "GYRO_TERMS", "Signals", "Term"]
+from .positions import PositionFit, fit_positions  # noqa: E402
+
+__all__ += ["PositionFit", "fit_positions"]

@@ -383,8 +383,9 @@ def fit_relative_gyro(
         gain = gain_new
         if done:
             break
-    D, c, tau, ex = to_array_gauge(gain, bias, tau, {n: v[:, :, None] for n, v in extra.items()})
-    extra = {n: v[:, :, 0] for n, v in ex.items()}
+    D, c, tau, _ = to_array_gauge(gain, bias, tau)
+    # additive terms: centred (their common mode times the array-mean gain is second order)
+    extra = {n: v - v.mean(axis=0) for n, v in extra.items()}
     u = _compensate(t, z, D, c, tau, extra, sig if extra else None)
     sig = _signals(t, u, sigma, specific_force)
     after = _parity_rms(u, sigma, sig.omega, motion_threshold_deg_s)

@@ -96,12 +96,13 @@ def random_array_truth(
     accel_bias_sigma_m_s2: float = 0.1, sampling_offset_sigma_s: float = 100e-6,
     gyro_noise_density_deg_s_sqrt_hz: float = 0.005, accel_noise_density_ug_sqrt_hz: float = 300.0,
     rate_hz: float = 1000.0, g_sensitivity_sigma_deg_s_per_g: float = 0.0, aa_sensitivity_sigma_s: float = 0.0,
-    nonlinearity_sigma_s_rad: float = 0.0, noise_spread: float = 0.2,
+    nonlinearity_sigma_s_rad: float = 0.0, noise_spread: float = 0.2, centre_gyro_common_mode: bool = False,
 ) -> ArrayTruth:
     """Random MEMS-like errors for every triad of ``layout`` (consumer-grade, uncalibrated).
 
     Per-sample white noise is ``density * sqrt(rate_hz / 2)`` times a per-triad factor in
-    ``1 +/- noise_spread``.
+    ``1 +/- noise_spread``. With ``centre_gyro_common_mode`` the gyro array's mean gain is I and its mean bias and
+    mean sampling offset are zero (the array-mean gyro is then exact: what a relative calibration cannot know).
     """
     rng = np.random.default_rng(seed)
     k = layout.k
@@ -112,13 +113,27 @@ def random_array_truth(
 
     bw = np.sqrt(rate_hz / 2.0)
     spread = lambda: 1.0 + rng.uniform(-noise_spread, noise_spread, k)  # noqa: E731
+    Dg = gain(gyro_scale_sigma, gyro_misalignment_sigma_rad)
+    bg = rng.normal(0, gyro_bias_sigma_deg_s * DEG_TO_RAD, (k, 3))
+    Da = gain(accel_scale_sigma, accel_misalignment_sigma_rad)
+    ba = rng.normal(0, accel_bias_sigma_m_s2, (k, 3))
+    tau = rng.normal(0, sampling_offset_sigma_s, k)
+    if centre_gyro_common_mode:
+        R = layout.rotations
+        Db = np.einsum("kij,kjl,kml->kim", R, Dg, R)
+        cb = np.einsum("kij,kj->ki", R, bg)
+        Db = Db @ np.linalg.inv(Db.mean(axis=0))
+        cb = cb - Db @ cb.mean(axis=0)
+        Dg = np.einsum("kji,kjl,klm->kim", R, Db, R)
+        bg = np.einsum("kji,kj->ki", R, cb)
+        tau = tau - tau.mean()
     return ArrayTruth(
         layout=layout,
-        gyro_gain=gain(gyro_scale_sigma, gyro_misalignment_sigma_rad),
-        gyro_bias_rad_s=rng.normal(0, gyro_bias_sigma_deg_s * DEG_TO_RAD, (k, 3)),
-        accel_gain=gain(accel_scale_sigma, accel_misalignment_sigma_rad),
-        accel_bias_m_s2=rng.normal(0, accel_bias_sigma_m_s2, (k, 3)),
-        sampling_offset_s=rng.normal(0, sampling_offset_sigma_s, k),
+        gyro_gain=Dg,
+        gyro_bias_rad_s=bg,
+        accel_gain=Da,
+        accel_bias_m_s2=ba,
+        sampling_offset_s=tau,
         gyro_noise_rad_s=gyro_noise_density_deg_s_sqrt_hz * DEG_TO_RAD * bw * spread(),
         accel_noise_m_s2=accel_noise_density_ug_sqrt_hz * 1e-6 * G0 * bw * spread(),
         gyro_g_sensitivity_rad_s_per_m_s2=rng.normal(0, g_sensitivity_sigma_deg_s_per_g * DEG_TO_RAD / G0, (k, 3, 3)),

@@ -1,0 +1,211 @@
+"""Accelerometer triads' positions (lever arms), gains and biases from motion (Carlsson, Skog & Jalden 2021).
+
+Model, body frame, triad j (its samples already moved to the array's time by its gyro sampling offset)::
+
+    z_j(t) = D_j (s(t) + K(t) r_j) + c_j + noise,      K = [w' x] + [w x]^2
+
+with ``w``, ``w'`` from the (relatively calibrated) gyro array, ``s`` the specific force at the reference point
+(a nuisance, one per sample), ``D_j`` the triad's gain matrix, ``c_j`` its bias and ``r_j`` its position. Unlike
+the gyros, the accelerometers' common gain is largely observable through the lever-arm terms (the gyros fix the
+frame of ``K``); what is not:
+
+* a common translation of all positions (absorbed by ``s``): positions are reported with the mean of the nominal
+  positions, or centred when none are given;
+* a common isotropic scale of the accelerometers together with the scale of all positions: fixed by
+  ``mean_j trace(D_j) = 3`` (mean accelerometer scale taken as exact);
+* a common bias (absorbed by ``s``): fixed by ``sum_j c_j = 0``;
+* any common-mode error of the gyro array (its scale enters K): the positions are in the gyro array's frame.
+
+Estimation: Gauss-Newton on all triads' parameters jointly with ``s`` eliminated per sample (its normal-equation
+block is the same in every sample), the three gauges as equality constraints (KKT), covariance from the
+constrained inverse of the Fisher information.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ShapeError
+from .layout import ArrayLayout
+from .relative import RelativeFit, _noise_from_differences, _sigma_from_residual_var, derivative, time_shift
+from .runtime import skew
+
+__all__ = ["PositionFit", "fit_positions"]
+
+
+@dataclass
+class PositionFit:
+    """Result of :func:`fit_positions` (body frame).
+
+    Attributes
+    ----------
+    layout : ArrayLayout
+        The layout with the estimated positions.
+    gain : ndarray (k, 3, 3)
+    bias_m_s2 : ndarray (k, 3)
+    positions_m : ndarray (k, 3)
+    covariance : ndarray (k, 15, 15)
+        Per triad: gain (9, row-major), bias (3), position (3).
+    sigma_m_s2 : ndarray (k,)
+    parity_rms_m_s2 : dict of str -> ndarray (k,)
+        ``"raw"``, ``"gain_bias"`` (lever arms at the nominal positions, or none), ``"positions"``: rms of each
+        triad's difference from the array's reference specific force, in motion.
+    nominal_m : ndarray (k, 3) or None
+    iterations : int
+    """
+
+    layout: ArrayLayout
+    gain: np.ndarray
+    bias_m_s2: np.ndarray
+    positions_m: np.ndarray
+    covariance: np.ndarray
+    sigma_m_s2: np.ndarray
+    parity_rms_m_s2: dict
+    nominal_m: "np.ndarray | None"
+    iterations: int
+
+    def vector(self) -> np.ndarray:
+        """(k, 15): gain - I (row-major), bias, position."""
+        return np.hstack([(self.gain - np.eye(3)).reshape(-1, 9), self.bias_m_s2, self.positions_m])
+
+    def std(self) -> np.ndarray:
+        return np.sqrt(np.einsum("kii->ki", self.covariance))
+
+    def position_std_m(self) -> np.ndarray:
+        return self.std()[:, 12:15]
+
+    def offset_from_nominal_m(self) -> np.ndarray:
+        """Estimated minus nominal position [m] (k, 3); raises when no nominal positions were given."""
+        if self.nominal_m is None:
+            raise ShapeError("no nominal positions were given to fit_positions")
+        return self.positions_m - self.nominal_m
+
+
+def _K(w: np.ndarray, wd: np.ndarray) -> np.ndarray:
+    W = skew(w)
+    return skew(wd) + W @ W
+
+
+def _rms_parity(e: np.ndarray, moving: np.ndarray) -> np.ndarray:
+    y = e[moving] - e[moving].mean(axis=1, keepdims=True)
+    return np.sqrt(np.mean(y**2, axis=(0, 2)))
+
+
+def fit_positions(
+    layout: ArrayLayout, t: np.ndarray, accel: np.ndarray, gyro_fit: "RelativeFit | None" = None,
+    gyro: "np.ndarray | None" = None, omega: "np.ndarray | None" = None, nominal_positions_m: "np.ndarray | None" = None,
+    max_iter: int = 15, motion_threshold_deg_s: float = 30.0,
+) -> PositionFit:
+    """Positions, gains and biases of the accelerometer triads from motion (Carlsson, Skog & Jalden 2021).
+
+    Parameters
+    ----------
+    layout : ArrayLayout
+        Triad rotations; its positions are the nominal ones unless ``nominal_positions_m`` is given.
+    t : ndarray (N,)
+    accel : ndarray (N, k, 3)
+        Raw accelerometer outputs in each triad's own axes [m/s^2].
+    gyro_fit, gyro : RelativeFit and ndarray (N, k, 3), optional
+        The gyros' relative calibration and raw outputs: give the array rate and each triad's sampling offset
+        (the accelerometer samples are moved by it). Or pass ``omega`` (N, 3) directly.
+    nominal_positions_m : ndarray (k, 3), optional
+        Default: ``layout.positions_m``.
+
+    Returns
+    -------
+    PositionFit
+    """
+    t = np.asarray(t, dtype=float)
+    z = layout.to_body(np.asarray(accel, dtype=float))
+    N, k = z.shape[:2]
+    nominal = np.asarray(layout.positions_m if nominal_positions_m is None else nominal_positions_m, dtype=float)
+    if nominal.shape != (k, 3):
+        raise ShapeError(f"nominal_positions_m must be ({k}, 3), got {nominal.shape}")
+    if omega is None:
+        if gyro_fit is None or gyro is None:
+            raise ShapeError("pass gyro_fit and gyro (the array's gyros), or omega (N, 3)")
+        u = gyro_fit.apply(t, gyro)
+        a = 1 / gyro_fit.sigma_rad_s**2
+        omega = np.einsum("k,nki->ni", a / a.sum(), u)
+        tau = gyro_fit.sampling_offset_s
+    else:
+        omega = np.asarray(omega, dtype=float)
+        tau = np.zeros(k)
+    if np.any(tau != 0):
+        z = np.stack([time_shift(t, z[:, j], -tau[j]) for j in range(k)], axis=1)
+    m = int(np.ceil(np.abs(tau).max() / np.max(np.diff(t)))) + 3
+    z, t, omega = z[m:N - m], t[m:N - m], omega[m:N - m]
+    wd = derivative(t, omega)
+    Kt = _K(omega, wd)
+    n = len(t)
+    moving = np.linalg.norm(omega, axis=1) > np.radians(motion_threshold_deg_s)
+    if moving.sum() < 10:
+        moving[:] = True
+    raw_rms = _rms_parity(z, moving)
+    D = np.repeat(np.eye(3)[None], k, axis=0)
+    c = np.zeros((k, 3))
+    r = nominal - nominal.mean(axis=0)
+    sigma = _noise_from_differences(z - z.mean(axis=1, keepdims=True))
+    p = 15
+    # gauge constraints G theta = 0 on the update: sum r (3), sum c (3), sum trace D (1)
+    G = np.zeros((7, k * p))
+    for j in range(k):
+        G[0:3, j * p + 12:j * p + 15] = np.eye(3)
+        G[3:6, j * p + 9:j * p + 12] = np.eye(3)
+        G[6, j * p + 0] = G[6, j * p + 4] = G[6, j * p + 8] = 1.0
+    it = 0
+    for it in range(1, max_iter + 1):
+        Kr = np.einsum("nab,kb->nka", Kt, r)
+        wj = 1 / sigma**2
+        # s per sample by weighted LS given the parameters
+        M = np.einsum("k,kai,kaj->ij", wj, D, D)
+        rhs = np.einsum("k,kai,nka->ni", wj, D, z - c[None] - np.einsum("kab,nkb->nka", D, Kr))
+        s = np.linalg.solve(M, rhs.T).T
+        e = z - np.einsum("kab,nkb->nka", D, s[:, None] + Kr) - c[None]
+        # Jacobian of triad j's output w.r.t. its 15 parameters: (n, k, 3, 15)
+        X = np.zeros((n, k, 3, p))
+        v = s[:, None] + Kr
+        for i in range(3):
+            X[:, :, i, 3 * i:3 * i + 3] = v
+        X[:, :, :, 9:12] = np.eye(3)
+        X[:, :, :, 12:15] = np.einsum("kab,nbc->nkac", D, Kt)
+        # eliminate s: per sample, C_t = sum_j w_j D_j^T X_j  (3 x k p)
+        Xw = X * wj[None, :, None, None]
+        Nd = np.einsum("nkap,nkaq->kpq", Xw, X)
+        C = np.einsum("kai,nkap->nikp", D, Xw).reshape(n, 3, k * p)
+        Minv = np.linalg.inv(M)
+        Cf = C.reshape(n * 3, k * p)
+        Mi_C = np.einsum("ij,njq->niq", Minv, C).reshape(n * 3, k * p)
+        Nfull = -(Cf.T @ Mi_C)
+        for j in range(k):
+            Nfull[j * p:(j + 1) * p, j * p:(j + 1) * p] += Nd[j]
+        g = np.einsum("nkap,nka->kp", Xw, e).ravel()
+        # (s is already the LS solution, so the elimination term of the gradient vanishes)
+        KKT = np.zeros((k * p + 7, k * p + 7))
+        KKT[:k * p, :k * p] = Nfull
+        KKT[:k * p, k * p:] = G.T
+        KKT[k * p:, :k * p] = G
+        sol = np.linalg.solve(KKT, np.concatenate([g, np.zeros(7)]))
+        d = sol[:k * p].reshape(k, p)
+        D = D + d[:, 0:9].reshape(k, 3, 3)
+        c = c + d[:, 9:12]
+        r = r + d[:, 12:15]
+        rss = np.einsum("nka,nka->k", e, e)
+        sigma = _sigma_from_residual_var(rss / (3 * n - p))
+        cov_full = np.linalg.inv(KKT)[:k * p, :k * p]
+        sd = np.sqrt(np.maximum(np.diag(cov_full), 0)).reshape(k, p)
+        if np.all(np.abs(d) < 0.05 * np.maximum(sd, 1e-300)):
+            break
+    cov = np.stack([cov_full[j * p:(j + 1) * p, j * p:(j + 1) * p] for j in range(k)])
+    r = r + nominal.mean(axis=0)
+    # parity figures: the triads moved to the reference point, with and without the estimated terms
+    f_gb = np.einsum("kab,nkb->nka", np.linalg.inv(D), z - c[None])
+    nom_rms = _rms_parity(f_gb - np.einsum("nab,kb->nka", Kt, nominal - nominal.mean(axis=0)), moving)
+    pos_rms = _rms_parity(f_gb - np.einsum("nab,kb->nka", Kt, r - nominal.mean(axis=0)), moving)
+    raw_lever = _rms_parity(z - np.einsum("nab,kb->nka", Kt, nominal - nominal.mean(axis=0)), moving)
+    return PositionFit(layout.with_positions(r), D, c, r, cov, sigma,
+                       {"raw": raw_rms, "raw_nominal_lever_arms": raw_lever, "gain_bias_nominal_lever_arms": nom_rms,
+                        "positions": pos_rms},
+                       nominal, it)
