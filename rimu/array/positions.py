@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ShapeError
+from ..errors import IdentifiabilityError, ShapeError
 from .layout import ArrayLayout
 from .relative import RelativeFit, _noise_from_differences, _sigma_from_residual_var, derivative, time_shift
 from .runtime import skew
@@ -88,6 +88,15 @@ def _K(w: np.ndarray, wd: np.ndarray) -> np.ndarray:
     return skew(wd) + W @ W
 
 
+def _cost(z, Kt, D, c, r, wj) -> float:
+    Kr = np.einsum("nab,kb->nka", Kt, r)
+    M = np.einsum("k,kai,kaj->ij", wj, D, D)
+    rhs = np.einsum("k,kai,nka->ni", wj, D, z - c[None] - np.einsum("kab,nkb->nka", D, Kr))
+    s = np.linalg.solve(M, rhs.T).T
+    e = z - np.einsum("kab,nkb->nka", D, s[:, None] + Kr) - c[None]
+    return float(np.einsum("k,nka,nka->", wj, e, e))
+
+
 def _rms_parity(e: np.ndarray, moving: np.ndarray) -> np.ndarray:
     y = e[moving] - e[moving].mean(axis=1, keepdims=True)
     return np.sqrt(np.mean(y**2, axis=(0, 2)))
@@ -96,7 +105,7 @@ def _rms_parity(e: np.ndarray, moving: np.ndarray) -> np.ndarray:
 def fit_positions(
     layout: ArrayLayout, t: np.ndarray, accel: np.ndarray, gyro_fit: "RelativeFit | None" = None,
     gyro: "np.ndarray | None" = None, omega: "np.ndarray | None" = None, nominal_positions_m: "np.ndarray | None" = None,
-    max_iter: int = 15, motion_threshold_deg_s: float = 30.0,
+    max_iter: int = 15, motion_threshold_deg_s: float = 30.0, estimate_gain: bool = True,
 ) -> PositionFit:
     """Positions, gains and biases of the accelerometer triads from motion (Carlsson, Skog & Jalden 2021).
 
@@ -112,6 +121,14 @@ def fit_positions(
         (the accelerometer samples are moved by it). Or pass ``omega`` (N, 3) directly.
     nominal_positions_m : ndarray (k, 3), optional
         Default: ``layout.positions_m``.
+    estimate_gain : bool
+        False: keep the gains at I and estimate biases and positions only (for motion that does not turn the
+        specific force through every axis).
+
+    Raises
+    ------
+    IdentifiabilityError
+        The gains are asked for but the specific force does not vary along every axis (names the direction).
 
     Returns
     -------
@@ -149,12 +166,26 @@ def fit_positions(
     r = nominal - nominal.mean(axis=0)
     sigma = _noise_from_differences(z - z.mean(axis=1, keepdims=True))
     p = 15
-    # gauge constraints G theta = 0 on the update: sum r (3), sum c (3), sum trace D (1)
-    G = np.zeros((7, k * p))
+    if estimate_gain:
+        f_mean = z.mean(axis=1)
+        ev, V = np.linalg.eigh(np.cov(f_mean.T))
+        if ev[0] < 0.5**2:
+            d0 = V[:, 0] * np.sign(V[np.argmax(np.abs(V[:, 0])), 0])
+            raise IdentifiabilityError(
+                "the motion cannot identify the accelerometer gains: they need specific force along every axis "
+                f"(turn the array against gravity); along body [{d0[0]:+.2f} {d0[1]:+.2f} {d0[2]:+.2f}] it varies "
+                f"by only {np.sqrt(max(ev[0], 0)):.3g} m/s^2 rms; pass estimate_gain=False for biases and positions",
+                parameters=["accel_gain"])
+    # gauge constraints G theta = 0 on the update: sum r (3), sum c (3), sum trace D (1) or every D entry
+    G = np.zeros((7 if estimate_gain else 6 + 9 * k, k * p))
     for j in range(k):
         G[0:3, j * p + 12:j * p + 15] = np.eye(3)
         G[3:6, j * p + 9:j * p + 12] = np.eye(3)
-        G[6, j * p + 0] = G[6, j * p + 4] = G[6, j * p + 8] = 1.0
+        if estimate_gain:
+            G[6, j * p + 0] = G[6, j * p + 4] = G[6, j * p + 8] = 1.0
+        else:
+            G[6 + 9 * j:6 + 9 * j + 9, j * p:j * p + 9] = np.eye(9)
+    nc = G.shape[0]
     it = 0
     for it in range(1, max_iter + 1):
         Kr = np.einsum("nab,kb->nka", Kt, r)
@@ -183,15 +214,24 @@ def fit_positions(
             Nfull[j * p:(j + 1) * p, j * p:(j + 1) * p] += Nd[j]
         g = np.einsum("nkap,nka->kp", Xw, e).ravel()
         # (s is already the LS solution, so the elimination term of the gradient vanishes)
-        KKT = np.zeros((k * p + 7, k * p + 7))
+        KKT = np.zeros((k * p + nc, k * p + nc))
         KKT[:k * p, :k * p] = Nfull
         KKT[:k * p, k * p:] = G.T
         KKT[k * p:, :k * p] = G
-        sol = np.linalg.solve(KKT, np.concatenate([g, np.zeros(7)]))
+        sol = np.linalg.solve(KKT, np.concatenate([g, np.zeros(nc)]))
         d = sol[:k * p].reshape(k, p)
-        D = D + d[:, 0:9].reshape(k, 3, 3)
-        c = c + d[:, 9:12]
-        r = r + d[:, 12:15]
+        # backtracking: a full Gauss-Newton step can overshoot when the motion barely excites the lever arms
+        c0 = _cost(z, Kt, D, c, r, wj)
+        lam = 1.0
+        for _ in range(12):
+            Dn, cn, rn = D + lam * d[:, 0:9].reshape(k, 3, 3), c + lam * d[:, 9:12], r + lam * d[:, 12:15]
+            if _cost(z, Kt, Dn, cn, rn, wj) <= c0 * (1 + 1e-12):
+                break
+            lam *= 0.5
+        else:
+            Dn, cn, rn = D, c, r
+        D, c, r = Dn, cn, rn
+        d = lam * d
         rss = np.einsum("nka,nka->k", e, e)
         sigma = _sigma_from_residual_var(rss / (3 * n - p))
         cov_full = np.linalg.inv(KKT)[:k * p, :k * p]

@@ -276,7 +276,9 @@ def _check_identifiable(terms: Sequence[Term], S: np.ndarray, sigma: float, sig:
 
 
 def _signals(t, u, sigma, specific_force) -> Signals:
-    w = _weighted_mean(u, sigma)
+    # plain mean: the estimates centred on it do not depend on the weights (see RelativeFit.covariance), and a
+    # triad with coloured (vibration) residuals does not drag the reference
+    w = u.mean(axis=1)
     return Signals(w, derivative(t, w), specific_force)
 
 
@@ -400,7 +402,7 @@ def _parity_rms(u: np.ndarray, sigma: np.ndarray, omega: np.ndarray, thr_deg_s: 
     moving = np.linalg.norm(omega, axis=1) > np.radians(thr_deg_s)
     if moving.sum() < 10:
         moving = np.ones(len(omega), bool)
-    y = u[moving] - _weighted_mean(u[moving], sigma)[:, None]
+    y = u[moving] - u[moving].mean(axis=1, keepdims=True)   # plain mean: the same yardstick before and after
     return np.sqrt(np.mean(y**2, axis=(0, 2)))
 
 
