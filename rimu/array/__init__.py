@@ -48,6 +48,6 @@ __all__ += ["BASE_TERMS", "CANDIDATE_TERMS", "CandidateScore", "RelativeFit", "d
 from .positions import PositionFit, fit_positions  # noqa: E402
 
 __all__ += ["PositionFit", "fit_positions"]
-from .report import ArrayReport, array_report  # noqa: E402
+from .report import ArrayReport, array_report, lowpass  # noqa: E402
 
-__all__ += ["ArrayReport", "array_report"]
+__all__ += ["ArrayReport", "array_report", "lowpass"]

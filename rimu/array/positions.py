@@ -71,7 +71,7 @@ class PositionFit:
         return np.hstack([(self.gain - np.eye(3)).reshape(-1, 9), self.bias_m_s2, self.positions_m])
 
     def std(self) -> np.ndarray:
-        return np.sqrt(np.einsum("kii->ki", self.covariance))
+        return np.sqrt(np.maximum(np.einsum("kii->ki", self.covariance), 0.0))
 
     def position_std_m(self) -> np.ndarray:
         return self.std()[:, 12:15]
@@ -86,6 +86,73 @@ class PositionFit:
 def _K(w: np.ndarray, wd: np.ndarray) -> np.ndarray:
     W = skew(w)
     return skew(wd) + W @ W
+
+
+def _jac(Kt, D, r, s) -> np.ndarray:
+    """Jacobian of every triad's output w.r.t. its 15 parameters (gain, bias, position): (n, k, 3, 15)."""
+    n, k = s.shape[0], D.shape[0]
+    X = np.zeros((n, k, 3, 15))
+    v = s[:, None] + np.einsum("nab,kb->nka", Kt, r)
+    for i in range(3):
+        X[:, :, i, 3 * i:3 * i + 3] = v
+    X[:, :, :, 9:12] = np.eye(3)
+    X[:, :, :, 12:15] = np.einsum("kab,nbc->nkac", D, Kt)
+    return X
+
+
+def _kkt(Kt, D, r, s, sigma, G) -> np.ndarray:
+    """Normal matrix with the per-sample specific force eliminated, bordered by the gauge constraints G."""
+    n, k, p = s.shape[0], D.shape[0], 15
+    wj = 1 / sigma**2
+    X = _jac(Kt, D, r, s)
+    Xw = X * wj[None, :, None, None]
+    Nd = np.einsum("nkap,nkaq->kpq", Xw, X)
+    M = np.einsum("k,kai,kaj->ij", wj, D, D)
+    C = np.einsum("kai,nkap->nikp", D, Xw).reshape(n, 3, k * p)
+    Mi_C = np.einsum("ij,njq->niq", np.linalg.inv(M), C).reshape(n * 3, k * p)
+    Nfull = -(C.reshape(n * 3, k * p).T @ Mi_C)
+    for j in range(k):
+        Nfull[j * p:(j + 1) * p, j * p:(j + 1) * p] += Nd[j]
+    nc = G.shape[0]
+    KKT = np.zeros((k * p + nc, k * p + nc))
+    KKT[:k * p, :k * p] = Nfull
+    KKT[:k * p, k * p:] = G.T
+    KKT[k * p:, :k * p] = G
+    return KKT
+
+
+#: largest predicted standard deviation at which a parameter counts as identified
+_MAX_SD = {"gain": 0.05, "position": 0.01}
+
+
+def _check_identifiable(Kt, z, D, c, r, sigma, G, gain) -> None:
+    """Predicted standard deviations at the start (gain = I, nominal positions): refuse what the motion cannot give."""
+    k = D.shape[0]
+    wj = 1 / sigma**2
+    M = np.einsum("k,kai,kaj->ij", wj, D, D)
+    Kr = np.einsum("nab,kb->nka", Kt, r)
+    rhs = np.einsum("k,kai,nka->ni", wj, D, z - c[None] - np.einsum("kab,nkb->nka", D, Kr))
+    s = np.linalg.solve(M, rhs.T).T
+    KKT = _kkt(Kt, D, r, s, sigma, G)
+    sd = np.sqrt(np.abs(np.diag(np.linalg.inv(KKT))[:k * 15])).reshape(k, 15)
+    msgs, names = [], []
+    if gain != "none" and sd[:, 0:9].max() > _MAX_SD["gain"]:
+        ev, V = np.linalg.eigh(np.cov(s.T))
+        d0 = V[:, 0] * np.sign(V[np.argmax(np.abs(V[:, 0])), 0])
+        names.append("accel_gain")
+        extra = (" and, for their common part (gain='absolute'), lever arms: nominal positions spread over the "
+                 "board and fast rotation" if gain == "absolute" else "")
+        msgs.append(f"the {gain} accelerometer gains need specific force along every axis (turn the array against "
+                    f"gravity){extra}: predicted sd up to {sd[:, 0:9].max():.2g}; the specific force varies least "
+                    f"along body [{d0[0]:+.2f} {d0[1]:+.2f} {d0[2]:+.2f}], {np.sqrt(max(ev[0], 0)):.3g} m/s^2 rms; "
+                    "try gain='relative' or gain='none'")
+    if sd[:, 12:15].max() > _MAX_SD["position"]:
+        names.append("position")
+        msgs.append(f"the positions need angular rate and angular acceleration about every axis (the lever-arm "
+                    f"terms w' x r + w x (w x r)): predicted sd up to {sd[:, 12:15].max() * 1e3:.3g} mm")
+    if names:
+        raise IdentifiabilityError("the motion cannot identify " + ", ".join(names) + ": " + "; ".join(msgs),
+                                   parameters=names)
 
 
 def _cost(z, Kt, D, c, r, wj) -> float:
@@ -105,7 +172,7 @@ def _rms_parity(e: np.ndarray, moving: np.ndarray) -> np.ndarray:
 def fit_positions(
     layout: ArrayLayout, t: np.ndarray, accel: np.ndarray, gyro_fit: "RelativeFit | None" = None,
     gyro: "np.ndarray | None" = None, omega: "np.ndarray | None" = None, nominal_positions_m: "np.ndarray | None" = None,
-    max_iter: int = 15, motion_threshold_deg_s: float = 30.0, estimate_gain: bool = True,
+    max_iter: int = 15, motion_threshold_deg_s: float = 30.0, gain: str = "absolute",
 ) -> PositionFit:
     """Positions, gains and biases of the accelerometer triads from motion (Carlsson, Skog & Jalden 2021).
 
@@ -121,14 +188,16 @@ def fit_positions(
         (the accelerometer samples are moved by it). Or pass ``omega`` (N, 3) directly.
     nominal_positions_m : ndarray (k, 3), optional
         Default: ``layout.positions_m``.
-    estimate_gain : bool
-        False: keep the gains at I and estimate biases and positions only (for motion that does not turn the
-        specific force through every axis).
+    gain : {"absolute", "relative", "none"}
+        ``"absolute"`` (Carlsson et al.): every triad's gain matrix, their common part (but for the isotropic
+        scale) seen through the lever-arm terms; needs nominal positions away from one point and lever-arm
+        excitation. ``"relative"``: gains relative to the array mean (``mean_j D_j = I``), like the gyros.
+        ``"none"``: gains kept at I, biases and positions only.
 
     Raises
     ------
     IdentifiabilityError
-        The gains are asked for but the specific force does not vary along every axis (names the direction).
+        The motion cannot identify the gains or the positions; the message names the excitation they need.
 
     Returns
     -------
@@ -166,58 +235,37 @@ def fit_positions(
     r = nominal - nominal.mean(axis=0)
     sigma = _noise_from_differences(z - z.mean(axis=1, keepdims=True))
     p = 15
-    if estimate_gain:
-        f_mean = z.mean(axis=1)
-        ev, V = np.linalg.eigh(np.cov(f_mean.T))
-        if ev[0] < 0.5**2:
-            d0 = V[:, 0] * np.sign(V[np.argmax(np.abs(V[:, 0])), 0])
-            raise IdentifiabilityError(
-                "the motion cannot identify the accelerometer gains: they need specific force along every axis "
-                f"(turn the array against gravity); along body [{d0[0]:+.2f} {d0[1]:+.2f} {d0[2]:+.2f}] it varies "
-                f"by only {np.sqrt(max(ev[0], 0)):.3g} m/s^2 rms; pass estimate_gain=False for biases and positions",
-                parameters=["accel_gain"])
-    # gauge constraints G theta = 0 on the update: sum r (3), sum c (3), sum trace D (1) or every D entry
-    G = np.zeros((7 if estimate_gain else 6 + 9 * k, k * p))
+    if gain not in ("absolute", "relative", "none"):
+        raise ShapeError(f"gain must be 'absolute', 'relative' or 'none', got {gain!r}")
+    # gauge constraints G theta = 0 on the update: sum r (3), sum c (3), and sum trace D (1, absolute),
+    # sum D (9, relative) or every D entry (none)
+    G = np.zeros((6 + {"absolute": 1, "relative": 9, "none": 9 * k}[gain], k * p))
     for j in range(k):
         G[0:3, j * p + 12:j * p + 15] = np.eye(3)
         G[3:6, j * p + 9:j * p + 12] = np.eye(3)
-        if estimate_gain:
+        if gain == "absolute":
             G[6, j * p + 0] = G[6, j * p + 4] = G[6, j * p + 8] = 1.0
+        elif gain == "relative":
+            G[6:15, j * p:j * p + 9] = np.eye(9)
         else:
             G[6 + 9 * j:6 + 9 * j + 9, j * p:j * p + 9] = np.eye(9)
     nc = G.shape[0]
+    _check_identifiable(Kt, z, D, c, r, sigma, G, gain)
+    # weights fixed during the iterations (from the high-frequency noise): re-estimating them inside the loop
+    # lets the joint fit trade a triad's gain for its noise (a degenerate optimum with D_j -> 0)
+    wj = 1 / sigma**2
     it = 0
     for it in range(1, max_iter + 1):
         Kr = np.einsum("nab,kb->nka", Kt, r)
-        wj = 1 / sigma**2
         # s per sample by weighted LS given the parameters
         M = np.einsum("k,kai,kaj->ij", wj, D, D)
         rhs = np.einsum("k,kai,nka->ni", wj, D, z - c[None] - np.einsum("kab,nkb->nka", D, Kr))
         s = np.linalg.solve(M, rhs.T).T
         e = z - np.einsum("kab,nkb->nka", D, s[:, None] + Kr) - c[None]
-        # Jacobian of triad j's output w.r.t. its 15 parameters: (n, k, 3, 15)
-        X = np.zeros((n, k, 3, p))
-        v = s[:, None] + Kr
-        for i in range(3):
-            X[:, :, i, 3 * i:3 * i + 3] = v
-        X[:, :, :, 9:12] = np.eye(3)
-        X[:, :, :, 12:15] = np.einsum("kab,nbc->nkac", D, Kt)
-        # eliminate s: per sample, C_t = sum_j w_j D_j^T X_j  (3 x k p)
-        Xw = X * wj[None, :, None, None]
-        Nd = np.einsum("nkap,nkaq->kpq", Xw, X)
-        C = np.einsum("kai,nkap->nikp", D, Xw).reshape(n, 3, k * p)
-        Minv = np.linalg.inv(M)
-        Cf = C.reshape(n * 3, k * p)
-        Mi_C = np.einsum("ij,njq->niq", Minv, C).reshape(n * 3, k * p)
-        Nfull = -(Cf.T @ Mi_C)
-        for j in range(k):
-            Nfull[j * p:(j + 1) * p, j * p:(j + 1) * p] += Nd[j]
+        KKT = _kkt(Kt, D, r, s, 1 / np.sqrt(wj), G)
+        Xw = _jac(Kt, D, r, s) * wj[None, :, None, None]
         g = np.einsum("nkap,nka->kp", Xw, e).ravel()
         # (s is already the LS solution, so the elimination term of the gradient vanishes)
-        KKT = np.zeros((k * p + nc, k * p + nc))
-        KKT[:k * p, :k * p] = Nfull
-        KKT[:k * p, k * p:] = G.T
-        KKT[k * p:, :k * p] = G
         sol = np.linalg.solve(KKT, np.concatenate([g, np.zeros(nc)]))
         d = sol[:k * p].reshape(k, p)
         # backtracking: a full Gauss-Newton step can overshoot when the motion barely excites the lever arms
@@ -232,12 +280,19 @@ def fit_positions(
             Dn, cn, rn = D, c, r
         D, c, r = Dn, cn, rn
         d = lam * d
-        rss = np.einsum("nka,nka->k", e, e)
-        sigma = _sigma_from_residual_var(rss / (3 * n - p))
-        cov_full = np.linalg.inv(KKT)[:k * p, :k * p]
-        sd = np.sqrt(np.maximum(np.diag(cov_full), 0)).reshape(k, p)
-        if np.all(np.abs(d) < 0.05 * np.maximum(sd, 1e-300)):
+        sd = np.sqrt(np.maximum(np.diag(np.linalg.inv(KKT))[:k * p], 0)).reshape(k, p)
+        if np.all(np.abs(d) <= 0.05 * sd + 1e-12 * (1 + np.abs(np.hstack([D.reshape(k, 9), c, r])))):
             break
+    # covariance: the constrained inverse Fisher information with the noise from the residual
+    Kr = np.einsum("nab,kb->nka", Kt, r)
+    M = np.einsum("k,kai,kaj->ij", wj, D, D)
+    rhs = np.einsum("k,kai,nka->ni", wj, D, z - c[None] - np.einsum("kab,nkb->nka", D, Kr))
+    s = np.linalg.solve(M, rhs.T).T
+    e = z - np.einsum("kab,nkb->nka", D, s[:, None] + Kr) - c[None]
+    # residual of triad j has variance ~ sigma_j^2 - (its share in s); same fixed point as for the gyros
+    sigma = _sigma_from_residual_var(np.einsum("nka,nka->k", e, e) / (3 * n - p))
+    KKT = _kkt(Kt, D, r, s, sigma, G)
+    cov_full = np.linalg.inv(KKT)[:k * p, :k * p]
     cov = np.stack([cov_full[j * p:(j + 1) * p, j * p:(j + 1) * p] for j in range(k)])
     r = r + nominal.mean(axis=0)
     # parity figures: the triads moved to the reference point, with and without the estimated terms

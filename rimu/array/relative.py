@@ -285,7 +285,7 @@ def _signals(t, u, sigma, specific_force) -> Signals:
 def fit_relative_gyro(
     layout: ArrayLayout, t: np.ndarray, gyro: np.ndarray, terms: Sequence[str] = BASE_TERMS,
     specific_force: "np.ndarray | None" = None, candidates: "Sequence[str] | None" = CANDIDATE_TERMS,
-    motion_threshold_deg_s: float = 30.0, max_iter: int = 12,
+    motion_threshold_deg_s: float = 30.0, max_iter: int = 30,
 ) -> RelativeFit:
     """Relative calibration of the gyro triads from a recording with motion.
 
@@ -347,9 +347,9 @@ def fit_relative_gyro(
     sig = _signals(t, z, sigma, specific_force)
     before = _parity_rms(z, sigma, sig.omega, motion_threshold_deg_s)
     it = 0
+    u = _compensate(t, z, gain, bias, tau, extra, None)
+    sig = _signals(t, u, sigma, specific_force)
     for it in range(1, max_iter + 1):
-        u = _compensate(t, z, gain, bias, tau, extra, sig if extra else None)
-        sig = _signals(t, u, sigma, specific_force)
         m = int(np.ceil(np.abs(tau).max() / dt_max)) + 3
         use = slice(m, N - m)
         X = np.concatenate([tt.columns(sig) for tt in T], axis=2)[use]
@@ -362,29 +362,28 @@ def fit_relative_gyro(
         th = b @ Sinv.T
         rss = np.einsum("nka,nka->k", y, y) - np.einsum("kp,kp->k", b, th)
         n_used = y.shape[0]
-        v = rss / (3 * n_used - P)
-        sigma = _sigma_from_residual_var(v)
-        # compose
-        pos = 0
-        done = True
+        sigma = _sigma_from_residual_var(rss / (3 * n_used - P))
         sd = np.sqrt(np.diag(Sinv))[None] * sigma[:, None]
-        if np.any(np.abs(th) > 0.02 * sd):
-            done = False
-        for tt in T:
-            d = th[:, pos:pos + tt.n_cols]
-            pos += tt.n_cols
-            if tt.name == "scale_misalignment":
-                dF = d.reshape(k, 3, 3)
-                gain_new = gain @ (np.eye(3) + dF)
-            elif tt.name == "bias":
-                bias = bias + np.einsum("kij,kj->ki", gain, d)
-            elif tt.name == "sampling_offset":
-                tau = tau + d[:, 0]
-            else:
-                extra[tt.name] = extra[tt.name] + d
-        gain = gain_new
-        if done:
+        if np.all(np.abs(th) <= 0.02 * sd):
             break
+        # compose, with backtracking on the parity criterion: the linearised step can overshoot when the
+        # recording barely excites a term (large offsets, vibration-dominated rates)
+        j_old = _criterion(u, use)
+        lam = 1.0
+        for _ in range(8):
+            cand = _compose(T, th * lam, gain, bias, tau, extra)
+            u_new = _compensate(t, z, *cand, None)
+            if _criterion(u_new, use) <= j_old * (1 + 1e-9):
+                break
+            lam *= 0.5
+        else:
+            break
+        gain, bias, tau, extra = cand
+        u = u_new
+        sig = _signals(t, u, sigma, specific_force)
+        if extra:
+            u = _compensate(t, z, gain, bias, tau, extra, sig)
+            sig = _signals(t, u, sigma, specific_force)
     D, c, tau, _ = to_array_gauge(gain, bias, tau)
     # additive terms: centred (their common mode times the array-mean gain is second order)
     extra = {n: v - v.mean(axis=0) for n, v in extra.items()}
@@ -396,6 +395,31 @@ def fit_relative_gyro(
     if candidates:
         fit.candidates = rank_candidates(fit, t, u, sig, [x for x in candidates if x not in terms])
     return fit
+
+
+def _criterion(u: np.ndarray, use: slice) -> float:
+    """The parity criterion: every triad's squared difference from the array mean, summed."""
+    y = u[use] - u[use].mean(axis=1, keepdims=True)
+    return float(np.einsum("nka,nka->", y, y))
+
+
+def _compose(T, th, gain, bias, tau, extra):
+    """Apply a regression step ``th`` (k, P) to the parameters (exact composition of gain, bias and offset)."""
+    k = gain.shape[0]
+    pos = 0
+    gain_new, bias_new, tau_new, extra_new = gain, bias, tau, dict(extra)
+    for tt in T:
+        d = th[:, pos:pos + tt.n_cols]
+        pos += tt.n_cols
+        if tt.name == "scale_misalignment":
+            gain_new = gain @ (np.eye(3) + d.reshape(k, 3, 3))
+        elif tt.name == "bias":
+            bias_new = bias + np.einsum("kij,kj->ki", gain, d)
+        elif tt.name == "sampling_offset":
+            tau_new = tau + d[:, 0]
+        else:
+            extra_new[tt.name] = extra[tt.name] + d
+    return gain_new, bias_new, tau_new, extra_new
 
 
 def _parity_rms(u: np.ndarray, sigma: np.ndarray, omega: np.ndarray, thr_deg_s: float) -> np.ndarray:

@@ -12,13 +12,33 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import IdentifiabilityError
+from ..errors import IdentifiabilityError, ShapeError
 from ..units import RAD_TO_DEG
 from .layout import ArrayLayout
 from .positions import PositionFit, fit_positions
 from .relative import RelativeFit, fit_relative_gyro
 
-__all__ = ["ArrayReport", "array_report"]
+__all__ = ["ArrayReport", "array_report", "lowpass"]
+
+
+def lowpass(t: np.ndarray, x: np.ndarray, cutoff_hz: float, order: int = 4) -> np.ndarray:
+    """Zero-phase Butterworth low-pass of ``x`` (N, ...) along time, at the median sampling rate of ``t``.
+
+    The rigid-body array model holds below the board's vibration modes; a recording from a vehicle (rotor
+    vibration) is best compared there. A linear time-invariant filter applied to every triad alike commutes with
+    gains, biases and time offsets, so it does not change what the relative calibration estimates.
+
+    Raises
+    ------
+    ShapeError
+        ``cutoff_hz`` not below the Nyquist frequency.
+    """
+    from scipy.signal import butter, sosfiltfilt
+
+    fs = 1.0 / float(np.median(np.diff(t)))
+    if not 0 < cutoff_hz < fs / 2:
+        raise ShapeError(f"cutoff_hz must be in (0, {fs / 2:.4g}) Hz (the Nyquist frequency), got {cutoff_hz}")
+    return sosfiltfilt(butter(order, cutoff_hz, fs=fs, output="sos"), np.asarray(x, dtype=float), axis=0)
 
 
 @dataclass
@@ -93,13 +113,19 @@ class ArrayReport:
 def array_report(
     layout: ArrayLayout, t: np.ndarray, gyro: np.ndarray, accel: "np.ndarray | None" = None,
     nominal_positions_m: "np.ndarray | None" = None, motion_threshold_deg_s: float = 30.0,
+    lowpass_hz: "float | None" = None,
 ) -> ArrayReport:
     """Run the steps and collect the parity rms in motion after each, per triad.
 
     Parameters as :func:`fit_relative_gyro` and :func:`fit_positions`; ``accel`` may be None (gyros only).
-    A step the motion cannot identify is skipped with a note naming the missing excitation.
+    ``lowpass_hz`` filters every triad alike first (:func:`lowpass`). A step the motion cannot identify is
+    skipped with a note naming the missing excitation.
     """
     notes: list[str] = []
+    if lowpass_hz is not None:
+        gyro = lowpass(t, gyro, lowpass_hz)
+        accel = None if accel is None else lowpass(t, accel, lowpass_hz)
+        notes.append(f"every triad low-passed at {lowpass_hz:g} Hz (zero phase) before the fits")
     base = fit_relative_gyro(layout, t, gyro, motion_threshold_deg_s=motion_threshold_deg_s)
     steps = {"raw": base.parity_rms_rad_s["before"] * RAD_TO_DEG,
              "relative gain+bias": base.parity_rms_rad_s["after"] * RAD_TO_DEG}
@@ -112,18 +138,18 @@ def array_report(
         notes.append(f"sampling offsets skipped: {exc}")
     rep = ArrayReport(layout.names, steps, limiting_term=fit.limiting_term(), gyro_fit=fit, notes=notes)
     if accel is not None:
-        try:
-            pf = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
-                               motion_threshold_deg_s=motion_threshold_deg_s)
-            gb = "+ gain+bias"
-            if pf.parity_rms_m_s2["gain_bias_nominal_lever_arms"].mean() > pf.parity_rms_m_s2["raw"].mean():
-                raise IdentifiabilityError("the joint gain fit made the agreement worse (too little excitation of "
-                                           "the specific force for 9 gain parameters per triad)", ["accel_gain"])
-        except IdentifiabilityError as exc:
-            notes.append(f"accelerometer gains kept: {exc}")
-            pf = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
-                               motion_threshold_deg_s=motion_threshold_deg_s, estimate_gain=False)
-            gb = "+ bias"
+        pf, gb = None, ""
+        for mode, label in (("absolute", "+ gain+bias"), ("relative", "+ relative gain+bias"), ("none", "+ bias")):
+            try:
+                cand = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
+                                     motion_threshold_deg_s=motion_threshold_deg_s, gain=mode)
+            except IdentifiabilityError as exc:
+                notes.append(f"accelerometer gain={mode!r} skipped: {exc}")
+                continue
+            pf, gb = cand, label
+            break
+        if pf is None:
+            return rep
         p = pf.parity_rms_m_s2
         rep.accel_steps = {"raw": p["raw"], "nominal lever arms": p["raw_nominal_lever_arms"],
                            gb: p["gain_bias_nominal_lever_arms"], "+ positions": p["positions"]}
