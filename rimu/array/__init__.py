@@ -30,7 +30,7 @@ __all__ = [
     "remove_lever_arms",
     "skew",
 ]
-from .relative import (  # noqa: E402
+from .relative import (
     BASE_TERMS,
     CANDIDATE_TERMS,
     CandidateScore,
@@ -41,7 +41,7 @@ from .relative import (  # noqa: E402
     time_shift,
     to_array_gauge,
 )
-from .terms import GYRO_TERMS, Signals, Term  # noqa: E402
+from .terms import GYRO_TERMS, Signals, Term
 
 __all__ += ["BASE_TERMS", "CANDIDATE_TERMS", "CandidateScore", "RelativeFit", "derivative", "fit_relative_gyro",
             "rank_candidates", "time_shift", "to_array_gauge", "GYRO_TERMS", "Signals", "Term"]

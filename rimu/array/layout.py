@@ -7,8 +7,9 @@ SB_j. ``rotations[j]`` maps an SB_j vector to MB (``mat_mb_sb``, the transpose o
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 

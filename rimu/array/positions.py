@@ -255,7 +255,7 @@ def fit_positions(
     # lets the joint fit trade a triad's gain for its noise (a degenerate optimum with D_j -> 0)
     wj = 1 / sigma**2
     it = 0
-    for it in range(1, max_iter + 1):
+    for it in range(1, max_iter + 1):  # noqa: B007 - the count is reported
         Kr = np.einsum("nab,kb->nka", Kt, r)
         # s per sample by weighted LS given the parameters
         M = np.einsum("k,kai,kaj->ij", wj, D, D)

@@ -23,8 +23,8 @@ its covariance is ``S^-1 (sigma_j^2 delta_jm - ...)`` with ``S`` the Gram matrix
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 from scipy import stats

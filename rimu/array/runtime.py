@@ -286,7 +286,7 @@ def ml_motion(
     b = np.einsum("nk,nkai,nka->ni", ca, A, y)
     theta = np.column_stack([w0, np.linalg.solve(M, b[..., None])[..., 0]])
     it = 0
-    for it in range(1, max_iter + 1):
+    for it in range(1, max_iter + 1):  # noqa: B007 - the count is reported
         J = accel_jacobian(theta[:, 0:3], r)
         ra = fa - accel_model(theta, r)
         info = np.einsum("nk,nkai,nkaj->nij", ca, J, J)
