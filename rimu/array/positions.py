@@ -50,8 +50,10 @@ class PositionFit:
         Per triad: gain (9, row-major), bias (3), position (3).
     sigma_m_s2 : ndarray (k,)
     parity_rms_m_s2 : dict of str -> ndarray (k,)
-        ``"raw"``, ``"gain_bias"`` (lever arms at the nominal positions, or none), ``"positions"``: rms of each
-        triad's difference from the array's reference specific force, in motion.
+        ``"raw"``; ``"aligned"`` (moved by the gyro sampling offsets); ``"raw_nominal_lever_arms"`` (aligned,
+        lever-arm terms at the nominal positions removed); ``"gain_bias_nominal_lever_arms"`` (and gains and
+        biases removed); ``"positions"`` (lever arms at the estimated positions): rms of each triad's difference
+        from the array mean, in motion.
     nominal_m : ndarray (k, 3) or None
     iterations : int
     """
@@ -65,6 +67,17 @@ class PositionFit:
     parity_rms_m_s2: dict
     nominal_m: "np.ndarray | None"
     iterations: int
+    sampling_offset_s: "np.ndarray | None" = None
+    gain_mode: str = "absolute"
+
+    def apply(self, t: np.ndarray, accel: np.ndarray) -> np.ndarray:
+        """Compensate raw accelerometer triads (N, k, 3, own axes): body-frame specific force at each triad,
+        on the array's time (moved by the gyro sampling offsets), gains and biases removed. Feed it with
+        ``positions_m`` to :func:`rimu.array.ml_motion` or :func:`rimu.array.remove_lever_arms`."""
+        z = self.layout.to_body(np.asarray(accel, dtype=float))
+        if self.sampling_offset_s is not None:
+            z = np.stack([time_shift(t, z[:, j], -self.sampling_offset_s[j]) for j in range(z.shape[1])], axis=1)
+        return np.einsum("kab,nkb->nka", np.linalg.inv(self.gain), z - self.bias_m_s2[None])
 
     def vector(self) -> np.ndarray:
         """(k, 15): gain - I (row-major), bias, position."""
@@ -172,7 +185,7 @@ def _rms_parity(e: np.ndarray, moving: np.ndarray) -> np.ndarray:
 def fit_positions(
     layout: ArrayLayout, t: np.ndarray, accel: np.ndarray, gyro_fit: "RelativeFit | None" = None,
     gyro: "np.ndarray | None" = None, omega: "np.ndarray | None" = None, nominal_positions_m: "np.ndarray | None" = None,
-    max_iter: int = 15, motion_threshold_deg_s: float = 30.0, gain: str = "absolute",
+    max_iter: int = 15, motion_threshold_deg_s: float = 30.0, gain: str = "absolute", align: bool = True,
 ) -> PositionFit:
     """Positions, gains and biases of the accelerometer triads from motion (Carlsson, Skog & Jalden 2021).
 
@@ -193,6 +206,9 @@ def fit_positions(
         scale) seen through the lever-arm terms; needs nominal positions away from one point and lever-arm
         excitation. ``"relative"``: gains relative to the array mean (``mean_j D_j = I``), like the gyros.
         ``"none"``: gains kept at I, biases and positions only.
+    align : bool
+        Move every accelerometer triad by its gyro's sampling offset (one chip, one clock). False when the
+        accelerometers and gyros are separate chips.
 
     Raises
     ------
@@ -215,12 +231,15 @@ def fit_positions(
         u = gyro_fit.apply(t, gyro)
         a = 1 / gyro_fit.sigma_rad_s**2
         omega = np.einsum("k,nki->ni", a / a.sum(), u)
-        tau = gyro_fit.sampling_offset_s
+        tau = gyro_fit.sampling_offset_s if align else np.zeros(k)
     else:
         omega = np.asarray(omega, dtype=float)
         tau = np.zeros(k)
+    moving_all = np.linalg.norm(omega, axis=1) > np.radians(motion_threshold_deg_s)
+    raw_rms = _rms_parity(z, moving_all if moving_all.sum() >= 10 else np.ones(N, bool))
     if np.any(tau != 0):
         z = np.stack([time_shift(t, z[:, j], -tau[j]) for j in range(k)], axis=1)
+    aligned_rms = _rms_parity(z, moving_all if moving_all.sum() >= 10 else np.ones(N, bool))
     m = int(np.ceil(np.abs(tau).max() / np.max(np.diff(t)))) + 3
     z, t, omega = z[m:N - m], t[m:N - m], omega[m:N - m]
     wd = derivative(t, omega)
@@ -229,7 +248,6 @@ def fit_positions(
     moving = np.linalg.norm(omega, axis=1) > np.radians(motion_threshold_deg_s)
     if moving.sum() < 10:
         moving[:] = True
-    raw_rms = _rms_parity(z, moving)
     D = np.repeat(np.eye(3)[None], k, axis=0)
     c = np.zeros((k, 3))
     r = nominal - nominal.mean(axis=0)
@@ -301,6 +319,6 @@ def fit_positions(
     pos_rms = _rms_parity(f_gb - np.einsum("nab,kb->nka", Kt, r - nominal.mean(axis=0)), moving)
     raw_lever = _rms_parity(z - np.einsum("nab,kb->nka", Kt, nominal - nominal.mean(axis=0)), moving)
     return PositionFit(layout.with_positions(r), D, c, r, cov, sigma,
-                       {"raw": raw_rms, "raw_nominal_lever_arms": raw_lever, "gain_bias_nominal_lever_arms": nom_rms,
-                        "positions": pos_rms},
-                       nominal, it)
+                       {"raw": raw_rms, "aligned": aligned_rms, "raw_nominal_lever_arms": raw_lever,
+                        "gain_bias_nominal_lever_arms": nom_rms, "positions": pos_rms},
+                       nominal, it, np.asarray(tau, dtype=float), gain)

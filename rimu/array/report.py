@@ -139,19 +139,33 @@ def array_report(
     rep = ArrayReport(layout.names, steps, limiting_term=fit.limiting_term(), gyro_fit=fit, notes=notes)
     if accel is not None:
         pf, gb = None, ""
+        align = True
         for mode, label in (("absolute", "+ gain+bias"), ("relative", "+ relative gain+bias"), ("none", "+ bias")):
             try:
                 cand = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
-                                     motion_threshold_deg_s=motion_threshold_deg_s, gain=mode)
+                                     motion_threshold_deg_s=motion_threshold_deg_s, gain=mode, align=align)
             except IdentifiabilityError as exc:
                 notes.append(f"accelerometer gain={mode!r} skipped: {exc}")
                 continue
+            if align and cand.parity_rms_m_s2["aligned"].mean() > cand.parity_rms_m_s2["raw"].mean():
+                notes.append("the gyros' sampling offsets do not fit the accelerometers (separate chips?): "
+                             "accelerometers left on their own time")
+                align = False
+                cand = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
+                                     motion_threshold_deg_s=motion_threshold_deg_s, gain=mode, align=False)
             pf, gb = cand, label
             break
         if pf is None:
             return rep
         p = pf.parity_rms_m_s2
-        rep.accel_steps = {"raw": p["raw"], "nominal lever arms": p["raw_nominal_lever_arms"],
-                           gb: p["gain_bias_nominal_lever_arms"], "+ positions": p["positions"]}
+        steps = {"raw": p["raw"]}
+        if align and np.any(fit.sampling_offset_s != 0):
+            steps["+ gyro sampling offsets"] = p["aligned"]
+        nominal = layout.positions_m if nominal_positions_m is None else np.asarray(nominal_positions_m)
+        if np.ptp(nominal, axis=0).max() > 0:
+            steps["+ nominal lever arms"] = p["raw_nominal_lever_arms"]
+        steps[gb] = p["gain_bias_nominal_lever_arms"]
+        steps["+ positions"] = p["positions"]
+        rep.accel_steps = steps
         rep.position_fit = pf
     return rep
