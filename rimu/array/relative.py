@@ -180,10 +180,22 @@ class RelativeFit:
         sig = [c for c in self.candidates if c.significant]
         return sig[0].name if sig else "noise"
 
-    def apply(self, t: np.ndarray, gyro: np.ndarray, signals: "Signals | None" = None) -> np.ndarray:
-        """Compensate raw triad outputs (N, k, 3, own axes) -> body-frame rates with the relative errors removed."""
-        z = self.layout.to_body(gyro)
-        return _compensate(t, z, self.gain, self.bias_rad_s, self.sampling_offset_s, self.extra, signals)
+    def apply(self, t: np.ndarray, gyro: np.ndarray, specific_force: "np.ndarray | None" = None) -> np.ndarray:
+        """Compensate raw triad outputs (N, k, 3, own axes) -> body-frame rates with the relative errors removed.
+
+        Additive terms (angular-acceleration sensitivity, g-sensitivity, nonlinearity) are evaluated on the
+        array-mean signals of a first pass (``specific_force`` (N, 3) is needed for g-sensitivity).
+        """
+        t = np.asarray(t, dtype=float)
+        z = self.layout.to_body(np.asarray(gyro, dtype=float))
+        u = _compensate(t, z, self.gain, self.bias_rad_s, self.sampling_offset_s, {}, None)
+        if not self.extra:
+            return u
+        if "g_sensitivity" in self.extra and specific_force is None:
+            raise IdentifiabilityError("this calibration has a g_sensitivity term: pass specific_force (N, 3)",
+                                       parameters=["g_sensitivity"])
+        sig = _signals(t, u, self.sigma_rad_s, specific_force)
+        return _compensate(t, z, self.gain, self.bias_rad_s, self.sampling_offset_s, self.extra, sig)
 
     def triad_frame(self) -> dict[str, np.ndarray]:
         """Gain, bias and g-sensitivity in each triad's own axes (``R^T X R``)."""

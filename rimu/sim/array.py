@@ -22,11 +22,10 @@ import numpy as np
 
 from ..array.layout import ArrayLayout
 from ..array.runtime import lever_arm_acceleration
-from ..units import DEG_TO_RAD
+from ..units import DEG_TO_RAD, G0, UG_TO_MS2
 
 __all__ = ["HandheldMotion", "ArrayTruth", "ArrayRecording", "random_array_truth", "simulate_array"]
 
-G0 = 9.80665
 
 
 @dataclass(frozen=True)
@@ -102,7 +101,8 @@ def random_array_truth(
 
     Per-sample white noise is ``density * sqrt(rate_hz / 2)`` times a per-triad factor in
     ``1 +/- noise_spread``. With ``centre_gyro_common_mode`` the gyro array's mean gain is I and its mean bias and
-    mean sampling offset are zero (the array-mean gyro is then exact: what a relative calibration cannot know).
+    mean sampling offset are zero, and so is the common part of every other gyro term (the array-mean gyro is then
+    exact: what a relative calibration cannot know).
     """
     rng = np.random.default_rng(seed)
     k = layout.k
@@ -118,15 +118,23 @@ def random_array_truth(
     Da = gain(accel_scale_sigma, accel_misalignment_sigma_rad)
     ba = rng.normal(0, accel_bias_sigma_m_s2, (k, 3))
     tau = rng.normal(0, sampling_offset_sigma_s, k)
+    gsens = rng.normal(0, g_sensitivity_sigma_deg_s_per_g * DEG_TO_RAD / G0, (k, 3, 3))
+    aasens = rng.normal(0, aa_sensitivity_sigma_s, (k, 3, 3))
+    nonlin = rng.normal(0, nonlinearity_sigma_s_rad, (k, 3))
     if centre_gyro_common_mode:
         R = layout.rotations
-        Db = np.einsum("kij,kjl,kml->kim", R, Dg, R)
+        body = lambda M: np.einsum("kij,kjl,kml->kim", R, M, R)  # noqa: E731
+        triad = lambda M: np.einsum("kji,kjl,klm->kim", R, M, R)  # noqa: E731
+        Db = body(Dg)
         cb = np.einsum("kij,kj->ki", R, bg)
         Db = Db @ np.linalg.inv(Db.mean(axis=0))
         cb = cb - Db @ cb.mean(axis=0)
-        Dg = np.einsum("kji,kjl,klm->kim", R, Db, R)
+        Dg = triad(Db)
         bg = np.einsum("kji,kj->ki", R, cb)
         tau = tau - tau.mean()
+        gsens = triad(body(gsens) - body(gsens).mean(axis=0))
+        aasens = triad(body(aasens) - body(aasens).mean(axis=0))
+        nonlin = nonlin - nonlin.mean(axis=0)   # exact for triads whose axes are body axes up to sign
     return ArrayTruth(
         layout=layout,
         gyro_gain=Dg,
@@ -135,10 +143,10 @@ def random_array_truth(
         accel_bias_m_s2=ba,
         sampling_offset_s=tau,
         gyro_noise_rad_s=gyro_noise_density_deg_s_sqrt_hz * DEG_TO_RAD * bw * spread(),
-        accel_noise_m_s2=accel_noise_density_ug_sqrt_hz * 1e-6 * G0 * bw * spread(),
-        gyro_g_sensitivity_rad_s_per_m_s2=rng.normal(0, g_sensitivity_sigma_deg_s_per_g * DEG_TO_RAD / G0, (k, 3, 3)),
-        gyro_aa_sensitivity_s=rng.normal(0, aa_sensitivity_sigma_s, (k, 3, 3)),
-        gyro_nonlinearity_s_rad=rng.normal(0, nonlinearity_sigma_s_rad, (k, 3)),
+        accel_noise_m_s2=accel_noise_density_ug_sqrt_hz * UG_TO_MS2 * bw * spread(),
+        gyro_g_sensitivity_rad_s_per_m_s2=gsens,
+        gyro_aa_sensitivity_s=aasens,
+        gyro_nonlinearity_s_rad=nonlin,
     )
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rimu.array import ArrayLayout, fit_positions, fit_relative_gyro
+from rimu.array import ArrayLayout, crb, fit_positions, fit_relative_gyro, ml_motion
 from rimu.sim.array import random_array_truth, simulate_array
 
 
@@ -46,3 +46,11 @@ def test_positions_gains_biases_within_three_sigma(rows, cols, duration):
     p = {k: v.mean() for k, v in pf.parity_rms_m_s2.items()}
     assert p["raw"] > p["raw_nominal_lever_arms"] > p["gain_bias_nominal_lever_arms"] > p["positions"]
     assert p["positions"] < 1.1 * np.sqrt(np.mean(tr.accel_noise_m_s2**2))
+    # end to end: the self-calibrated array at runtime, its ML angular rate and acceleration at the bound
+    m = ml_motion(pf.layout, pf.apply(rec.t, rec.accel), gf.apply(rec.t, rec.gyro), pf.sigma_m_s2, gf.sigma_rad_s)
+    inner = slice(20, -20)
+    bound = crb(rec.omega[inner], pf.positions_m, gf.sigma_rad_s, pf.sigma_m_s2)
+    for sl, truth_x in ((slice(0, 3), rec.omega), (slice(3, 6), rec.omega_dot)):
+        err = (np.column_stack([m.omega, m.omega_dot])[:, sl] - truth_x)[inner]
+        ratio = np.sqrt(np.mean(err**2, axis=0) / bound[:, sl, sl].diagonal(axis1=1, axis2=2).mean(axis=0))
+        assert np.all(np.abs(ratio - 1) < 0.1), ratio
