@@ -134,7 +134,8 @@ def _kkt(Kt, D, r, s, sigma, G) -> np.ndarray:
     return KKT
 
 
-#: largest predicted standard deviation at which a parameter counts as identified
+#: largest predicted standard deviation at which a parameter counts as identified (positions: a tenth of the
+#: nominal array's extent, or this when no nominal positions are known)
 _MAX_SD = {"gain": 0.05, "position": 0.01}
 
 
@@ -159,10 +160,13 @@ def _check_identifiable(Kt, z, D, c, r, sigma, G, gain) -> None:
                     f"gravity){extra}: predicted sd up to {sd[:, 0:9].max():.2g}; the specific force varies least "
                     f"along body [{d0[0]:+.2f} {d0[1]:+.2f} {d0[2]:+.2f}], {np.sqrt(max(ev[0], 0)):.3g} m/s^2 rms; "
                     "try gain='relative' or gain='none'")
-    if sd[:, 12:15].max() > _MAX_SD["position"]:
+    extent = float(np.linalg.norm(r[:, None] - r[None], axis=2).max())
+    pos_limit = 0.1 * extent if extent > 0 else _MAX_SD["position"]
+    if sd[:, 12:15].max() > pos_limit:
         names.append("position")
         msgs.append(f"the positions need angular rate and angular acceleration about every axis (the lever-arm "
-                    f"terms w' x r + w x (w x r)): predicted sd up to {sd[:, 12:15].max() * 1e3:.3g} mm")
+                    f"terms w' x r + w x (w x r)): predicted sd up to {sd[:, 12:15].max() * 1e3:.3g} mm, more than "
+                    f"{pos_limit * 1e3:.3g} mm (a tenth of the array's extent)")
     if names:
         raise IdentifiabilityError("the motion cannot identify " + ", ".join(names) + ": " + "; ".join(msgs),
                                    parameters=names)

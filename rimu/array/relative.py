@@ -35,7 +35,7 @@ from ..units import RAD_TO_ARCSEC, RAD_TO_DEG, RS_TO_DH
 from .layout import ArrayLayout
 from .terms import GYRO_TERMS, Signals, Term
 
-__all__ = ["RelativeFit", "CandidateScore", "fit_relative_gyro", "rank_candidates", "derivative", "time_shift",
+__all__ = ["DERIVATIVE_CUTOFF_HZ", "RelativeFit", "CandidateScore", "fit_relative_gyro", "rank_candidates", "derivative", "time_shift",
            "to_array_gauge", "BASE_TERMS", "CANDIDATE_TERMS"]
 
 BASE_TERMS = ("scale_misalignment", "bias")
@@ -45,10 +45,26 @@ _MAX_SIGMA = {"scale_misalignment": 0.05, "bias": 1.0, "sampling_offset": 0.01, 
               "g_sensitivity": 0.01, "rate_nonlinearity": 0.05}
 
 
-def derivative(t: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Time derivative of ``x`` (N, ...) sampled at ``t``: fourth-order central differences on a uniform grid,
-    second-order (``np.gradient``) otherwise."""
+#: Angular acceleration is the derivative of the array rate low-passed here [Hz]: hand-held and vehicle motion
+#: lies well below it, while the noise of a differentiated rate grows with frequency.
+DERIVATIVE_CUTOFF_HZ = 30.0
+
+
+def derivative(t: np.ndarray, x: np.ndarray, cutoff_hz: "float | None" = DERIVATIVE_CUTOFF_HZ) -> np.ndarray:
+    """Time derivative of ``x`` (N, ...) sampled at ``t``.
+
+    Fourth-order central differences on a uniform grid, second-order (``np.gradient``) otherwise, after a
+    zero-phase low-pass at ``cutoff_hz`` when that is below 0.4 times the sampling rate (None: no filter).
+    """
+    x = np.asarray(x, dtype=float)
     dt = np.diff(t)
+    fs = 1.0 / float(np.median(dt))
+    if cutoff_hz is not None and cutoff_hz < 0.4 * fs and x.shape[0] > 30:
+        from scipy.signal import butter, sosfiltfilt
+
+        # odd extension over a few time constants: the filter's start-up transient stays in the padding
+        x = sosfiltfilt(butter(4, cutoff_hz, fs=fs, output="sos"), x, axis=0,
+                        padlen=min(x.shape[0] - 1, int(4 * fs / cutoff_hz)))
     if x.shape[0] >= 5 and np.allclose(dt, dt.mean(), rtol=1e-6, atol=0):
         h = dt.mean()
         d = np.gradient(x, h, axis=0, edge_order=2)

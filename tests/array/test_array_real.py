@@ -58,9 +58,12 @@ def test_xsens_dot_parity_falls_and_positions_repeat_across_flights(tmp_path):
         assert g[-1] < 0.3 * g[0] and a[-1] < 0.4 * a[0], rep.to_markdown()
         assert rep.limiting_term in ("aa_sensitivity", "rate_nonlinearity", "g_sensitivity", "noise")
         positions.append(rep.position_fit.positions_m - rep.position_fit.positions_m[0])
+        tau = rep.gyro_fit.sampling_offset_s
+        assert 2e-3 < abs(tau[2] - tau[0]) < 7e-3 and 2e-3 < abs(tau[3] - tau[0]) < 7e-3, tau
     # the four units did not move between the flights: their positions, fitted from each flight alone, agree
     assert np.abs(positions[0] - positions[1]).max() < 5e-3, positions
-    assert np.linalg.norm(positions[0], axis=1).max() > 0.05     # and they are centimetres apart
+    d = np.linalg.norm(positions[0], axis=1)                     # a 37 mm x 99 mm rectangle
+    assert 0.033 < d[1] < 0.043 and 0.094 < d[2] < 0.104, positions[0]
     (tmp_path / "report.md").write_text(rep.to_markdown())
     assert rep.plot(tmp_path / "array.png").stat().st_size > 1000
 
@@ -72,3 +75,4 @@ def test_pixhawk_two_imus_parity_falls():
     g = _falls(rep.gyro_steps)
     a = _falls(rep.accel_steps)
     assert g[-1] < 0.6 * g[0] and a[-1] < 0.9 * a[0], rep.to_markdown()
+    assert any("separate chips" in n for n in rep.notes)
