@@ -91,7 +91,7 @@ class ArrayReport:
 
         panels = [(s, u, t) for s, u, t in ((self.gyro_steps, "deg/s", "gyro"), (self.accel_steps, "m/s^2", "accel"))
                   if s]
-        fig, axes = plt.subplots(len(panels), 1, figsize=(max(6, 0.5 * len(self.names) + 3), 3.2 * len(panels)),
+        fig, axes = plt.subplots(len(panels), 1, figsize=(max(6.0, 0.3 * len(self.names) + 3), 3.2 * len(panels)),
                                  squeeze=False)
         for ax, (steps, unit, title) in zip(axes[:, 0], panels):
             x = np.arange(len(self.names))
@@ -103,7 +103,9 @@ class ArrayReport:
             ax.set_ylabel(f"parity rms [{unit}]")
             ax.set_title(f"{title}: each triad against the array, in motion")
             ax.legend(fontsize=7)
-        fig.tight_layout()
+        if self.limiting_term:
+            fig.suptitle(f"gyro agreement now limited by: {self.limiting_term}", fontsize=9)
+        fig.subplots_adjust(left=0.1, right=0.98, top=0.93, bottom=0.12, hspace=0.45)
         path = Path(path)
         fig.savefig(path, dpi=110)
         plt.close(fig)
