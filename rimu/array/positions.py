@@ -79,6 +79,15 @@ class PositionFit:
             z = np.stack([time_shift(t, z[:, j], -self.sampling_offset_s[j]) for j in range(z.shape[1])], axis=1)
         return np.einsum("kab,nkb->nka", np.linalg.inv(self.gain), z - self.bias_m_s2[None])
 
+    def to_dict(self) -> dict:
+        """Plain dictionary (JSON-ready), SI units, body frame."""
+        return {"type": "rimu.array.PositionFit", "version": 1, "triads": list(self.layout.names),
+                "gain_mode": self.gain_mode, "gain": self.gain.tolist(), "bias_m_s2": self.bias_m_s2.tolist(),
+                "positions_m": self.positions_m.tolist(), "position_std_m": self.position_std_m().tolist(),
+                "sigma_m_s2": self.sigma_m_s2.tolist(),
+                "nominal_m": None if self.nominal_m is None else np.asarray(self.nominal_m).tolist(),
+                "parity_rms_m_s2": {k: v.tolist() for k, v in self.parity_rms_m_s2.items()}}
+
     def vector(self) -> np.ndarray:
         """(k, 15): gain - I (row-major), bias, position."""
         return np.hstack([(self.gain - np.eye(3)).reshape(-1, 9), self.bias_m_s2, self.positions_m])

@@ -213,6 +213,18 @@ class RelativeFit:
         sig = _signals(t, u, self.sigma_rad_s, specific_force)
         return _compensate(t, z, self.gain, self.bias_rad_s, self.sampling_offset_s, self.extra, sig)
 
+    def to_dict(self) -> dict:
+        """Plain dictionary (JSON-ready): body-frame parameters and standard deviations, SI units."""
+        return {"type": "rimu.array.RelativeFit", "version": 1, "triads": list(self.layout.names),
+                "terms": list(self.terms), "labels": list(self.labels),
+                "gain": self.gain.tolist(), "bias_rad_s": self.bias_rad_s.tolist(),
+                "sampling_offset_s": self.sampling_offset_s.tolist(),
+                "extra": {k: v.tolist() for k, v in self.extra.items()},
+                "std": self.std().tolist(), "sigma_rad_s": self.sigma_rad_s.tolist(),
+                "parity_rms_rad_s": {k: v.tolist() for k, v in self.parity_rms_rad_s.items()},
+                "limiting_term": self.limiting_term(), "candidates": [c.to_dict() for c in self.candidates],
+                "gauge": "relative to the plain array mean: mean gain I, mean bias 0, mean offset 0"}
+
     def triad_frame(self) -> dict[str, np.ndarray]:
         """Gain, bias and g-sensitivity in each triad's own axes (``R^T X R``)."""
         R = self.layout.rotations

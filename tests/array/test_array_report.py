@@ -41,3 +41,25 @@ def test_positions_need_rotation():
     with pytest.raises(IdentifiabilityError, match="positions need angular rate and angular acceleration") as ei:
         fit_positions(lay, rec.t, rec.accel, gf, rec.gyro, gain="none")
     assert ei.value.parameters == ["position"]
+
+
+def test_cli_array(tmp_path, capsys):
+    from rimu.cli import main
+
+    lay = ArrayLayout.planar_grid(2, 2, pitch_m=0.012)
+    tr = random_array_truth(lay, seed=6, centre_gyro_common_mode=True)
+    rec = simulate_array(tr, duration_s=1.5, seed=6)
+    f = tmp_path / "arr.npz"
+    np.savez(f, t=rec.t, gyro=rec.gyro, accel=rec.accel, rotations=lay.rotations, positions_m=lay.positions_m)
+    rc = main(["array", str(f), "-o", str(tmp_path / "fit.json"), "--report", str(tmp_path / "rep"),
+               "--json", str(tmp_path / "sum.json")])
+    out = capsys.readouterr().out.strip().splitlines()
+    assert rc == 0 and len(out) == 1 and out[0].startswith("array of 4 triads: gyro parity rms in motion")
+    fit = json.loads((tmp_path / "fit.json").read_text())
+    np.testing.assert_allclose(np.mean(fit["gyro"]["gain"], axis=0), np.eye(3), atol=1e-12)
+    assert json.loads((tmp_path / "sum.json").read_text())["triads"] == ["T1", "T2", "T3", "T4"]
+    assert (tmp_path / "rep" / "array_report.md").exists() and (tmp_path / "rep" / "array_report.png").exists()
+    np.savez(tmp_path / "bad.npz", t=rec.t)
+    assert main(["array", str(tmp_path / "bad.npz")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "lacks gyro" in err[0]
