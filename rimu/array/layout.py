@@ -124,29 +124,42 @@ class ArrayLayout:
     def from_geometry(cls, geometry: Any, positions_m: "np.ndarray | Sequence[Sequence[float]] | None" = None) -> "ArrayLayout":
         """Build the layout from a :class:`rimu.geometry.Geometry` made of triads.
 
-        Each sub-unit must hold three sensors. Its rotation is ``mat_sb_mb.T`` and its position is the
-        sub-unit's ``position_mb_m`` when the geometry carries one, else the row of ``positions_m``.
+        Each sub-unit must hold three sensors with orthogonal axes; triad j's output columns are its members in
+        order, so its rotation (triad axes -> body) has the members' sensing axes ``H[members]`` as columns. Its
+        position is the sub-unit's ``position_mb_m`` when the geometry carries one, else the row of
+        ``positions_m``.
 
         Raises
         ------
         GeometryError
-            A sub-unit is not a triad, or a position is missing.
+            A sub-unit is not an orthogonal triad, or a position is missing.
+
+        Examples
+        --------
+        >>> from rimu.geometry import cone6
+        >>> lay = ArrayLayout.from_geometry(cone6(), positions_m=[[0, 0, 0.01], [0, 0, -0.01]])
+        >>> lay.names, bool(np.allclose(lay.rotations[0], cone6().H[:3].T))
+        (('SB1', 'SB2'), True)
         """
-        subunits = list(geometry.subunits)
+        H = np.asarray(geometry.H, dtype=float)
         rots, pos, names = [], [], []
-        for j, su in enumerate(subunits):
+        for j, su in enumerate(geometry.subunits):
             if len(su.members) != 3:
                 raise GeometryError(
                     f"sub-unit {su.name!r} has {len(su.members)} sensors; an array is made of triads (3 each)"
                 )
-            rots.append(np.asarray(su.mat_sb_mb, dtype=float).T)
+            R = H[list(su.members)].T
+            if np.abs(R.T @ R - np.eye(3)).max() > 1e-6:
+                raise GeometryError(f"the axes of sub-unit {su.name!r} are not orthogonal: an array triad needs "
+                                    "three orthogonal sensing axes")
+            rots.append(R)
             p = getattr(su, "position_mb_m", None)
             if p is None and positions_m is not None:
                 p = np.asarray(positions_m, dtype=float)[j]
             if p is None:
                 raise GeometryError(
                     f"sub-unit {su.name!r} has no position: pass positions_m (k, 3) in metres, "
-                    "or estimate them with rimu.array.estimate_positions"
+                    "or estimate them with rimu.array.fit_positions"
                 )
             pos.append(np.asarray(p, dtype=float))
             names.append(su.name)
