@@ -30,7 +30,7 @@ import numpy as np
 from scipy import stats
 from scipy.interpolate import CubicSpline
 
-from ..errors import IdentifiabilityError, NonFiniteError, ShapeError
+from ..errors import GeometryError, IdentifiabilityError, NonFiniteError, ShapeError
 from ..units import RAD_TO_ARCSEC, RAD_TO_DEG, RS_TO_DH
 from .layout import ArrayLayout
 from .terms import GYRO_TERMS, Signals, Term
@@ -425,6 +425,7 @@ def fit_relative_gyro(
             u = _compensate(t, z, gain, bias, tau, extra, sig)
             sig = _signals(t, u, sigma, specific_force)
     D, c, tau, _ = to_array_gauge(gain, bias, tau)
+    _check_mounting(layout, D)
     # additive terms: centred (their common mode times the array-mean gain is second order)
     extra = {n: v - v.mean(axis=0) for n, v in extra.items()}
     u = _compensate(t, z, D, c, tau, extra, sig if extra else None)
@@ -435,6 +436,40 @@ def fit_relative_gyro(
     if candidates:
         fit.candidates = rank_candidates(fit, t, u, sig, [x for x in candidates if x not in terms])
     return fit
+
+
+#: A relative gain this far from I (Frobenius norm) is a mounting error, not a calibration
+_MAX_RELATIVE_GAIN = 0.3
+
+
+def _check_mounting(layout: ArrayLayout, D: np.ndarray) -> None:
+    """Refuse relative gains that are really a wrong rotation (or sign) of a triad in the layout.
+
+    The gains are compared with their element-wise median over the triads (robust: one wrong triad drags the
+    array mean, not the median)."""
+    D = D @ np.linalg.inv(np.median(D, axis=0))
+    dev = np.linalg.norm(D - np.eye(3), axis=(1, 2))
+    bad = np.flatnonzero(dev > _MAX_RELATIVE_GAIN)
+    if not bad.size:
+        return
+    parts = []
+    for j in bad[:4]:
+        U, sv, Vt = np.linalg.svd(D[j])
+        Q = U @ Vt
+        if np.linalg.det(Q) < 0:
+            parts.append(f"{layout.names[j]}: its axes are a reflection of the array's (a sign flipped), "
+                         f"scale {sv.mean():.3g}")
+            continue
+        ang = np.degrees(np.arccos(np.clip((np.trace(Q) - 1) / 2, -1, 1)))
+        ev, V = np.linalg.eig(Q)
+        ax = np.real(V[:, np.argmin(np.abs(ev - 1))])
+        ax = ax * np.sign(ax[np.argmax(np.abs(ax))])
+        parts.append(f"{layout.names[j]}: turned {ang:.0f} deg about body [{ax[0]:+.2f} {ax[1]:+.2f} {ax[2]:+.2f}] "
+                     f"from the array, scale {sv.mean():.3g}")
+    raise GeometryError(
+        f"{bad.size} triad(s) disagree with the array by more than a calibration can: " + "; ".join(parts)
+        + ". Check their rotations in the layout (triad axes -> body) and that every gyro is in rad/s"
+    )
 
 
 def _criterion(u: np.ndarray, use: slice) -> float:

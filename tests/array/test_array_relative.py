@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from rimu.array import ArrayLayout, fit_relative_gyro, to_array_gauge
-from rimu.errors import IdentifiabilityError
+from rimu.errors import GeometryError, IdentifiabilityError
 from rimu.sim.array import HandheldMotion, random_array_truth, simulate_array
 
 
@@ -81,3 +81,13 @@ def test_missing_excitation_is_named():
     assert ei.value.parameters == ["scale_misalignment"]
     with pytest.raises(IdentifiabilityError, match="specific_force"):
         fit_relative_gyro(lay, rec.t, rec.gyro, terms=("g_sensitivity",))
+
+
+def test_a_triad_mounted_otherwise_than_the_layout_says_is_named():
+    lay = ArrayLayout.planar_grid(2, 4, pitch_m=0.01)
+    tr = random_array_truth(lay, seed=8)
+    rec = simulate_array(tr, duration_s=1.0, seed=8)
+    gyro = rec.gyro.copy()
+    gyro[:, 5, 1:] *= -1          # T6 is turned 180 deg about x on the board, the layout does not say so
+    with pytest.raises(GeometryError, match=r"T6: turned 180 deg about body \[\+1\.00 [+-]0\.00 [+-]0\.00\]"):
+        fit_relative_gyro(lay, rec.t, gyro)
