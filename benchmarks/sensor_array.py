@@ -24,9 +24,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from rimu.array import ArrayLayout, accel_model, crb, fit_positions, fit_relative_gyro, ml_motion  # noqa: E402
-from rimu.sim.array import random_array_truth, simulate_array  # noqa: E402
-from rimu.units import RAD_TO_DEG  # noqa: E402
+from rimu.array import ArrayLayout, accel_model, crb, fit_positions, fit_relative_gyro, ml_motion
+from rimu.sim.array import random_array_truth, simulate_array
+from rimu.units import RAD_TO_DEG
 
 
 def median_time(fn, repeats: int) -> float:

@@ -150,11 +150,18 @@ def array_report(
                 notes.append(f"accelerometer gain={mode!r} skipped: {exc}")
                 continue
             if align and cand.parity_rms_m_s2["aligned"].mean() > cand.parity_rms_m_s2["raw"].mean():
-                notes.append("the gyros' sampling offsets do not fit the accelerometers (separate chips?): "
-                             "accelerometers left on their own time")
                 align = False
-                cand = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
-                                     motion_threshold_deg_s=motion_threshold_deg_s, gain=mode, align=False)
+                try:
+                    cand = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
+                                         motion_threshold_deg_s=motion_threshold_deg_s, gain=mode, align=False,
+                                         offsets=True)
+                    notes.append("the gyros' sampling offsets do not fit the accelerometers (separate chips?): "
+                                 "the accelerometers' own offsets were estimated")
+                except IdentifiabilityError as exc:
+                    notes.append("the gyros' sampling offsets do not fit the accelerometers (separate chips?) and "
+                                 f"their own cannot be estimated ({exc}): accelerometers left on their own time")
+                    cand = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
+                                         motion_threshold_deg_s=motion_threshold_deg_s, gain=mode, align=False)
             pf, gb = cand, label
             break
         if pf is None:
