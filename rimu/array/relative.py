@@ -14,11 +14,12 @@ array-mean gyro defines the frame. Absolute scale, absolute misalignment to the 
 delay need an external reference (turntable, static poses, another sensor).
 
 Estimation: compensate every triad with the current parameters (inverse gain, bias and terms, and a cubic-spline
-time shift by ``-tau_j``), form the noise-weighted array mean, regress each triad's difference from it on the
-terms' columns (common to all triads, so one Gram matrix serves all of them), compose, repeat until the update is
-a small fraction of its standard deviation. The fixed point is the maximum-likelihood estimate under white noise;
-its covariance is ``S^-1 (sigma_j^2 delta_jm - ...)`` with ``S`` the Gram matrix of the columns (see
-``RelativeFit.covariance``).
+time shift by ``-tau_j``), form the array mean, regress each triad's difference from it on the terms' columns
+(common to all triads, so one Gram matrix serves all of them), compose, repeat (with backtracking on the parity
+criterion) until the update is a small fraction of its standard deviation. With the regressors built from the
+array mean, the estimates centred on the mean do not depend on the noise weights; their covariance is
+``S^-1 [sigma_j^2 (1 - 2/k) + mean(sigma^2)/k]`` with ``S`` the Gram matrix of the columns
+(``RelativeFit.covariance``).
 """
 
 from __future__ import annotations
@@ -35,8 +36,8 @@ from ..units import RAD_TO_ARCSEC, RAD_TO_DEG, RS_TO_DH
 from .layout import ArrayLayout
 from .terms import GYRO_TERMS, Signals, Term
 
-__all__ = ["DERIVATIVE_CUTOFF_HZ", "RelativeFit", "CandidateScore", "fit_relative_gyro", "rank_candidates", "derivative", "time_shift",
-           "to_array_gauge", "BASE_TERMS", "CANDIDATE_TERMS"]
+__all__ = ["DERIVATIVE_CUTOFF_HZ", "RelativeFit", "CandidateScore", "fit_relative_gyro", "rank_candidates",
+           "derivative", "time_shift", "to_array_gauge", "BASE_TERMS", "CANDIDATE_TERMS"]
 
 BASE_TERMS = ("scale_misalignment", "bias")
 CANDIDATE_TERMS = ("sampling_offset", "aa_sensitivity", "g_sensitivity", "rate_nonlinearity")
@@ -144,6 +145,8 @@ class RelativeFit:
     parity_rms_rad_s : dict
         ``"before"``/``"after"``: per-triad rms of the difference from the array mean, in motion.
     iterations : int
+    converged : bool
+        False when ``max_iter`` ended the iterations before the update fell below 2 % of its standard deviation.
     candidates : list of CandidateScore
         Missing terms ranked by the share of the residual they explain (largest first).
     """
@@ -161,6 +164,7 @@ class RelativeFit:
     iterations: int
     candidates: list[CandidateScore] = field(default_factory=list)
     n_used: int = 0
+    converged: bool = True
 
     def vector(self) -> np.ndarray:
         """Parameters per triad in column order, (k, P): F (row-major), c, tau, extra terms."""
@@ -223,6 +227,7 @@ class RelativeFit:
                 "std": self.std().tolist(), "sigma_rad_s": self.sigma_rad_s.tolist(),
                 "parity_rms_rad_s": {k: v.tolist() for k, v in self.parity_rms_rad_s.items()},
                 "limiting_term": self.limiting_term(), "candidates": [c.to_dict() for c in self.candidates],
+                "iterations": self.iterations, "converged": self.converged,
                 "gauge": "relative to the plain array mean: mean gain I, mean bias 0, mean offset 0"}
 
     def triad_frame(self) -> dict[str, np.ndarray]:
@@ -266,11 +271,6 @@ def _compensate(t, z, gain, bias, tau, extra, signals) -> np.ndarray:
                 add = add + cols[name] @ th[j]
         u[:, j] = (zj - add) @ Ginv[j].T
     return u
-
-
-def _weighted_mean(u: np.ndarray, sigma: np.ndarray) -> np.ndarray:
-    a = 1 / sigma**2
-    return np.einsum("k,nki->ni", a / a.sum(), u)
 
 
 def _noise_from_differences(y: np.ndarray) -> np.ndarray:
@@ -389,6 +389,7 @@ def fit_relative_gyro(
     it = 0
     u = _compensate(t, z, gain, bias, tau, extra, None)
     sig = _signals(t, u, sigma, specific_force)
+    converged = False
     for it in range(1, max_iter + 1):
         m = int(np.ceil(np.abs(tau).max() / dt_max)) + 3
         use = slice(m, N - m)
@@ -405,6 +406,7 @@ def fit_relative_gyro(
         sigma = _sigma_from_residual_var(rss / (3 * n_used - P))
         sd = np.sqrt(np.diag(Sinv))[None] * sigma[:, None]
         if np.all(np.abs(th) <= 0.02 * sd):
+            converged = True
             break
         # compose, with backtracking on the parity criterion: the linearised step can overshoot when the
         # recording barely excites a term (large offsets, vibration-dominated rates)
@@ -412,11 +414,12 @@ def fit_relative_gyro(
         lam = 1.0
         for _ in range(8):
             cand = _compose(T, th * lam, gain, bias, tau, extra)
-            u_new = _compensate(t, z, *cand, None)
+            u_new = _compensate(t, z, *cand, sig if extra else None)
             if _criterion(u_new, use) <= j_old * (1 + 1e-9):
                 break
             lam *= 0.5
         else:
+            converged = True   # no step lowers the criterion: as far as the data goes
             break
         gain, bias, tau, extra = cand
         u = u_new
@@ -432,7 +435,7 @@ def fit_relative_gyro(
     sig = _signals(t, u, sigma, specific_force)
     after = _parity_rms(u, sigma, sig.omega, motion_threshold_deg_s)
     fit = RelativeFit(layout, terms, D, c, tau, extra, sigma, Sinv, labels, {"before": before, "after": after}, it,
-                      n_used=n_used)
+                      n_used=n_used, converged=converged)
     if candidates:
         fit.candidates = rank_candidates(fit, t, u, sig, [x for x in candidates if x not in terms])
     return fit

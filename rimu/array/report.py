@@ -138,6 +138,8 @@ def array_report(
         steps["+ sampling offsets"] = fit.parity_rms_rad_s["after"] * RAD_TO_DEG
     except IdentifiabilityError as exc:
         notes.append(f"sampling offsets skipped: {exc}")
+    if not fit.converged:
+        notes.append(f"the gyro fit stopped after {fit.iterations} iterations before converging")
     rep = ArrayReport(layout.names, steps, limiting_term=fit.limiting_term(), gyro_fit=fit, notes=notes)
     if accel is not None:
         pf, gb = None, ""
