@@ -32,6 +32,7 @@ COMMANDS = [
     "monitor",
     "replay", "campaign", "check",
     "export_c",
+    "array",
 ]
 
 EXIT_OK = 0
