@@ -80,6 +80,7 @@ __all__ = [
     "AccelFit",
     "GyroFit",
     "HandHeld",
+    "clip_levels",
     "ellipsoid_fit",
     "fit_accel",
     "fit_gyro",
@@ -606,13 +607,61 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         pred = np.einsum("mij,mj->mi", R, dirs[ka])
         rr = np.einsum("mai,mi->ma", T, pred - dirs[kb])
         rs = (ybar - c) / sd
-        if n > 3:
-            Gm = _G(W)
-            z = Yint - c * Tw[:, None]
-            rp = (z - z @ Gm.T @ W.T) / sig_int
-        else:
-            rp = np.zeros((M, 0))
-        return rr, rs, rp
+        return rr, rs, parity(theta)
+
+    def parity(theta):
+        if n == 3:
+            return np.zeros((M, 0))
+        W = theta[:3 * n].reshape(n, 3)
+        c = theta[3 * n:]
+        z = Yint - c * Tw[:, None]
+        return (z - z @ _G(W).T @ W.T) / sig_int
+
+    def rot_jac(theta, dirs):
+        """d rr / d theta (M, 2, p), first order in the small pose rotations (module docstring)."""
+        W = theta[:3 * n].reshape(n, 3)
+        c = theta[3 * n:]
+        Gm = _G(W)
+        psi_a = -(SA_y - c * SA_w[:, None]) @ Gm.T
+        phi_b = (SB_y - c * SB_w[:, None]) @ Gm.T
+        om = (YM - c) @ Gm.T
+        q = quat_exp(om * DM[..., None])
+        q[DM == 0] = (1.0, 0.0, 0.0, 0.0)
+        qh = quat_exp(om * DM[..., None] / 2)
+        # suffix products Sigma_t = q_t q_t+1 ... (reverse scan), A_t = qh_t Sigma_t+1
+        r = q[:, ::-1].copy()
+        d = 1
+        while d < L:
+            r[:, d:] = quat_mul(r[:, d:], r[:, :-d])
+            d *= 2
+        suf = r[:, ::-1]
+        nxt = np.concatenate([suf[:, 1:], np.broadcast_to([1.0, 0, 0, 0], (M, 1, 4))], axis=1)
+        A = quat_to_matrix(quat_mul(qh, nxt))  # (M, L, 3, 3)
+        Rm = quat_to_matrix(suf[:, 0] / np.linalg.norm(suf[:, 0], axis=1, keepdims=True))
+        Qj = np.einsum("mt,mtj,mtba->mjab", DM, om, A)  # sum dt w_j A^T
+        Qc = np.einsum("mt,mtba->mab", DM, A)
+        Eb = rotation_matrix(phi_b)
+        Ca = rotation_matrix(psi_a)
+        Cb = Rm @ Eb
+        v = np.einsum("mij,mj->mi", Ca, dirs[ka])
+        pred = np.einsum("mji,mj->mi", Cb, v)
+        p = 4 * n
+        Dth = np.zeros((M, 3, p))
+        Dpsi = np.zeros((M, 3, p))
+        Dphi = np.zeros((M, 3, p))
+        for i in range(n):
+            gi = Gm[:, i]
+            for j in range(3):
+                Dth[:, :, 3 * i + j] = -Qj[:, j] @ gi
+                Dpsi[:, :, 3 * i + j] = -np.outer(psi_a[:, j], gi)
+                Dphi[:, :, 3 * i + j] = -np.outer(phi_b[:, j], gi)
+            Dth[:, :, 3 * n + i] = -Qc @ gi
+            Dpsi[:, :, 3 * n + i] = SA_w[:, None] * gi
+            Dphi[:, :, 3 * n + i] = -SB_w[:, None] * gi
+        Dbeta = np.einsum("mji,mjp->mip", Eb, Dth) + Dphi
+        dpred = (np.einsum("mij,mjp->mip", _skew_batch(pred), Dbeta)
+                 - np.einsum("mji,mjk,mkp->mip", Cb, _skew_batch(v), Dpsi))
+        return np.einsum("mai,mip->map", T, dpred)
 
     # initial: W from the nominal axes and the accelerometers' scale ratio is not known; use the statics for c
     # and a first motion-based guess of one common scale from the integrated angles
@@ -632,12 +681,22 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         rw = np.linalg.solve(Lw, rr.ravel()) if M else rr.ravel()
         return np.concatenate([rw * w_rot, rs.ravel() * w_st, rp.ravel() * w_par])
 
+    def jac(theta, dirs=accel_dirs):
+        Jr = np.linalg.solve(Lw, rot_jac(theta, dirs).reshape(2 * M, -1)) * w_rot
+        Js_ = np.zeros((ybar.size, 4 * n))
+        for i in range(n):
+            Js_[i::n, 3 * n + i] = -w_st / sd[:, i]
+        out = [Jr, Js_]
+        if n > 3:
+            out.append(_jac(lambda th: parity(th).ravel(), theta, typ * 1e-6) * w_par)
+        return np.vstack(out)
+
     gain = np.diag(np.linalg.inv(H.T @ (H / sigma[:, None] ** 2)))  # per-sample rate variance / s0^2 (nominal)
     q_m = float(np.mean(gain)) / s0**2 * (np.array([d @ d for d in mot_dt]) + q_ab)
     theta = theta0
     for it in range(2):
-        sol = least_squares(resid, theta, x_scale=typ, loss="huber" if robust else "linear", f_scale=3.0,
-                            xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=100 * len(theta))
+        sol = least_squares(resid, theta, jac=jac, x_scale=typ, loss="huber" if robust else "linear",
+                            f_scale=3.0, xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=100 * len(theta))
         theta = sol.x
         if it == 0:
             # correlated residuals: the gravity direction of pose k enters motions k-1 and k; generalised least
@@ -661,7 +720,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         w_rot = 1.0 / np.sqrt(max(float(rw @ rw) / dof_rot, 1e-300)) if it == 1 else w_rot
         w_st = 1.0 / max(_robust_rms(rs), 1e-12)
         w_par = 1.0 / max(_robust_rms(rp), 1e-12) if rp.size else 1.0
-    J = _jac(resid, theta, typ * 1e-6)
+    J = jac(theta)
     names = [f"{i}.w_{a}" for i in range(n) for a in "xyz"] + [f"{i}.bias" for i in range(n)]
     _check_jacobian(J, typ, names, "gyro")
     Js = J * typ
@@ -691,6 +750,13 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
                    chi2, J.shape[0] - len(theta), scale)
 
 
+def _skew_batch(v: np.ndarray) -> np.ndarray:
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return out
+
+
 def _robust_rms(r: np.ndarray) -> float:
     r = np.asarray(r).ravel()
     if r.size == 0:
@@ -717,6 +783,23 @@ def _initial_gyro_scale(Yint, Tw, c0, H, dirs, ka, kb) -> float:
         raise IdentifiabilityError("gyro: no motion turns the gravity direction by more than 20 deg; rotate the "
                                    "unit between poses", ["scale"])
     return float(np.median(np.linalg.norm(u[ok], axis=1) / ang[ok]))
+
+
+def clip_levels(session: Session, instrument: str) -> np.ndarray:
+    """Per sensor, the raw level at which the output clips, or inf: the largest |raw| of the session when it is
+    reached at least twice and is a power of two or one less (an ADC's full scale, e.g. 32767 / 32768)."""
+    n = session.geometries[instrument].n
+    m = np.zeros(n)
+    for s in session.segments:
+        m = np.maximum(m, np.max(np.abs(s.raw[instrument]), axis=0))
+    out = np.full(n, np.inf)
+    for i in range(n):
+        v = int(round(m[i]))
+        if v >= 128 and abs(m[i] - v) < 1e-9 and ((v & (v - 1)) == 0 or ((v + 1) & v) == 0):
+            cnt = sum(int(np.sum(np.abs(s.raw[instrument][:, i]) >= m[i])) for s in session.segments)
+            if cnt >= 2:
+                out[i] = m[i]
+    return out
 
 
 # ---------------------------------------------------------------------- estimator
@@ -772,6 +855,16 @@ class HandHeld:
             raise SessionFormatError("the session has no static poses (segments of kind 'static_unknown' or "
                                      "'static'); run 'rimu detect' on the raw recording first")
         windows = pose_windows(session)
+        clipped: list[str] = []
+        if "gyro" in session.geometries and windows:
+            lim = clip_levels(session, "gyro")
+            keep = []
+            for w in windows:
+                if any(np.any(np.abs(s.raw["gyro"]) >= lim) for s in w[2]):
+                    clipped.append(f"{w[2][0].label}->{w[2][-1].label}")
+                else:
+                    keep.append(w)
+            windows = keep
         if self.instruments is not None:
             want = list(self.instruments)
         else:
@@ -835,6 +928,10 @@ class HandHeld:
             extra["motion_labels"] = [f"{labels[a]}->{labels[b]}" for a, b in gf.pairs]
             notes.append("gyro bias from the static poses (Earth rate not modelled); scale and misalignment from "
                          f"{len(windows)} motions between consecutive poses (Tedaldi et al. 2014)")
+        if clipped:
+            notes.append(f"{len(clipped)} motions left out of the gyro fit: the gyros clip (saturate) in them: "
+                         + ", ".join(clipped) + "; turn more slowly between poses")
+            extra["clipped_motions"] = clipped
         elif "gyro" in session.geometries:
             notes.append("gyros not calibrated: " + ("no motion segments between consecutive poses" if not windows
                                                       else "not asked for"))
