@@ -423,7 +423,12 @@ def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, n
     Js = J * typ
     cov = np.linalg.pinv(Js.T @ Js) * np.outer(typ, typ)
     chi2 = float(r @ r)
-    s2 = chi2 / dof if dof >= 3 else 1.0
+    # the a-priori noise (white noise from third differences) unless the residual says it is larger (tremor,
+    # pose-to-pose disturbances): an estimated variance of few degrees of freedom would make the errors
+    # Student-t, wider than their stated sigma
+    s2 = max(chi2 / dof, 1.0) if dof >= 1 else 1.0
+    size = np.concatenate([np.full(int(free.sum()), typ[0]), np.full(n, typ[0] * gravity)])  # full-scale sizes
+    _check_spread(cov * s2 / np.outer(size, size), _theta_names(free, names), "accel")
     Wp, c = _unpack(theta, free, fixed, n)
     f, info, e = _specific_forces(Wp, c, ybar, sd)
     nf = np.linalg.norm(f, axis=1)
@@ -456,6 +461,28 @@ def _check_jacobian(J: np.ndarray, typ: np.ndarray, names: list[str], inst: str)
         f"{inst}: the poses do not identify {len(bad)} direction(s) of the model: " + "; ".join(combos)
         + ". Add poses that excite them (gravity along and between every sensor axis, both signs; for the gyros, "
           "rotations about every axis)", sorted({names[j] for k in bad for j in np.argsort(-np.abs(Vt[k]))[:2]}))
+
+
+def _check_spread(C: np.ndarray, names: list[str], inst: str, limit: float = 0.05) -> None:
+    """Raise IdentifiabilityError when a parameter combination is so poorly determined that its standard
+    deviation exceeds ``limit`` of the parameters' full-scale size (``C`` is the covariance divided by those
+    sizes: the scale factor for the axis rows, the scale times g (accelerometers) or 1 rad/s (gyros) for the
+    biases): the poses excite it only through the noise."""
+    ev, V = np.linalg.eigh((C + C.T) / 2)
+    bad = np.flatnonzero(ev > limit**2)
+    if bad.size == 0:
+        return
+    combos, params = [], set()
+    for k in bad[::-1]:
+        v = V[:, k]
+        order = np.argsort(-np.abs(v))[:3]
+        combos.append(" + ".join(f"{v[j]:+.2f} {names[j]}" for j in order if abs(v[j]) > 0.1)
+                      + f" (relative sd {np.sqrt(ev[k]):.2g})")
+        params |= {names[j] for j in order[:2]}
+    raise IdentifiabilityError(
+        f"{inst}: the poses do not identify {len(bad)} direction(s) of the model: " + "; ".join(combos)
+        + ". Add poses that excite them (gravity along and between every sensor axis, both signs; for the gyros, "
+          "rotations about every axis)", sorted(params))
 
 
 def _jac(f, p: np.ndarray, h: np.ndarray) -> np.ndarray:
@@ -717,14 +744,18 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         rr, rs, rp = parts(theta, accel_dirs)
         rw = np.linalg.solve(Lw, rr.ravel())
         dof_rot = max(rw.size - 3 * n, 1)
-        w_rot = 1.0 / np.sqrt(max(float(rw @ rw) / dof_rot, 1e-300)) if it == 1 else w_rot
-        w_st = 1.0 / max(_robust_rms(rs), 1e-12)
-        w_par = 1.0 / max(_robust_rms(rp), 1e-12) if rp.size else 1.0
+        # the rotation group has many degrees of freedom: its noise level is estimated; the static means and
+        # the parity of skewed sets are noisier than white noise (sway), never quieter
+        w_rot = 1.0 / np.sqrt(max(float(rw @ rw) / dof_rot, 1e-6)) if it == 1 else w_rot
+        w_st = 1.0 / max(_robust_rms(rs), 1.0)
+        w_par = 1.0 / max(_robust_rms(rp), 1.0) if rp.size else 1.0
     J = jac(theta)
     names = [f"{i}.w_{a}" for i in range(n) for a in "xyz"] + [f"{i}.bias" for i in range(n)]
     _check_jacobian(J, typ, names, "gyro")
     Js = J * typ
     Ninv = np.linalg.pinv(Js.T @ Js) * np.outer(typ, typ)
+    size = np.concatenate([np.full(3 * n, abs(s0)), np.full(n, abs(s0) * 1.0)])  # scale; bias of 1 rad/s
+    _check_spread(Ninv / np.outer(size, size), names, "gyro")
     cov = Ninv
     if accel_dir_jac is not None and accel_cov is not None:
         # d resid / d accel params through the gravity directions (the rotations do not depend on them)

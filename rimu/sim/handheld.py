@@ -116,7 +116,8 @@ def handheld_run(n_poses: int = 30, static_s: float = 3.0, geometries: dict[str,
                  truth: Calibration | None = None, sample_rate: float = 100.0, arw_deg_sqrt_h: float = 0.3,
                  vrw_ug_sqrt_hz: float = 300.0, tremor_deg: float = 0.03, sway_deg: float = 0.1,
                  tremor_ms2: float = 0.02, peak_rate_deg_s: float = 150.0, initial_still_s: float = 0.0,
-                 quantize: bool = True, gravity: float = G0, oversample: int = 8, seed: int = 0) -> HandHeldRun:
+                 quantize: bool = True, gravity: float = G0, oversample: int = 8, seed: int = 0,
+                 up_mb: Any = None) -> HandHeldRun:
     """Simulate a hand-held calibration recording (module docstring).
 
     Parameters
@@ -133,6 +134,8 @@ def handheld_run(n_poses: int = 30, static_s: float = 3.0, geometries: dict[str,
         White noise densities.
     tremor_deg, sway_deg, tremor_ms2 : float
         Hand tremor (8-12 Hz, angle rms), sway (< 0.5 Hz, angle rms), tremor linear acceleration rms.
+    up_mb : array_like (K, 3), optional
+        Body directions to hold up, one per pose (random heading); default: random attitudes.
     peak_rate_deg_s : float
         Peak rate of a turn (minimum-jerk: 1.875 times the mean rate); every turn lasts at least 0.8 s.
     """
@@ -142,6 +145,10 @@ def handheld_run(n_poses: int = 30, static_s: float = 3.0, geometries: dict[str,
     fs = float(sample_rate)
     dtf = 1.0 / (fs * oversample)
     poses = _random_rotations(rng, n_poses)
+    if up_mb is not None:
+        up = np.asarray(up_mb, dtype=float).reshape(-1, 3)
+        n_poses = len(up)
+        poses = np.array([_pose_with_up(u, rng.uniform(0, 2 * np.pi)) for u in up])
     # nominal body rate on the fine grid: pose k still, then a minimum-jerk turn to pose k+1
     pieces, labels, bounds = [], [], []
     n0 = 0
@@ -194,7 +201,8 @@ def handheld_run(n_poses: int = 30, static_s: float = 3.0, geometries: dict[str,
         y = z / cal.scale
         raw[k] = np.round(y) if quantize else y
         truth.instruments_cal[k] = InstrumentCalibration(k, g, cal.scale, cal.misalignment, cal.bias,
-                                                         np.full(g.n, sig), effects=dict(cal.effects))
+                                                         np.full(g.n, sig) if sig > 0 else None,
+                                                         effects=dict(cal.effects))
     segs, slices = [], []
     for kind, lab, a, b in bounds:
         sl = slice(a // oversample, b // oversample)
@@ -206,6 +214,21 @@ def handheld_run(n_poses: int = 30, static_s: float = 3.0, geometries: dict[str,
                 "tremor_ms2": tremor_ms2, "peak_rate_deg_s": peak_rate_deg_s, "seed": seed}
     session = Session(segs, geometries, fs, None, gravity, "count", {"simulator": {"handheld": settings}})
     return HandHeldRun(session, truth, t, raw, att, rate, sf, slices, settings)
+
+
+def _pose_with_up(u: np.ndarray, yaw: float) -> np.ndarray:
+    """Quaternion (body -> nav) with body direction u pointing up (nav z), then turned by ``yaw`` about up."""
+    from ..calibration.handheld import quat_mul
+
+    u = u / np.linalg.norm(u)
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(u, z)
+    s = np.linalg.norm(axis)
+    ang = np.arctan2(s, u @ z)
+    axis = axis / s if s > 1e-12 else np.array([1.0, 0.0, 0.0])
+    q = np.concatenate([[np.cos(ang / 2)], np.sin(ang / 2) * axis])
+    qz = np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+    return quat_mul(qz, q)
 
 
 def _qmul_conj(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
