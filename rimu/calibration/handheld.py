@@ -302,6 +302,10 @@ class AccelFit:
     dof: int
     scale2: float  # residual variance factor applied to the covariance
     parity: np.ndarray | None = None  # (K, n) whitened parity residuals of skewed sets
+    weak: list[str] = field(default_factory=list)  # weakly determined parameter combinations
+    ybar: np.ndarray | None = None  # (K, n) pose means the fit used
+    sd: np.ndarray | None = None  # (K, n) their weights (standard deviations, raw)
+    tau2: float = 0.0  # additive pose-to-pose variance of the norm, (m/s^2)^2
 
     def rows_cov(self, i: int) -> np.ndarray:
         """Covariance (4, 4) of sensor i's (w_i in MB, c_i)."""
@@ -401,19 +405,37 @@ def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, n
     typ = np.concatenate([np.full(int(free.sum()), float(np.median(np.abs(Wp0[np.abs(Wp0) > 0])))),
                           np.maximum(np.abs(c0), np.median(sd) * 10)])
 
-    def resid(theta):
+    def norm_parts(theta):
         Wp, c = _unpack(theta, free, fixed, n)
         f, info, e = _specific_forces(Wp, c, ybar, sd)
         nf = np.linalg.norm(f, axis=1)
         u = f / nf[:, None]
-        sn = np.sqrt(np.einsum("ka,kab,kb->k", u, np.linalg.inv(info), u))
-        r = (nf - gravity) / sn
+        return nf - gravity, np.einsum("ka,kab,kb->k", u, np.linalg.inv(info), u), e
+
+    def resid(theta):
+        d, s2n, e = norm_parts(theta)
+        r = d / np.sqrt(s2n + tau2[0])
         return np.concatenate([r, e.ravel()]) if n > 3 else r
 
-    # 2. nonlinear refinement of the full model on all poses
-    sol = least_squares(resid, theta0, x_scale=typ, method="trf", loss="huber" if robust else "linear",
-                        f_scale=3.0, xtol=1e-13, ftol=1e-13, gtol=1e-13, max_nfev=200 * len(theta0))
-    theta = sol.x
+    # 2. nonlinear refinement of the full model on all poses. A pose held by hand is disturbed by more than the
+    # white noise (a pose-to-pose variance tau^2 that does not fall with the pose's length): when the norm
+    # residuals exceed the white-noise prediction, tau^2 is the additive variance that brings their chi-square
+    # to its degrees of freedom, and the fit is repeated with it (variance components; otherwise a long still
+    # period would outweigh every hand-held pose)
+    tau2 = [0.0]
+    theta = theta0
+    for _ in range(3):
+        sol = least_squares(resid, theta, x_scale=typ, method="trf", loss="huber" if robust else "linear",
+                            f_scale=3.0, xtol=1e-13, ftol=1e-13, gtol=1e-13, max_nfev=200 * len(theta0))
+        theta = sol.x
+        dof_n = K - len(theta) + (K * (n - 3) if n > 3 else 0)
+        if dof_n < 1:
+            break
+        d_, s2_, e_ = norm_parts(theta)
+        t_new = _extra_variance(d_, s2_, float(np.sum(e_**2)) if n > 3 else 0.0, dof_n)
+        if abs(t_new - tau2[0]) <= 1e-3 * max(t_new, 1e-300):
+            break
+        tau2[0] = t_new
     # 3. covariance from the Jacobian (central differences) and the residual noise
     J = _jac(resid, theta, typ * 1e-6)
     r = resid(theta)
@@ -428,14 +450,29 @@ def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, n
     # Student-t, wider than their stated sigma
     s2 = max(chi2 / dof, 1.0) if dof >= 1 else 1.0
     size = np.concatenate([np.full(int(free.sum()), typ[0]), np.full(n, typ[0] * gravity)])  # full-scale sizes
-    _check_spread(cov * s2 / np.outer(size, size), _theta_names(free, names), "accel")
+    weak = _check_spread(cov * s2 / np.outer(size, size), _theta_names(free, names), "accel")
     Wp, c = _unpack(theta, free, fixed, n)
     f, info, e = _specific_forces(Wp, c, ybar, sd)
     nf = np.linalg.norm(f, axis=1)
     u = f / nf[:, None]
     sn = np.sqrt(np.einsum("ka,kab,kb->k", u, np.linalg.inv(info), u))
     return AccelFit(members, tri, Wp @ P, c, cov * s2, theta, free, P, f @ P, nf - gravity, sn, chi2, dof, s2,
-                    e if n > 3 else None)
+                    e if n > 3 else None, weak, ybar, sd, tau2[0])
+
+
+def _extra_variance(d: np.ndarray, s2: np.ndarray, rest: float, dof: int) -> float:
+    """The additive pose variance tau^2 >= 0 with ``sum d_k^2 / (s2_k + tau^2) + rest = dof`` (0 when the white
+    noise explains the residuals already). Bisection; the sum falls monotonically with tau^2."""
+    if float(np.sum(d**2 / s2)) + rest <= dof:
+        return 0.0
+    lo, hi = 0.0, float(np.max(d**2)) * len(d) + float(np.max(s2))
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if float(np.sum(d**2 / (s2 + mid))) + rest > dof:
+            lo = mid
+        else:
+            hi = mid
+    return hi
 
 
 def _theta_names(free: np.ndarray, names: Sequence[str], P_names=("x", "y", "z")) -> list[str]:
@@ -463,15 +500,24 @@ def _check_jacobian(J: np.ndarray, typ: np.ndarray, names: list[str], inst: str)
           "rotations about every axis)", sorted({names[j] for k in bad for j in np.argsort(-np.abs(Vt[k]))[:2]}))
 
 
-def _check_spread(C: np.ndarray, names: list[str], inst: str, limit: float = 0.05) -> None:
+def _check_spread(C: np.ndarray, names: list[str], inst: str, limit: float = 0.5,
+                  weak: float = 0.02) -> list[str]:
     """Raise IdentifiabilityError when a parameter combination is so poorly determined that its standard
     deviation exceeds ``limit`` of the parameters' full-scale size (``C`` is the covariance divided by those
     sizes: the scale factor for the axis rows, the scale times g (accelerometers) or 1 rad/s (gyros) for the
-    biases): the poses excite it only through the noise."""
+    biases): the poses excite it only through the noise. Returns the combinations whose relative standard
+    deviation exceeds ``weak`` (weakly determined: reported, not refused)."""
     ev, V = np.linalg.eigh((C + C.T) / 2)
+
+    def words(k: int) -> str:
+        v = V[:, k]
+        order = np.argsort(-np.abs(v))[:3]
+        return (" + ".join(f"{v[j]:+.2f} {names[j]}" for j in order if abs(v[j]) > 0.1)
+                + f" (relative sd {np.sqrt(max(ev[k], 0.0)):.2g})")
+
     bad = np.flatnonzero(ev > limit**2)
     if bad.size == 0:
-        return
+        return [words(k) for k in np.flatnonzero(ev > weak**2)[::-1]]
     combos, params = [], set()
     for k in bad[::-1]:
         v = V[:, k]
@@ -530,6 +576,7 @@ class GyroFit:
     chi2: dict[str, float] = field(default_factory=dict)
     dof: int = 0
     group_scale: dict[str, float] = field(default_factory=dict)
+    weak: list[str] = field(default_factory=list)
 
     def rows_cov(self, i: int) -> np.ndarray:
         n = len(self.members)
@@ -755,7 +802,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     Js = J * typ
     Ninv = np.linalg.pinv(Js.T @ Js) * np.outer(typ, typ)
     size = np.concatenate([np.full(3 * n, abs(s0)), np.full(n, abs(s0) * 1.0)])  # scale; bias of 1 rad/s
-    _check_spread(Ninv / np.outer(size, size), names, "gyro")
+    weak = _check_spread(Ninv / np.outer(size, size), names, "gyro")
     cov = Ninv
     if accel_dir_jac is not None and accel_cov is not None:
         # d resid / d accel params through the gravity directions (the rotations do not depend on them)
@@ -778,7 +825,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         chi2["parity"] = float(np.sum(rp**2) * w_par**2)
     scale = {"rotation_rad": 1.0 / w_rot, "static_sigma": 1.0 / w_st}
     return GyroFit(list(idx), W, c, cov, theta, list(zip(ka.tolist(), kb.tolist())), rr, ang, rs * sd,
-                   chi2, J.shape[0] - len(theta), scale)
+                   chi2, J.shape[0] - len(theta), scale, weak)
 
 
 def _skew_batch(v: np.ndarray) -> np.ndarray:
@@ -848,15 +895,21 @@ class HandHeld:
     instruments : sequence of str, optional
         Default: accelerometers, and gyros when the session has motions between poses.
     robust : bool
-        Huber loss on the gyro residuals (and on the pose norms), against a bumped pose.
+        Huber loss on the gyro residuals, against a bumped pose.
+    pose_weights : {"noise", "equal"}
+        ``"noise"``: each pose mean weighted by its white noise (its length), plus a common pose-to-pose variance
+        when the residuals call for it; ``"equal"``: every pose alike (as imu_tk does).
     """
 
     method = "hand-held (Zhang et al. 2010 accelerometers, Tedaldi et al. 2014 gyros)"
 
     def __init__(self, sigma: dict[str, Any] | None = None, mode: str = "joint",
-                 instruments: Sequence[str] | None = None, robust: bool = True) -> None:
+                 instruments: Sequence[str] | None = None, robust: bool = True, pose_weights: str = "noise") -> None:
         if mode not in ("joint", "subunits"):
             raise ValueError(f"mode must be 'joint' or 'subunits', got {mode!r}")
+        if pose_weights not in ("noise", "equal"):
+            raise ValueError(f"pose_weights must be 'noise' or 'equal', got {pose_weights!r}")
+        self.pose_weights = pose_weights
         self.sigma = sigma
         self.mode = mode
         self.instruments = instruments
@@ -912,6 +965,8 @@ class HandHeld:
         labels = [s.label for s in statics]
         for grp in self._groups(ga):
             ybar, sd = _pose_stats(statics, "accel", grp, sa[grp])
+            if self.pose_weights == "equal":
+                sd = np.broadcast_to(np.median(sd, axis=0), sd.shape).copy()
             af = fit_accel(ybar, sd, ga.H[grp], session.gravity, [ga.names[i] for i in grp], grp, robust=False)
             afits.append(af)
             for j, i in enumerate(grp):
@@ -929,6 +984,11 @@ class HandHeld:
         extra["norm_noise_accel"] = float(np.sqrt(np.mean(np.mean([a.norm_sigma for a in afits], axis=0) ** 2)))
         extra["gauge_accel"] = [[ga.names[a.members[t]] for t in a.triple[:2]] for a in afits]
         extra["chi2_dof_accel"] = [a.chi2 / a.dof if a.dof > 0 else None for a in afits]
+        weak = [w for a in afits for w in a.weak]
+        if weak:
+            extra["weak_accel"] = weak
+            notes.append("accel: weakly determined by these poses (relative sd > 2 %): " + "; ".join(weak)
+                         + "; add poses (20 to 50, gravity along and between every axis)")
         if "gyro" in want:
             if "gyro" not in session.geometries:
                 raise SessionFormatError("the session has no gyro data")
@@ -943,6 +1003,10 @@ class HandHeld:
                 gf = fit_gyro(session, windows, dirs, djac, acov, grp, sg[grp], gg.H[grp], robust=self.robust,
                               dir_cov=dcov)
                 rot_res.append(gf.rotation_residual)
+                if gf.weak:
+                    extra.setdefault("weak_gyro", []).extend(gf.weak)
+                    notes.append("gyro: weakly determined by these motions (relative sd > 2 %): " + "; ".join(gf.weak)
+                                 + "; turn about every axis between poses")
                 angles.append(gf.angle)
                 for j, i in enumerate(grp):
                     ctx = SensorContext("gyro", i, gg, session.latitude, session.gravity, include_earth_rate=False)
@@ -972,7 +1036,7 @@ class HandHeld:
 def _dirs_with_jacobian(af: AccelFit, statics: list[Segment], session: Session, sa: np.ndarray):
     """Gravity direction of every pose from an accelerometer fit, with its Jacobian w.r.t. the fit's parameters."""
     grp = af.members
-    ybar, sd = _pose_stats(statics, "accel", grp, sa[grp])
+    ybar, sd = af.ybar, af.sd
     n = len(grp)
     fixed = np.zeros((n, 3))
 
