@@ -231,12 +231,16 @@ def _auto_factor(raw: dict[str, np.ndarray], fs: float, stat: np.ndarray, kw: di
 
     a = np.asarray(raw["accel"] if "accel" in raw else next(iter(raw.values())), float)[:, :3]
     trials = []
+    seen: dict[tuple, float] = {}
     for f in np.geomspace(3.0, 10000.0, 22):
         det = _classify(raw, fs, stat, float(f), **kw)
         st = det.static
         K = len(st)
         score = np.inf
-        if K >= 10:
+        key = tuple((iv.start, iv.end) for iv in st)
+        if key in seen:
+            score = seen[key]
+        elif K >= 10:
             ybar = np.array([a[iv.start:iv.end].mean(axis=0) for iv in st])
             sd = np.array([a[iv.start:iv.end].std(axis=0) / np.sqrt(iv.n) for iv in st]) + 1e-12
             try:
@@ -244,10 +248,13 @@ def _auto_factor(raw: dict[str, np.ndarray], fs: float, stat: np.ndarray, kw: di
                 score = float(np.sqrt(np.sum(af.norm_residual**2) / (K - 9)))
             except Exception:  # a failed trial only rules this factor out
                 score = np.inf
+        seen[key] = score
         trials.append((float(f), K, score, det))
     finite = [x for x in trials if np.isfinite(x[2])]
     if not finite:
-        det = max(trials, key=lambda x: len(x[3].static))[3]
+        f, _, _, det = max(trials, key=lambda x: (len(x[3].static), -x[0]))
+        det.settings["factor"] = "auto"
+        det.settings["factor_chosen"] = f
         det.settings["factor_trials"] = [(f, K, None) for f, K, _, _ in trials]
         return det
     best = min(x[2] for x in finite)

@@ -345,7 +345,7 @@ def _specific_forces(Wp: np.ndarray, c: np.ndarray, ybar: np.ndarray, sd: np.nda
 
 
 def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, names: Sequence[str],
-              members: Sequence[int] | None = None, robust: bool = False) -> AccelFit:
+              members: Sequence[int] | None = None, robust: bool = False, model: str = "full") -> AccelFit:
     """Accelerometers from static poses of unknown attitude (module docstring, steps 1-3).
 
     Parameters
@@ -360,26 +360,46 @@ def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, n
         Local gravity, m/s^2 (the norm of the specific force at rest).
     names : sequence of str
         Sensor names (for messages).
+    model : {"full", "scale_bias"}
+        ``"full"``: scale, misalignment and bias (9 parameters for a triad); ``"scale_bias"`` (triads): the
+        axes kept nominal, 6 parameters, for poses that only put each axis up and down (a Ferraris recording).
     """
     from scipy.optimize import least_squares
 
     ybar = np.asarray(ybar, float)
     K, n = ybar.shape
     members = list(range(n)) if members is None else list(members)
-    p = 4 * n - 3
+    if model not in ("full", "scale_bias"):
+        raise ValueError(f"model must be 'full' or 'scale_bias', got {model!r}")
+    if model == "scale_bias" and n != 3:
+        raise IdentifiabilityError("accel: model 'scale_bias' is for a triad; a skewed set needs the full model",
+                                   [])
+    p = 4 * n - 3 if model == "full" else 2 * n
+    distinct = _distinct_directions(ybar)
+    if model == "full" and n == 3 and K >= 9 and distinct < 9:
+        raise IdentifiabilityError(
+            f"accel: the {K} poses hold only {distinct} distinct orientations (repeated poses add nothing on the "
+            "misalignments); the full model needs at least 9: hold the unit in 20 to 50 different orientations, "
+            "or fit scale and bias alone (model 'scale_bias')", [f"{s}.mis" for s in names])
     need = int(np.ceil(p / max(n - 2, 1))) if n > 3 else 9
-    if K < max(need, 9 if n == 3 else 4):
+    if model == "scale_bias":
+        need = 6
+    if K < max(need, (9 if model == "full" else 6) if n == 3 else 4):
         raise IdentifiabilityError(
             f"accel: {K} static poses for {p} parameters of {n} sensors; the norm of gravity gives one equation per "
             f"pose{' (plus ' + str(n - 3) + ' parity equations)' if n > 3 else ''}: record at least "
-            f"{max(need, 9 if n == 3 else 4)} poses (hand-held: 20 to 50 in varied orientations)",
+            f"{max(need, (9 if model == 'full' else 6) if n == 3 else 4)} poses (hand-held: 20 to 50 in varied "
+            "orientations)",
             [f"{s}.{q}" for s in names for q in ("scale", "bias")])
     tri = _best_triple(H)
     P = _gauge_basis(H, *tri)
     Hp = H @ P.T
     # 1. linear initial solution on the triple (Zhang Eq. 12-14 posed with |vec M| = 1)
     t = list(tri)
-    cen, M = ellipsoid_fit(ybar[:, t], 1.0 / np.mean(sd[:, t] ** 2, axis=1))
+    if model == "full":
+        cen, M = ellipsoid_fit(ybar[:, t], 1.0 / np.mean(sd[:, t] ** 2, axis=1))
+    else:
+        cen, M = _axis_ellipsoid_fit(ybar)
     q = np.einsum("ki,ij,kj->k", ybar[:, t] - cen, M, ybar[:, t] - cen)
     M = M * gravity**2 / float(np.mean(q))
     A = lower_factor(M)
@@ -400,7 +420,12 @@ def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, n
             Wp0[i], c0[i] = beta[:3], beta[3]
     free = np.ones((n, 3), bool)
     free[tri[0], 1] = free[tri[0], 2] = free[tri[1], 2] = False
+    if model == "scale_bias":
+        free = np.eye(3, dtype=bool)
+        Wp0 = np.diag(np.diag(Wp0))
     fixed = np.zeros((n, 3))  # the gauge entries are zero by definition
+    if model == "scale_bias":
+        fixed = np.zeros((n, 3))  # nominal axes (an orthogonal triad is diagonal in its gauge frame)
     theta0 = np.concatenate([Wp0[free], c0])
     typ = np.concatenate([np.full(int(free.sum()), float(np.median(np.abs(Wp0[np.abs(Wp0) > 0])))),
                           np.maximum(np.abs(c0), np.median(sd) * 10)])
@@ -458,6 +483,31 @@ def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, n
     sn = np.sqrt(np.einsum("ka,kab,kb->k", u, np.linalg.inv(info), u))
     return AccelFit(members, tri, Wp @ P, c, cov * s2, theta, free, P, f @ P, nf - gravity, sn, chi2, dof, s2,
                     e if n > 3 else None, weak, ybar, sd, tau2[0])
+
+
+def _distinct_directions(ybar: np.ndarray, deg: float = 5.0) -> int:
+    """Number of distinct directions among the pose means (centred roughly), clusters closer than ``deg``."""
+    y = ybar - 0.5 * (ybar.max(axis=0) + ybar.min(axis=0))
+    u = y / np.maximum(np.linalg.norm(y, axis=1, keepdims=True), 1e-300)
+    reps: list[np.ndarray] = []
+    c = np.cos(np.radians(deg))
+    for v in u:
+        if not any(float(v @ r) > c for r in reps):
+            reps.append(v)
+    return len(reps)
+
+
+def _axis_ellipsoid_fit(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned ellipsoid ``sum_j m_j (y_j - c_j)^2 = 1`` by linear least squares (scale and bias only)."""
+    D = np.column_stack([y**2, -2 * y, np.ones(len(y))])
+    _, _, Vt = np.linalg.svd(D / np.abs(D).max(axis=0))
+    v = Vt[-1] / np.abs(D).max(axis=0)
+    v = v * np.sign(v[0])
+    m = v[:3]
+    if np.any(m <= 0):
+        return y.mean(axis=0), np.eye(3) / float(np.mean(np.sum((y - y.mean(axis=0)) ** 2, axis=1)))
+    c = v[3:6] / m
+    return c, np.diag(m)
 
 
 def _extra_variance(d: np.ndarray, s2: np.ndarray, rest: float, dof: int) -> float:
@@ -896,6 +946,8 @@ class HandHeld:
         Default: accelerometers, and gyros when the session has motions between poses.
     robust : bool
         Huber loss on the gyro residuals, against a bumped pose.
+    accel_model : {"full", "scale_bias"}
+        See :func:`fit_accel`.
     pose_weights : {"noise", "equal"}
         ``"noise"``: each pose mean weighted by its white noise (its length), plus a common pose-to-pose variance
         when the residuals call for it; ``"equal"``: every pose alike (as imu_tk does).
@@ -904,7 +956,9 @@ class HandHeld:
     method = "hand-held (Zhang et al. 2010 accelerometers, Tedaldi et al. 2014 gyros)"
 
     def __init__(self, sigma: dict[str, Any] | None = None, mode: str = "joint",
-                 instruments: Sequence[str] | None = None, robust: bool = True, pose_weights: str = "noise") -> None:
+                 instruments: Sequence[str] | None = None, robust: bool = True, pose_weights: str = "noise",
+                 accel_model: str = "full") -> None:
+        self.accel_model = accel_model
         if mode not in ("joint", "subunits"):
             raise ValueError(f"mode must be 'joint' or 'subunits', got {mode!r}")
         if pose_weights not in ("noise", "equal"):
@@ -967,7 +1021,8 @@ class HandHeld:
             ybar, sd = _pose_stats(statics, "accel", grp, sa[grp])
             if self.pose_weights == "equal":
                 sd = np.broadcast_to(np.median(sd, axis=0), sd.shape).copy()
-            af = fit_accel(ybar, sd, ga.H[grp], session.gravity, [ga.names[i] for i in grp], grp, robust=False)
+            af = fit_accel(ybar, sd, ga.H[grp], session.gravity, [ga.names[i] for i in grp], grp, robust=False,
+                           model=self.accel_model)
             afits.append(af)
             for j, i in enumerate(grp):
                 ctx = SensorContext("accel", i, ga, session.latitude, session.gravity)
@@ -1027,7 +1082,7 @@ class HandHeld:
             notes.append(f"{len(clipped)} motions left out of the gyro fit: the gyros clip (saturate) in them: "
                          + ", ".join(clipped) + "; turn more slowly between poses")
             extra["clipped_motions"] = clipped
-        elif "gyro" in session.geometries:
+        if "gyro" in session.geometries and "gyro" not in out:
             notes.append("gyros not calibrated: " + ("no motion segments between consecutive poses" if not windows
                                                       else "not asked for"))
         return CalibrationResult(self.method, out, session.raw_unit, notes, extra)
