@@ -1036,6 +1036,7 @@ class HandHeld:
         norm_res = np.mean([a.norm_residual for a in afits], axis=0)
         extra["norm_residual_accel"] = norm_res
         extra["norm_rms_accel"] = float(np.sqrt(np.mean(norm_res**2)))
+        extra["norm_sigma_accel"] = np.mean([np.sqrt(a.norm_sigma**2 + a.tau2) for a in afits], axis=0)
         extra["norm_noise_accel"] = float(np.sqrt(np.mean(np.mean([a.norm_sigma for a in afits], axis=0) ** 2)))
         extra["gauge_accel"] = [[ga.names[a.members[t]] for t in a.triple[:2]] for a in afits]
         extra["chi2_dof_accel"] = [a.chi2 / a.dof if a.dof > 0 else None for a in afits]
@@ -1074,6 +1075,7 @@ class HandHeld:
             rr = np.mean(rot_res, axis=0)
             extra["rotation_residual_deg"] = np.degrees(np.linalg.norm(rr, axis=1))
             extra["rotation_rms_deg"] = float(np.degrees(np.sqrt(np.mean(np.sum(rr**2, axis=1)))))
+            extra["rotation_sigma_deg"] = float(np.degrees(_robust_rms(rr)))
             extra["motion_angle_deg"] = np.degrees(np.mean(angles, axis=0))
             extra["motion_labels"] = [f"{labels[a]}->{labels[b]}" for a, b in gf.pairs]
             notes.append("gyro bias from the static poses (Earth rate not modelled); scale and misalignment from "

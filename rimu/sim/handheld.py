@@ -117,7 +117,7 @@ def handheld_run(n_poses: int = 30, static_s: float = 3.0, geometries: dict[str,
                  vrw_ug_sqrt_hz: float = 300.0, tremor_deg: float = 0.03, sway_deg: float = 0.1,
                  tremor_ms2: float = 0.02, peak_rate_deg_s: float = 150.0, initial_still_s: float = 0.0,
                  quantize: bool = True, gravity: float = G0, oversample: int = 8, seed: int = 0,
-                 up_mb: Any = None) -> HandHeldRun:
+                 up_mb: Any = None, gyro_g_sensitivity: Any = None) -> HandHeldRun:
     """Simulate a hand-held calibration recording (module docstring).
 
     Parameters
@@ -134,6 +134,8 @@ def handheld_run(n_poses: int = 30, static_s: float = 3.0, geometries: dict[str,
         White noise densities.
     tremor_deg, sway_deg, tremor_ms2 : float
         Hand tremor (8-12 Hz, angle rms), sway (< 0.5 Hz, angle rms), tremor linear acceleration rms.
+    gyro_g_sensitivity : array_like (3, 3), optional
+        A hidden gyro g-sensitivity (rad/s per m/s^2, MB): the gyros also see ``G @ f`` (for diagnosis tests).
     up_mb : array_like (K, 3), optional
         Body directions to hold up, one per pose (random heading); default: random attitudes.
     peak_rate_deg_s : float
@@ -195,6 +197,8 @@ def handheld_run(n_poses: int = 30, static_s: float = 3.0, geometries: dict[str,
     for k, g in geometries.items():
         cal = truth[k]
         u = rate if k == "gyro" else sf
+        if k == "gyro" and gyro_g_sensitivity is not None:
+            u = u + sf @ np.asarray(gyro_g_sensitivity, dtype=float).T
         sig = (white_noise_sigma(arw_deg_sqrt_h * ARW_DSQH_TO_RSQS, fs) if k == "gyro"
                else white_noise_sigma(vrw_ug_sqrt_hz * UG_TO_MS2, fs))
         z = u @ cal.axes_mb().T + cal.bias + rng.standard_normal((N, g.n)) * sig
