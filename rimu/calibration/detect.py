@@ -16,6 +16,7 @@ accelerometer signal over a short window is below a threshold set from an initia
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -97,7 +98,7 @@ def detect_intervals(accel: np.ndarray, sample_rate: float, gyro: np.ndarray | N
     a = np.asarray(accel, dtype=float)
     if a.ndim != 2 or a.shape[0] < 4:
         raise ShapeError(f"accel must be (N, n) with N >= 4, got {a.shape}")
-    w = max(2, int(round(window_s * sample_rate)))
+    w = max(2, round(window_s * sample_rate))
     var = _moving_var(np.linalg.norm(a, axis=1), w)
     var = var / max(np.percentile(var, 10), 1e-300)
     if gyro is not None:
@@ -109,7 +110,7 @@ def detect_intervals(accel: np.ndarray, sample_rate: float, gyro: np.ndarray | N
     thr = factor
     mask = var < thr
     runs = _runs(mask)
-    minn = int(round(min_static_s * sample_rate))
+    minn = round(min_static_s * sample_rate)
     statics = [(s, e) for s, e, v in runs if v and e - s >= minn]
     dropped = sum(1 for s, e, v in runs if v and e - s < minn)
     intervals: list[Interval] = []
@@ -129,7 +130,7 @@ def detect_intervals(accel: np.ndarray, sample_rate: float, gyro: np.ndarray | N
 def _runs(mask: np.ndarray) -> list[tuple[int, int, bool]]:
     edges = np.flatnonzero(np.diff(mask.astype(int))) + 1
     bounds = np.concatenate([[0], edges, [mask.size]])
-    return [(int(s), int(e), bool(mask[s])) for s, e in zip(bounds[:-1], bounds[1:])]
+    return [(int(s), int(e), bool(mask[s])) for s, e in itertools.pairwise(bounds)]
 
 
 def _motion(s: int, e: int, gyro, fs: float, min_turn_deg: float, gyro_scale) -> Interval:
@@ -198,7 +199,7 @@ def detect_poses(raw: dict[str, np.ndarray], sample_rate: float, window_s: float
         raise ShapeError("detect_poses needs at least one instrument's raw samples")
     N = None
     ratios = []
-    w = max(2, int(round(window_s * sample_rate)))
+    w = max(2, round(window_s * sample_rate))
     for k, y in raw.items():
         y = np.asarray(y, dtype=float)
         if y.ndim != 2 or y.shape[0] < max(4, w):
@@ -208,7 +209,7 @@ def detect_poses(raw: dict[str, np.ndarray], sample_rate: float, window_s: float
         N = y.shape[0]
         mv = np.column_stack([_moving_var(y[:, j], w) for j in range(y.shape[1])])
         if init_still_s:
-            ni = int(round(init_still_s * sample_rate))
+            ni = round(init_still_s * sample_rate)
             if ni < w:
                 raise ShapeError(f"init_still_s = {init_still_s} s is shorter than one window ({window_s} s)")
             floor = np.median(mv[:ni], axis=0)
@@ -217,8 +218,8 @@ def detect_poses(raw: dict[str, np.ndarray], sample_rate: float, window_s: float
         floor = np.maximum(floor, 1e-12 * max(float(np.max(mv)), 1e-300))
         ratios.append(mv / floor)
     stat = np.max(np.hstack(ratios), axis=1)
-    kw = dict(window_s=window_s, init_still_s=init_still_s, min_static_s=min_static_s, min_motion_s=min_motion_s,
-              margin_s=margin_s, min_turn_deg=min_turn_deg)
+    kw = {"window_s": window_s, "init_still_s": init_still_s, "min_static_s": min_static_s, "min_motion_s": min_motion_s,
+              "margin_s": margin_s, "min_turn_deg": min_turn_deg}
     if isinstance(factor, str):
         if factor != "auto":
             raise ValueError(f"factor must be a number or 'auto', got {factor!r}")
@@ -227,6 +228,7 @@ def detect_poses(raw: dict[str, np.ndarray], sample_rate: float, window_s: float
 
 
 def _auto_factor(raw: dict[str, np.ndarray], fs: float, stat: np.ndarray, kw: dict) -> Detection:
+    from ..errors import IdentifiabilityError
     from .handheld import fit_accel
 
     a = np.asarray(raw["accel"] if "accel" in raw else next(iter(raw.values())), float)[:, :3]
@@ -244,9 +246,9 @@ def _auto_factor(raw: dict[str, np.ndarray], fs: float, stat: np.ndarray, kw: di
             ybar = np.array([a[iv.start:iv.end].mean(axis=0) for iv in st])
             sd = np.array([a[iv.start:iv.end].std(axis=0) / np.sqrt(iv.n) for iv in st]) + 1e-12
             try:
-                af = fit_accel(ybar, sd, np.eye(3), 1.0, ["x", "y", "z"])
+                af = fit_accel(ybar, sd, np.eye(3), 1.0, ["x", "y", "z"], quick=True)
                 score = float(np.sqrt(np.sum(af.norm_residual**2) / (K - 9)))
-            except Exception:  # a failed trial only rules this factor out
+            except (IdentifiabilityError, np.linalg.LinAlgError, ValueError):  # rules this factor out
                 score = np.inf
         seen[key] = score
         trials.append((float(f), K, score, det))
@@ -271,17 +273,17 @@ def _classify(raw: dict[str, np.ndarray], sample_rate: float, stat: np.ndarray, 
     N = len(stat)
     mask = stat < factor
     # merge short motions between still runs, then drop short still runs
-    mm = int(round(min_motion_s * sample_rate))
+    mm = round(min_motion_s * sample_rate)
     for s, e, v in _runs(mask):
         if not v and s > 0 and e < N and e - s < mm:
             mask[s:e] = True
-    minn = int(round(min_static_s * sample_rate))
+    minn = round(min_static_s * sample_rate)
     dropped = 0
     for s, e, v in _runs(mask):
         if v and e - s < minn:
             mask[s:e] = False
             dropped += 1
-    mg = int(round((window_s / 2 if margin_s is None else margin_s) * sample_rate))
+    mg = round((window_s / 2 if margin_s is None else margin_s) * sample_rate)
     statics = []
     for s, e, v in _runs(mask):
         if v:
@@ -343,8 +345,9 @@ def plot_detection(det: Detection, accel: np.ndarray, sample_rate: float, labell
     import matplotlib.pyplot as plt
 
     t = np.arange(len(det.moving_variance)) / sample_rate
+    step = max(1, len(t) // 4000)  # enough points for the eye
     fig, ax = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
-    ax[0].plot(t, np.linalg.norm(np.asarray(accel, float), axis=1), lw=0.6, color="k")
+    ax[0].plot(t[::step], np.linalg.norm(np.asarray(accel, float), axis=1)[::step], lw=0.6, color="k")
     ax[0].set_ylabel("|accel| (raw)")
     colours = {"static": "tab:green", "rotation": "tab:orange", "motion": "0.7"}
     for iv in det.intervals:
@@ -356,7 +359,7 @@ def plot_detection(det: Detection, accel: np.ndarray, sample_rate: float, labell
             ax[0].hlines(top, s / sample_rate, e / sample_rate, color="tab:blue", lw=3)
             ax[0].annotate(name, ((s + e) / 2 / sample_rate, top), ha="center", va="top", fontsize=8)
         ax[0].set_ylim(top=top * 1.02)
-    ax[1].semilogy(t, np.maximum(det.moving_variance, 1e-3), lw=0.6)
+    ax[1].semilogy(t[::step], np.maximum(det.moving_variance, 1e-3)[::step], lw=0.6)
     ax[1].axhline(det.threshold, color="r", ls="--", label=f"threshold ({det.threshold:g} x noise floor)")
     ax[1].set_ylabel("moving variance / floor")
     ax[1].set_xlabel("time (s)")

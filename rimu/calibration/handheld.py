@@ -345,7 +345,8 @@ def _specific_forces(Wp: np.ndarray, c: np.ndarray, ybar: np.ndarray, sd: np.nda
 
 
 def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, names: Sequence[str],
-              members: Sequence[int] | None = None, robust: bool = False, model: str = "full") -> AccelFit:
+              members: Sequence[int] | None = None, robust: bool = False, model: str = "full",
+              quick: bool = False) -> AccelFit:
     """Accelerometers from static poses of unknown attitude (module docstring, steps 1-3).
 
     Parameters
@@ -363,6 +364,9 @@ def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, n
     model : {"full", "scale_bias"}
         ``"full"``: scale, misalignment and bias (9 parameters for a triad); ``"scale_bias"`` (triads): the
         axes kept nominal, 6 parameters, for poses that only put each axis up and down (a Ferraris recording).
+    quick : bool
+        One refinement without the pose-variance component, no covariance (zero) and no identifiability checks:
+        for scoring many candidate detections.
     """
     from scipy.optimize import least_squares
 
@@ -449,10 +453,13 @@ def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, n
     # period would outweigh every hand-held pose)
     tau2 = [0.0]
     theta = theta0
-    for _ in range(3):
+    for _ in range(1 if quick else 3):
         sol = least_squares(resid, theta, x_scale=typ, method="trf", loss="huber" if robust else "linear",
-                            f_scale=3.0, xtol=1e-13, ftol=1e-13, gtol=1e-13, max_nfev=200 * len(theta0))
+                            f_scale=3.0, xtol=1e-10 if quick else 1e-13, ftol=1e-10 if quick else 1e-13,
+                            gtol=1e-10 if quick else 1e-13, max_nfev=200 * len(theta0))
         theta = sol.x
+        if quick:
+            break
         dof_n = K - len(theta) + (K * (n - 3) if n > 3 else 0)
         if dof_n < 1:
             break
@@ -461,6 +468,11 @@ def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, n
         if abs(t_new - tau2[0]) <= 1e-3 * max(t_new, 1e-300):
             break
         tau2[0] = t_new
+    if quick:
+        Wp, c = _unpack(theta, free, fixed, n)
+        d_, s2_, e_ = norm_parts(theta)
+        return AccelFit(members, tri, Wp @ P, c, np.zeros((len(theta), len(theta))), theta, free, P,
+                        np.zeros((K, 3)), d_, np.sqrt(s2_), 0.0, K - len(theta), 1.0, None, [], ybar, sd, 0.0)
     # 3. covariance from the Jacobian (central differences) and the residual noise
     J = _jac(resid, theta, typ * 1e-6)
     r = resid(theta)
@@ -922,7 +934,7 @@ def clip_levels(session: Session, instrument: str) -> np.ndarray:
         m = np.maximum(m, np.max(np.abs(s.raw[instrument]), axis=0))
     out = np.full(n, np.inf)
     for i in range(n):
-        v = int(round(m[i]))
+        v = round(m[i])
         if v >= 128 and abs(m[i] - v) < 1e-9 and ((v & (v - 1)) == 0 or ((v + 1) & v) == 0):
             cnt = sum(int(np.sum(np.abs(s.raw[instrument][:, i]) >= m[i])) for s in session.segments)
             if cnt >= 2:
@@ -1070,6 +1082,8 @@ class HandHeld:
                     res = {lab: np.array([gf.static_residual[k, j]]) for k, lab in enumerate(labels)}
                     fit = make_sensor_fit(model, ctx, beta, gf.rows_cov(j), float(sg[i]), self.sigma is not None,
                                           len(statics) + 2 * len(windows), 0.0, res)
+                    # chi-square per degree of freedom of the weighted fit (rotation and static groups)
+                    fit.rss = sum(gf.chi2.values()) / max(gf.dof, 1) * max(fit.n_obs - 4, 1) * fit.sigma**2
                     gyro_sensors[i] = fit
             out["gyro"] = LsqResult("gyro", model, [gyro_sensors[i] for i in range(gg.n)], labels, {})
             rr = np.mean(rot_res, axis=0)

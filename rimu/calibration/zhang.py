@@ -439,7 +439,7 @@ class Zhang:
         return res
 
 
-def _accel_only(est: "Zhang", session: Session, statics: list[Segment]) -> CalibrationResult:
+def _accel_only(est: Zhang, session: Session, statics: list[Segment]) -> CalibrationResult:
     """Accelerometers alone (no gyro triad, or no CW/CCW rotation pairs): Zhang's Eq. 12-14 start and the norm
     refinement of Eq. 7-8, as in :func:`rimu.calibration.handheld.fit_accel`."""
     from .handheld import HandHeld

@@ -63,8 +63,8 @@ class HandHeldResiduals:
         return self.norm_residual / self.norm_sigma
 
     def lines(self, worst: int = 5) -> list[str]:
-        out = [f"hand-held session: {len(self.pose_labels)} poses of unknown attitude, "
-               f"{len(self.motion_labels)} motions between them; attitudes resolved by the hand-held calibration"]
+        out = [(f"hand-held session: {len(self.pose_labels)} poses of unknown attitude, "
+               f"{len(self.motion_labels)} motions between them; attitudes resolved by the hand-held calibration")]
         rms = float(np.sqrt(np.mean(self.norm_residual**2)))
         out.append(f"  gravity norm per pose: rms {rms * 1e6 / 9.80665:.4g} micro-g ({rms:.3g} m/s^2), "
                    f"chi2/pose {float(np.mean(self.norm_z**2)):.3g}")
@@ -133,6 +133,10 @@ def diagnose_handheld(session: Session, model: ErrorModel | str | Mapping[str, A
         models["gyro"] = ErrorModel.from_names(",".join(names) or "bias")
     kwargs.pop("include_earth_rate", None)
     d = diagnose(resolved, models, candidates=candidates, alpha=alpha, include_earth_rate=False, **kwargs)
+    if "gyro" in d.instruments and "gyro" in hh.result.instruments:  # bias-only model: SI through the calibration
+        sf = hh.result.to_calibration()["gyro"].scale
+        for s in d["gyro"].fit.sensors:
+            s.__dict__["scale_si"] = float(sf[s.ctx.index])
     d.settings["preamble"] = hh.lines()
     d.settings["handheld"] = hh.to_dict()
     return hh, d

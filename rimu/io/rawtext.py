@@ -23,9 +23,10 @@ from __future__ import annotations
 
 import io as _io
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 

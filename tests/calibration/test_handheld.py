@@ -64,7 +64,7 @@ def test_ellipsoid_start_is_never_trivial_and_exact_for_nine_points():
 
 
 def test_noise_free_and_exact_nine_poses():
-    kw = dict(arw_deg_sqrt_h=0.0, vrw_ug_sqrt_hz=0.0, tremor_deg=0.0, sway_deg=0.0, tremor_ms2=0.0, quantize=False)
+    kw = {"arw_deg_sqrt_h": 0.0, "vrw_ug_sqrt_hz": 0.0, "tremor_deg": 0.0, "sway_deg": 0.0, "tremor_ms2": 0.0, "quantize": False}
     run = handheld_run(n_poses=16, static_s=1.0, seed=7, **kw)
     res = HandHeld(sigma={"accel": 1.0, "gyro": 1.0}).fit(run.session)
     for inst in ("accel", "gyro"):

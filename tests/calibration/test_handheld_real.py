@@ -18,7 +18,6 @@ from rimu.io.rawtext import read_raw_text
 from rimu.units import G0
 
 
-
 def shared_data(name: str) -> Path:
     """A folder of ../shared/data beside the repository, or skip."""
     for base in (Path(__file__).resolve().parents[2] / ".." / "shared" / "data", Path("/work/shared/data")):
@@ -57,7 +56,7 @@ def mpu():
 
 
 def test_mpu6050_poses_match_the_authors_intervals(mpu):
-    folder, log, session, det = mpu
+    folder, log, _session, det = mpu
     ref = np.loadtxt(folder / "reference_result" / "static_intervals.csv", delimiter=",").astype(int)
     assert log.sample_rate == 100.0 and len(det.static) >= 9
     for s, e in ref.T:
@@ -68,7 +67,7 @@ def test_mpu6050_poses_match_the_authors_intervals(mpu):
 
 
 def test_mpu6050_static_norm_matches_an_independent_fit_and_the_authors(mpu):
-    folder, log, session, det = mpu
+    folder, _log, session, _det = mpu
     Y, N = pose_means(session)
     # equal pose weights (as imu_tk): the same criterion as the independent fit
     eq = HandHeld(pose_weights="equal").fit(session)
@@ -96,7 +95,7 @@ def test_mpu6050_static_norm_matches_an_independent_fit_and_the_authors(mpu):
 def test_ferraris_full_model_refused_scale_bias_matches_independent_fit():
     folder = shared_data("imucal_ferraris_session")
     log = read_raw_text(folder / "example_ferraris_session.csv", sample_rate=102.4)
-    session, det = detect_session(log.t, log.raw, 102.4)
+    session, _det = detect_session(log.t, log.raw, 102.4)
     with pytest.raises(IdentifiabilityError, match="6 distinct orientations"):
         HandHeld().fit(session)
     res = HandHeld(accel_model="scale_bias", pose_weights="equal").fit(session)
