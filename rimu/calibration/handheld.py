@@ -639,6 +639,8 @@ class GyroFit:
     dof: int = 0
     group_scale: dict[str, float] = field(default_factory=dict)
     weak: list[str] = field(default_factory=list)
+    #: the final weighted problem: ``resid(theta)``, its analytic ``jac(theta)`` and typical sizes ``typ``
+    problem: dict[str, Any] = field(default_factory=dict, repr=False)
 
     def rows_cov(self, i: int) -> np.ndarray:
         n = len(self.members)
@@ -887,7 +889,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         chi2["parity"] = float(np.sum(rp**2) * w_par**2)
     scale = {"rotation_rad": 1.0 / w_rot, "static_sigma": 1.0 / w_st}
     return GyroFit(list(idx), W, c, cov, theta, list(zip(ka.tolist(), kb.tolist())), rr, ang, rs * sd,
-                   chi2, J.shape[0] - len(theta), scale, weak)
+                   chi2, J.shape[0] - len(theta), scale, weak, {"resid": resid, "jac": jac, "typ": typ})
 
 
 def _skew_batch(v: np.ndarray) -> np.ndarray:
