@@ -88,8 +88,8 @@ def test_simulated_handheld_estimates_are_within_their_covariance():
     """20-60 poses of a MEMS triad, tremor and sway, bumps-free: normalised errors rms over seeds in [0.8, 1.25],
     no error beyond 4 sigma; the static-norm residual reaches the floor of the true coefficients."""
     zs = {"accel": [], "gyro": []}
-    for seed, poses in enumerate((20, 30, 40, 60, 24, 36)):
-        run = handheld_run(n_poses=poses, static_s=2.5, seed=100 + seed)
+    for seed, poses in enumerate((20, 28, 36, 44, 60)):
+        run = handheld_run(n_poses=poses, static_s=2.0, seed=100 + seed)
         res = HandHeld().fit(run.session)
         for k, z in normalised_errors(res, run).items():
             zs[k].append(z)
