@@ -118,8 +118,15 @@ def test_unidentifiable_poses_are_named():
 def test_zhang_on_many_noisy_poses_and_accelerometers_alone():
     """The Zhang path on 40 noisy hand-held poses: no 'not positive definite', no garbage, and no rotation
     segments needed for the accelerometers."""
+    from rimu.calibration.zhang import solve_ma
+
     run = handheld_run(n_poses=40, static_s=2.0, seed=11)
     statics = run.session.subset([s.label for s in run.session.segments if s.kind == "static_unknown"])
+    # the linear step alone (Eq. 12-14) on these poses: the old right-hand side of ones returned a scale
+    # 1e-7 of the truth or "not positive definite" on such data
+    Y = np.array([s.raw["accel"].mean(axis=0) for s in statics.segments])
+    A, _ = solve_ma(Y, statics.gravity)
+    assert np.all(np.abs(1 / np.linalg.norm(np.linalg.inv(A), axis=1) / run.truth["accel"].scale - 1) < 0.01)
     res = Zhang().fit(statics)
     assert list(res.instruments) == ["accel"] and "accelerometers only" in res.notes[0]
     sf = res.to_calibration()["accel"].scale
@@ -127,6 +134,23 @@ def test_zhang_on_many_noisy_poses_and_accelerometers_alone():
     acc_only = statics.subset([s.label for s in statics.segments])
     acc_only.geometries = {"accel": triad3()}
     assert list(Zhang().fit(acc_only).instruments) == ["accel"]
+
+
+def test_zhang_full_path_with_more_than_nine_noisy_positions():
+    """Zhang's scheme plus nine more static positions in random attitudes (18 noisy positions, MEMS noise):
+    the accelerometer step no longer fails or returns garbage, and the whole method still runs."""
+    from rimu.sim import Simulator, static, zhang_scheme
+
+    rng = np.random.default_rng(4)
+    extra = [static(f"E{k}", u / np.linalg.norm(u), 5.0, report="static_unknown")
+             for k, u in enumerate(rng.normal(size=(9, 3)), start=1)]
+    g = triad3()
+    run = Simulator({"gyro": g, "accel": g}, arw_deg_sqrt_h=0.3, vrw_ug_sqrt_hz=300, seed=5).run(
+        zhang_scheme(static_duration=5.0, rotation_duration=36.0) + extra)
+    res = Zhang().fit(run.session)
+    cal = res.to_calibration()
+    for k in ("accel", "gyro"):
+        assert np.all(np.abs(cal[k].scale / run.truth[k].scale - 1) < 1e-3), k
 
 
 def test_redundant_unit_joint_and_per_subunit():
