@@ -688,9 +688,12 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     # per window: the pose-k samples (first order: tremor and sway are small rotations), the motion samples
     # (exact rotations, padded to a common power-of-two length with identity steps) and the pose-(k+1) samples
     L = 1
-    mot_y, mot_dt = [], []
-    SA_y, SA_w, SB_y, SB_w = np.zeros((M, n)), np.zeros(M), np.zeros((M, n)), np.zeros(M)
-    Yint, Tw, Tw2 = np.zeros((M, n)), np.zeros(M), np.zeros(M)
+    ys: list[np.ndarray] = []
+    acc_ys: list[np.ndarray | None] = []
+    parts_idx: list[tuple[np.ndarray, np.ndarray, np.ndarray, int, int]] = []
+    mot_dt = []
+    SA_w, SB_w = np.zeros(M), np.zeros(M)
+    Tw, Tw2 = np.zeros(M), np.zeros(M)
     q_ab_list: list[float] = []
     for m, (_, _, chain) in enumerate(windows):
         t = np.concatenate([s.t for s in chain])
@@ -699,23 +702,34 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         na, nb = chain[0].n_samples, chain[-1].n_samples
         # attitude at sample i of pose k relative to the end of the pose: -sum_{tau >= i} w dt; its mean
         wa = dt[:na] * (np.arange(na) + 1) / na
-        SA_y[m], SA_w[m] = wa @ y[:na], wa.sum()
         # attitude at sample j of pose k+1 relative to its start: sum_{tau < j} w dt; its mean
         wb = dt[len(t) - nb:] * (nb - 1 - np.arange(nb)) / nb
-        SB_y[m], SB_w[m] = wb @ y[len(t) - nb:], wb.sum()
+        SA_w[m], SB_w[m] = wa.sum(), wb.sum()
         q_ab_list.append(float(wa @ wa + wb @ wb))
-        mot_y.append(y[na:len(t) - nb])
         mot_dt.append(dt[na:len(t) - nb])
-        L = max(L, len(mot_y[-1]))
-        Yint[m], Tw[m], Tw2[m] = dt @ y, dt.sum(), dt @ dt
+        L = max(L, len(t) - na - nb)
+        Tw[m], Tw2[m] = dt.sum(), dt @ dt
+        ys.append(y)
+        acc_ys.append(np.vstack([s.raw["accel"] for s in chain]) if "accel" in chain[0].raw else None)
+        parts_idx.append((wa, wb, dt, na, nb))
     L = 1 << int(np.ceil(np.log2(max(L, 1))))
     q_ab = np.array(q_ab_list)
-    YM = np.zeros((M, L, n))
     DM = np.zeros((M, L))
     for m in range(M):
-        k = len(mot_y[m])
-        YM[m, :k] = mot_y[m]
-        DM[m, :k] = mot_dt[m]
+        DM[m, :len(mot_dt[m])] = mot_dt[m]
+
+    def sums(ys_: list[np.ndarray]) -> dict[str, np.ndarray]:
+        """The data sums the residual needs, from the raw samples of every window (linear in them)."""
+        out = {"SA_y": np.zeros((M, n)), "SB_y": np.zeros((M, n)), "YM": np.zeros((M, L, n)),
+               "Yint": np.zeros((M, n))}
+        for m, (y, (wa, wb, dt, na, nb)) in enumerate(zip(ys_, parts_idx)):
+            out["SA_y"][m] = wa @ y[:na]
+            out["SB_y"][m] = wb @ y[len(y) - nb:]
+            out["YM"][m, :len(y) - na - nb] = y[na:len(y) - nb]
+            out["Yint"][m] = dt @ y
+        return out
+
+    D = sums(ys)
     T = np.array([_tangent(accel_dirs[k]) for k in kb])  # (M, 2, 3) tangent basis at each measured end direction
     sig_int = sigma[None, :] * np.sqrt(Tw2)[:, None]
 
@@ -727,9 +741,9 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
 
     def rotations(W, c):
         Gm = _G(W)
-        psi_a = -(SA_y - c * SA_w[:, None]) @ Gm.T  # mean attitude of pose k (end of pose k = reference)
-        phi_b = (SB_y - c * SB_w[:, None]) @ Gm.T  # mean attitude of pose k+1 relative to its start
-        q = quat_exp(((YM - c) @ Gm.T) * DM[..., None])
+        psi_a = -(D["SA_y"] - c * SA_w[:, None]) @ Gm.T  # mean attitude of pose k (end of pose k = reference)
+        phi_b = (D["SB_y"] - c * SB_w[:, None]) @ Gm.T  # mean attitude of pose k+1 relative to its start
+        q = quat_exp(((D["YM"] - c) @ Gm.T) * DM[..., None])
         q[DM == 0] = (1.0, 0.0, 0.0, 0.0)
         while q.shape[1] > 1:  # pairwise products: the rotation over the motion
             q = quat_mul(q[:, 0::2], q[:, 1::2])
@@ -752,7 +766,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
             return np.zeros((M, 0))
         W = theta[:3 * n].reshape(n, 3)
         c = theta[3 * n:]
-        z = Yint - c * Tw[:, None]
+        z = D["Yint"] - c * Tw[:, None]
         return (z - z @ _G(W).T @ W.T) / sig_int
 
     def rot_jac(theta, dirs):
@@ -760,9 +774,9 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         W = theta[:3 * n].reshape(n, 3)
         c = theta[3 * n:]
         Gm = _G(W)
-        psi_a = -(SA_y - c * SA_w[:, None]) @ Gm.T
-        phi_b = (SB_y - c * SB_w[:, None]) @ Gm.T
-        om = (YM - c) @ Gm.T
+        psi_a = -(D["SA_y"] - c * SA_w[:, None]) @ Gm.T
+        phi_b = (D["SB_y"] - c * SB_w[:, None]) @ Gm.T
+        om = (D["YM"] - c) @ Gm.T
         q = quat_exp(om * DM[..., None])
         q[DM == 0] = (1.0, 0.0, 0.0, 0.0)
         qh = quat_exp(om * DM[..., None] / 2)
@@ -805,7 +819,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     # and a first motion-based guess of one common scale from the integrated angles
     c0 = np.median(ybar, axis=0)
     W0 = H.copy()
-    s0 = _initial_gyro_scale(Yint, Tw, c0, H, accel_dirs, ka, kb)
+    s0 = _initial_gyro_scale(D["Yint"], Tw, c0, H, accel_dirs, ka, kb)
     theta0 = np.concatenate([(W0 * s0).ravel(), c0])
     typ = np.concatenate([np.full(3 * n, abs(s0)), np.maximum(np.abs(c0), sd.mean() * 10)])
     w_rot = 1.0e3  # 1 mrad to start with; both weights are then set from the residual scatter
@@ -818,6 +832,15 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         rr, rs, rp = parts(theta, dirs)
         rw = np.linalg.solve(Lw, rr.ravel()) if M else rr.ravel()
         return np.concatenate([rw * w_rot, rs.ravel() * w_st, rp.ravel() * w_par])
+
+    def rot_resid_shift(theta, deltas):
+        """The weighted rotation residuals with the raw gyro samples of every window shifted by ``deltas``."""
+        saved = dict(D)
+        D.update(sums([y + d for y, d in zip(ys, deltas)]))
+        try:
+            return resid(theta)[:2 * M]
+        finally:
+            D.update(saved)
 
     def jac(theta, dirs=accel_dirs):
         Jr = np.linalg.solve(Lw, rot_jac(theta, dirs).reshape(2 * M, -1)) * w_rot
@@ -889,7 +912,9 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         chi2["parity"] = float(np.sum(rp**2) * w_par**2)
     scale = {"rotation_rad": 1.0 / w_rot, "static_sigma": 1.0 / w_st}
     return GyroFit(list(idx), W, c, cov, theta, list(zip(ka.tolist(), kb.tolist())), rr, ang, rs * sd,
-                   chi2, J.shape[0] - len(theta), scale, weak, {"resid": resid, "jac": jac, "typ": typ})
+                   chi2, J.shape[0] - len(theta), scale, weak,
+                   {"resid": resid, "jac": jac, "typ": typ, "ys": ys, "accel_ys": acc_ys, "dt": [p[2] for p in parts_idx],
+                    "n_rot": 2 * M, "rot_resid_shift": rot_resid_shift})
 
 
 def _skew_batch(v: np.ndarray) -> np.ndarray:
@@ -1029,6 +1054,7 @@ class HandHeld:
         notes = [("MB is the hand-held gauge frame: the first accelerometer of each calibrated set keeps its nominal "
                  "axis and the second stays in their nominal plane (those misalignments are zero by definition)")]
         afits: list[AccelFit] = []
+        gfits: list[GyroFit] = []
         acc_sensors: dict[int, Any] = {}
         labels = [s.label for s in statics]
         for grp in self._groups(ga):
@@ -1073,6 +1099,7 @@ class HandHeld:
                 gf = fit_gyro(session, windows, dirs, djac, acov, grp, sg[grp], gg.H[grp], robust=self.robust,
                               dir_cov=dcov)
                 rot_res.append(gf.rotation_residual)
+                gfits.append(gf)
                 if gf.weak:
                     extra.setdefault("weak_gyro", []).extend(gf.weak)
                     notes.append("gyro: weakly determined by these motions (relative sd > 2 %): " + "; ".join(gf.weak)
@@ -1100,10 +1127,13 @@ class HandHeld:
             notes.append(f"{len(clipped)} motions left out of the gyro fit: the gyros clip (saturate) in them: "
                          + ", ".join(clipped) + "; turn more slowly between poses")
             extra["clipped_motions"] = clipped
+        fits = {"accel": afits, "gyro": gfits if "gyro" in out else []}
         if "gyro" in session.geometries and "gyro" not in out:
             notes.append("gyros not calibrated: " + ("no motion segments between consecutive poses" if not windows
                                                       else "not asked for"))
-        return CalibrationResult(self.method, out, session.raw_unit, notes, extra)
+        res = CalibrationResult(self.method, out, session.raw_unit, notes, extra)
+        res.fits = fits  # type: ignore[attr-defined]  # the fitted problems (AccelFit, GyroFit), for diagnosis
+        return res
 
 
 def _dirs_with_jacobian(af: AccelFit, statics: list[Segment], session: Session, sa: np.ndarray):
