@@ -17,11 +17,11 @@ from scipy.optimize import least_squares
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from rimu.calibration.handheld import HandHeld, gauge_fixed  # noqa: E402
-from rimu.calibration.lsq import physical_from_beta  # noqa: E402
-from rimu.calibration.model import ErrorModel  # noqa: E402
-from rimu.sim.handheld import handheld_run  # noqa: E402
-from rimu.units import G0  # noqa: E402
+from rimu.calibration.handheld import HandHeld, gauge_fixed
+from rimu.calibration.lsq import physical_from_beta
+from rimu.calibration.model import ErrorModel
+from rimu.sim.handheld import handheld_run
+from rimu.units import G0
 
 
 def reference_fit(Y: np.ndarray) -> float:

@@ -47,7 +47,7 @@ def run(out: Path) -> dict:
     print("\nagainst the simulation's truth (in the calibration's frame):")
     worst = {}
     for k in ("accel", "gyro"):
-        W, c = gauge_fixed(sim.truth["accel"], (0, 1, 2), sim.truth[k])
+        W, _c = gauge_fixed(sim.truth["accel"], (0, 1, 2), sim.truth[k])
         sf_true = 1.0 / np.linalg.norm(W, axis=1)
         err_ppm = (cal[k].scale / sf_true - 1) * 1e6
         print(f"  {k}: scale error {np.round(err_ppm, 0)} ppm")
