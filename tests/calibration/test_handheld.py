@@ -142,11 +142,11 @@ def test_zhang_full_path_with_more_than_nine_noisy_positions():
     from rimu.sim import Simulator, static, zhang_scheme
 
     rng = np.random.default_rng(4)
-    extra = [static(f"E{k}", u / np.linalg.norm(u), 5.0, report="static_unknown")
+    extra = [static(f"E{k}", u / np.linalg.norm(u), 3.0, report="static_unknown")
              for k, u in enumerate(rng.normal(size=(9, 3)), start=1)]
     g = triad3()
     run = Simulator({"gyro": g, "accel": g}, arw_deg_sqrt_h=0.3, vrw_ug_sqrt_hz=300, seed=5).run(
-        zhang_scheme(static_duration=5.0, rotation_duration=36.0) + extra)
+        zhang_scheme(static_duration=3.0, rotation_duration=18.0) + extra)
     res = Zhang().fit(run.session)
     cal = res.to_calibration()
     for k in ("accel", "gyro"):
