@@ -1096,8 +1096,15 @@ class HandHeld:
             for j_g, grp in enumerate(ggroups):
                 af = afits[min(j_g, len(afits) - 1)]
                 dirs, djac, acov, dcov = _dirs_with_jacobian(af, statics, session, sa)
-                gf = fit_gyro(session, windows, dirs, djac, acov, grp, sg[grp], gg.H[grp], robust=self.robust,
-                              dir_cov=dcov)
+                try:
+                    gf = fit_gyro(session, windows, dirs, djac, acov, grp, sg[grp], gg.H[grp], robust=self.robust,
+                                  dir_cov=dcov)
+                except IdentifiabilityError as exc:
+                    if self.instruments is not None:  # asked for explicitly: the caller hears why not
+                        raise
+                    notes.append(f"gyros not calibrated: {exc}")
+                    gyro_sensors = {}
+                    break
                 rot_res.append(gf.rotation_residual)
                 gfits.append(gf)
                 if gf.weak:
@@ -1114,6 +1121,8 @@ class HandHeld:
                     # chi-square per degree of freedom of the weighted fit (rotation and static groups)
                     fit.rss = sum(gf.chi2.values()) / max(gf.dof, 1) * max(fit.n_obs - 4, 1) * fit.sigma**2
                     gyro_sensors[i] = fit
+        if "gyro" in want and len(gyro_sensors) == session.geometries["gyro"].n:
+            gg = session.geometries["gyro"]
             out["gyro"] = LsqResult("gyro", model, [gyro_sensors[i] for i in range(gg.n)], labels, {})
             rr = np.mean(rot_res, axis=0)
             extra["rotation_residual_deg"] = np.degrees(np.linalg.norm(rr, axis=1))
@@ -1128,7 +1137,8 @@ class HandHeld:
                          + ", ".join(clipped) + "; turn more slowly between poses")
             extra["clipped_motions"] = clipped
         fits = {"accel": afits, "gyro": gfits if "gyro" in out else []}
-        if "gyro" in session.geometries and "gyro" not in out:
+        if "gyro" in session.geometries and "gyro" not in out and not any(
+                x.startswith("gyros not calibrated") for x in notes):
             notes.append("gyros not calibrated: " + ("no motion segments between consecutive poses" if not windows
                                                       else "not asked for"))
         res = CalibrationResult(self.method, out, session.raw_unit, notes, extra)
