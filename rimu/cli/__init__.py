@@ -21,6 +21,7 @@ COMMANDS = [
     "monitor",
     "replay", "campaign", "check",
     "detect",
+    "export_c",
 ]
 
 
