@@ -31,6 +31,7 @@ COMMANDS = [
     "diagnose",
     "monitor",
     "replay", "campaign", "check",
+    "detect",
     "export_c",
     "array",
 ]

@@ -9,7 +9,7 @@ import numpy as np
 
 from ._common import Deprecated, add_accept_implausible, add_json_option, add_report_option
 
-METHODS = ("cho", "oliveira", "zhang", "lsq")
+METHODS = ("cho", "oliveira", "zhang", "lsq", "handheld")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -19,7 +19,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("session", help="session file (.csv, .json sidecar, or .npz)")
     p.add_argument("--method", choices=METHODS, default="cho",
                    help="cho: Cho & Park 2005; oliveira: de Oliveira et al. 2012 (tetrad); zhang: Zhang et al. "
-                        "2010 (triads, no attitude needed); lsq: generic least squares on the effect model")
+                        "2010 (triads, no attitude needed); lsq: generic least squares on the effect model; handheld: "
+                        "poses of unknown attitude and hand rotations between them (rimu detect's sessions)")
     p.add_argument("--effects", default=None, help="lsq only: comma-separated effects (default scale,bias)")
     p.add_argument("--instruments", default=None, help="comma-separated subset of gyro,accel")
     p.add_argument("--wavelet", action="store_true", help="oliveira only: db4/8-level wavelet denoising")
@@ -42,6 +43,10 @@ def estimator(method: str, instruments=None, effects: str | None = None, wavelet
         return Oliveira(wavelet=wavelet)
     if method == "zhang":
         return Zhang()
+    if method == "handheld":
+        from ..calibration.handheld import HandHeld
+
+        return HandHeld(instruments=instruments)
     model = ErrorModel.from_names(effects) if effects else None
     return LeastSquares(model=model, instruments=instruments)
 
