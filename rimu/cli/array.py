@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ._common import positive_float
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("array", help="self-calibration of an array of triads from motion, with its report",
@@ -24,8 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", default=None, help="JSON file for the fitted parameters (SI, body frame)")
     p.add_argument("--report", default=None, metavar="DIR", help="folder for array_report.md and array_report.png")
     p.add_argument("--json", default=None, metavar="FILE", help="machine-readable summary")
-    p.add_argument("--lowpass-hz", type=float, default=None, help="low-pass every triad first (vehicles)")
-    p.add_argument("--motion-threshold-deg-s", type=float, default=30.0,
+    p.add_argument("--lowpass-hz", type=positive_float, default=None, help="low-pass every triad first (vehicles)")
+    p.add_argument("--motion-threshold-deg-s", type=positive_float, default=30.0,
                    help="samples faster than this count as 'in motion' for the parity figures")
     p.set_defaults(func=run)
 

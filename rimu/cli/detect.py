@@ -12,6 +12,8 @@ import argparse
 import json
 from pathlib import Path
 
+from ._common import positive_float
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("detect", help="find the still poses and motions of a raw hand-held recording",
@@ -20,21 +22,21 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "motions between them, and write a session file.")
     p.add_argument("raw", help="raw recording (.csv, .txt, ...)")
     p.add_argument("-o", "--output", required=True, help="session file to write (.csv with .json sidecar, or .npz)")
-    p.add_argument("--rate", type=float, default=None, help="sample rate, Hz (default: the file's 'Fs' row or its times)")
+    p.add_argument("--rate", type=positive_float, default=None, help="sample rate, Hz (default: the file's 'Fs' row or its times)")
     p.add_argument("--accel", default=None, help="accelerometer columns: comma-separated names or 0-based indices")
     p.add_argument("--gyro", default=None, help="gyro columns: comma-separated names or 0-based indices")
     p.add_argument("--time", default=None, help="time (s) or sample-index column (name or index)")
-    p.add_argument("--init-still", type=float, default=None,
+    p.add_argument("--init-still", type=positive_float, default=None,
                    help="seconds of rest at the start, the noise floor of the thresholds (default: the file's "
                         "'Initialization time' row, else the quietest 10%% of the record)")
-    p.add_argument("--window", type=float, default=0.5, help="moving-variance window, s (default %(default)s)")
+    p.add_argument("--window", type=positive_float, default=0.5, help="moving-variance window, s (default %(default)s)")
     p.add_argument("--factor", default="auto",
                    help="threshold as a multiple of the noise floor, or 'auto' (imu_tk's search; default)")
-    p.add_argument("--min-static", type=float, default=1.0, help="shortest pose kept, s (default %(default)s)")
-    p.add_argument("--min-motion", type=float, default=0.2,
+    p.add_argument("--min-static", type=positive_float, default=1.0, help="shortest pose kept, s (default %(default)s)")
+    p.add_argument("--min-motion", type=positive_float, default=0.2,
                    help="shorter motions between two poses are bumps, merged into the pose, s (default %(default)s)")
     p.add_argument("--margin", type=float, default=None, help="trimmed from both ends of each pose, s (default: window/2)")
-    p.add_argument("--gravity", type=float, default=None, help="local gravity, m/s^2 (default 9.80665)")
+    p.add_argument("--gravity", type=positive_float, default=None, help="local gravity, m/s^2 (default 9.80665)")
     p.add_argument("--report", metavar="DIR", help="write detection.png and detection.md here")
     p.add_argument("--json", metavar="FILE", help="write a machine-readable summary here")
     p.set_defaults(func=run)

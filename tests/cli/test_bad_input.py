@@ -122,6 +122,8 @@ MINIMAL = {
     "campaign": ["--workers", "0", "--repetitions", "1", "--sizes", "6", "--duration", "1", "--fault-start", "0.5"],
     "check": ["{s}", "--calibration", "{cal}"],
     "export-c": ["{cal}", "-o", "{dir}/export"],
+    "detect": ["{s}", "-o", "{dir}/detected.npz"],
+    "array": ["{s}"],
 }
 
 _VALIDATORS = {common.positive_float: ["0", "-1", "nan", "abc"], common.finite_float: ["nan", "inf", "x"], common.nonnegative_float: ["-1", "inf", "x"],
@@ -188,6 +190,13 @@ def test_output_paths_are_checked_before_any_work(command, f, capsys):
 # ------------------------------------------------------------------ the table: malformed files and option values
 #: (command and arguments, exit status, words the one error line must contain)
 CASES = [
+    # detect and array (raw recordings, array NPZ)
+    (["detect", "{dir}/missing.csv", "-o", "{dir}/o.npz"], 2, ["missing.csv", "does not exist"]),
+    (["detect", "{text}", "-o", "{dir}/o.npz"], 2, ["text.npz"]),
+    (["detect", "{s}", "-o", "{dir}/o.npz", "--window", "-1"], 2, ["--window"]),
+    (["array", "{dir}/missing.npz"], 2, ["missing.npz"]),
+    (["array", "{text}"], 2, ["text.npz", "NPZ"]),
+    (["array", "{s}", "--motion-threshold-deg-s", "0"], 2, ["--motion-threshold-deg-s"]),
     # session files
     (["calibrate", "{empty}"], 2, ["empty.npz", "not a readable NPZ"]),
     (["calibrate", "{trunc}"], 2, ["trunc.npz", "truncated"]),
