@@ -22,6 +22,8 @@ __all__ = [
     "ParameterNameError",
     "TransportError",
     "FrameError",
+    "NotCompensableError",
+    "MissingInputError",
 ]
 
 
@@ -90,3 +92,16 @@ class TransportError(RimuError, IOError):
 
 class FrameError(RimuError, ValueError):
     """A frame or packet could not be decoded."""
+
+
+class NotCompensableError(RimuError, ValueError):
+    """An effect of the calibration has no runtime compensation (the message names it and says why)."""
+
+
+class MissingInputError(RimuError, ValueError):
+    """The runtime needs an input the data stream does not carry (the message names the effect and the input)."""
+
+    def __init__(self, message: str, effect: str = "", input_name: str = "") -> None:
+        super().__init__(message)
+        self.effect = effect
+        self.input_name = input_name

@@ -28,11 +28,12 @@ from typing import Any, ClassVar, Iterable, Sequence
 import numpy as np
 
 from ..epoch import INSTRUMENTS
-from ..errors import ParameterNameError
+from ..errors import NotCompensableError, ParameterNameError
 from ..geometry import Geometry
 from ..session import Segment, Session
 
-__all__ = ["ParamSpec", "SensorContext", "Effect", "ErrorModel", "EFFECTS", "register_effect", "effect"]
+__all__ = ["ParamSpec", "SensorContext", "Effect", "ErrorModel", "EFFECTS", "register_effect", "effect",
+           "RuntimeInputs", "RUNTIME_INPUTS"]
 
 
 @dataclass(frozen=True)
@@ -94,6 +95,42 @@ class SensorContext:
         return segment.specific_force(self.gravity)
 
 
+#: What an effect may need at runtime (see :class:`RuntimeInputs` and :attr:`Effect.runtime_needs`).
+RUNTIME_INPUTS = ("time", "temperature", "specific_force", "angular_rate", "axis_input")
+
+
+@dataclass
+class RuntimeInputs:
+    """What the runtime knows about N samples, SI, for evaluating effects outside a calibration session.
+
+    Attributes
+    ----------
+    t : ndarray (N,)
+        Time since the stream started, s (the calibration's session time runs from 0 too).
+    axis_input : ndarray (N, n) or None
+        Input of the instrument along each sensor's nominal axis, ``s_i = h_i . u`` (rad/s or m/s^2), with u
+        the current estimate in MB. The compensation solves for it (output-side effects are inverted).
+    temperature : ndarray (N,) or None
+        Unit temperature, degC.
+    specific_force : ndarray (N, 3) or None
+        Specific force in MB, m/s^2 (the accelerometers' estimate of the same epoch).
+    angular_rate : ndarray (N, 3) or None
+        Angular rate in MB, rad/s (the gyros' estimate of the same epoch).
+    """
+
+    t: np.ndarray
+    axis_input: np.ndarray | None = None
+    temperature: np.ndarray | None = None
+    specific_force: np.ndarray | None = None
+    angular_rate: np.ndarray | None = None
+
+    def temperature_offset(self, ctx: SensorContext) -> np.ndarray:
+        """``T - T_ref`` (N,), K."""
+        if self.temperature is None:
+            raise NotCompensableError("this effect needs the temperature, and the inputs carry none")
+        return np.asarray(self.temperature, dtype=float) - ctx.reference_temperature
+
+
 class Effect:
     """Base class of a physical effect. Subclasses set the class attributes and implement two methods.
 
@@ -113,6 +150,9 @@ class Effect:
     instruments: ClassVar[tuple[str, ...]] = INSTRUMENTS
     description: ClassVar[str] = ""
     physics: ClassVar[str] = ""
+    #: What :meth:`runtime_columns` needs, from :data:`RUNTIME_INPUTS`. ``"axis_input"`` makes the effect
+    #: output-side: the runtime inverts it exactly (Newton on each sensor's own input, with :meth:`runtime_slope`).
+    runtime_needs: ClassVar[tuple[str, ...]] = ()
 
     def parameters(self, ctx: SensorContext) -> list[ParamSpec]:
         """The linear (raw-domain) parameters, one per column."""
@@ -128,6 +168,24 @@ class Effect:
 
     def applies_to(self, ctx: SensorContext) -> bool:
         return ctx.instrument in self.instruments
+
+    # ------------------------------------------------------------------ runtime compensation
+    def runtime_columns(self, inputs: RuntimeInputs, ctxs: Sequence[SensorContext]) -> np.ndarray:
+        """Regressors of every sensor of an instrument at runtime, (N, n, k), SI.
+
+        The output error of sensor i is ``runtime_columns[:, i] @ theta_i`` with theta_i its physical parameters
+        (in the order of :meth:`physical_parameters`, zero-padded to k). The same numbers as :meth:`columns`
+        where a segment's known inputs equal ``inputs``. The default: not compensable.
+        """
+        raise NotCompensableError(
+            f"effect {self.name!r} has no runtime compensation; it can be fitted and diagnosed, but the runtime "
+            "pipeline cannot undo it. Leave it out of the calibration used at runtime, or give the effect "
+            "runtime_columns()")
+
+    def runtime_slope(self, inputs: RuntimeInputs, ctxs: Sequence[SensorContext]) -> np.ndarray:
+        """``d runtime_columns[:, i] / d s_i`` (N, n, k) for output-side effects (``"axis_input"`` in
+        :attr:`runtime_needs`): the derivative against each sensor's own input, for the exact inversion."""
+        raise NotCompensableError(f"effect {self.name!r} is output-side but gives no runtime_slope()")
 
     def __add__(self, other: "Effect | ErrorModel") -> "ErrorModel":
         return ErrorModel([self]) + other

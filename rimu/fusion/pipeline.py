@@ -28,9 +28,11 @@ from typing import Any
 
 import numpy as np
 
+from ..calibration.model import RuntimeInputs
 from ..calibration.result import Calibration, InstrumentCalibration
 from ..epoch import Epoch, EpochBlock
-from ..errors import ShapeError
+from ..errors import MissingInputError, ShapeError
+from .effects import EffectCompensation
 from .projection import ProjectionTable, mask_bits
 
 __all__ = ["InstrumentPipeline", "Pipeline", "StepResult", "BlockResult"]
@@ -288,6 +290,28 @@ class InstrumentPipeline:
             ent[~obs] = self._inf_entry()
         return BlockResult(out[:, :3], out[:, 3:], ent, dof, active, bad, obs, tab)
 
+    # ------------------------------------------------------------------ estimates without side effects
+    def estimate(self, Z: np.ndarray) -> np.ndarray:
+        """MB estimates (N, 3) of compensated outputs Z (N, n), SI, on the active sensors (non-finite entries
+        excluded per sample, isolated sensors left out), without touching counters or state; zero where the
+        remaining sensors are unobservable. The compensation stage uses it for the inputs of the effects."""
+        Z = np.asarray(Z, dtype=float)
+        good = np.isfinite(Z)
+        tab = self.table
+        if good.all():
+            e = self._entry
+            if e >= 0 and tab.observable[e]:
+                return Z @ tab.G[e].T
+        codes = (good & ~self._isolated).astype(np.int64) @ (1 << np.arange(self.n, dtype=np.int64))
+        Z0 = np.where(good, Z, 0.0)
+        X = np.zeros((Z.shape[0], 3))
+        for code in np.unique(codes):
+            rows = codes == code
+            e = tab.lookup(int(code))
+            if e >= 0 and tab.observable[e]:
+                X[rows] = Z0[rows] @ tab.G[e].T
+        return X
+
     _CHUNK = 8192
 
     def _fast_block(self, Y: np.ndarray, out: np.ndarray) -> bool:
@@ -334,28 +358,168 @@ class InstrumentPipeline:
 
 
 class Pipeline:
-    """The runtime pipeline of a whole unit: one :class:`InstrumentPipeline` per instrument.
+    """The runtime pipeline of a whole unit: compensation of every calibrated effect, then one
+    :class:`InstrumentPipeline` per instrument.
+
+    Where the calibration holds further effects (``InstrumentCalibration.effects``: g-sensitivity,
+    temperature, nonlinearity, drift, size effect, ...), a compensation stage (:mod:`rimu.fusion.effects`)
+    inverts the full calibrated output model before the projection: the accelerometers are compensated and
+    projected first and their specific force feeds the gyros' g-sensitivity; the gyros' angular rate feeds
+    the accelerometers' size effect (the gyros then go first; where both are present, a preliminary gyro estimate is made with the
+    accelerometers' estimate before their size effect, which changes the result by less than the square of
+    either effect); temperature effects use the temperature channel; drift uses the time since the stream
+    started (``t0``, the first sample's time unless given).
 
     Parameters
     ----------
     calibration : Calibration
     sigma : dict[str, float or ndarray], optional
         Noise per instrument (SI), overriding the calibration's.
+    max_excluded : int, optional
+    temperature : bool, optional
+        Whether the stream carries the unit temperature. False refuses, when the pipeline is built, a
+        calibration with temperature effects; None (default) leaves the check to each sample.
+    t0 : float, optional
+        Time of switch-on (the origin of the drift), s; default the first sample's time.
+
+    Raises
+    ------
+    MissingInputError
+        An effect needs an input the stream does not carry (temperature declared absent, or the other
+        instrument not calibrated); the message names the effect and the input.
+    NotCompensableError
+        The calibration holds an effect without runtime compensation.
     """
 
     def __init__(self, calibration: Calibration, sigma: dict[str, Any] | None = None,
-                 max_excluded: int | None = None) -> None:
+                 max_excluded: int | None = None, *, temperature: bool | None = None,
+                 t0: float | None = None) -> None:
         sigma = sigma or {}
         self.calibration = calibration
         self.instruments = {k: InstrumentPipeline(calibration[k], sigma.get(k), max_excluded)
                             for k in calibration.instruments}
+        meta = calibration.metadata or {}
+        t_ref = float(meta.get("reference_temperature", 25.0))
+        comps = {k: EffectCompensation(calibration[k], t_ref) for k in calibration.instruments}
+        #: compensation stage per instrument with further effects
+        self.compensation: dict[str, EffectCompensation] = {k: c for k, c in comps.items() if c}
+        self.t0 = t0
+        provided = {"time", "specific_force" if "accel" in self.instruments else "", "angular_rate"
+                    if "gyro" in self.instruments else ""}
+        if temperature:
+            provided.add("temperature")
+        for k, c in self.compensation.items():
+            for need in c.needs:
+                if need in provided or (need == "temperature" and temperature is None):
+                    continue
+                eff = c.effects_needing(need)[0]
+                why = {"temperature": "the stream carries no temperature channel",
+                       "specific_force": "the calibration has no accelerometers to give it",
+                       "angular_rate": "the calibration has no gyros to give it"}[need]
+                raise MissingInputError(
+                    f"{k} effect {eff!r} needs the {need.replace('_', ' ')}, and {why}; recalibrate without "
+                    f"{eff!r} or provide the input", eff, need)
+        acc, gyr = self.compensation.get("accel"), self.compensation.get("gyro")
+        acc_needs_w = bool(acc) and "angular_rate" in acc.needs
+        gyr_needs_f = bool(gyr) and "specific_force" in gyr.needs
+        self._cyclic = acc_needs_w and gyr_needs_f
+        first = ("gyro", "accel") if acc_needs_w and not gyr_needs_f else ("accel", "gyro")
+        self._order = [k for k in first if k in self.instruments]
 
     def __getitem__(self, instrument: str) -> InstrumentPipeline:
         return self.instruments[instrument]
 
+    # ------------------------------------------------------------------ compensation stage
+    def _inputs(self, t: np.ndarray, temperature: np.ndarray | None) -> RuntimeInputs:
+        if self.t0 is None:
+            self.t0 = float(t[0])
+        return RuntimeInputs(t=t - self.t0, temperature=temperature)
+
+    def _stage(self, k: str, Y: np.ndarray, inputs: RuntimeInputs) -> np.ndarray:
+        """Raw outputs with every further effect removed (those of an ideal SF/M/B sensor), (N, n)."""
+        comp = self.compensation[k]
+        Q = comp.solve(Y, inputs, self.instruments[k].estimate)
+        return comp.equivalent_raw(Q)
+
+    def _preliminary_rate(self, Yg: np.ndarray, Ya: np.ndarray, inputs: RuntimeInputs) -> np.ndarray:
+        """Gyro estimate for the accelerometers' size effect when the gyros need the specific force too:
+        the accelerometers' estimate without their size effect feeds it."""
+        acc, gyr = self.compensation["accel"], self.compensation["gyro"]
+        saved = acc.terms, acc.exogenous
+        acc.exogenous = [t for t in acc.exogenous if "angular_rate" not in t.effect.runtime_needs]
+        try:
+            inputs.specific_force = self.instruments["accel"].estimate(acc.solve(Ya, inputs,
+                                                                                  self.instruments["accel"].estimate))
+        finally:
+            acc.terms, acc.exogenous = saved
+        w = self.instruments["gyro"].estimate(gyr.solve(Yg, inputs, self.instruments["gyro"].estimate))
+        inputs.specific_force = None
+        return w
+
+    def compensate(self, block: EpochBlock) -> EpochBlock:
+        """The block with every further effect removed from the raw outputs (an ideal SF/M/B unit's raw data),
+        for FDI managers and anything else built on :class:`InstrumentPipeline`. Equal to what
+        :meth:`process` feeds its instrument pipelines."""
+        raw, _ = self._compensate_block(block)
+        return EpochBlock(block.t, raw, dict(block.valid), block.temperature, dict(block.meta))
+
+    def _compensate_block(self, block: EpochBlock) -> tuple[dict[str, np.ndarray], dict[str, BlockResult]]:
+        out = dict(block.raw)
+        results: dict[str, BlockResult] = {}
+        if not self.compensation:
+            return out, results
+        temp = block.temperature
+        self._need_temperature(temp is not None)
+        inputs = self._inputs(block.t, temp)
+        if self._cyclic:
+            inputs.angular_rate = self._preliminary_rate(block.raw["gyro"], block.raw["accel"], inputs)
+        for k in self._order:
+            if k in self.compensation:
+                out[k] = self._stage(k, block.raw[k], inputs)
+            res = self.instruments[k].process(out[k], block.valid.get(k))
+            results[k] = res
+            if k == "accel":
+                inputs.specific_force = np.asarray(res.x)
+            else:
+                inputs.angular_rate = np.asarray(res.x)
+        return out, results
+
+    def _need_temperature(self, present: bool) -> None:
+        if present:
+            return
+        for k, c in self.compensation.items():
+            if "temperature" in c.needs:
+                eff = c.effects_needing("temperature")[0]
+                raise MissingInputError(f"{k} effect {eff!r} needs the temperature, and the data carry none; "
+                                        "recalibrate without it or record the temperature", eff, "temperature")
+
+    # ------------------------------------------------------------------ run
     def step(self, epoch: Epoch) -> dict[str, StepResult]:
-        """One epoch through every instrument's pipeline."""
-        return {k: p.step(epoch.raw[k], epoch.valid.get(k)) for k, p in self.instruments.items()}
+        """One epoch through the compensation stage and every instrument's pipeline."""
+        if not self.compensation:
+            return {k: p.step(epoch.raw[k], epoch.valid.get(k)) for k, p in self.instruments.items()}
+        T = epoch.temperature
+        self._need_temperature(T is not None)
+        inputs = self._inputs(np.array([float(epoch.t)]), None if T is None else np.array([float(T)]))
+        res: dict[str, StepResult] = {}
+        if self._cyclic:
+            inputs.angular_rate = self._preliminary_rate(np.asarray(epoch.raw["gyro"], float)[None],
+                                                         np.asarray(epoch.raw["accel"], float)[None], inputs)
+        for k in self._order:
+            y = epoch.raw[k]
+            if k in self.compensation:
+                y = self._stage(k, np.asarray(y, dtype=float)[None], inputs)[0]
+            r = self.instruments[k].step(y, epoch.valid.get(k))
+            res[k] = r
+            if k == "accel":
+                inputs.specific_force = r.x[None].copy()
+            else:
+                inputs.angular_rate = r.x[None].copy()
+        return {k: res[k] for k in self.instruments}
 
     def process(self, block: EpochBlock) -> dict[str, BlockResult]:
-        return {k: p.process(block.raw[k], block.valid.get(k)) for k, p in self.instruments.items()}
+        """N epochs at once; the same numbers as :meth:`step` on each epoch."""
+        if not self.compensation:
+            return {k: p.process(block.raw[k], block.valid.get(k)) for k, p in self.instruments.items()}
+        _, results = self._compensate_block(block)
+        return {k: results[k] for k in self.instruments}

@@ -3,17 +3,20 @@ input along the sensor's own axis and along each other axis of its sub-unit."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from ...session import Segment
-from ..model import Effect, ParamSpec, SensorContext
-from ._common import per_input_power
+from ..model import Effect, ParamSpec, RuntimeInputs, SensorContext
+from ._common import geometry_cache, per_input_power
 
 __all__ = ["CrossCoupling"]
 
 
 class CrossCoupling(Effect):
     name = "cross_coupling"
+    runtime_needs = ("axis_input",)
     description = ("cross-coupling: output error proportional to the product of the input along the sensor's axis "
                    "and along each other sensor axis of the same sub-unit")
     physics = ("Second-order interaction of inputs on two axes (IEEE Std 528 cross-coupling coefficient): the "
@@ -40,3 +43,27 @@ class CrossCoupling(Effect):
         s_i = u @ ctx.axis
         H = ctx.geometry.H[self._others(ctx)]
         return s_i[:, None] * (u @ H.T)
+
+    def _partners(self, ctxs: Sequence[SensorContext]) -> tuple[np.ndarray, np.ndarray]:
+        """(index (n, k), mask (n, k)): the other sensors of each sensor's sub-unit, zero-padded."""
+        def make() -> tuple[np.ndarray, np.ndarray]:
+            others = [self._others(c) for c in ctxs]
+            k = max([len(o) for o in others] + [1])
+            idx = np.zeros((len(ctxs), k), dtype=np.intp)
+            mask = np.zeros((len(ctxs), k))
+            for i, o in enumerate(others):
+                idx[i, :len(o)] = o
+                mask[i, :len(o)] = 1.0
+            return idx, mask
+        return geometry_cache("cross_coupling.partners", ctxs, make)
+
+    def runtime_columns(self, inputs: RuntimeInputs, ctxs: Sequence[SensorContext]) -> np.ndarray:
+        """``s_i s_j`` over the other sensors j of the sub-unit, (N, n, k): output-side (inverted jointly with
+        the partners' inputs, which the inversion updates every iteration)."""
+        s = inputs.axis_input
+        idx, mask = self._partners(ctxs)
+        return s[:, :, None] * s[:, idx] * mask
+
+    def runtime_slope(self, inputs: RuntimeInputs, ctxs: Sequence[SensorContext]) -> np.ndarray:
+        idx, mask = self._partners(ctxs)
+        return inputs.axis_input[:, idx] * mask
