@@ -216,10 +216,9 @@ class EffectCompensation:
         return z / self._scale
 
     def _check(self, inputs: RuntimeInputs) -> None:
-        for name in self.needs:
-            attr = "t" if name == "time" else name
-            if getattr(inputs, attr) is None:
-                eff = self.effects_needing(name)
-                raise MissingInputError(
-                    f"{self.instrument}: effect {eff[0]!r} needs the {name.replace('_', ' ')}, and this sample has "
-                    "none", eff[0], name)
+        for t in self.exogenous + self.output_side:
+            for name in t.effect.runtime_needs:
+                if name != "axis_input" and getattr(inputs, "t" if name == "time" else name) is None:
+                    raise MissingInputError(
+                        f"{self.instrument}: effect {t.effect.name!r} needs the {name.replace('_', ' ')}, and this "
+                        "sample has none", t.effect.name, name)

@@ -365,9 +365,8 @@ class Pipeline:
     temperature, nonlinearity, drift, size effect, ...), a compensation stage (:mod:`rimu.fusion.effects`)
     inverts the full calibrated output model before the projection: the accelerometers are compensated and
     projected first and their specific force feeds the gyros' g-sensitivity; the gyros' angular rate feeds
-    the accelerometers' size effect (the gyros then go first; where both are present, a preliminary gyro estimate is made with the
-    accelerometers' estimate before their size effect, which changes the result by less than the square of
-    either effect); temperature effects use the temperature channel; drift uses the time since the stream
+    the accelerometers' size effect (the gyros then go first; where both are present, a two-round fixed point
+    between the two instruments gives the gyro rate the size effect uses, see :attr:`cycle_rounds`); temperature effects use the temperature channel; drift uses the time since the stream
     started (``t0``, the first sample's time unless given).
 
     Parameters
@@ -442,19 +441,27 @@ class Pipeline:
         return comp.equivalent_raw(Q)
 
     def _preliminary_rate(self, Yg: np.ndarray, Ya: np.ndarray, inputs: RuntimeInputs) -> np.ndarray:
-        """Gyro estimate for the accelerometers' size effect when the gyros need the specific force too:
-        the accelerometers' estimate without their size effect feeds it."""
+        """Gyro estimate for the accelerometers' size effect when the gyros need the specific force too: a fixed
+        point started from the accelerometers without their size effect. Each round shrinks the error by the
+        loop gain (size effect slope 2|w||r| times g-sensitivity, ~1e-5), and two rounds leave ~1e-12."""
         acc, gyr = self.compensation["accel"], self.compensation["gyro"]
-        saved = acc.terms, acc.exogenous
+        pa, pg = self.instruments["accel"], self.instruments["gyro"]
+        saved = acc.exogenous
         acc.exogenous = [t for t in acc.exogenous if "angular_rate" not in t.effect.runtime_needs]
         try:
-            inputs.specific_force = self.instruments["accel"].estimate(acc.solve(Ya, inputs,
-                                                                                  self.instruments["accel"].estimate))
+            inputs.specific_force = pa.estimate(acc.solve(Ya, inputs, pa.estimate))
         finally:
-            acc.terms, acc.exogenous = saved
-        w = self.instruments["gyro"].estimate(gyr.solve(Yg, inputs, self.instruments["gyro"].estimate))
+            acc.exogenous = saved
+        w = pg.estimate(gyr.solve(Yg, inputs, pg.estimate))
+        for _ in range(self.cycle_rounds - 1):
+            inputs.angular_rate = w
+            inputs.specific_force = pa.estimate(acc.solve(Ya, inputs, pa.estimate))
+            w = pg.estimate(gyr.solve(Yg, inputs, pg.estimate))
         inputs.specific_force = None
         return w
+
+    #: rounds of the gyro <-> accelerometer fixed point where g-sensitivity and size effect are both present
+    cycle_rounds = 2
 
     def compensate(self, block: EpochBlock) -> EpochBlock:
         """The block with every further effect removed from the raw outputs (an ideal SF/M/B unit's raw data),
