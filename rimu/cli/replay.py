@@ -8,7 +8,11 @@ time, and a JSON file of the events.
 Injection: ``TYPE:INSTRUMENT:SENSOR:START[:SIZE[:DURATION]]``, SIZE in SI or as ``10sigma``; types: bias, ramp,
 stuck, scale, noise, spikes, dropout, zero, saturation, nonfinite. Example: ``--inject bias:gyro:y2:15:10sigma``.
 DATA is a session file in rimu's format (``.npz``, or ``.csv`` with its ``.json`` sidecar; docs/session-format.md),
-as ``rimu simulate`` writes it; the segments are replayed back to back.
+as ``rimu simulate`` writes it; the segments are replayed back to back. Every effect of the calibration is
+compensated (docs/runtime.md). Where segments carry known inputs (static positions, rate steps), the runtime
+error is reported per instrument (``segment_error_rms``: rms over segments of the segment-mean estimate's
+error against the known input; ``sample_error_rms``; SI) with the number of alarms and isolations, and
+written to ``OUT/summary.json``: how a calibration is validated on a held-out session.
 """
 
 from __future__ import annotations
@@ -34,7 +38,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--readmit-after", type=int, default=None, help="clean samples before re-admission")
     p.add_argument("--noise", type=float, default=None, help="per-sample noise (SI) if the calibration has none")
     p.add_argument("--seed", type=int, default=0, help="seed of random fault types")
-    p.add_argument("--out", default=None, help="folder for the plot and the events JSON")
+    p.add_argument("-o", "--output", "--out", dest="out", default=None,
+                   help="folder for summary.json, the plot and the events JSON")
     p.set_defaults(func=run)
 
 
@@ -43,10 +48,12 @@ def run(args: argparse.Namespace) -> int:
     from ..fdi import RedundancyManager
     from ..fdi.campaign import CampaignSpec, make_detector
     from ..fdi.faults import inject, parse_injection
-    from ..fusion import InstrumentPipeline
+    from ..fusion import Pipeline
+    from ..fusion.validation import segment_errors, session_block
     from .check import read_session
 
-    _, block = read_session(args.data)
+    session, _ = read_session(args.data)
+    block, seg_index = session_block(session)
     cal = Calibration.load(args.calibration)
     insts = [k for k in cal.instruments if k in block.raw]
     for k in insts:
@@ -66,9 +73,16 @@ def run(args: argparse.Namespace) -> int:
     if args.detector in ("kalman", "glt_window") and args.p_fa > 1e-4:
         print(f"  note: --p-fa is per sample; the {args.detector} statistic is correlated over several samples, so "
               "alarms come in episodes that confirmation does not filter; consider --p-fa 1e-5")
+    unit = Pipeline(Calibration({k: cal[k] for k in insts}, cal.raw_unit, cal.method, cal.created, dict(cal.metadata)),
+                    temperature=block.temperature is not None)
+    block = unit.compensate(block)
+    if unit.compensation:
+        print("  compensated effects: " + "; ".join(
+            f"{k}: {', '.join(t.effect.name for t in c.terms)}" for k, c in unit.compensation.items()))
     results = {}
+    summary: dict = {}
     for k in insts:
-        pipe = InstrumentPipeline(cal[k])
+        pipe = unit[k]
         spec = CampaignSpec(detector=args.detector, window=args.window, p_fa=args.p_fa, arl0=args.arl0)
         mgr = RedundancyManager(pipe, make_detector(spec, pipe.table.sigma), p_fa=args.p_fa,
                                 confirm=1 if args.detector == "cusum" else args.confirm,
@@ -84,14 +98,33 @@ def run(args: argparse.Namespace) -> int:
         if len(shown) > 50:
             print(f"    ... {len(shown) - 50} more")
         print(f"    transient alarm episodes (not confirmed): {n_tr}; outputs finite: {bool(np.isfinite(res.x).all())}")
+        entry = {"samples": len(block), "alarms": int(np.count_nonzero(res.alarm)),
+                 "isolations": sum(1 for e in res.events if e.kind in ("isolated", "invalid_isolated")),
+                 "final_state": mgr.state.value}
+        try:
+            err = segment_errors(session, k, np.asarray(res.x), seg_index)
+        except ValueError:
+            err = None
+        if err is not None:
+            entry.update(err.to_dict())
+            print(f"    runtime error: segment_error_rms {err.segment_error_rms:.4g} {entry['unit']} over "
+                  f"{len(err.segments)} segments, sample_error_rms {err.sample_error_rms:.4g} {entry['unit']}")
+        print(f"    alarms {entry['alarms']}, isolations {entry['isolations']}")
+        summary[k] = entry
     if args.out:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
         doc = {k: {"events": [e.to_dict() for e in r.events], "final_state": r.state_names()[-1] if len(r.t) else None}
                for k, r in results.items()}
         (out / "replay.json").write_text(json.dumps(doc, indent=1))
+        (out / "summary.json").write_text(json.dumps(summary, indent=1))
         png = _plot(out / "replay.png", results)
         print(f"\n  events: {out / 'replay.json'}" + (f"\n  plot:   {png}" if png else ""))
+        print(f"  summary: {out / 'summary.json'}")
+    n_iso = sum(v["isolations"] for v in summary.values())
+    errs = ", ".join(f"{k} segment_error_rms {v['segment_error_rms']:.3g} {v['unit']}"
+                     for k, v in summary.items() if "segment_error_rms" in v)
+    print(f"replayed {len(block)} samples: {n_iso} isolation(s)" + (f"; {errs}" if errs else ""))
     return 0
 
 

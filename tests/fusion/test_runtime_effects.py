@@ -229,3 +229,36 @@ def test_held_out_replay_error_falls_with_the_effect(name):
     for i in INSTS:
         res = RedundancyManager(pipe[i], p_fa=1e-3, confirm=3).run(comp.raw[i], None, comp.t)
         assert not [e for e in res.events if e.kind == "isolated"], (i, res.events[:3])
+
+
+def test_replay_cli_reports_the_runtime_error(tmp_path, capsys):
+    """``rimu replay SESSION --calibration CAL -o DIR``: summary.json holds the same numbers as the API, and
+    the calibration with the effect shows the lower error; ``--out`` still works."""
+    import json
+
+    from rimu.cli import main
+    from rimu.session import save_session
+
+    name = "g_sensitivity"
+    cal_run, _ = _simulate(name, seed=1)
+    val_run, _ = _simulate(name, seed=2)
+    save_session(val_run.session, tmp_path / "val.npz")
+    sig = {i: cal_run.truth[i].noise_sigma / cal_run.truth[i].scale for i in INSTS}
+    base = LeastSquares(ErrorModel.base(), sigma=sig).fit(cal_run.session).to_calibration()
+    gy = LeastSquares(ErrorModel.base() + name, sigma=sig, instruments=["gyro"]).fit(cal_run.session).to_calibration()
+    full = Calibration({"gyro": gy["gyro"], "accel": base["accel"]})
+    base.save(tmp_path / "base.json")
+    full.save(tmp_path / "full.json")
+    docs = {}
+    for lab, flag in (("base", "--out"), ("full", "-o")):
+        rc = main(["replay", str(tmp_path / "val.npz"), "--calibration", str(tmp_path / f"{lab}.json"),
+                   flag, str(tmp_path / lab)])
+        assert rc == 0
+        docs[lab] = json.loads((tmp_path / lab / "summary.json").read_text())
+    text = capsys.readouterr().out
+    assert "segment_error_rms" in text and "isolation" in text.strip().splitlines()[-1]
+    api = replay_errors(val_run.session, full)
+    assert docs["full"]["gyro"]["segment_error_rms"] == pytest.approx(api["gyro"].segment_error_rms, rel=1e-9)
+    assert docs["full"]["accel"]["sample_error_rms"] == pytest.approx(api["accel"].sample_error_rms, rel=1e-9)
+    assert docs["base"]["gyro"]["segment_error_rms"] > 4 * docs["full"]["gyro"]["segment_error_rms"]
+    assert docs["full"]["gyro"]["isolations"] == 0 and docs["full"]["gyro"]["unit"] == "rad/s"
