@@ -33,7 +33,7 @@ from ..geometry import Geometry
 from ..session import Segment, Session
 
 __all__ = ["ParamSpec", "SensorContext", "Effect", "ErrorModel", "EFFECTS", "register_effect", "effect",
-           "RuntimeInputs", "RUNTIME_INPUTS"]
+           "RuntimeInputs", "RUNTIME_INPUTS", "RuntimeForm", "MONOMIALS", "monomial"]
 
 
 @dataclass(frozen=True)
@@ -131,6 +131,62 @@ class RuntimeInputs:
         return np.asarray(self.temperature, dtype=float) - ctx.reference_temperature
 
 
+def _monomials() -> tuple[str, ...]:
+    out = ["1", "t", "dT", "dT2"]
+    for v in ("f", "w"):
+        out += [f"{v}_{a}" for a in "xyz"]
+        out += [f"{v}_{a}{b}" for i, a in enumerate("xyz") for b in "xyz"[i:]]
+    return tuple(out)
+
+
+#: The exogenous monomials a :class:`RuntimeForm` is written in: 1, time since start t, dT = T - T_ref, dT^2,
+#: the specific force f and the angular rate w in MB (components ``f_x`` and products ``f_xy``, ``w_zz``, ...).
+MONOMIALS = _monomials()
+_MONO_INDEX = {m: i for i, m in enumerate(MONOMIALS)}
+
+
+def monomial(name: str, b: str | None = None) -> int:
+    """Index of a monomial in :data:`MONOMIALS`; ``monomial("f", "yx")`` is the product f_x f_y.
+
+    >>> MONOMIALS[monomial("w", "zx")]
+    'w_xz'
+    """
+    if b is None:
+        return _MONO_INDEX[name]
+    return _MONO_INDEX[f"{name}_{''.join(sorted(b))}"]
+
+
+@dataclass(frozen=True)
+class RuntimeForm:
+    """The structure of an effect's runtime regressors, for the compiled (per-sample fast) runtime path.
+
+    For sensor i and column k::
+
+        phi_ik = (sum_m F[i, k, m] * mono_m) * g_ik(s)
+
+    with mono the exogenous monomials of :data:`MONOMIALS` and, by ``kind``: ``"exogenous"`` g = 1;
+    ``"power"`` g = s_i**power; ``"absolute"`` g = |s_i|; ``"pair"`` g = s_i * s_j with j = ``partners[i, k]``.
+    An effect that gives one (:meth:`Effect.runtime_form`) must give the same numbers as its
+    :meth:`Effect.runtime_columns` (tested for every effect of the registry); one that does not is evaluated
+    through :meth:`Effect.runtime_columns` (slower per sample, same result).
+    """
+
+    kind: str
+    F: np.ndarray
+    power: int = 0
+    partners: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("exogenous", "power", "absolute", "pair"):
+            raise ValueError(f"unknown runtime form kind {self.kind!r}")
+        if np.ndim(self.F) != 3 or np.shape(self.F)[2] != len(MONOMIALS):
+            raise ValueError(f"F must have shape (n, k, {len(MONOMIALS)}), got {np.shape(self.F)}")
+
+    @classmethod
+    def zeros(cls, kind: str, n: int, k: int, **kwargs: Any) -> "RuntimeForm":
+        return cls(kind, np.zeros((n, k, len(MONOMIALS))), **kwargs)
+
+
 class Effect:
     """Base class of a physical effect. Subclasses set the class attributes and implement two methods.
 
@@ -186,6 +242,11 @@ class Effect:
         """``d runtime_columns[:, i] / d s_i`` (N, n, k) for output-side effects (``"axis_input"`` in
         :attr:`runtime_needs`): the derivative against each sensor's own input, for the exact inversion."""
         raise NotCompensableError(f"effect {self.name!r} is output-side but gives no runtime_slope()")
+
+    def runtime_form(self, ctxs: Sequence[SensorContext]) -> RuntimeForm | None:
+        """The structure of :meth:`runtime_columns` for the compiled runtime path, or None (the default: the
+        runtime evaluates :meth:`runtime_columns` itself)."""
+        return None
 
     def __add__(self, other: "Effect | ErrorModel") -> "ErrorModel":
         return ErrorModel([self]) + other

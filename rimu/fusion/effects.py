@@ -22,15 +22,16 @@ scale/misalignment/bias sensor, ``(q + b) / SF``, so projection, parity and FDI 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
-from ..calibration.model import RUNTIME_INPUTS, Effect, RuntimeInputs, SensorContext, effect
+from ..calibration.model import MONOMIALS, RUNTIME_INPUTS, Effect, RuntimeInputs, SensorContext, effect
 from ..calibration.result import InstrumentCalibration
 from ..errors import CalibrationFileError, MissingInputError, NotCompensableError
 
-__all__ = ["EffectCompensation", "BASE_EFFECTS", "compensable_effects"]
+__all__ = ["BASE_EFFECTS", "EffectCompensation", "compensable_effects", "monomial_values"]
 
 #: Effects the projection itself undoes (folded into its matrices); not part of this stage.
 BASE_EFFECTS = ("bias", "scale_misalignment")
@@ -62,8 +63,52 @@ class _Term:
         self.output_side = "axis_input" in eff.runtime_needs
 
 
+_PAIRS = [(a, b) for a in range(3) for b in range(a, 3)]
+_PA = np.array([a for a, _ in _PAIRS])
+_PB = np.array([b for _, b in _PAIRS])
+
+
+def monomial_values(inputs: RuntimeInputs, reference_temperature: float) -> np.ndarray:
+    """All of :data:`~rimu.calibration.model.MONOMIALS` for N samples, (N, M); absent inputs give zeros (the
+    compiled stage only reads the monomials its effects use, whose inputs are checked to be present)."""
+    t = np.asarray(inputs.t, dtype=float)
+    N = t.shape[0]
+    cols = [np.ones(N), t]
+    if inputs.temperature is not None:
+        dT = np.asarray(inputs.temperature, dtype=float) - reference_temperature
+        cols += [dT, dT * dT]
+    else:
+        cols += [np.zeros(N), np.zeros(N)]
+    out = np.column_stack(cols)
+    parts = [out]
+    for v in (inputs.specific_force, inputs.angular_rate):
+        if v is None:
+            parts.append(np.zeros((N, 9)))
+        else:
+            v = np.asarray(v, dtype=float)
+            parts += [v, v[:, _PA] * v[:, _PB]]
+    return np.concatenate(parts, axis=1)
+
+
+def _monomials_one(t: float, dT: float, f: list[float] | None, w: list[float] | None) -> list[float]:
+    """:func:`monomial_values` of one sample in Python floats (the same products, so the same numbers)."""
+    out = [1.0, t, dT, dT * dT]
+    for v in (f, w):
+        if v is None:
+            out += [0.0] * 9
+        else:
+            x, y, z = v
+            out += [x, y, z, x * x, x * y, x * z, y * y, y * z, z * z]
+    return out
+
+
 class EffectCompensation:
     """Compensation of the further effects of one instrument's calibration.
+
+    Each effect is compiled from its :class:`~rimu.calibration.model.RuntimeForm` into a few matrices (the
+    exogenous error and the output-side polynomial coefficients are one matrix-vector product with the epoch's
+    monomials; cross coupling is one n x n matrix); an effect without a form is evaluated through its
+    ``runtime_columns`` (same numbers, slower).
 
     Parameters
     ----------
@@ -74,8 +119,8 @@ class EffectCompensation:
         T_ref of the temperature effects, degC (the calibration's, 25 degC by default).
     latitude, gravity : float, optional
         For the sensor contexts (as in the calibration).
-    newton_iterations, refinements : int
-        Newton steps per refinement, and refinements of the axis correction d (see the module docstring).
+    refinements : int
+        Rounds of (projection for the axis correction d, one Newton step); see the module docstring.
 
     Raises
     ------
@@ -95,15 +140,14 @@ class EffectCompensation:
     """
 
     def __init__(self, calibration: InstrumentCalibration, reference_temperature: float = 25.0,
-                 latitude: float | None = None, gravity: float = 9.80665, newton_iterations: int = 2,
-                 refinements: int = 2) -> None:
+                 latitude: float | None = None, gravity: float = 9.80665, refinements: int = 3) -> None:
         cal = calibration
         g = cal.geometry
         self.calibration = cal
         self.instrument = cal.instrument
         self.n = g.n
+        self.reference_temperature = float(reference_temperature)
         self.ctxs = [SensorContext(cal.instrument, i, g, latitude, gravity, reference_temperature) for i in range(g.n)]
-        self.newton_iterations = int(newton_iterations)
         self.refinements = int(refinements)
         self.terms: list[_Term] = []
         for name, params in cal.effects.items():
@@ -129,9 +173,67 @@ class EffectCompensation:
         self._bias = cal.bias.copy()
         #: (h_i - a_i) as rows: s = q + D u
         self.D = np.stack([c.axis for c in self.ctxs]) - cal.axes_mb()
+        self._compile()
+
+    # ------------------------------------------------------------------ compilation
+    def _compile(self) -> None:
+        n, M = self.n, len(MONOMIALS)
+        blocks = {"exo": np.zeros((n, M)), 1: np.zeros((n, M)), 2: np.zeros((n, M)), 3: np.zeros((n, M)),
+                  "abs": np.zeros((n, M))}
+        Kx = np.zeros((n, n))
+        self._generic_exo: list[_Term] = []
+        self._generic_out: list[_Term] = []
+        for t in self.terms:
+            form = t.effect.runtime_form(self.ctxs)
+            key: Any = None
+            if form is not None:
+                if form.kind == "exogenous" and not t.output_side:
+                    key = "exo"
+                elif form.kind == "power" and form.power in (1, 2, 3) and t.output_side:
+                    key = form.power
+                elif form.kind == "absolute" and t.output_side:
+                    key = "abs"
+                elif form.kind == "pair" and t.output_side and not np.any(form.F[:, :, 1:]):
+                    np.add.at(Kx, (np.arange(n)[:, None], form.partners), form.F[:, :, 0] * t.theta[:, :form.F.shape[1]])
+                    continue
+            if key is None:
+                (self._generic_out if t.output_side else self._generic_exo).append(t)
+                continue
+            blocks[key] += np.einsum("ikm,ik->im", form.F, t.theta[:, :form.F.shape[1]])
+        used = [k for k, B in blocks.items() if np.any(B)]
+        #: blocks that depend on the epoch's monomials: one matrix-vector product (the constant column included,
+        #: mono[0] = 1) gives them all; the others are constant vectors
+        self._dyn_keys = [k for k in used if np.any(blocks[k][:, 1:])]
+        self._const = {k: blocks[k][:, 0].copy() for k in used if k not in self._dyn_keys}
+        self._dyn = np.ascontiguousarray(np.vstack([blocks[k] for k in self._dyn_keys]) if self._dyn_keys
+                                         else np.zeros((0, M)))
+        self._Kx = Kx if np.any(Kx) else None
+        self._dg: dict[int, np.ndarray] = {}
+        #: exogenous-only instruments: y' = y - mono . E / SF (one product in the raw domain)
+        self._raw_exo = None
+        if not self.output_side and not self._generic_exo and "exo" in blocks:
+            self._raw_exo = np.ascontiguousarray(blocks["exo"] / self.calibration.scale[:, None])
+
+    def _coefficient_arrays(self, mono: np.ndarray | None) -> dict[Any, np.ndarray]:
+        """Per block (exogenous error, k1, k2, k3, k_abs): (N, n), (n,) for one sample, or (n,) constants."""
+        out: dict[Any, np.ndarray] = dict(self._const)
+        if self._dyn_keys and mono is not None:
+            V = mono @ self._dyn.T
+            n = self.n
+            for j, k in enumerate(self._dyn_keys):
+                out[k] = V[..., j * n:(j + 1) * n]
+        return out
 
     def __bool__(self) -> bool:
         return bool(self.terms)
+
+    @property
+    def has_generic(self) -> bool:
+        """Whether some effect is evaluated through ``runtime_columns`` (no compiled form)."""
+        return bool(self._generic_exo or self._generic_out)
+
+    def _Kx_apply(self, s: np.ndarray) -> np.ndarray:
+        return s @ self._Kx.T if s.ndim > 1 else self._Kx @ s
 
     def effects_needing(self, name: str) -> list[str]:
         """Names of the effects that need input ``name``."""
@@ -157,47 +259,139 @@ class EffectCompensation:
             raise CalibrationFileError(f"{self.instrument}: effect {eff.name!r} has non-finite coefficients")
         return theta
 
-    # ------------------------------------------------------------------ evaluation
-    @staticmethod
-    def _sum(terms: Sequence[_Term], inputs: RuntimeInputs, ctxs: list[SensorContext], slope: bool = False
-             ) -> np.ndarray | float:
+    # ------------------------------------------------------------------ evaluation (reference: runtime_columns)
+    def _sum(self, terms: Sequence[_Term], inputs: RuntimeInputs, slope: bool = False) -> np.ndarray | float:
         out: np.ndarray | float = 0.0
         for t in terms:
-            cols = t.effect.runtime_slope(inputs, ctxs) if slope else t.effect.runtime_columns(inputs, ctxs)
+            cols = t.effect.runtime_slope(inputs, self.ctxs) if slope else t.effect.runtime_columns(inputs, self.ctxs)
             out = out + np.einsum("nik,ik->ni", cols, t.theta)
         return out
 
     def exogenous_error(self, inputs: RuntimeInputs) -> np.ndarray | float:
-        """Sum of the exogenous effects' output errors, (N, n), SI (0.0 without such effects)."""
-        return self._sum(self.exogenous, inputs, self.ctxs)
+        """Sum of the exogenous effects' output errors, (N, n), SI, through every effect's ``runtime_columns``
+        (the reference the compiled path is tested against)."""
+        return self._sum(self.exogenous, inputs)
 
     def output_error(self, inputs: RuntimeInputs) -> np.ndarray | float:
-        """Sum of the output-side effects' errors at ``inputs.axis_input``, (N, n), SI."""
-        return self._sum(self.output_side, inputs, self.ctxs)
+        """Sum of the output-side effects' errors at ``inputs.axis_input``, (N, n), SI (reference path)."""
+        return self._sum(self.output_side, inputs)
 
-    def solve(self, Y: np.ndarray, inputs: RuntimeInputs, project: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    # ------------------------------------------------------------------ compiled evaluation
+    def _output_poly(self, s: np.ndarray, K: dict[Any, np.ndarray], inputs: RuntimeInputs | None
+                     ) -> tuple[np.ndarray, np.ndarray]:
+        """c(s) and dc/ds_i of the output-side effects (compiled blocks plus any generic ones):
+        ``c = (k1 + x + (k2 + k3 s) s) s + ka |s|``, ``dc = k1 + x + (2 k2 + 3 k3 s) s + ka sign(s)`` with
+        ``x = Kx s`` the cross coupling (its slope against s_i alone: the partners are updated each round)."""
+        k1, k2, k3, ka = K.get(1), K.get(2), K.get(3), K.get("abs")
+        lin = k1 if k1 is not None else 0.0
+        if self._Kx is not None:
+            lin = lin + self._Kx_apply(s)
+        if k3 is not None:
+            a = k3 * s
+            quad = a + k2 if k2 is not None else a
+            slope2 = 2.0 * k2 + 3.0 * a if k2 is not None else 3.0 * a
+        elif k2 is not None:
+            quad, slope2 = k2, 2.0 * k2
+        else:
+            quad, slope2 = 0.0, 0.0
+        c = (lin + quad * s) * s
+        dc = lin + slope2 * s
+        if ka is not None:
+            c = c + ka * np.abs(s)
+            dc = dc + ka * np.sign(s)
+        if self._generic_out:
+            inputs.axis_input = s
+            c += self._sum(self._generic_out, inputs)
+            dc += self._sum(self._generic_out, inputs, slope=True)
+            inputs.axis_input = None
+        return c, dc
+
+    def _correction(self, pipe: Any) -> np.ndarray | None:
+        """``D G`` (n, n) for the pipeline's current active set: d = (D G) q, or None when unobservable."""
+        e = pipe.entry
+        DG = self._dg.get(e)
+        if DG is None:
+            G = pipe.projection_matrix()
+            if G is None:
+                return None
+            DG = self._dg[e] = np.ascontiguousarray(self.D @ G)
+        return DG
+
+    def solve(self, Y: np.ndarray, inputs: RuntimeInputs, pipe: Any, mono: np.ndarray | None = None) -> np.ndarray:
         """Effect-free compensated outputs ``q = a . u + v`` (N, n), SI, from raw outputs Y (N, n).
 
-        ``project(Q)`` returns the MB estimate (N, 3) of compensated outputs Q on the active sensors (non-finite
-        entries excluded). Non-finite raw values stay non-finite (the projection routes around them).
+        ``pipe`` is the instrument's :class:`~rimu.fusion.pipeline.InstrumentPipeline`: its current active set
+        gives the estimate u of the axis correction (per sample, non-finite outputs are routed around).
+        Non-finite raw values stay non-finite. ``mono``: the inputs' :func:`monomial_values`, if computed.
         """
         self._check(inputs)
+        if mono is None and self._dyn_keys:
+            mono = monomial_values(inputs, self.reference_temperature)
+        K = self._coefficient_arrays(mono)
         with np.errstate(invalid="ignore", over="ignore"):
             z = Y * self._scale - self._bias
-            if self.exogenous:
-                z = z - self.exogenous_error(inputs)
+            exo = K.get("exo")
+            if exo is not None:
+                z = z - exo
+            if self._generic_exo:
+                z = z - self._sum(self._generic_exo, inputs)
             if not self.output_side:
                 return z
+            DG = self._correction(pipe)
+            fast = DG is not None and bool(np.isfinite(z).all())
             q = z
             for _ in range(self.refinements):
-                d = project(q) @ self.D.T
-                for _ in range(self.newton_iterations):
-                    inputs.axis_input = q + d
-                    c = self._sum(self.output_side, inputs, self.ctxs)
-                    dc = self._sum(self.output_side, inputs, self.ctxs, slope=True)
-                    q = q - (q + c - z) / (1.0 + dc)
-            inputs.axis_input = None
+                d = q @ DG.T if fast else pipe.estimate(q) @ self.D.T
+                c, dc = self._output_poly(q + d, K, inputs)
+                q = q - (q + c - z) / (1.0 + dc)
         return q
+
+    def solve_one(self, y: np.ndarray, mono: list[float] | None, pipe: Any, inputs: RuntimeInputs | None = None
+                  ) -> np.ndarray:
+        """:meth:`solve` for one sample (n,): the same arithmetic on 1-D arrays, for the per-sample path.
+        ``mono``: the sample's monomials (:func:`monomial_values` of one sample, as a list)."""
+        K = self._coefficient_arrays(None if mono is None else np.array(mono))
+        z = y * self._scale - self._bias
+        exo = K.get("exo")
+        if exo is not None:
+            z = z - exo
+        if self._generic_exo or self._generic_out:  # effects without a compiled form: the general path
+            if inputs is None:
+                raise ValueError("solve_one needs the RuntimeInputs where an effect has no compiled form")
+            return self.solve(y[None], inputs, pipe, None if mono is None else np.array(mono)[None])[0]
+        if not self.output_side:
+            return z
+        DG = self._correction(pipe)
+        s = sum(z.tolist())
+        if DG is None or s - s != 0.0:  # a non-finite output: route around it as the block path does
+            return self._solve_slow(z, K, pipe)
+        q = z
+        for _ in range(self.refinements):
+            c, dc = self._output_poly(q + DG @ q, K, inputs)
+            q = q - (q + c - z) / (1.0 + dc)
+        return q
+
+    def raw(self, Y: np.ndarray, inputs: RuntimeInputs, pipe: Any) -> np.ndarray:
+        """Raw outputs with every effect removed: those of an ideal scale/misalignment/bias sensor, (N, n)."""
+        if self._raw_exo is not None:
+            self._check(inputs)
+            return Y - monomial_values(inputs, self.reference_temperature) @ self._raw_exo.T
+        return self.equivalent_raw(self.solve(Y, inputs, pipe))
+
+    def raw_one(self, y: np.ndarray, mono: list[float], pipe: Any, inputs: RuntimeInputs | None = None
+                ) -> np.ndarray:
+        """:meth:`raw` for one sample (n,), ``mono`` its monomials as a list."""
+        if self._raw_exo is not None:
+            return y - self._raw_exo @ np.array(mono)
+        return self.equivalent_raw(self.solve_one(y, mono, pipe, inputs))
+
+    def _solve_slow(self, z: np.ndarray, K: dict[Any, np.ndarray], pipe: Any) -> np.ndarray:
+        with np.errstate(invalid="ignore", over="ignore"):
+            q = z[None]
+            for _ in range(self.refinements):
+                c, dc = self._output_poly(q + pipe.estimate(q) @ self.D.T, K, None)
+                q = q - (q + c - z) / (1.0 + dc)
+        return q[0]
 
     def equivalent_raw(self, Q: np.ndarray) -> np.ndarray:
         """Raw outputs of an ideal scale/misalignment/bias sensor giving compensated outputs Q: ``(Q + b) / SF``."""

@@ -32,7 +32,7 @@ from ..calibration.model import RuntimeInputs
 from ..calibration.result import Calibration, InstrumentCalibration
 from ..epoch import Epoch, EpochBlock
 from ..errors import MissingInputError, ShapeError
-from .effects import EffectCompensation
+from .effects import EffectCompensation, _monomials_one
 from .projection import ProjectionTable, mask_bits
 
 __all__ = ["InstrumentPipeline", "Pipeline", "StepResult", "BlockResult"]
@@ -291,6 +291,18 @@ class InstrumentPipeline:
         return BlockResult(out[:, :3], out[:, 3:], ent, dof, active, bad, obs, tab)
 
     # ------------------------------------------------------------------ estimates without side effects
+    @property
+    def entry(self) -> int:
+        """Index of the current active set (isolations applied) in :attr:`table`; -1 when none."""
+        return self._entry
+
+    def projection_matrix(self) -> np.ndarray | None:
+        """G (3, n) of the current active set (``x = G z``), or None when it is unobservable."""
+        e = self._entry
+        if e < 0 or not self.table.observable[e]:
+            return None
+        return self.table.G[e]
+
     def estimate(self, Z: np.ndarray) -> np.ndarray:
         """MB estimates (N, 3) of compensated outputs Z (N, n), SI, on the active sensors (non-finite entries
         excluded per sample, isolated sensors left out), without touching counters or state; zero where the
@@ -398,10 +410,11 @@ class Pipeline:
         self.instruments = {k: InstrumentPipeline(calibration[k], sigma.get(k), max_excluded)
                             for k in calibration.instruments}
         meta = calibration.metadata or {}
-        t_ref = float(meta.get("reference_temperature", 25.0))
-        comps = {k: EffectCompensation(calibration[k], t_ref) for k in calibration.instruments}
+        self._t_ref = float(meta.get("reference_temperature", 25.0))
+        comps = {k: EffectCompensation(calibration[k], self._t_ref) for k in calibration.instruments}
         #: compensation stage per instrument with further effects
         self.compensation: dict[str, EffectCompensation] = {k: c for k, c in comps.items() if c}
+        self._generic = any(c.has_generic for c in self.compensation.values())
         self.t0 = t0
         provided = {"time", "specific_force" if "accel" in self.instruments else "", "angular_rate"
                     if "gyro" in self.instruments else ""}
@@ -429,39 +442,20 @@ class Pipeline:
         return self.instruments[instrument]
 
     # ------------------------------------------------------------------ compensation stage
-    def _inputs(self, t: np.ndarray, temperature: np.ndarray | None) -> RuntimeInputs:
-        if self.t0 is None:
-            self.t0 = float(t[0])
-        return RuntimeInputs(t=t - self.t0, temperature=temperature)
-
-    def _stage(self, k: str, Y: np.ndarray, inputs: RuntimeInputs) -> np.ndarray:
-        """Raw outputs with every further effect removed (those of an ideal SF/M/B sensor), (N, n)."""
-        comp = self.compensation[k]
-        Q = comp.solve(Y, inputs, self.instruments[k].estimate)
-        return comp.equivalent_raw(Q)
-
-    def _preliminary_rate(self, Yg: np.ndarray, Ya: np.ndarray, inputs: RuntimeInputs) -> np.ndarray:
-        """Gyro estimate for the accelerometers' size effect when the gyros need the specific force too: a fixed
-        point started from the accelerometers without their size effect. Each round shrinks the error by the
-        loop gain (size effect slope 2|w||r| times g-sensitivity, ~1e-5), and two rounds leave ~1e-12."""
-        acc, gyr = self.compensation["accel"], self.compensation["gyro"]
-        pa, pg = self.instruments["accel"], self.instruments["gyro"]
-        saved = acc.exogenous
-        acc.exogenous = [t for t in acc.exogenous if "angular_rate" not in t.effect.runtime_needs]
-        try:
-            inputs.specific_force = pa.estimate(acc.solve(Ya, inputs, pa.estimate))
-        finally:
-            acc.exogenous = saved
-        w = pg.estimate(gyr.solve(Yg, inputs, pg.estimate))
-        for _ in range(self.cycle_rounds - 1):
-            inputs.angular_rate = w
-            inputs.specific_force = pa.estimate(acc.solve(Ya, inputs, pa.estimate))
-            w = pg.estimate(gyr.solve(Yg, inputs, pg.estimate))
-        inputs.specific_force = None
-        return w
-
     #: rounds of the gyro <-> accelerometer fixed point where g-sensitivity and size effect are both present
     cycle_rounds = 2
+
+    def _preliminary_rate(self, solve: Any, zeros: Any) -> Any:
+        """Gyro estimate for the accelerometers' size effect when the gyros need the specific force too: a fixed
+        point started from the accelerometers with zero rate (no size effect). Each round shrinks the error by
+        the loop gain (size-effect slope 2|w||r| times the g-sensitivity, ~1e-5); two rounds leave ~1e-12.
+        ``solve(k, f, w)`` is the MB estimate of instrument k given the other inputs."""
+        f = solve("accel", None, zeros)
+        w = solve("gyro", f, None)
+        for _ in range(self.cycle_rounds - 1):
+            f = solve("accel", None, w)
+            w = solve("gyro", f, None)
+        return w
 
     def compensate(self, block: EpochBlock) -> EpochBlock:
         """The block with every further effect removed from the raw outputs (an ideal SF/M/B unit's raw data),
@@ -477,18 +471,29 @@ class Pipeline:
             return out, results
         temp = block.temperature
         self._need_temperature(temp is not None)
-        inputs = self._inputs(block.t, temp)
+        if self.t0 is None:
+            self.t0 = float(block.t[0])
+        t = block.t - self.t0
+
+        def solve(k: str, f: np.ndarray | None, w: np.ndarray | None) -> np.ndarray:
+            inputs = RuntimeInputs(t=t, temperature=temp, specific_force=f, angular_rate=w)
+            return self.compensation[k].solve(block.raw[k], inputs, self.instruments[k])
+
+        f = w = None
         if self._cyclic:
-            inputs.angular_rate = self._preliminary_rate(block.raw["gyro"], block.raw["accel"], inputs)
+            w = self._preliminary_rate(lambda k, f_, w_: self.instruments[k].estimate(solve(k, f_, w_)),
+                                       np.zeros((len(block), 3)))
         for k in self._order:
-            if k in self.compensation:
-                out[k] = self._stage(k, block.raw[k], inputs)
+            comp = self.compensation.get(k)
+            if comp is not None:
+                out[k] = comp.raw(block.raw[k], RuntimeInputs(t=t, temperature=temp, specific_force=f, angular_rate=w),
+                                  self.instruments[k])
             res = self.instruments[k].process(out[k], block.valid.get(k))
             results[k] = res
             if k == "accel":
-                inputs.specific_force = np.asarray(res.x)
+                f = np.asarray(res.x)
             else:
-                inputs.angular_rate = np.asarray(res.x)
+                w = np.asarray(res.x)
         return out, results
 
     def _need_temperature(self, present: bool) -> None:
@@ -506,22 +511,41 @@ class Pipeline:
         if not self.compensation:
             return {k: p.step(epoch.raw[k], epoch.valid.get(k)) for k, p in self.instruments.items()}
         T = epoch.temperature
-        self._need_temperature(T is not None)
-        inputs = self._inputs(np.array([float(epoch.t)]), None if T is None else np.array([float(T)]))
-        res: dict[str, StepResult] = {}
+        if T is None:
+            self._need_temperature(False)
+        if self.t0 is None:
+            self.t0 = float(epoch.t)
+        t = float(epoch.t) - self.t0
+        dT = 0.0 if T is None else float(T) - self._t_ref
+        generic = self._generic
+        comps = self.compensation
+
+        def solve_q(k: str, f: list[float] | None, w: list[float] | None, raw: bool = False) -> np.ndarray:
+            y = np.asarray(epoch.raw[k], dtype=float)
+            inputs = None
+            if generic:
+                inputs = RuntimeInputs(np.array([t]), None, None if T is None else np.array([float(T)]),
+                                       None if f is None else np.array([f]), None if w is None else np.array([w]))
+                comps[k]._check(inputs)
+            mono = _monomials_one(t, dT, f, w)
+            if raw:
+                return comps[k].raw_one(y, mono, self.instruments[k], inputs)
+            return comps[k].solve_one(y, mono, self.instruments[k], inputs)
+
+        f = w = None
         if self._cyclic:
-            inputs.angular_rate = self._preliminary_rate(np.asarray(epoch.raw["gyro"], float)[None],
-                                                         np.asarray(epoch.raw["accel"], float)[None], inputs)
+            w = self._preliminary_rate(lambda k, f_, w_: self.instruments[k].estimate(solve_q(k, f_, w_)[None])[0]
+                                       .tolist(), [0.0, 0.0, 0.0])
+        res: dict[str, StepResult] = {}
         for k in self._order:
-            y = epoch.raw[k]
-            if k in self.compensation:
-                y = self._stage(k, np.asarray(y, dtype=float)[None], inputs)[0]
+            comp = comps.get(k)
+            y = epoch.raw[k] if comp is None else solve_q(k, f, w, raw=True)
             r = self.instruments[k].step(y, epoch.valid.get(k))
             res[k] = r
             if k == "accel":
-                inputs.specific_force = r.x[None].copy()
+                f = r.x.tolist()
             else:
-                inputs.angular_rate = r.x[None].copy()
+                w = r.x.tolist()
         return {k: res[k] for k in self.instruments}
 
     def process(self, block: EpochBlock) -> dict[str, BlockResult]:

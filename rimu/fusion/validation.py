@@ -20,7 +20,7 @@ from ..epoch import EpochBlock
 from ..session import Session
 from .pipeline import Pipeline
 
-__all__ = ["InstrumentErrors", "known_inputs", "session_block", "segment_errors", "replay_errors"]
+__all__ = ["InstrumentErrors", "known_inputs", "replay_errors", "segment_errors", "session_block"]
 
 
 def session_block(session: Session) -> tuple[EpochBlock, np.ndarray]:

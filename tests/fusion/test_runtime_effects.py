@@ -8,67 +8,31 @@ import pytest
 from scenarios import SCENARIOS, _ctx, rich_procedure
 
 from rimu.calibration import Calibration, InstrumentCalibration, LeastSquares
-from rimu.calibration.model import ErrorModel, RuntimeInputs, SensorContext, effect
+from rimu.calibration.model import ErrorModel, RuntimeInputs, effect
 from rimu.epoch import EpochBlock
 from rimu.errors import CalibrationFileError, MissingInputError, NotCompensableError
 from rimu.fdi import RedundancyManager
 from rimu.fusion import EffectCompensation, Pipeline, compensable_effects, replay_errors
 from rimu.geometry import cone6
 from rimu.sim import Simulator, TruthEffect, cho_park_table3
-from rimu.units import DEG_TO_RAD, DH_TO_RS, G0, PPM
+from rimu.sim.typical import TYPICAL_EFFECTS, effect_parameters, with_effects
+from rimu.units import DEG_TO_RAD, G0
 
 INSTS = ("gyro", "accel")
 
-#: every compensable effect on its instrument, with grade-typical coefficients (SI) for sensor i
-ALL_EFFECTS = {
-    "gyro": {
-        "sf_quadratic": lambda i: [(1.0 + 0.5 * i) * PPM / DEG_TO_RAD],
-        "sf_cubic": lambda i: [(4e-3 - 1e-3 * i) * PPM / DEG_TO_RAD**2],
-        "sf_asymmetry": lambda i: [(200.0 - 60 * i) * PPM],
-        "g_sensitivity": lambda i: [x * DH_TO_RS / G0 for x in (40.0, -25.0, 30.0 + i)],
-        "g2_sensitivity": lambda i: [x * DH_TO_RS / G0**2 for x in (30.0, -20.0 + i)],
-        "bias_temperature": lambda i: [(3.0 + i) * DH_TO_RS],
-        "bias_temperature2": lambda i: [(0.1 + 0.02 * i) * DH_TO_RS],
-        "scale_temperature": lambda i: [(20.0 + i) * PPM],
-        "scale_temperature2": lambda i: [(2.0 - 0.5 * i) * PPM],
-        "bias_drift": lambda i: [(300.0 + 10 * i) * DH_TO_RS / 3600.0],
-        "cross_coupling": lambda i: [(2.0 - i) * PPM / DEG_TO_RAD, (-1.5 + 0.3 * i) * PPM / DEG_TO_RAD],
-    },
-    "accel": {
-        "sf_quadratic": lambda i: [(20.0 + 5 * i) * PPM / G0],
-        "sf_cubic": lambda i: [(10.0 - 3 * i) * PPM / G0**2],
-        "sf_asymmetry": lambda i: [(150.0 - 40 * i) * PPM],
-        "bias_temperature": lambda i: [(20.0 + 3 * i) * 1e-6 * G0],
-        "bias_temperature2": lambda i: [(1.0 + 0.2 * i) * 1e-6 * G0],
-        "scale_temperature": lambda i: [(30.0 - 2 * i) * PPM],
-        "scale_temperature2": lambda i: [(1.0 + 0.1 * i) * PPM],
-        "bias_drift": lambda i: [(100.0 - 10 * i) * 1e-6 * G0 / 3600.0],
-        "size_effect": lambda i: [0.004, -0.003 + 0.001 * i, 0.005],
-        "cross_coupling": lambda i: [(30.0 - 5 * i) * PPM / G0, (-20.0 + 3 * i) * PPM / G0],
-    },
-}
+ALL_EFFECTS = TYPICAL_EFFECTS
 
 
 def _params(name: str, instrument: str, theta, sensors, g) -> dict[str, float]:
-    eff = effect(name)
-    out = {}
-    for i in sensors:
-        ctx = SensorContext(instrument, i, g)
-        for p, v in zip(eff.physical_parameters(ctx), theta(i)):
-            out[f"{g.names[i]}.{p.name}"] = float(v)
-    return out
+    return effect_parameters(name, InstrumentCalibration.nominal(instrument, g), theta, sensors)
 
 
 def _all_effects_calibration() -> Calibration:
     """Cho & Park Table 3 (misalignments up to 1.6 deg) with every compensable effect on every sensor."""
     base = cho_park_table3(gyro_sigma=1e-4)
-    insts = {}
     for k in INSTS:
-        c = base[k]
-        g = c.geometry
-        effects = {nm: _params(nm, k, th, range(g.n), g) for nm, th in ALL_EFFECTS[k].items()}
-        insts[k] = InstrumentCalibration(k, g, c.scale, c.misalignment, c.bias, np.full(g.n, 1e-3), effects=effects)
-    return Calibration(insts)
+        base[k].noise_sigma = np.full(6, 1e-3)
+    return with_effects(base)
 
 
 def test_every_compensable_effect_is_covered():

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ...session import Segment
-from ..model import Effect, ParamSpec, RuntimeInputs, SensorContext
+from ..model import Effect, ParamSpec, RuntimeForm, RuntimeInputs, SensorContext, monomial
 from ._common import output_unit
 
 __all__ = ["BiasDrift"]
@@ -32,3 +32,8 @@ class BiasDrift(Effect):
         """Time since the stream started, (N, n, 1): the drift is undone as ``d * t`` (warm-up from switch-on)."""
         t = np.asarray(inputs.t, dtype=float)
         return np.broadcast_to(t[:, None, None], (t.shape[0], len(ctxs), 1))
+
+    def runtime_form(self, ctxs: Sequence[SensorContext]) -> RuntimeForm:
+        form = RuntimeForm.zeros("exogenous", len(ctxs), 1)
+        form.F[:, 0, monomial("t")] = 1.0
+        return form

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ...session import Segment
-from ..model import Effect, ParamSpec, RuntimeInputs, SensorContext
+from ..model import Effect, ParamSpec, RuntimeForm, RuntimeInputs, SensorContext, monomial
 from ._common import output_unit, runtime_temperature_offset, temperature_offset
 
 __all__ = ["BiasTemperature"]
@@ -34,3 +34,8 @@ class BiasTemperature(Effect):
         """``T - T_ref`` for every sensor, (N, n, 1)."""
         dT = runtime_temperature_offset(inputs, ctxs)
         return np.broadcast_to(dT, (dT.shape[0], len(ctxs), 1))
+
+    def runtime_form(self, ctxs: Sequence[SensorContext]) -> RuntimeForm:
+        form = RuntimeForm.zeros("exogenous", len(ctxs), 1)
+        form.F[:, 0, monomial("dT")] = 1.0
+        return form

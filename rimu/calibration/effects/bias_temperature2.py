@@ -7,7 +7,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ...session import Segment
-from ..model import Effect, ParamSpec, RuntimeInputs, SensorContext
+from ..model import Effect, ParamSpec, RuntimeForm, RuntimeInputs, SensorContext, monomial
 from ._common import output_unit, runtime_temperature_offset, temperature_offset
 
 __all__ = ["BiasTemperature2"]
@@ -34,3 +34,8 @@ class BiasTemperature2(Effect):
         """``(T - T_ref)^2`` for every sensor, (N, n, 1)."""
         dT = runtime_temperature_offset(inputs, ctxs)
         return np.broadcast_to(dT * dT, (dT.shape[0], len(ctxs), 1))
+
+    def runtime_form(self, ctxs: Sequence[SensorContext]) -> RuntimeForm:
+        form = RuntimeForm.zeros("exogenous", len(ctxs), 1)
+        form.F[:, 0, monomial("dT2")] = 1.0
+        return form

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ...session import Segment
-from ..model import Effect, ParamSpec, RuntimeInputs, SensorContext
+from ..model import Effect, ParamSpec, RuntimeForm, RuntimeInputs, SensorContext, monomial
 from ._common import geometry_cache, per_input_power
 
 __all__ = ["CrossCoupling"]
@@ -67,3 +67,9 @@ class CrossCoupling(Effect):
     def runtime_slope(self, inputs: RuntimeInputs, ctxs: Sequence[SensorContext]) -> np.ndarray:
         idx, mask = self._partners(ctxs)
         return inputs.axis_input[:, idx] * mask
+
+    def runtime_form(self, ctxs: Sequence[SensorContext]) -> RuntimeForm:
+        idx, mask = self._partners(ctxs)
+        form = RuntimeForm.zeros("pair", len(ctxs), idx.shape[1], partners=idx)
+        form.F[:, :, monomial("1")] = mask
+        return form

@@ -8,7 +8,7 @@ import numpy as np
 
 from ...session import Segment
 from ...units import G0, RS_TO_DH
-from ..model import Effect, ParamSpec, RuntimeInputs, SensorContext
+from ..model import Effect, ParamSpec, RuntimeForm, RuntimeInputs, SensorContext, monomial
 from ._common import geometry_cache
 
 __all__ = ["G2Sensitivity"]
@@ -54,3 +54,14 @@ class G2Sensitivity(Effect):
         f = np.asarray(inputs.specific_force, dtype=float)
         H, cross = self._axes(ctxs)
         return (f @ H.T)[:, :, None] * np.einsum("nj,ikj->nik", f, cross)
+
+    def runtime_form(self, ctxs: Sequence[SensorContext]) -> RuntimeForm:
+        """``f_in f_ck = sum_ab h_a c_kb f_a f_b`` in the products of f."""
+        H, cross = self._axes(ctxs)
+        form = RuntimeForm.zeros("exogenous", len(ctxs), 2)
+        for i in range(len(ctxs)):
+            for k in range(2):
+                for a, na in enumerate("xyz"):
+                    for b, nb in enumerate("xyz"):
+                        form.F[i, k, monomial("f", na + nb)] += H[i, a] * cross[i, k, b]
+        return form

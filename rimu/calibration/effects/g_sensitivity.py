@@ -8,7 +8,7 @@ import numpy as np
 
 from ...session import Segment
 from ...units import G0, RS_TO_DH
-from ..model import Effect, ParamSpec, RuntimeInputs, SensorContext
+from ..model import Effect, ParamSpec, RuntimeForm, RuntimeInputs, SensorContext, monomial
 
 __all__ = ["GSensitivity"]
 
@@ -33,3 +33,9 @@ class GSensitivity(Effect):
         """The specific force in MB for every sensor, (N, n, 3) (the accelerometers' estimate of the epoch)."""
         f = np.asarray(inputs.specific_force, dtype=float)
         return np.broadcast_to(f[:, None, :], (f.shape[0], len(ctxs), 3))
+
+    def runtime_form(self, ctxs: Sequence[SensorContext]) -> RuntimeForm:
+        form = RuntimeForm.zeros("exogenous", len(ctxs), 3)
+        for k, a in enumerate("xyz"):
+            form.F[:, k, monomial(f"f_{a}")] = 1.0
+        return form

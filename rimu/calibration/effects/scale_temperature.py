@@ -8,7 +8,7 @@ import numpy as np
 
 from ...session import Segment
 from ...units import PPM
-from ..model import Effect, ParamSpec, RuntimeInputs, SensorContext
+from ..model import Effect, ParamSpec, RuntimeForm, RuntimeInputs, SensorContext, monomial
 from ._common import axis_input, runtime_temperature_offset, temperature_offset
 
 __all__ = ["ScaleTemperature"]
@@ -38,3 +38,8 @@ class ScaleTemperature(Effect):
     def runtime_slope(self, inputs: RuntimeInputs, ctxs: Sequence[SensorContext]) -> np.ndarray:
         dT = runtime_temperature_offset(inputs, ctxs)
         return np.broadcast_to(dT, (dT.shape[0], len(ctxs), 1))
+
+    def runtime_form(self, ctxs: Sequence[SensorContext]) -> RuntimeForm:
+        form = RuntimeForm.zeros("power", len(ctxs), 1, power=1)
+        form.F[:, 0, monomial("dT")] = 1.0
+        return form

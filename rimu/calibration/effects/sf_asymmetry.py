@@ -8,7 +8,7 @@ import numpy as np
 
 from ...session import Segment
 from ...units import PPM
-from ..model import Effect, ParamSpec, RuntimeInputs, SensorContext
+from ..model import Effect, ParamSpec, RuntimeForm, RuntimeInputs, SensorContext, monomial
 from ._common import axis_input
 
 __all__ = ["ScaleAsymmetry"]
@@ -35,3 +35,8 @@ class ScaleAsymmetry(Effect):
 
     def runtime_slope(self, inputs: RuntimeInputs, ctxs: Sequence[SensorContext]) -> np.ndarray:
         return np.sign(inputs.axis_input)[:, :, None]
+
+    def runtime_form(self, ctxs: Sequence[SensorContext]) -> RuntimeForm:
+        form = RuntimeForm.zeros("absolute", len(ctxs), 1)
+        form.F[:, 0, monomial("1")] = 1.0
+        return form

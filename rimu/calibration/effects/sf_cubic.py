@@ -7,7 +7,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ...session import Segment
-from ..model import Effect, ParamSpec, RuntimeInputs, SensorContext
+from ..model import Effect, ParamSpec, RuntimeForm, RuntimeInputs, SensorContext, monomial
 from ._common import axis_input, per_input_power
 
 __all__ = ["ScaleCubic"]
@@ -38,3 +38,8 @@ class ScaleCubic(Effect):
     def runtime_slope(self, inputs: RuntimeInputs, ctxs: Sequence[SensorContext]) -> np.ndarray:
         s = inputs.axis_input
         return (3.0 * s * s)[:, :, None]
+
+    def runtime_form(self, ctxs: Sequence[SensorContext]) -> RuntimeForm:
+        form = RuntimeForm.zeros("power", len(ctxs), 1, power=3)
+        form.F[:, 0, monomial("1")] = 1.0
+        return form

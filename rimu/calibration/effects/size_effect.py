@@ -7,7 +7,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ...session import Segment, skew
-from ..model import Effect, ParamSpec, RuntimeInputs, SensorContext
+from ..model import Effect, ParamSpec, RuntimeForm, RuntimeInputs, SensorContext, monomial
 from ._common import geometry_cache
 
 __all__ = ["SizeEffect"]
@@ -43,3 +43,14 @@ class SizeEffect(Effect):
         w = np.asarray(inputs.angular_rate, dtype=float)
         H = geometry_cache("size_effect.axes", ctxs, lambda: np.stack([c.axis for c in ctxs]))
         return w[:, None, :] * (w @ H.T)[:, :, None] - H[None] * np.einsum("nj,nj->n", w, w)[:, None, None]
+
+    def runtime_form(self, ctxs: Sequence[SensorContext]) -> RuntimeForm:
+        """``w_k (w . h) - h_k |w|^2`` in the products of w."""
+        form = RuntimeForm.zeros("exogenous", len(ctxs), 3)
+        for i, c in enumerate(ctxs):
+            h = c.axis
+            for k, nk in enumerate("xyz"):
+                for j, nj in enumerate("xyz"):
+                    form.F[i, k, monomial("w", nk + nj)] += h[j]
+                    form.F[i, k, monomial("w", nj + nj)] -= h[k]
+        return form
