@@ -22,7 +22,7 @@ scale/misalignment/bias sensor, ``(q + b) / SF``, so projection, parity and FDI 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -140,7 +140,7 @@ class EffectCompensation:
     """
 
     def __init__(self, calibration: InstrumentCalibration, reference_temperature: float = 25.0,
-                 latitude: float | None = None, gravity: float = 9.80665, refinements: int = 3) -> None:
+                 latitude: float | None = None, gravity: float = 9.80665, refinements: int = 2) -> None:
         cal = calibration
         g = cal.geometry
         self.calibration = cal
@@ -338,13 +338,9 @@ class EffectCompensation:
             if not self.output_side:
                 return z
             DG = self._correction(pipe)
-            fast = DG is not None and bool(np.isfinite(z).all())
-            q = z
-            for _ in range(self.refinements):
-                d = q @ DG.T if fast else pipe.estimate(q) @ self.D.T
-                c, dc = self._output_poly(q + d, K, inputs)
-                q = q - (q + c - z) / (1.0 + dc)
-        return q
+            if DG is not None and bool(np.isfinite(z).all()):
+                return self._newton(z, K, inputs, lambda v: v @ DG.T)
+            return self._newton(z, K, inputs, lambda v: pipe.estimate(v) @ self.D.T)
 
     def solve_one(self, y: np.ndarray, mono: list[float] | None, pipe: Any, inputs: RuntimeInputs | None = None
                   ) -> np.ndarray:
@@ -365,10 +361,28 @@ class EffectCompensation:
         s = sum(z.tolist())
         if DG is None or s - s != 0.0:  # a non-finite output: route around it as the block path does
             return self._solve_slow(z, K, pipe)
+        return self._newton(z, K, inputs, DG.dot)
+
+    def _newton(self, z: np.ndarray, K: dict[Any, np.ndarray], inputs: RuntimeInputs | None,
+                d: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+        """Solve ``q + c(q + d(q)) = z`` for q; ``d(v)`` is the axis correction (h - a) . u of outputs v.
+
+        Newton steps with the Jacobian ``I + (diag(c') + diag(s) Kx)(I + dD)`` (Kx the cross coupling, dD the
+        axis correction) inverted to first order in its small off-diagonal part (|h - a| ~ 1e-2, |Kx s| ~ 1e-4):
+        each step leaves ~(|c'| |h - a| + |Kx s|)^2 of the error, and two steps from q = z leave less than 1e-12
+        of the input at grade-typical sizes (tested with every effect at once up to 460 deg/s and 3 g)."""
         q = z
+        Kx = self._Kx
         for _ in range(self.refinements):
-            c, dc = self._output_poly(q + DG @ q, K, inputs)
-            q = q - (q + c - z) / (1.0 + dc)
+            s = q + d(q)
+            c, dc = self._output_poly(s, K, inputs)
+            den = 1.0 + dc
+            step = (q + c - z) / den
+            e = d(step)
+            corr = dc * e
+            if Kx is not None:
+                corr = corr + s * self._Kx_apply(step + e)
+            q = q - (step - corr / den)
         return q
 
     def raw(self, Y: np.ndarray, inputs: RuntimeInputs, pipe: Any) -> np.ndarray:
@@ -387,11 +401,7 @@ class EffectCompensation:
 
     def _solve_slow(self, z: np.ndarray, K: dict[Any, np.ndarray], pipe: Any) -> np.ndarray:
         with np.errstate(invalid="ignore", over="ignore"):
-            q = z[None]
-            for _ in range(self.refinements):
-                c, dc = self._output_poly(q + pipe.estimate(q) @ self.D.T, K, None)
-                q = q - (q + c - z) / (1.0 + dc)
-        return q[0]
+            return self._newton(z[None], K, None, lambda v: pipe.estimate(v) @ self.D.T)[0]
 
     def equivalent_raw(self, Q: np.ndarray) -> np.ndarray:
         """Raw outputs of an ideal scale/misalignment/bias sensor giving compensated outputs Q: ``(Q + b) / SF``."""

@@ -226,3 +226,63 @@ def test_replay_cli_reports_the_runtime_error(tmp_path, capsys):
     assert docs["full"]["accel"]["sample_error_rms"] == pytest.approx(api["accel"].sample_error_rms, rel=1e-9)
     assert docs["base"]["gyro"]["segment_error_rms"] > 4 * docs["full"]["gyro"]["segment_error_rms"]
     assert docs["full"]["gyro"]["isolations"] == 0 and docs["full"]["gyro"]["unit"] == "rad/s"
+
+
+@pytest.mark.parametrize("instrument", INSTS)
+def test_runtime_columns_equal_the_calibration_columns(instrument):
+    """What the runtime subtracts is what the calibration fitted: for segments with known inputs, every effect's
+    ``runtime_columns`` equal its ``columns`` (static positions, and rotations for the size effect)."""
+    from rimu.calibration.model import contexts
+    from rimu.sim.procedures import rotation, static
+
+    temp = lambda t: 30.0 + 10.0 * np.sin(t / 3.0)  # noqa: E731
+    sim = Simulator({"gyro": cone6(), "accel": cone6()}, sample_rate=10.0, seed=3, temperature=temp)
+    proc = [static("S1", np.array([0.3, -0.5, 0.81]) / np.linalg.norm([0.3, -0.5, 0.81]), 2.0),
+            rotation("R1", np.array([0.4, -1.1, 0.7]), 2.0)]
+    session = sim.run(proc).session
+    ctxs = contexts(session, instrument)
+    for seg in session.segments:
+        u = ctxs[0].input(seg)
+        inputs = RuntimeInputs(t=seg.t, axis_input=u @ cone6().H.T, temperature=seg.temperature,
+                               specific_force=seg.specific_force(session.gravity), angular_rate=seg.angular_rate(
+                                   session.latitude, include_earth=False))
+        for name in TYPICAL_EFFECTS[instrument]:
+            eff = effect(name)
+            rc = eff.runtime_columns(inputs, ctxs)
+            for c in ctxs:
+                col = eff.columns(seg, c)
+                np.testing.assert_allclose(rc[:, c.index, :col.shape[1]], col, rtol=1e-12, atol=1e-12,
+                                           err_msg=f"{name} {seg.label} {c.name}")
+
+
+@pytest.mark.parametrize("instrument", INSTS)
+def test_compiled_forms_equal_runtime_columns(instrument):
+    """The compiled path (RuntimeForm matrices) gives the numbers of every effect's runtime_columns and slopes."""
+    from rimu.fusion.effects import monomial_values
+
+    cal = _all_effects_calibration()[instrument]
+    comp = EffectCompensation(cal)
+    assert not comp.has_generic
+    rng = np.random.default_rng(5)
+    N = 50
+    U = _random_inputs(rng, N)
+    s = rng.standard_normal((N, 6)) * 3.0
+    inputs = RuntimeInputs(t=rng.uniform(0, 500, N), temperature=rng.uniform(-10, 60, N),
+                           specific_force=U["accel"], angular_rate=U["gyro"])
+    K = comp._coefficient_arrays(monomial_values(inputs, 25.0))
+    ref = comp.exogenous_error(inputs)
+    np.testing.assert_allclose(K.get("exo", 0.0), ref, rtol=1e-12, atol=1e-15 * np.abs(ref).max())
+    c, dc = comp._output_poly(s, K, None)
+    inputs.axis_input = s
+    c_ref = comp.output_error(inputs)
+    dc_ref = comp._sum(comp.output_side, inputs, slope=True)
+    np.testing.assert_allclose(c, c_ref, rtol=1e-12, atol=1e-15 * np.abs(c_ref).max())
+    np.testing.assert_allclose(dc, dc_ref, rtol=1e-12, atol=1e-15 * np.abs(dc_ref).max())
+    # and the slope is the derivative of the columns (finite differences, own input only)
+    h = 1e-6
+    for i in range(6):
+        sp = s.copy()
+        sp[:, i] += h
+        inputs.axis_input = sp
+        num = (comp.output_error(inputs)[:, i] - c_ref[:, i]) / h
+        np.testing.assert_allclose(dc_ref[:, i], num, rtol=1e-4, atol=1e-9)
