@@ -41,7 +41,7 @@ from ..calibration.result import InstrumentCalibration
 from ..errors import MissingInputError, ParameterNameError
 from .glt import glt_threshold
 
-__all__ = ["CalibrationCovariance", "CalibrationAwareGlt", "EffectCovariance", "stated_covariance"]
+__all__ = ["CalibrationAwareGlt", "CalibrationCovariance", "EffectCovariance", "stated_covariance"]
 
 
 def stated_covariance(cal: InstrumentCalibration, misalignment_rad: float, scale_rel: float,
@@ -255,7 +255,7 @@ class EffectCovariance:
 
     @classmethod
     def from_calibration(cls, cal: InstrumentCalibration, D: np.ndarray, Sigma: np.ndarray
-                         ) -> "EffectCovariance | None":
+                         ) -> EffectCovariance | None:
         g = cal.geometry
         index = {nm: i for i, nm in enumerate(g.names)}
         cols = []

@@ -73,7 +73,7 @@ def test_false_alarms_at_design_with_fitted_effects(setting):
     rng = np.random.default_rng(21)
     N = 20_000
     f = np.broadcast_to(np.array([0.0, 3.0, 9.3]), (N, 3))  # a tilted, static specific force
-    Y, u = _truth(g, est, k2, gs, sig, rng, N, f)
+    Y, _ = _truth(g, est, k2, gs, sig, rng, N, f)
     # the gyros' g-sensitivity needs the accelerometers: the specific force is fed as the unit pipeline does
     ip, comp = InstrumentPipeline(est), EffectCompensation(est)
     ctx = RuntimeInputs(t=np.zeros(N), specific_force=np.asarray(f))
@@ -128,7 +128,7 @@ def test_manager_step_uses_the_context(setting):
     g, sig, est, k2, gs = setting
     rng = np.random.default_rng(23)
     f = np.array([0.0, 3.0, 9.3])
-    Y, u = _truth(g, est, k2, gs, sig, rng, 200, np.broadcast_to(f, (200, 3)))
+    Y, _ = _truth(g, est, k2, gs, sig, rng, 200, np.broadcast_to(f, (200, 3)))
     ip, comp = InstrumentPipeline(est), EffectCompensation(est)
     ctx = RuntimeInputs(t=np.zeros(200), specific_force=np.broadcast_to(f, (200, 3)))
     Yc = comp.raw(Y, ctx, ip)
