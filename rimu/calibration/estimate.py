@@ -21,7 +21,15 @@ import numpy as np
 
 from ..errors import IdentifiabilityError
 from ..session import Segment, Session
-from .lsq import LsqResult, SensorFit, _check_identifiable, physical_from_beta
+from .lsq import (
+    LsqResult,
+    SensorFit,
+    _check_identifiable,
+    _fit_sensors,
+    calibrated_axes,
+    on_calibrated_axes,
+    physical_from_beta,
+)
 from .model import ErrorModel, SensorContext, contexts
 from .result import Calibration, InstrumentCalibration
 
@@ -278,7 +286,10 @@ class LeastSquares:
             skipped: dict[str, str] = {}
             cache: dict[str, np.ndarray | None] = {}
             base = [e.name for e in model.effects] == ["scale_misalignment", "bias"]
-            for ctx in contexts(session, inst):
+            axes = None
+            if on_calibrated_axes(model):  # effects along an axis act on the calibrated axis: fit them there
+                axes = calibrated_axes(model, _fit_sensors(session, model, inst, contexts(session, inst), segs, sig)[0])
+            for ctx in contexts(session, inst, axes=axes):
                 Xs, ys, labels = [], [], []
                 for seg in segs:
                     if base:  # the known input is the same for every sensor of the instrument: compute it once

@@ -18,7 +18,7 @@ import numpy as np
 from ..errors import IdentifiabilityError
 from ..session import Session
 from .effects.scale_misalignment import ScaleMisalignment
-from .model import ErrorModel, ParamSpec, SensorContext, contexts
+from .model import ErrorModel, ParamSpec, SensorContext, axes_from_w, contexts
 from .result import InstrumentCalibration
 
 __all__ = ["SensorFit", "LsqResult", "fit_lsq", "physical_from_beta"]
@@ -179,10 +179,35 @@ def fit_lsq(
         The usable segments cannot identify some parameters; they are named.
     """
     model = model or ErrorModel.base()
-    ctxs = contexts(session, instrument)
     segs = [session.segment(x) for x in segments] if segments is not None else list(session.segments)
-    n = len(ctxs)
-    sig = None if sigma is None else np.broadcast_to(np.asarray(sigma, dtype=float), (n,))
+    ctxs = contexts(session, instrument)
+    sig = None if sigma is None else np.broadcast_to(np.asarray(sigma, dtype=float), (len(ctxs),))
+    fits, used, skipped = _fit_sensors(session, model, instrument, ctxs, segs, sig)
+    if on_calibrated_axes(model):
+        # the effects of the input along an axis act on what the sensor really senses: refit on the axes just
+        # calibrated (a second pass changes them by second-order terms only)
+        ctxs = contexts(session, instrument, axes=calibrated_axes(model, fits))
+        fits, used, skipped = _fit_sensors(session, model, instrument, ctxs, segs, sig)
+    return LsqResult(instrument, model, fits, used, skipped)
+
+
+def on_calibrated_axes(model: ErrorModel) -> bool:
+    """Whether a model's further effects are fitted on the calibrated axes (it has the scale/misalignment block
+    and some effect beyond scale, misalignment and bias)."""
+    return "scale_misalignment" in model and any(e.name not in ("bias", "scale_misalignment") for e in model)
+
+
+def calibrated_axes(model: ErrorModel, fits: Sequence["SensorFit"]) -> np.ndarray:
+    """The calibrated axes (n, 3) in MB, a_i = w_i / |w_i|, from per-sensor fits of ``model``."""
+    W = np.empty((len(fits), 3))
+    for s in fits:
+        k = [s.beta_names.index(f"{s.name}.w_{a}") for a in "xyz"]
+        W[s.ctx.index] = s.beta[k]
+    return axes_from_w(W)
+
+
+def _fit_sensors(session: Session, model: ErrorModel, instrument: str, ctxs: list[SensorContext],
+                 segs: list, sig: np.ndarray | None) -> tuple[list[SensorFit], list[str], dict[str, str]]:
     fits: list[SensorFit] = []
     skipped: dict[str, str] = {}
     used: list[str] = []
@@ -219,7 +244,7 @@ def fit_lsq(
         fits.append(SensorFit(ctx, names, beta, bcov, [f"{ctx.name}.{p.name}" for p in specs], specs,
                               theta, tcov, s, known, len(y), rss, res))
         used = labels
-    return LsqResult(instrument, model, fits, used, skipped)
+    return fits, used, skipped
 
 
 def _check_identifiable(X: np.ndarray, names: list[str], instrument: str) -> None:

@@ -22,7 +22,7 @@ plus one line in its registry.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, ClassVar, Iterable, Sequence
 
 import numpy as np
@@ -33,7 +33,7 @@ from ..geometry import Geometry
 from ..session import Segment, Session
 
 __all__ = ["ParamSpec", "SensorContext", "Effect", "ErrorModel", "EFFECTS", "register_effect", "effect",
-           "RuntimeInputs", "RUNTIME_INPUTS", "RuntimeForm", "MONOMIALS", "monomial"]
+           "RuntimeInputs", "RUNTIME_INPUTS", "RuntimeForm", "MONOMIALS", "monomial", "unit_axes", "axes_from_w"]
 
 
 @dataclass(frozen=True)
@@ -71,6 +71,10 @@ class SensorContext:
     #: gyros: whether the known input includes the Earth rate (where attitude and latitude are known). False
     #: leaves it out, so that the ``earth_rate`` effect can test whether the gyros see it.
     include_earth_rate: bool = True
+    #: calibrated sensing axes of the instrument in MB (n, 3), unit rows; None: the nominal ones. The effects of
+    #: the input along an axis (nonlinearity, asymmetry, scale temperature terms, cross coupling, size effect)
+    #: act on what the sensor really senses, so fits, diagnosis and runtime evaluate them on these.
+    axes: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     @property
     def name(self) -> str:
@@ -78,8 +82,12 @@ class SensorContext:
 
     @property
     def axis(self) -> np.ndarray:
-        """Nominal sensing axis in MB."""
-        return self.geometry.H[self.index]
+        """Sensing axis in MB: the calibrated one where :attr:`axes` is given, else the nominal one."""
+        return self.geometry.H[self.index] if self.axes is None else self.axes[self.index]
+
+    def axis_of(self, j: int) -> np.ndarray:
+        """Sensing axis of sensor ``j`` of the same instrument (calibrated where known)."""
+        return self.geometry.H[j] if self.axes is None else self.axes[j]
 
     def input(self, segment: Segment) -> np.ndarray | None:
         """The known true input of this instrument in MB, (N, 3), or None when the segment does not know it.
@@ -348,11 +356,25 @@ class ErrorModel:
 
 
 def contexts(session: Session, instrument: str, reference_temperature: float = 25.0,
-             include_earth_rate: bool = True) -> list[SensorContext]:
-    """One :class:`SensorContext` per sensor of ``instrument`` in ``session``."""
+             include_earth_rate: bool = True, axes: np.ndarray | None = None) -> list[SensorContext]:
+    """One :class:`SensorContext` per sensor of ``instrument`` in ``session`` (``axes``: calibrated axes)."""
     g = session.geometries[instrument]
-    return [SensorContext(instrument, i, g, session.latitude, session.gravity, reference_temperature, include_earth_rate)
-            for i in range(g.n)]
+    A = None if axes is None else unit_axes(axes)
+    return [SensorContext(instrument, i, g, session.latitude, session.gravity, reference_temperature, include_earth_rate,
+                          A) for i in range(g.n)]
+
+
+def unit_axes(axes: np.ndarray) -> np.ndarray:
+    """Rows normalised to unit length, read-only (the calibrated axes of :class:`SensorContext`)."""
+    A = np.asarray(axes, dtype=float)
+    A = A / np.linalg.norm(A, axis=1)[:, None]
+    A.setflags(write=False)
+    return A
+
+
+def axes_from_w(w: np.ndarray) -> np.ndarray:
+    """Calibrated axes (n, 3) from the raw-domain scale/misalignment rows w_i = a_i / SF_i (Cho & Park Eq. 10)."""
+    return unit_axes(w)
 
 
 #: registry: name -> Effect class

@@ -2,32 +2,33 @@
 
 The calibrated output model of sensor i (:mod:`rimu.calibration.model`; Cho & Park 2005, Eq. 1-3 extended) is::
 
-    SF_i y_i = a_i . u + b_i + sum_e phi_e(inputs, s_i) . theta_e,i + v_i,      s_i = h_i . u
+    SF_i y_i = a_i . u + b_i + sum_e phi_e(inputs, s_i) . theta_e,i + v_i,      s_i = a_i . u
 
-with a_i the calibrated axis, h_i the nominal one, and the regressors phi of each effect declared by the effect
-itself (:meth:`rimu.calibration.model.Effect.runtime_columns`). Effects whose regressors depend only on the
-epoch's other inputs (time, temperature, specific force, angular rate) are *exogenous*: their contribution is
-computed and subtracted. Effects that depend on the sensor's own input s_i (nonlinearity, asymmetry, scale
-temperature coefficients, cross coupling) are *output-side*: the stage solves ::
+with a_i the calibrated axis (effects of the input along an axis act on what the sensor really senses; the
+estimators fit them there) and the regressors phi of each effect declared by the effect itself
+(:meth:`rimu.calibration.model.Effect.runtime_columns`, compiled from its
+:class:`~rimu.calibration.model.RuntimeForm`). Effects whose regressors depend only on the epoch's other
+inputs (time, temperature, specific force, angular rate) are *exogenous*: their contribution is computed and
+subtracted. Effects that depend on the sensor's own input s_i (nonlinearity, asymmetry, scale temperature
+coefficients, cross coupling) are *output-side*: the stage solves ::
 
-    q_i + c_i(q_i + d_i) = z_i,     z_i = SF_i y_i - b_i - (exogenous terms),   d_i = (h_i - a_i) . u
+    q_i + c_i(q) = z_i,     z_i = SF_i y_i - b_i - (exogenous terms)
 
-for q_i = a_i . u by Newton's method on each sensor's own input (the slope from
-:meth:`~rimu.calibration.model.Effect.runtime_slope`), with u the least-squares estimate of q on the active
-sensors. That is the exact inverse of the model, not a first-order correction: with grade-typical sizes
-(|dc/ds| ~ 1e-3, misalignment ~ 1e-2 rad) two refinements of two Newton steps leave less than 1e-12 of the
-input (tested against the forward model). The result is handed on as the raw output of an ideal
-scale/misalignment/bias sensor, ``(q + b) / SF``, so projection, parity and FDI downstream are unchanged.
+for q_i = a_i . u by Newton's method, sensor by sensor (cross coupling enters the Jacobian to first order).
+That is the exact inverse of the model, not a first-order correction: two steps from q = z leave less than
+1e-12 of the input (tested against the forward model with every effect at once, up to 460 deg/s and 3 g). The
+result is handed on as the raw output of an ideal scale/misalignment/bias sensor, ``(q + b) / SF``, so
+projection, parity and FDI downstream are unchanged.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
-from ..calibration.model import MONOMIALS, RUNTIME_INPUTS, Effect, RuntimeInputs, SensorContext, effect
+from ..calibration.model import MONOMIALS, RUNTIME_INPUTS, Effect, RuntimeInputs, SensorContext, effect, unit_axes
 from ..calibration.result import InstrumentCalibration
 from ..errors import CalibrationFileError, MissingInputError, NotCompensableError
 
@@ -119,8 +120,8 @@ class EffectCompensation:
         T_ref of the temperature effects, degC (the calibration's, 25 degC by default).
     latitude, gravity : float, optional
         For the sensor contexts (as in the calibration).
-    refinements : int
-        Rounds of (projection for the axis correction d, one Newton step); see the module docstring.
+    newton_steps : int
+        Newton steps of the output-side inversion (see the module docstring).
 
     Raises
     ------
@@ -140,15 +141,17 @@ class EffectCompensation:
     """
 
     def __init__(self, calibration: InstrumentCalibration, reference_temperature: float = 25.0,
-                 latitude: float | None = None, gravity: float = 9.80665, refinements: int = 2) -> None:
+                 latitude: float | None = None, gravity: float = 9.80665, newton_steps: int = 2) -> None:
         cal = calibration
         g = cal.geometry
         self.calibration = cal
         self.instrument = cal.instrument
         self.n = g.n
         self.reference_temperature = float(reference_temperature)
-        self.ctxs = [SensorContext(cal.instrument, i, g, latitude, gravity, reference_temperature) for i in range(g.n)]
-        self.refinements = int(refinements)
+        A = unit_axes(cal.axes_mb())
+        self.ctxs = [SensorContext(cal.instrument, i, g, latitude, gravity, reference_temperature, axes=A)
+                     for i in range(g.n)]
+        self.newton_steps = int(newton_steps)
         self.terms: list[_Term] = []
         for name, params in cal.effects.items():
             if name in BASE_EFFECTS:
@@ -171,8 +174,6 @@ class EffectCompensation:
         self.needs: tuple[str, ...] = tuple(x for x in RUNTIME_INPUTS if x in needs)
         self._scale = cal.scale.copy()
         self._bias = cal.bias.copy()
-        #: (h_i - a_i) as rows: s = q + D u
-        self.D = np.stack([c.axis for c in self.ctxs]) - cal.axes_mb()
         self._compile()
 
     # ------------------------------------------------------------------ compilation
@@ -208,7 +209,6 @@ class EffectCompensation:
         self._dyn = np.ascontiguousarray(np.vstack([blocks[k] for k in self._dyn_keys]) if self._dyn_keys
                                          else np.zeros((0, M)))
         self._Kx = Kx if np.any(Kx) else None
-        self._dg: dict[int, np.ndarray] = {}
         #: exogenous-only instruments: y' = y - mono . E / SF (one product in the raw domain)
         self._raw_exo = None
         if not self.output_side and not self._generic_exo and "exo" in blocks:
@@ -306,23 +306,11 @@ class EffectCompensation:
             inputs.axis_input = None
         return c, dc
 
-    def _correction(self, pipe: Any) -> np.ndarray | None:
-        """``D G`` (n, n) for the pipeline's current active set: d = (D G) q, or None when unobservable."""
-        e = pipe.entry
-        DG = self._dg.get(e)
-        if DG is None:
-            G = pipe.projection_matrix()
-            if G is None:
-                return None
-            DG = self._dg[e] = np.ascontiguousarray(self.D @ G)
-        return DG
-
-    def solve(self, Y: np.ndarray, inputs: RuntimeInputs, pipe: Any, mono: np.ndarray | None = None) -> np.ndarray:
+    def solve(self, Y: np.ndarray, inputs: RuntimeInputs, mono: np.ndarray | None = None) -> np.ndarray:
         """Effect-free compensated outputs ``q = a . u + v`` (N, n), SI, from raw outputs Y (N, n).
 
-        ``pipe`` is the instrument's :class:`~rimu.fusion.pipeline.InstrumentPipeline`: its current active set
-        gives the estimate u of the axis correction (per sample, non-finite outputs are routed around).
-        Non-finite raw values stay non-finite. ``mono``: the inputs' :func:`monomial_values`, if computed.
+        Non-finite raw values stay non-finite (the projection routes around them), and leave the other sensors
+        alone. ``mono``: the inputs' :func:`monomial_values`, if already computed.
         """
         self._check(inputs)
         if mono is None and self._dyn_keys:
@@ -337,71 +325,56 @@ class EffectCompensation:
                 z = z - self._sum(self._generic_exo, inputs)
             if not self.output_side:
                 return z
-            DG = self._correction(pipe)
-            if DG is not None and bool(np.isfinite(z).all()):
-                return self._newton(z, K, inputs, lambda v: v @ DG.T)
-            return self._newton(z, K, inputs, lambda v: pipe.estimate(v) @ self.D.T)
+            return self._newton(z, K, inputs)
 
-    def solve_one(self, y: np.ndarray, mono: list[float] | None, pipe: Any, inputs: RuntimeInputs | None = None
-                  ) -> np.ndarray:
+    def solve_one(self, y: np.ndarray, mono: list[float] | None, inputs: RuntimeInputs | None = None) -> np.ndarray:
         """:meth:`solve` for one sample (n,): the same arithmetic on 1-D arrays, for the per-sample path.
-        ``mono``: the sample's monomials (:func:`monomial_values` of one sample, as a list)."""
+        ``mono``: the sample's monomials (:func:`monomial_values` of one sample, as a list); ``inputs`` only
+        where an effect has no compiled form."""
+        if self._generic_exo or self._generic_out:  # effects without a compiled form: the general path
+            if inputs is None:
+                raise ValueError("solve_one needs the RuntimeInputs where an effect has no compiled form")
+            return self.solve(y[None], inputs, None if mono is None else np.array(mono)[None])[0]
         K = self._coefficient_arrays(None if mono is None else np.array(mono))
         z = y * self._scale - self._bias
         exo = K.get("exo")
         if exo is not None:
             z = z - exo
-        if self._generic_exo or self._generic_out:  # effects without a compiled form: the general path
-            if inputs is None:
-                raise ValueError("solve_one needs the RuntimeInputs where an effect has no compiled form")
-            return self.solve(y[None], inputs, pipe, None if mono is None else np.array(mono)[None])[0]
         if not self.output_side:
             return z
-        DG = self._correction(pipe)
         s = sum(z.tolist())
-        if DG is None or s - s != 0.0:  # a non-finite output: route around it as the block path does
-            return self._solve_slow(z, K, pipe)
-        return self._newton(z, K, inputs, DG.dot)
+        if s - s != 0.0:  # a non-finite output: keep it from warning, as the block path does
+            with np.errstate(invalid="ignore", over="ignore"):
+                return self._newton(z, K, None)
+        return self._newton(z, K, None)
 
-    def _newton(self, z: np.ndarray, K: dict[Any, np.ndarray], inputs: RuntimeInputs | None,
-                d: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
-        """Solve ``q + c(q + d(q)) = z`` for q; ``d(v)`` is the axis correction (h - a) . u of outputs v.
-
-        Newton steps with the Jacobian ``I + (diag(c') + diag(s) Kx)(I + dD)`` (Kx the cross coupling, dD the
-        axis correction) inverted to first order in its small off-diagonal part (|h - a| ~ 1e-2, |Kx s| ~ 1e-4):
-        each step leaves ~(|c'| |h - a| + |Kx s|)^2 of the error, and two steps from q = z leave less than 1e-12
-        of the input at grade-typical sizes (tested with every effect at once up to 460 deg/s and 3 g)."""
+    def _newton(self, z: np.ndarray, K: dict[Any, np.ndarray], inputs: RuntimeInputs | None) -> np.ndarray:
+        """Solve ``q + c(q) = z`` for q by Newton steps with the Jacobian ``I + diag(c') + diag(q) Kx`` (Kx the
+        cross coupling) inverted to first order in its small off-diagonal part (|Kx q| ~ 1e-4): each step
+        leaves ~(c'' e + |Kx q|^2) e of the error e, so two steps from q = z reach the rounding level."""
         q = z
         Kx = self._Kx
-        for _ in range(self.refinements):
-            s = q + d(q)
-            c, dc = self._output_poly(s, K, inputs)
+        for _ in range(self.newton_steps):
+            c, dc = self._output_poly(q, K, inputs)
             den = 1.0 + dc
             step = (q + c - z) / den
-            e = d(step)
-            corr = dc * e
             if Kx is not None:
-                corr = corr + s * self._Kx_apply(step + e)
-            q = q - (step - corr / den)
+                step = step - q * self._Kx_apply(step) / den
+            q = q - step
         return q
 
-    def raw(self, Y: np.ndarray, inputs: RuntimeInputs, pipe: Any) -> np.ndarray:
+    def raw(self, Y: np.ndarray, inputs: RuntimeInputs) -> np.ndarray:
         """Raw outputs with every effect removed: those of an ideal scale/misalignment/bias sensor, (N, n)."""
         if self._raw_exo is not None:
             self._check(inputs)
             return Y - monomial_values(inputs, self.reference_temperature) @ self._raw_exo.T
-        return self.equivalent_raw(self.solve(Y, inputs, pipe))
+        return self.equivalent_raw(self.solve(Y, inputs))
 
-    def raw_one(self, y: np.ndarray, mono: list[float], pipe: Any, inputs: RuntimeInputs | None = None
-                ) -> np.ndarray:
+    def raw_one(self, y: np.ndarray, mono: list[float], inputs: RuntimeInputs | None = None) -> np.ndarray:
         """:meth:`raw` for one sample (n,), ``mono`` its monomials as a list."""
         if self._raw_exo is not None:
             return y - self._raw_exo @ np.array(mono)
-        return self.equivalent_raw(self.solve_one(y, mono, pipe, inputs))
-
-    def _solve_slow(self, z: np.ndarray, K: dict[Any, np.ndarray], pipe: Any) -> np.ndarray:
-        with np.errstate(invalid="ignore", over="ignore"):
-            return self._newton(z[None], K, None, lambda v: pipe.estimate(v) @ self.D.T)[0]
+        return self.equivalent_raw(self.solve_one(y, mono, inputs))
 
     def equivalent_raw(self, Q: np.ndarray) -> np.ndarray:
         """Raw outputs of an ideal scale/misalignment/bias sensor giving compensated outputs Q: ``(Q + b) / SF``."""

@@ -291,18 +291,6 @@ class InstrumentPipeline:
         return BlockResult(out[:, :3], out[:, 3:], ent, dof, active, bad, obs, tab)
 
     # ------------------------------------------------------------------ estimates without side effects
-    @property
-    def entry(self) -> int:
-        """Index of the current active set (isolations applied) in :attr:`table`; -1 when none."""
-        return self._entry
-
-    def projection_matrix(self) -> np.ndarray | None:
-        """G (3, n) of the current active set (``x = G z``), or None when it is unobservable."""
-        e = self._entry
-        if e < 0 or not self.table.observable[e]:
-            return None
-        return self.table.G[e]
-
     def estimate(self, Z: np.ndarray) -> np.ndarray:
         """MB estimates (N, 3) of compensated outputs Z (N, n), SI, on the active sensors (non-finite entries
         excluded per sample, isolated sensors left out), without touching counters or state; zero where the
@@ -477,7 +465,7 @@ class Pipeline:
 
         def solve(k: str, f: np.ndarray | None, w: np.ndarray | None) -> np.ndarray:
             inputs = RuntimeInputs(t=t, temperature=temp, specific_force=f, angular_rate=w)
-            return self.compensation[k].solve(block.raw[k], inputs, self.instruments[k])
+            return self.compensation[k].solve(block.raw[k], inputs)
 
         f = w = None
         if self._cyclic:
@@ -486,8 +474,7 @@ class Pipeline:
         for k in self._order:
             comp = self.compensation.get(k)
             if comp is not None:
-                out[k] = comp.raw(block.raw[k], RuntimeInputs(t=t, temperature=temp, specific_force=f, angular_rate=w),
-                                  self.instruments[k])
+                out[k] = comp.raw(block.raw[k], RuntimeInputs(t=t, temperature=temp, specific_force=f, angular_rate=w))
             res = self.instruments[k].process(out[k], block.valid.get(k))
             results[k] = res
             if k == "accel":
@@ -529,8 +516,8 @@ class Pipeline:
                 comps[k]._check(inputs)
             mono = _monomials_one(t, dT, f, w)
             if raw:
-                return comps[k].raw_one(y, mono, self.instruments[k], inputs)
-            return comps[k].solve_one(y, mono, self.instruments[k], inputs)
+                return comps[k].raw_one(y, mono, inputs)
+            return comps[k].solve_one(y, mono, inputs)
 
         f = w = None
         if self._cyclic:

@@ -77,7 +77,7 @@ def test_false_alarms_at_design_with_fitted_effects(setting):
     # the gyros' g-sensitivity needs the accelerometers: the specific force is fed as the unit pipeline does
     ip, comp = InstrumentPipeline(est), EffectCompensation(est)
     ctx = RuntimeInputs(t=np.zeros(N), specific_force=np.asarray(f))
-    res = ip.process(comp.raw(Y, ctx, ip))
+    res = ip.process(comp.raw(Y, ctx))
     Vz = ip.table.Vz[0]
     with_effects = CalibrationCovariance(est)
     assert with_effects.effects is not None and not with_effects.ignored
@@ -115,7 +115,7 @@ def test_effect_covariance_matches_monte_carlo_and_needs_its_inputs(setting):
         Y[:, i] = z / (est.scale[i] + d[:, names.index(f"{nm}.scale")])
     ip, comp = InstrumentPipeline(est), EffectCompensation(est)
     ctx = RuntimeInputs(t=np.zeros(N), specific_force=np.broadcast_to(f, (N, 3)))
-    P = ip.process(comp.raw(Y, ctx, ip)).parity
+    P = ip.process(comp.raw(Y, ctx)).parity
     model = CalibrationCovariance(est)
     C = model.covariance(ip.table.Vz[0], u, inputs=RuntimeInputs(t=np.zeros(1), specific_force=f[None]))
     np.testing.assert_allclose(np.cov(P.T), C, atol=0.05 * np.abs(C).max())
@@ -131,7 +131,7 @@ def test_manager_step_uses_the_context(setting):
     Y, _ = _truth(g, est, k2, gs, sig, rng, 200, np.broadcast_to(f, (200, 3)))
     ip, comp = InstrumentPipeline(est), EffectCompensation(est)
     ctx = RuntimeInputs(t=np.zeros(200), specific_force=np.broadcast_to(f, (200, 3)))
-    Yc = comp.raw(Y, ctx, ip)
+    Yc = comp.raw(Y, ctx)
     det = CalibrationAwareGlt(CalibrationCovariance(est), P_FA)
     det.set_context(RuntimeInputs(t=np.zeros(1), specific_force=f[None]))
     res = RedundancyManager(ip, det, confirm=3).run(Yc)

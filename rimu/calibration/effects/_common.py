@@ -57,16 +57,19 @@ def temperature_offset(segment: Segment, ctx: SensorContext) -> np.ndarray | Non
 
 
 
-_CACHE: dict[tuple[str, int], tuple[Any, Any]] = {}
+_CACHE: dict[tuple[str, int, int], tuple[Any, Any]] = {}
 
 
 def geometry_cache(key: str, ctxs: Sequence[SensorContext], make: Callable[[], Any]) -> Any:
-    """A constant an effect derives from the geometry once (axes, cross axes, ...), kept per geometry object
-    (which the entry holds, so its id stays unique) so that the per-sample runtime work is arithmetic only."""
+    """A constant an effect derives from the geometry once (axes, cross axes, ...), kept per geometry object and
+    calibrated axes (which the entry holds, so their ids stay unique) so that the per-sample runtime work is
+    arithmetic only."""
     g = ctxs[0].geometry
-    hit = _CACHE.get((key, id(g)))
+    A = ctxs[0].axes
+    k = (key, id(g), id(A))
+    hit = _CACHE.get(k)
     if hit is None:
-        hit = _CACHE[(key, id(g))] = (g, make())
+        hit = _CACHE[k] = ((g, A), make())
     return hit[1]
 
 

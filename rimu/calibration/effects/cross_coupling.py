@@ -41,7 +41,7 @@ class CrossCoupling(Effect):
             return None
         u = np.asarray(u, dtype=float)
         s_i = u @ ctx.axis
-        H = ctx.geometry.H[self._others(ctx)]
+        H = np.array([ctx.axis_of(j) for j in self._others(ctx)]).reshape(-1, 3)
         return s_i[:, None] * (u @ H.T)
 
     def _partners(self, ctxs: Sequence[SensorContext]) -> tuple[np.ndarray, np.ndarray]:
