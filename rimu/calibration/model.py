@@ -104,7 +104,7 @@ class SensorContext:
 
 
 #: What an effect may need at runtime (see :class:`RuntimeInputs` and :attr:`Effect.runtime_needs`).
-RUNTIME_INPUTS = ("time", "temperature", "specific_force", "angular_rate", "axis_input")
+RUNTIME_INPUTS = ("time", "temperature", "specific_force", "angular_rate", "axis_input", "input")
 
 
 @dataclass
@@ -124,6 +124,8 @@ class RuntimeInputs:
         Specific force in MB, m/s^2 (the accelerometers' estimate of the same epoch).
     angular_rate : ndarray (N, 3) or None
         Angular rate in MB, rad/s (the gyros' estimate of the same epoch).
+    input : ndarray (N, 3) or None
+        The instrument's own input in MB (its current estimate u, which the inversion updates).
     """
 
     t: np.ndarray
@@ -131,6 +133,7 @@ class RuntimeInputs:
     temperature: np.ndarray | None = None
     specific_force: np.ndarray | None = None
     angular_rate: np.ndarray | None = None
+    input: np.ndarray | None = None
 
     def temperature_offset(self, ctx: SensorContext) -> np.ndarray:
         """``T - T_ref`` (N,), K."""
@@ -173,7 +176,8 @@ class RuntimeForm:
         phi_ik = (sum_m F[i, k, m] * mono_m) * g_ik(s)
 
     with mono the exogenous monomials of :data:`MONOMIALS` and, by ``kind``: ``"exogenous"`` g = 1;
-    ``"power"`` g = s_i**power; ``"absolute"`` g = |s_i|; ``"pair"`` g = s_i * s_j with j = ``partners[i, k]``.
+    ``"power"`` g = s_i**power; ``"absolute"`` g = |s_i|; ``"pair"`` g = s_i * (d_ik . u) with d_ik =
+    ``directions[i, k]`` and u the instrument's MB input.
     An effect that gives one (:meth:`Effect.runtime_form`) must give the same numbers as its
     :meth:`Effect.runtime_columns` (tested for every effect of the registry); one that does not is evaluated
     through :meth:`Effect.runtime_columns` (slower per sample, same result).
@@ -182,7 +186,7 @@ class RuntimeForm:
     kind: str
     F: np.ndarray
     power: int = 0
-    partners: np.ndarray | None = None
+    directions: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in ("exogenous", "power", "absolute", "pair"):
@@ -214,8 +218,9 @@ class Effect:
     instruments: ClassVar[tuple[str, ...]] = INSTRUMENTS
     description: ClassVar[str] = ""
     physics: ClassVar[str] = ""
-    #: What :meth:`runtime_columns` needs, from :data:`RUNTIME_INPUTS`. ``"axis_input"`` makes the effect
-    #: output-side: the runtime inverts it exactly (Newton on each sensor's own input, with :meth:`runtime_slope`).
+    #: What :meth:`runtime_columns` needs, from :data:`RUNTIME_INPUTS`. ``"axis_input"`` (and ``"input"``, the
+    #: instrument's own MB input) make the effect output-side: the runtime inverts it exactly (Newton on each
+    #: sensor's own input, with :meth:`runtime_slope`).
     runtime_needs: ClassVar[tuple[str, ...]] = ()
 
     def parameters(self, ctx: SensorContext) -> list[ParamSpec]:

@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from ..calibration.model import RuntimeInputs, SensorContext, effect
+from ..calibration.model import RuntimeInputs, SensorContext, effect, unit_axes
 from ..calibration.result import InstrumentCalibration
 from ..errors import MissingInputError, ParameterNameError
 from .glt import glt_threshold
@@ -239,8 +239,9 @@ class EffectCovariance:
     def __init__(self, cal: InstrumentCalibration, D: np.ndarray, Sigma: np.ndarray,
                  columns: list[tuple[int, int, str, int]]) -> None:
         g = cal.geometry
-        self.ctxs = [SensorContext(cal.instrument, i, g) for i in range(g.n)]
-        self.H = g.H
+        A = unit_axes(cal.axes_mb())  # effects along an axis act on the calibrated one
+        self.ctxs = [SensorContext(cal.instrument, i, g, axes=A) for i in range(g.n)]
+        self.H = A
         self.D = D
         self.index = np.array([k for k, _, _, _ in columns])
         self.sensor = np.array([i for _, i, _, _ in columns])
@@ -251,7 +252,7 @@ class EffectCovariance:
             pos = np.array([m for m, c in enumerate(columns) if c[2] == name])
             self.groups[name] = (pos, self.sensor[pos], np.array([columns[m][3] for m in pos]))
         self.effects = {name: effect(name) for name in self.groups}
-        self.needs = sorted({x for e in self.effects.values() for x in e.runtime_needs if x != "axis_input"})
+        self.needs = sorted({x for e in self.effects.values() for x in e.runtime_needs if x not in ("axis_input", "input")})
 
     @classmethod
     def from_calibration(cls, cal: InstrumentCalibration, D: np.ndarray, Sigma: np.ndarray
@@ -282,7 +283,7 @@ class EffectCovariance:
         inp = RuntimeInputs(np.broadcast_to(np.asarray(inputs.t, dtype=float), (N,)), u @ self.H.T,
                             None if inputs.temperature is None else np.broadcast_to(inputs.temperature, (N,)),
                             None if inputs.specific_force is None else np.broadcast_to(inputs.specific_force, (N, 3)),
-                            None if inputs.angular_rate is None else np.broadcast_to(inputs.angular_rate, (N, 3)))
+                            None if inputs.angular_rate is None else np.broadcast_to(inputs.angular_rate, (N, 3)), u)
         out = np.zeros((N, len(self.index)))
         for name, (pos, sens, col) in self.groups.items():
             out[:, pos] = self.effects[name].runtime_columns(inp, self.ctxs)[:, sens, col]

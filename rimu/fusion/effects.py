@@ -23,7 +23,7 @@ projection, parity and FDI downstream are unchanged.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -33,6 +33,10 @@ from ..calibration.result import InstrumentCalibration
 from ..errors import CalibrationFileError, MissingInputError, NotCompensableError
 
 __all__ = ["BASE_EFFECTS", "EffectCompensation", "compensable_effects", "monomial_values"]
+
+#: inputs the stage makes itself (each sensor's own input, the instrument's MB input)
+_INTERNAL = ("axis_input", "input")
+_T0 = np.zeros(1)
 
 #: Effects the projection itself undoes (folded into its matrices); not part of this stage.
 BASE_EFFECTS = ("bias", "scale_misalignment")
@@ -121,7 +125,8 @@ class EffectCompensation:
     latitude, gravity : float, optional
         For the sensor contexts (as in the calibration).
     newton_steps : int
-        Newton steps of the output-side inversion (see the module docstring).
+        Newton steps of the output-side inversion (see the module docstring); 3 where cross coupling needs the
+        instrument's estimate, which lags one step.
 
     Raises
     ------
@@ -169,7 +174,7 @@ class EffectCompensation:
         self.output_side = [t for t in self.terms if t.output_side]
         needs: list[str] = []
         for t in self.terms:
-            needs += [x for x in t.effect.runtime_needs if x != "axis_input" and x not in needs]
+            needs += [x for x in t.effect.runtime_needs if x not in _INTERNAL and x not in needs]
         #: inputs from the stream this stage needs, in the order of :data:`RUNTIME_INPUTS`
         self.needs: tuple[str, ...] = tuple(x for x in RUNTIME_INPUTS if x in needs)
         self._scale = cal.scale.copy()
@@ -181,7 +186,7 @@ class EffectCompensation:
         n, M = self.n, len(MONOMIALS)
         blocks = {"exo": np.zeros((n, M)), 1: np.zeros((n, M)), 2: np.zeros((n, M)), 3: np.zeros((n, M)),
                   "abs": np.zeros((n, M))}
-        Kx = np.zeros((n, n))
+        Hx = np.zeros((n, 3))
         self._generic_exo: list[_Term] = []
         self._generic_out: list[_Term] = []
         for t in self.terms:
@@ -195,7 +200,8 @@ class EffectCompensation:
                 elif form.kind == "absolute" and t.output_side:
                     key = "abs"
                 elif form.kind == "pair" and t.output_side and not np.any(form.F[:, :, 1:]):
-                    np.add.at(Kx, (np.arange(n)[:, None], form.partners), form.F[:, :, 0] * t.theta[:, :form.F.shape[1]])
+                    k = form.F.shape[1]
+                    Hx += np.einsum("ik,ikj->ij", form.F[:, :, 0] * t.theta[:, :k], form.directions)
                     continue
             if key is None:
                 (self._generic_out if t.output_side else self._generic_exo).append(t)
@@ -208,7 +214,11 @@ class EffectCompensation:
         self._const = {k: blocks[k][:, 0].copy() for k in used if k not in self._dyn_keys}
         self._dyn = np.ascontiguousarray(np.vstack([blocks[k] for k in self._dyn_keys]) if self._dyn_keys
                                          else np.zeros((0, M)))
-        self._Kx = Kx if np.any(Kx) else None
+        #: cross coupling: x_i = (Hx u)_i multiplies s_i (u the instrument's MB input)
+        self._Hx = Hx if np.any(Hx) else None
+        self._needs_u = self._Hx is not None or any("input" in t.effect.runtime_needs for t in self._generic_out)
+        if self._needs_u and self.newton_steps == 2:
+            self.newton_steps = 3  # the estimate of u lags one step: one more to reach the rounding level
         #: exogenous-only instruments: y' = y - mono . E / SF (one product in the raw domain)
         self._raw_exo = None
         if not self.output_side and not self._generic_exo and "exo" in blocks:
@@ -232,8 +242,6 @@ class EffectCompensation:
         """Whether some effect is evaluated through ``runtime_columns`` (no compiled form)."""
         return bool(self._generic_exo or self._generic_out)
 
-    def _Kx_apply(self, s: np.ndarray) -> np.ndarray:
-        return s @ self._Kx.T if s.ndim > 1 else self._Kx @ s
 
     def effects_needing(self, name: str) -> list[str]:
         """Names of the effects that need input ``name``."""
@@ -277,15 +285,16 @@ class EffectCompensation:
         return self._sum(self.output_side, inputs)
 
     # ------------------------------------------------------------------ compiled evaluation
-    def _output_poly(self, s: np.ndarray, K: dict[Any, np.ndarray], inputs: RuntimeInputs | None
+    def _output_poly(self, s: np.ndarray, K: dict[Any, np.ndarray], inputs: RuntimeInputs
                      ) -> tuple[np.ndarray, np.ndarray]:
         """c(s) and dc/ds_i of the output-side effects (compiled blocks plus any generic ones):
         ``c = (k1 + x + (k2 + k3 s) s) s + ka |s|``, ``dc = k1 + x + (2 k2 + 3 k3 s) s + ka sign(s)`` with
-        ``x = Kx s`` the cross coupling (its slope against s_i alone: the partners are updated each round)."""
+        ``x = Hx u`` the cross coupling (u the current MB estimate, held within a step)."""
         k1, k2, k3, ka = K.get(1), K.get(2), K.get(3), K.get("abs")
         lin = k1 if k1 is not None else 0.0
-        if self._Kx is not None:
-            lin = lin + self._Kx_apply(s)
+        if self._Hx is not None:
+            u = inputs.input
+            lin = lin + (u @ self._Hx.T if u.ndim > 1 else self._Hx @ u)
         if k3 is not None:
             a = k3 * s
             quad = a + k2 if k2 is not None else a
@@ -306,11 +315,13 @@ class EffectCompensation:
             inputs.axis_input = None
         return c, dc
 
-    def solve(self, Y: np.ndarray, inputs: RuntimeInputs, mono: np.ndarray | None = None) -> np.ndarray:
+    def solve(self, Y: np.ndarray, inputs: RuntimeInputs, mono: np.ndarray | None = None,
+              estimate: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
         """Effect-free compensated outputs ``q = a . u + v`` (N, n), SI, from raw outputs Y (N, n).
 
         Non-finite raw values stay non-finite (the projection routes around them), and leave the other sensors
-        alone. ``mono``: the inputs' :func:`monomial_values`, if already computed.
+        alone. ``mono``: the inputs' :func:`monomial_values`, if already computed; ``estimate(Q)``: the MB
+        estimate (N, 3) of compensated outputs on the active sensors (for the cross coupling).
         """
         self._check(inputs)
         if mono is None and self._dyn_keys:
@@ -325,16 +336,18 @@ class EffectCompensation:
                 z = z - self._sum(self._generic_exo, inputs)
             if not self.output_side:
                 return z
-            return self._newton(z, K, inputs)
+            return self._newton(z, K, inputs, estimate)
 
-    def solve_one(self, y: np.ndarray, mono: list[float] | None, inputs: RuntimeInputs | None = None) -> np.ndarray:
+    def solve_one(self, y: np.ndarray, mono: list[float] | None, inputs: RuntimeInputs | None = None,
+                  estimate: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
         """:meth:`solve` for one sample (n,): the same arithmetic on 1-D arrays, for the per-sample path.
         ``mono``: the sample's monomials (:func:`monomial_values` of one sample, as a list); ``inputs`` only
         where an effect has no compiled form."""
         if self._generic_exo or self._generic_out:  # effects without a compiled form: the general path
             if inputs is None:
                 raise ValueError("solve_one needs the RuntimeInputs where an effect has no compiled form")
-            return self.solve(y[None], inputs, None if mono is None else np.array(mono)[None])[0]
+            one = None if estimate is None else (lambda Q: estimate(Q[0])[None])
+            return self.solve(y[None], inputs, None if mono is None else np.array(mono)[None], one)[0]
         K = self._coefficient_arrays(None if mono is None else np.array(mono))
         z = y * self._scale - self._bias
         exo = K.get("exo")
@@ -342,39 +355,44 @@ class EffectCompensation:
             z = z - exo
         if not self.output_side:
             return z
+        inp = RuntimeInputs(_T0)
         s = sum(z.tolist())
         if s - s != 0.0:  # a non-finite output: keep it from warning, as the block path does
             with np.errstate(invalid="ignore", over="ignore"):
-                return self._newton(z, K, None)
-        return self._newton(z, K, None)
+                return self._newton(z, K, inp, estimate)
+        return self._newton(z, K, inp, estimate)
 
-    def _newton(self, z: np.ndarray, K: dict[Any, np.ndarray], inputs: RuntimeInputs | None) -> np.ndarray:
-        """Solve ``q + c(q) = z`` for q by Newton steps with the Jacobian ``I + diag(c') + diag(q) Kx`` (Kx the
-        cross coupling) inverted to first order in its small off-diagonal part (|Kx q| ~ 1e-4): each step
-        leaves ~(c'' e + |Kx q|^2) e of the error e, so two steps from q = z reach the rounding level."""
+    def _newton(self, z: np.ndarray, K: dict[Any, np.ndarray], inputs: RuntimeInputs,
+                estimate: Callable[[np.ndarray], np.ndarray] | None) -> np.ndarray:
+        """Solve ``q + c(q) = z`` for q by Newton steps on each sensor's own input; the instrument's MB input u
+        of the cross coupling is re-estimated from q before each step (``estimate``: the projection on the
+        active sensors). Each step leaves ~(c'' e + |dc/du| |G|) e of the error e (|dc/du| ~ 1e-4 at
+        grade-typical cross coupling), so two steps from q = z reach the rounding level."""
+        if self._needs_u and estimate is None:
+            raise ValueError("the cross coupling needs the instrument's estimate: pass estimate=")
         q = z
-        Kx = self._Kx
         for _ in range(self.newton_steps):
+            if self._needs_u:
+                inputs.input = estimate(q)
             c, dc = self._output_poly(q, K, inputs)
-            den = 1.0 + dc
-            step = (q + c - z) / den
-            if Kx is not None:
-                step = step - q * self._Kx_apply(step) / den
-            q = q - step
+            q = q - (q + c - z) / (1.0 + dc)
+        inputs.input = None
         return q
 
-    def raw(self, Y: np.ndarray, inputs: RuntimeInputs) -> np.ndarray:
+    def raw(self, Y: np.ndarray, inputs: RuntimeInputs,
+            estimate: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
         """Raw outputs with every effect removed: those of an ideal scale/misalignment/bias sensor, (N, n)."""
         if self._raw_exo is not None:
             self._check(inputs)
             return Y - monomial_values(inputs, self.reference_temperature) @ self._raw_exo.T
-        return self.equivalent_raw(self.solve(Y, inputs))
+        return self.equivalent_raw(self.solve(Y, inputs, estimate=estimate))
 
-    def raw_one(self, y: np.ndarray, mono: list[float], inputs: RuntimeInputs | None = None) -> np.ndarray:
-        """:meth:`raw` for one sample (n,), ``mono`` its monomials as a list."""
+    def raw_one(self, y: np.ndarray, mono: list[float], inputs: RuntimeInputs | None = None,
+                estimate: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
+        """:meth:`raw` for one sample (n,), ``mono`` its monomials as a list; ``estimate(q)`` (3,) of one."""
         if self._raw_exo is not None:
             return y - self._raw_exo @ np.array(mono)
-        return self.equivalent_raw(self.solve_one(y, mono, inputs))
+        return self.equivalent_raw(self.solve_one(y, mono, inputs, estimate))
 
     def equivalent_raw(self, Q: np.ndarray) -> np.ndarray:
         """Raw outputs of an ideal scale/misalignment/bias sensor giving compensated outputs Q: ``(Q + b) / SF``."""
@@ -388,14 +406,15 @@ class EffectCompensation:
             z = z + self.exogenous_error(inputs)
         if self.output_side:
             inputs.axis_input = U @ np.stack([c.axis for c in self.ctxs]).T
+            inputs.input = U
             z = z + self.output_error(inputs)
-            inputs.axis_input = None
+            inputs.axis_input = inputs.input = None
         return z / self._scale
 
     def _check(self, inputs: RuntimeInputs) -> None:
         for t in self.exogenous + self.output_side:
             for name in t.effect.runtime_needs:
-                if name != "axis_input" and getattr(inputs, "t" if name == "time" else name) is None:
+                if name not in _INTERNAL and getattr(inputs, "t" if name == "time" else name) is None:
                     raise MissingInputError(
                         f"{self.instrument}: effect {t.effect.name!r} needs the {name.replace('_', ' ')}, and this "
                         "sample has none", t.effect.name, name)

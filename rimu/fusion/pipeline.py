@@ -403,6 +403,7 @@ class Pipeline:
         #: compensation stage per instrument with further effects
         self.compensation: dict[str, EffectCompensation] = {k: c for k, c in comps.items() if c}
         self._generic = any(c.has_generic for c in self.compensation.values())
+        self._estimators = {k: (lambda q, p=self.instruments[k]: p.estimate(q[None])[0]) for k in self.compensation}
         self.t0 = t0
         provided = {"time", "specific_force" if "accel" in self.instruments else "", "angular_rate"
                     if "gyro" in self.instruments else ""}
@@ -465,7 +466,7 @@ class Pipeline:
 
         def solve(k: str, f: np.ndarray | None, w: np.ndarray | None) -> np.ndarray:
             inputs = RuntimeInputs(t=t, temperature=temp, specific_force=f, angular_rate=w)
-            return self.compensation[k].solve(block.raw[k], inputs)
+            return self.compensation[k].solve(block.raw[k], inputs, estimate=self.instruments[k].estimate)
 
         f = w = None
         if self._cyclic:
@@ -474,7 +475,8 @@ class Pipeline:
         for k in self._order:
             comp = self.compensation.get(k)
             if comp is not None:
-                out[k] = comp.raw(block.raw[k], RuntimeInputs(t=t, temperature=temp, specific_force=f, angular_rate=w))
+                out[k] = comp.raw(block.raw[k], RuntimeInputs(t=t, temperature=temp, specific_force=f, angular_rate=w),
+                                  self.instruments[k].estimate)
             res = self.instruments[k].process(out[k], block.valid.get(k))
             results[k] = res
             if k == "accel":
@@ -515,9 +517,10 @@ class Pipeline:
                                        None if f is None else np.array([f]), None if w is None else np.array([w]))
                 comps[k]._check(inputs)
             mono = _monomials_one(t, dT, f, w)
+            est = self._estimators[k]
             if raw:
-                return comps[k].raw_one(y, mono, inputs)
-            return comps[k].solve_one(y, mono, inputs)
+                return comps[k].raw_one(y, mono, inputs, est)
+            return comps[k].solve_one(y, mono, inputs, est)
 
         f = w = None
         if self._cyclic:

@@ -245,7 +245,7 @@ def test_runtime_columns_equal_the_calibration_columns(instrument):
         u = ctxs[0].input(seg)
         inputs = RuntimeInputs(t=seg.t, axis_input=u @ cone6().H.T, temperature=seg.temperature,
                                specific_force=seg.specific_force(session.gravity), angular_rate=seg.angular_rate(
-                                   session.latitude, include_earth=False))
+                                   session.latitude, include_earth=False), input=u)
         for name in TYPICAL_EFFECTS[instrument]:
             eff = effect(name)
             rc = eff.runtime_columns(inputs, ctxs)
@@ -272,7 +272,8 @@ def test_compiled_forms_equal_runtime_columns(instrument):
     K = comp._coefficient_arrays(monomial_values(inputs, 25.0))
     ref = comp.exogenous_error(inputs)
     np.testing.assert_allclose(K.get("exo", 0.0), ref, rtol=1e-12, atol=1e-15 * np.abs(ref).max())
-    c, dc = comp._output_poly(s, K, None)
+    inputs.input = rng.standard_normal((N, 3)) * 3.0
+    c, dc = comp._output_poly(s, K, inputs)
     inputs.axis_input = s
     c_ref = comp.output_error(inputs)
     dc_ref = comp._sum(comp.output_side, inputs, slope=True)

@@ -16,13 +16,14 @@ __all__ = ["CrossCoupling"]
 
 class CrossCoupling(Effect):
     name = "cross_coupling"
-    runtime_needs = ("axis_input",)
+    runtime_needs = ("axis_input", "input")
     description = ("cross-coupling: output error proportional to the product of the input along the sensor's axis "
                    "and along each other sensor axis of the same sub-unit")
     physics = ("Second-order interaction of inputs on two axes (IEEE Std 528 cross-coupling coefficient): the "
                "sensing element, deflected by its own input, becomes sensitive to the cross input. Error = "
-               "sum_j k_ij s_i s_j over the other sensors j of the sub-unit (nominal axes); reported in "
-               "ppm per unit of input. Linear cross-axis sensitivity is misalignment, already in the base model.")
+               "sum_j k_ij s_i s_j over the other sensors j of the sub-unit (s_i along the sensor's own axis, s_j "
+               "along the nominal axis of sensor j: the cross directions of the case); reported in ppm per unit "
+               "of input. Linear cross-axis sensitivity is misalignment, already in the base model.")
     excited_by = "inputs along directions between two axes of a sub-unit (rates or tilts at 45 deg in the axis planes)"
 
     def _others(self, ctx: SensorContext) -> list[int]:
@@ -41,35 +42,32 @@ class CrossCoupling(Effect):
             return None
         u = np.asarray(u, dtype=float)
         s_i = u @ ctx.axis
-        H = np.array([ctx.axis_of(j) for j in self._others(ctx)]).reshape(-1, 3)
+        H = ctx.geometry.H[self._others(ctx)]
         return s_i[:, None] * (u @ H.T)
 
-    def _partners(self, ctxs: Sequence[SensorContext]) -> tuple[np.ndarray, np.ndarray]:
-        """(index (n, k), mask (n, k)): the other sensors of each sensor's sub-unit, zero-padded."""
-        def make() -> tuple[np.ndarray, np.ndarray]:
-            others = [self._others(c) for c in ctxs]
+    def _directions(self, ctxs: Sequence[SensorContext]) -> np.ndarray:
+        """(n, k, 3): the nominal axes of each sensor's partners in its sub-unit, zero-padded."""
+        def make() -> np.ndarray:
+            others = [self._others(c) for c in ctxs] if ctxs[0].instrument in self.instruments else []
             k = max([len(o) for o in others] + [1])
-            idx = np.zeros((len(ctxs), k), dtype=np.intp)
-            mask = np.zeros((len(ctxs), k))
+            out = np.zeros((len(ctxs), k, 3))
             for i, o in enumerate(others):
-                idx[i, :len(o)] = o
-                mask[i, :len(o)] = 1.0
-            return idx, mask
-        return geometry_cache("cross_coupling.partners", ctxs, make)
+                out[i, :len(o)] = ctxs[0].geometry.H[o]
+            return out
+        return geometry_cache("cross_coupling.directions", ctxs, make)
 
     def runtime_columns(self, inputs: RuntimeInputs, ctxs: Sequence[SensorContext]) -> np.ndarray:
-        """``s_i s_j`` over the other sensors j of the sub-unit, (N, n, k): output-side (inverted jointly with
-        the partners' inputs, which the inversion updates every iteration)."""
-        s = inputs.axis_input
-        idx, mask = self._partners(ctxs)
-        return s[:, :, None] * s[:, idx] * mask
+        """``s_i (h_j . u)`` over the partners j, (N, n, k), u the instrument's current MB estimate: output-side
+        (the inversion updates u every step)."""
+        cross = np.einsum("nj,ikj->nik", np.asarray(inputs.input, dtype=float), self._directions(ctxs))
+        return inputs.axis_input[:, :, None] * cross
 
     def runtime_slope(self, inputs: RuntimeInputs, ctxs: Sequence[SensorContext]) -> np.ndarray:
-        idx, mask = self._partners(ctxs)
-        return inputs.axis_input[:, idx] * mask
+        """Against the sensor's own input, u held (the inversion re-estimates u each step)."""
+        return np.einsum("nj,ikj->nik", np.asarray(inputs.input, dtype=float), self._directions(ctxs))
 
     def runtime_form(self, ctxs: Sequence[SensorContext]) -> RuntimeForm:
-        idx, mask = self._partners(ctxs)
-        form = RuntimeForm.zeros("pair", len(ctxs), idx.shape[1], partners=idx)
-        form.F[:, :, monomial("1")] = mask
+        D = self._directions(ctxs)
+        form = RuntimeForm.zeros("pair", len(ctxs), D.shape[1], directions=D)
+        form.F[:, :, monomial("1")] = np.any(D != 0, axis=2)
         return form
