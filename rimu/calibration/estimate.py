@@ -25,8 +25,7 @@ from .lsq import (
     LsqResult,
     SensorFit,
     _check_identifiable,
-    _fit_sensors,
-    calibrated_axes,
+    first_axes,
     on_calibrated_axes,
     physical_from_beta,
 )
@@ -288,7 +287,7 @@ class LeastSquares:
             base = [e.name for e in model.effects] == ["scale_misalignment", "bias"]
             axes = None
             if on_calibrated_axes(model):  # effects along an axis act on the calibrated axis: fit them there
-                axes = calibrated_axes(model, _fit_sensors(session, model, inst, contexts(session, inst), segs, sig)[0])
+                axes = first_axes(session, model, inst, segs, sig)
             for ctx in contexts(session, inst, axes=axes):
                 Xs, ys, labels = [], [], []
                 for seg in segs:

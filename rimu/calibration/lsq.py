@@ -182,12 +182,12 @@ def fit_lsq(
     segs = [session.segment(x) for x in segments] if segments is not None else list(session.segments)
     ctxs = contexts(session, instrument)
     sig = None if sigma is None else np.broadcast_to(np.asarray(sigma, dtype=float), (len(ctxs),))
-    fits, used, skipped = _fit_sensors(session, model, instrument, ctxs, segs, sig)
     if on_calibrated_axes(model):
-        # the effects of the input along an axis act on what the sensor really senses: refit on the axes just
-        # calibrated (a second pass changes them by second-order terms only)
-        ctxs = contexts(session, instrument, axes=calibrated_axes(model, fits))
-        fits, used, skipped = _fit_sensors(session, model, instrument, ctxs, segs, sig)
+        # the effects of the input along an axis act on what the sensor really senses: fit them on the axes a
+        # first fit of scale, misalignment and bias calibrates (whose bias by the other effects enters the
+        # effects' columns to second order only)
+        ctxs = contexts(session, instrument, axes=first_axes(session, model, instrument, segs, sig))
+    fits, used, skipped = _fit_sensors(session, model, instrument, ctxs, segs, sig)
     return LsqResult(instrument, model, fits, used, skipped)
 
 
@@ -195,6 +195,13 @@ def on_calibrated_axes(model: ErrorModel) -> bool:
     """Whether a model's further effects are fitted on the calibrated axes (it has the scale/misalignment block
     and some effect beyond scale, misalignment and bias)."""
     return "scale_misalignment" in model and any(e.name not in ("bias", "scale_misalignment") for e in model)
+
+
+def first_axes(session: Session, model: ErrorModel, instrument: str, segs: list, sig: np.ndarray | None) -> np.ndarray:
+    """Calibrated axes from a fit of the model's scale/misalignment and bias alone on the nominal axes."""
+    base = ErrorModel([e for e in model if e.name in ("scale_misalignment", "bias")])
+    fits, _, _ = _fit_sensors(session, base, instrument, contexts(session, instrument), segs, sig)
+    return calibrated_axes(base, fits)
 
 
 def calibrated_axes(model: ErrorModel, fits: Sequence["SensorFit"]) -> np.ndarray:

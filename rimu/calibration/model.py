@@ -176,8 +176,8 @@ class RuntimeForm:
         phi_ik = (sum_m F[i, k, m] * mono_m) * g_ik(s)
 
     with mono the exogenous monomials of :data:`MONOMIALS` and, by ``kind``: ``"exogenous"`` g = 1;
-    ``"power"`` g = s_i**power; ``"absolute"`` g = |s_i|; ``"pair"`` g = s_i * (d_ik . u) with d_ik =
-    ``directions[i, k]`` and u the instrument's MB input.
+    ``"power"`` g = s_i**power; ``"absolute"`` g = |s_i|; ``"pair"`` g = (h_i . u)(d_ik . u) with h_i the
+    nominal axis, d_ik = ``directions[i, k]`` and u the instrument's MB input.
     An effect that gives one (:meth:`Effect.runtime_form`) must give the same numbers as its
     :meth:`Effect.runtime_columns` (tested for every effect of the registry); one that does not is evaluated
     through :meth:`Effect.runtime_columns` (slower per sample, same result).

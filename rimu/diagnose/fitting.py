@@ -288,8 +288,9 @@ def fit_model(
         ctxs = contexts(session, instrument, reference_temperature, include_earth_rate)
         if "scale_misalignment" in model:
             # candidates and effects along an axis are evaluated on the calibrated axes (what each sensor really
-            # senses), taken from a first fit on the nominal ones
-            first = fit_model(session, model, instrument, sigma, include_earth_rate, reference_temperature, ctxs)
+            # senses), taken from a first fit of scale, misalignment and bias on the nominal ones
+            base = ErrorModel([e for e in model if e.name in ("scale_misalignment", "bias")])
+            first = fit_model(session, base, instrument, sigma, include_earth_rate, reference_temperature, ctxs)
             ctxs = contexts(session, instrument, reference_temperature, include_earth_rate, calibrated_axes_of(first))
     sig = _sigma_vector(sigma, len(ctxs))
     skipped: dict[str, str] = {}

@@ -65,7 +65,7 @@ class _Term:
     def __init__(self, eff: Effect, theta: np.ndarray) -> None:
         self.effect = eff
         self.theta = theta
-        self.output_side = "axis_input" in eff.runtime_needs
+        self.output_side = "axis_input" in eff.runtime_needs or "input" in eff.runtime_needs
 
 
 _PAIRS = [(a, b) for a in range(3) for b in range(a, 3)]
@@ -214,8 +214,9 @@ class EffectCompensation:
         self._const = {k: blocks[k][:, 0].copy() for k in used if k not in self._dyn_keys}
         self._dyn = np.ascontiguousarray(np.vstack([blocks[k] for k in self._dyn_keys]) if self._dyn_keys
                                          else np.zeros((0, M)))
-        #: cross coupling: x_i = (Hx u)_i multiplies s_i (u the instrument's MB input)
+        #: cross coupling: (h_i . u)(Hx u)_i (u the instrument's MB input, h_i the nominal axes)
         self._Hx = Hx if np.any(Hx) else None
+        self._H = self.calibration.geometry.H
         self._needs_u = self._Hx is not None or any("input" in t.effect.runtime_needs for t in self._generic_out)
         if self._needs_u and self.newton_steps == 2:
             self.newton_steps = 3  # the estimate of u lags one step: one more to reach the rounding level
@@ -288,13 +289,14 @@ class EffectCompensation:
     def _output_poly(self, s: np.ndarray, K: dict[Any, np.ndarray], inputs: RuntimeInputs
                      ) -> tuple[np.ndarray, np.ndarray]:
         """c(s) and dc/ds_i of the output-side effects (compiled blocks plus any generic ones):
-        ``c = (k1 + x + (k2 + k3 s) s) s + ka |s|``, ``dc = k1 + x + (2 k2 + 3 k3 s) s + ka sign(s)`` with
-        ``x = Hx u`` the cross coupling (u the current MB estimate, held within a step)."""
+        ``c = (k1 + (k2 + k3 s) s) s + ka |s| + (h . u)(Hx u)``, ``dc = k1 + (2 k2 + 3 k3 s) s + ka sign(s)``
+        with the cross coupling from the current MB estimate u, held within a step."""
         k1, k2, k3, ka = K.get(1), K.get(2), K.get(3), K.get("abs")
         lin = k1 if k1 is not None else 0.0
-        if self._Hx is not None:
+        xc = None
+        if self._Hx is not None:  # cross coupling (h_i . u)(Hx u)_i: from the estimate u, held within a step
             u = inputs.input
-            lin = lin + (u @ self._Hx.T if u.ndim > 1 else self._Hx @ u)
+            xc = (u @ self._H.T) * (u @ self._Hx.T) if u.ndim > 1 else (self._H @ u) * (self._Hx @ u)
         if k3 is not None:
             a = k3 * s
             quad = a + k2 if k2 is not None else a
@@ -308,6 +310,8 @@ class EffectCompensation:
         if ka is not None:
             c = c + ka * np.abs(s)
             dc = dc + ka * np.sign(s)
+        if xc is not None:
+            c = c + xc
         if self._generic_out:
             inputs.axis_input = s
             c += self._sum(self._generic_out, inputs)

@@ -11,6 +11,7 @@ is how a calibration is validated.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -18,9 +19,11 @@ import numpy as np
 from ..calibration.result import Calibration
 from ..epoch import EpochBlock
 from ..session import Session
+from ..units import MS2_TO_UG, RS_TO_DH
 from .pipeline import Pipeline
 
-__all__ = ["InstrumentErrors", "known_inputs", "replay_errors", "segment_errors", "session_block"]
+__all__ = ["InstrumentErrors", "known_inputs", "plot_segment_errors", "replay_errors", "segment_errors",
+           "session_block"]
 
 
 def session_block(session: Session) -> tuple[EpochBlock, np.ndarray]:
@@ -106,3 +109,36 @@ def replay_errors(session: Session, calibration: Calibration, **pipeline_kwargs:
     pipe = Pipeline(calibration, temperature=block.temperature is not None, **pipeline_kwargs)
     out = pipe.process(block)
     return {k: segment_errors(session, k, np.asarray(out[k].x), index) for k in out if k in session.instruments}
+
+
+def plot_segment_errors(errors: dict[str, InstrumentErrors], path: str | Path, title: str = "") -> Path | None:
+    """Bar plot of the segment-mean error (norm over the three axes, in the field's unit) per segment for each
+    labelled result, e.g. ``{"base model": before, "+ g_sensitivity": after}``; None without matplotlib (the
+    ``plots`` extra)."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return None
+    first = next(iter(errors.values()))
+    unit, f = ("deg/h", RS_TO_DH) if first.instrument == "gyro" else ("ug", MS2_TO_UG)
+    n = len(first.segments)
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.22 * n + 2), 3.8))
+    width = 0.8 / len(errors)
+    for k, (label, e) in enumerate(errors.items()):
+        v = np.linalg.norm(e.segment_errors, axis=1) * f
+        ax.bar(np.arange(n) + (k - (len(errors) - 1) / 2) * width, v, width,
+               label=f"{label}: rms {e.segment_error_rms * f:.3g} {unit}")
+    ax.set_yscale("log")
+    ax.set_xticks(np.arange(n))
+    ax.set_xticklabels(first.segments, rotation=90, fontsize=6)
+    ax.set_ylabel(f"|segment-mean error| [{unit}]")
+    ax.set_title(title or f"{first.instrument} runtime error per segment")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -13,8 +13,9 @@ import numpy as np
 from ..calibration.model import SensorContext, effect
 from ..calibration.result import Calibration, InstrumentCalibration
 from ..units import DEG_TO_RAD, DH_TO_RS, G0, PPM
+from .procedures import SegmentSpec, rotation, static
 
-__all__ = ["TYPICAL_EFFECTS", "effect_parameters", "with_effects"]
+__all__ = ["TYPICAL_EFFECTS", "effect_parameters", "validation_procedure", "with_effects"]
 
 #: instrument -> effect -> sensor index -> physical values (SI, in the order of ``physical_parameters``)
 TYPICAL_EFFECTS: dict[str, dict[str, Callable[[int], list[float]]]] = {
@@ -80,3 +81,22 @@ def with_effects(cal: Calibration, names: dict[str, Iterable[str]] | None = None
                                        None if c.noise_sigma is None else np.array(c.noise_sigma),
                                        effects=effects)
     return Calibration(out, cal.raw_unit, cal.method, cal.created, dict(cal.metadata))
+
+
+def validation_procedure(tilt_deg: float = 30.0, rate_dps: float = 100.0, duration: float = 5.0) -> list[SegmentSpec]:
+    """A short session with known inputs for validating a calibration: static positions with gravity along
+    +-x, +-y, +-z and tilted by ``tilt_deg`` towards the next axis, and rotations at ``rate_dps`` about the three
+    axes in both senses (``duration`` s each). Two tilts give two different sessions of the same unit.
+
+    >>> len(validation_procedure()), validation_procedure()[1].label
+    (18, 'T0')
+    """
+    out = []
+    t = np.radians(tilt_deg)
+    for k, v in enumerate(np.vstack([np.eye(3), -np.eye(3)])):
+        out.append(static(f"S{k}", v, duration))
+        out.append(static(f"T{k}", np.cos(t) * v + np.sin(t) * np.roll(v, 1), duration))
+    for k, a in enumerate(np.eye(3)):
+        for sgn in (1, -1):
+            out.append(rotation(f"R{k}{'p' if sgn > 0 else 'm'}", sgn * rate_dps * DEG_TO_RAD * a, duration))
+    return out

@@ -235,7 +235,8 @@ def test_runtime_columns_equal_the_calibration_columns(instrument):
     from rimu.calibration.model import contexts
     from rimu.sim.procedures import rotation, static
 
-    temp = lambda t: 30.0 + 10.0 * np.sin(t / 3.0)  # noqa: E731
+    def temp(t):
+        return 30.0 + 10.0 * np.sin(t / 3.0)
     sim = Simulator({"gyro": cone6(), "accel": cone6()}, sample_rate=10.0, seed=3, temperature=temp)
     proc = [static("S1", np.array([0.3, -0.5, 0.81]) / np.linalg.norm([0.3, -0.5, 0.81]), 2.0),
             rotation("R1", np.array([0.4, -1.1, 0.7]), 2.0)]

@@ -16,14 +16,15 @@ __all__ = ["CrossCoupling"]
 
 class CrossCoupling(Effect):
     name = "cross_coupling"
-    runtime_needs = ("axis_input", "input")
+    runtime_needs = ("input",)
     description = ("cross-coupling: output error proportional to the product of the input along the sensor's axis "
                    "and along each other sensor axis of the same sub-unit")
     physics = ("Second-order interaction of inputs on two axes (IEEE Std 528 cross-coupling coefficient): the "
                "sensing element, deflected by its own input, becomes sensitive to the cross input. Error = "
-               "sum_j k_ij s_i s_j over the other sensors j of the sub-unit (s_i along the sensor's own axis, s_j "
-               "along the nominal axis of sensor j: the cross directions of the case); reported in ppm per unit "
-               "of input. Linear cross-axis sensitivity is misalignment, already in the base model.")
+               "sum_j k_ij s_i s_j over the other sensors j of the sub-unit, with the inputs along the nominal "
+               "axes (the directions of the case: positions with the input along one axis do not excite it, "
+               "whatever the misalignment); reported in ppm per unit of input. Linear cross-axis sensitivity is "
+               "misalignment, already in the base model.")
     excited_by = "inputs along directions between two axes of a sub-unit (rates or tilts at 45 deg in the axis planes)"
 
     def _others(self, ctx: SensorContext) -> list[int]:
@@ -41,7 +42,7 @@ class CrossCoupling(Effect):
         if u is None:
             return None
         u = np.asarray(u, dtype=float)
-        s_i = u @ ctx.axis
+        s_i = u @ ctx.geometry.H[ctx.index]
         H = ctx.geometry.H[self._others(ctx)]
         return s_i[:, None] * (u @ H.T)
 
@@ -57,14 +58,16 @@ class CrossCoupling(Effect):
         return geometry_cache("cross_coupling.directions", ctxs, make)
 
     def runtime_columns(self, inputs: RuntimeInputs, ctxs: Sequence[SensorContext]) -> np.ndarray:
-        """``s_i (h_j . u)`` over the partners j, (N, n, k), u the instrument's current MB estimate: output-side
-        (the inversion updates u every step)."""
-        cross = np.einsum("nj,ikj->nik", np.asarray(inputs.input, dtype=float), self._directions(ctxs))
-        return inputs.axis_input[:, :, None] * cross
+        """``(h_i . u)(h_j . u)`` over the partners j, (N, n, k), u the instrument's current MB estimate (the
+        inversion updates it every step)."""
+        u = np.asarray(inputs.input, dtype=float)
+        own = u @ ctxs[0].geometry.H.T
+        return own[:, :, None] * np.einsum("nj,ikj->nik", u, self._directions(ctxs))
 
     def runtime_slope(self, inputs: RuntimeInputs, ctxs: Sequence[SensorContext]) -> np.ndarray:
-        """Against the sensor's own input, u held (the inversion re-estimates u each step)."""
-        return np.einsum("nj,ikj->nik", np.asarray(inputs.input, dtype=float), self._directions(ctxs))
+        """Zero against the sensor's own output with u held (the inversion re-estimates u each step)."""
+        u = np.asarray(inputs.input, dtype=float)
+        return np.zeros((u.shape[0], len(ctxs), self._directions(ctxs).shape[1]))
 
     def runtime_form(self, ctxs: Sequence[SensorContext]) -> RuntimeForm:
         D = self._directions(ctxs)
