@@ -8,6 +8,7 @@ keeps working. Messages say what was wrong and what to do about it.
 from __future__ import annotations
 
 __all__ = [
+    "ExportError",
     "RimuError",
     "GeometryError",
     "RankDeficientError",
@@ -105,3 +106,7 @@ class MissingInputError(RimuError, ValueError):
         super().__init__(message)
         self.effect = effect
         self.input_name = input_name
+
+
+class ExportError(RimuError, ValueError):
+    """A calibration cannot be exported as flight code (an effect without a C compensation, missing noise, ...)."""
