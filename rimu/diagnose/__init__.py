@@ -18,6 +18,7 @@ from .api import (
     candidate_effects,
     compare,
     diagnose,
+    effect_sensors,
     format_p,
     iterate,
 )
@@ -34,6 +35,7 @@ __all__ = [
     "Finding",
     "InstrumentDiagnosis",
     "Iteration",
+    "effect_sensors",
     "ModelFit",
     "SensorFit",
     "SensorStats",

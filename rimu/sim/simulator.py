@@ -21,7 +21,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from ..calibration.model import Effect, SensorContext
+from ..calibration.model import Effect, SensorContext, unit_axes
 from ..calibration.result import Calibration, InstrumentCalibration
 from ..epoch import INSTRUMENTS, EpochBlock
 from ..geometry import Geometry, cone6
@@ -185,7 +185,9 @@ class Simulator:
         fs = self.sample_rate
         lat = None if self.latitude_deg is None else self.latitude_deg * DEG_TO_RAD
         mount = rotation_matrix(np.zeros(3) if self.mount_error_rad is None else np.asarray(self.mount_error_rad, float))
-        ctxs = {k: [SensorContext(k, i, g, lat, self.gravity) for i in range(g.n)] for k, g in self.geometries.items()}
+        # further effects act on what each sensor really senses: its true axis
+        ctxs = {k: [SensorContext(k, i, g, lat, self.gravity, axes=unit_axes(truth[k].axes_mb())) for i in range(g.n)]
+                for k, g in self.geometries.items()}
         rw_state = {k: np.zeros(g.n) for k, g in self.geometries.items()}
         lever = None if self.lever_arm_m is None else np.asarray(self.lever_arm_m, dtype=float)
         segments, truth_segments, inputs_all, idx_all = [], [], {k: [] for k in self.geometries}, []
