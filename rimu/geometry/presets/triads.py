@@ -9,7 +9,8 @@ rows ``3k, 3k+1, 3k+2`` of H, named ``<triad>_x``, ``<triad>_y``, ``<triad>_z``.
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
