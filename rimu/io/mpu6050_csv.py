@@ -21,7 +21,7 @@ from ..errors import SessionFormatError
 from ..units import DEG_TO_RAD, G0
 from .multiimu import MultiImuCsvSource, MultiImuRecording, open_text, read_multi_imu_csv
 
-__all__ = ["read_mpu6050_csv", "Mpu6050CsvSource", "INT16_LIMITS"]
+__all__ = ["INT16_LIMITS", "Mpu6050CsvSource", "read_mpu6050_csv"]
 
 INT16_LIMITS = (-32768.0, 32767.0)
 

@@ -55,11 +55,11 @@ __all__ = [
     "UNIT_FACTORS",
     "ImuColumns",
     "ImuStream",
+    "MultiImuCsvSource",
     "MultiImuMapping",
     "MultiImuRecording",
-    "MultiImuCsvSource",
-    "read_multi_imu_csv",
     "open_text",
+    "read_multi_imu_csv",
     "resample_stream",
 ]
 
@@ -91,7 +91,7 @@ def open_text(path: str | os.PathLike[str]) -> io.TextIOBase:
         raise TransportError(f"no file at {p}")
     opener = {".xz": lzma.open, ".gz": gzip.open, ".bz2": bz2.open}.get(p.suffix.lower())
     if opener is None:
-        return open(p, newline="", encoding="utf-8")  # noqa: SIM115
+        return open(p, newline="", encoding="utf-8")
     return opener(p, "rt", newline="", encoding="utf-8")  # type: ignore[operator,no-any-return]
 
 

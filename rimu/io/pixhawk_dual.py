@@ -15,7 +15,7 @@ from typing import Any
 
 from .multiimu import MultiImuCsvSource, MultiImuRecording, read_multi_imu_csv
 
-__all__ = ["PIXHAWK_DUAL_MAPPING", "read_pixhawk_dual", "PixhawkDualSource"]
+__all__ = ["PIXHAWK_DUAL_MAPPING", "PixhawkDualSource", "read_pixhawk_dual"]
 
 #: the column mapping of the extracted CSV (see :mod:`rimu.io.multiimu`)
 PIXHAWK_DUAL_MAPPING: dict[str, Any] = {

@@ -22,7 +22,7 @@ from typing import Any
 from ..errors import SessionFormatError
 from .multiimu import MultiImuCsvSource, MultiImuRecording, read_multi_imu_csv
 
-__all__ = ["read_xsens_dot_run", "XsensDotSource"]
+__all__ = ["XsensDotSource", "read_xsens_dot_run"]
 
 _UNIT_FILE = re.compile(r"^IMU_(\d+)\.csv(\.xz|\.gz|\.bz2)?$")
 

@@ -17,16 +17,14 @@ from tests.conftest import shared_data
 def _write_two_clock_unit(d, offset_s=0.0123):
     """IMU a in one file at 100 Hz, IMU b in another with its own clock running ``offset_s`` ahead."""
     t = np.arange(200) * 0.01
-    rate = lambda tt: np.column_stack([np.sin(tt), np.cos(2 * tt), 0.5 * tt])  # noqa: E731  deg/s
+    rate = lambda tt: np.column_stack([np.sin(tt), np.cos(2 * tt), 0.5 * tt])
     with open(d / "a.csv", "w") as fh:
         fh.write("time_ms,gx,gy,gz,ax,ay,az,T\n")
-        for tk, g in zip(t, rate(t)):
-            fh.write(f"{float(tk) * 1e3!r},{float(g[0])!r},{float(g[1])!r},{float(g[2])!r},0,0,1,25.0\n")
+        fh.writelines(f"{float(tk) * 1e3!r},{float(g[0])!r},{float(g[1])!r},{float(g[2])!r},0,0,1,25.0\n" for tk, g in zip(t, rate(t)))
     tb = t[:150] + 0.004                                  # b samples at other instants, stamps + offset
     with open(d / "b.csv", "w") as fh:
         fh.write("time_ms,gx,gy,gz,ax,ay,az,T\n")
-        for tk, g in zip(tb, rate(tb)):
-            fh.write(f"{float(tk + offset_s) * 1e3!r},{float(g[0])!r},{float(g[1])!r},{float(g[2])!r},0,0,1000,\n")
+        fh.writelines(f"{float(tk + offset_s) * 1e3!r},{float(g[0])!r},{float(g[1])!r},{float(g[2])!r},0,0,1000,\n" for tk, g in zip(tb, rate(tb)))
     mapping = {"time": "time_ms", "time_unit": "ms", "imus": [
         {"name": "a", "file": "a.csv", "gyro": ["gx", "gy", "gz"], "gyro_unit": "deg/s",
          "accel": ["ax", "ay", "az"], "accel_unit": "g", "temperature": "T"},
