@@ -32,7 +32,7 @@ def read_pixhawk_dual(path: str | os.PathLike[str]) -> MultiImuRecording:
     if p.is_dir():
         p = p / "01_07_59_imu01.csv.xz"
     rec = read_multi_imu_csv(PIXHAWK_DUAL_MAPPING, p)
-    rec.meta.update({"format": "pixhawk-dual", "devices": {"imu0": "MPU-6000", "imu1": "L3GD20 + LSM303D"}})
+    rec.meta.update({"format": "pixhawk-dual", "body_frame": True, "devices": {"imu0": "MPU-6000", "imu1": "L3GD20 + LSM303D"}})
     return rec
 
 
