@@ -167,7 +167,7 @@ def setup_multi_imu(recording: MultiImuRecording, average_s: float | None = 0.1,
     full = recording.to_block(offsets_s=None if timing is None else timing.offsets_s, reference=reference)
     n_avg = 1
     if average_s:
-        n_avg = max(1, int(round(average_s / float(np.median(np.diff(full.t))))))
+        n_avg = max(1, round(average_s / float(np.median(np.diff(full.t)))))
     block = average_block(full, n_avg)
     lo, hi = (-np.inf, np.inf) if fit_window_s is None else (float(fit_window_s[0]), float(fit_window_s[1]))
     win = (block.t >= lo) & (block.t <= hi)

@@ -17,6 +17,7 @@ from .glt import GltDecision, GltSnapshot, GltWindow, glt_snapshot, glt_threshol
 from .kalman import ParityKalman
 from .manager import FdiEvent, Health, HealthState, RedundancyManager, ReplayResult
 from .noise import NoiseEstimator
+from .px4_selector import Px4GyroSelector, Px4SelectorResult
 from .parity import IsolabilityReport, detection_probability, isolability, wrong_isolation_bounds
 from .quality import QualityReport, parity_quality
 
@@ -32,6 +33,8 @@ __all__ = [
     "markov_arl",
     "ParityKalman",
     "MeanDisagreement",
+    "Px4GyroSelector",
+    "Px4SelectorResult",
     "CalibrationAwareGlt",
     "CalibrationCovariance",
     "stated_covariance",
