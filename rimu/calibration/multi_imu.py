@@ -48,6 +48,8 @@ class MultiImuSetup:
         the reference triad, noise per sensor.
     block : EpochBlock
         The whole recording on one time base (averaged when ``average_s`` was given).
+    full_block : EpochBlock
+        The same before averaging (clock offsets removed), ``n_average`` epochs per epoch of ``block``.
     timing : TimingResult or None
         Clock offsets (None for a recording with one clock).
     alignments : list of AlignmentResult
@@ -62,6 +64,12 @@ class MultiImuSetup:
     alignments: list[AlignmentResult] = field(default_factory=list)
     delivering: list[str] = field(default_factory=list)
     fit_window_s: tuple[float, float] = (float("-inf"), float("inf"))
+    full_block: EpochBlock | None = None
+    n_average: int = 1
+
+    def average(self, full_block: EpochBlock) -> EpochBlock:
+        """Average a block on the full-rate time base (e.g. one with injected faults) as :attr:`block` was."""
+        return average_block(full_block, self.n_average)
 
     def report(self) -> str:
         """Human-readable summary: offsets (ms), rotations (deg with 1-sigma), noise levels."""
@@ -218,4 +226,4 @@ def setup_multi_imu(recording: MultiImuRecording, average_s: float | None = 0.1,
     meta: dict[str, Any] = {"source": recording.meta.get("source") or recording.meta.get("folder"),
                             "averaged": n_avg, "reference": names[reference]}
     cal = Calibration(cals, raw_unit="SI", method="multi-imu-setup", metadata=meta)
-    return MultiImuSetup(cal, block, timing, alignments, delivering, (lo, hi))
+    return MultiImuSetup(cal, block, timing, alignments, delivering, (lo, hi), full, n_avg)

@@ -15,6 +15,7 @@ wrong (reported as ``ambiguous``).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,7 +23,7 @@ import numpy as np
 from ..errors import ShapeError
 from ..units import DEG_TO_RAD
 
-__all__ = ["Px4SelectorResult", "Px4GyroSelector"]
+__all__ = ["Px4GyroSelector", "Px4SelectorResult"]
 
 
 @dataclass
@@ -85,6 +86,16 @@ class Px4GyroSelector:
         V = np.ones((N, k), bool) if valid is None else np.asarray(valid, bool)
         V = V & np.isfinite(W).all(axis=2)
         dt = np.diff(t, prepend=t[0] - (t[1] - t[0] if N > 1 else 0.0))
+        Wn = np.where(V[:, :, None], W, np.nan)
+        excess = np.zeros((N, k))
+        for i in range(k):
+            others = np.delete(Wn, i, axis=1)
+            has = np.isfinite(others).all(axis=2).any(axis=1) & V[:, i]
+            with warnings.catch_warnings():  # an all-NaN slice (no other IMU delivered) is handled by `has`
+                warnings.simplefilter("ignore", RuntimeWarning)
+                med = np.nanmedian(others, axis=1)
+            d = np.linalg.norm(np.nan_to_num(W[:, i] - med), axis=1)
+            excess[:, i] = np.where(has, (d - self.rate_threshold) * dt, -np.inf)
         E = np.zeros(k)
         acc = np.zeros((N, k))
         t_flag = np.full(k, np.nan)
@@ -93,16 +104,15 @@ class Px4GyroSelector:
         for n in range(N):
             ok = V[n]
             last_ok[ok] = t[n]
-            for i in range(k):
-                others = [j for j in range(k) if j != i and ok[j]]
-                if ok[i] and others:
-                    med = np.median(W[n, others], axis=0)
-                    d = float(np.linalg.norm(W[n, i] - med))
-                    E[i] = max(0.0, E[i] + (d - self.rate_threshold) * dt[n])
-                if np.isnan(t_flag[i]):
-                    if E[i] > self.angle_threshold:
-                        t_flag[i], reason[i] = t[n], "disagreement"
-                    elif t[n] - last_ok[i] >= self.timeout_s:
-                        t_flag[i], reason[i] = t[n], "timeout"
+            x = excess[n]
+            E = np.where(np.isfinite(x), np.maximum(0.0, E + np.where(np.isfinite(x), x, 0.0)), E)
             acc[n] = E
+            new = np.isnan(t_flag) & (E > self.angle_threshold)
+            t_flag[new] = t[n]
+            for i in np.flatnonzero(new):
+                reason[i] = "disagreement"
+            late = np.isnan(t_flag) & (t[n] - last_ok >= self.timeout_s)
+            t_flag[late] = t[n]
+            for i in np.flatnonzero(late):
+                reason[i] = "timeout"
         return Px4SelectorResult(t_flag, reason, acc)
