@@ -60,9 +60,9 @@ class Px4GyroSelector:
     Examples
     --------
     >>> rng = np.random.default_rng(0)
-    >>> W = np.repeat(rng.normal(0, 0.5, (1000, 1, 3)), 3, axis=1)       # three IMUs, same motion, no noise
+    >>> W = np.repeat(rng.normal(0, 0.5, (1200, 1, 3)), 3, axis=1)       # three IMUs, same motion, no noise
     >>> W[500:, 1, 0] += np.radians(10.0)           # 10 deg/s bias on IMU 1 from t = 5 s
-    >>> r = Px4GyroSelector().run(np.arange(1000) / 100.0, W)
+    >>> r = Px4GyroSelector().run(np.arange(1200) / 100.0, W)
     >>> r.first()[0], round(r.first()[1], 1)       # (10 - 7) deg/s takes 5 s to reach 15 deg
     (1, 10.0)
     """
@@ -95,24 +95,20 @@ class Px4GyroSelector:
                 warnings.simplefilter("ignore", RuntimeWarning)
                 med = np.nanmedian(others, axis=1)
             d = np.linalg.norm(np.nan_to_num(W[:, i] - med), axis=1)
-            excess[:, i] = np.where(has, (d - self.rate_threshold) * dt, -np.inf)
-        E = np.zeros(k)
-        acc = np.zeros((N, k))
+            excess[:, i] = np.where(has, (d - self.rate_threshold) * dt, 0.0)  # no comparison: E unchanged
+        # E_n = max(0, E_{n-1} + x_n) is Lindley's recursion: E_n = S_n - min(0, min_{m <= n} S_m), S = cumsum x
+        S = np.cumsum(excess, axis=0)
+        acc = S - np.minimum(np.minimum.accumulate(S, axis=0), 0.0)
         t_flag = np.full(k, np.nan)
         reason = [""] * k
-        last_ok = np.full(k, t[0])
-        for n in range(N):
-            ok = V[n]
-            last_ok[ok] = t[n]
-            x = excess[n]
-            E = np.where(np.isfinite(x), np.maximum(0.0, E + np.where(np.isfinite(x), x, 0.0)), E)
-            acc[n] = E
-            new = np.isnan(t_flag) & (E > self.angle_threshold)
-            t_flag[new] = t[n]
-            for i in np.flatnonzero(new):
-                reason[i] = "disagreement"
-            late = np.isnan(t_flag) & (t[n] - last_ok >= self.timeout_s)
-            t_flag[late] = t[n]
-            for i in np.flatnonzero(late):
-                reason[i] = "timeout"
+        idx = np.arange(N)
+        for i in range(k):
+            over = np.flatnonzero(acc[:, i] > self.angle_threshold)
+            t_dis = t[over[0]] if over.size else np.inf
+            last = np.maximum.accumulate(np.where(V[:, i], idx, 0))      # last valid sample (the first if none)
+            stale = np.flatnonzero(t - t[last] >= self.timeout_s)
+            t_out = t[stale[0]] if stale.size else np.inf
+            if np.isfinite(min(t_dis, t_out)):
+                t_flag[i] = min(t_dis, t_out)
+                reason[i] = "disagreement" if t_dis <= t_out else "timeout"
         return Px4SelectorResult(t_flag, reason, acc)
