@@ -38,7 +38,7 @@ def test_below_the_dead_band_never_flags_and_two_imus_are_ambiguous():
     t, W = _three(6.9)
     assert Px4GyroSelector().run(t, W).first()[0] == -1
     t, W = _three(10.0, imus=2)
-    who, tf, amb = Px4GyroSelector().run(t, W).first()
+    _, tf, amb = Px4GyroSelector().run(t, W).first()
     assert amb and tf == pytest.approx(15.0, abs=0.02)
 
 
