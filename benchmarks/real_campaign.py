@@ -278,7 +278,7 @@ def main() -> None:
         su = setup(rec)
         ev, c_r = run_rimu(su, su.block)
         px, c_p = run_px4(su, su.full_block)
-        cost["rimu"].append(c_r * su.n_average)  # per full-rate sample of data
+        cost["rimu"].append(c_r / su.n_average)  # per full-rate sample of data (it runs once per n_average)
         cost["px4"].append(c_p)
         clean_false[grp]["rimu"] += sum(1 for e in ev if e[1] != "detected")
         clean_false[grp]["rimu_detections"] += sum(1 for e in ev if e[1] == "detected")

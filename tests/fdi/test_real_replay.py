@@ -57,6 +57,9 @@ def test_full_replay_without_isolation(kind, run):
         if iso or mgr.isolated.any():
             problems.append(f"{inst}: isolations {iso}, parity rms {rms:.2f} sigma, "
                             f"alarm rate {res.alarm.mean():.3%}")
+        # the alarm rate is far above the design 0.1 % (heavy-tailed flight disagreement); the confirmation carries
+        # it today (docs/real-units.md: "up to 10 %")
+        assert res.alarm.mean() < 0.10, (inst, res.alarm.mean())
         # the unit's state is the one its geometry allows, with every sensor active
         k = len(rec.names)
         want = {1: HealthState.NO_REDUNDANCY, 2: HealthState.DETECTION_ONLY}.get(k, HealthState.NOMINAL)
