@@ -7,7 +7,7 @@ manager, and replays it twice: as recorded, and with a 10 deg/s gyro bias inject
 Plots the fused rate, the normalised parity with its threshold and the validity flag (health state, active
 sensors) over the flight.
 
-    python examples/real_units.py [quadrotor|pixhawk] [data_folder] [out_folder]
+    python examples/real_units.py [quadrotor|pixhawk] [data_folder] [out_folder] [--no-plot]
 """
 
 from __future__ import annotations
@@ -100,6 +100,8 @@ def plot(path: Path, su: MultiImuSetup, runs: dict[str, dict[str, Any]], title: 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     argv = sys.argv[1:] if argv is None else argv
+    want_plot = "--no-plot" not in argv
+    argv = [a for a in argv if a != "--no-plot"]
     which = argv[0] if argv else "quadrotor"
     data = Path(argv[1]) if len(argv) > 1 else default_data()
     out = Path(argv[2]) if len(argv) > 2 else Path("rimu-example")
@@ -124,7 +126,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
               f"{r['alarm'].mean():.1%} of samples, events {ev[:6]}")
     acc = replay(su, su.block, "accel")
     print(f"accelerometers as recorded: final state {acc['final_state']}, isolated {acc['isolated']}")
-    png = plot(out / f"real_units_{which}.png", su, runs, "Xsens DOT x4" if which != "pixhawk" else "Pixhawk x2")
+    png = (plot(out / f"real_units_{which}.png", su, runs, "Xsens DOT x4" if which != "pixhawk" else "Pixhawk x2")
+           if want_plot else None)
     print(f"{k} triads, {len(su.block)} epochs at {1 / np.median(np.diff(su.block.t)):.1f} Hz -> "
           f"{png if png else 'no plot'}")
     return {"setup": su, "runs": runs, "accel": acc, "png": png}
