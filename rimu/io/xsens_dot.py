@@ -19,10 +19,13 @@ import re
 from pathlib import Path
 from typing import Any
 
-from ..errors import SessionFormatError
-from .multiimu import MultiImuCsvSource, MultiImuRecording, read_multi_imu_csv
+import numpy as np
 
-__all__ = ["XsensDotSource", "read_xsens_dot_run"]
+from ..errors import SessionFormatError
+from ..units import DEG_TO_RAD
+from .multiimu import ImuStream, MultiImuCsvSource, MultiImuRecording, _read_table, read_multi_imu_csv
+
+__all__ = ["XsensDotSource", "read_xsens_dot_raw", "read_xsens_dot_run"]
 
 _UNIT_FILE = re.compile(r"^IMU_(\d+)\.csv(\.xz|\.gz|\.bz2)?$")
 
@@ -46,6 +49,46 @@ def read_xsens_dot_run(folder: str | os.PathLike[str]) -> MultiImuRecording:
     rec = read_multi_imu_csv({"imus": imus}, d / files[0][1], on_bad_time="grid")
     rec.meta.update({"format": "xsens-dot", "run": d.name, "folder": str(d), "own_clocks": True})
     return rec
+
+
+_GYR = ("Gyr_X", "Gyr_Y", "Gyr_Z")
+_ACC = ("Acc_X", "Acc_Y", "Acc_Z")
+_RAW_FILE = re.compile(r"^Xsens_DOT(\d+)_.*\.csv(\.xz|\.gz|\.bz2)?$")
+
+
+def read_xsens_dot_raw(folder: str | os.PathLike[str]) -> MultiImuRecording:
+    """Read the untrimmed exports ``Xsens_DOT<k>_<address>_<date>_<time>.csv[.xz]`` of a folder (units ``dot<k>``).
+
+    Their time is ``SampleTimeFine`` (microseconds of the units' synchronised clock, an unsigned 32-bit counter:
+    a wrap is unwrapped); all units share it (``meta["own_clocks"]`` is False) and the times start at the
+    earliest sample of any unit. A row whose accelerometer and gyro values are all exactly zero (the export's
+    first row before the first measurement) is invalid, not a measurement of zero.
+    """
+    d = Path(folder)
+    files = sorted(((int(m.group(1)), f) for f in d.iterdir() if (m := _RAW_FILE.match(f.name))),
+                   key=lambda x: x[0]) if d.is_dir() else []
+    if not files:
+        raise SessionFormatError(f"{d}: no Xsens_DOT<k>_*.csv[.xz] files")
+    units = []
+    for k, f in files:
+        data = _read_table(f, ["SampleTimeFine", *_GYR, *_ACC], 0, ",")
+        t = data["SampleTimeFine"].copy()
+        wraps = np.cumsum(np.where(np.diff(t) < -2.0**31, 2.0**32, 0.0))
+        t[1:] += wraps
+        if np.any(np.diff(t) <= 0):
+            bad = int(np.argmax(np.diff(t) <= 0))
+            raise SessionFormatError(f"{f}: SampleTimeFine does not increase at data row {bad + 2}")
+        g = np.column_stack([data[c] for c in _GYR]) * DEG_TO_RAD
+        a = np.column_stack([data[c] for c in _ACC])
+        zero = (g == 0).all(axis=1) & (a == 0).all(axis=1)
+        g[zero] = np.nan
+        a[zero] = np.nan
+        units.append(ImuStream(f"dot{k}", t * 1e-6, g, a))
+    t0 = min(u.t[0] for u in units)
+    for u in units:
+        u.t = u.t - t0
+    return MultiImuRecording(units, {"source": str(d), "format": "xsens-dot-raw", "folder": str(d),
+                                     "own_clocks": False, "t0_s": t0})
 
 
 class XsensDotSource(MultiImuCsvSource):
