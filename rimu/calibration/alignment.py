@@ -209,7 +209,7 @@ def fit_rotation(sets: Sequence[VectorSet], correlated: bool = True, iterations:
         bm = s.unit.mean(axis=0) if s.fit_offset else np.zeros(3)
         cent[s.name] = (s.reference - rm, s.unit - bm, rm, bm)
     sig: dict[str, float] = {}
-    for it in range(max(1, iterations)):
+    for _it in range(max(1, iterations)):
         B = np.zeros((3, 3))
         for s in sets:
             rc, bc, _, _ = cent[s.name]

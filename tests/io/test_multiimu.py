@@ -17,7 +17,8 @@ from tests.conftest import shared_data
 def _write_two_clock_unit(d, offset_s=0.0123):
     """IMU a in one file at 100 Hz, IMU b in another with its own clock running ``offset_s`` ahead."""
     t = np.arange(200) * 0.01
-    rate = lambda tt: np.column_stack([np.sin(tt), np.cos(2 * tt), 0.5 * tt])
+    def rate(tt):
+        return np.column_stack([np.sin(tt), np.cos(2 * tt), 0.5 * tt])
     with open(d / "a.csv", "w") as fh:
         fh.write("time_ms,gx,gy,gz,ax,ay,az,T\n")
         fh.writelines(f"{float(tk) * 1e3!r},{float(g[0])!r},{float(g[1])!r},{float(g[2])!r},0,0,1,25.0\n" for tk, g in zip(t, rate(t)))
