@@ -28,7 +28,6 @@ import numpy as np
 
 from ..epoch import EpochBlock
 from ..errors import ShapeError
-from ..io.multiimu import MultiImuRecording
 from ..units import RAD_TO_DEG
 from .alignment import AlignmentResult, align_triads
 from .result import Calibration, InstrumentCalibration
@@ -141,7 +140,7 @@ def triad_noise(Z: np.ndarray) -> np.ndarray:
     return out
 
 
-def setup_multi_imu(recording: MultiImuRecording, average_s: float | None = 0.1, reference: int = 0,
+def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: int = 0,
                     fit_window_s: Sequence[float] | None = None, estimate_clocks: bool | None = None,
                     max_lag_s: float = 0.5, min_rate_rad_s: float = 0.05, align_axes: bool | None = None
                     ) -> MultiImuSetup:
@@ -149,7 +148,9 @@ def setup_multi_imu(recording: MultiImuRecording, average_s: float | None = 0.1,
 
     Parameters
     ----------
-    recording : MultiImuRecording
+    recording : rimu.io.multiimu.MultiImuRecording
+        (or anything with its ``names``, ``units``, ``meta``, ``instruments()`` and ``to_block()``: calibration
+        does not import io)
     average_s : float or None
         Block-average length, s (None or 0: none).
     reference : int

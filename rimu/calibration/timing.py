@@ -28,7 +28,6 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from ..errors import ShapeError
-from ..io.multiimu import MultiImuRecording
 from .alignment import effective_fraction
 
 __all__ = ["OffsetResult", "TimingResult", "estimate_offset", "estimate_offsets"]
@@ -183,9 +182,12 @@ def estimate_offset(t_ref: np.ndarray, m_ref: np.ndarray, t: np.ndarray, m: np.n
     return OffsetResult(name, float(tau), float(np.sqrt(cov[0, 0])), float(coarse), peak, int(sel.sum()), infl)
 
 
-def estimate_offsets(recording: MultiImuRecording, reference: int | str = 0, max_lag_s: float = 0.5,
+def estimate_offsets(recording: Any, reference: int | str = 0, max_lag_s: float = 0.5,
                      correlated: bool = True) -> TimingResult:
     """Clock offset of every unit of a multi-IMU recording against the reference unit, from rate magnitudes.
+
+    ``recording`` is a :class:`rimu.io.multiimu.MultiImuRecording` or anything with ``names`` and ``units``
+    (each with ``name``, ``t`` and ``gyro``): calibration does not import io (the layering rule).
 
     Pass ``result.offsets_s`` to :meth:`MultiImuRecording.to_block` to put the units on one time base.
     """
