@@ -16,6 +16,7 @@ from .cusum import CusumBank, cusum_threshold, markov_arl, siegmund_arl
 from .glt import GltDecision, GltSnapshot, GltWindow, glt_snapshot, glt_threshold
 from .kalman import ParityKalman
 from .manager import FdiEvent, Health, HealthState, RedundancyManager, ReplayResult
+from .motion import MotionAwareGlt, MotionNoiseModel, fit_motion_terms
 from .noise import NoiseEstimator
 from .px4_selector import Px4GyroSelector, Px4SelectorResult
 from .parity import IsolabilityReport, detection_probability, isolability, wrong_isolation_bounds
@@ -36,6 +37,9 @@ __all__ = [
     "Px4GyroSelector",
     "Px4SelectorResult",
     "CalibrationAwareGlt",
+    "MotionAwareGlt",
+    "MotionNoiseModel",
+    "fit_motion_terms",
     "CalibrationCovariance",
     "stated_covariance",
     "NoiseEstimator",

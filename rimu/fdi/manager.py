@@ -32,7 +32,7 @@ import numpy as np
 
 from ..errors import ShapeError
 from ..fusion import InstrumentPipeline, StepResult
-from ..fusion.projection import bits_mask
+from ..fusion.projection import ActiveSet, ProjectionTable
 from .glt import GltSnapshot, glt_threshold
 from .parity import column_correlations
 
@@ -175,15 +175,7 @@ class RedundancyManager:
         self.max_events = int(max_events)
         cal = pipeline.calibration
         self.names = list(cal.geometry.names)
-        tab = pipeline.table
-        self.isolable = np.zeros(len(tab.codes), dtype=bool)
-        for e in range(len(tab.codes)):
-            d = int(tab.dof[e])
-            if d >= 2 and tab.observable[e]:
-                act = bits_mask(int(tab.codes[e]), tab.n)
-                rho = column_correlations(tab.Vz[e, :d])[np.ix_(act, act)]
-                off = np.abs(rho[~np.eye(len(rho), dtype=bool)])
-                self.isolable[e] = bool(np.all(off < 1 - 1e-6))
+        self.isolable = _Isolable(pipeline.table)  # per active set, computed when the set first occurs
         self._uses_input = bool(getattr(self.detector, "uses_input", False))
         self._thr1 = glt_threshold(p_fa, 1)
         self._axes = cal.axes_mb()
@@ -406,11 +398,32 @@ class RedundancyManager:
 
     def _run_loop(self, Y, valid, t, x, stat, thr, alarm, state, n_act) -> None:  # type: ignore[no-untyped-def]
         h = self.health
-        codes = self.pipeline.table.codes
-        nact = np.array([bin(int(c)).count("1") if c >= 0 else 0 for c in codes])
         for k in range(len(Y)):
             r = self.step(Y[k], None if valid is None else valid[k], float(t[k]))
             x[k] = r.x
             stat[k], thr[k], alarm[k] = h.statistic, h.threshold, h.alarm
             state[k] = STATE_CODES[h.state]
-            n_act[k] = nact[r.entry] if r.entry >= 0 else 0
+            n_act[k] = r.dof + 3 if r.observable else int(r.active.sum())
+
+
+class _Isolable:
+    """``isolable[entry]``: the active set can isolate one fault (dof >= 2 and no two parity columns collinear),
+    computed once per set when it first occurs (a unit of many sensors has too many sets to tabulate)."""
+
+    def __init__(self, table: ProjectionTable) -> None:
+        self._table = table
+
+    @staticmethod
+    def _compute(s: ActiveSet) -> bool:
+        d = s.dof
+        if d < 2 or not s.observable:
+            return False
+        act = s.active
+        rho = column_correlations(s.Vz[:d])[np.ix_(act, act)]
+        off = np.abs(rho[~np.eye(len(rho), dtype=bool)])
+        return bool(np.all(off < 1 - 1e-6))
+
+    def __getitem__(self, entry: int) -> bool:
+        if entry < 0:
+            return False
+        return bool(self._table.derived("isolable", int(entry), self._compute))
