@@ -18,6 +18,7 @@ from .kalman import ParityKalman
 from .manager import FdiEvent, Health, HealthState, RedundancyManager, ReplayResult
 from .motion import MotionAwareGlt, MotionNoiseModel, fit_motion_terms
 from .noise import NoiseEstimator
+from .px4_selector import Px4GyroSelector, Px4SelectorResult
 from .parity import IsolabilityReport, detection_probability, isolability, wrong_isolation_bounds
 from .quality import QualityReport, parity_quality
 
@@ -33,6 +34,8 @@ __all__ = [
     "markov_arl",
     "ParityKalman",
     "MeanDisagreement",
+    "Px4GyroSelector",
+    "Px4SelectorResult",
     "CalibrationAwareGlt",
     "MotionAwareGlt",
     "MotionNoiseModel",
