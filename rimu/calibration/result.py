@@ -37,6 +37,7 @@ from ..errors import (
     UnsupportedVersionError,
 )
 from ..geometry import Geometry
+from ..noise.model import InstrumentNoise
 
 __all__ = ["InstrumentCalibration", "Calibration", "FORMAT_TAG", "FORMAT_VERSION", "SI_UNITS"]
 
@@ -72,6 +73,10 @@ class InstrumentCalibration:
         Names of the covariance's rows, e.g. ``"x1.scale"``, ``"x1.mis_y"``, ``"x1.bias"``.
     effects : dict
         Further named effects: ``{effect_name: {param_name: value}}`` in SI units.
+    noise : InstrumentNoise or None
+        Optional noise terms of every sensor (IEEE Std 952: quantisation, random walk, bias instability,
+        rate random walk; :mod:`rimu.noise`), e.g. from ``rimu noise``; the detectors of :mod:`rimu.fdi` take
+        them as ``noise=``. Saved only when present, so files without it read and write as before.
     """
 
     instrument: str
@@ -83,6 +88,7 @@ class InstrumentCalibration:
     covariance: np.ndarray | None = None
     param_names: list[str] = field(default_factory=list)
     effects: dict[str, dict[str, float]] = field(default_factory=dict)
+    noise: InstrumentNoise | None = None
 
     def __post_init__(self) -> None:
         if self.instrument not in INSTRUMENTS:
@@ -117,6 +123,13 @@ class InstrumentCalibration:
             if c.shape != (p, p):
                 raise ShapeError(f"covariance has shape {c.shape}, but {p} param_names are given")
             self.covariance = c
+        if self.noise is not None:
+            if isinstance(self.noise, dict):
+                self.noise = InstrumentNoise.from_dict(self.noise)
+            if list(self.noise.names) != list(self.geometry.names) or self.noise.instrument != self.instrument:
+                raise ShapeError(
+                    f"the noise model is for {self.noise.instrument} sensors {self.noise.names}, this calibration for "
+                    f"{self.instrument} sensors {list(self.geometry.names)}; identify the noise of this unit")
 
     # ------------------------------------------------------------------ constructors
     @classmethod
@@ -177,6 +190,7 @@ class InstrumentCalibration:
             "param_names": list(self.param_names),
             "covariance": None if self.covariance is None else self.covariance.tolist(),
             "effects": self.effects,
+            **({} if self.noise is None else {"noise": self.noise.to_dict()}),
         }
 
     @classmethod
@@ -198,6 +212,7 @@ class InstrumentCalibration:
             None if d.get("covariance") is None else np.array(d["covariance"], dtype=float),
             list(d.get("param_names") or []),
             dict(d.get("effects") or {}),
+            None if d.get("noise") is None else InstrumentNoise.from_dict(d["noise"]),
         )
 
 

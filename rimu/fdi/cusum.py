@@ -19,6 +19,15 @@ approaches ``ln(ARL0) / I`` with ``I = delta^2 / 2`` the Kullback-Leibler inform
 
 :func:`markov_arl` (Brook & Evans 1972) computes the run length of any CUSUM numerically; it checks
 Siegmund's formula in the tests and designs the dead-band baseline (:mod:`rimu.fdi.baseline`).
+
+Coloured noise (``noise=``, :mod:`rimu.fdi.whitening`). Bias instability and rate random walk make X_j's
+mean wander; a CUSUM designed for white X then alarms far more often than 1/ARL0 over a long run. A false
+alarm of a Gaussian CUSUM is an excursion of about ``M = h / k`` samples (conditioned on crossing, the
+increments drift at +k); over such a run the partial sum of X_j has the variance ``M sigma_eff,j^2`` with
+``sigma_eff,j^2 = u_j^T (M C(M)) u_j`` (C the covariance of an M-sample mean of the parity under the noise
+model). Each statistic is designed on ``X_j / sigma_eff,j`` (reference ``delta_j / (2 sigma_eff,j)``, threshold
+from ARL0), iterating ``M`` and ``sigma_eff`` to a fixed point: the white-noise design is the special case
+``sigma_eff = 1``.
 """
 
 from __future__ import annotations
@@ -28,6 +37,8 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import brentq
 from scipy.stats import norm  # noqa: F401  (used by the doctests)
+
+from .whitening import window_covariance
 
 __all__ = ["siegmund_arl", "cusum_threshold", "markov_arl", "CusumBank"]
 
@@ -106,6 +117,8 @@ class CusumBank:
         ``k * sigma`` for a bias of k sigma.
     arl0 : float
         In-control average run length of the whole bank, samples.
+    noise : NoiseSettings or noise model, optional
+        The sensors' noise model: each statistic is designed on its effective sigma (module docstring).
 
     Notes
     -----
@@ -116,11 +129,14 @@ class CusumBank:
     name = "cusum"
     window = 1
 
-    def __init__(self, bias: float | np.ndarray, arl0: float = 1e5) -> None:
+    def __init__(self, bias: float | np.ndarray, arl0: float = 1e5, noise: object = None) -> None:
+        from .glt import as_noise_settings
+
         self.bias = np.asarray(bias, dtype=float)
         if np.any(self.bias <= 0):
             raise ValueError("the design bias must be positive")
         self.arl0 = float(arl0)
+        self.noise = as_noise_settings(noise)
         self._S = np.zeros((2, 0))
         self._dof = 0
         self._last = -1
@@ -142,8 +158,26 @@ class CusumBank:
         m = 2 * int(act.sum())
         thr = np.full(n, np.inf)
         for j in np.flatnonzero(act):
+            if self.noise is not None:
+                s_eff = self.effective_sigma(Vz, dof, U[:, j], delta[j], m * self.arl0)
+                U[:, j] /= s_eff  # X_j / sigma_eff: unit variance over a false-alarm excursion
+                delta[j] /= s_eff
             thr[j] = delta[j] * cusum_threshold(m * self.arl0, delta[j] / 2.0)
         return U, delta, thr, act
+
+    def effective_sigma(self, Vz: np.ndarray, dof: int, u: np.ndarray, delta: float, arl: float,
+                        iterations: int = 8) -> float:
+        """``sigma_eff`` of the statistic along the unit parity direction ``u`` (module docstring), >= 1."""
+        s = 1.0
+        for _ in range(iterations):
+            k = delta / (2.0 * s)
+            M = max(cusum_threshold(arl, k) / k, 1.0)
+            C = window_covariance(Vz, dof, self.noise, M)  # type: ignore[arg-type]
+            s_new = float(np.sqrt(max(u @ C @ u, 1.0)))
+            if abs(s_new - s) < 1e-4 * s:
+                return s_new
+            s = s_new
+        return s
 
     def configure(self, Vz: np.ndarray, dof: int) -> None:
         """Use the parity rows of a new active set; every statistic restarts at zero."""

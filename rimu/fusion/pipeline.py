@@ -99,7 +99,8 @@ class InstrumentPipeline:
     calibration : InstrumentCalibration
     sigma : float or ndarray (n,), optional
         Per-sample noise standard deviation of the compensated outputs, SI. Default: the calibration's
-        ``noise_sigma``; without one, 1.0 (covariances are then in units of sigma^2).
+        ``noise_sigma``, else the per-sample sigma of its ``noise`` model (:mod:`rimu.noise`); without
+        either, 1.0 (covariances are then in units of sigma^2).
     max_excluded : int, optional
         Precompute exclusion sets up to this size (default n - 3).
 
@@ -123,6 +124,8 @@ class InstrumentPipeline:
         n = calibration.geometry.n
         if sigma is None:
             sigma = calibration.noise_sigma if calibration.noise_sigma is not None else 1.0
+            if calibration.noise_sigma is None and getattr(calibration, "noise", None) is not None:
+                sigma = calibration.noise.sample_sigma()  # the identified noise model (rimu.noise)
         self.table = ProjectionTable(calibration.axes_mb(), sigma, max_excluded)
         K = np.concatenate([self.table.G, self.table.Vz], axis=1)  # (K, n, n): outputs x then parity
         self._R = np.ascontiguousarray(K * calibration.scale[None, None, :])

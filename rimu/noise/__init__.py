@@ -21,16 +21,16 @@ from .model import TERMS, InstrumentNoise, NoiseModel, window_mean_difference_va
 
 __all__ = [
     "TERMS",
+    "AllanDeviation",
     "InstrumentNoise",
     "NoiseModel",
-    "window_mean_difference_variance",
-    "allan_deviation",
-    "AllanDeviation",
-    "fit_terms",
-    "parity_allan",
     "ParityWhiteness",
+    "allan_deviation",
+    "fit_terms",
     "identify",
     "identify_session",
+    "parity_allan",
+    "window_mean_difference_variance",
 ]
 
 _LAZY = {

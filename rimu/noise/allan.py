@@ -24,7 +24,7 @@ from scipy.stats import chi2
 
 from ..errors import NonFiniteError, ShapeError
 
-__all__ = ["AllanDeviation", "allan_deviation", "require_allantools", "tau_grid", "edf", "ALPHA_OF_SLOPE"]
+__all__ = ["ALPHA_OF_SLOPE", "AllanDeviation", "allan_deviation", "edf", "require_allantools", "tau_grid"]
 
 #: allantools' alpha of each power-law term (frequency noise S_y(f) ~ f^alpha)
 ALPHA_OF_TERM = {"quantization": 2, "white": 0, "bias_instability": -1, "rate_random_walk": -2}
@@ -110,7 +110,7 @@ class AllanDeviation:
     n_samples: int
     names: list[str] = field(default_factory=list)
 
-    def with_alpha(self, alpha: np.ndarray) -> "AllanDeviation":
+    def with_alpha(self, alpha: np.ndarray) -> AllanDeviation:
         """The same curve with the intervals recomputed for the noise types ``alpha`` (n, m)."""
         alpha = np.asarray(alpha, dtype=int)
         dof = np.array([[edf(int(a), int(m), self.n_samples) for a, m in zip(row, self.cluster)] for row in alpha])

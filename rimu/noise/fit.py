@@ -26,7 +26,7 @@ from ..errors import IdentifiabilityError
 from .allan import ALPHA_OF_TERM, AllanDeviation
 from .model import FLICKER_AVAR, TERMS, InstrumentNoise
 
-__all__ = ["fit_terms", "design_matrix", "fit_instrument", "CORRELATION_INFLATION"]
+__all__ = ["CORRELATION_INFLATION", "design_matrix", "fit_instrument", "fit_terms"]
 
 #: variance inflation of the fitted c for the correlation of overlapping AVAR estimates (8 taus per decade)
 CORRELATION_INFLATION = 4.5

@@ -41,14 +41,14 @@ from ..errors import CalibrationFileError, ShapeError, UnsupportedVersionError
 from ..units import ARCSEC_TO_RAD, ARW_DSQH_TO_RSQS, DH_TO_RS, UG_TO_MS2
 
 __all__ = [
-    "TERMS",
     "FLICKER_AVAR",
+    "NOISE_FORMAT_TAG",
+    "NOISE_FORMAT_VERSION",
+    "TERMS",
     "InstrumentNoise",
     "NoiseModel",
     "structure_function",
     "window_mean_difference_variance",
-    "NOISE_FORMAT_TAG",
-    "NOISE_FORMAT_VERSION",
 ]
 
 #: the terms of the model, in the order of the fit's design matrix
@@ -165,7 +165,7 @@ class InstrumentNoise:
 
     @classmethod
     def from_terms(cls, instrument: str, names: list[str], sample_rate: float, quantization: Any = 0.0,
-                   white: Any = 0.0, bias_instability: Any = 0.0, rate_random_walk: Any = 0.0) -> "InstrumentNoise":
+                   white: Any = 0.0, bias_instability: Any = 0.0, rate_random_walk: Any = 0.0) -> InstrumentNoise:
         """Terms given by hand (SI), e.g. from a data sheet; uncertainties zero."""
         return cls(instrument, list(names), {"quantization": quantization, "white": white,
                                              "bias_instability": bias_instability,
@@ -254,7 +254,7 @@ class InstrumentNoise:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "InstrumentNoise":
+    def from_dict(cls, d: dict[str, Any]) -> InstrumentNoise:
         try:
             allan = d.get("allan")
             return cls(d["instrument"], list(d["names"]), {t: np.array(d["terms"][t], float) for t in TERMS},
@@ -310,7 +310,7 @@ class NoiseModel:
         return path
 
     @classmethod
-    def load(cls, path: str | os.PathLike[str]) -> "NoiseModel":
+    def load(cls, path: str | os.PathLike[str]) -> NoiseModel:
         """Read a noise file; a damaged, foreign or newer file raises a specific error."""
         path = Path(path)
         try:
@@ -320,7 +320,7 @@ class NoiseModel:
         return cls.from_document(doc, str(path))
 
     @classmethod
-    def from_document(cls, doc: Any, source: str = "<document>") -> "NoiseModel":
+    def from_document(cls, doc: Any, source: str = "<document>") -> NoiseModel:
         if not isinstance(doc, dict) or doc.get("format") != NOISE_FORMAT_TAG:
             raise CalibrationFileError(f"{source} is not a rimu noise file (no 'format': '{NOISE_FORMAT_TAG}')")
         v = doc.get("version")

@@ -30,7 +30,7 @@ from ..geometry.base import null_space_rows
 from .allan import ALPHA_OF_TERM, AllanDeviation, allan_deviation
 from .model import TERMS, InstrumentNoise
 
-__all__ = ["ParityWhiteness", "parity_allan", "normalised_parity_matrix"]
+__all__ = ["ParityWhiteness", "normalised_parity_matrix", "parity_allan"]
 
 
 def normalised_parity_matrix(axes_mb: np.ndarray, sigma: np.ndarray) -> np.ndarray:

@@ -52,7 +52,7 @@ class FlickerSource:
             raise ValueError(f"band_s must be (T_min, T_max) with 0 < T_min < T_max, got {band_s}")
         self.rng = rng if rng is not None else np.random.default_rng()
         self.dt = 1.0 / float(sample_rate)
-        k = max(int(math.ceil(math.log10(hi / lo) * per_decade)), 1)
+        k = max(math.ceil(math.log10(hi / lo) * per_decade), 1)
         self.T = np.logspace(math.log10(lo), math.log10(hi), k + 1)
         b = np.broadcast_to(np.asarray(bias_instability, dtype=float), (n,))
         self.s = np.sqrt(b ** 2 * math.log(10.0) / (math.pi * per_decade))  # (n,) per process
@@ -70,7 +70,7 @@ class FlickerSource:
         out = np.zeros((N, n))
         for j, (phi, T) in enumerate(zip(self.phi, self.T)):
             e = self.rng.standard_normal((N, n)) * (self.s * math.sqrt(1.0 - phi * phi))[None, :]
-            y, zf = lfilter([1.0], [1.0, -phi], e, axis=0, zi=(phi * self.state[j])[None, :])
+            y, _zf = lfilter([1.0], [1.0, -phi], e, axis=0, zi=(phi * self.state[j])[None, :])
             self.state[j] = y[-1]
             out += y
         return out
