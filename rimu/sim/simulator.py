@@ -133,7 +133,7 @@ class Simulator:
         accel_bias_rw_ug_sqrt_h: float = 0.0,
         gyro_bias_instability_deg_h: float = 0.0,
         accel_bias_instability_ug: float = 0.0,
-        flicker_band_s: tuple[float, float] = (0.5, 5000.0),
+        flicker_band_s: tuple[float, float] = (0.05, 1e5),
         sample_rate: float = 100.0,
         latitude_deg: float | None = 36.37,
         gravity: float = G0,
