@@ -32,7 +32,7 @@ import numpy as np
 
 from ..errors import ShapeError
 
-__all__ = ["SensorNoise", "NoiseSettings", "window_covariance", "whitener"]
+__all__ = ["NoiseSettings", "SensorNoise", "whitener", "window_covariance"]
 
 
 class SensorNoise(Protocol):

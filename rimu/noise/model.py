@@ -194,11 +194,14 @@ class InstrumentNoise:
     def window_variance(self, tau_s: float, horizon_s: float = 0.0, reference_s: float | None = None) -> np.ndarray:
         """Variance (n,), SI^2, of a window mean of ``tau_s`` against a bias set ``horizon_s`` earlier.
 
-        ``horizon_s = 0``: the white part only, ``N^2 / tau + 2 Q^2 / tau^2`` (a window mean of white noise
-        and quantisation). ``horizon_s > 0``: :func:`window_mean_difference_variance` of the window mean
-        against a reference window of ``reference_s`` (default ``tau_s``) that ended ``horizon_s`` before
-        it, minus the reference's own white part (the calibration's error, stated elsewhere): the
-        bias-instability and random-walk wander of the bias since it was last estimated.
+        * ``horizon_s = 0``: the white part only, ``N^2 / tau + 2 Q^2 / tau^2`` (a window mean of white noise
+          and quantisation);
+        * ``horizon_s > 0`` and ``reference_s`` given: :func:`window_mean_difference_variance`, exactly: the
+          window mean minus the mean of a reference window of ``reference_s`` (the bias estimate) that ended
+          ``horizon_s`` before the window began, every term of both windows included;
+        * ``horizon_s > 0`` without ``reference_s``: a long reference whose white error is stated elsewhere
+          (the calibration's covariance): the window's white part plus the slow terms' wander against a
+          reference of ``tau_s`` (longer references wander less, so this is conservative).
         """
         if not tau_s > 0:
             raise ValueError(f"tau_s must be positive, got {tau_s}")
@@ -206,10 +209,11 @@ class InstrumentNoise:
         white = w * w / tau_s + 2 * q * q / tau_s ** 2
         if not horizon_s > 0:
             return white
-        ref = tau_s if reference_s is None else float(reference_s)
+        if reference_s is not None:
+            return window_mean_difference_variance(tau_s, float(reference_s), float(horizon_s), self.terms)
         slow = {"quantization": np.zeros(self.n), "white": np.zeros(self.n),
                 "bias_instability": self.terms["bias_instability"], "rate_random_walk": self.terms["rate_random_walk"]}
-        return white + window_mean_difference_variance(tau_s, ref, float(horizon_s), slow)
+        return white + window_mean_difference_variance(tau_s, tau_s, float(horizon_s), slow)
 
     # ------------------------------------------------------------------ reports
     def table_rows(self) -> list[dict[str, Any]]:

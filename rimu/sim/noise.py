@@ -64,6 +64,12 @@ class FlickerSource:
         """Stationary variance of the sum, (n,), SI^2."""
         return len(self.T) * self.s ** 2
 
+    def skip(self, N: int) -> None:
+        """Advance the state by N samples without making them (exact: ``x <- phi^N x + sqrt(1 - phi^2N) s w``)."""
+        f = self.phi ** int(N)
+        w = self.rng.standard_normal(self.state.shape)
+        self.state = f[:, None] * self.state + np.sqrt(1.0 - f * f)[:, None] * self.s[None, :] * w
+
     def draw(self, N: int) -> np.ndarray:
         """The next N samples, (N, n)."""
         n = self.s.shape[0]
