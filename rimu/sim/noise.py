@@ -28,8 +28,10 @@ class FlickerSource:
         Hz.
     bias_instability : float or ndarray (n,)
         B, SI (rad/s, m/s^2).
-    band_s : (float, float)
-        Shortest and longest time constant, s: the flat part of the Allan deviation lies well inside.
+    band_s : (float, float), optional
+        Shortest and longest time constant, s: the flat part of the Allan deviation lies well inside. Default
+        ``(0.2 / sample_rate, 1e5)``: flicker down to the sample interval, so that every tau of a recording
+        sees the 1/f spectrum.
     per_decade : int
         Gauss-Markov processes per decade of time constant.
     rng : numpy Generator
@@ -45,9 +47,9 @@ class FlickerSource:
     """
 
     def __init__(self, n: int, sample_rate: float, bias_instability: float | np.ndarray,
-                 band_s: tuple[float, float] = (0.05, 1e5), per_decade: int = 5,
+                 band_s: tuple[float, float] | None = None, per_decade: int = 5,
                  rng: np.random.Generator | None = None) -> None:
-        lo, hi = band_s
+        lo, hi = band_s if band_s is not None else (0.2 / float(sample_rate), 1e5)
         if not (0 < lo < hi):
             raise ValueError(f"band_s must be (T_min, T_max) with 0 < T_min < T_max, got {band_s}")
         self.rng = rng if rng is not None else np.random.default_rng()

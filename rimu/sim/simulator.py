@@ -96,8 +96,8 @@ class Simulator:
     gyro_bias_instability_deg_h, accel_bias_instability_ug : float
         Bias instability B (flicker bias, :class:`rimu.sim.noise.FlickerSource`; the Allan deviation is flat
         at 0.664 B), deg/h and micro-g; 0 disables.
-    flicker_band_s : (float, float)
-        Shortest and longest time constant of the flicker source, s.
+    flicker_band_s : (float, float), optional
+        Shortest and longest time constant of the flicker source, s (default ``(0.2 / sample_rate, 1e5)``).
     sample_rate : float
         Hz.
     latitude_deg : float or None
@@ -133,7 +133,7 @@ class Simulator:
         accel_bias_rw_ug_sqrt_h: float = 0.0,
         gyro_bias_instability_deg_h: float = 0.0,
         accel_bias_instability_ug: float = 0.0,
-        flicker_band_s: tuple[float, float] = (0.05, 1e5),
+        flicker_band_s: tuple[float, float] | None = None,
         sample_rate: float = 100.0,
         latitude_deg: float | None = 36.37,
         gravity: float = G0,
@@ -155,7 +155,7 @@ class Simulator:
         self.accel_bias_rw_ug_sqrt_h = accel_bias_rw_ug_sqrt_h
         self.gyro_bias_instability_deg_h = gyro_bias_instability_deg_h
         self.accel_bias_instability_ug = accel_bias_instability_ug
-        self.flicker_band_s = tuple(flicker_band_s)
+        self.flicker_band_s = None if flicker_band_s is None else tuple(flicker_band_s)
         self.sample_rate = sample_rate
         self.latitude_deg = latitude_deg
         self.gravity = gravity
@@ -282,7 +282,7 @@ class Simulator:
             "accel_bias_rw_ug_sqrt_h": self.accel_bias_rw_ug_sqrt_h,
             "gyro_bias_instability_deg_h": self.gyro_bias_instability_deg_h,
             "accel_bias_instability_ug": self.accel_bias_instability_ug,
-            "flicker_band_s": list(self.flicker_band_s),
+            "flicker_band_s": None if self.flicker_band_s is None else list(self.flicker_band_s),
             "sample_rate": self.sample_rate,
             "latitude_deg": self.latitude_deg,
             "table_angle_error_arcsec": self.table_angle_error_arcsec,
