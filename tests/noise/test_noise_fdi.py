@@ -105,8 +105,8 @@ def test_cusum_holds_design_rate_white_design_does_not(settings) -> None:  # typ
         ref, _, _ = bank.block(P[:, 0, :], VZ, 3)
         assert np.allclose(ref, first)
         rates[name] = alarms / (R * w) * arl0
-    assert 0.4 <= rates["model"] <= 1.25, rates      # measured 0.58
-    assert rates["white"] > 2.5, rates                 # measured 3.5
+    assert 0.4 <= rates["model"] <= 1.25, rates      # measured 0.45
+    assert rates["white"] > 2.5, rates                 # measured 4.9
 
 
 def test_white_model_at_pipeline_levels_changes_nothing() -> None:
@@ -132,7 +132,7 @@ def test_manager_detectors_agree_with_block(settings) -> None:  # type: ignore[n
                 ParityKalman(20, 1e-3, engine="steady", noise=settings), CusumBank(0.5 * SIG, 1e4, noise=settings)):
         det.configure(VZ, 3)
         seq = np.array([det.update(p)[0] for p in P])
-        blk, thr, _ = det.block(P, VZ, 3)
+        blk, _, _ = det.block(P, VZ, 3)
         if isinstance(det, CusumBank):
             k = int(np.argmax(blk > 1.0)) if np.any(blk > 1.0) else len(P)  # block() restarts after an alarm
             assert np.allclose(seq[:k], blk[:k])

@@ -36,6 +36,19 @@ def test_flicker_structure_closed_form() -> None:
     assert math.isclose(FLICKER_AVAR * math.pi, 2 * math.log(2))
 
 
+def test_difference_variance_term_by_term() -> None:
+    """docs/noise.md: white N^2 (1/tau + 1/tau_ref), quantisation 2 Q^2 (1/tau^2 + 1/tau_ref^2), rate random walk
+    K^2 (r tau - tau / 3) for equal windows whose starts are r tau apart."""
+    tau, ref, lag = 2.0, 7.0, 30.0
+    assert math.isclose(window_mean_difference_variance(tau, ref, lag, dict(ZERO, white=[0.3]))[0],
+                        0.09 * (1 / tau + 1 / ref), rel_tol=1e-9)
+    assert math.isclose(window_mean_difference_variance(tau, ref, lag, dict(ZERO, quantization=[0.2]))[0],
+                        2 * 0.04 * (1 / tau ** 2 + 1 / ref ** 2), rel_tol=1e-9)
+    for r in (1.0, 3.0, 50.0):
+        v = window_mean_difference_variance(tau, tau, (r - 1) * tau, dict(ZERO, rate_random_walk=[0.1]))[0]
+        assert math.isclose(v, 0.01 * (r * tau - tau / 3), rel_tol=1e-9)
+
+
 @pytest.mark.parametrize("term, size", [("white", 0.3), ("bias_instability", 1.0), ("rate_random_walk", 0.05)])
 def test_window_difference_variance_against_monte_carlo(term: str, size: float) -> None:
     """3000 independent realisations: variance of (mean over 1 s, 50 s after) - (mean over 10 s), 3 sigma."""
@@ -89,7 +102,7 @@ def test_quantization_and_white_recovered() -> None:
     q_step = 2 * 0.001 / math.sqrt(FS)
     truth = {"white": 0.001, "bias_instability": 0.0, "rate_random_walk": 0.0, "quantization": q_step / math.sqrt(12)}
     z = _simulate(11, 100_000, 4, truth)
-    v, s, ad = fit_terms(allan_deviation(z, FS), terms=("quantization", "white"))
+    v, s, _ = fit_terms(allan_deviation(z, FS), terms=("quantization", "white"))
     for k, t in ((0, "quantization"), (1, "white")):
         assert np.all(np.abs(v[:, k] - truth[t]) < 3.5 * s[:, k]), (t, v[:, k], s[:, k])
     assert np.all(v[:, 0] > 5 * s[:, 0])     # detected, not merely bounded
