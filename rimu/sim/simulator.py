@@ -25,6 +25,7 @@ from ..calibration.model import Effect, SensorContext
 from ..calibration.result import Calibration, InstrumentCalibration
 from ..epoch import INSTRUMENTS, EpochBlock
 from ..geometry import Geometry, cone6
+from ..noise.model import InstrumentNoise
 from ..session import Segment, Session, rotation_matrix
 from ..units import (
     ARCSEC_TO_RAD,
@@ -176,6 +177,16 @@ class Simulator:
             return white_noise_sigma(self.arw_deg_sqrt_h * ARW_DSQH_TO_RSQS, self.sample_rate)
         return white_noise_sigma(self.vrw_ug_sqrt_hz * UG_TO_MS2, self.sample_rate)
 
+    def noise_model(self, instrument: str) -> InstrumentNoise | None:
+        """The simulated noise terms (IEEE Std 952, SI) when bias instability or random walk are on, else None."""
+        b, k = self._bias_instability(instrument), self._bias_rw_density(instrument)
+        if b <= 0 and k <= 0:
+            return None
+        g = self.geometries[instrument]
+        white = self.noise_sigma(instrument) / np.sqrt(self.sample_rate)
+        return InstrumentNoise.from_terms(instrument, list(g.names), self.sample_rate, white=white,
+                                          bias_instability=b, rate_random_walk=k)
+
     def truth_calibration(self) -> Calibration:
         base = self.truth or default_truth(self.geometries, seed=0 if self.seed is None else int(self.seed))
         out = {}
@@ -184,7 +195,7 @@ class Simulator:
             if c.geometry.fingerprint() != g.fingerprint():
                 raise ValueError(f"the truth for {k} is for geometry {c.geometry.name!r}, the simulator has {g.name!r}")
             out[k] = InstrumentCalibration(k, g, c.scale, c.misalignment, c.bias, np.full(g.n, self.noise_sigma(k)),
-                                           effects=dict(c.effects))
+                                           effects=dict(c.effects), noise=self.noise_model(k))
         return Calibration(out, method=base.method)
 
     # ------------------------------------------------------------------ run

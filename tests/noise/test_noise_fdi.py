@@ -157,3 +157,15 @@ def test_fdi_reads_the_noise_file(tmp_path) -> None:  # type: ignore[no-untyped-
     ref.configure(VZ, 3)
     # the same whitening up to the parity basis: equal statistic for the same window sum
     assert np.isclose(np.linalg.det(det._L) ** 2, np.linalg.det(ref._L) ** 2, rtol=1e-9)
+
+
+def test_manager_default_detector_reads_the_calibration_noise() -> None:
+    from rimu.fdi import RedundancyManager
+    from rimu.sim import Simulator
+
+    truth = Simulator(gyro_bias_instability_deg_h=3.0, seed=0).truth_calibration()
+    assert truth["gyro"].noise is not None and truth["accel"].noise is None
+    assert np.allclose(truth["gyro"].noise.sample_sigma(), truth["gyro"].noise_sigma)
+    mgr = RedundancyManager(InstrumentPipeline(truth["gyro"]))
+    assert mgr.detector.noise is not None and mgr.detector.noise.noise is truth["gyro"].noise
+    assert RedundancyManager(InstrumentPipeline(truth["accel"])).detector.noise is None
