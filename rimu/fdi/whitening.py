@@ -4,12 +4,11 @@ The pipeline normalises the parity with each sensor's white per-sample sigma_0: 
 ``Vz = V_w W`` and ``Cov p = I`` for white noise of exactly those levels. A detector that averages (window,
 CUSUM, Kalman) sees, over a long run, the sensors' slow errors as well: the bias wanders away from the value
 the calibration removed. With a sensor noise model (:class:`rimu.noise.InstrumentNoise`, IEEE Std 952 terms)
-the variance of a window mean of ``tau`` of sensor i, ``horizon`` after the bias was set from a reference
-window (:meth:`rimu.noise.InstrumentNoise.window_variance`), is::
-
-    v_i(tau) = N_i^2 / tau + 2 Q_i^2 / tau^2 + (B_i^2 / pi) G + K_i^2 (horizon + ...)
-
-(exact expressions in :mod:`rimu.noise.model`), so the mean parity over that window has the covariance::
+the variance ``v_i(tau)`` of a window mean of ``tau`` of sensor i, ``horizon`` after the bias was set from a
+reference window (:meth:`rimu.noise.InstrumentNoise.window_variance`), is the white part
+``N_i^2 / tau + 2 Q_i^2 / tau^2`` plus the wander of the bias since the reference: for equal windows whose starts
+are ``r tau`` apart ``(B_i^2 / pi) g(r)`` with ``g(r) ~ 2 ln r + 3`` and ``K_i^2 (r tau - tau / 3)`` (exact
+expressions for any windows in :mod:`rimu.noise.model`). The mean parity over the window has the covariance::
 
     C(tau) = Vz diag(v(tau)) Vz^T        (= I / M for white noise of the pipeline's levels, tau = M / fs)
 

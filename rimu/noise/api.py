@@ -65,7 +65,10 @@ def identify(outputs: dict[str, np.ndarray], sample_rate: float, axes_mb: dict[s
 def static_segment(session: Any, label: str | None = None) -> Any:
     """The segment to analyse: ``label``, or the longest static one."""
     if label is not None:
-        return session.segment(label)
+        try:
+            return session.segment(label)
+        except KeyError as exc:
+            raise SessionFormatError(str(exc).strip('"')) from None
     cands = [s for s in session.segments if s.kind in STATIC_KINDS]
     if not cands:
         raise SessionFormatError(f"the session has no static segment (kinds {STATIC_KINDS}); the noise analysis "

@@ -107,6 +107,9 @@ def test_cli_bad_input(recording, tmp_path, capsys) -> None:  # type: ignore[no-
     err = capsys.readouterr().err.strip()
     assert err.startswith("rimu noise: error:") and "--calibration" in err and len(err.splitlines()) == 1
     assert main(["noise", str(tmp_path / "missing.npz")]) == 2
+    assert main(["noise", str(recording / "rest.npz"), "--calibration", str(recording / "truth.json"),
+                 "--segment", "nope", "-o", str(tmp_path / "n.json")]) == 2
+    assert "no segment labelled 'nope'" in capsys.readouterr().err
 
 
 def test_cli_plain_recording(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
