@@ -8,6 +8,7 @@ keeps working. Messages say what was wrong and what to do about it.
 from __future__ import annotations
 
 __all__ = [
+    "ExportError",
     "RimuError",
     "GeometryError",
     "RankDeficientError",
@@ -90,3 +91,7 @@ class TransportError(RimuError, IOError):
 
 class FrameError(RimuError, ValueError):
     """A frame or packet could not be decoded."""
+
+
+class ExportError(RimuError, ValueError):
+    """A calibration cannot be exported as flight code (an effect without a C compensation, missing noise, ...)."""

@@ -21,6 +21,7 @@ COMMANDS = [
     "monitor",
     "replay", "campaign", "check",
     "noise",
+    "export_c",
 ]
 
 
