@@ -26,12 +26,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from rimu.calibration import Calibration
-from rimu.cli import main
-from rimu.noise import NoiseModel
-from rimu.noise.allan import require_allantools, tau_grid
-from rimu.session import load_session, save_session
-from rimu.sim import Simulator, static
+from rimu.calibration import Calibration  # noqa: E402
+from rimu.cli import main  # noqa: E402
+from rimu.noise import NoiseModel  # noqa: E402
+from rimu.noise.allan import require_allantools, tau_grid  # noqa: E402
+from rimu.session import load_session, save_session  # noqa: E402
+from rimu.sim import Simulator, static  # noqa: E402
 
 TRUTH = {"arw_deg_sqrt_h": 0.3, "vrw_ug_sqrt_hz": 50.0, "gyro_bias_instability_deg_h": 3.0,
          "accel_bias_instability_ug": 20.0}

@@ -65,7 +65,7 @@ def edf(alpha: int, m: int, n_samples: int) -> float:
     at = require_allantools()
     try:
         v = float(at.edf_greenhall(alpha=int(alpha), d=2, m=int(m), N=int(n_samples) + 1, overlapping=True))
-    except Exception:  # noqa: BLE001 - allantools raises plain exceptions for unsupported corners
+    except Exception:  # allantools raises plain exceptions for unsupported corners
         v = float(at.edf_simple(int(n_samples) + 1, int(m), int(alpha)))
     return max(v, 1.0)
 

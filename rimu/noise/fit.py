@@ -82,7 +82,7 @@ def fit_terms(ad: AllanDeviation, terms: tuple[str, ...] = TERMS, iterations: in
         model = a.copy()
         dof = ad.dof[i]
         c = np.zeros(len(cols))
-        for it in range(iterations):
+        for _ in range(iterations):
             w = dof / (2.0 * np.maximum(model, 1e-300) ** 2)
             sw = np.sqrt(w)
             scale = np.abs(A * sw[:, None]).max(axis=0)  # column scaling: the columns span many decades

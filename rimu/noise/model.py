@@ -337,6 +337,8 @@ class NoiseModel:
 
 def _flicker_g(r: float) -> float:
     """g(r) of the module docstring (for the docs' closed form; the code uses the structure function)."""
-    f = (lambda x: x * x * math.log(x) if x > 0 else 0.0)
+    def f(x: float) -> float:
+        return x * x * math.log(x) if x > 0 else 0.0
+
     return f(r + 1) + f(abs(r - 1)) - 2 * f(r)
 

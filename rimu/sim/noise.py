@@ -76,7 +76,7 @@ class FlickerSource:
         """The next N samples, (N, n)."""
         n = self.s.shape[0]
         out = np.zeros((N, n))
-        for j, (phi, T) in enumerate(zip(self.phi, self.T)):
+        for j, phi in enumerate(self.phi):
             e = self.rng.standard_normal((N, n)) * (self.s * math.sqrt(1.0 - phi * phi))[None, :]
             y, _zf = lfilter([1.0], [1.0, -phi], e, axis=0, zi=(phi * self.state[j])[None, :])
             self.state[j] = y[-1]
