@@ -130,7 +130,7 @@ class RedundancyManager:
     ----------
     pipeline : InstrumentPipeline
     detector : Detector, optional
-        Default :class:`GltSnapshot` at ``p_fa``.
+        Default :class:`GltSnapshot` at ``p_fa`` (with the calibration's noise model, when it has one).
     p_fa : float
         Design false-alarm probability (default detector, and the re-admission test).
     confirm : int
@@ -166,7 +166,8 @@ class RedundancyManager:
         if confirm < 1 or invalid_persist < 1:
             raise ValueError("confirm and invalid_persist must be at least 1 sample")
         self.pipeline = pipeline
-        self.detector = detector if detector is not None else GltSnapshot(p_fa)
+        # the default detector uses the calibration's noise model (rimu.noise) when it has one
+        self.detector = detector if detector is not None else GltSnapshot(p_fa, getattr(pipeline.calibration, "noise", None))
         self.p_fa = p_fa
         self.confirm = int(confirm)
         self.invalid_persist = int(invalid_persist)

@@ -143,7 +143,8 @@ class InstrumentPipeline:
     calibration : InstrumentCalibration
     sigma : float or ndarray (n,), optional
         Per-sample noise standard deviation of the compensated outputs, SI. Default: the calibration's
-        ``noise_sigma``; without one, 1.0 (covariances are then in units of sigma^2).
+        ``noise_sigma``, else the per-sample sigma of its ``noise`` model (:mod:`rimu.noise`); without
+        either, 1.0 (covariances are then in units of sigma^2).
     max_excluded : int, optional
         Deprecated, without effect (see :class:`~rimu.fusion.projection.ProjectionTable`).
     range_raw : float or ndarray (n,), optional
@@ -178,6 +179,8 @@ class InstrumentPipeline:
         n = calibration.geometry.n
         if sigma is None:
             sigma = calibration.noise_sigma if calibration.noise_sigma is not None else 1.0
+            if calibration.noise_sigma is None and getattr(calibration, "noise", None) is not None:
+                sigma = calibration.noise.sample_sigma()  # the identified noise model (rimu.noise)
         self.table = ProjectionTable(calibration.axes_mb(), sigma, max_excluded, cache_size=cache_size,
                                      scale=calibration.scale, bias=calibration.bias)
         if range_raw is None:
