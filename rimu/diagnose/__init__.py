@@ -24,10 +24,12 @@ from .api import (
 )
 from .candidates import CandidateTest, SensorTest, holm, score_candidates
 from .fitting import ModelFit, SensorFit, fit_model, noise_from_differences
+from .handheld import diagnose_handheld  # registers the hand-held session kind with api.diagnose
 from .report import render_markdown, write_report
 from .residuals import SensorStats, autocorrelation, ljung_box, residual_statistics
 
 __all__ = [
+    "diagnose_handheld",
     "DEFAULT_ALPHA",
     "CandidateTest",
     "Comparison",

@@ -39,6 +39,18 @@ __all__ = [
 DEFAULT_ALPHA = 0.01
 
 
+#: sessions that need a diagnosis of their own: (applies(session), diagnose(...) -> (residuals, Diagnosis)); the
+#: modules that provide one register here (rimu.diagnose.handheld), so this module never imports them
+SESSION_KINDS: list[tuple[Any, Any]] = []
+
+
+def register_session_kind(applies: Any, special: Any) -> None:
+    """Route sessions for which ``applies(session)`` holds to ``special`` (same arguments as :func:`diagnose`,
+    returning ``(residuals, Diagnosis)``)."""
+    if all(a is not applies for a, _ in SESSION_KINDS):
+        SESSION_KINDS.append((applies, special))
+
+
 def format_p(log10_p: float) -> str:
     """A p-value in words: ``p < 1e-12`` below 1e-12, else two significant digits.
 
@@ -293,11 +305,10 @@ def diagnose(
     if not isinstance(session, Session):
         hint = " (a simulation result: pass its .session)" if hasattr(session, "session") else ""
         raise SessionFormatError(f"diagnose needs a rimu.session.Session, got {type(session).__name__}{hint}")
-    from .handheld import diagnose_handheld, unknown_attitude
-
-    if unknown_attitude(session):  # hand-held poses: resolve the attitudes by the hand-held calibration first
-        return diagnose_handheld(session, model, candidates, alpha, instruments=instruments, sigma=sigma,
-                                 reference_temperature=reference_temperature)[1]
+    for applies, special in SESSION_KINDS:  # e.g. hand-held poses: attitudes resolved by their calibration first
+        if applies(session):
+            return special(session, model, candidates, alpha, instruments=instruments, sigma=sigma,
+                           reference_temperature=reference_temperature)[1]
     session = cached(session)
     models = _models(model, session, instruments)
     settings = {"alpha": alpha, "include_earth_rate": include_earth_rate,
