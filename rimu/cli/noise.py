@@ -19,6 +19,8 @@ from typing import Any
 
 import numpy as np
 
+from ._common import positive_float, probability
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("noise", help="Allan deviation and noise terms (ARW/VRW, bias instability, RRW) of a static "
@@ -34,9 +36,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--instrument", action="append", default=None, help="gyro or accel (repeatable; default all)")
     p.add_argument("--terms", default="quantization,white,bias_instability,rate_random_walk",
                    help="terms to fit, comma-separated")
-    p.add_argument("--sample-rate", type=float, default=None, help="Hz (plain recordings)")
+    p.add_argument("--sample-rate", type=positive_float, default=None, help="Hz (plain recordings)")
     p.add_argument("--geometry", default=None, help="geometry preset of a plain recording (for the parity check)")
-    p.add_argument("--p-fa", type=float, default=1e-3, help="false-verdict probability of each parity check")
+    p.add_argument("--p-fa", type=probability, default=1e-3, help="false-verdict probability of each parity check")
     p.set_defaults(func=run)
 
 

@@ -7,6 +7,7 @@ import json
 import logging
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -315,6 +316,18 @@ def _build(side: dict, t: np.ndarray, seg_idx: np.ndarray, raw: dict, temp, src:
                    gravity, raw_unit, meta)
 
 
+def read_header(reader: Any, path: Path, need: list[str]) -> list[str]:
+    """The header row of a session CSV (stripped), with the columns ``need`` checked present."""
+    header = next(reader, None)
+    if header is None:
+        raise SessionFormatError(f"{path} is empty; the first row must be the header {need}")
+    header = [h.strip() for h in header]
+    missing = [c for c in need if c not in header]
+    if missing:
+        raise SessionFormatError(f"{path}: header lacks the columns {missing} (header is {header})")
+    return header
+
+
 def _load_csv(path: Path, side: dict, src: Path) -> Session:
     if not path.exists():
         raise SessionFormatError(f"{src}: its data file {path} does not exist")
@@ -322,13 +335,7 @@ def _load_csv(path: Path, side: dict, src: Path) -> Session:
     need = ["t", "segment"] + _columns(geoms)
     with path.open(newline="") as fh:
         reader = csv.reader(fh)
-        header = next(reader, None)
-        if header is None:
-            raise SessionFormatError(f"{path} is empty; the first row must be the header {need}")
-        header = [h.strip() for h in header]
-        missing = [c for c in need if c not in header]
-        if missing:
-            raise SessionFormatError(f"{path}: header lacks the columns {missing} (header is {header})")
+        header = read_header(reader, path, need)
         unknown = [c for c in header if c not in need and c != "temperature"]
         if unknown:
             raise SessionFormatError(f"{path}: unknown columns {unknown}; expected {need} and optionally 'temperature'")

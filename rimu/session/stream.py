@@ -30,7 +30,7 @@ import numpy as np
 
 from ..epoch import EpochBlock
 from ..errors import SessionFormatError
-from .native import _check_sidecar, _columns, _geometries, _read_sidecar
+from .native import _check_sidecar, _columns, _geometries, _read_sidecar, read_header
 
 __all__ = ["iter_blocks"]
 
@@ -89,13 +89,7 @@ def _iter_csv(path: Path, side: dict, src: Path, chunk: int) -> Iterator[EpochBl
     labels = {str(d["label"]): k for k, d in enumerate(side["segments"])}
     with path.open(newline="") as fh:
         reader = csv.reader(fh)
-        header = next(reader, None)
-        if header is None:
-            raise SessionFormatError(f"{path} is empty; the first row must be the header {need}")
-        header = [h.strip() for h in header]
-        missing = [c for c in need if c not in header]
-        if missing:
-            raise SessionFormatError(f"{path}: header lacks the columns {missing} (header is {header})")
+        header = read_header(reader, path, need)
         has_temp = "temperature" in header
         num_cols = [c for c in need if c != "segment"] + (["temperature"] if has_temp else [])
         ci = [header.index(c) for c in num_cols]

@@ -124,6 +124,7 @@ MINIMAL = {
     "export-c": ["{cal}", "-o", "{dir}/export"],
     "detect": ["{s}", "-o", "{dir}/detected.npz"],
     "array": ["{s}"],
+    "noise": ["{s}", "--calibration", "{cal}", "-o", "{dir}/noise.json"],
 }
 
 _VALIDATORS = {common.positive_float: ["0", "-1", "nan", "abc"], common.finite_float: ["nan", "inf", "x"], common.nonnegative_float: ["-1", "inf", "x"],
@@ -190,6 +191,9 @@ def test_output_paths_are_checked_before_any_work(command, f, capsys):
 # ------------------------------------------------------------------ the table: malformed files and option values
 #: (command and arguments, exit status, words the one error line must contain)
 CASES = [
+    (["noise", "{dir}/missing.npz"], 2, ["missing.npz"]),
+    (["noise", "{s}"], 2, ["scale factors", "--calibration"]),
+    (["noise", "{s}", "--calibration", "{cal}", "--p-fa", "2"], 2, ["--p-fa"]),
     # detect and array (raw recordings, array NPZ)
     (["detect", "{dir}/missing.csv", "-o", "{dir}/o.npz"], 2, ["missing.csv", "does not exist"]),
     (["detect", "{text}", "-o", "{dir}/o.npz"], 2, ["text.npz"]),
