@@ -22,6 +22,7 @@ __all__ = [
     "ParameterNameError",
     "TransportError",
     "FrameError",
+    "MissingNoiseError",
 ]
 
 
@@ -90,3 +91,7 @@ class TransportError(RimuError, IOError):
 
 class FrameError(RimuError, ValueError):
     """A frame or packet could not be decoded."""
+
+
+class MissingNoiseError(RimuError, ValueError):
+    """A noise figure the computation needs (a calibration's ``noise_sigma``) is missing and was not given."""
