@@ -203,13 +203,18 @@ class RedundancyManager:
     max_events : int
         Events kept (counts in :attr:`counts` are always complete).
     isolator : FaultSetGlt, "detector" or None
-        How an alarm is attributed: the set GLT (default for the GLT and Kalman detectors: up to two
-        simultaneous faults where the parity dimension allows), or ``"detector"`` (the detector's own
-        single-sensor choice; default for the CUSUM bank and the baselines).
+        How an alarm is attributed: the set GLT (default for the GLT and Kalman detectors:
+        ``FaultSetGlt(alpha=1e-6)``, up to two simultaneous faults where the parity dimension allows; the
+        small alpha keeps the true set from being rejected by chance while evidence accumulates), or
+        ``"detector"`` (the detector's own single-sensor choice; default for the CUSUM bank and the
+        baselines).
     fail_after, backoff : int, float
         See :class:`rimu.fdi.health.SensorHealth`.
     clear_after : int
         Alarm-free samples after which a "not isolable" report is withdrawn.
+    episode_gap : int, optional
+        An alarm episode, whose parity vectors are pooled as evidence for the set test, ends after this
+        many consecutive alarm-free samples (default ``max(confirm, 5)``).
 
     Examples
     --------
@@ -230,7 +235,7 @@ class RedundancyManager:
                  confirm: int = 3, invalid_persist: int = 10, readmit_after: int | None = 100,
                  sample_rate: float | None = None, max_events: int = 10000,
                  isolator: FaultSetGlt | str | None = None, fail_after: int = 4, backoff: float = 2.0,
-                 clear_after: int = 50) -> None:
+                 clear_after: int = 50, episode_gap: int | None = None) -> None:
         if confirm < 1 or invalid_persist < 1:
             raise ValueError("confirm and invalid_persist must be at least 1 sample")
         if not getattr(pipeline, "noise_given", True):
@@ -247,8 +252,9 @@ class RedundancyManager:
         self.sample_rate = sample_rate
         self.max_events = int(max_events)
         self.clear_after = int(clear_after)
+        self.episode_gap = int(episode_gap) if episode_gap is not None else max(self.confirm, 5)
         if isolator is None:
-            isolator = FaultSetGlt(alpha=p_fa) if _evidence_detector(self.detector) else "detector"
+            isolator = FaultSetGlt(alpha=1e-6) if _evidence_detector(self.detector) else "detector"
         if isinstance(isolator, str) and isolator != "detector":
             raise ValueError(f"isolator must be a FaultSetGlt or 'detector', got {isolator!r}")
         self.isolator = isolator
@@ -294,8 +300,8 @@ class RedundancyManager:
         """Start over: every sensor healthy and in the estimate, counters, episode and events cleared."""
         n = self.n
         self.sensors.reset()
-        self._iso = np.zeros(n, dtype=bool)
-        self.pipeline.set_isolated(self._iso)
+        self._suspects_on = False
+        self._apply()
         self.samples = 0
         self._entry = -2
         self._new_episode()
@@ -311,11 +317,14 @@ class RedundancyManager:
         h.state = self._state_of(self.pipeline.table.full_code)
 
     def _new_episode(self) -> None:
-        self._ep_n = 0
+        self._ep_n = 0          # samples of the episode (alarms and the quiet gaps between them)
+        self._ep_alarms = 0     # alarm samples of the episode
+        self._ep_quiet = 0      # consecutive quiet samples at its end
         self._ep_sum: np.ndarray | None = None
         self._ep_M: np.ndarray | None = None
         self._cand: tuple[int, ...] = ()
         self._streak = 0
+        self._last_dec: SetDecision | None = None
 
     @property
     def state(self) -> HealthState:
@@ -359,7 +368,10 @@ class RedundancyManager:
     def _apply(self) -> None:
         """Make the pipeline use the manager's isolation set."""
         self._iso = self.sensors.out.copy()
+        self._iso_bytes = self._iso.tobytes()
+        self._n_iso = int(self._iso.sum())
         self.pipeline.set_isolated(self._iso)
+        self._iso_entry = self.pipeline.table.lookup(mask_bits(~self._iso))
         self.health.isolated = [self.names[i] for i in np.flatnonzero(self._iso)]
 
     def _log(self, kind: str, sensor: int | None, message: str, t: float, statistic: float = float("nan")) -> None:
@@ -405,7 +417,7 @@ class RedundancyManager:
         :attr:`health` holds the state, alarm and statistic after this sample.
         """
         pipe = self.pipeline
-        if not np.array_equal(pipe._isolated, self._iso):  # someone changed the pipeline: the manager's set rules
+        if pipe._isolated.tobytes() != self._iso_bytes:  # someone changed the pipeline: the manager's set rules
             pipe.set_isolated(self._iso)
         r = pipe.step(y, valid)
         self.samples += 1
@@ -420,7 +432,7 @@ class RedundancyManager:
             if self._ep_n:
                 self._end_episode(t)
         changed = False
-        if r.invalid.any() or self._invalid_pending:
+        if e != self._iso_entry or self._invalid_pending:  # the pipeline left a sensor out: invalid data
             changed = self._invalid(r.invalid, t)
         if r.dof >= 1:
             if self._uses_input:
@@ -439,16 +451,22 @@ class RedundancyManager:
             changed = changed or changed2
         else:
             if self._ep_n:
-                self._end_episode(t)
+                self._ep_quiet += 1
+                if self._ep_quiet >= self.episode_gap or r.dof < 1:
+                    self._end_episode(t)
+                else:
+                    self._accumulate(r)
+                    self._streak = 0
             if self._not_isolable:
                 self._quiet += 1
                 if self._quiet >= self.clear_after:
                     self._clear_not_isolable(t, f"no alarm for {self._quiet} samples")
-            if self.sensors.state.any():
+            if self._suspects_on:
                 self.sensors.set_suspects(r.invalid)
+                self._suspects_on = bool(np.any(self.sensors.state == SensorState.SUSPECT))
         res = self._output(r, exclude if not changed else tuple(np.flatnonzero(self._iso & r.active)))
-        if self._iso.any() and self.readmit_after is not None and res.observable and not alarm \
-                and not self._not_isolable:
+        if self._n_iso and self.readmit_after is not None and res.observable and not alarm \
+                and not self._not_isolable and not self._ep_alarms:
             self._readmission(np.asarray(y, dtype=float), valid, res, t)
         return res
 
@@ -490,7 +508,9 @@ class RedundancyManager:
         else:
             res.state = self._state_of(code)
             full = res.state is HealthState.NOMINAL
-            res.validity = Validity.NOMINAL if (full and not h.alarm and not self._not_isolable) else Validity.DEGRADED
+            # an open alarm episode (an alarm in the last `episode_gap` samples, not resolved) is an unresolved fault
+            ok = full and not h.alarm and not self._not_isolable and not self._ep_alarms
+            res.validity = Validity.NOMINAL if ok else Validity.DEGRADED
         h.state = res.state
         h.validity = res.validity
         h.fault_not_isolable = self._not_isolable
@@ -521,7 +541,8 @@ class RedundancyManager:
         return m
 
     # ------------------------------------------------------------------ alarms and isolation
-    def _decide(self, r: StepResult) -> SetDecision:
+    def _accumulate(self, r: StepResult) -> None:
+        """Add the sample's parity vector to the episode's evidence (its sum and scatter)."""
         d = r.dof
         p = r.parity[:d]
         if self._ep_sum is None or self._ep_sum.shape[0] != d:
@@ -529,7 +550,15 @@ class RedundancyManager:
             self._ep_M = np.zeros((d, d))
         self._ep_sum += p
         self._ep_M += np.outer(p, p)
+        self._ep_n += 1
+
+    def _decide(self, r: StepResult) -> SetDecision:
+        d = r.dof
         N = self._ep_n
+        last = self._last_dec
+        if last is not None and last.kind != "isolated" and self._ep_alarms > 4 * self.confirm \
+                and self._ep_alarms % 10:
+            return last  # an unresolved fault: re-decide every 10th alarm (the evidence changes slowly)
         if self.isolator == "detector":
             j, _ = self.detector.isolate(r.parity)
             st = self._state_of(self._code(r.entry))
@@ -547,15 +576,20 @@ class RedundancyManager:
 
     def _on_alarm(self, r: StepResult, stat: float, t: float) -> tuple[tuple[int, ...], bool]:
         """Returns (sensors to leave out of this sample's output, whether the isolation set changed)."""
-        self._ep_n += 1
+        self._ep_alarms += 1
+        self._ep_quiet = 0
+        if r.dof >= 1:
+            self._accumulate(r)
         dec = self._decide(r) if r.dof >= 1 else SetDecision("not_isolable")
+        self._last_dec = dec
         sus = np.zeros(self.n, bool)
         sus[list(dec.suspects)] = True
         self.sensors.set_suspects(sus | r.invalid)
+        self._suspects_on = True
         if dec.kind != "isolated":
             self._streak = 0
             self._cand = ()
-            if self._ep_n >= self.confirm and not self._not_isolable:
+            if self._ep_alarms >= self.confirm and not self._not_isolable:
                 self._not_isolable = True
                 self._quiet = 0
                 what = {"ambiguous": "several sensor sets explain it equally well"
@@ -596,9 +630,9 @@ class RedundancyManager:
         return S, True
 
     def _end_episode(self, t: float) -> None:
-        if self._streak and self._streak < self.confirm:
+        if self._ep_alarms and self._cand:
             for i in self._cand:
-                self._log("transient", i, f"alarm episode of {self._ep_n} sample(s), not confirmed", t)
+                self._log("transient", i, f"alarm episode of {self._ep_alarms} alarm(s), not confirmed", t)
         self._new_episode()
 
     def _clear_not_isolable(self, t: float, why: str) -> None:
@@ -621,6 +655,7 @@ class RedundancyManager:
         run[inv] += 1
         self._invalid_pending = bool(run.any())
         self.sensors.set_suspects(inv | (self.sensors.state == SensorState.SUSPECT))
+        self._suspects_on = True
         changed = False
         for i in np.flatnonzero((run >= self.invalid_persist) & ~self._iso):
             keep = ~self._iso
@@ -687,7 +722,9 @@ class RedundancyManager:
 
     def _run_loop(self, Y: np.ndarray, valid: np.ndarray | None, t: np.ndarray, o: dict[str, np.ndarray]) -> None:
         x, stat, thr, alarm, state = o["x"], o["stat"], o["thr"], o["alarm"], o["state"]
-        n_act, validity, sensor, active, Pd = o["n_act"], o["validity"], o["sensor"], o["active"], o["P"]
+        validity, sensor = o["validity"], o["sensor"]
+        entry = np.full(len(Y), -1, dtype=np.int64)
+        obs = np.zeros(len(Y), bool)
         codes = STATE_CODES
         sh = self.sensors
         for k in range(len(Y)):
@@ -696,8 +733,12 @@ class RedundancyManager:
             stat[k], thr[k], alarm[k] = r.statistic, r.threshold, r.alarm
             state[k] = codes[r.state]
             validity[k] = r.validity
-            act = r.active
-            active[k] = act
-            n_act[k] = int(act.sum()) if r.observable else 0
+            entry[k] = r.entry
+            obs[k] = r.observable
             sensor[k] = sh.state
-            Pd[k] = np.diagonal(r.P)
+        tab = self.pipeline.table
+        ok = obs & (entry >= 0)
+        o["active"][ok] = ((tab.codes[entry[ok]][:, None] >> np.arange(self.n)) & 1).astype(bool)
+        o["n_act"][:] = o["active"].sum(axis=1)
+        o["P"][:] = np.inf
+        o["P"][ok] = np.diagonal(tab.P[entry[ok]], axis1=1, axis2=2)

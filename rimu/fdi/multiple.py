@@ -13,8 +13,12 @@ the generalised likelihood ratio of "the fault is on S" (``b_S`` unknown, maximi
 
 1. for k = 1, 2, ... up to ``K = min(max_size, dof - 1)`` (one parity dimension must remain to test a
    hypothesis), a set S of size k is *consistent* when ``R_S <= c_k = chi2_{1 - alpha}(dof - k)``;
-2. at the smallest k with a consistent set: exactly one consistent set -> **isolated** (that set); more than
-   one -> **ambiguous** ("fault present, not isolable"; the union of the consistent sets is suspect);
+2. a consistent set is *minimal* when no proper subset of it is consistent (a superset of a consistent set
+   is always consistent: it only adds freedom). Exactly one minimal consistent set -> **isolated** (that
+   set); more than one -> **ambiguous** ("fault present, not isolable"; the union of the minimal sets is
+   suspect). A single sensor is therefore named only when no pair without it explains the data as well:
+   in a three-dimensional parity space a pair's plane passes close to many single columns, and naming the
+   smallest explanation without that check isolates a wrong sensor under two simultaneous faults;
 3. no consistent set up to K -> **unexplained** (more faulty sensors than the parity space can separate:
    also "fault present, not isolable").
 
@@ -27,10 +31,11 @@ Error rates for a single fault on sensor j with parity signal ``m = |b| |v_j|`` 
 
 * the true set is rejected (missed isolation) with ``P(R_j > c_1, T_j + R_j > c_dof)``: exactly ``alpha`` once
   detection is certain, since ``R_j ~ chi2(dof - 1)`` whatever m;
-* a wrong single k is consistent with ``F_k = P(ncx2(dof - 1, m^2 (1 - rho_jk^2)) <= c_1)``; a *wrong isolation*
-  needs it and the true set rejected, so its probability is at most ``sum_k min(F_k, alpha)`` (plus, through
-  the pair stage, at most ``alpha``), and *ambiguous* is at most ``sum_k F_k`` (+ alpha);
-* correct isolation is at least ``P_D - missed - sum_k F_k``.
+* a wrong single k is consistent with ``F_k = P(ncx2(dof - 1, m^2 (1 - rho_jk^2)) <= c_1)``, a pair {k, l}
+  without j with ``G_kl = P(ncx2(dof - 2, m^2 d_kl^2) <= c_2)``, ``d_kl`` the distance of ``u_j`` from the
+  pair's plane; a *wrong isolation* needs the true set rejected and a wrong one consistent, so its
+  probability is at most ``min(alpha, sum F + sum G)``; *ambiguous* is at most ``sum F + sum G + missed``;
+* correct isolation is at least ``P_D - missed - sum_k F_k - sum_kl G_kl``.
 """
 
 from __future__ import annotations
@@ -182,20 +187,27 @@ class FaultSetGlt:
         M = np.asarray(M, dtype=float)[:dof, :dof]
         total = float(np.trace(M))
         best = float("inf")
+        minimal: list[tuple[tuple[int, ...], float, int]] = []
         for k, S, Q in zip(d.sizes, d.sets, d.Q):
             if not len(S):
                 continue
             c = self.threshold(dof, k, samples)
-            R = total - np.einsum("mdk,de,mek->m", Q, M, Q)
-            cons = np.flatnonzero(R <= c)
+            MQ = M @ Q                                          # (m, dof, k)
+            R = total - (Q * MQ).sum(axis=(1, 2))
             best = min(best, float(R.min()))
-            if cons.size == 1:
-                i = int(cons[0])
-                return SetDecision("isolated", tuple(int(s) for s in S[i]), tuple(int(s) for s in S[i]),
-                                   float(R[i]), k)
-            if cons.size > 1:
-                sus = tuple(sorted({int(s) for s in S[cons].ravel()}))
-                return SetDecision("ambiguous", (), sus, float(R[cons].min()), k)
+            cons = np.flatnonzero(R <= c)
+            if not cons.size:
+                continue
+            smaller = [set(m[0]) for m in minimal]
+            for cand, r in zip(S[cons].tolist(), R[cons].tolist()):
+                if not smaller or not any(sm.issubset(cand) for sm in smaller):
+                    minimal.append((tuple(cand), r, k))
+        if len(minimal) == 1:
+            S1, R1, k1 = minimal[0]
+            return SetDecision("isolated", S1, S1, R1, k1)
+        if minimal:
+            sus = tuple(sorted({i for m in minimal for i in m[0]}))
+            return SetDecision("ambiguous", (), sus, min(m[1] for m in minimal), minimal[0][2])
         return SetDecision("unexplained", (), (), best, 0)
 
     def block(self, P: np.ndarray, Vz: np.ndarray, dof: int) -> list[SetDecision]:
@@ -224,9 +236,10 @@ def single_fault_rates(Vz: np.ndarray, j: int, m: float, alpha: float = 1e-3, p_
     """Per-sample rates of :class:`FaultSetGlt` for a bias on sensor ``j`` of parity signal ``m`` (sigma).
 
     Returns ``detect`` (chi-square test, Daly, Gai & Harrison 1979), ``missed`` (detected and the true set
-    rejected: exact, one integral), ``wrong_upper`` (a set without j isolated: at most
-    ``sum_k min(F_k, alpha)`` plus ``min(alpha, sum_kl G_kl)`` from the pair stage), ``ambiguous_upper``
-    (``sum_k F_k + missed``), ``correct_lower`` (``detect - missed - sum_k F_k``), and ``F`` (the largest F_k).
+    rejected: exact, one integral), ``wrong_upper`` (a set without j isolated: ``min(missed, F + G)``),
+    ``ambiguous_upper`` (``F + G + missed``), ``correct_lower`` (``detect - missed - F - G``), ``F`` (sum
+    over the other singles of ``P(R_k <= c_1)``) and ``G`` (sum over the pairs without j of
+    ``P(R_kl <= c_2)``). Outcomes not counted: a pair containing j isolated (at most ``missed``).
 
     >>> from rimu.geometry import dodecahedron6
     >>> r = single_fault_rates(dodecahedron6().parity_matrix(), 0, 10.0)
@@ -254,10 +267,11 @@ def single_fault_rates(Vz: np.ndarray, j: int, m: float, alpha: float = 1e-3, p_
     return {
         "detect": detect,
         "missed": float(missed),
-        "wrong_upper": float(np.minimum(F, alpha).sum() + min(alpha, G)),
-        "ambiguous_upper": float(F.sum() + missed),
-        "correct_lower": float(max(detect - missed - F.sum(), 0.0)),
-        "F": float(F.max()) if F.size else 0.0,
+        "wrong_upper": float(min(missed, F.sum() + G)),
+        "ambiguous_upper": float(min(1.0, F.sum() + G + missed)),
+        "correct_lower": float(max(detect - missed - F.sum() - G, 0.0)),
+        "F": float(F.sum()),
+        "G": float(G),
     }
 
 
