@@ -302,6 +302,7 @@ class RedundancyManager:
         self.sensors.reset()
         self._suspects_on = False
         self._apply()
+        self.pipeline.set_isolated(self._iso)
         self.samples = 0
         self._entry = -2
         self._new_episode()
@@ -366,11 +367,11 @@ class RedundancyManager:
     _t_last = float("nan")
 
     def _apply(self) -> None:
-        """Make the pipeline use the manager's isolation set."""
+        """Take the sensor states' isolation set; the pipeline gets it at the start of the next step (changing it
+        now would rewrite the pipeline's result of the current sample behind this sample's output)."""
         self._iso = self.sensors.out.copy()
         self._iso_bytes = self._iso.tobytes()
         self._n_iso = int(self._iso.sum())
-        self.pipeline.set_isolated(self._iso)
         self._iso_entry = self.pipeline.table.lookup(mask_bits(~self._iso))
         self.health.isolated = [self.names[i] for i in np.flatnonzero(self._iso)]
 
@@ -452,7 +453,8 @@ class RedundancyManager:
         else:
             if self._ep_n:
                 self._ep_quiet += 1
-                if self._ep_quiet >= self.episode_gap or r.dof < 1:
+                gap = self.clear_after if self._not_isolable else self.episode_gap  # an unresolved fault: keep pooling
+                if self._ep_quiet >= gap or r.dof < 1:
                     self._end_episode(t)
                 else:
                     self._accumulate(r)
@@ -569,9 +571,11 @@ class RedundancyManager:
         Vz = self.pipeline.table.Vz[r.entry]
         mean = self._ep_sum / np.sqrt(N)
         dec = iso.decide(mean, Vz, d)
-        if dec.kind != "isolated" and N > 1 and float(mean @ mean) < iso.threshold(d, 0):
-            # no lasting mean (a fault whose size changes sign): the scatter of the episode decides
-            dec = iso.decide_scatter(self._ep_M, N, Vz, d)
+        if dec.kind != "isolated" and N > 1:
+            # a fault whose size changes (sign) has little mean: the scatter of the episode may name it
+            dec2 = iso.decide_scatter(self._ep_M, N, Vz, d)
+            if dec2.kind == "isolated" or float(mean @ mean) < iso.threshold(d, 0):
+                dec = dec2
         return dec
 
     def _on_alarm(self, r: StepResult, stat: float, t: float) -> tuple[tuple[int, ...], bool]:
