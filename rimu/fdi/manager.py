@@ -39,7 +39,7 @@ from ..errors import MissingNoiseError, ShapeError
 from ..fusion import InstrumentPipeline, StepResult
 from ..fusion.projection import bits_mask, mask_bits
 from ..fusion.validity import Validity
-from .glt import GltSnapshot, glt_threshold
+from .glt import GltSnapshot, glt_threshold, isolate_argmax
 from .health import SensorHealth, SensorState
 from .kalman import ParityKalman
 from .multiple import FaultSetGlt, SetDecision
@@ -254,7 +254,7 @@ class RedundancyManager:
         self.clear_after = int(clear_after)
         self.episode_gap = int(episode_gap) if episode_gap is not None else max(self.confirm, 5)
         if isolator is None:
-            isolator = FaultSetGlt(alpha=1e-6) if _evidence_detector(self.detector) else "detector"
+            isolator = FaultSetGlt(alpha=1e-4) if _evidence_detector(self.detector) else "detector"
         if isinstance(isolator, str) and isolator != "detector":
             raise ValueError(f"isolator must be a FaultSetGlt or 'detector', got {isolator!r}")
         self.isolator = isolator
@@ -318,6 +318,7 @@ class RedundancyManager:
         h.state = self._state_of(self.pipeline.table.full_code)
 
     def _new_episode(self) -> None:
+        self._ep_entry = -1
         self._ep_n = 0          # samples of the episode (alarms and the quiet gaps between them)
         self._ep_alarms = 0     # alarm samples of the episode
         self._ep_quiet = 0      # consecutive quiet samples at its end
@@ -553,6 +554,7 @@ class RedundancyManager:
         self._ep_sum += p
         self._ep_M += np.outer(p, p)
         self._ep_n += 1
+        self._ep_entry = r.entry
 
     def _decide(self, r: StepResult) -> SetDecision:
         d = r.dof
@@ -605,6 +607,11 @@ class RedundancyManager:
                           f"fault present with {int(r.active.sum())} active sensors, not isolable: {what}; "
                           "output DEGRADED", t, stat)
             self.health.suspects = [self.names[i] for i in dec.suspects]
+            if dec.suspects:  # leave every suspect out of this sample's output when the rest still spans 3-D
+                rest = r.active.copy()
+                rest[list(dec.suspects)] = False
+                if self._state_of(mask_bits(rest)) is not HealthState.UNOBSERVABLE:
+                    return dec.suspects, False
             return (), False
         S = dec.sensors
         self.health.suspects = [self.names[i] for i in S]
@@ -634,9 +641,14 @@ class RedundancyManager:
         return S, True
 
     def _end_episode(self, t: float) -> None:
-        if self._ep_alarms and self._cand:
-            for i in self._cand:
-                self._log("transient", i, f"alarm episode of {self._ep_alarms} alarm(s), not confirmed", t)
+        if self._ep_alarms:
+            who = self._cand
+            if not who and self._ep_sum is not None and self._ep_entry >= 0:
+                j, _ = isolate_argmax(self._ep_sum, self.pipeline.table.Vz[self._ep_entry][:len(self._ep_sum)])
+                who = (j,) if j >= 0 else ()
+            for i in who:
+                self._log("transient", i, f"alarm episode of {self._ep_alarms} alarm(s), not confirmed"
+                          + ("" if self._cand else " (most likely sensor)"), t)
         self._new_episode()
 
     def _clear_not_isolable(self, t: float, why: str) -> None:

@@ -66,7 +66,8 @@ def test_two_successive_faults_then_a_third(manoeuvre):
     assert mgr.health.fault_not_isolable
     assert np.all(np.isfinite(res.x)) and np.all(np.isfinite(res.statistic))
     # a fourth isolation would leave three sensors: the manager never claims one it cannot make
-    assert (res.n_active >= 4).all()
+    assert ((res.sensor_state >= 2).sum(axis=1) <= 2).all()
+    assert (res.n_active >= 3).all()    # alarm samples may leave suspects out of their own output, never blind
 
 
 def test_no_redundancy_and_unobservable_states():
