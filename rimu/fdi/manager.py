@@ -261,6 +261,7 @@ class RedundancyManager:
         cal = pipeline.calibration
         self.names = list(cal.geometry.names)
         self.n = pipeline.n
+        self._full_code = (1 << self.n) - 1
         self._uses_input = bool(getattr(self.detector, "uses_input", False))
         self._thr1 = glt_threshold(p_fa, 1)
         self._axes = cal.axes_mb()
@@ -510,7 +511,7 @@ class RedundancyManager:
             res.state = HealthState.UNOBSERVABLE
         else:
             res.state = self._state_of(code)
-            full = res.state is HealthState.NOMINAL
+            full = code == self._full_code  # every expected sensor in this sample's estimate
             # an open alarm episode (an alarm in the last `episode_gap` samples, not resolved) is an unresolved fault
             ok = full and not h.alarm and not self._not_isolable and not self._ep_alarms
             res.validity = Validity.NOMINAL if ok else Validity.DEGRADED
