@@ -10,8 +10,9 @@ States (:class:`SensorState`) and their transitions::
     ISOLATED --(isolated for the `fail_after`-th time)--> FAILED          (re-admitted only on command)
 
 Hysteresis: entering takes ``confirm`` consecutive alarms (or ``invalid_persist`` invalid samples), leaving
-takes ``required`` consecutive clean samples, each within the chi-square test of one sample AND their mean
-within the chi-square test of the mean (a bias of ``sqrt(chi2_1 / required)`` sigma keeps a sensor out).
+takes ``required`` consecutive clean samples, each within a loose chi-square test (1e-6) AND their mean
+and their energy within the chi-square tests of the mean and of the sum of squares at the design false-alarm
+probability (a bias of ``sqrt(chi2_1 / required)`` sigma keeps a sensor out).
 Against ping-pong (PX4's class of bug: a sensor switched in and out over and over) the clean period doubles
 with every isolation of the same sensor (``required = readmit_after * backoff^(isolations - 1)``), and after
 ``fail_after`` isolations the sensor is FAILED: a fault that keeps coming back costs at most
@@ -23,6 +24,7 @@ from __future__ import annotations
 from enum import IntEnum
 
 import numpy as np
+from scipy.stats import chi2
 
 __all__ = ["SensorHealth", "SensorState"]
 
@@ -54,7 +56,10 @@ class SensorHealth:
     fail_after : int
         Isolations of one sensor after which it is FAILED (not re-admitted automatically).
     mean_threshold : float
-        Chi-square (1 dof) threshold of the per-sample and of the mean re-admission test.
+        Chi-square (1 dof) threshold of the test on the mean residual over the clean period.
+    sample_threshold : float
+        Chi-square (1 dof) threshold each clean sample must pass (default: probability 1e-6 without a fault,
+        so that a clean period of 400 samples is not restarted by noise; gross outliers still restart it).
 
     Examples
     --------
@@ -68,7 +73,7 @@ class SensorHealth:
     """
 
     def __init__(self, n: int, readmit_after: int | None = 100, backoff: float = 2.0, fail_after: int = 4,
-                 mean_threshold: float = 10.83) -> None:
+                 mean_threshold: float = 10.83, sample_threshold: float = 23.93) -> None:
         if readmit_after is not None and readmit_after < 1:
             raise ValueError(f"readmit_after must be at least 1 sample (or None), got {readmit_after}")
         if backoff < 1.0:
@@ -80,6 +85,7 @@ class SensorHealth:
         self.backoff = float(backoff)
         self.fail_after = int(fail_after)
         self.mean_threshold = float(mean_threshold)
+        self.sample_threshold = float(sample_threshold)
         self.reset()
 
     def reset(self) -> None:
@@ -91,6 +97,7 @@ class SensorHealth:
         self.reason = [""] * n
         self._clean = np.zeros(n, dtype=np.int64)
         self._sum = np.zeros(n)
+        self._sumsq = np.zeros(n)
 
     # ---------------------------------------------------------------- queries
     @property
@@ -122,6 +129,7 @@ class SensorHealth:
         self.reason[i] = reason
         self._clean[i] = 0
         self._sum[i] = 0.0
+        self._sumsq[i] = 0.0
         failed = self.isolations[i] >= self.fail_after
         self.state[i] = SensorState.FAILED if failed else SensorState.ISOLATED
         return bool(failed)
@@ -134,6 +142,7 @@ class SensorHealth:
         self.reason[i] = ""
         self._clean[i] = 0
         self._sum[i] = 0.0
+        self._sumsq[i] = 0.0
 
     def unclean(self, i: int) -> None:
         """An invalid or inconsistent sample: a recovering sensor goes back to ISOLATED, its count restarts."""
@@ -141,6 +150,7 @@ class SensorHealth:
             self.state[i] = SensorState.ISOLATED
         self._clean[i] = 0
         self._sum[i] = 0.0
+        self._sumsq[i] = 0.0
 
     def clean_sample(self, i: int, z: float) -> bool:
         """One valid sample of an out sensor, normalised residual ``z`` against the estimate of the others.
@@ -152,19 +162,28 @@ class SensorHealth:
         need = self.required(i)
         if need is None:
             return False
-        if not z * z < self.mean_threshold:
+        if not z * z < self.sample_threshold:
             self.unclean(i)
             return False
         self.state[i] = SensorState.RECOVERING
         self._clean[i] += 1
         self._sum[i] += z
+        self._sumsq[i] += z * z
         if self._clean[i] >= need:
             N = int(self._clean[i])
-            if self._sum[i] ** 2 / N < self.mean_threshold:
+            if self._sum[i] ** 2 / N < self.mean_threshold and self._sumsq[i] < self._energy_threshold(N):
                 self.readmit(i)
                 return True
             self.unclean(i)
         return False
+
+    def _energy_threshold(self, N: int) -> float:
+        """chi2(N) quantile at the mean test's probability: the residuals' energy over the clean period (catches
+        a fault whose sign changes, e.g. a scale-factor error under a swinging input, which the mean misses)."""
+        cache = self.__dict__.setdefault("_energy", {})
+        if N not in cache:
+            cache[N] = float(chi2.isf(chi2.sf(self.mean_threshold, 1), N))
+        return cache[N]
 
     def clean_count(self, i: int) -> int:
         return int(self._clean[i])

@@ -267,7 +267,8 @@ class RedundancyManager:
         self._axes = cal.axes_mb()
         self._scale = cal.scale
         self._bias = cal.bias
-        self.sensors = SensorHealth(self.n, self.readmit_after, backoff, fail_after, self._thr1)
+        self.sensors = SensorHealth(self.n, self.readmit_after, backoff, fail_after, self._thr1,
+                                    glt_threshold(1e-6, 1))
         self._set_state: dict[int, HealthState] = {}
         self._remap: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         self.events: list[FdiEvent] = []
