@@ -114,8 +114,8 @@ def _one_run(spec: ScenarioSpec, geometry: str, kind: str, run: int, cal: Any, m
                                        sum(map(ord, geometry))]).generate_state(1)[0])
     rng = np.random.default_rng(seed)
     fs = spec.sample_rate
-    N = int(round(spec.duration * fs))
-    k0 = int(round(spec.onset * fs))
+    N = round(spec.duration * fs)
+    k0 = round(spec.onset * fs)
     n = cal.geometry.n
     sig = np.broadcast_to(cal.noise_sigma, (n,))
     # a manoeuvre: rates swinging about all three axes (stuck and scale faults need a changing input)
@@ -125,7 +125,7 @@ def _one_run(spec: ScenarioSpec, geometry: str, kind: str, run: int, cal: Any, m
     clean = cal.raw_output(u) + rng.standard_normal((N, n)) * (sig / cal.scale)
     Y = clean.copy()
     valid = np.ones((N, n), bool)
-    faulty, windows = _inject(kind, Y, valid, k0, rng, spec, sig, cal.scale)
+    faulty, _windows = _inject(kind, Y, valid, k0, rng, spec, sig, cal.scale)
     mgr.reset()
     res = mgr.run(Y, valid)
     tab = mgr.pipeline.table

@@ -33,7 +33,7 @@ def _mgr(cal, **kw):
 def test_dropout_on_four_channels_all_readmitted():
     """20 samples without data on four channels: unobservable meanwhile (never 'nominal'), three sensors isolated
     (the fourth would leave the unit blind), every one re-admitted once the data is back and clean."""
-    cal, u, Y = _unit(1, 1000)
+    cal, _u, Y = _unit(1, 1000)
     valid = np.ones(Y.shape, bool)
     valid[300:320, :4] = False
     Y[300:320, :4] = 0.0
@@ -50,7 +50,7 @@ def test_dropout_on_four_channels_all_readmitted():
 
 
 def test_all_nan_samples_are_unobservable_not_nominal():
-    cal, u, Y = _unit(2, 600)
+    cal, _u, Y = _unit(2, 600)
     Y[200:260] = np.nan
     mgr = _mgr(cal)
     res = mgr.run(Y)
@@ -65,7 +65,7 @@ def test_all_nan_samples_are_unobservable_not_nominal():
 def test_intermittent_fault_no_ping_pong_and_readmitted_at_the_end():
     """A 15 sigma bias on z1 in bursts of 1 s every 4 s (five bursts), then clean: each burst isolates the sensor
     at most once, re-admission waits longer after each isolation (backoff), at the end it is back in."""
-    cal, u, Y = _unit(3, 4000)
+    cal, _u, Y = _unit(3, 4000)
     bursts = [(400 + 400 * b, 500 + 400 * b) for b in range(5)]
     for a, z in bursts:
         Y[a:z, 2] += 15 * SIG / 0.002
@@ -84,7 +84,7 @@ def test_intermittent_fault_no_ping_pong_and_readmitted_at_the_end():
 
 
 def test_fault_that_keeps_coming_back_ends_failed():
-    cal, u, Y = _unit(4, 6000)
+    cal, _u, Y = _unit(4, 6000)
     for b in range(10):
         Y[300 + 500 * b: 400 + 500 * b, 4] += 20 * SIG / 0.002
     mgr = _mgr(cal, fail_after=3, readmit_after=50, backoff=1.0)
@@ -98,7 +98,7 @@ def test_fault_that_keeps_coming_back_ends_failed():
 
 def test_scale_fault_does_not_flap():
     """+3 % scale factor on y1 with an input swinging through zero: isolated, not switched in and out."""
-    cal, u, Y = _unit(5, 8000, amp=4.0)
+    cal, _u, Y = _unit(5, 8000, amp=4.0)
     Y[1000:, 1] = (Y[1000:, 1] * 0.002 - 0.05) * 1.03 / 0.002 + 0.05 / 0.002  # 3 % on the SI output
     mgr = _mgr(cal)
     res = mgr.run(Y)
@@ -122,7 +122,7 @@ def test_stuck_sensor_isolated_and_estimate_unbiased():
 
 def test_isolation_sample_is_consistent():
     """On every sample x, P, parity and active describe one set: x = G_e z and parity = Vz_e z for that set."""
-    cal, u, Y = _unit(7, 400)
+    cal, _u, Y = _unit(7, 400)
     Y[200:, 4] += 12 * SIG / 0.002
     mgr = _mgr(cal)
     tab = mgr.pipeline.table
@@ -144,7 +144,7 @@ def test_isolation_sample_is_consistent():
 
 
 def test_run_continues_state_and_reset_starts_over():
-    cal, u, Y = _unit(8, 1200)
+    cal, _u, Y = _unit(8, 1200)
     Y[400:, 0] += 12 * SIG / 0.002
     a = _mgr(cal)
     whole = a.run(Y)
@@ -169,7 +169,7 @@ def test_missing_noise_is_an_error_unless_given():
 
 
 def test_sensor_states_cover_the_machine():
-    cal, u, Y = _unit(9, 700)
+    cal, _u, Y = _unit(9, 700)
     Y[100:400, 5] += 15 * SIG / 0.002
     mgr = _mgr(cal)
     res = mgr.run(Y)

@@ -11,7 +11,7 @@ from rimu.fdi.campaign import clopper_pearson
 from rimu.fdi.multiple import FaultSetGlt, set_fault_rates, single_fault_rates
 from rimu.fusion import InstrumentPipeline
 from rimu.fusion.validity import Validity
-from rimu.geometry import cone6, dodecahedron6, preset
+from rimu.geometry import cone6, preset
 
 
 def _outcomes(glt, V, P, truth):
@@ -41,7 +41,7 @@ def test_single_fault_rates_match_the_derivation(geometry, m):
     k_missed = int(np.sum(det & (Rj > chi2.isf(0.01, 2))))
     lo, hi = clopper_pearson(k_missed, N, 0.999)
     assert lo <= th["missed"] <= hi, (k_missed / N, th["missed"])
-    correct, wrong, amb, n = _outcomes(glt, V, P[det], (j,))
+    correct, wrong, amb, _n = _outcomes(glt, V, P[det], (j,))
     for k, bound, side in ((wrong, th["wrong_upper"], "upper"), (amb, th["ambiguous_upper"], "upper"),
                            (correct, th["correct_lower"], "lower")):
         lo, hi = clopper_pearson(k, N, 0.999)

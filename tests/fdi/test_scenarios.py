@@ -22,7 +22,7 @@ def campaign():
 
 
 def test_no_biased_output_while_nominal(campaign):
-    spec, rows, summ = campaign
+    _spec, _rows, summ = campaign
     assert len(summ) == 3 * len(SCENARIOS)
     for s in summ:
         assert s["biased_while_nominal"] == 0, s
@@ -33,7 +33,7 @@ def test_no_biased_output_while_nominal(campaign):
 
 
 def test_dropouts_and_intermittent_faults_end_readmitted_without_ping_pong(campaign):
-    spec, rows, summ = campaign
+    _spec, _rows, summ = campaign
     for s in summ:
         if s["scenario"] in ("dropout", "intermittent"):
             assert s["readmitted_at_end"] == 1.0, s
@@ -43,7 +43,7 @@ def test_dropouts_and_intermittent_faults_end_readmitted_without_ping_pong(campa
 
 
 def test_double_faults_isolated_or_flagged_and_singles_isolated(campaign):
-    spec, rows, summ = campaign
+    _spec, rows, _summ = campaign
     for r in rows:
         if r["geometry"] in ("cone6", "dodecahedron6") and r["scenario"] in ("single", "double", "stuck", "ramp"):
             assert r["correct"] or r["flagged"], r
