@@ -30,8 +30,9 @@ def main() -> None:
     worst = max(s["biased_while_nominal"] for s in summ)
     print(json.dumps({"runs": len(rows), "elapsed_s": round(time.perf_counter() - t0, 1),
                       "biased_while_nominal": worst,
-                      "silent_double_faults": sum(1 for r in rows if r["scenario"] == "double"
-                                                  and not (r["correct"] or r["flagged"]))}))
+                      "cone6_double_neither_isolated_nor_flagged": sum(
+                          1 for r in rows if r["scenario"] == "double" and r["geometry"] == "cone6"
+                          and not (r["correct"] or r["flagged"]))}))
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"summary": summ, "rows": rows}, f, indent=1)

@@ -6,7 +6,8 @@ scenario (``single``, ``double``, ``intermittent``, ``dropout``, ``stuck``, ``ra
 sample by sample through :class:`rimu.fdi.RedundancyManager` and counts
 
 * detection (an alarm, or for a dropout the invalid data, after the onset), correct / wrong / missed
-  isolation and "flagged not isolable", the delay to the first isolation (or report), false alarm episodes
+  isolation and "flagged not isolable", the delay to the first isolation (to the first "not isolable" report
+  where nothing was isolated), false alarm episodes
   and false isolations per hour before the onset, the share of post-onset samples flagged DEGRADED or worse,
   re-admission at the end (intermittent faults and dropouts), the number of isolations (ping-pong);
 * **biased while nominal**: samples whose output says NOMINAL while the fault moves the estimate by more than
@@ -167,7 +168,7 @@ def _one_run(spec: ScenarioSpec, geometry: str, kind: str, run: int, cal: Any, m
         correct = end_iso == fset
         flagged = (not correct) and mgr.health.fault_not_isolable
         missed = not correct and not flagged and not wrong
-    delay = [(s - k0) / fs for s in (first, flagged_at) if s is not None]
+    delay = [(s - k0) / fs for s in ((first,) if first is not None else (flagged_at,)) if s is not None]
     return {
         "geometry": geometry, "scenario": kind, "run": run, "seed": seed, "faulty": sorted(fset),
         "detected": detected, "correct": bool(correct), "wrong": bool(wrong), "missed": bool(missed),

@@ -119,3 +119,20 @@ def test_two_simultaneous_faults_on_cone6_isolated_or_flagged_in_every_run():
             outcome["silent"] += 1
     assert outcome["silent"] == 0, outcome
     assert outcome["isolated"] > 400, outcome  # most pairs are separated within 90 samples of evidence
+
+
+def test_columns_close_to_pair_planes_in_three_dimensional_parity():
+    """docs/fdi.md: every cone6 column lies 19.47 deg (asin 1/3) from the plane of some pair without it, the
+    dodecahedron's 31.7 deg (asin 0.526): why a single must not be named before the pairs are rejected."""
+    from itertools import combinations
+
+    for g, want in (("cone6", np.arcsin(1 / 3)), ("dodecahedron6", np.arcsin(0.5257311121191336))):
+        V = preset(g).parity_matrix()
+        U = V / np.linalg.norm(V, axis=0)
+        worst = np.inf
+        for i, j in combinations(range(6), 2):
+            Q, _ = np.linalg.qr(U[:, [i, j]])
+            for k in set(range(6)) - {i, j}:
+                worst = min(worst, np.linalg.norm(U[:, k] - Q @ (Q.T @ U[:, k])))
+        assert np.degrees(np.arcsin(worst)) == pytest.approx(np.degrees(want), abs=1e-6)
+        assert round(float(np.degrees(want)), 1) == {"cone6": 19.5, "dodecahedron6": 31.7}[g]
