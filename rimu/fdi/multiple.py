@@ -106,8 +106,11 @@ class FaultSetGlt:
     'ambiguous'
     >>> glt.decide(5 * f, V, 3).sensors          # the mean of 25 samples (evidence sqrt(25) f) separates them
     (1, 4)
-    >>> glt.decide(12 * V[:, 2], V, 3).kind, glt.decide(12 * V[:, 2], V, 3).sensors
-    ('isolated', (2,))
+    >>> d = glt.decide(12 * V[:, 2], V, 3)      # one fault: the pair (x2, y2) without z1 still explains it
+    >>> d.kind, d.suspects
+    ('ambiguous', (2, 3, 4))
+    >>> glt.decide(24 * V[:, 2], V, 3).sensors   # four samples of evidence (twice the signal): named
+    (2,)
     """
 
     alpha: float = 1e-3
@@ -242,7 +245,7 @@ def single_fault_rates(Vz: np.ndarray, j: int, m: float, alpha: float = 1e-3, p_
     ``P(R_kl <= c_2)``). Outcomes not counted: a pair containing j isolated (at most ``missed``).
 
     >>> from rimu.geometry import dodecahedron6
-    >>> r = single_fault_rates(dodecahedron6().parity_matrix(), 0, 10.0)
+    >>> r = single_fault_rates(dodecahedron6().parity_matrix(), 0, 14.0)
     >>> round(r["missed"], 6), r["correct_lower"] > 0.99
     (0.001, True)
     """
