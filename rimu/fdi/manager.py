@@ -314,6 +314,7 @@ class RedundancyManager:
         self._invalid_pending = False
         self.events.clear()
         self.counts.clear()
+        self._plain_entry = -99
         h = self.health
         h.alarm, h.statistic, h.threshold, h.fault_not_isolable = False, 0.0, float("inf"), False
         h.isolated, h.suspects, h.validity = [], [], Validity.NOMINAL
@@ -479,6 +480,12 @@ class RedundancyManager:
         """Fill the result: the pipeline's sample, or the same sample without ``exclude`` (x, P, parity together)."""
         res = self.result
         h = self.health
+        if not exclude and r.entry == self._plain_entry and not h.alarm and not self._not_isolable \
+                and not self._ep_alarms:
+            # the common case: the same set as the previous sample, nothing going on; only the numbers changed
+            res.statistic, res.threshold, res.alarm = h.statistic, h.threshold, False
+            return res
+        self._plain_entry = -99
         if exclude and r.observable:
             act = r.active.copy()
             act[list(exclude)] = False
@@ -518,6 +525,8 @@ class RedundancyManager:
             res.validity = Validity.NOMINAL if ok else Validity.DEGRADED
         h.state = res.state
         h.validity = res.validity
+        if not exclude and not h.alarm and not self._not_isolable and not self._ep_alarms:
+            self._plain_entry = r.entry
         h.fault_not_isolable = self._not_isolable
         return res
 
