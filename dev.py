@@ -3,7 +3,7 @@
 
     python3 dev.py demo     # create .venv, install rimu, run the end-to-end demo
     python3 dev.py test     # create .venv, install rimu with test extras, run the test suite
-    python3 dev.py bench    # run the benchmarks (prints tables and JSON)
+    python3 dev.py bench [NAME ...]  # run the benchmarks, record them, regenerate benchmarks/RESULTS.md
 
 The virtual environment lives in .venv beside this file and is reused on later calls.
 """
@@ -46,6 +46,70 @@ def run(args: list[str], single_thread_blas: bool = False) -> int:
     return subprocess.call([str(PY), *args], cwd=ROOT, env=env)
 
 
+def bench(names: list[str]) -> int:
+    """Run the benchmarks (all, or those named), record each one's output in benchmarks/results/NAME.json with
+    the machine, date and command, and render benchmarks/RESULTS.md from every record."""
+    import datetime
+    import json
+    import platform
+    import time
+
+    bdir = ROOT / "benchmarks"
+    skip = {"render_results", "imucal_reference"}  # the renderer; a reference script run by hand (see its doc)
+    scripts = [b for b in sorted(bdir.glob("*.py")) if b.stem not in skip and (not names or b.stem in names)]
+    unknown = set(names) - {b.stem for b in scripts}
+    if unknown:
+        print(f"[dev] no benchmark called {sorted(unknown)}; known: {sorted(b.stem for b in bdir.glob('*.py'))}")
+        return 2
+    (bdir / "results").mkdir(exist_ok=True)
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    machine = f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}"
+    code = 0
+    for b in scripts:
+        print(f"[dev] benchmark {b.name}", flush=True)
+        t0 = time.perf_counter()
+        env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
+        proc = subprocess.Popen([str(PY), str(b)], cwd=ROOT, env=env, stdout=subprocess.PIPE, text=True)
+        lines = []
+        for line in proc.stdout:  # echo as it runs, keep for the record
+            print(line, end="", flush=True)
+            lines.append(line.rstrip("\n"))
+        status = proc.wait()
+        code |= status
+        data, table = None, lines
+        for k in range(len(lines) - 1, -1, -1):
+            try:
+                data = json.loads(lines[k])
+            except ValueError:
+                continue
+            if isinstance(data, dict):
+                table = lines[:k] + lines[k + 1:]
+                break
+            data = None
+        doc = ""
+        import ast
+        try:
+            doc = (ast.get_docstring(ast.parse(b.read_text())) or "").strip().split("\n\n")[0]
+        except SyntaxError:
+            pass
+        rec = {"name": b.stem, "summary": " ".join(doc.split()), "command": f"python3 dev.py bench {b.stem}",
+               "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+               "machine": machine, "seconds": time.perf_counter() - t0, "exit_status": status,
+               "output": "\n".join(table), "json": data}
+        tmp = bdir / "results" / f".{b.stem}.json.tmp"
+        tmp.write_text(json.dumps(rec, indent=1) + "\n")
+        os.replace(tmp, bdir / "results" / f"{b.stem}.json")
+    code |= run([str(bdir / "render_results.py")])
+    return code
+
+
 def main(argv: list[str]) -> int:
     cmd = argv[0] if argv else "help"
     rest = argv[1:]
@@ -56,12 +120,8 @@ def main(argv: list[str]) -> int:
         ensure_env("test")
         return run(["-m", "pytest", *rest], single_thread_blas=True)
     if cmd == "bench":
-        ensure_env("test")
-        code = 0
-        for b in sorted((ROOT / "benchmarks").glob("*.py")):
-            print(f"[dev] benchmark {b.name}", flush=True)
-            code |= run([str(b), *rest])
-        return code
+        ensure_env("test,bench")
+        return bench(rest)
     print(__doc__)
     return 0 if cmd in ("help", "-h", "--help") else 2
 

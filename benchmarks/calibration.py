@@ -65,7 +65,9 @@ def errors(truth, sf_a, ax_a, b_a, sf_g, ax_g, b_g) -> dict[str, float]:
         return np.degrees(np.arccos(np.clip(np.sum(A * B, axis=1), -1, 1))) * 3600
 
     ta, tg = truth["accel"], truth["gyro"]
-    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))
+    def rms(x):
+        return float(np.sqrt(np.mean(np.square(x))))
+
     return {
         "acc_scale_ppm": rms((sf_a / ta.scale - 1) * 1e6), "acc_axis_arcsec": rms(ang(ax_a, ta.axes_mb())),
         "acc_bias_ug": rms((b_a - ta.bias) * MS2_TO_UG),
@@ -78,6 +80,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--accuracy-runs", type=int, default=20)
+    ap.add_argument("--memory-factor", type=int, default=16, help="length of the memory test session, x 60 s")
     args = ap.parse_args()
     out: dict = {"benchmark": "calibration", "imucal": HAVE_IMUCAL}
 
@@ -145,6 +148,58 @@ def main() -> None:
     if not HAVE_IMUCAL:
         print("  imucal: not importable here, no reference accuracy")
     out["accuracy"] = summary
+
+    # 3. the real Ferraris recording shared with imucal (../shared/data), both from data in memory
+    folder = next((c for c in (Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "imucal_ferraris_session",
+                               Path("/work/shared/data/imucal_ferraris_session")) if c.exists()), None)
+    if folder is not None:
+        from rimu.session import load_ferraris
+
+        sess = load_ferraris(folder)
+        tr = []
+        for _ in range(args.repeats):
+            fresh = load_ferraris(folder)  # a session never fitted before: no cache helps
+            t0 = time.perf_counter()
+            LeastSquares().fit(fresh).to_calibration()
+            tr.append(time.perf_counter() - t0)
+        real = {"rimu_lsq_ms": statistics.median(tr) * 1e3,
+                "samples": sum(x.n_samples for x in sess.segments)}
+        if HAVE_IMUCAL:
+            import pandas as pd
+            from imucal import FerrarisCalibration, ferraris_regions_from_section_list
+
+            data = pd.read_csv(folder / "example_ferraris_session.csv", header=0, index_col=0)
+            sections = pd.read_json(folder / "example_ferraris_session_list.json").T
+            ti = []
+            for _ in range(args.repeats):
+                t0 = time.perf_counter()
+                regions = ferraris_regions_from_section_list(data, sections)
+                FerrarisCalibration().compute(regions, sampling_rate_hz=102.4, from_acc_unit="m/s^2",
+                                              from_gyr_unit="deg/s")
+                ti.append(time.perf_counter() - t0)
+            real["imucal_ms"] = statistics.median(ti) * 1e3
+            real["ratio_rimu_over_imucal"] = real["rimu_lsq_ms"] / real["imucal_ms"]
+        print(f"\nreal Ferraris recording ({real['samples']} samples, median of {args.repeats}): rimu LeastSquares "
+              f"{real['rimu_lsq_ms']:.2f} ms" + (f", imucal {real['imucal_ms']:.2f} ms, ratio "
+                                                 f"{real['ratio_rimu_over_imucal']:.2f}" if HAVE_IMUCAL else ""))
+        out["real_ferraris"] = real
+    else:
+        print("\nreal Ferraris recording: ../shared/data/imucal_ferraris_session is absent here")
+
+    # 4. memory: peak allocation of a fit on a 16x-long session (beyond the session's own samples)
+    import tracemalloc
+
+    big = Simulator(seed=3).run(cho_park_procedure(duration=60.0 * args.memory_factor)).session
+    data_mb = sum(s.raw["gyro"].nbytes + s.raw["accel"].nbytes + s.t.nbytes for s in big.segments) / 1e6
+    mem = {"session_data_mb": data_mb, "factor": args.memory_factor}
+    for name, est in (("chopark", ChoPark), ("lsq", LeastSquares)):
+        tracemalloc.start()
+        est().fit(big).to_calibration()
+        mem[f"{name}_peak_mb"] = tracemalloc.get_traced_memory()[1] / 1e6
+        tracemalloc.stop()
+    print(f"memory, {args.memory_factor}x-long cone6 session ({data_mb:.0f} MB of samples): peak extra allocation "
+          f"ChoPark {mem['chopark_peak_mb']:.1f} MB, LeastSquares {mem['lsq_peak_mb']:.1f} MB (target < 200 MB)")
+    out["memory"] = mem
     print(json.dumps(out))
 
 

@@ -21,8 +21,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from rimu.fusion import InstrumentPipeline  # noqa: E402
-from rimu.sim import cho_park_table3  # noqa: E402
+from rimu.fusion import InstrumentPipeline
+from rimu.sim import cho_park_table3
 
 
 def median_time(fn, repeats: int) -> float:

@@ -13,13 +13,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from rimu.calibration import Calibration  # noqa: E402
-from rimu.calibration.lsq import fit_lsq  # noqa: E402
-from rimu.errors import RankDeficientError  # noqa: E402
-from rimu.fusion import Pipeline  # noqa: E402
-from rimu.geometry import Geometry, cone6  # noqa: E402
-from rimu.sim import Simulator, cho_park_procedure  # noqa: E402
-from rimu.units import RS_TO_DS  # noqa: E402
+from rimu.calibration import Calibration
+from rimu.calibration.lsq import fit_lsq
+from rimu.errors import RankDeficientError
+from rimu.fusion import Pipeline
+from rimu.geometry import Geometry, cone6
+from rimu.sim import Simulator, cho_park_procedure
+from rimu.units import RS_TO_DS
 
 
 def main() -> None:

@@ -8,6 +8,7 @@ keeps working. Messages say what was wrong and what to do about it.
 from __future__ import annotations
 
 __all__ = [
+    "ExportError",
     "RimuError",
     "GeometryError",
     "RankDeficientError",
@@ -95,3 +96,7 @@ class FrameError(RimuError, ValueError):
 
 class MissingNoiseError(RimuError, ValueError):
     """A noise figure the computation needs (a calibration's ``noise_sigma``) is missing and was not given."""
+
+
+class ExportError(RimuError, ValueError):
+    """A calibration cannot be exported as flight code (an effect without a C compensation, missing noise, ...)."""

@@ -2,7 +2,7 @@
 
 import warnings
 
-from .session import (  # noqa: F401
+from .session import (
     FERRARIS_SECTIONS,
     SESSION_FORMAT,
     SESSION_FORMAT_VERSION,

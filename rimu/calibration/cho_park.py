@@ -75,7 +75,8 @@ def accel_rows(segments: Sequence[Segment], C: np.ndarray, gravity: float) -> tu
         f = s.specific_force(gravity)
         if f is None:
             continue
-        rows.append(np.concatenate([C @ f.mean(axis=0), [1.0]]))
+        fbar = f[0] if f.strides[0] == 0 else f.mean(axis=0)  # a static position's force is one vector
+        rows.append(np.concatenate([C @ fbar, [1.0]]))
         used.append(s)
     return np.array(rows).reshape(-1, 4), used
 
@@ -161,10 +162,11 @@ class ChoPark:
         fits = []
         used: list[Segment] = []
         cache: dict = {}
+        means = {s.label: s.raw["accel"].mean(axis=0) for s in session.segments if s.kind == "static"}
         for ctx in contexts(session, "accel"):
             C = ctx.geometry.subunit_of(ctx.index).mat_sb_mb
             S, used = accel_rows(session.segments, C, session.gravity)  # Eq. 6, 8
-            Y = np.array([s.raw["accel"][:, ctx.index].mean() for s in used])  # Eq. 9
+            Y = np.array([means[s.label][ctx.index] for s in used])  # Eq. 9
             W = np.array([s.n_samples for s in used], dtype=float)
             s2 = float(sig[ctx.index]) ** 2
             A = np.linalg.inv(S.T @ (W[:, None] * S))
@@ -192,12 +194,13 @@ class ChoPark:
             if self.earth_rate and s.mat_ln_mb is not None and session.latitude is not None:
                 we[k] = s.mat_ln_mb.T @ earth_rate_ln(session.latitude)
                 earth_used += 1
+        means = {s.label: s.raw["gyro"].mean(axis=0) for s in session.segments}
         for ctx in contexts(session, "gyro"):
             C = ctx.geometry.subunit_of(ctx.index).mat_sb_mb
             i = ctx.index
             s2 = float(sig[i]) ** 2
             R = gyro_rows(pairs, C)  # Eq. 12, 14
-            Yg = np.array([a.raw["gyro"][:, i].mean() - b.raw["gyro"][:, i].mean() for a, b in pairs])  # Eq. 15
+            Yg = np.array([means[a.label][i] - means[b.label][i] for a, b in pairs])  # Eq. 15
             V = np.array([1.0 / a.n_samples + 1.0 / b.n_samples for a, b in pairs])
             A = np.linalg.inv(R.T @ (R / V[:, None]))
             m_sf = A @ R.T @ (Yg / V)  # Eq. 13 (weighted by the variance of each difference)
@@ -207,7 +210,7 @@ class ChoPark:
             cov_w = C.T @ cov_m @ C
             # Eq. 16-17: bias from the static positions, Earth rate subtracted where known
             N = np.array([s.n_samples for s in statics], dtype=float)
-            ybar = np.array([s.raw["gyro"][:, i].mean() for s in statics])
+            ybar = np.array([means[s.label][i] for s in statics])
             wbar = (N @ we) / N.sum()
             c = float((N @ ybar) / N.sum() - w @ wbar)
             var_c = s2 / N.sum() + wbar @ cov_w @ wbar

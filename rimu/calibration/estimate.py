@@ -21,7 +21,14 @@ import numpy as np
 
 from ..errors import IdentifiabilityError
 from ..session import Segment, Session
-from .lsq import LsqResult, SensorFit, _check_identifiable, physical_from_beta
+from .lsq import (
+    LazyResiduals,
+    LsqResult,
+    SensorFit,
+    check_identifiable_gram,
+    physical_from_beta,
+    rss_from_statistics,
+)
 from .model import ErrorModel, SensorContext, contexts
 from .result import Calibration, InstrumentCalibration
 
@@ -50,8 +57,10 @@ def estimate_noise_sigma(session: Session, instrument: str) -> np.ndarray:
         if y.shape[0] < 3:
             continue
         d = np.diff(y, axis=0)
-        acc += np.sum((d - d.mean(axis=0)) ** 2, axis=0)
-        cnt += d.shape[0] - 1
+        m = d.shape[0]
+        # sum of squared deviations of the differences from their mean (y[-1] - y[0]) / m, in one pass
+        acc += np.einsum("ij,ij->j", d, d) - (y[-1] - y[0]) ** 2 / m
+        cnt += m - 1
     if cnt == 0:
         raise IdentifiabilityError(f"{instrument}: no segment has enough samples to estimate the noise level")
     sig = np.sqrt(acc / cnt / 2.0)
@@ -61,28 +70,34 @@ def estimate_noise_sigma(session: Session, instrument: str) -> np.ndarray:
 
 
 def segment_residuals(model: ErrorModel, ctx: SensorContext, segments: Sequence[Segment], beta: np.ndarray,
-                      instrument: str, cache: dict[str, np.ndarray | None] | None = None) -> dict[str, np.ndarray]:
-    """Per-sample residuals ``y - X beta`` (raw units) of every segment whose inputs the model knows.
+                      instrument: str, cache: dict[str, bool] | None = None) -> LazyResiduals:
+    """Residuals ``y - X beta`` (raw units) of every segment whose inputs the model knows, computed per segment
+    when asked for (a :class:`~rimu.calibration.lsq.LazyResiduals`: memory proportional to the segments).
 
-    For the base model (scale/misalignment + bias) the known input of a segment is the same for every sensor
-    of an instrument; pass one ``cache`` dict for all sensors to compute it once per segment.
+    ``cache`` (one dict for all sensors of an instrument) remembers which segments have a known input.
     """
-    out: dict[str, np.ndarray] = {}
     base = [e.name for e in model.effects_for(ctx)] == ["scale_misalignment", "bias"]
+    makers: dict[str, Any] = {}
     for seg in segments:
-        if base and cache is not None:
-            if seg.label not in cache:
-                cache[seg.label] = _known_input(ctx, seg)
-            u = cache[seg.label]
-            if u is None:
-                continue
-            out[seg.label] = seg.raw[instrument][:, ctx.index] - (u @ beta[:3] + beta[3])
-            continue
-        X = model.design(seg, ctx)
-        if X is None:
-            continue
-        out[seg.label] = seg.raw[instrument][:, ctx.index] - X @ beta
-    return out
+        if base:
+            if cache is None or seg.label not in cache:  # whether the segment's input is known (not the input)
+                known = _input_known(ctx, seg)
+                if cache is not None:
+                    cache[seg.label] = known
+            else:
+                known = cache[seg.label]
+            if known:
+                makers[seg.label] = _bind(_base_residual(seg, instrument, ctx, None), beta)
+        elif model.design(seg, ctx) is not None:
+            makers[seg.label] = _bind(_model_residual(seg, instrument, ctx, model), beta)
+    return LazyResiduals(makers)
+
+
+def _input_known(ctx: SensorContext, seg: Segment) -> bool:
+    """Whether ``ctx.input(seg)`` is not None, without computing the input."""
+    if ctx.instrument == "gyro":
+        return seg.kind in ("rate", "static")
+    return seg.specific_force_mb is not None or seg.mat_ln_mb is not None
 
 
 def _known_input(ctx: SensorContext, seg: Segment) -> np.ndarray | None:
@@ -274,55 +289,137 @@ class LeastSquares:
         notes: list[str] = []
         for inst in insts:
             sig = _sigma_for(self.sigma, session, inst)
-            fits = []
             skipped: dict[str, str] = {}
-            cache: dict[str, np.ndarray | None] = {}
             base = [e.name for e in model.effects] == ["scale_misalignment", "bias"]
-            for ctx in contexts(session, inst):
-                Xs, ys, labels = [], [], []
-                for seg in segs:
-                    if base:  # the known input is the same for every sensor of the instrument: compute it once
-                        if seg.label not in cache:
-                            cache[seg.label] = _known_input(ctx, seg)
-                        u = cache[seg.label]
-                        X = None if u is None else np.column_stack([u, np.ones(seg.n_samples)])
-                    else:
-                        X = model.design(seg, ctx)
-                    y = seg.raw[inst][:, ctx.index]
-                    if X is not None:
-                        Xs.append(X)
-                        ys.append(y)
-                        labels.append(seg.label)
-                    elif seg.kind == "angle" and inst == "gyro" and base_only and seg.n_samples > 1:
-                        Xs.append(_angle_row(seg, model, ctx))
-                        ys.append(np.array([y.sum() / np.sqrt(seg.n_samples)]))
-                        labels.append(seg.label)
-                    else:
-                        skipped[seg.label] = "the segment lacks inputs an effect needs (known rate, attitude or angle)"
-                if not Xs:
+            ctxs = contexts(session, inst)
+            if base:
+                stats = self._base_statistics(session, segs, inst, ctxs[0], skipped)
+            fits = []
+            for ctx in ctxs:
+                names = model.parameter_names(ctx)
+                if base:
+                    G, h, q, n_obs, labels, makers = stats[0], stats[1][:, ctx.index], stats[2][ctx.index], stats[3], \
+                        stats[4], {lab: _base_residual(seg, inst, ctx, u) for lab, seg, u in stats[5]}
+                else:
+                    G, h, q, n_obs, labels, makers = self._model_statistics(segs, inst, ctx, model, base_only,
+                                                                            skipped)
+                if not labels:
                     raise IdentifiabilityError(f"{inst}: no segment carries the inputs the model {model.label} needs",
                                                model.parameter_names(ctx))
-                X = np.vstack(Xs)
-                y = np.concatenate(ys)
-                names = model.parameter_names(ctx)
                 try:
-                    _check_identifiable(X, names, inst)
+                    check_identifiable_gram(G, n_obs, names, inst)
                 except IdentifiabilityError as exc:
                     raise IdentifiabilityError(str(exc), _physical_names(model, ctx, exc.parameters)) from None
-                beta, *_ = np.linalg.lstsq(X, y, rcond=None)
-                r = y - X @ beta
+                Ginv = np.linalg.inv(G)
+                beta = Ginv @ h
+                rss = rss_from_statistics(q, h, G, beta)
+                res = LazyResiduals({lab: _bind(mk, beta) for lab, mk in makers.items()})
+                if rss < 1e-8 * q:  # cancellation in the statistics: an exact second pass
+                    rss = sum(float(np.sum(res[lab] ** 2)) for lab in res)
                 s = float(sig[ctx.index])
-                cov = s**2 * np.linalg.inv(X.T @ X)
-                res, k = {}, 0
-                for lab, yy in zip(labels, ys):
-                    res[lab] = r[k:k + len(yy)]
-                    k += len(yy)
-                fits.append(make_sensor_fit(model, ctx, beta, cov, s, self.sigma is not None, len(y),
-                                            float(r @ r) / s**2, res))
+                fits.append(make_sensor_fit(model, ctx, beta, s**2 * Ginv, s, self.sigma is not None, n_obs,
+                                            rss / s**2, res))
             out[inst] = LsqResult(inst, model, fits, [x.label for x in segs if x.label not in skipped], skipped)
             if skipped:
                 notes.append(f"{inst}: segments not used: {sorted(skipped)}")
         return CalibrationResult(f"least squares ({model.label})", out, session.raw_unit, notes)
+
+
+    @staticmethod
+    def _base_statistics(session: Session, segs: list[Segment], inst: str, ctx0: SensorContext,
+                         skipped: dict[str, str]) -> tuple:
+        """Sufficient statistics of the base model for every sensor of ``inst`` at once: the known input u of a
+        segment is the same for all of them, so ``X = [u, 1]`` and ``X^T X`` are shared, ``X^T Y`` is one
+        product for all sensors; a static segment's constant input costs nothing per sample."""
+        G = np.zeros((4, 4))
+        H = np.zeros((4, session.geometries[inst].n))
+        q = np.zeros(session.geometries[inst].n)
+        n_obs, labels, parts = 0, [], []
+        for seg in segs:
+            Y = seg.raw[inst]
+            u = _known_input(ctx0, seg)
+            if u is None:
+                if seg.kind == "angle" and inst == "gyro" and seg.n_samples > 1:
+                    x = _angle_row(seg, ErrorModel.base(), ctx0)[0]
+                    yv = Y.sum(axis=0) / np.sqrt(seg.n_samples)
+                    G += np.outer(x, x)
+                    H += np.outer(x, yv)
+                    q += yv**2
+                    n_obs += 1
+                    labels.append(seg.label)
+                    parts.append((seg.label, seg, ("angle", x, yv)))
+                else:
+                    skipped[seg.label] = "the segment lacks inputs an effect needs (known rate, attitude or angle)"
+                continue
+            N = seg.n_samples
+            if u.strides[0] == 0:  # one input for every sample (a static position)
+                x = np.append(u[0], 1.0)
+                G += N * np.outer(x, x)
+                H += np.outer(x, Y.sum(axis=0))
+            else:
+                X = np.column_stack([u, np.ones(N)])
+                G += X.T @ X
+                H += X.T @ Y
+            q += np.einsum("ij,ij->j", Y, Y)
+            n_obs += N
+            labels.append(seg.label)
+            parts.append((seg.label, seg, None))
+        return G, H, q, n_obs, labels, parts
+
+    @staticmethod
+    def _model_statistics(segs: list[Segment], inst: str, ctx: SensorContext, model: ErrorModel, base_only: bool,
+                          skipped: dict[str, str]) -> tuple:
+        p = len(model.parameter_names(ctx))
+        G, h, q, n_obs = np.zeros((p, p)), np.zeros(p), 0.0, 0
+        labels: list[str] = []
+        makers: dict[str, Any] = {}
+        for seg in segs:
+            X = model.design(seg, ctx)
+            y = seg.raw[inst][:, ctx.index]
+            if X is not None:
+                makers[seg.label] = _model_residual(seg, inst, ctx, model)
+                n_obs += len(y)
+            elif seg.kind == "angle" and inst == "gyro" and base_only and seg.n_samples > 1:
+                X = _angle_row(seg, model, ctx)
+                y = np.array([y.sum() / np.sqrt(seg.n_samples)])
+                makers[seg.label] = ("angle", X[0], y[0])
+                n_obs += 1
+            else:
+                skipped[seg.label] = "the segment lacks inputs an effect needs (known rate, attitude or angle)"
+                continue
+            G += X.T @ X
+            h += X.T @ y
+            q += float(y @ y)
+            labels.append(seg.label)
+        return G, h, q, n_obs, labels, makers
+
+
+def _base_residual(seg: Segment, inst: str, ctx: SensorContext, u: Any) -> Any:
+    """Residual function of the base model; the known input is recomputed when asked for, not kept."""
+    if isinstance(u, tuple):  # an angle row: (tag, x, y for all sensors)
+        return ("angle", u[1], float(u[2][ctx.index]))
+
+    def make(beta: np.ndarray) -> np.ndarray:
+        uu = _known_input(ctx, seg)
+        return seg.raw[inst][:, ctx.index] - (uu @ beta[:3] + beta[3])
+
+    return make
+
+
+def _model_residual(seg: Segment, inst: str, ctx: SensorContext, model: ErrorModel) -> Any:
+    def make(beta: np.ndarray) -> np.ndarray:
+        return seg.raw[inst][:, ctx.index] - model.design(seg, ctx) @ beta
+
+    return make
+
+
+def _bind(maker: Any, beta: np.ndarray) -> Any:
+    """A residual function of the fitted beta; an angle row's residual is its one integrated value."""
+    if isinstance(maker, tuple):
+        _, x, y = maker
+        r = np.array([float(y - x @ beta)])
+        return lambda: r
+    return lambda: maker(beta)
 
 
 def _physical_names(model: ErrorModel, ctx: SensorContext, raw_names: Sequence[str]) -> list[str]:

@@ -10,8 +10,8 @@ their covariance by its Jacobian (checked against finite differences in the test
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 
@@ -21,7 +21,8 @@ from .effects.scale_misalignment import ScaleMisalignment
 from .model import ErrorModel, ParamSpec, SensorContext, contexts
 from .result import InstrumentCalibration
 
-__all__ = ["SensorFit", "LsqResult", "fit_lsq", "physical_from_beta"]
+__all__ = ["LazyResiduals", "LsqResult", "SensorFit", "check_identifiable_gram", "fit_lsq", "physical_from_beta",
+           "rss_from_statistics"]
 
 
 @dataclass
@@ -187,51 +188,79 @@ def fit_lsq(
     skipped: dict[str, str] = {}
     used: list[str] = []
     for ctx in ctxs:
-        Xs, ys, labels = [], [], []
+        # sufficient statistics per segment: X^T X, X^T y, y^T y (the design is never stacked over the session)
+        p_ = len(model.parameter_names(ctx))
+        G, h, q, n_obs = np.zeros((p_, p_)), np.zeros(p_), 0.0, 0
+        labels = []
         for seg in segs:
             X = model.design(seg, ctx)
             if X is None:
                 skipped[seg.label] = "the segment lacks inputs an effect needs (e.g. a known rate or attitude)"
                 continue
-            Xs.append(X)
-            ys.append(seg.raw[instrument][:, ctx.index])
+            y = seg.raw[instrument][:, ctx.index]
+            G += X.T @ X
+            h += X.T @ y
+            q += float(y @ y)
+            n_obs += len(y)
             labels.append(seg.label)
-        if not Xs:
+        if not labels:
             raise IdentifiabilityError(f"no segment of the session carries the inputs the model {model.label} needs")
-        X = np.vstack(Xs)
-        y = np.concatenate(ys)
         names = model.parameter_names(ctx)
-        _check_identifiable(X, names, instrument)
-        beta, *_ = np.linalg.lstsq(X, y, rcond=None)
-        r = y - X @ beta
-        rss = float(r @ r)
-        dof = max(len(y) - len(beta), 1)
+        check_identifiable_gram(G, n_obs, names, instrument)
+        XtX_inv = np.linalg.inv(G)
+        beta = XtX_inv @ h
+        rss = rss_from_statistics(q, h, G, beta)
+        if rss < 1e-8 * q:  # cancellation in q - 2 b.h + b.G.b: a second exact pass, segment by segment
+            rss = sum(float(np.sum(_design_residual(model, ctx, session.segment(lab), instrument, beta)() ** 2))
+                      for lab in labels)
+        dof = max(n_obs - len(beta), 1)
         known = sig is not None
         s = float(sig[ctx.index]) if known else float(np.sqrt(rss / dof))
-        XtX_inv = np.linalg.inv(X.T @ X)
         bcov = s**2 * XtX_inv
         theta, J, specs = physical_from_beta(model, ctx, beta)
         tcov = J @ bcov @ J.T
-        res, k = {}, 0
-        for lab, yy in zip(labels, ys):
-            res[lab] = r[k:k + len(yy)]
-            k += len(yy)
+        res = LazyResiduals({lab: _design_residual(model, ctx, session.segment(lab), instrument, beta)
+                             for lab in labels})
         fits.append(SensorFit(ctx, names, beta, bcov, [f"{ctx.name}.{p.name}" for p in specs], specs,
-                              theta, tcov, s, known, len(y), rss, res))
+                              theta, tcov, s, known, n_obs, rss, res))
         used = labels
     return LsqResult(instrument, model, fits, used, skipped)
 
 
+def rss_from_statistics(q: float, h: np.ndarray, G: np.ndarray, beta: np.ndarray) -> float:
+    """Residual sum of squares ``|y - X beta|^2 = y.y - 2 beta.X^T y + beta.X^T X.beta`` from the statistics."""
+    return max(float(q) - 2.0 * float(beta @ h) + float(beta @ G @ beta), 0.0)
+
+
+def _design_residual(model: ErrorModel, ctx: SensorContext, seg, instrument: str,
+                     beta: np.ndarray) -> Callable[[], np.ndarray]:
+    """A function returning the segment's residual ``y - X beta`` (the design rebuilt when asked for)."""
+    def make() -> np.ndarray:
+        return seg.raw[instrument][:, ctx.index] - model.design(seg, ctx) @ beta
+
+    return make
+
+
 def _check_identifiable(X: np.ndarray, names: list[str], instrument: str) -> None:
-    if X.shape[0] < X.shape[1]:
-        raise IdentifiabilityError(
-            f"{instrument}: {X.shape[0]} observations for {X.shape[1]} parameters; add segments", names
-        )
-    scale = np.linalg.norm(X, axis=0)
+    """Raise IdentifiabilityError naming the parameters whose design columns ``X`` are linearly dependent."""
+    check_identifiable_gram(X.T @ X, X.shape[0], names, instrument)
+
+
+def check_identifiable_gram(G: np.ndarray, n_rows: int, names: list[str], instrument: str) -> None:
+    """The identifiability check on the Gram matrix ``G = X^T X`` of ``n_rows`` observations (the sufficient
+    statistic the estimators accumulate segment by segment, so no per-sample design is ever held).
+
+    Columns are scaled to unit norm; a direction whose scaled eigenvalue is below 1e-12 of the largest (a
+    singular value ratio of 1e-6: a variance inflation of 1e12) cannot be identified and its parameters are
+    named.
+    """
+    p = G.shape[0]
+    if n_rows < p:
+        raise IdentifiabilityError(f"{instrument}: {n_rows} observations for {p} parameters; add segments", names)
+    scale = np.sqrt(np.clip(np.diag(G), 0.0, None))
     scale[scale == 0] = 1.0
-    _, s, Vt = np.linalg.svd(X / scale, full_matrices=False)
-    tol = 1e-9 * s[0] * max(X.shape)
-    null = Vt[s <= tol]
+    lam, V = np.linalg.eigh(G / np.outer(scale, scale))
+    null = V[:, lam <= 1e-12 * max(lam[-1], 1e-300)].T
     if null.size:
         involved = [names[k] for k in range(len(names)) if np.abs(null[:, k]).max() > 1e-6]
         raise IdentifiabilityError(
@@ -239,6 +268,38 @@ def _check_identifiable(X: np.ndarray, names: list[str], instrument: str) -> Non
             f"{involved}. Add segments whose inputs differ in the directions involved (more attitudes or rotation axes)",
             involved,
         )
+
+
+class LazyResiduals(Mapping):
+    """Per-segment residuals ``y - X beta`` (raw units), computed when asked for, never all held at once.
+
+    A fit keeps memory proportional to the number of segments, not of samples: each entry is recomputed from
+    the segment's samples on access (``residuals["P1"]``). Entries set explicitly (``residuals[label] =
+    array``) are stored as given.
+    """
+
+    def __init__(self, makers: dict[str, Callable[[], np.ndarray]] | None = None) -> None:
+        self._makers: dict[str, Callable[[], np.ndarray]] = dict(makers or {})
+        self._given: dict[str, np.ndarray] = {}
+
+    def __getitem__(self, label: str) -> np.ndarray:
+        if label in self._given:
+            return self._given[label]
+        return self._makers[label]()
+
+    def __setitem__(self, label: str, value: np.ndarray) -> None:
+        self._given[label] = np.asarray(value)
+        self._makers.pop(label, None)
+
+    def __iter__(self) -> Iterator[str]:
+        yield from self._makers
+        yield from (k for k in self._given if k not in self._makers)
+
+    def __len__(self) -> int:
+        return len(set(self._makers) | set(self._given))
+
+    def __repr__(self) -> str:
+        return f"LazyResiduals({list(self)})"
 
 
 def _block_diag(blocks: list[np.ndarray]) -> np.ndarray:

@@ -30,13 +30,13 @@ from typing import Any
 import numpy as np
 
 from ..errors import IdentifiabilityError
-from ..geometry import null_space_rows
 from ..session import Session
 from ..units import RS_TO_DH
 from .cho_park import _named_rank_check, gyro_rows, rate_pairs
 from .estimate import CalibrationResult, _sigma_for, make_sensor_fit, segment_residuals
 from .lsq import LsqResult
 from .model import ErrorModel, contexts
+from .parity_check import pair_parity
 
 __all__ = ["Oliveira", "denoise", "parity_check"]
 
@@ -62,28 +62,14 @@ def denoise(y: np.ndarray, wavelet: str = "db4", level: int = 8) -> np.ndarray:
 
 
 def parity_check(session: Session, result: CalibrationResult, instrument: str = "gyro") -> dict[str, Any]:
-    """de Oliveira et al. 2012, Eq. 22-25: parity vectors of the nominal (``v``, Eq. 24) and calibrated
-    (``v_c``, Eq. 25) geometry applied to the scale-corrected half differences of every +/- pair (bias and
-    Earth rate removed, the commanded rate only). Returns both vectors and the per-pair values (SI) with the
-    standard deviation expected from noise alone."""
-    cal = result.instruments[instrument].to_calibration()
-    g = cal.geometry
-    v = null_space_rows(g.H)
-    vc = null_space_rows(cal.axes_mb())
-    for k in range(vc.shape[0]):  # same sign convention as v (Eq. 24-25 compare them entry by entry)
-        if vc[k] @ v[k] < 0:
-            vc[k] = -vc[k]
-    pairs, _ = rate_pairs(session.segments)
-    sig = np.array([s.sigma for s in result.instruments[instrument].sensors]) * cal.scale
-    nom, cor, sd = [], [], []
-    for a, b in pairs:
-        d = cal.scale * (a.raw[instrument].mean(axis=0) - b.raw[instrument].mean(axis=0)) / 2.0
-        nom.append(v @ d)
-        cor.append(vc @ d)
-        var_d = sig**2 * (1.0 / a.n_samples + 1.0 / b.n_samples) / 4.0
-        sd.append(np.sqrt((vc**2) @ var_d))
-    return {"v": v, "v_c": vc, "nominal": np.array(nom), "corrected": np.array(cor), "noise_std": np.array(sd),
-            "pairs": [(a.label, b.label) for a, b in pairs]}
+    """de Oliveira et al. 2012, Eq. 22-25 on the estimator's own result: the nominal (``v``, Eq. 24) and
+    calibrated (``v_c``, Eq. 25) parity vectors applied to the scale-corrected half differences of every +/-
+    pair, with the standard deviation expected from noise alone (SI). A plain-dict view of
+    :func:`rimu.calibration.parity_check.pair_parity`; the chi-square verdict is
+    :func:`rimu.fdi.quality.parity_quality`."""
+    pp = pair_parity(session, result.instruments[instrument].to_calibration())
+    return {"v": pp.v, "v_c": pp.v_c, "nominal": pp.nominal, "corrected": pp.corrected,
+            "noise_std": pp.noise_std, "pairs": pp.labels}
 
 
 class Oliveira:

@@ -20,6 +20,7 @@ COMMANDS = [
     "diagnose",
     "monitor",
     "replay", "campaign", "check",
+    "export_c",
 ]
 
 

@@ -27,9 +27,8 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
+from ..calibration.parity_check import pair_parity
 from ..calibration.result import InstrumentCalibration
-from ..errors import SessionFormatError
-from ..geometry import null_space_rows
 from ..session import Session
 from ..units import RAD_TO_ARCSEC, RAD_TO_DEG
 from .calaware import CalibrationCovariance
@@ -144,30 +143,6 @@ class QualityReport:
         return path
 
 
-def _pairs(session: Session) -> list[tuple[int, int]]:
-    """Consecutive rate segments with opposite commanded rates."""
-    segs = session.segments
-    out = []
-    k = 0
-    while k + 1 < len(segs):
-        a, b = segs[k], segs[k + 1]
-        ra = _rate(a)
-        rb = _rate(b)
-        if ra is not None and rb is not None and np.linalg.norm(ra) > 0 and np.allclose(ra, -rb, atol=1e-9 + 1e-6 * np.linalg.norm(ra)):
-            out.append((k, k + 1))
-            k += 2
-        else:
-            k += 1
-    return out
-
-
-def _rate(seg: Any) -> np.ndarray | None:
-    if seg.rate_mb is not None:
-        return np.asarray(seg.table_rate(), dtype=float)
-    c = seg.meta.get("commanded_rate_mb")
-    return None if c is None else np.asarray(c, dtype=float)
-
-
 def parity_quality(session: Session, calibration: InstrumentCalibration, p_fa: float = 1e-3) -> QualityReport:
     """The parity check of a calibration on its session (see the module docstring).
 
@@ -182,20 +157,8 @@ def parity_quality(session: Session, calibration: InstrumentCalibration, p_fa: f
     """
     cal = calibration
     inst = cal.instrument
-    g = cal.geometry
-    if g.n < 4:
-        raise SessionFormatError(f"a parity check needs at least four sensors; {g.name} has {g.n}")
-    if cal.noise_sigma is None:
-        raise SessionFormatError("the calibration states no noise_sigma; the check needs the noise of each sensor")
-    pairs = _pairs(session)
-    if not pairs:
-        raise SessionFormatError("the session has no pair of consecutive rate segments with opposite commanded "
-                                 "rates (+w, -w); the parity check needs them (de Oliveira Table 1)")
-    v = null_space_rows(g.H)                    # Eq. 24 (nominal)
-    vc = null_space_rows(cal.axes_mb())         # Eq. 25 (calibrated)
-    for k in range(min(len(v), len(vc))):       # the sign convention of v, so the two compare entry by entry
-        if vc[k] @ v[k] < 0:
-            vc[k] = -vc[k]
+    pp = pair_parity(session, cal)              # Eq. 21-25 (rimu.calibration.parity_check)
+    vc = pp.v_c
     r = vc.shape[0]
     covm = None
     notes = []
@@ -206,26 +169,18 @@ def parity_quality(session: Session, calibration: InstrumentCalibration, p_fa: f
                          + (" ..." if len(covm.ignored) > 6 else ""))
     else:
         notes.append("no calibration covariance: the tolerance is the noise of the means only")
-    thr = float(chi2.isf(p_fa / len(pairs), r))
+    thr = float(chi2.isf(p_fa / len(pp.labels), r))
     out = []
-    sig2 = cal.noise_sigma**2
-    for a, b in pairs:
-        sa, sb = session.segments[a], session.segments[b]
-        ya, yb = sa.raw[inst], sb.raw[inst]
-        ma, mb = ya.mean(axis=0), yb.mean(axis=0)
-        g_w = 0.5 * cal.scale * (ma - mb)            # Eq. 22-23: commanded rate only
-        g_b = 0.5 * cal.scale * (ma + mb) - cal.bias  # Eq. 21: bias (and Earth rate) with the rate removed
-        w = _rate(sa)
-        q = vc @ g_w
-        var = 0.25 * sig2 * (1.0 / len(ya) + 1.0 / len(yb))
-        C = (vc * var) @ vc.T
+    for k, labels in enumerate(pp.labels):
+        w, q = pp.rate_mb[k], pp.corrected[k]
+        C = (vc * pp.var_g_w[k]) @ vc.T
         if covm is not None:
             D = np.einsum("c,cnp->np", w, covm.D[:3])
             L = vc @ D
             C = C + L @ covm.Sigma @ L.T
         stat = float(q @ np.linalg.solve(C, q))
         nw = float(np.linalg.norm(w))
-        out.append(PairQuality((sa.label, sb.label), w, v @ g_w, q, vc @ g_b, stat, thr,
+        out.append(PairQuality(labels, w, pp.nominal[k], q, pp.bias_parity[k], stat, thr,
                                float(np.linalg.norm(q) / nw * RAD_TO_ARCSEC),
-                               float(np.linalg.norm(v @ g_w) / nw * RAD_TO_ARCSEC)))
+                               float(np.linalg.norm(pp.nominal[k]) / nw * RAD_TO_ARCSEC)))
     return QualityReport(inst, out, p_fa, covm is not None, notes)

@@ -44,7 +44,7 @@ __all__ = ["EpochAssembler"]
 class _Open:
     """An epoch being assembled: slot values, bit masks of the messages received and of sensors flagged bad."""
 
-    __slots__ = ("vals", "have", "bad", "first_ts", "counter")
+    __slots__ = ("bad", "counter", "first_ts", "have", "vals")
 
     def __init__(self, n_slots: int, ts: float, counter: int) -> None:
         self.vals = [0.0] * n_slots

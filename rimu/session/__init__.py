@@ -1,12 +1,14 @@
 """Sessions: recorded segments of raw samples with their known inputs, rimu's file format, third-party loaders.
 
 ``rimu.session.model`` holds the data model (:class:`Segment`, :class:`Session`), ``rimu.session.native``
-rimu's own CSV/NPZ format, and ``rimu.session.loaders`` one module per third-party recording format.
+rimu's own CSV/NPZ format, ``rimu.session.stream`` reads such a file in chunks of
+constant memory, and ``rimu.session.loaders`` one module per third-party recording format.
 """
 
 from .loaders import FERRARIS_SECTIONS, load_ferraris
 from .model import SEGMENT_KINDS, Segment, Session, earth_rate_ln, rotation_matrix, skew
 from .native import SESSION_FORMAT, SESSION_FORMAT_VERSION, load_session, save_session, session_sidecar
+from .stream import iter_blocks
 
 __all__ = [
     "FERRARIS_SECTIONS",
@@ -16,6 +18,7 @@ __all__ = [
     "Segment",
     "Session",
     "earth_rate_ln",
+    "iter_blocks",
     "load_ferraris",
     "load_session",
     "rotation_matrix",

@@ -22,8 +22,9 @@ aligned to ENU measures specific force ``[0, 0, +g]``.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -168,21 +169,39 @@ class Segment:
         dt = self.t - self.t[0]
         return self.mat_ln_mb @ rotation_matrix(np.outer(dt, w))
 
+    def ln_vector_in_mb(self, v_ln: np.ndarray) -> np.ndarray | None:
+        """A vector fixed in the local level frame, seen in MB at every sample: ``C(t)^T v``, (N, 3).
+
+        With ``C(t) = C0 R(t)`` and R the rotation by ``theta = |w| t`` about the fixed MB axis k of the table
+        rate, ``R^T x = x cos(theta) - (k x x) sin(theta) + k (k . x)(1 - cos(theta))`` with ``x = C0^T v``:
+        three constant vectors and one angle per sample, no rotation matrix per sample (the costliest step
+        of a calibration before; equal to ``einsum(attitude(), v)`` to rounding). A static segment returns a
+        read-only broadcast of one vector. None where the attitude is unknown.
+        """
+        if self.mat_ln_mb is None:
+            return None
+        x = self.mat_ln_mb.T @ np.asarray(v_ln, dtype=float)
+        w = self.table_rate()
+        wn = float(np.linalg.norm(w))
+        if wn == 0.0:
+            return np.broadcast_to(x, (self.n_samples, 3))
+        k = w / wn
+        th = wn * (self.t - self.t[0])
+        kx = np.cross(k, x)
+        c, s = np.cos(th)[:, None], np.sin(th)[:, None]
+        return x * c - kx * s + np.outer(1.0 - np.cos(th), k * (k @ x))
+
     def specific_force(self, gravity: float = G0) -> np.ndarray | None:
         """Known specific force in MB, (N, 3), m/s^2, or None."""
         if self.specific_force_mb is not None:
             return np.broadcast_to(self.specific_force_mb, (self.n_samples, 3))
-        C = self.attitude()
-        if C is None:
-            return None
-        return np.einsum("nji,j->ni", C, np.array([0.0, 0.0, gravity]))
+        return self.ln_vector_in_mb(np.array([0.0, 0.0, gravity]))
 
     def earth_rate(self, latitude: float | None) -> np.ndarray | None:
         """Earth rate seen in MB, (N, 3), rad/s, or None when attitude or latitude is unknown."""
-        C = self.attitude()
-        if C is None or latitude is None:
+        if latitude is None:
             return None
-        return np.einsum("nji,j->ni", C, earth_rate_ln(latitude))
+        return self.ln_vector_in_mb(earth_rate_ln(latitude))
 
     def angular_rate(self, latitude: float | None = None, include_earth: bool = True) -> np.ndarray:
         """Known angular rate in MB, (N, 3): table rate plus, if asked and known, Earth rate."""

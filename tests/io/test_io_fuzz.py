@@ -52,7 +52,7 @@ def _run_can(msgs, layout, chunk):
        st.lists(st.sampled_from(list(CAN_ACTIONS)), min_size=40, max_size=40),
        st.integers(0, 2**32 - 1), st.sampled_from([1, 7, 1000]))
 def test_can_mutations_hypothesis(layout, actions, seed, chunk):
-    block, msgs, exp, K = layout_stream(layout, 40 // (5 if layout == "cone6_rimu" else 3) + 1)
+    _block, msgs, exp, K = layout_stream(layout, 40 // (5 if layout == "cone6_rimu" else 3) + 1)
     msgs = msgs[:40]
     acts = (actions + ["keep"] * len(msgs))[:len(msgs)]
     bad, oracle = mutate_can(msgs, K, acts, np.random.default_rng(seed), swap_p=0.2)
@@ -64,7 +64,7 @@ def test_can_mutations_hypothesis(layout, actions, seed, chunk):
 def test_can_seeded_long_run(layout):
     n_frames = 100_000 if (FULL or layout == "cone6_rimu") else 30_000
     K = 5 if layout == "cone6_rimu" else 3
-    block, msgs, exp, K = layout_stream(layout, n_frames // K, seed=1)
+    _block, msgs, exp, K = layout_stream(layout, n_frames // K, seed=1)
     rng = np.random.default_rng(2024)
     bad, oracle = mutate_can(msgs, K, draw_actions(rng, len(msgs), CAN_ACTIONS), rng)
     eps, acc = _run_can(bad, layout, 4096)
@@ -116,7 +116,7 @@ def test_serial_mutations_hypothesis(actions, seed, cuts):
 @settings(max_examples=100, deadline=None)
 @given(st.binary(max_size=600), st.lists(st.integers(0, 600), max_size=6))
 def test_arbitrary_bytes_never_raise(data, cuts):
-    eps, acc = _run_serial(b"\xa5\x5a" + data, sorted({0, len(data) + 2, *[c for c in cuts if c < len(data)]}))
+    _eps, acc = _run_serial(b"\xa5\x5a" + data, sorted({0, len(data) + 2, *[c for c in cuts if c < len(data)]}))
     acc.check()
     assert acc.pending == 0
 

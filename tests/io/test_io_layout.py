@@ -103,7 +103,7 @@ def test_shipped_layouts_agree_with_cantools(name, cone6_block, mm7_block):
             assert got[s.name] == pytest.approx(dec.values[i, j], abs=1e-9)
     # values are what the layout can carry: the simulated ones to half a resolution step
     for k, y in block.raw.items():
-        for mi, msg in enumerate(layout.messages):
+        for mi, _msg in enumerate(layout.messages):
             for j, s in enumerate(codec.value_signals[mi]):
                 if s.role == "sample" and s.instrument == k:
                     rows = dec.message == mi

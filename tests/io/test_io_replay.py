@@ -57,7 +57,7 @@ def _assert_epoch_equals(ep, block, exp, k, gyro_valid=None, accel_valid=None):
 
 @pytest.mark.parametrize("fmt", ["asc", "blf", "csv", "log"])
 def test_roundtrip_every_log_format(setup, tmp_path, fmt):
-    block, dev, msgs, exp = setup
+    block, _dev, msgs, exp = setup
     eps, acc = _replay(msgs, tmp_path, fmt)
     assert len(eps) == N
     for k, ep in enumerate(eps):
@@ -69,7 +69,7 @@ def test_roundtrip_every_log_format(setup, tmp_path, fmt):
 
 
 def test_missing_frame_marks_its_sensors_invalid(setup, tmp_path):
-    block, dev, msgs, exp = setup
+    block, _dev, msgs, exp = setup
     drop = 10 * 5 + 2  # GYRO_2 of sample 10 (gyros x2, y2, z2)
     eps, acc = _replay(msgs[:drop] + msgs[drop + 1:], tmp_path)
     assert len(eps) == N
@@ -82,7 +82,7 @@ def test_missing_frame_marks_its_sensors_invalid(setup, tmp_path):
 
 
 def test_missing_status_frame_extrapolates_time(setup, tmp_path):
-    block, dev, msgs, exp = setup
+    block, _dev, msgs, exp = setup
     drop = 7 * 5  # STATUS of sample 7: time and temperature
     eps, acc = _replay(msgs[:drop] + msgs[drop + 1:], tmp_path)
     assert eps[7].t == pytest.approx(block.t[7], abs=1e-9)
@@ -92,7 +92,7 @@ def test_missing_status_frame_extrapolates_time(setup, tmp_path):
 
 
 def test_counter_gap_gives_no_epoch_and_is_counted(setup, tmp_path):
-    block, dev, msgs, exp = setup
+    block, _dev, msgs, exp = setup
     eps, acc = _replay(msgs[:50] + msgs[65:], tmp_path)  # samples 10, 11, 12 lost entirely
     assert len(eps) == N - 3
     seqs = [e.counters["seq"] for e in eps]
@@ -104,7 +104,7 @@ def test_counter_gap_gives_no_epoch_and_is_counted(setup, tmp_path):
 
 
 def test_duplicates_are_rejected_and_counted(setup, tmp_path):
-    block, dev, msgs, exp = setup
+    block, _dev, msgs, exp = setup
     m = list(msgs)
     m.insert(21, msgs[20])      # STATUS of sample 4 twice in a row
     m.insert(40, msgs[34])      # last frame of sample 6 again, after its epoch was emitted
@@ -116,7 +116,7 @@ def test_duplicates_are_rejected_and_counted(setup, tmp_path):
 
 
 def test_out_of_order_within_window_is_reassembled(setup, tmp_path):
-    block, dev, msgs, exp = setup
+    block, _dev, msgs, exp = setup
     m = list(msgs)
     # sample 10's last frame after two frames of sample 11; sample 20's first frame after its own second
     m[54], m[55], m[56] = msgs[55], msgs[56], msgs[54]
@@ -130,7 +130,7 @@ def test_out_of_order_within_window_is_reassembled(setup, tmp_path):
 
 
 def test_frame_later_than_the_window_is_rejected_late(setup, tmp_path):
-    block, dev, msgs, exp = setup
+    block, _dev, msgs, exp = setup
     late = msgs[10 * 5 + 3]                       # ACCEL_1 of sample 10 ...
     m = msgs[:53] + msgs[54:75] + [late] + msgs[75:]  # ... arrives after sample 14's frames
     eps, acc = _replay(m, tmp_path)
@@ -196,14 +196,14 @@ def test_mm7_status_flags_invalidate_sensors(mm7_block, tmp_path):
     from rimu.epoch import EpochBlock
 
     b = EpochBlock(mm7_block.t, mm7_block.raw, valid, mm7_block.temperature)
-    eps, acc = _replay(CanDevice("mm7_automotive").frames(b), tmp_path, layout="mm7_automotive")
+    eps, _acc = _replay(CanDevice("mm7_automotive").frames(b), tmp_path, layout="mm7_automotive")
     assert eps[5].valid["gyro"].tolist() == [True, True, False] and eps[5].raw["gyro"][2] == 0.0
     assert eps[7].valid["accel"].tolist() == [False, True, True]
     assert all(e.valid["gyro"].all() and e.valid["accel"].all() for i, e in enumerate(eps) if i not in (5, 7))
 
 
 def test_bad_frames_are_rejected_by_reason_and_side_logged(setup, tmp_path):
-    block, dev, msgs, exp = setup
+    _block, _dev, msgs, _exp = setup
     m = list(msgs)
     bad_crc = can.Message(timestamp=m[12].timestamp, arbitration_id=m[12].arbitration_id, is_extended_id=False,
                           data=bytes([m[12].data[0] ^ 0x10]) + bytes(m[12].data[1:]))
@@ -234,7 +234,7 @@ def _write(msgs, tmp_path, fmt="asc"):
 def test_realtime_replay_paces_by_timestamps(setup, tmp_path):
     import time
 
-    block, dev, msgs, exp = setup
+    _block, _dev, msgs, _exp = setup
     path = _write(msgs[:50], tmp_path)     # 10 samples over 0.09 s of log time
     t0 = time.monotonic()
     eps = list(CanReplaySource(path, "cone6_rimu", realtime=True, speed=0.5))

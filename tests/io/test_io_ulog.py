@@ -28,11 +28,11 @@ def write_ulog(path, streams):
     for msg_id, (topic, multi, *_rest) in enumerate(streams):
         out += _msg("A", struct.pack("<BH", multi, msg_id) + topic.encode())
     rows = []
-    for msg_id, (topic, multi, dev, t_us, xyz, temp) in enumerate(streams):
+    for msg_id, (_topic, _multi, dev, t_us, xyz, temp) in enumerate(streams):
         for k in range(len(t_us)):
             payload = struct.pack("<QQIffff", int(t_us[k]) + 50, int(t_us[k]), dev, *xyz[k], temp)
             rows.append((int(t_us[k]), msg_id, payload))
-    for t, msg_id, payload in sorted(rows, key=lambda r: (r[0], r[1])):
+    for _t, msg_id, payload in sorted(rows, key=lambda r: (r[0], r[1])):
         out += _msg("D", struct.pack("<H", msg_id) + payload)
     path.write_bytes(bytes(out))
 
@@ -59,7 +59,7 @@ def test_three_imus_as_one_redundant_set(tmp_path):
     assert len(block) == n
     np.testing.assert_allclose(block.t, t_ref * 1e-6)
     assert block.raw["gyro"].shape == (n, 9) and block.raw["accel"].shape == (n, 9)
-    for (inst, i), (t, xyz) in truth.items():
+    for (inst, i), (_t, xyz) in truth.items():
         if inst == "accel" and i == 2:
             keep = np.ones(n, bool)
             keep[[50, 51]] = False

@@ -1,0 +1,114 @@
+#!/usr/bin/env python3
+"""Exported C runtime: nanoseconds per sample of the generated gyro step (gcc -O2) and the flash/RAM footprint of
+its object file (``size``), for cone6, tetrad4, triad3, dodecahedron6 and 24/48/96-axis cones; the Python
+pipeline's per-sample ``step`` is timed in the same run as the reference.
+
+    python benchmarks/export_c.py [--samples 200000]
+
+Prints a table and one JSON line. Skips (and says so) without a C compiler.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from rimu.calibration.result import Calibration, InstrumentCalibration
+from rimu.export import export_c
+from rimu.fusion import InstrumentPipeline
+from rimu.geometry import cone, cone6, dodecahedron6, tetrad4, triad3
+
+BENCH_MAIN = r"""
+#include <stdio.h>
+#include <time.h>
+#include "rimu_unit.h"
+int main(int argc, char **argv)
+{
+    long n = argc > 1 ? atol(argv[1]) : 100000, k;
+    static rimu_real y[RIMU_GYRO_N];
+    rimu_state st = {{0}};
+    rimu_output out;
+    struct timespec a, b;
+    double acc = 0;
+    int i;
+    for (i = 0; i < RIMU_GYRO_N; ++i) y[i] = 100.0 + i;
+    clock_gettime(CLOCK_MONOTONIC, &a);
+    for (k = 0; k < n; ++k) {
+        y[k % RIMU_GYRO_N] += 1e-3;
+        rimu_gyro_step(&st, y, 0, &out);
+        acc += out.x[0] + out.chi2;
+    }
+    clock_gettime(CLOCK_MONOTONIC, &b);
+    printf("%.3f %g\n", ((b.tv_sec - a.tv_sec) * 1e9 + (b.tv_nsec - a.tv_nsec)) / n, acc);
+    return 0;
+}
+"""
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--samples", type=int, default=200000)
+    ap.add_argument("--repeats", type=int, default=5)
+    args = ap.parse_args()
+    cc = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
+    out = {"benchmark": "export_c", "compiler": cc, "rows": []}
+    if cc is None:
+        print("no C compiler here: nothing to measure")
+        print(json.dumps(out))
+        return 0
+    geoms = [cone6(), tetrad4(), triad3(), dodecahedron6(), cone(24, 40.0), cone(48, 40.0), cone(96, 40.0)]
+    print(f"{'geometry':>14} {'n':>4} {'C ns/sample':>12} {'Python step us':>15} {'ratio':>8} {'text B':>8} "
+          f"{'data B':>7} {'bss B':>6}")
+    for g in geoms:
+        cal = InstrumentCalibration.nominal("gyro", g, scale=0.01, bias=0.3, noise_sigma=0.002)
+        with tempfile.TemporaryDirectory() as d:
+            export_c(Calibration({"gyro": cal}), d)
+            (Path(d) / "bench.c").write_text("#define _POSIX_C_SOURCE 199309L\n#include <stdlib.h>\n" + BENCH_MAIN)
+            subprocess.run([cc, "-std=c99", "-O2", "-c", "rimu_unit.c"], cwd=d, check=True)
+            subprocess.run([cc, "-std=c99", "-O2", "-o", "bench", "bench.c", "rimu_unit.o", "-lm"], cwd=d, check=True)
+            sz = subprocess.run(["size", "rimu_unit.o"], cwd=d, capture_output=True, text=True)
+            text, data, bss = (int(v) for v in sz.stdout.splitlines()[1].split()[:3])
+            ns = statistics.median(float(subprocess.run([str(Path(d) / "bench"), str(args.samples)], capture_output=True,
+                                                        text=True, check=True).stdout.split()[0])
+                                   for _ in range(args.repeats))
+        # the Python reference: the pipeline's per-sample step (a bounded table for the large units)
+        try:
+            pipe = InstrumentPipeline(cal, max_excluded=min(g.n - 3, 1))
+        except (OverflowError, MemoryError) as exc:  # the Python runtime's own limit, reported as such
+            pipe, why = None, type(exc).__name__
+        py_us = None
+        if pipe is not None:
+            y = cal.raw_output(np.array([0.1, -0.2, 0.3]))
+            m = 20000
+            ts = []
+            for _ in range(args.repeats):
+                t0 = time.perf_counter()
+                for _k in range(m):
+                    pipe.step(y)
+                ts.append((time.perf_counter() - t0) / m)
+            py_us = statistics.median(ts) * 1e6
+        row = {"geometry": g.name, "n": g.n, "c_ns_per_sample": ns, "python_step_us": py_us,
+               "python_over_c": None if py_us is None else py_us * 1e3 / ns, "text_bytes": text, "data_bytes": data,
+               "bss_bytes": bss}
+        out["rows"].append(row)
+        pys = f"{py_us:15.2f} {row['python_over_c']:8.0f}" if py_us is not None else f"{'(' + why + ')':>15} {'-':>8}"
+        print(f"{g.name:>14} {g.n:>4} {ns:12.1f} {pys} {text:8d} {data:7d} {bss:6d}")
+    print("(text = code + constant tables in flash; data + bss = RAM of the object file; the caller's rimu_state and "
+          "rimu_output add n + 13 + n reals)")
+    print(json.dumps(out))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,130 @@
+"""The exported C runtime against the Python pipeline, sample by sample (skips without a C compiler)."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from rimu.calibration import ChoPark
+from rimu.calibration.result import Calibration, InstrumentCalibration
+from rimu.errors import ExportError
+from rimu.export import export_c
+from rimu.fusion import Pipeline
+from rimu.geometry import cone, cone6, dodecahedron6, tetrad4, triad3
+from rimu.sim import Simulator, cho_park_procedure
+
+CC = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
+needs_cc = pytest.mark.skipif(CC is None, reason="no C compiler on this machine")
+
+
+def _build(cal, tmp_path, real="double"):
+    d = tmp_path / f"c_{real}"
+    export_c(cal, d, real=real)
+    subprocess.run(["make", "-s", f"CC={CC}"], cwd=d, check=True, capture_output=True, text=True)
+    return d / "rimu_filter"
+
+
+def _run(exe, t, raw: dict, valid: dict | None = None):
+    cols = [t[:, None]] + [raw[k] for k in raw]
+    rows = []
+    for r in range(len(t)):
+        cells = [repr(float(t[r]))]
+        for k in raw:
+            for i, v in enumerate(raw[k][r]):
+                ok = valid is None or k not in valid or valid[k][r, i]
+                cells.append(repr(float(v)) if ok else "")
+        rows.append(",".join(cells))
+    del cols
+    res = subprocess.run([str(exe)], input="t,raw\n" + "\n".join(rows) + "\n", capture_output=True, text=True,
+                         check=True)
+    lines = res.stdout.strip().splitlines()
+    head = lines[0].split(",")
+    data = np.array([[float(c) for c in ln.split(",")] for ln in lines[1:]])
+    return {h: data[:, j] for j, h in enumerate(head)}
+
+
+@pytest.fixture(scope="module")
+def unit():
+    run = Simulator(seed=7).run(cho_park_procedure(duration=3.0))
+    return run, ChoPark().fit(run.session).to_calibration()
+
+
+def _python(cal, block, valid=None):
+    blk = block if valid is None else type(block)(block.t, block.raw, valid)
+    out = Pipeline(cal).process(blk)
+    return out
+
+
+@needs_cc
+@pytest.mark.parametrize("real,tol", [("double", 1e-12), ("float", 1e-5)])
+def test_cone6_matches_python_on_every_sample(unit, tmp_path, real, tol):
+    run, cal = unit
+    block = run.block
+    n = min(len(block), 1500)
+    t = block.t[:n]
+    raw = {k: block.raw[k][:n] for k in cal.instruments}
+    rng = np.random.default_rng(3)
+    valid = {k: rng.random(raw[k].shape) > 0.02 for k in raw}  # invalid samples are routed around
+    valid["gyro"][100, :4] = False                             # an unobservable sample (2 sensors left)
+    exe = _build(cal, tmp_path, real)
+    c = _run(exe, t, raw, valid)
+    from rimu.epoch import EpochBlock
+
+    py = Pipeline(cal).process(EpochBlock(t, {k: raw[k].copy() for k in raw}, {k: valid[k] for k in raw}))
+    for k in cal.instruments:
+        x = np.column_stack([c[f"{k}_x"], c[f"{k}_y"], c[f"{k}_z"]])
+        obs = c[f"{k}_observable"].astype(bool)
+        assert np.array_equal(obs, py[k].observable)
+        scale = np.abs(py[k].x[obs]).max()
+        assert np.max(np.abs(x[obs] - py[k].x[obs])) <= tol * scale * 10
+        assert np.all(x[~obs] == 0)
+        assert np.array_equal(c[f"{k}_dof"][obs].astype(int), py[k].dof[obs])
+        chi2_py = np.sum(py[k].parity[obs] ** 2, axis=1)
+        assert np.allclose(c[f"{k}_chi2"][obs], chi2_py, rtol=max(tol, 1e-10) * 1e3, atol=1e-9 if real == "double" else 1e-3)
+    assert not c["gyro_observable"][100]
+
+
+@needs_cc
+@pytest.mark.parametrize("geom", [tetrad4(), triad3(), dodecahedron6(), cone(24, 40.0)], ids=lambda g: g.name)
+def test_other_geometries_and_many_axes(geom, tmp_path):
+    """The same arithmetic for any geometry, 24 axes included (no table of active sets)."""
+    rng = np.random.default_rng(5)
+    cal = InstrumentCalibration.nominal("gyro", geom, scale=0.01, bias=0.3, noise_sigma=0.002)
+    u = rng.normal(0, 1, (200, 3))
+    y = np.array([cal.raw_output(v) for v in u]) + rng.normal(0, 0.2, (200, geom.n))
+    exe = _build(Calibration({"gyro": cal}), tmp_path)
+    c = _run(exe, np.arange(200) * 0.01, {"gyro": y})
+    from rimu.fusion import InstrumentPipeline
+
+    py = InstrumentPipeline(cal, max_excluded=0).process(y)
+    x = np.column_stack([c["gyro_x"], c["gyro_y"], c["gyro_z"]])
+    assert np.allclose(x, py.x, rtol=1e-12, atol=1e-12 * np.abs(py.x).max())
+    assert np.allclose(c["gyro_chi2"], np.sum(py.parity ** 2, axis=1), rtol=1e-9, atol=1e-9)
+
+
+def test_refuses_what_it_cannot_fly(tmp_path):
+    cal = InstrumentCalibration.nominal("gyro", cone6(), scale=0.01, bias=0.3)
+    with pytest.raises(ExportError, match="noise_sigma"):
+        export_c(Calibration({"gyro": cal}), tmp_path)
+    cal = InstrumentCalibration.nominal("gyro", cone6(), scale=0.01, bias=0.3, noise_sigma=0.01)
+    cal.effects = {"g_sensitivity": {"x1.g_x": 1e-5}}
+    with pytest.raises(ExportError, match="g_sensitivity"):
+        export_c(Calibration({"gyro": cal}), tmp_path)
+    with pytest.raises(ExportError, match="real"):
+        export_c(Calibration({"gyro": InstrumentCalibration.nominal("gyro", cone6(), scale=0.01, noise_sigma=0.1)}),
+                 tmp_path, real="half")
+
+
+@needs_cc
+def test_cli_exports_and_builds(unit, tmp_path, capsys):
+    from rimu.cli import main
+
+    _, cal = unit
+    cal.save(tmp_path / "cal.json")
+    assert main(["export-c", str(tmp_path / "cal.json"), "-o", str(tmp_path / "c"), "--build"]) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    assert len(out) == 1 and "built" in out[0]
+    assert (tmp_path / "c" / "rimu_filter").exists()
