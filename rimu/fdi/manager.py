@@ -537,10 +537,10 @@ class RedundancyManager:
         ``z = A x + diag(sigma^2) Vz^T p`` (the projection and the parity split the whitened z), then projected
         with the subset's G and Vz.
         """
-        key = (e0, e1)
+        tab = self.pipeline.table
+        key = (int(tab.codes[e0]), int(tab.codes[e1]))  # by sensor set, not by entry (a table may renumber)
         m = self._remap.get(key)
         if m is None:
-            tab = self.pipeline.table
             d0 = int(tab.dof[e0])
             n = self.n
             Z = np.zeros((n, 3 + d0))
