@@ -40,7 +40,7 @@ def main() -> dict:
     rng = np.random.default_rng(0)
     N = 1_000_000
     Y = cal.raw_output(rng.standard_normal((N, 3))) + rng.standard_normal((N, 6))
-    K = pipe._R[pipe.table.lookup(pipe.table.full_code)]
+    K = pipe.table.get(pipe.table.full_code).R
 
     def block():
         pipe.process(Y)

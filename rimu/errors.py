@@ -24,6 +24,10 @@ __all__ = [
     "TransportError",
     "FrameError",
     "MissingNoiseError",
+    "PlausibilityError",
+    "OptionError",
+    "OutputPathError",
+    "NotApplicableError",
 ]
 
 
@@ -96,6 +100,30 @@ class FrameError(RimuError, ValueError):
 
 class MissingNoiseError(RimuError, ValueError):
     """A noise figure the computation needs (a calibration's ``noise_sigma``) is missing and was not given."""
+class PlausibilityError(SessionFormatError):
+    """Data that parse but cannot be what the file declares (values in m/s^2 under a column declared in g, a
+    ``sample_rate_hz`` the time column contradicts, ...). The message names the column and the likely cause; where
+    the data may still be right, the caller can override the check (``checks="warn"``, CLI ``--accept-implausible``).
+    ``findings`` holds the :class:`rimu.session.checks.Finding` s that failed."""
+
+    def __init__(self, message: str, findings: "list | None" = None) -> None:
+        super().__init__(message)
+        self.findings = list(findings or [])
+
+
+class OptionError(RimuError, ValueError):
+    """A command-line option or a function argument has a value outside its range (the message names the option
+    and the accepted range)."""
+
+
+class OutputPathError(RimuError, OSError):
+    """An output path cannot be written (its folder is missing or read-only, it is a folder, or it would overwrite
+    another output of the same run). Raised before any work is done."""
+
+
+class NotApplicableError(RimuError, ValueError):
+    """A check or method does not apply to this data (a parity check on a triad, a rate-pair check without rate
+    pairs); the message says why and what would apply."""
 
 
 class ExportError(RimuError, ValueError):

@@ -252,5 +252,8 @@ def plot_fig3(curve: dict[str, np.ndarray], path: str | None = None, title: str 
     fig.suptitle(title or "Cho & Park 2005, Fig. 3: standard deviation against the number of sequences")
     fig.tight_layout()
     if path:
-        fig.savefig(path, dpi=110)
+        from ..atomic import atomic_path
+
+        with atomic_path(path) as _tmp:  # whole or not at all
+            fig.savefig(_tmp, dpi=110)
     return fig

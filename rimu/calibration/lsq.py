@@ -133,6 +133,11 @@ def physical_from_beta(model: ErrorModel, ctx: SensorContext, beta: np.ndarray) 
     if w_slice is not None:
         w = beta[w_slice]
         nw = float(np.linalg.norm(w))
+        if not nw > 0:
+            from ..errors import IdentifiabilityError
+
+            raise IdentifiabilityError("a sensor's output does not respond to its input (zero scale-misalignment "
+                                       "vector): a dead sensor or an unconnected channel; remove it from the geometry")
         sf = 1.0 / nw
         d_sf = -w / nw**3
     for e, a, b in zip(effs, offs[:-1], offs[1:]):

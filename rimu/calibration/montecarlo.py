@@ -2,12 +2,11 @@
 
 A Monte Carlo campaign repeats simulate -> fit over seeds; the simulator is passed in as a callable (this
 module never imports :mod:`rimu.sim`, so the library keeps its one-way imports), and progress is shown with
-tqdm when it is installed, else with a plain counter.
+tqdm on a terminal when it is installed (extra ``progress``), else not at all.
 """
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -63,21 +62,11 @@ def normalised_errors(est: InstrumentCalibration, truth: InstrumentCalibration) 
 
 
 def progress(it: Iterable[Any], total: int | None = None, desc: str = "", enabled: bool = True) -> Iterable[Any]:
-    """tqdm if installed, else a plain counter on stderr."""
-    if not enabled:
-        yield from it
-        return
-    try:
-        from tqdm import tqdm
+    """A tqdm bar on a terminal when tqdm is installed (extra ``progress``), else nothing
+    (:func:`rimu.progress.bar`)."""
+    from ..progress import bar
 
-        yield from tqdm(it, total=total, desc=desc, file=sys.stderr)
-        return
-    except ImportError:
-        pass
-    for k, x in enumerate(it, start=1):
-        print(f"\r{desc} {k}/{total or '?'}", end="", file=sys.stderr, flush=True)
-        yield x
-    print(file=sys.stderr)
+    return bar(it, total=total, desc=desc, enabled=None if enabled else False)
 
 
 @dataclass

@@ -62,5 +62,8 @@ def plot_residuals(result: Any, path: str | None = None):
                  ", ".join(f"{k} {v:.2f}" for k, v in result.chi2_dof.items()) + ")")
     fig.tight_layout()
     if path:
-        fig.savefig(path, dpi=110)
+        from ..atomic import atomic_path
+
+        with atomic_path(path) as _tmp:  # whole or not at all
+            fig.savefig(_tmp, dpi=110)
     return fig

@@ -21,7 +21,6 @@ import datetime as _dt
 import hashlib
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -72,6 +71,10 @@ class InstrumentCalibration:
         Names of the covariance's rows, e.g. ``"x1.scale"``, ``"x1.mis_y"``, ``"x1.bias"``.
     effects : dict
         Further named effects: ``{effect_name: {param_name: value}}`` in SI units.
+    range_raw : ndarray (n,) or None
+        Range limit of each sensor in RAW output units (the units of y, before SF and B): a raw value with
+        ``|y_i| >= range_raw_i`` is clipped (saturated) and the runtime routes around it for that sample.
+        None: no limit known. For a sensor whose raw output is already in SI, this is the range in SI.
     """
 
     instrument: str
@@ -83,6 +86,7 @@ class InstrumentCalibration:
     covariance: np.ndarray | None = None
     param_names: list[str] = field(default_factory=list)
     effects: dict[str, dict[str, float]] = field(default_factory=dict)
+    range_raw: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.instrument not in INSTRUMENTS:
@@ -111,6 +115,10 @@ class InstrumentCalibration:
             self.noise_sigma = _vec(self.noise_sigma, n, "noise_sigma")
             if np.any(self.noise_sigma <= 0):
                 raise ShapeError("noise_sigma must be positive")
+        if self.range_raw is not None:
+            self.range_raw = _vec(self.range_raw, n, "range_raw")
+            if np.any(self.range_raw <= 0):
+                raise ShapeError("range_raw must be positive: the largest |raw output| each sensor can report")
         if self.covariance is not None:
             c = np.array(self.covariance, dtype=float)
             p = len(self.param_names)
@@ -169,6 +177,7 @@ class InstrumentCalibration:
                 "misalignment": "unit row in sub-unit basis (off-axis components in rad)",
                 "noise_sigma": f"{unit} per sample",
                 "covariance": "SI, in the order of param_names",
+                "range_raw": "raw output units; |y| >= range_raw is saturated",
             },
             "scale": self.scale.tolist(),
             "misalignment": self.misalignment.tolist(),
@@ -177,6 +186,7 @@ class InstrumentCalibration:
             "param_names": list(self.param_names),
             "covariance": None if self.covariance is None else self.covariance.tolist(),
             "effects": self.effects,
+            "range_raw": None if self.range_raw is None else self.range_raw.tolist(),
         }
 
     @classmethod
@@ -198,6 +208,7 @@ class InstrumentCalibration:
             None if d.get("covariance") is None else np.array(d["covariance"], dtype=float),
             list(d.get("param_names") or []),
             dict(d.get("effects") or {}),
+            None if d.get("range_raw") is None else np.array(d["range_raw"], dtype=float),
         )
 
 
@@ -256,19 +267,14 @@ class Calibration:
 
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write atomically (temporary file in the same folder, then rename) as versioned JSON."""
+        from ..atomic import atomic_open
+
         path = Path(path)
         text = document_text(self.to_payload())
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as fh:
-                fh.write(text)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        with atomic_open(path, "w", encoding="utf-8") as fh:  # normal file mode, not mkstemp's 0600
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
         return path
 
     @classmethod

@@ -79,69 +79,38 @@ def _quad_rows(y: np.ndarray) -> np.ndarray:
 def solve_ma(ybar: np.ndarray, g: float) -> tuple[np.ndarray, np.ndarray]:
     """Zhang et al. 2010, Eq. 12-14: (A = (K_a T_p^a)^-1, b_a) from the mean raw outputs of static positions.
 
-    Least squares for the ten elements of the symmetric M^A (Eq. 13). With fewer than ten positions the
-    system leaves one direction free; it is fixed by the rank-3 structure of M^A (Eq. 14: det M^A = 0, a quartic
-    in the free coordinate); of its real roots the one whose M^A is positive semidefinite of rank three (as
-    Eq. 14 requires) is taken.
+    Eq. 12-13 is posed homogeneously, ``(y - b)^T M^A (y - b) = g^2`` as ``D v = 0`` under the normalisation
+    ``|vec(M^A)| = 1`` (:func:`rimu.calibration.handheld.ellipsoid_fit`), so it cannot return the trivial
+    solution and holds for nine positions (exact) as for any larger noisy set (least squares); the scale is then
+    set by the norms, and Eq. 14 factors M^A by the reversed Cholesky factor. Nine positions at least.
+
+    >>> A = np.array([[1e-3, 0, 0], [2e-6, 1.1e-3, 0], [-3e-6, 4e-6, 0.9e-3]])
+    >>> b = np.array([100.0, -50.0, 20.0])
+    >>> rng = np.random.default_rng(1)
+    >>> u = rng.normal(size=(40, 3)); u /= np.linalg.norm(u, axis=1)[:, None]
+    >>> ybar = (9.8 * u) @ np.linalg.inv(A).T + b
+    >>> A_, b_ = solve_ma(ybar, 9.8)
+    >>> bool(np.allclose(A_, A)), bool(np.allclose(b_, b))
+    (True, True)
     """
+    from .handheld import ellipsoid_fit
+
     ybar = np.asarray(ybar, dtype=float)
     if ybar.shape[0] < 9:
         raise IdentifiabilityError(f"accel: {ybar.shape[0]} static positions; Zhang's Eq. 13 needs at least nine "
                                    "(the six axes up and down and three in-plane 45 deg positions)",
                                    ["x.scale", "y.scale", "z.scale", "y.mis_x", "z.mis_x", "z.mis_y",
                                     "x.bias", "y.bias", "z.bias"])
-    sc = float(np.median(np.linalg.norm(ybar, axis=1)))
-    y = ybar / sc
-    D = np.column_stack([_quad_rows(y), -2 * y, np.ones(len(y))])
-    rhs = np.ones(len(y))  # (g / (g sc))^2 after scaling: solve for M' = M * sc^2 / g^2
-    _, s, Vt = np.linalg.svd(D, full_matrices=True)
-    m_p, *_ = np.linalg.lstsq(D, rhs, rcond=None)
-    rank = int(np.sum(s > 1e-10 * s[0]))
-    if rank < 9:
+    sc = float(np.median(np.linalg.norm(ybar - ybar.mean(axis=0), axis=1)))
+    z = (ybar - ybar.mean(axis=0)) / sc
+    D = np.column_stack([_quad_rows(z), z, np.ones(len(z))])
+    if np.linalg.matrix_rank(D, tol=1e-9 * np.abs(D).max()) < 9:
         raise IdentifiabilityError("accel: the static positions do not identify M^A (Zhang Eq. 13); add positions "
                                    "with gravity in each axis plane", ["y.mis_x", "z.mis_x", "z.mis_y"])
-
-    def mat(m: np.ndarray) -> np.ndarray:
-        M = np.empty((4, 4))
-        M[0, 0], M[1, 1], M[2, 2] = m[0], m[1], m[2]
-        M[0, 1] = M[1, 0] = m[3]
-        M[0, 2] = M[2, 0] = m[4]
-        M[1, 2] = M[2, 1] = m[5]
-        M[0:3, 3] = M[3, 0:3] = m[6:9]
-        M[3, 3] = m[9]
-        return M
-
-    if rank == 9:
-        n = Vt[-1]
-        ts = np.linspace(-2.0, 2.0, 5)
-        dets = [np.linalg.det(mat(m_p + t * n)) for t in ts]
-        roots = np.roots(np.polyfit(ts, dets, 4))
-        best, best_score = None, np.inf
-        for r in roots:
-            if abs(r.imag) > 1e-9 * max(1.0, abs(r.real)):
-                continue
-            M = mat(m_p + r.real * n)
-            if not np.all(np.linalg.eigvalsh(M[:3, :3]) > 0):
-                continue
-            # several roots fit nine norms exactly; M^A = [A, A b]^T [A, A b] is positive semidefinite (Eq. 14),
-            # of rank exactly three: no negative eigenvalue and three clearly positive ones (the other roots
-            # cluster where M^A nearly vanishes along three directions)
-            ev = np.linalg.eigvalsh(M)
-            score = float(max(-ev[0], 0.0) / ev[-1] - ev[1] / ev[-1])
-            if score < best_score:
-                best, best_score = M, score
-        if best is None:
-            raise IdentifiabilityError("accel: no positive-definite M^A satisfies the static norms (Zhang Eq. 14)")
-        M = best
-    else:
-        M = mat(m_p)
-    M33 = M[:3, :3]
-    if not np.all(np.linalg.eigvalsh(M33) > 0):
-        raise IdentifiabilityError("accel: the estimated M^A is not positive definite; the positions do not "
-                                   "constrain the scale factors (Zhang Eq. 14)")
-    b = np.linalg.solve(M33, M[:3, 3]) * sc
-    A = lower_factor(M33) * g / sc
-    return A, b
+    b, M = ellipsoid_fit(ybar)
+    q = np.einsum("ki,ij,kj->k", ybar - b, M, ybar - b)
+    M = M * g**2 / float(np.mean(q))
+    return lower_factor(M), b
 
 
 def solve_mg(phi: np.ndarray, angles: np.ndarray) -> np.ndarray:
@@ -289,6 +258,9 @@ class Zhang:
 
     method = "Zhang et al. 2010"
 
+    def _fit_accel_only(self, session: Session, statics: list[Segment]) -> CalibrationResult:
+        return _accel_only(self, session, statics)
+
     def __init__(self, sigma: dict[str, Any] | None = None, refine: bool = True,
                  earth_rate: float = EARTH_RATE) -> None:
         self.sigma = sigma
@@ -300,12 +272,14 @@ class Zhang:
 
         for k in ("gyro", "accel"):
             g = session.geometries.get(k)
-            if g is None or g.n != 3:
+            if (g is None and k == "accel") or (g is not None and g.n != 3):
                 raise SessionFormatError(f"Zhang et al. 2010 calibrates a gyro triad and an accelerometer triad; "
                                          f"the session's {k} geometry is {None if g is None else g.name}")
         gg = session.gravity
         statics = [s for s in session.segments if s.kind in ("static", "static_unknown")]
         pairs = rotation_pairs(session.segments)
+        if "gyro" not in session.geometries or not pairs:
+            return self._fit_accel_only(session, statics)
         sa = _sigma_for(self.sigma, session, "accel")
         sg = _sigma_for(self.sigma, session, "gyro")
         ya = np.array([s.raw["accel"].mean(axis=0) for s in statics]).reshape(-1, 3)
@@ -463,6 +437,24 @@ class Zhang:
                 # the norm fit has 9 parameters per triad: chi2 per dof of the triad, shared by its sensors
                 f.rss = chi / max(nobs - 9, 1) * (f.n_obs - 4) * f.sigma**2
         return res
+
+
+def _accel_only(est: Zhang, session: Session, statics: list[Segment]) -> CalibrationResult:
+    """Accelerometers alone (no gyro triad, or no CW/CCW rotation pairs): Zhang's Eq. 12-14 start and the norm
+    refinement of Eq. 7-8, as in :func:`rimu.calibration.handheld.fit_accel`."""
+    from .handheld import HandHeld
+
+    if len(statics) < 9:
+        raise IdentifiabilityError(f"accel: {len(statics)} static positions; Zhang's Eq. 13 needs at least nine",
+                                   ["x.scale", "y.scale", "z.scale", "x.bias", "y.bias", "z.bias"])
+    sig = None if est.sigma is None or "accel" not in est.sigma else {"accel": est.sigma["accel"]}
+    res = HandHeld(sigma=sig, instruments=["accel"], robust=False).fit(session)
+    res.method = est.method
+    res.notes.insert(0, "accelerometers only: " + ("the session has no gyro triad" if "gyro" not in session.geometries
+                                                   else "no CW/CCW rotation pairs for the gyros (Zhang Eq. 16-22)"))
+    res.notes.append("MB is Zhang's platform frame p: x along the x accelerometer, y in the x-y accelerometer "
+                     "plane")
+    return res
 
 
 def _skew(v: np.ndarray) -> np.ndarray:

@@ -1,15 +1,26 @@
 """The ``rimu`` command line. Each subcommand is a module of this package with ``register(subparsers)``;
-adding one is a new file plus one line in ``COMMANDS``."""
+adding one is a new file plus one line in ``COMMANDS``.
+
+Every subcommand follows one option convention (``-o/--output`` main artifact, ``--report DIR`` human reports,
+``--json FILE`` machine-readable summary; docs/cli.md) and one error path: rimu's exceptions, OS errors and
+missing extras end in one line on stderr saying what was wrong and what to do. Exit status: 0 success, 1 a check
+that ran and failed, 2 bad input or options, 3 an internal error (a bug: rerun with ``--debug`` and report it),
+130 interrupted (Ctrl-C). ``--debug`` shows the traceback instead of the one line.
+"""
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import logging
+import os
 import sys
 
 from ..errors import RimuError
+from ._common import Parser, check_outputs, configure_logging
 
-__all__ = ["main", "COMMANDS"]
+__all__ = ["main", "COMMANDS", "build_parser", "EXIT_OK", "EXIT_CHECK_FAILED", "EXIT_BAD_INPUT", "EXIT_INTERNAL",
+           "EXIT_INTERRUPTED"]
 
 #: subcommand modules, in the order ``rimu --help`` lists them
 COMMANDS = [
@@ -20,32 +31,107 @@ COMMANDS = [
     "diagnose",
     "monitor",
     "replay", "campaign", "check",
+    "detect",
     "export_c",
+    "array",
 ]
+
+EXIT_OK = 0
+EXIT_CHECK_FAILED = 1
+EXIT_BAD_INPUT = 2
+EXIT_INTERNAL = 3
+EXIT_INTERRUPTED = 130
+
+log = logging.getLogger("rimu.cli")
+
+#: optional modules and the extra that installs them (pyproject.toml)
+_EXTRAS = {"matplotlib": "plots", "pywt": "wavelets", "cantools": "dbc", "pyulog": "ulog", "distributed": "distributed",
+           "dask": "distributed", "tqdm": "progress"}
+
+
+def _common_options(p: argparse.ArgumentParser, top: bool) -> None:
+    # on the subcommands the defaults are SUPPRESS so that `rimu -v calibrate` and `rimu calibrate -v` both work
+    kw = {} if top else {"default": argparse.SUPPRESS}
+    p.add_argument("-v", "--verbose", action="count", help="more log output (-vv: debug)", **({"default": 0} if top else kw))
+    p.add_argument("-q", "--quiet", action="store_true", help="errors only, no progress bars",
+                   **({"default": False} if top else kw))
+    p.add_argument("--debug", action="store_true", help="show the Python traceback of an error",
+                   **({"default": False} if top else kw))
 
 
 def build_parser() -> argparse.ArgumentParser:
     from .. import __version__
 
-    parser = argparse.ArgumentParser(prog="rimu", description="Redundant IMU calibration, fusion and FDI.")
+    parser = Parser(prog="rimu", description="Redundant IMU calibration, fusion and FDI.",
+                    epilog="Options: -o/--output FILE main artifact, --report DIR reports and plots, --json FILE "
+                           "summary ('-': stdout). Exit status: 0 ok, 1 check failed, 2 bad input, 3 internal error, "
+                           "130 interrupted. See docs/cli.md.")
     parser.add_argument("--version", action="version", version=f"rimu {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    _common_options(parser, top=True)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     for name in COMMANDS:
         importlib.import_module(f"{__name__}.{name}").register(sub)
+    for p in sub.choices.values():
+        _common_options(p, top=False)
     return parser
 
 
+def _describe(exc: BaseException) -> tuple[str, int]:
+    """The one line and exit status of an exception that ends a command."""
+    if isinstance(exc, RimuError):
+        return str(exc), EXIT_BAD_INPUT
+    if isinstance(exc, ImportError):
+        mod = (getattr(exc, "name", None) or "").split(".")[0]
+        extra = _EXTRAS.get(mod)
+        if "pip install" in str(exc):
+            return str(exc), EXIT_BAD_INPUT
+        how = f"pip install 'rimu[{extra}]'" if extra else "install the extra the message names"
+        return f"{exc} (an optional dependency is missing: {how})", EXIT_BAD_INPUT
+    if type(exc).__module__.split(".")[0] in ("can", "serial", "distributed"):  # device/cluster libraries
+        return (f"{exc} ({type(exc).__name__}); check the interface or address and that the device is there",
+                EXIT_BAD_INPUT)
+    if isinstance(exc, OSError):
+        name = getattr(exc, "filename", None)
+        why = exc.strerror or str(exc)
+        return (f"{name}: {why}" if name else why) + "; check the path and permissions", EXIT_BAD_INPUT
+    if isinstance(exc, (ValueError, KeyError)):
+        # the library validates its arguments with ValueError; the CLI checks its options first, so this is a
+        # value rimu could not use
+        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        return f"{msg}", EXIT_BAD_INPUT
+    return (f"internal error {type(exc).__name__}: {exc}; this is a bug in rimu: rerun with --debug and report the "
+            "traceback", EXIT_INTERNAL)
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run ``rimu`` with ``argv`` (default ``sys.argv[1:]``) and return the exit status."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version, or a usage error (already printed as one line)
+        return exc.code if isinstance(exc.code, int) else EXIT_BAD_INPUT
     if not getattr(args, "func", None):
         parser.print_help()
-        return 2
+        return EXIT_BAD_INPUT
+    configure_logging(args.command, args.verbose, args.quiet)
+    log.debug("arguments: %s", {k: v for k, v in vars(args).items() if k != "func"})
     try:
+        check_outputs(args)
         return int(args.func(args) or 0)
-    except RimuError as exc:
-        print(f"rimu {args.command}: error: {exc}", file=sys.stderr)
-        return 1
+    except BrokenPipeError:  # `rimu ... | head`: the reader left; nothing to say
+        try:
+            sys.stdout = open(os.devnull, "w")
+        except OSError:
+            pass
+        return EXIT_OK
     except KeyboardInterrupt:
-        print(f"rimu {args.command}: interrupted", file=sys.stderr)
-        return 130
+        if args.debug:
+            raise
+        print(f"rimu {args.command}: interrupted; no partial output file was left behind", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except Exception as exc:  # one line, the traceback only with --debug
+        if args.debug:
+            raise
+        msg, code = _describe(exc)
+        print(f"rimu {args.command}: error: {msg}", file=sys.stderr)
+        return code

@@ -1,5 +1,5 @@
-import sys
+"""``python -m rimu.cli`` works like the ``rimu`` command."""
 
 from . import main
 
-sys.exit(main())
+raise SystemExit(main())

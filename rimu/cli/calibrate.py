@@ -5,7 +5,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-METHODS = ("cho", "oliveira", "zhang", "lsq")
+import numpy as np
+
+from ._common import Deprecated, add_accept_implausible, add_json_option, add_report_option
+
+METHODS = ("cho", "oliveira", "zhang", "lsq", "handheld")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -15,12 +19,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("session", help="session file (.csv, .json sidecar, or .npz)")
     p.add_argument("--method", choices=METHODS, default="cho",
                    help="cho: Cho & Park 2005; oliveira: de Oliveira et al. 2012 (tetrad); zhang: Zhang et al. "
-                        "2010 (triads, no attitude needed); lsq: generic least squares on the effect model")
+                        "2010 (triads, no attitude needed); lsq: generic least squares on the effect model; handheld: "
+                        "poses of unknown attitude and hand rotations between them (rimu detect's sessions)")
     p.add_argument("--effects", default=None, help="lsq only: comma-separated effects (default scale,bias)")
     p.add_argument("--instruments", default=None, help="comma-separated subset of gyro,accel")
     p.add_argument("--wavelet", action="store_true", help="oliveira only: db4/8-level wavelet denoising")
     p.add_argument("-o", "--output", default="calibration.json", help="calibration file to write")
-    p.add_argument("--plot", default=None, help="write a residual plot per segment (PNG)")
+    add_report_option(p, "the residual plot per segment (residuals.png)")
+    add_json_option(p, "the coefficients, their standard deviations (SI) and chi2/dof")
+    p.add_argument("--plot", action=Deprecated, new="--report DIR (writes DIR/residuals.png)", metavar="PNG")
+    add_accept_implausible(p)
     p.set_defaults(func=run)
 
 
@@ -35,22 +43,98 @@ def estimator(method: str, instruments=None, effects: str | None = None, wavelet
         return Oliveira(wavelet=wavelet)
     if method == "zhang":
         return Zhang()
+    if method == "handheld":
+        from ..calibration.handheld import HandHeld
+
+        return HandHeld(instruments=instruments)
     model = ErrorModel.from_names(effects) if effects else None
     return LeastSquares(model=model, instruments=instruments)
 
 
+def _instruments(text: str | None, session) -> list[str] | None:
+    from ..errors import OptionError
+
+    if not text:
+        return None
+    inst = [k.strip() for k in text.split(",") if k.strip()]
+    unknown = [k for k in inst if k not in session.instruments]
+    if unknown or not inst:
+        raise OptionError(f"--instruments {text}: {unknown or 'empty'} not in this session; it has "
+                          f"{','.join(session.instruments)}")
+    return inst
+
+
+def bias_at_zero_input(res) -> dict[str, dict[str, tuple[float, float]]]:  # type: ignore[no-untyped-def]
+    """Per instrument and sensor: (std of the compensated output at zero input, marginal std of B), SI.
+
+    The calibration stores ``B = SF * c`` (c: the raw offset, Cho & Park Eq. 20 ``SF y - B``), so the marginal
+    std of B carries the scale-factor uncertainty times the raw offset, and B and SF are strongly correlated. What
+    the compensated output gets wrong at rest is ``d(SF y - B)`` at ``y = B / SF``:
+    ``var = (B/SF)^2 var(SF) + var(B) - 2 (B/SF) cov(SF, B)``; the prediction of ``rimu design`` (Cho & Park
+    Eq. 19) is this figure.
+    """
+    out: dict[str, dict[str, tuple[float, float]]] = {}
+    for k, r in res.instruments.items():
+        for sf in r.sensors:
+            names = list(sf.theta_names)
+            try:
+                i, j = names.index(f"{sf.name}.scale"), names.index(f"{sf.name}.bias")
+            except ValueError:
+                continue
+            S, B = float(sf.theta[i]), float(sf.theta[j])
+            C = np.asarray(sf.theta_cov)
+            c = B / S
+            var = c * c * C[i, i] + C[j, j] - 2 * c * C[i, j]
+            out.setdefault(k, {})[sf.name] = (float(np.sqrt(max(var, 0.0))), float(np.sqrt(max(C[j, j], 0.0))))
+    return out
+
+
+def _print_bias_note(zero: dict) -> None:
+    from ..units import MS2_TO_UG, RS_TO_DH
+
+    unit = {"gyro": ("deg/h", RS_TO_DH), "accel": ("ug", MS2_TO_UG)}
+    for k, per in zero.items():
+        u, f = unit.get(k, ("SI", 1.0))
+        ratio = max(m / z for z, m in per.values() if z > 0) if per else 1.0
+        if ratio < 1.5:
+            continue
+        row = ", ".join(f"{n} {z * f:.3g}" for n, (z, _) in per.items())
+        print(f"note: {k} bias std at zero input (the error of SF*y - B at rest; what 'rimu design' predicts, Cho & Park"
+              f" Eq. 19), {u}: {row}. The bias column above is the marginal std of B = SF x raw offset, up to "
+              f"{ratio:.3g} times larger: it also carries the scale-factor uncertainty times the raw offset, which "
+              "the correlation of B with SF cancels in the compensated output")
+
+
 def run(args: argparse.Namespace) -> int:
+    from ..errors import OptionError
     from ..session import load_session
 
-    session = load_session(args.session)
-    inst = args.instruments.split(",") if args.instruments else None
+    if args.effects and args.method != "lsq":
+        raise OptionError(f"--effects applies to --method lsq only, not {args.method}")
+    if args.wavelet and args.method != "oliveira":
+        raise OptionError(f"--wavelet applies to --method oliveira only, not {args.method}")
+    session = load_session(args.session, checks="warn" if args.accept_implausible else "strict")
+    inst = _instruments(args.instruments, session)
     res = estimator(args.method, inst, args.effects, args.wavelet).fit(session)
     print(res.table())
+    zero = bias_at_zero_input(res)
+    _print_bias_note(zero)
     out = res.to_calibration().save(Path(args.output))
     print(f"\ncalibration written to {out}")
-    if args.plot:
+    if args.json:
+        from ._common import json_dump
+
+        doc = {"method": res.method, "session": str(args.session), "calibration": str(out),
+               "chi2_dof": res.chi2_dof, "notes": list(res.notes),
+               "instruments": {k: {"values_si": res.values(k), "std_si": res.std(k),
+                                   "bias_std_at_zero_input_si": {n: z for n, (z, _) in zero.get(k, {}).items()}}
+                               for k in res.instruments}}
+        print(f"summary written to {json_dump(doc, args.json)}")
+    png = Path(args.plot) if args.plot else (Path(args.report) / "residuals.png" if args.report else None)
+    if png is not None:
         from ..calibration.plots import plot_residuals
 
-        plot_residuals(res, path=args.plot)
-        print(f"residual plot written to {args.plot}")
+        png.parent.mkdir(parents=True, exist_ok=True)
+        plot_residuals(res, path=png)
+        print(f"residual plot written to {png}")
     return 0

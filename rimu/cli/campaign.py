@@ -12,6 +12,16 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ._common import (
+    Deprecated,
+    add_json_option,
+    add_report_option,
+    nonnegative_int,
+    positive_float,
+    positive_int,
+    probability,
+)
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("campaign", help="fault-injection campaign: Pd, Pfa, isolation, delay with CIs",
@@ -22,31 +32,63 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "saturation, nonfinite) or 'all'")
     p.add_argument("--sensors", default=None, help="comma-separated sensor indices (default all)")
     p.add_argument("--sizes", default="4,6,8,10,12", help="fault sizes, sigma, comma-separated")
-    p.add_argument("--repetitions", type=int, default=5, help="seeds per (fault, sensor, size)")
+    p.add_argument("--repetitions", type=positive_int, default=5, help="seeds per (fault, sensor, size)")
     p.add_argument("--detector", default="glt", choices=["glt", "glt_window", "cusum", "kalman", "baseline"])
-    p.add_argument("--window", type=int, default=5)
-    p.add_argument("--p-fa", type=float, default=1e-3)
-    p.add_argument("--arl0", type=float, default=1e5)
-    p.add_argument("--confirm", type=int, default=3)
-    p.add_argument("--duration", type=float, default=10.0, help="s per task")
-    p.add_argument("--fault-start", type=float, default=5.0, help="s")
+    p.add_argument("--window", type=positive_int, default=5)
+    p.add_argument("--p-fa", type=probability, default=1e-3)
+    p.add_argument("--arl0", type=positive_float, default=1e5)
+    p.add_argument("--confirm", type=positive_int, default=3)
+    p.add_argument("--duration", type=positive_float, default=10.0, help="s per task")
+    p.add_argument("--fault-start", type=positive_float, default=5.0, help="s, inside --duration")
     p.add_argument("--open-loop-only", action="store_true", help="skip the closed-loop manager run (faster)")
-    p.add_argument("--seed", type=int, default=0, help="base seed")
-    p.add_argument("--workers", type=int, default=None, help="local processes (0: in this process)")
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="base seed")
+    p.add_argument("--workers", type=nonnegative_int, default=None, help="local processes (0: in this process)")
     p.add_argument("--scheduler", default=None, help="dask.distributed scheduler address")
-    p.add_argument("--json", default=None, metavar="OUT", help="write the results as JSON")
-    p.add_argument("--plot", default=None, metavar="PNG", help="write the Pd-vs-size plot")
+    add_json_option(p, "the results (spec, summary, every task)")
+    add_report_option(p, "the Pd-vs-size plot (campaign.png)")
+    p.add_argument("--plot", action=Deprecated, new="--report DIR (writes DIR/campaign.png)", metavar="PNG")
     p.set_defaults(func=run)
 
 
+def _list(opt: str, text: str, kind, lo: float | None = None) -> list:
+    from ..errors import OptionError
+
+    try:
+        vals = [kind(v.strip()) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise OptionError(f"--{opt} {text}: expected comma-separated {'integers' if kind is int else 'numbers'}") from None
+    if not vals:
+        raise OptionError(f"--{opt} is empty")
+    if lo is not None and any(not v >= lo for v in vals):
+        raise OptionError(f"--{opt} {text}: every value must be >= {lo:g}")
+    return vals
+
+
 def run(args: argparse.Namespace) -> int:
+    from ..errors import OptionError
     from ..fdi.campaign import CampaignSpec, run_campaign
     from ..fdi.faults import FAULTS
+    from ..geometry import preset
 
+    if args.scheduler:  # the extra, before any work
+        try:
+            import distributed  # noqa: F401
+        except ImportError as exc:
+            raise ImportError("--scheduler needs the 'distributed' extra: pip install 'rimu[distributed]'",
+                              name="distributed") from exc
     faults = sorted(FAULTS) if args.faults == "all" else [f.strip() for f in args.faults.split(",") if f.strip()]
-    spec = CampaignSpec(geometry=args.geometry, instrument=args.instrument, faults=faults,
-                        sensors=None if args.sensors is None else [int(s) for s in args.sensors.split(",")],
-                        sizes=[float(s) for s in args.sizes.split(",")], repetitions=args.repetitions,
+    unknown = [f for f in faults if f not in FAULTS]
+    if unknown or not faults:
+        raise OptionError(f"--faults {args.faults}: unknown fault types {unknown}; known: {', '.join(sorted(FAULTS))} "
+                          "or 'all'")
+    if args.fault_start >= args.duration:
+        raise OptionError(f"--fault-start {args.fault_start:g} s must lie inside the run (--duration {args.duration:g} s)")
+    n = preset(args.geometry).n
+    sensors = None if args.sensors is None else _list("sensors", args.sensors, int, 0)
+    if sensors and max(sensors) >= n:
+        raise OptionError(f"--sensors {args.sensors}: {args.geometry} has sensors 0..{n - 1}")
+    spec = CampaignSpec(geometry=args.geometry, instrument=args.instrument, faults=faults, sensors=sensors,
+                        sizes=_list("sizes", args.sizes, float, 0.0), repetitions=args.repetitions,
                         detector=args.detector, window=args.window, p_fa=args.p_fa, arl0=args.arl0,
                         confirm=args.confirm, duration=args.duration, fault_start=args.fault_start,
                         closed_loop=not args.open_loop_only, base_seed=args.seed)
@@ -58,9 +100,15 @@ def run(args: argparse.Namespace) -> int:
     res = run_campaign(spec, workers=args.workers, scheduler=args.scheduler, progress=True)
     print(res.table())
     if args.json:
-        res.to_json(args.json)
-        print(f"  JSON: {args.json}")
-    if args.plot:
-        png = res.plot(Path(args.plot))
-        print(f"  plot: {png}" if png else "  (matplotlib not installed: no plot)")
+        if args.json == "-":
+            print(res.to_json())
+        else:
+            Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+            res.to_json(args.json)
+            print(f"  JSON: {args.json}")
+    png = Path(args.plot) if args.plot else (Path(args.report) / "campaign.png" if args.report else None)
+    if png is not None:
+        png.parent.mkdir(parents=True, exist_ok=True)
+        out = res.plot(png)
+        print(f"  plot: {out}" if out else "  (matplotlib not installed: no plot; pip install 'rimu[plots]')")
     return 0

@@ -24,11 +24,17 @@ import numpy as np
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="simulate, calibrate, fuse, inject faults, isolate them; report and plot",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--out", default="rimu-demo", help="folder for the calibration file, report and plot")
-    p.add_argument("--seed", type=int, default=7)
-    p.add_argument("--segment-duration", type=float, default=20.0, help="s per calibration segment")
-    p.add_argument("--p-fa", type=float, default=1e-3, help="per-sample false-alarm probability of the test")
-    p.add_argument("--confirm", type=int, default=5, help="consecutive alarms on one sensor to isolate it")
+    from ._common import Deprecated, nonnegative_int, positive_float, positive_int, probability
+
+    p.add_argument("--report", default="rimu-demo", metavar="DIR",
+                   help="folder for the plot (demo.png), and by default the calibration file and report.json")
+    p.add_argument("-o", "--output", default=None, metavar="FILE", help="calibration file (default DIR/calibration.json)")
+    p.add_argument("--json", default=None, metavar="FILE", help="the summary as JSON (default DIR/report.json)")
+    p.add_argument("--out", action=Deprecated, new="--report DIR", dest="report", metavar="DIR")
+    p.add_argument("--seed", type=nonnegative_int, default=7)
+    p.add_argument("--segment-duration", type=positive_float, default=20.0, help="s per calibration segment")
+    p.add_argument("--p-fa", type=probability, default=1e-3, help="per-sample false-alarm probability of the test")
+    p.add_argument("--confirm", type=positive_int, default=5, help="consecutive alarms on one sensor to isolate it")
     p.set_defaults(func=run)
 
 
@@ -43,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
     from ..sim import Simulator, TruthEffect, cho_park_procedure, rotation
     from ..units import DS_TO_RS, G0, MS2_TO_UG, RS_TO_DH, RS_TO_DS
 
-    out = Path(args.out)
+    out = Path(args.report)
     out.mkdir(parents=True, exist_ok=True)
     geo = cone6()
     # the unit: Cho & Park's Table 3 coefficients, and one effect the base model does not have: gyro x2 is
@@ -60,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
           f"{len(cal_run.block)} samples at {sim.sample_rate:g} Hz")
     res = ChoPark().fit(cal_run.session)
     cal = res.to_calibration()
-    path = cal.save(out / "calibration.json")
+    path = cal.save(Path(args.output) if args.output else out / "calibration.json")
     cal = Calibration.load(path, geometries={"gyro": geo, "accel": geo})
     print(f"  calibrated (Cho & Park Eq. 5-17), saved and reloaded (checksum verified): {path}")
     print("\n  errors against the truth, (3 sigma) as reported by the estimator:")
@@ -179,12 +185,18 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {k:5s} {ax}: {before[:, a].std() * conv:7.4f} -> {aft:7.4f} {unit}"
                   f"   ratio {meas[a]:.3f} (predicted {pred[a]:.3f})")
     report["elapsed_s"] = time.perf_counter() - t_start
-    (out / "report.json").write_text(json.dumps(report, indent=1))
+    from ..atomic import write_text
+
+    json_path = Path(args.json) if args.json else out / "report.json"
+    if args.json == "-":
+        print(json.dumps(report, indent=1))
+    else:
+        write_text(json_path, json.dumps(report, indent=1))
     xs = {k: r.x for k, r in runs.items()}
     stats = {k: r.statistic for k, r in runs.items()}
     thresholds = {k: r.threshold for k, r in runs.items()}
     png = _plot(out, t, xs, man.truth_inputs, stats, thresholds, events, faults)
-    print(f"\n  report: {out / 'report.json'}" + (f"\n  plot:   {png}" if png else "  (matplotlib not installed: no plot)"))
+    print(f"\n  report: {json_path}" + (f"\n  plot:   {png}" if png else "  (matplotlib not installed: no plot)"))
     print(f"  done in {report['elapsed_s']:.1f} s")
     ok = {(e["instrument"], e["sensor"]) for e in events} == {("gyro", "y2"), ("accel", "x1")}
     if not ok:
@@ -224,6 +236,9 @@ def _plot(out: Path, t, xs, truth, stats, thresholds, events, faults) -> Path | 
         ax.legend(loc="upper left", fontsize=7)
     fig.tight_layout()
     png = out / "demo.png"
-    fig.savefig(png, dpi=110)
+    from ..atomic import atomic_path
+
+    with atomic_path(png) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
     return png

@@ -4,8 +4,11 @@ greedy D-optimal choice of static attitudes and rotation axes, compared with the
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 import numpy as np
+
+from ._common import Deprecated, add_json_option, add_report_option, positive_float, positive_int
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -14,12 +17,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--geometry", default="cone6", help="geometry preset (cone6, tetrad4, triad3, ...)")
     p.add_argument("--procedure", default="cho_park",
                    choices=["cho_park", "cho_park_table1", "cho_park_table2", "oliveira_table1", "zhang"])
-    p.add_argument("--duration", type=float, default=60.0, help="s per position / rate step (cho_park)")
-    p.add_argument("--sample-rate", type=float, default=100.0, help="Hz")
-    p.add_argument("--arw", type=float, default=3.0, help="gyro angle random walk, deg/sqrt(h)")
-    p.add_argument("--vrw", type=float, default=200.0, help="accelerometer noise density, micro-g/sqrt(Hz)")
-    p.add_argument("--greedy", type=int, default=10, help="number of static positions to select (rate pairs: 7)")
-    p.add_argument("--plot", default=None, help="write Cho & Park's Fig. 3 for this geometry (PNG)")
+    p.add_argument("--duration", type=positive_float, default=None,
+                   help="s per position / rate step (cho_park procedures only; default 60)")
+    p.add_argument("--sample-rate", type=positive_float, default=100.0, help="Hz")
+    p.add_argument("--arw", type=positive_float, default=3.0, help="gyro angle random walk, deg/sqrt(h)")
+    p.add_argument("--vrw", type=positive_float, default=200.0, help="accelerometer noise density, micro-g/sqrt(Hz)")
+    p.add_argument("--greedy", type=positive_int, default=10, help="number of static positions to select (rate pairs: 7)")
+    add_report_option(p, "Cho & Park's Fig. 3 for this geometry (fig3.png)")
+    add_json_option(p, "the predicted standard deviations (SI) and the design figures")
+    p.add_argument("--plot", action=Deprecated, new="--report DIR (writes DIR/fig3.png)", metavar="PNG")
     p.set_defaults(func=run)
 
 
@@ -34,13 +40,17 @@ def run(args: argparse.Namespace) -> int:
         procedure_inputs,
         turntable_candidates,
     )
-    from ..errors import IdentifiabilityError
+    from ..errors import IdentifiabilityError, OptionError
     from ..geometry import preset
     from ..sim import PROCEDURES, zhang_scheme
     from ..sim.procedures import CHO_PARK_TABLE1, CHO_PARK_TABLE2
     from ..units import ARW_DSQH_TO_RSQS, G0, MS2_TO_UG, RAD_TO_ARCSEC, RS_TO_DH, UG_TO_MS2, white_noise_sigma
 
     geo = preset(args.geometry)
+    if args.duration is not None and not args.procedure.startswith("cho_park"):
+        raise OptionError(f"--duration sets the segment length of the cho_park procedures; {args.procedure} has its "
+                          "own fixed durations: leave --duration out")
+    args.duration = 60.0 if args.duration is None else args.duration
     proc = PROCEDURES[args.procedure]()
     if args.procedure.startswith("cho_park"):
         proc = PROCEDURES[args.procedure](duration=args.duration)
@@ -66,8 +76,13 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {name:<8} {a[name + '.scale'] * 1e6:>11.1f} {max(am) * RAD_TO_ARCSEC:>16.2f} "
                   f"{a[name + '.bias'] * MS2_TO_UG:>12.1f} {g[name + '.scale'] * 1e6:>12.1f} "
                   f"{max(gm) * RAD_TO_ARCSEC:>16.2f} {g[name + '.bias'] * RS_TO_DH:>16.2f}")
+        print("  bias: the error of the compensated output at zero input. 'rimu calibrate' prints this figure in a "
+              "note; its bias column is the marginal std of B = SF x raw offset, larger by the scale-factor "
+              "uncertainty times the unit's raw offset, which design cannot know")
     U, A = turntable_candidates()
     k = args.greedy
+    if k > len(U):
+        raise OptionError(f"--greedy {k}: there are only {len(U)} candidate static positions")
     sel = greedy_d_optimal(geo, U, k, "static")
     selr = greedy_d_optimal(geo, A, 7, "rate")
     t1 = ProcedureInputs(np.array(CHO_PARK_TABLE1) * G0, np.zeros((0, 3)))
@@ -83,8 +98,16 @@ def run(args: argparse.Namespace) -> int:
           f" | Zhang's 6 axes {log_det_information(geo, ProcedureInputs(np.zeros((0, 3)), z.rate_diffs / np.linalg.norm(z.rate_diffs, axis=1)[:, None] * 2), 'rate'):.2f}")
     print("  greedy static 'up' directions (MB): " + ", ".join(str(np.round(U[i], 2).tolist()) for i in sel))
     print("  greedy rotation axes (MB):          " + ", ".join(str(np.round(A[i], 2).tolist()) for i in selr))
-    if args.plot:
+    if args.json:
+        from ._common import json_dump
+
+        doc = {"geometry": geo.name, "procedure": args.procedure, "samples_per_segment": n,
+               "predicted_std_si": pred, "greedy_static_up_mb": U[sel].tolist(), "greedy_rate_axes_mb": A[selr].tolist()}
+        print(f"\nsummary written to {json_dump(doc, args.json)}")
+    png = Path(args.plot) if args.plot else (Path(args.report) / "fig3.png" if args.report else None)
+    if png is not None:
+        png.parent.mkdir(parents=True, exist_ok=True)
         curve = fig3_curve(geo, np.array(CHO_PARK_TABLE1), t2.rate_diffs)
-        plot_fig3(curve, args.plot, f"Cho & Park Fig. 3 for {geo.name}")
-        print(f"\nFig. 3 written to {args.plot}")
+        plot_fig3(curve, str(png), f"Cho & Park Fig. 3 for {geo.name}")
+        print(f"\nFig. 3 written to {png}")
     return 0

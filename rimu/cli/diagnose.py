@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 from ..errors import SessionFormatError
+from ._common import add_accept_implausible, add_json_option, add_report_option, finite_float, probability
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -27,16 +28,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--add", nargs="+", default=[], metavar="EFFECT", help="effects to add and refit (before/after)")
     p.add_argument("--iterate", action="store_true", help="add the top missing effect and refit until nothing is missing")
     p.add_argument("--instrument", choices=["gyro", "accel"], action="append", help="restrict to an instrument (repeatable)")
-    p.add_argument("--alpha", type=float, default=0.01, help="family-wise significance (default: %(default)s)")
+    p.add_argument("--alpha", type=probability, default=0.01, help="family-wise significance (default: %(default)s)")
     p.add_argument("--no-earth-rate", action="store_true", help="leave the Earth rate out of the gyro input (tests earth_rate)")
-    p.add_argument("--reference-temperature", type=float, default=25.0, help="T_ref of temperature effects, degC")
-    p.add_argument("--report", metavar="DIR", help="write report.md, report.html, figures and diagnosis.json here")
-    p.add_argument("--json", action="store_true", help="print the diagnosis as JSON instead of text")
+    p.add_argument("--reference-temperature", type=finite_float, default=25.0, help="T_ref of temperature effects, degC")
+    add_report_option(p, "report.md, report.html, figures and diagnosis.json")
+    add_json_option(p, "the diagnosis ('-': on stdout instead of the text)", allow_bare=True)
     p.add_argument("--list-effects", action="store_true", help="list the effects of the library and exit")
+    add_accept_implausible(p)
     p.set_defaults(func=run)
 
 
-def load_session(path: str | Path):
+def load_session(path: str | Path, checks: str = "strict"):
     """A Session from a Ferraris recording folder, or a rimu session file (``.csv`` with its ``.json``
     sidecar, the sidecar itself, or ``.npz``; see ``docs/session-format.md``)."""
     from ..session import load_ferraris
@@ -48,7 +50,7 @@ def load_session(path: str | Path):
     if not path.exists():
         raise SessionFormatError(f"{path} does not exist; give a Ferraris recording folder or a rimu session file "
                                  "(.csv + .json sidecar, or .npz, as 'rimu simulate' writes)")
-    return _load(path)
+    return _load(path, checks=checks)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -62,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
             if name == cls.name:
                 print(f"{name:20s} {'/'.join(cls.instruments):11s} {cls.description}")
         return 0
-    session = load_session(args.session)
+    session = load_session(args.session, "warn" if args.accept_implausible else "strict")
     sigma = None
     if args.calibration:
         from ..calibration import Calibration
@@ -96,11 +98,15 @@ def run(args: argparse.Namespace) -> int:
         text = d.summary() + "".join("\n" + "\n".join(c.lines()) for c in comparisons)
         data = {"diagnosis": d.to_dict(), "comparisons": [c.to_dict() for c in comparisons]}
         target = d
-    if args.json:
+    if args.json == "-":
         print(json.dumps(data, default=float))
     else:
         print(text)
+        if args.json:
+            from ._common import json_dump
+
+            print(f"diagnosis JSON: {json_dump(data, args.json)}")
     if args.report:
         md = write_report(target, args.report, comparisons)
-        print(f"report: {md}", file=sys.stderr if args.json else sys.stdout)
+        print(f"report: {md}", file=sys.stderr if args.json == "-" else sys.stdout)
     return 0

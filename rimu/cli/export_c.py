@@ -18,7 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--real", choices=("double", "float"), default="double",
                    help="floating-point type of the generated code (float for FPUs without double)")
     p.add_argument("--build", action="store_true", help="also build rimu_filter with the system C compiler")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, output_is_dir=True)  # -o names a folder (rimu.cli._common.check_outputs)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -38,22 +38,25 @@ def register(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--ulog", metavar="FILE", help="PX4 ULog flight log (extra 'ulog')")
     src.add_argument("--simulate", action="store_true", help="simulated cone6 device on a virtual CAN bus")
     p.add_argument("--layout", default="cone6_rimu", help="CAN layout file or shipped name (default cone6_rimu)")
-    p.add_argument("--baud", type=int, default=921600, help="serial baud rate")
+    from ._common import Deprecated, add_json_option, positive_float, positive_int, probability
+
+    p.add_argument("--baud", type=positive_int, default=921600, help="serial baud rate")
     p.add_argument("--calibration", help="calibration file (rimu.calibration JSON); --simulate uses the truth")
     p.add_argument("--geometry", default=None, help="geometry preset of gyros and accelerometers "
                    "(default: the layout's, or cone6)")
-    p.add_argument("--p-fa", type=float, default=1e-3, help="per-sample false-alarm probability of the GLT")
-    p.add_argument("--confirm", type=int, default=5, help="consecutive alarms on one sensor to isolate it")
-    p.add_argument("--record", metavar="CSV", help="write every epoch to this CSV file")
+    p.add_argument("--p-fa", type=probability, default=1e-3, help="per-sample false-alarm probability of the GLT")
+    p.add_argument("--confirm", type=positive_int, default=5, help="consecutive alarms on one sensor to isolate it")
+    p.add_argument("-o", "--output", dest="record", metavar="CSV", help="record every epoch to this CSV file")
+    p.add_argument("--record", action=Deprecated, new="-o/--output CSV", metavar="CSV")
     p.add_argument("--side-log", metavar="JSONL", help="keep rejected raw data in this file")
     p.add_argument("--realtime", action="store_true", help="pace replays and the simulated device in real time")
-    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds of data")
-    p.add_argument("--idle-timeout", type=float, default=2.0, help="stop a live source after this long silent")
-    p.add_argument("--status-interval", type=float, default=0.5, help="s between status lines")
+    p.add_argument("--duration", type=positive_float, default=None, help="stop after this many seconds of data")
+    p.add_argument("--idle-timeout", type=positive_float, default=2.0, help="stop a live source after this long silent")
+    p.add_argument("--status-interval", type=positive_float, default=0.5, help="s between status lines")
     p.add_argument("--fault", default="gyro:y2:10:10",
                    help="--simulate only: INSTRUMENT:SENSOR:T_S:SIGMAS step bias, or 'none'")
-    p.add_argument("--sim-duration", type=float, default=20.0, help="--simulate only: s of simulated data")
-    p.add_argument("--json", action="store_true", help="print the final summary as JSON too")
+    p.add_argument("--sim-duration", type=positive_float, default=20.0, help="--simulate only: s of simulated data")
+    add_json_option(p, "the final summary", allow_bare=True)
     p.set_defaults(func=run)
 
 
@@ -88,9 +91,17 @@ def _open(args: argparse.Namespace) -> tuple[Any, Any, dict]:
         run = sim.run([rotation("manoeuvre", [0.0, 0.5236, 0.0], duration=args.sim_duration)])
         fault = None
         if args.fault != "none":
-            inst, name, t_f, sig = args.fault.split(":")
-            i = sim.geometries[inst].index(name)
-            size = float(sig) * sim.noise_sigma(inst) / run.truth[inst].scale[i]
+            try:
+                inst, name, t_f, sig = args.fault.split(":")
+                i = sim.geometries[inst].index(name)
+                size = float(sig) * sim.noise_sigma(inst) / run.truth[inst].scale[i]
+                float(t_f)
+            except (ValueError, KeyError, IndexError):
+                from ..errors import OptionError
+
+                raise OptionError(f"--fault {args.fault}: expected INSTRUMENT:SENSOR:T_S:SIGMAS with instrument gyro or "
+                                  f"accel and a sensor of cone6 ({', '.join(sim.geometries['gyro'].names)}), e.g. "
+                                  "gyro:y2:10:10, or 'none'") from None
 
             def fault(block, inst=inst, i=i, t_f=float(t_f), size=size):
                 from ..epoch import EpochBlock
@@ -116,8 +127,16 @@ def _open(args: argparse.Namespace) -> tuple[Any, Any, dict]:
 
         iface, _, channel = args.can.partition(":")
         layout = load_layout(args.layout)
-        src = CanSource(layout, interface=iface, channel=channel or "0", idle_timeout=args.idle_timeout,
-                        side_log=side)
+        try:
+            src = CanSource(layout, interface=iface, channel=channel or "0", idle_timeout=args.idle_timeout,
+                            side_log=side)
+        except (ImportError, OSError):
+            raise
+        except Exception as exc:  # python-can's own errors (unknown interface, bus not up) are not OSErrors
+            from ..errors import TransportError
+
+            raise TransportError(f"--can {args.can}: cannot open the CAN bus ({exc}); check the interface name "
+                                 "(socketcan, virtual, pcan, ...) and that the channel exists") from exc
     elif args.serial:
         from ..io.serial import SerialSource
 
@@ -214,8 +233,9 @@ def run(args: argparse.Namespace) -> int:
             t_last = ep.t
             n += 1
             for ev in fdi.step(ep.t, pipe.step(ep)):
-                print(("\n" if tty else "") + f"  t = {ev['t']:.2f} s: {ev['instrument']} {ev['sensor']} isolated",
-                      flush=True)
+                ev["sample"] = n - 1  # events carry the epoch index as well as the time
+                print(("\n" if tty else "") + f"  t = {ev['t']:.2f} s (epoch {n - 1}): {ev['instrument']} "
+                      f"{ev['sensor']} isolated", flush=True)
             if rec is not None:
                 rec.write(ep)
             now = time.monotonic()
@@ -247,6 +267,12 @@ def run(args: argparse.Namespace) -> int:
         print(("\r" + line) if tty else line, end="" if tty else "\n", flush=True)
     a = src.accounting
     wall = time.monotonic() - w0
+    if n == 0 and not interrupted:
+        from ..errors import TransportError
+
+        raise TransportError(f"no epoch came out of the source ({a.summary()}); check that --layout matches the data "
+                             "and that the source sends" + (f" within --idle-timeout {args.idle_timeout:g} s"
+                                                           if (args.can or args.serial) else ""))
     summary = {"epochs": n, "data_span_s": (t_last - t0) if n else 0.0, "wall_s": wall,
                "interrupted": interrupted, "accounting": a.as_dict(), "isolations": fdi.events,
                "record": args.record}
@@ -258,13 +284,17 @@ def run(args: argparse.Namespace) -> int:
     print(f"  accounting identity received = accepted + rejected + pending: "
           f"{'holds' if a.identity_holds() else 'BROKEN'}")
     for ev in fdi.events:
-        print(f"  isolated: {ev['instrument']} {ev['sensor']} at t = {ev['t']:.2f} s")
+        print(f"  isolated: {ev['instrument']} {ev['sensor']} at t = {ev['t']:.2f} s (epoch {ev.get('sample')})")
     if not fdi.events:
         print("  no sensor isolated")
     if args.record:
         print(f"  recording: {Path(args.record)}")
-    if args.json:
+    if args.json == "-":
         print(json.dumps(summary))
+    elif args.json:
+        from ._common import json_dump
+
+        print(f"  summary: {json_dump(summary, args.json)}")
     return 0 if a.identity_holds() else 1
 
 

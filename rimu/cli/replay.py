@@ -2,11 +2,15 @@
 runtime pipeline with fault detection and isolation, optionally with injected faults.
 
 Prints the events (isolations, transients, re-admissions, state changes) and the final state per instrument;
-with ``--out`` writes a plot of the parity statistic against its threshold, the estimates and the states over
-time, and a JSON file of the events.
+``--report DIR`` writes a plot of the parity statistic against its threshold, the estimates and the states over
+time, ``--json FILE`` the events (time in s and sample index) and final states.
 
 Injection: ``TYPE:INSTRUMENT:SENSOR:START[:SIZE[:DURATION]]``, SIZE in SI or as ``10sigma``; types: bias, ramp,
 stuck, scale, noise, spikes, dropout, zero, saturation, nonfinite. Example: ``--inject bias:gyro:y2:15:10sigma``.
+``--motion-fit SECONDS`` fits motion-aware thresholds for the gyros on the first SECONDS of the data (taken as
+fault-free): the test then allows for the residual scale, misalignment, time offset and vibration of the unit in
+motion (docs/many-sensors.md). A range limit in the calibration (``range_raw``) makes clipped samples count as
+saturated: routed around, never isolated.
 DATA is a session file in rimu's format (``.npz``, or ``.csv`` with its ``.json`` sidecar; docs/session-format.md),
 as ``rimu simulate`` writes it; the segments are replayed back to back.
 """
@@ -14,10 +18,22 @@ as ``rimu simulate`` writes it; the segments are replayed back to back.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
+
+from ._common import (
+    Deprecated,
+    add_accept_implausible,
+    add_json_option,
+    add_report_option,
+    nonnegative_int,
+    positive_float,
+    positive_int,
+    probability,
+)
+
+DETECTORS = ["glt", "glt_window", "cusum", "kalman", "baseline"]
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -26,16 +42,51 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("data", help="session file (.npz, or .csv/.json with sidecar)")
     p.add_argument("--calibration", required=True, help="calibration JSON file")
     p.add_argument("--inject", action="append", default=[], metavar="SPEC", help="fault to inject (repeatable)")
-    p.add_argument("--detector", default="glt", choices=["glt", "glt_window", "cusum", "kalman", "baseline"])
-    p.add_argument("--window", type=int, default=5, help="samples of the window GLT")
-    p.add_argument("--p-fa", type=float, default=1e-3, help="per-sample false-alarm probability")
-    p.add_argument("--arl0", type=float, default=1e5, help="mean samples between false alarms (cusum, baseline)")
-    p.add_argument("--confirm", type=int, default=3, help="consecutive alarms before isolation")
-    p.add_argument("--readmit-after", type=int, default=None, help="clean samples before re-admission")
-    p.add_argument("--noise", type=float, default=None, help="per-sample noise (SI) if the calibration has none")
-    p.add_argument("--seed", type=int, default=0, help="seed of random fault types")
-    p.add_argument("--out", default=None, help="folder for the plot and the events JSON")
+    p.add_argument("--detector", default="glt", choices=DETECTORS)
+    p.add_argument("--window", type=positive_int, default=5, help="samples of the window GLT")
+    p.add_argument("--p-fa", type=probability, default=1e-3, help="per-sample false-alarm probability")
+    p.add_argument("--arl0", type=positive_float, default=1e5, help="mean samples between false alarms (cusum, baseline)")
+    p.add_argument("--confirm", type=positive_int, default=3, help="consecutive alarms before isolation")
+    p.add_argument("--readmit-after", type=positive_int, default=None, help="clean samples before re-admission")
+    p.add_argument("--noise", type=positive_float, default=None, help="per-sample noise (SI) if the calibration has none")
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of random fault types")
+    p.add_argument("--motion-fit", type=positive_float, default=None, metavar="SECONDS",
+                   help="gyros: fit motion-aware thresholds (rimu.fdi.motion: scale, misalignment, time offset, "
+                        "vibration) on the first SECONDS of the data, taken as fault-free, and test with them "
+                        "(docs/many-sensors.md)")
+    p.add_argument("--motion-margin", type=positive_float, default=3.0, help="factor on the fitted motion variances")
+    add_report_option(p, "the plot (replay.png)")
+    add_json_option(p, "the events (time in s and sample index) and final states")
+    p.add_argument("--out", action=Deprecated, new="--report DIR and --json FILE", convert=_old_out, metavar="DIR")
+    add_accept_implausible(p)
     p.set_defaults(func=run)
+
+
+def _old_out(ns: argparse.Namespace, value: str) -> None:
+    """``--out DIR`` (old): DIR/replay.png and DIR/replay.json."""
+    ns.report = value
+    ns.json = str(Path(value) / "replay.json")
+
+
+#: replays longer than this many samples show a progress bar (in chunks of this size)
+_CHUNK = 20_000
+
+
+def _run(mgr, Y, valid, t, desc: str):  # type: ignore[no-untyped-def]
+    """``mgr.run`` over the whole block, in chunks with a progress bar when the block is long (the manager keeps
+    its state between calls, so the result is the same)."""
+    from dataclasses import replace
+
+    from ..progress import bar
+
+    n = len(Y)
+    if n <= _CHUNK:
+        return mgr.run(Y, valid, t)
+    parts = [mgr.run(Y[a:a + _CHUNK], None if valid is None else valid[a:a + _CHUNK], t[a:a + _CHUNK])
+             for a in bar(range(0, n, _CHUNK), total=-(-n // _CHUNK), desc=desc, unit="chunk")]
+    cat = {f: np.concatenate([getattr(r, f) for r in parts]) for f in
+           ("t", "x", "statistic", "threshold", "alarm", "state", "n_active")}
+    return replace(parts[0], events=[e for r in parts for e in r.events], **cat)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -46,9 +97,17 @@ def run(args: argparse.Namespace) -> int:
     from ..fusion import InstrumentPipeline
     from .check import read_session
 
-    _, block = read_session(args.data)
-    cal = Calibration.load(args.calibration)
+    session, block = read_session(args.data, "warn" if args.accept_implausible else "strict")
+    # the calibration must be of this unit: its geometry fingerprint against the data's (a dodecahedron6
+    # calibration on cone6 data would otherwise isolate healthy sensors)
+    cal = Calibration.load(args.calibration, geometries=session.geometries)
     insts = [k for k in cal.instruments if k in block.raw]
+    if not insts:
+        from ..errors import CalibrationFileError
+
+        raise CalibrationFileError(f"the calibration ({', '.join(cal.instruments)}) and the data "
+                                   f"({', '.join(session.instruments)}) have no instrument in common: nothing to replay")
+    t_end = float(block.t[-1])
     for k in insts:
         if cal[k].noise_sigma is None:
             if args.noise is None:
@@ -57,6 +116,12 @@ def run(args: argparse.Namespace) -> int:
                 raise CalibrationFileError(f"the {k} calibration states no noise; pass --noise SIGMA (SI per sample)")
             cal[k].noise_sigma = np.full(cal[k].geometry.n, float(args.noise))
     injections = [parse_injection(s) for s in args.inject]
+    for inj in injections:  # a fault outside the data would be "injected" without touching a sample
+        if not float(block.t[0]) <= inj.start < t_end:
+            from ..errors import OptionError
+
+            raise OptionError(f"--inject {inj.fault}:{inj.instrument}:{inj.sensor}:{inj.start:g}: starts at "
+                              f"{inj.start:g} s, outside the data (t = {float(block.t[0]):g} .. {t_end:g} s)")
     if injections:
         block = inject(block, injections, cal, seed=args.seed)
         for inj in injections:
@@ -70,29 +135,59 @@ def run(args: argparse.Namespace) -> int:
     for k in insts:
         pipe = InstrumentPipeline(cal[k])
         spec = CampaignSpec(detector=args.detector, window=args.window, p_fa=args.p_fa, arl0=args.arl0)
-        mgr = RedundancyManager(pipe, make_detector(spec, pipe.table.sigma), p_fa=args.p_fa,
+        det = make_detector(spec, pipe.table.sigma)
+        if args.motion_fit is not None and k == "gyro":
+            det = _motion_detector(cal[k], block, args.motion_fit, args.motion_margin, args.p_fa, fs)
+        mgr = RedundancyManager(pipe, det, p_fa=args.p_fa,
                                 confirm=1 if args.detector == "cusum" else args.confirm,
                                 readmit_after=args.readmit_after, sample_rate=fs)
-        res = mgr.run(block.raw[k], block.valid.get(k), block.t)
+        res = _run(mgr, block.raw[k], block.valid.get(k), block.t, f"replay {k}")
         results[k] = res
-        print(f"\n  {k}: {len(block)} samples, detector {args.detector}; final state {mgr.state.value}"
+        print(f"\n  {k}: {len(block)} samples, detector {getattr(det, 'name', args.detector)}; final state {mgr.state.value}"
               + (f", isolated {', '.join(mgr.health.isolated)}" if mgr.health.isolated else ""))
         shown = [e for e in res.events if e.kind != "transient"]
         n_tr = sum(1 for e in res.events if e.kind == "transient")
         for e in shown[:50]:
-            print(f"    t = {e.t:8.3f} s  {e.kind:22s} {e.sensor or '':4s} {e.message}")
+            print(f"    t = {e.t:8.3f} s (sample {e.sample:>7d})  {e.kind:22s} {e.sensor or '':4s} {e.message}")
         if len(shown) > 50:
             print(f"    ... {len(shown) - 50} more")
         print(f"    transient alarm episodes (not confirmed): {n_tr}; outputs finite: {bool(np.isfinite(res.x).all())}")
-    if args.out:
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
+    if args.json:
+        from ._common import json_dump
+
         doc = {k: {"events": [e.to_dict() for e in r.events], "final_state": r.state_names()[-1] if len(r.t) else None}
                for k, r in results.items()}
-        (out / "replay.json").write_text(json.dumps(doc, indent=1))
+        print(f"\n  events: {json_dump(doc, args.json)}")
+    if args.report:
+        out = Path(args.report)
+        out.mkdir(parents=True, exist_ok=True)
         png = _plot(out / "replay.png", results)
-        print(f"\n  events: {out / 'replay.json'}" + (f"\n  plot:   {png}" if png else ""))
+        print(f"  plot:   {png}" if png else "  (matplotlib not installed: no plot; pip install 'rimu[plots]')")
     return 0
+
+
+def _motion_detector(cal, block, seconds: float, margin: float, p_fa: float, fs: float):  # type: ignore[no-untyped-def]
+    """Motion-aware GLT with the motion terms fitted on the first ``seconds`` of the gyro data (every sensor valid)."""
+    from ..errors import ShapeError
+    from ..fdi.motion import MotionAwareGlt, MotionNoiseModel, fit_motion_terms
+    from ..fusion import InstrumentPipeline, Validity
+
+    sel = block.t < block.t[0] + seconds
+    pipe = InstrumentPipeline(cal)
+    blk = pipe.process(block.raw["gyro"][sel], None if block.valid.get("gyro") is None else block.valid["gyro"][sel])
+    full = np.asarray(blk.validity) == Validity.NOMINAL
+    if full.sum() < 50:
+        raise ShapeError(f"--motion-fit {seconds:g}: only {int(full.sum())} samples with every gyro valid in that "
+                         "span; give a longer fault-free span (at least 50 samples)")
+    res = pipe.table.sigma**2 * (blk.parity @ pipe.table.Vz[0])
+    alpha = np.gradient(blk.x, 1.0 / fs, axis=0)
+    model = fit_motion_terms(MotionNoiseModel(cal, sigma=pipe.table.sigma), res[full], pipe.table.G[0], blk.x[full],
+                             alpha[full], margin=margin)
+    print(f"  gyro: motion terms fitted on {int(full.sum())} samples (first {seconds:g} s, margin {margin:g}): "
+          f"scale {1e2 * float(np.median(model.scale_rel)):.2f} %, misalignment "
+          f"{1e3 * float(np.median(model.misalignment_rad)):.2f} mrad, time offset "
+          f"{1e3 * float(np.median(model.time_offset_s)):.2f} ms (medians)")
+    return MotionAwareGlt(model, p_fa, sample_rate=fs)
 
 
 def _plot(path: Path, results: dict) -> Path | None:
@@ -129,6 +224,9 @@ def _plot(path: Path, results: dict) -> Path | None:
         ax.set_xlabel("time, s")
         ax.set_title(f"{k}: state")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    from ..atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
     return path

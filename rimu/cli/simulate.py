@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ._common import finite_float, nonnegative_float, positive_float
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="simulate a turntable procedure and write the raw data",
@@ -15,15 +17,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--geometry", default=None, help="geometry preset for gyros and accelerometers "
                    "(default: cone6; tetrad4 gyros + triad3 accelerometers for oliveira_table1; triad3 for zhang)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--duration", type=float, default=None,
-                   help="s per static position and rate step (cho_park procedures; default 60)")
-    p.add_argument("--sample-rate", type=float, default=100.0, help="Hz")
-    p.add_argument("--arw", type=float, default=3.0, help="gyro angle random walk, deg/sqrt(h)")
-    p.add_argument("--vrw", type=float, default=200.0, help="accelerometer noise density, micro-g/sqrt(Hz)")
-    p.add_argument("--latitude", type=float, default=36.37, help="deg")
+    p.add_argument("--duration", type=positive_float, default=None,
+                   help="s per static position and rate step (cho_park procedures only; default 60)")
+    p.add_argument("--sample-rate", type=positive_float, default=100.0, help="Hz")
+    p.add_argument("--arw", type=nonnegative_float, default=3.0, help="gyro angle random walk, deg/sqrt(h)")
+    p.add_argument("--vrw", type=nonnegative_float, default=200.0, help="accelerometer noise density, micro-g/sqrt(Hz)")
+    p.add_argument("--latitude", type=finite_float, default=36.37, help="deg, in [-90, 90]")
     p.add_argument("-o", "--output", default="session.npz",
                    help="output file: .npz, or .csv (a .json sidecar is written beside it); see docs/session-format.md")
-    p.add_argument("--truth", default=None, help="also write the true coefficients as a calibration file")
+    p.add_argument("--truth", default=None, metavar="FILE",
+                   help="also write the true coefficients as a calibration file (not the session's own .json sidecar)")
     p.set_defaults(func=run)
 
 
@@ -40,12 +43,20 @@ def geometries_for(procedure: str, geometry: str | None) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..errors import OptionError
     from ..session import save_session
     from ..sim import PROCEDURES, Simulator
 
+    if not -90.0 <= args.latitude <= 90.0:
+        raise OptionError(f"--latitude must be in [-90, 90] deg, got {args.latitude:g}")
+    if args.duration is not None and not args.procedure.startswith("cho_park"):
+        raise OptionError(f"--duration sets the segment length of the cho_park procedures; {args.procedure} has its "
+                          "own fixed durations: leave --duration out")
+    if Path(args.output).suffix not in (".npz", ".csv"):
+        raise OptionError(f"-o {args.output}: use a .csv (a .json sidecar is written beside it) or .npz file name")
     sim = Simulator(geometries_for(args.procedure, args.geometry), arw_deg_sqrt_h=args.arw, vrw_ug_sqrt_hz=args.vrw,
                     sample_rate=args.sample_rate, latitude_deg=args.latitude, seed=args.seed)
-    kw = {"duration": args.duration} if (args.duration and args.procedure.startswith("cho_park")) else {}
+    kw = {"duration": args.duration} if args.duration is not None else {}
     result = sim.run(PROCEDURES[args.procedure](**kw))
     s = result.session
     out = save_session(s, Path(args.output))

@@ -215,7 +215,7 @@ class Diagnosis:
         return {k: d.model for k, d in self.instruments.items()}
 
     def summary(self) -> str:
-        out = []
+        out = list(self.settings.get("preamble", []))
         for d in self.instruments.values():
             out += d.lines()
         for k, why in self.errors.items():
@@ -291,6 +291,11 @@ def diagnose(
     if not isinstance(session, Session):
         hint = " (a simulation result: pass its .session)" if hasattr(session, "session") else ""
         raise SessionFormatError(f"diagnose needs a rimu.session.Session, got {type(session).__name__}{hint}")
+    from .handheld import diagnose_handheld, unknown_attitude
+
+    if unknown_attitude(session):  # hand-held poses: resolve the attitudes by the hand-held calibration first
+        return diagnose_handheld(session, model, candidates, alpha, instruments=instruments, sigma=sigma,
+                                 reference_temperature=reference_temperature)[1]
     session = cached(session)
     models = _models(model, session, instruments)
     settings = {"alpha": alpha, "include_earth_rate": include_earth_rate,

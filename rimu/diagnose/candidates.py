@@ -240,7 +240,11 @@ def score_candidates(session: Session, fit: ModelFit, candidates: Sequence[Effec
             if not ct.testable:
                 continue
         active.append(eff)
-    for i, s in enumerate(fit.sensors):
+    from ..progress import bar
+
+    many = len(active) * len(fit.sensors) > 60  # a bar on a terminal when the tests take a while
+    for i, s in enumerate(bar(fit.sensors, total=len(fit.sensors), desc=f"testing {len(active)} candidate effects",
+                              unit="sensor", enabled=None if many else False)):
         blocks: dict[str, np.ndarray] = {}
         for eff in active:
             if not eff.applies_to(s.ctx):

@@ -179,7 +179,9 @@ class SensorFit:
 
     @property
     def scale(self) -> float:
-        """Scale factor SI/raw (1 when the model has no scale block)."""
+        """Scale factor SI/raw (1 when the model has no scale block, unless a calibration set ``scale_si``)."""
+        if "scale_si" in self.__dict__:
+            return float(self.__dict__["scale_si"])
         k = [i for i, nm in enumerate(self.names) if nm.endswith((".w_x", ".w_y", ".w_z"))]
         return 1.0 / float(np.linalg.norm(self.beta[k])) if len(k) == 3 else 1.0
 

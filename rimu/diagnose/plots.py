@@ -47,7 +47,10 @@ def _save(fig, path: str | Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    from ..atomic import atomic_path
+
+    with atomic_path(path) as _tmp:  # whole or not at all
+        fig.savefig(_tmp, dpi=90)
     import matplotlib.pyplot as plt
 
     plt.close(fig)

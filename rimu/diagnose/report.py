@@ -8,6 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from ..atomic import atomic_files
 from ..calibration.effects._common import output_unit
 from . import plots
 from .api import Comparison, Diagnosis, Iteration, format_p
@@ -145,10 +146,11 @@ def write_report(diagnosis: Diagnosis | Iteration, directory: str | Path, compar
         text = render_markdown(diagnosis, directory, comparisons, title, figures)
         data = {"diagnosis": diagnosis.to_dict(), "comparisons": [c.to_dict() for c in comparisons]}
     md = directory / "report.md"
-    md.write_text(text)
-    (directory / "diagnosis.json").write_text(json.dumps(data, indent=1, default=float))
-    if html_page:
-        (directory / "report.html").write_text(_html(text, title))
+    with atomic_files() as tx:  # the three files appear together, whole
+        tx.path(md).write_text(text)
+        tx.path(directory / "diagnosis.json").write_text(json.dumps(data, indent=1, default=float))
+        if html_page:
+            tx.path(directory / "report.html").write_text(_html(text, title))
     return md
 
 

@@ -21,6 +21,7 @@ from .kalman import ParityKalman
 from .health import SensorHealth, SensorState
 from .manager import FdiEvent, FdiResult, Health, HealthState, RedundancyManager, ReplayResult
 from .multiple import FaultSetGlt, SetDecision, set_fault_rates, single_fault_rates
+from .motion import MotionAwareGlt, MotionNoiseModel, fit_motion_terms
 from .noise import NoiseEstimator
 from .parity import IsolabilityReport, detection_probability, isolability, wrong_isolation_bounds
 from .quality import QualityReport, parity_quality
@@ -38,6 +39,9 @@ __all__ = [
     "ParityKalman",
     "MeanDisagreement",
     "CalibrationAwareGlt",
+    "MotionAwareGlt",
+    "MotionNoiseModel",
+    "fit_motion_terms",
     "CalibrationCovariance",
     "stated_covariance",
     "NoiseEstimator",

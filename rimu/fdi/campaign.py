@@ -339,7 +339,9 @@ class CampaignResult:
                "summary": self.summary(), "rows": self.rows}
         text = json.dumps(doc, indent=1, default=_jsonable)
         if path is not None:
-            Path(path).write_text(text)
+            from ..atomic import write_text
+
+            write_text(path, text)
         return text
 
     def plot(self, path: str | Path) -> Path | None:
@@ -380,7 +382,10 @@ class CampaignResult:
         ax.legend(fontsize=8, loc="lower right")
         fig.tight_layout()
         path = Path(path)
-        fig.savefig(path, dpi=110)
+        from ..atomic import atomic_path
+
+        with atomic_path(path) as _tmp:  # whole or not at all
+            fig.savefig(_tmp, dpi=110)
         plt.close(fig)
         return path
 
@@ -477,31 +482,27 @@ def run_campaign(spec: CampaignSpec, workers: int | None = None, scheduler: str 
 
 
 def _progress(progress: bool | Callable[[int, int], None], total: int) -> Callable[[int], None]:
+    """A tqdm bar on a terminal when tqdm is installed (extra ``progress``); nothing otherwise."""
     import sys
+
+    from .. import progress as _bars
 
     if callable(progress):
         return lambda k: progress(k, total) if k >= 0 else None
-    if not progress:
+    if not progress or not _bars.enabled():
         return lambda k: None
     try:
         from tqdm import tqdm
+    except ImportError:
+        return lambda k: None
+    bar = tqdm(total=total, desc="campaign", unit="task", file=sys.stderr, disable=None, leave=False)
+    state = {"n": 0}
 
-        bar = tqdm(total=total, desc="campaign", unit="task")
-        state = {"n": 0}
+    def upd(k: int) -> None:
+        if k < 0:
+            bar.close()
+            return
+        bar.update(k - state["n"])
+        state["n"] = k
 
-        def upd(k: int) -> None:
-            if k < 0:
-                bar.close()
-                return
-            bar.update(k - state["n"])
-            state["n"] = k
-
-        return upd
-    except ImportError:  # pragma: no cover
-        def plain(k: int) -> None:
-            if k >= 0:
-                print(f"\r  campaign: {k}/{total} tasks", end="", file=sys.stderr)
-            else:
-                print(file=sys.stderr)
-
-        return plain
+    return upd

@@ -23,6 +23,7 @@ Siegmund's formula in the tests and designs the dead-band baseline (:mod:`rimu.f
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from typing import Callable
 
 import numpy as np
@@ -86,13 +87,21 @@ def markov_arl(h: float, cdf: Callable[[np.ndarray], np.ndarray], states: int = 
     return float(L[0])
 
 
+#: designs kept per detector (least recently used dropped first)
+_DESIGNS_KEPT = 128
+
+
 def cached_design(detector: object, Vz: np.ndarray, dof: int):  # type: ignore[no-untyped-def]
     """``detector._design(Vz, dof)``, computed once per active set (keyed by the parity rows) and kept on the
     detector: designs depend only on the set, and the per-sample path must not redo them."""
     key = (np.asarray(Vz)[:dof].tobytes(), int(dof))
-    cache = detector.__dict__.setdefault("_designs", {})
-    if key not in cache:
-        cache[key] = detector._design(Vz, dof)  # type: ignore[attr-defined]
+    cache = detector.__dict__.setdefault("_designs", OrderedDict())
+    if key in cache:
+        cache.move_to_end(key)
+        return cache[key]
+    cache[key] = detector._design(Vz, dof)  # type: ignore[attr-defined]
+    while len(cache) > _DESIGNS_KEPT:  # bounded like the projection cache: many-sensor units see many sets
+        cache.popitem(last=False)
     return cache[key]
 
 

@@ -754,18 +754,22 @@ class RedundancyManager:
         obs = np.zeros(len(Y), bool)
         codes = STATE_CODES
         sh = self.sensors
+        seen: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # entry -> (active, diag P), while the set is cached
         for k in range(len(Y)):
             r = self.step(Y[k], None if valid is None else valid[k], float(t[k]))
             x[k] = r.x
             stat[k], thr[k], alarm[k] = r.statistic, r.threshold, r.alarm
             state[k] = codes[r.state]
             validity[k] = r.validity
-            entry[k] = r.entry
+            e = r.entry
+            entry[k] = e
             obs[k] = r.observable
             sensor[k] = sh.state
-        tab = self.pipeline.table
-        ok = obs & (entry >= 0)
-        o["active"][ok] = ((tab.codes[entry[ok]][:, None] >> np.arange(self.n)) & 1).astype(bool)
+            if e not in seen:
+                seen[e] = (np.asarray(r.active, bool).copy(), np.diagonal(r.P).copy())
+        for e, (act, pd) in seen.items():
+            rows = (entry == e) & obs
+            o["active"][rows] = act
+            o["P"][rows] = pd
+        o["P"][~obs] = np.inf
         o["n_act"][:] = o["active"].sum(axis=1)
-        o["P"][:] = np.inf
-        o["P"][ok] = np.diagonal(tab.P[entry[ok]], axis1=1, axis2=2)

@@ -138,7 +138,10 @@ class QualityReport:
         ax.legend(fontsize=8)
         fig.tight_layout()
         path = Path(path)
-        fig.savefig(path, dpi=110)
+        from ..atomic import atomic_path
+
+        with atomic_path(path) as _tmp:  # whole or not at all
+            fig.savefig(_tmp, dpi=110)
         plt.close(fig)
         return path
 

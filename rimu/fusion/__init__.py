@@ -2,7 +2,8 @@
 
 from .compensation import cho_park_eq20, eq20_matrix
 from .pipeline import BlockResult, InstrumentPipeline, Pipeline, StepResult
-from .projection import ProjectionTable, bits_mask, mask_bits
+from .projection import ActiveSet, ProjectionTable, bits_mask, mask_bits
+from .validity import Validity
 
 __all__ = [
     "Pipeline",
@@ -10,6 +11,8 @@ __all__ = [
     "StepResult",
     "BlockResult",
     "ProjectionTable",
+    "ActiveSet",
+    "Validity",
     "mask_bits",
     "bits_mask",
     "cho_park_eq20",

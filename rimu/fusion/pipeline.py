@@ -6,11 +6,23 @@ Per sample, for one instrument (gyros or accelerometers)::
     x = G z,  P = (A^T W^2 A)^-1         projection to MB on the active sensors
     p = V_w W z                          normalised parity (de Oliveira Eq. 11), cov(p) = I
 
-with A the calibrated axes (rows of M H). Everything that depends on which sensors are active is in a
-:class:`~rimu.fusion.projection.ProjectionTable` built once; SF and B are folded into it, so the per-sample
-work is one small matrix-vector product into a preallocated buffer and one finiteness check. A non-finite
-raw value marks that sensor invalid for that sample (counted in ``invalid_count``) and the estimate uses the
-rest; outputs never contain NaN (an unobservable sample gives x = 0, P = inf, ``observable = False``).
+with A the calibrated axes (rows of M H). Everything that depends on which sensors are active comes from a
+:class:`~rimu.fusion.projection.ProjectionTable`, which computes an active set's matrices when the set first
+occurs and keeps the sets that occurred in a small cache; SF and B are folded into them, so the per-sample work
+is one matrix-vector product into a preallocated buffer and one finiteness check -- no decomposition.
+
+Invalid and saturated samples. A non-finite raw value (or one marked invalid) makes that sensor invalid for
+that sample (counted in ``invalid_count``); a raw value at the sensor's range limit, ``|y_i| >= range_raw_i``,
+makes it saturated for that sample (counted in ``saturated_count``): a clipped output is not a measurement but
+says nothing about the sensor's health. Both are routed around for that sample -- the estimate uses the rest.
+A sensor that stays invalid is isolated by the redundancy manager after ``invalid_persist`` samples; a saturated
+one never is (saturation is reported in ``saturated``, not ``invalid``).
+
+Validity (:class:`~rimu.fusion.validity.Validity`) of each output: ``NOMINAL`` when every sensor is used,
+``DEGRADED`` when some are isolated, invalid or saturated, ``UNOBSERVABLE`` when the sensors in use do not span
+three dimensions. Outputs never contain NaN: an unobservable sample reports ``x = 0`` as a placeholder with
+``P = inf`` (diagonal), ``observable = False`` and validity ``UNOBSERVABLE``; that x is not an estimate and
+must not be used (test the validity, or P, never x).
 
 Equivalence with Cho & Park Eq. 20. Where every sub-unit is a full triad, Eq. 20 reads
 ``x = (H^T H)^-1 H^T M^-1 (SF Y - B)``. Both that matrix and G here are left inverses of A = M H, so both
@@ -31,9 +43,13 @@ import numpy as np
 from ..calibration.result import Calibration, InstrumentCalibration
 from ..epoch import Epoch, EpochBlock
 from ..errors import ShapeError
-from .projection import ProjectionTable, mask_bits
+from .projection import ActiveSet, ProjectionTable, mask_bits
+from .validity import Validity
 
 __all__ = ["InstrumentPipeline", "Pipeline", "StepResult", "BlockResult"]
+
+_INF_P = np.diag([np.inf] * 3)
+_INF_P.setflags(write=False)
 
 
 @dataclass
@@ -43,9 +59,9 @@ class StepResult:
     Attributes
     ----------
     x : ndarray (3,)
-        Estimate in MB, SI units.
+        Estimate in MB, SI units. A placeholder 0 when ``validity`` is ``UNOBSERVABLE`` (not an estimate).
     P : ndarray (3, 3)
-        Its covariance.
+        Its covariance (``inf`` on the diagonal when unobservable).
     parity : ndarray (n - 3,)
         Normalised parity vector (unit covariance without faults); zero-padded past ``dof``.
     dof : int
@@ -57,7 +73,11 @@ class StepResult:
     observable : bool
         False when the valid, non-isolated sensors do not span three dimensions.
     entry : int
-        Index in the projection table.
+        Entry number of the active set in the projection table.
+    saturated : ndarray (n,) of bool
+        Sensors whose raw value was at their range limit in this sample (routed around, not faulty).
+    validity : Validity
+        NOMINAL (every sensor used), DEGRADED (some isolated, invalid or saturated), UNOBSERVABLE.
     """
 
     x: np.ndarray
@@ -68,11 +88,16 @@ class StepResult:
     invalid: np.ndarray
     observable: bool
     entry: int
+    saturated: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    validity: Validity = Validity.NOMINAL
 
 
 @dataclass
 class BlockResult:
-    """Output of :meth:`InstrumentPipeline.process` for N samples."""
+    """Output of :meth:`InstrumentPipeline.process` for N samples.
+
+    ``x`` is a placeholder 0 where ``validity == Validity.UNOBSERVABLE`` (see the module docstring).
+    """
 
     x: np.ndarray
     parity: np.ndarray
@@ -82,13 +107,30 @@ class BlockResult:
     invalid: np.ndarray
     observable: np.ndarray
     table: ProjectionTable = field(repr=False)
+    saturated: np.ndarray | None = None
+    validity: np.ndarray | None = None
+    _P: dict[int, np.ndarray] = field(default_factory=dict, repr=False)
 
     def covariance(self) -> np.ndarray:
         """Estimate covariance per sample, (N, 3, 3)."""
-        return self.table.P[self.entry]
+        N = len(self.entry)
+        out = np.empty((N, 3, 3))
+        ent = np.asarray(self.entry)
+        for e in np.unique(ent):
+            P = self._P.get(int(e))
+            if P is None:
+                P = self.table.set(int(e)).P
+            out[ent == e] = P
+        return out
 
     def __len__(self) -> int:
         return int(self.x.shape[0])
+
+
+def _validity(s: ActiveSet, n: int) -> Validity:
+    if not s.observable:
+        return Validity.UNOBSERVABLE
+    return Validity.NOMINAL if s.code == (1 << n) - 1 else Validity.DEGRADED
 
 
 class InstrumentPipeline:
@@ -101,16 +143,25 @@ class InstrumentPipeline:
         Per-sample noise standard deviation of the compensated outputs, SI. Default: the calibration's
         ``noise_sigma``; without one, 1.0 (covariances are then in units of sigma^2).
     max_excluded : int, optional
-        Precompute exclusion sets up to this size (default n - 3).
+        Deprecated, without effect (see :class:`~rimu.fusion.projection.ProjectionTable`).
+    range_raw : float or ndarray (n,), optional
+        Range limit of each sensor in RAW output units (the units of ``y``, before scale and bias): a sample
+        with ``|y_i| >= range_raw_i`` is saturated. Default: the calibration's ``range_raw``; None: no limit.
+    cache_size : int, optional
+        Active sets kept by the projection table besides the full set (default ``max(64, 2 n)``).
 
     Examples
     --------
     >>> from rimu.geometry import cone6
     >>> cal = InstrumentCalibration.nominal("gyro", cone6(), scale=0.01, bias=0.5, noise_sigma=0.001)
-    >>> pipe = InstrumentPipeline(cal)
+    >>> pipe = InstrumentPipeline(cal, range_raw=3000.0)
     >>> y = cal.raw_output(np.array([0.1, -0.2, 0.3]))
-    >>> np.round(pipe.step(y).x, 12).tolist()
-    [0.1, -0.2, 0.3]
+    >>> np.round(pipe.step(y).x, 12).tolist(), pipe.result.validity.name
+    ([0.1, -0.2, 0.3], 'NOMINAL')
+    >>> y[1] = 3000.0                        # clipped at the range limit: routed around
+    >>> r = pipe.step(y)
+    >>> np.round(r.x, 12).tolist(), r.validity.name, pipe.saturated_count.tolist()
+    ([0.1, -0.2, 0.3], 'DEGRADED', [0, 1, 0, 0, 0, 0])
     """
 
     def __init__(
@@ -118,6 +169,8 @@ class InstrumentPipeline:
         calibration: InstrumentCalibration,
         sigma: float | np.ndarray | None = None,
         max_excluded: int | None = None,
+        range_raw: float | np.ndarray | None = None,
+        cache_size: int | None = None,
     ) -> None:
         self.calibration = calibration
         n = calibration.geometry.n
@@ -125,21 +178,32 @@ class InstrumentPipeline:
         self.noise_given = sigma is not None or calibration.noise_sigma is not None
         if sigma is None:
             sigma = calibration.noise_sigma if calibration.noise_sigma is not None else 1.0
-        self.table = ProjectionTable(calibration.axes_mb(), sigma, max_excluded)
-        K = np.concatenate([self.table.G, self.table.Vz], axis=1)  # (K, n, n): outputs x then parity
-        self._R = np.ascontiguousarray(K * calibration.scale[None, None, :])
-        self._off = np.ascontiguousarray(K @ calibration.bias)
+        self.table = ProjectionTable(calibration.axes_mb(), sigma, max_excluded, cache_size=cache_size,
+                                     scale=calibration.scale, bias=calibration.bias)
+        if range_raw is None:
+            range_raw = getattr(calibration, "range_raw", None)
+        if range_raw is None:
+            self.range_raw = None
+            self._range_min = float("inf")
+        else:
+            rr = np.broadcast_to(np.asarray(range_raw, dtype=float), (n,)).copy()
+            if np.any(~(rr > 0)):
+                raise ShapeError(f"range_raw must be positive (raw output units), got {rr.tolist()}")
+            self.range_raw = rr
+            self._range_min = float(rr.min())
         self.n = n
         self.r = max(n - 3, 0)
         self.invalid_count = np.zeros(n, dtype=np.int64)
+        self.saturated_count = np.zeros(n, dtype=np.int64)
         self.samples = 0
         self._isolated = np.zeros(n, dtype=bool)
         self._out = np.zeros(3 + self.r)
         self._y0 = np.zeros(n)
         self._invalid = np.zeros(n, dtype=bool)
+        self._saturated = np.zeros(n, dtype=bool)
         self._dirty = False
-        self.result = StepResult(self._out[:3], self.table.P[0], self._out[3:], 0, np.ones(n, bool),
-                                 self._invalid, True, 0)
+        self.result = StepResult(self._out[:3], _INF_P, self._out[3:], 0, np.ones(n, bool),
+                                 self._invalid, True, 0, self._saturated, Validity.NOMINAL)
         self._select(self.table.full_code)
 
     # ------------------------------------------------------------------ isolation (Cho & Park Eq. 21)
@@ -173,42 +237,36 @@ class InstrumentPipeline:
         self._select(mask_bits(~m))
 
     def _select(self, code: int) -> None:
-        e = self.table.lookup(code)
-        self._entry = e
-        if e >= 0:
-            self._Re = self._R[e]
-            self._offe = self._off[e]
-        self._point_result(e)
+        """Make the set of the non-isolated sensors current (computed now if it is new: not per sample)."""
+        s = self.table.get(code)
+        self._set = s
+        self._entry = s.entry
+        self._Re = s.R
+        self._offe = s.off
+        self._point_result(s)
 
-    def _point_result(self, e: int) -> None:
+    def _point_result(self, s: ActiveSet) -> None:
         res = self.result
-        res.entry = e
-        if e < 0 or not self.table.observable[e]:
-            res.P = np.diag([np.inf] * 3)
-            res.dof = 0
-            res.observable = False
-            res.active = np.zeros(self.n, bool) if e < 0 else self._active_of(e)
-        else:
-            res.P = self.table.P[e]
-            res.dof = int(self.table.dof[e])
-            res.observable = True
-            res.active = self._active_of(e)
-
-    def _active_of(self, e: int) -> np.ndarray:
-        return ((int(self.table.codes[e]) >> np.arange(self.n)) & 1).astype(bool)
+        res.entry = s.entry
+        res.P = s.P if s.observable else _INF_P
+        res.dof = s.dof
+        res.observable = s.observable
+        res.active = s.active
+        res.validity = _validity(s, self.n)
 
     # ------------------------------------------------------------------ per sample
     def step(self, y: np.ndarray, valid: np.ndarray | None = None) -> StepResult:
         """Process one raw sample ``y`` (n,). Returns :attr:`result` (reused; copy what you keep)."""
         self.samples += 1
-        if self._entry >= 0 and (valid is None or valid.all()):
+        if valid is None or valid.all():
             try:
                 yl = y.tolist()
             except AttributeError:  # not an ndarray: the careful path converts and checks it
                 yl = None
             if yl is not None and len(yl) == self.n:
                 s = sum(yl)  # Python floats: inf and nan propagate without floating-point warnings
-                if s - s == 0.0:
+                lim = self._range_min
+                if s - s == 0.0 and max(yl) < lim and min(yl) > -lim:
                     out = self._out
                     np.dot(self._Re, y, out=out)
                     out -= self._offe
@@ -216,7 +274,8 @@ class InstrumentPipeline:
                     if s - s == 0.0:  # finite: the common path
                         if self._dirty:
                             self._invalid[:] = False
-                            self._point_result(self._entry)
+                            self._saturated[:] = False
+                            self._point_result(self._set)
                             self._dirty = False
                         return self.result
         return self._step_slow(np.asarray(y, dtype=float), valid)
@@ -228,18 +287,27 @@ class InstrumentPipeline:
         if valid is not None:
             good &= np.asarray(valid, dtype=bool)
         bad = ~good
+        sat = np.zeros(self.n, bool)
+        if self.range_raw is not None:
+            with np.errstate(invalid="ignore"):
+                sat = good & (np.abs(y) >= self.range_raw)
+        use = good & ~sat
         self.invalid_count += bad
+        self.saturated_count += sat
         self._invalid[:] = bad
+        self._saturated[:] = sat
         self._dirty = True
-        e = self.table.lookup(mask_bits(good & ~self._isolated))
-        self._point_result(e)
-        if e < 0 or not self.table.observable[e]:
+        s = self.table.get(mask_bits(use & ~self._isolated))
+        self._point_result(s)
+        if (bad.any() or sat.any()) and self.result.validity == Validity.NOMINAL:
+            self.result.validity = Validity.DEGRADED
+        if not s.observable:
             self._out[:] = 0.0
             return self.result
         np.copyto(self._y0, y)
-        self._y0[bad] = 0.0
-        np.dot(self._R[e], self._y0, out=self._out)
-        self._out -= self._off[e]
+        self._y0[~use] = 0.0
+        np.dot(s.R, self._y0, out=self._out)
+        self._out -= s.off
         return self.result
 
     # ------------------------------------------------------------------ blocks (replay)
@@ -252,12 +320,16 @@ class InstrumentPipeline:
         self.samples += N
         n, r, tab = self.n, self.r, self.table
         out = np.empty((N, 3 + r))
-        if self._entry >= 0 and N and (valid is None or np.all(valid)):
+        cur = self._set
+        in_range = self.range_raw is None or not N or bool(np.all(np.abs(Y) < self.range_raw))
+        if N and in_range and (valid is None or np.all(valid)):
             if self._fast_block(Y, out):
-                e = self._entry
-                return BlockResult(out[:, :3], out[:, 3:], np.broadcast_to(np.int64(e), (N,)),
-                                   np.broadcast_to(tab.dof[e], (N,)), np.broadcast_to(self._active_of(e), (N, n)),
-                                   np.broadcast_to(False, (N, n)), np.broadcast_to(bool(tab.observable[e]), (N,)), tab)
+                P = {cur.entry: cur.P if cur.observable else _INF_P}
+                return BlockResult(out[:, :3], out[:, 3:], np.broadcast_to(np.int64(cur.entry), (N,)),
+                                   np.broadcast_to(np.int64(cur.dof), (N,)), np.broadcast_to(cur.active, (N, n)),
+                                   np.broadcast_to(False, (N, n)), np.broadcast_to(cur.observable, (N,)), tab,
+                                   np.broadcast_to(False, (N, n)),
+                                   np.broadcast_to(np.int8(_validity(cur, n)), (N,)), P)
         good = np.isfinite(Y)
         if valid is not None:
             v = np.asarray(valid, dtype=bool)
@@ -265,30 +337,39 @@ class InstrumentPipeline:
                 raise ShapeError(f"valid must have shape {Y.shape}, got {v.shape}")
             good &= v
         bad = ~good
+        sat = np.zeros_like(good)
+        if self.range_raw is not None:
+            with np.errstate(invalid="ignore"):
+                sat = good & (np.abs(Y) >= self.range_raw)
+        use = good & ~sat
         self.invalid_count += bad.sum(axis=0)
-        codes = (good & ~self._isolated).astype(np.int64) @ (1 << np.arange(n, dtype=np.int64))
-        entry = np.full(N, -1, dtype=np.int64)
-        Y0 = np.where(good, Y, 0.0)
-        for code in np.unique(codes):
-            rows = codes == code
-            e = tab.lookup(int(code))
-            entry[rows] = e
-            if e < 0 or not tab.observable[e]:
+        self.saturated_count += sat.sum(axis=0)
+        rows_use = use & ~self._isolated
+        keys = np.packbits(rows_use, axis=1, bitorder="little")
+        uniq, inv = np.unique(keys, axis=0, return_inverse=True)
+        inv = inv.reshape(-1)
+        entry = np.empty(N, dtype=np.int64)
+        dof = np.empty(N, np.int64)
+        obs = np.empty(N, bool)
+        validity = np.empty(N, np.int8)
+        active = np.empty((N, n), bool)
+        Y0 = np.where(use, Y, 0.0)
+        Ps: dict[int, np.ndarray] = {}
+        for u in range(len(uniq)):
+            rows = inv == u
+            s = tab.get(int.from_bytes(uniq[u].tobytes(), "little"))  # packbits little = bit i is sensor i
+            entry[rows] = s.entry
+            dof[rows] = s.dof
+            obs[rows] = s.observable
+            active[rows] = s.active
+            validity[rows] = _validity(s, n)
+            Ps[s.entry] = s.P if s.observable else _INF_P
+            if not s.observable:
                 out[rows] = 0.0
             else:
-                out[rows] = Y0[rows] @ self._R[e].T - self._off[e]
-        ok = entry >= 0
-        obs = np.zeros(N, bool)
-        obs[ok] = tab.observable[entry[ok]]
-        dof = np.zeros(N, np.int64)
-        dof[ok] = tab.dof[entry[ok]]
-        active = np.zeros((N, n), bool)
-        active[ok] = ((tab.codes[entry[ok]][:, None] >> np.arange(n)) & 1).astype(bool)
-        # unobservable samples point at a covariance of inf through a sentinel entry
-        ent = entry.copy()
-        if not np.all(obs):
-            ent[~obs] = self._inf_entry()
-        return BlockResult(out[:, :3], out[:, 3:], ent, dof, active, bad, obs, tab)
+                out[rows] = Y0[rows] @ s.R.T - s.off
+        validity[(bad | sat).any(axis=1) & (validity == Validity.NOMINAL)] = Validity.DEGRADED
+        return BlockResult(out[:, :3], out[:, 3:], entry, dof, active, bad, obs, tab, sat, validity, Ps)
 
     _CHUNK = 8192
 
@@ -320,20 +401,6 @@ class InstrumentPipeline:
             self._tiled_key = key
         return self._tiled
 
-    def _inf_entry(self) -> int:
-        """Index of a table entry whose P is inf (an unobservable set), added on first use."""
-        idx = np.flatnonzero(~self.table.observable)
-        if idx.size:
-            return int(idx[0])
-        tab = self.table
-        tab.G = np.concatenate([tab.G, np.zeros((1,) + tab.G.shape[1:])])
-        tab.Vz = np.concatenate([tab.Vz, np.zeros((1,) + tab.Vz.shape[1:])])
-        tab.P = np.concatenate([tab.P, np.diag([np.inf] * 3)[None]])
-        tab.dof = np.append(tab.dof, 0)
-        tab.observable = np.append(tab.observable, False)
-        tab.codes = np.append(tab.codes, -1)
-        return len(tab.codes) - 1
-
 
 class Pipeline:
     """The runtime pipeline of a whole unit: one :class:`InstrumentPipeline` per instrument.
@@ -343,13 +410,22 @@ class Pipeline:
     calibration : Calibration
     sigma : dict[str, float or ndarray], optional
         Noise per instrument (SI), overriding the calibration's.
+    max_excluded : int, optional
+        Deprecated, without effect.
+    range_raw : dict[str, float or ndarray], optional
+        Range limit per instrument in raw output units, overriding the calibration's ``range_raw``.
+    cache_size : int, optional
+        Active sets cached per instrument besides the full set (default ``max(64, 2 n)``).
     """
 
     def __init__(self, calibration: Calibration, sigma: dict[str, Any] | None = None,
-                 max_excluded: int | None = None) -> None:
+                 max_excluded: int | None = None, range_raw: dict[str, Any] | None = None,
+                 cache_size: int | None = None) -> None:
         sigma = sigma or {}
+        range_raw = range_raw or {}
         self.calibration = calibration
-        self.instruments = {k: InstrumentPipeline(calibration[k], sigma.get(k), max_excluded)
+        self.instruments = {k: InstrumentPipeline(calibration[k], sigma.get(k), max_excluded, range_raw.get(k),
+                                                  cache_size)
                             for k in calibration.instruments}
 
     def __getitem__(self, instrument: str) -> InstrumentPipeline:

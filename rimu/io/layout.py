@@ -246,9 +246,9 @@ class Layout:
         return cantools.database.Database(msgs)
 
     def save(self, path: str | os.PathLike[str]) -> Path:
-        p = Path(path)
-        p.write_text(json.dumps(self.to_dict(), indent=1))
-        return p
+        from ..atomic import write_text
+
+        return write_text(path, json.dumps(self.to_dict(), indent=1))
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], source: str = "<layout>") -> Layout:

@@ -32,11 +32,18 @@ CSV_MAGIC = "# rimu epochs v1"
 
 
 class CsvRecorder:
-    """Appends epochs to a CSV file as they come (call :meth:`close`, or use as a context manager)."""
+    """Appends epochs to a CSV file as they come (call :meth:`close`, or use as a context manager).
+
+    The rows go to a temporary file beside ``path`` that :meth:`close` moves over ``path`` (rimu.atomic): the
+    recording appears whole; an exception inside the ``with`` block discards it (:meth:`abort`).
+    """
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
+        from ..atomic import AtomicFiles
+
         self.path = Path(path)
-        self._fh: TextIO = open(self.path, "w", newline="", encoding="utf-8")
+        self._tx = AtomicFiles()
+        self._fh: TextIO = open(self._tx.path(self.path), "w", newline="", encoding="utf-8")
         self._w = csv.writer(self._fh)
         self._sizes: dict[str, int] | None = None
         self.rows = 0
@@ -54,13 +61,25 @@ class CsvRecorder:
         self.rows += 1
 
     def close(self) -> None:
-        self._fh.close()
+        """Finish the recording: the file appears under its name."""
+        if not self._fh.closed:
+            self._fh.close()
+            self._tx.commit()
+
+    def abort(self) -> None:
+        """Discard the recording (the temporary file is removed, ``path`` is untouched)."""
+        if not self._fh.closed:
+            self._fh.close()
+        self._tx.abort()
 
     def __enter__(self) -> CsvRecorder:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
 
 
 def write_csv(path: str | os.PathLike[str], block: EpochBlock) -> Path:
@@ -148,15 +167,30 @@ class NpzSource(Source):
             raise TransportError(f"no NPZ file at {self.path}")
 
     def _epochs(self) -> Iterator[Epoch]:
-        with np.load(self.path, allow_pickle=False) as z:
-            if "t" not in z:
-                raise SessionFormatError(f"{self.path}: no 't' array")
-            raw = {k: z[f"raw_{k}"] for k in INSTRUMENTS if f"raw_{k}" in z}
-            if not raw:
-                raise SessionFormatError(f"{self.path}: no raw_gyro / raw_accel arrays")
-            valid = {k: z[f"valid_{k}"] for k in raw if f"valid_{k}" in z}
-            temp = z["temperature"] if "temperature" in z else None
-            block = EpochBlock(z["t"], raw, valid, temp)
+        import tokenize
+        import zipfile
+        import zlib
+
+        try:
+            z = np.load(self.path, allow_pickle=False)
+            if not hasattr(z, "files"):
+                raise ValueError("a single .npy array, not an .npz archive")
+            with z:
+                if "t" not in z:
+                    raise SessionFormatError(f"{self.path}: no 't' array")
+                raw = {k: z[f"raw_{k}"] for k in INSTRUMENTS if f"raw_{k}" in z}
+                if not raw:
+                    raise SessionFormatError(f"{self.path}: no raw_gyro / raw_accel arrays")
+                valid = {k: z[f"valid_{k}"] for k in raw if f"valid_{k}" in z}
+                temp = z["temperature"] if "temperature" in z else None
+                block = EpochBlock(z["t"], raw, valid, temp)
+        except (OSError, ValueError, EOFError, KeyError, SyntaxError, tokenize.TokenError, zipfile.BadZipFile,
+            zlib.error) as exc:
+        # (numpy parses each member's header with ast: a damaged header is a SyntaxError)
+            if isinstance(exc, SessionFormatError):
+                raise
+            raise SessionFormatError(f"{self.path}: not a readable NPZ recording ({exc or type(exc).__name__}); it "
+                                     "may be truncated") from exc
         acc = self.accounting
         for k, ep in enumerate(block.epochs()):
             if self.stop_event.is_set():

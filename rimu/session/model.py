@@ -15,6 +15,9 @@ What a segment can know (``kind``):
 ``"angle"``
     Rotated through a known total angle (``angle_mb``, a rotation vector in MB, rad) with unknown rate
     profile: Zhang's integrated CW/CCW rotations, hand turns of a Ferraris-style session.
+``"motion"``
+    Moving, nothing known (a hand-held rotation between two poses; ``rimu detect`` and the hand-held
+    calibration integrate the gyros over it).
 
 Frames: ``ln`` is the local level frame, East-North-Up. Gravity points down, so a unit at rest with MB
 aligned to ENU measures specific force ``[0, 0, +g]``.
@@ -35,7 +38,7 @@ from ..units import EARTH_RATE, G0
 
 __all__ = ["SEGMENT_KINDS", "Segment", "Session", "rotation_matrix", "skew", "earth_rate_ln"]
 
-SEGMENT_KINDS = ("static", "static_unknown", "rate", "angle")
+SEGMENT_KINDS = ("static", "static_unknown", "rate", "angle", "motion")
 
 
 def skew(v: np.ndarray) -> np.ndarray:

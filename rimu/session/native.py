@@ -4,16 +4,20 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 import math
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import SessionFormatError
+from ..atomic import atomic_files, atomic_path
+from ..errors import RimuError, SessionFormatError
 from ..units import G0
 from .model import Segment, Session
 
 __all__ = ["SESSION_FORMAT", "SESSION_FORMAT_VERSION", "load_session", "save_session", "session_sidecar"]
+
+log = logging.getLogger(__name__)
 
 #: format tag and version of the JSON sidecar (and of the NPZ ``meta`` entry)
 SESSION_FORMAT = "rimu.session"
@@ -120,7 +124,9 @@ def save_session(session: Session, path: str | Path) -> Path:
             arrays[f"raw_{k}"] = np.vstack([s.raw[k] for s in session.segments])
         if has_temp:
             arrays["temperature"] = np.concatenate([s.temperature for s in session.segments])
-        np.savez_compressed(path, meta=np.array(json.dumps(side)), **arrays)
+        with atomic_path(path) as tmp:  # whole or not at all (Ctrl-C, full disk)
+            np.savez_compressed(tmp, meta=np.array(json.dumps(side)), **arrays)
+        log.info("wrote %s (%d samples)", path, len(t))
         return path
     if path.suffix != ".csv":
         raise SessionFormatError(f"{path}: use a .csv (with a .json sidecar) or .npz file name")
@@ -130,7 +136,8 @@ def save_session(session: Session, path: str | Path) -> Path:
                                      "breaks or surrounding spaces")
     side = session_sidecar(session, path.name)
     header = ["t", "segment"] + cols + (["temperature"] if has_temp else [])
-    with path.open("w", newline="") as fh:
+    with atomic_files() as tx, tx.path(path).open("w", newline="") as fh:  # CSV and sidecar appear together
+        tx.path(path.with_suffix(".json")).write_text(_readable_json(side))
         fh.write(",".join(header) + "\n")
         for s in session.segments:
             block = [s.raw[k] for k in session.instruments]
@@ -142,29 +149,60 @@ def save_session(session: Session, path: str | Path) -> Path:
             lab = s.label
             for k in range(s.n_samples):
                 fh.write(f"{tcol[k]},{lab}," + ",".join(body[k]) + "\n")
-    path.with_suffix(".json").write_text(_readable_json(side))
+    log.info("wrote %s and its sidecar %s (%d samples)", path, path.with_suffix(".json").name, len(t))
     return path
 
 
-def load_session(path: str | Path) -> Session:
+def load_session(path: str | Path, checks: str = "strict") -> Session:
     """Read a session written by :func:`save_session` or by any tool following docs/session-format.md.
 
     ``path`` is the ``.csv`` (its sidecar ``.json`` beside it), the ``.json`` sidecar (naming its ``data``
     file), or an ``.npz``.
 
+    Parameters
+    ----------
+    checks : {"strict", "warn", "off"}
+        What to do with the plausibility checks of :mod:`rimu.session.checks` (declared units against gravity and
+        commanded rates, ``sample_rate_hz`` against the time column, dead columns): refuse implausible data
+        (default), only log them, or skip the checks. Format errors, non-finite values and time running backwards
+        are refused whatever this says.
+
     Raises
     ------
     SessionFormatError
         Missing file, sidecar key, column or segment; a malformed value (the row and column are named).
+    PlausibilityError
+        The data contradict what the file declares (``checks="strict"``); the message names the column and the
+        likely cause.
     """
+    from .checks import check_session, enforce
+
     path = Path(path)
     if not path.exists():
         raise SessionFormatError(f"{path} does not exist")
+    if path.is_dir():
+        raise SessionFormatError(f"{path} is a folder; give a session file (.csv with its .json sidecar, or .npz)")
+    try:
+        session = _load_any(path)
+    except RimuError:
+        raise
+    except (ValueError, TypeError, KeyError, IndexError, AttributeError, UnicodeDecodeError) as exc:
+        # the specific checks above name row and column; this net catches the malformed content they do not foresee
+        raise SessionFormatError(f"{path}: malformed session file ({type(exc).__name__}: {exc}); see "
+                                 "docs/session-format.md") from exc
+    if checks != "off":
+        enforce(check_session(session, str(path)), checks)
+    log.info("read %s: %d segments, %d samples at %g Hz, instruments %s", path, len(session),
+             sum(s.n_samples for s in session.segments), session.sample_rate, ", ".join(session.instruments))
+    return session
+
+
+def _load_any(path: Path) -> Session:
     if path.suffix == ".npz":
         return _load_npz(path)
     if path.suffix == ".json":
         side = _read_sidecar(path)
-        if "data" not in side:
+        if "data" not in side or not isinstance(side["data"], str) or not side["data"]:
             raise SessionFormatError(f"{path}: the sidecar has no 'data' key naming its CSV file")
         return _load_csv(path.parent / side["data"], side, path)
     if path.suffix == ".csv":
@@ -187,6 +225,9 @@ def _read_sidecar(path: Path) -> dict:
 def _check_sidecar(side: object, src: str) -> None:
     if not isinstance(side, dict):
         raise SessionFormatError(f"{src}: the sidecar must be a JSON object")
+    if side.get("format") == "rimu.calibration":
+        raise SessionFormatError(f"{src} is a calibration file, not a session; give the session it was made from "
+                                 "(.csv with its .json sidecar, or .npz)")
     if side.get("format") != SESSION_FORMAT:
         raise SessionFormatError(f"{src}: 'format' must be {SESSION_FORMAT!r}, got {side.get('format')!r}")
     v = side.get("version")
@@ -245,8 +286,24 @@ def _segment_from_sidecar(d: dict, t: np.ndarray, raw: dict, temp, gravity: floa
 
 def _build(side: dict, t: np.ndarray, seg_idx: np.ndarray, raw: dict, temp, src: str) -> Session:
     geoms = _geometries(side, src)
-    gravity = float(side.get("gravity_m_s2") or G0)
+    gravity = side.get("gravity_m_s2") or G0
+    if not isinstance(gravity, (int, float)) or not 9.0 < gravity < 10.5:
+        raise SessionFormatError(f"{src}: gravity_m_s2 must be the local gravity in m/s^2 (about 9.78 to 9.83), got "
+                                 f"{gravity!r}")
+    gravity = float(gravity)
     lat = side.get("latitude_deg")
+    if lat is not None and (not isinstance(lat, (int, float)) or not -90 <= lat <= 90):
+        raise SessionFormatError(f"{src}: latitude_deg must be a number in [-90, 90] or null, got {lat!r}")
+    raw_unit = side.get("raw_unit", "count")
+    meta = dict(side.get("meta") or {}) if isinstance(side.get("meta") or {}, dict) else {}
+    if isinstance(raw_unit, dict):  # one unit per instrument: {"gyro": "deg/s", "accel": "g"}
+        if not all(isinstance(v, str) for v in raw_unit.values()) or set(raw_unit) - set(geoms):
+            raise SessionFormatError(f"{src}: raw_unit must be a string or map instruments {sorted(geoms)} to unit "
+                                     f"strings, got {raw_unit!r}")
+        meta["raw_units"] = dict(raw_unit)
+        raw_unit = "; ".join(f"{k}: {v}" for k, v in raw_unit.items())
+    elif not isinstance(raw_unit, str):
+        raise SessionFormatError(f"{src}: raw_unit must be a string such as 'count', 'g' or 'rad/s', got {raw_unit!r}")
     segs = []
     for k, d in enumerate(side["segments"]):
         rows = np.flatnonzero(seg_idx == k)
@@ -254,9 +311,8 @@ def _build(side: dict, t: np.ndarray, seg_idx: np.ndarray, raw: dict, temp, src:
             raise SessionFormatError(f"{src}: segment {d['label']!r} (segments[{k}]) has no samples in the data")
         segs.append(_segment_from_sidecar(d, t[rows], {i: raw[i][rows] for i in geoms}, None if temp is None else
                                           temp[rows], gravity, src, k))
-    meta = dict(side.get("meta") or {})
     return Session(segs, geoms, float(side["sample_rate_hz"]), None if lat is None else math.radians(float(lat)),
-                   gravity, str(side.get("raw_unit", "count")), meta)
+                   gravity, raw_unit, meta)
 
 
 def _load_csv(path: Path, side: dict, src: Path) -> Session:
@@ -325,38 +381,82 @@ def _load_csv(path: Path, side: dict, src: Path) -> Session:
 
 
 def _load_npz(path: Path) -> Session:
+    import tokenize
+    import zipfile
+    import zlib
+
     try:
-        z = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise SessionFormatError(f"{path}: not a readable NPZ file ({exc})") from exc
-    with z:
-        if "meta" not in z.files:
-            raise SessionFormatError(f"{path}: no 'meta' entry (the JSON sidecar); arrays present: {z.files}")
-        try:
-            side = json.loads(str(z["meta"]))
-        except json.JSONDecodeError as exc:
-            raise SessionFormatError(f"{path}: 'meta' is not valid JSON ({exc})") from exc
-        _check_sidecar(side, str(path))
-        geoms = _geometries(side, str(path))
-        need = ["t", "segment"] + [f"raw_{k}" for k in geoms]
-        missing = [c for c in need if c not in z.files]
-        if missing:
-            raise SessionFormatError(f"{path}: arrays {missing} are missing; present: {z.files}")
+        npz = np.load(path, allow_pickle=False)
+        if not hasattr(npz, "files"):
+            raise ValueError("a single .npy array, not an .npz archive")
+        with npz:
+            arrays = {name: npz[name] for name in npz.files}  # read every member now: damage shows here
+    except (OSError, ValueError, EOFError, KeyError, SyntaxError, tokenize.TokenError, zipfile.BadZipFile,
+            zlib.error) as exc:
+        # (numpy parses each member's header with ast: a damaged header is a SyntaxError)
+        raise SessionFormatError(f"{path}: not a readable NPZ file ({exc or type(exc).__name__}); it may be "
+                                 "truncated or not written by rimu: write it again with 'rimu simulate' or "
+                                 "rimu.session.save_session") from exc
+
+    z, files = arrays, list(arrays)
+    for name, a in arrays.items():
+        if name != "meta" and a.dtype.kind not in "iuf":
+            raise SessionFormatError(f"{path}: array {name!r} holds {a.dtype} values; rimu's NPZ arrays are real "
+                                     "numbers (see docs/session-format.md)")
+    if "meta" not in files:
+        raise SessionFormatError(f"{path}: no 'meta' entry (the JSON sidecar); arrays present: {files}")
+    try:
+        if z["meta"].dtype.kind not in "US" or z["meta"].ndim != 0:
+            raise json.JSONDecodeError("'meta' must be one string", "", 0)
+        side = json.loads(str(z["meta"]))
+    except json.JSONDecodeError as exc:
+        raise SessionFormatError(f"{path}: 'meta' is not valid JSON ({exc})") from exc
+    _check_sidecar(side, str(path))
+    geoms = _geometries(side, str(path))
+    need = ["t", "segment"] + [f"raw_{k}" for k in geoms]
+    missing = [c for c in need if c not in files]
+    if missing:
+        raise SessionFormatError(f"{path}: arrays {missing} are missing; present: {files}")
+    try:
         t = np.asarray(z["t"], dtype=float)
-        seg_idx = np.asarray(z["segment"]).astype(int)
-        N = t.shape[0]
-        raw = {}
-        for k, g in geoms.items():
-            y = np.asarray(z[f"raw_{k}"], dtype=float)
-            if y.shape != (N, g.n):
-                raise SessionFormatError(f"{path}: raw_{k} has shape {y.shape}, expected ({N}, {g.n}) "
-                                         f"(columns {list(g.names)})")
-            if not np.all(np.isfinite(y)):
-                r, c = np.argwhere(~np.isfinite(y))[0]
-                raise SessionFormatError(f"{path}: raw_{k} row {r}, column {g.names[c]!r} is not finite")
-            raw[k] = y
-        if seg_idx.shape != (N,) or seg_idx.min() < 0 or seg_idx.max() >= len(side["segments"]):
-            raise SessionFormatError(f"{path}: 'segment' must hold N={N} indices into the {len(side['segments'])} "
-                                     "segments of meta")
-        temp = np.asarray(z["temperature"], dtype=float) if "temperature" in z.files else None
+        seg_idx = np.asarray(z["segment"])
+    except (ValueError, TypeError, OSError, EOFError) as exc:
+        raise SessionFormatError(f"{path}: arrays 't' and 'segment' cannot be read as numbers ({exc})") from exc
+    if t.ndim != 1:
+        raise SessionFormatError(f"{path}: 't' must be one-dimensional, got shape {t.shape}")
+    N = t.shape[0]
+    if N == 0:
+        raise SessionFormatError(f"{path}: no samples ('t' is empty)")
+    if not np.all(np.isfinite(t)):
+        raise SessionFormatError(f"{path}: t[{int(np.argmax(~np.isfinite(t)))}] is not finite")
+    n_seg = len(side["segments"])
+    if (seg_idx.shape != (N,) or not np.all(np.isfinite(seg_idx)) or not np.all(seg_idx == np.round(seg_idx))
+            or seg_idx.min() < 0 or seg_idx.max() >= n_seg):
+        raise SessionFormatError(f"{path}: 'segment' must hold N={N} integer indices into the {n_seg} segments "
+                                 "of meta")
+    seg_idx = seg_idx.astype(int)
+    raw = {}
+    for k, g in geoms.items():
+        y = np.asarray(z[f"raw_{k}"], dtype=float)
+        if y.shape != (N, g.n):
+            raise SessionFormatError(f"{path}: raw_{k} has shape {y.shape}, expected ({N}, {g.n}) "
+                                     f"(columns {list(g.names)})")
+        if not np.all(np.isfinite(y)):
+            r, c = np.argwhere(~np.isfinite(y))[0]
+            raise SessionFormatError(f"{path}: raw_{k} row {r}, column {g.names[c]!r} is not finite")
+        raw[k] = y
+    if seg_idx.shape != (N,) or seg_idx.min() < 0 or seg_idx.max() >= len(side["segments"]):
+        raise SessionFormatError(f"{path}: 'segment' must hold N={N} indices into the {len(side['segments'])} "
+                                 "segments of meta")
+    bad = np.flatnonzero((np.diff(t) <= 0) & (np.diff(seg_idx) == 0))
+    if bad.size:
+        raise SessionFormatError(f"{path}: t[{bad[0] + 1}] = {t[bad[0] + 1]:.9g} s does not increase after "
+                                 f"t[{bad[0]}] = {t[bad[0]]:.9g} s within segment "
+                                 f"{side['segments'][seg_idx[bad[0]]]['label']!r}: time must increase within a "
+                                 "segment (sort the samples or fix the clock)")
+    temp = None
+    if "temperature" in files:
+        temp = np.asarray(z["temperature"], dtype=float)
+        if temp.shape != (N,) or not np.all(np.isfinite(temp)):
+            raise SessionFormatError(f"{path}: 'temperature' must hold N={N} finite values, got shape {temp.shape}")
     return _build(side, t, seg_idx, raw, temp, str(path))

@@ -61,7 +61,7 @@ def test_simulate_calibrate_design_commands(tmp_path, capsys):
     assert sess.exists() and sess.with_suffix(".json").exists()
     # table 1 alone: the gyros cannot be calibrated by Cho & Park (no rate pairs); the command says which
     rc = main(["calibrate", str(sess), "--method", "cho", "-o", str(tmp_path / "c.json")])
-    assert rc == 1 and "cannot identify" in capsys.readouterr().err
+    assert rc == 2 and "cannot identify" in capsys.readouterr().err
     rc = main(["calibrate", str(sess), "--method", "cho", "--instruments", "accel", "-o", str(tmp_path / "c.json"),
                "--plot", str(tmp_path / "res.png")])
     out = capsys.readouterr().out

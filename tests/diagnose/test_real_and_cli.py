@@ -81,7 +81,7 @@ def test_cli_text_lists_effects_and_errors(tmp_path, capsys):
     assert main(["diagnose", "x", "--list-effects"]) == 0
     out = capsys.readouterr().out
     assert "g2_sensitivity" in out and "size_effect" in out
-    assert main(["diagnose", str(tmp_path / "missing.npz")]) == 1
+    assert main(["diagnose", str(tmp_path / "missing.npz")]) == 2
     assert "does not exist" in capsys.readouterr().err
 
 

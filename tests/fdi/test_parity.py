@@ -51,8 +51,8 @@ def test_parity_rows_of_every_exclusion_set(n, seed):
     A = rng.standard_normal((n, 3))
     A /= np.linalg.norm(A, axis=1)[:, None]
     sig = rng.uniform(0.5, 2.0, n)
-    tab = ProjectionTable(A, sig, max_excluded=1)
-    for e in range(len(tab)):
+    tab = ProjectionTable(A, sig)
+    for e in [0] + [tab.lookup(tab.full_code & ~(1 << i)) for i in range(n)]:
         d = int(tab.dof[e])
         V = tab.Vz[e, :d]
         act = ((int(tab.codes[e]) >> np.arange(n)) & 1).astype(bool)

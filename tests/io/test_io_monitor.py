@@ -52,7 +52,7 @@ def test_monitor_replay_with_calibration_file(tmp_path, capsys):
 def test_monitor_needs_a_calibration_for_real_sources(tmp_path, capsys):
     log = tmp_path / "x.asc"
     CanDevice("cone6_rimu").write_log(log, Simulator(seed=1).run([rotation("r", [0, 0, 0.1], duration=0.1)]).block)
-    assert main(["monitor", "--replay", str(log)]) == 1
+    assert main(["monitor", "--replay", str(log)]) == 2
     assert "--calibration" in capsys.readouterr().err
 
 

@@ -123,6 +123,8 @@ def inject(block: EpochBlock, injections: Sequence[Injection], calibration: Cali
             i = names.index(inj.sensor)
         else:
             i = int(inj.sensor)
+            if not 0 <= i < cal.geometry.n:
+                raise ShapeError(f"no {inj.instrument} sensor {i}: indices run 0..{cal.geometry.n - 1} ({names})")
         s = (sigma or {}).get(inj.instrument, cal.noise_sigma)
         if inj.in_sigma and s is None:
             raise ShapeError(f"size in sigma for {inj.instrument}, but no noise level is known; give it in SI")

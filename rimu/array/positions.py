@@ -1,0 +1,383 @@
+"""Accelerometer triads' positions (lever arms), gains and biases from motion (Carlsson, Skog & Jalden 2021).
+
+Model, body frame, triad j (its samples already moved to the array's time by its gyro sampling offset)::
+
+    z_j(t) = D_j (s(t) + K(t) r_j) + c_j + noise,      K = [w' x] + [w x]^2
+
+with ``w``, ``w'`` from the (relatively calibrated) gyro array, ``s`` the specific force at the reference point
+(a nuisance, one per sample), ``D_j`` the triad's gain matrix, ``c_j`` its bias and ``r_j`` its position. Unlike
+the gyros, the accelerometers' common gain is largely observable through the lever-arm terms (the gyros fix the
+frame of ``K``); what is not:
+
+* a common translation of all positions (absorbed by ``s``): positions are reported with the mean of the nominal
+  positions, or centred when none are given;
+* a common isotropic scale of the accelerometers together with the scale of all positions: fixed by
+  ``mean_j trace(D_j) = 3`` (mean accelerometer scale taken as exact);
+* a common bias (absorbed by ``s``): fixed by ``sum_j c_j = 0``;
+* any common-mode error of the gyro array (its scale enters K): the positions are in the gyro array's frame.
+
+Estimation: Gauss-Newton on all triads' parameters jointly with ``s`` eliminated per sample (its normal-equation
+block is the same in every sample), the three gauges as equality constraints (KKT), covariance from the
+constrained inverse of the Fisher information.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import IdentifiabilityError, ShapeError
+from .layout import ArrayLayout
+from .relative import RelativeFit, _noise_from_differences, _sigma_from_residual_var, derivative, time_shift
+from .runtime import skew
+
+__all__ = ["PositionFit", "fit_positions"]
+
+
+@dataclass
+class PositionFit:
+    """Result of :func:`fit_positions` (body frame).
+
+    Attributes
+    ----------
+    layout : ArrayLayout
+        The layout with the estimated positions.
+    gain : ndarray (k, 3, 3)
+    bias_m_s2 : ndarray (k, 3)
+    positions_m : ndarray (k, 3)
+    covariance : ndarray (k, 15, 15) or (k, 16, 16)
+        Per triad: gain (9, row-major), bias (3), position (3)[, accelerometer sampling offset (1)].
+    sigma_m_s2 : ndarray (k,)
+    parity_rms_m_s2 : dict of str -> ndarray (k,)
+        ``"raw"``; ``"aligned"`` (moved by the gyro sampling offsets); ``"raw_nominal_lever_arms"`` (aligned,
+        lever-arm terms at the nominal positions removed); ``"gain_bias_nominal_lever_arms"`` (and gains and
+        biases removed); ``"positions"`` (lever arms at the estimated positions): rms of each triad's difference
+        from the array mean, in motion.
+    nominal_m : ndarray (k, 3) or None
+    iterations : int
+    """
+
+    layout: ArrayLayout
+    gain: np.ndarray
+    bias_m_s2: np.ndarray
+    positions_m: np.ndarray
+    covariance: np.ndarray
+    sigma_m_s2: np.ndarray
+    parity_rms_m_s2: dict
+    nominal_m: "np.ndarray | None"
+    iterations: int
+    sampling_offset_s: "np.ndarray | None" = None
+    gain_mode: str = "absolute"
+    accel_offset_s: "np.ndarray | None" = None
+
+    def apply(self, t: np.ndarray, accel: np.ndarray) -> np.ndarray:
+        """Compensate raw accelerometer triads (N, k, 3, own axes): body-frame specific force at each triad,
+        on the array's time (moved by the gyro sampling offsets), gains and biases removed. Feed it with
+        ``positions_m`` to :func:`rimu.array.ml_motion` or :func:`rimu.array.remove_lever_arms`."""
+        z = self.layout.to_body(np.asarray(accel, dtype=float))
+        tau = np.zeros(z.shape[1])
+        if self.sampling_offset_s is not None:
+            tau = tau + self.sampling_offset_s
+        if self.accel_offset_s is not None:
+            tau = tau + self.accel_offset_s
+        if np.any(tau != 0):
+            z = _shifted(t, z, tau)
+        return np.einsum("kab,nkb->nka", np.linalg.inv(self.gain), z - self.bias_m_s2[None])
+
+    def to_dict(self) -> dict:
+        """Plain dictionary (JSON-ready), SI units, body frame."""
+        return {"type": "rimu.array.PositionFit", "version": 1, "triads": list(self.layout.names),
+                "gain_mode": self.gain_mode, "gain": self.gain.tolist(), "bias_m_s2": self.bias_m_s2.tolist(),
+                "positions_m": self.positions_m.tolist(), "position_std_m": self.position_std_m().tolist(),
+                "sigma_m_s2": self.sigma_m_s2.tolist(),
+                "accel_offset_s": None if self.accel_offset_s is None else self.accel_offset_s.tolist(),
+                "nominal_m": None if self.nominal_m is None else np.asarray(self.nominal_m).tolist(),
+                "parity_rms_m_s2": {k: v.tolist() for k, v in self.parity_rms_m_s2.items()}}
+
+    def vector(self) -> np.ndarray:
+        """(k, 15 or 16): gain - I (row-major), bias, position[, accelerometer sampling offset]."""
+        parts = [(self.gain - np.eye(3)).reshape(-1, 9), self.bias_m_s2, self.positions_m]
+        if self.accel_offset_s is not None:
+            parts.append(self.accel_offset_s[:, None])
+        return np.hstack(parts)
+
+    def std(self) -> np.ndarray:
+        return np.sqrt(np.maximum(np.einsum("kii->ki", self.covariance), 0.0))
+
+    def position_std_m(self) -> np.ndarray:
+        return self.std()[:, 12:15]
+
+    def offset_from_nominal_m(self) -> np.ndarray:
+        """Estimated minus nominal position [m] (k, 3); raises when no nominal positions were given."""
+        if self.nominal_m is None:
+            raise ShapeError("no nominal positions were given to fit_positions")
+        return self.positions_m - self.nominal_m
+
+
+def _K(w: np.ndarray, wd: np.ndarray) -> np.ndarray:
+    W = skew(w)
+    return skew(wd) + W @ W
+
+
+def _jac(Kt, D, r, s, dv=None) -> np.ndarray:
+    """Jacobian of every triad's output w.r.t. its parameters (gain 9, bias 3, position 3, and the sampling
+    offset when ``dv``, the time derivative of ``s + K r_j`` (n, k, 3), is given): (n, k, 3, 15 or 16)."""
+    n, k = s.shape[0], D.shape[0]
+    X = np.zeros((n, k, 3, 15 if dv is None else 16))
+    v = s[:, None] + np.einsum("nab,kb->nka", Kt, r)
+    for i in range(3):
+        X[:, :, i, 3 * i:3 * i + 3] = v
+    X[:, :, :, 9:12] = np.eye(3)
+    X[:, :, :, 12:15] = np.einsum("kab,nbc->nkac", D, Kt)
+    if dv is not None:
+        X[:, :, :, 15] = np.einsum("kab,nkb->nka", D, dv)
+    return X
+
+
+def _kkt(Kt, D, r, s, sigma, G, dv=None) -> np.ndarray:
+    """Normal matrix with the per-sample specific force eliminated, bordered by the gauge constraints G."""
+    n, k, p = s.shape[0], D.shape[0], 15 if dv is None else 16
+    wj = 1 / sigma**2
+    X = _jac(Kt, D, r, s, dv)
+    Xw = X * wj[None, :, None, None]
+    Nd = np.einsum("nkap,nkaq->kpq", Xw, X)
+    M = np.einsum("k,kai,kaj->ij", wj, D, D)
+    C = np.einsum("kai,nkap->nikp", D, Xw).reshape(n, 3, k * p)
+    Mi_C = np.einsum("ij,njq->niq", np.linalg.inv(M), C).reshape(n * 3, k * p)
+    Nfull = -(C.reshape(n * 3, k * p).T @ Mi_C)
+    for j in range(k):
+        Nfull[j * p:(j + 1) * p, j * p:(j + 1) * p] += Nd[j]
+    nc = G.shape[0]
+    KKT = np.zeros((k * p + nc, k * p + nc))
+    KKT[:k * p, :k * p] = Nfull
+    KKT[:k * p, k * p:] = G.T
+    KKT[k * p:, :k * p] = G
+    return KKT
+
+
+#: largest predicted standard deviation at which a parameter counts as identified (positions: a tenth of the
+#: nominal array's extent, or this when no nominal positions are known)
+_MAX_SD = {"gain": 0.05, "position": 0.01, "offset": 0.005}
+
+
+def _check_identifiable(Kt, z, D, c, r, sigma, G, gain, t=None) -> None:
+    """Predicted standard deviations at the start (gain = I, nominal positions): refuse what the motion cannot give."""
+    k = D.shape[0]
+    wj = 1 / sigma**2
+    M = np.einsum("k,kai,kaj->ij", wj, D, D)
+    Kr = np.einsum("nab,kb->nka", Kt, r)
+    rhs = np.einsum("k,kai,nka->ni", wj, D, z - c[None] - np.einsum("kab,nkb->nka", D, Kr))
+    s = np.linalg.solve(M, rhs.T).T
+    dv = None if t is None else derivative(t, s[:, None] + Kr)
+    p = 15 if dv is None else 16
+    KKT = _kkt(Kt, D, r, s, sigma, G, dv)
+    sd = np.sqrt(np.abs(np.diag(np.linalg.inv(KKT))[:k * p])).reshape(k, p)
+    msgs, names = [], []
+    if dv is not None and sd[:, 15].max() > _MAX_SD["offset"]:
+        names.append("accel_offset")
+        msgs.append(f"the accelerometer sampling offsets need a changing specific force (jerk): predicted sd up "
+                    f"to {sd[:, 15].max() * 1e3:.3g} ms")
+    if gain != "none" and sd[:, 0:9].max() > _MAX_SD["gain"]:
+        ev, V = np.linalg.eigh(np.cov(s.T))
+        d0 = V[:, 0] * np.sign(V[np.argmax(np.abs(V[:, 0])), 0])
+        names.append("accel_gain")
+        extra = (" and, for their common part (gain='absolute'), lever arms: nominal positions spread over the "
+                 "board and fast rotation" if gain == "absolute" else "")
+        msgs.append(f"the {gain} accelerometer gains need specific force along every axis (turn the array against "
+                    f"gravity){extra}: predicted sd up to {sd[:, 0:9].max():.2g}; the specific force varies least "
+                    f"along body [{d0[0]:+.2f} {d0[1]:+.2f} {d0[2]:+.2f}], {np.sqrt(max(ev[0], 0)):.3g} m/s^2 rms; "
+                    "try gain='relative' or gain='none'")
+    extent = float(np.linalg.norm(r[:, None] - r[None], axis=2).max())
+    pos_limit = 0.1 * extent if extent > 0 else _MAX_SD["position"]
+    if sd[:, 12:15].max() > pos_limit:
+        names.append("position")
+        msgs.append(f"the positions need angular rate and angular acceleration about every axis (the lever-arm "
+                    f"terms w' x r + w x (w x r)): predicted sd up to {sd[:, 12:15].max() * 1e3:.3g} mm, more than "
+                    f"{pos_limit * 1e3:.3g} mm (a tenth of the array's extent)")
+    if names:
+        raise IdentifiabilityError("the motion cannot identify " + ", ".join(names) + ": " + "; ".join(msgs),
+                                   parameters=names)
+
+
+def _shifted(t, z0, tau) -> np.ndarray:
+    return np.stack([time_shift(t, z0[:, j], -tau[j]) for j in range(z0.shape[1])], axis=1)
+
+
+def _cost(z, Kt, D, c, r, wj) -> float:
+    Kr = np.einsum("nab,kb->nka", Kt, r)
+    M = np.einsum("k,kai,kaj->ij", wj, D, D)
+    rhs = np.einsum("k,kai,nka->ni", wj, D, z - c[None] - np.einsum("kab,nkb->nka", D, Kr))
+    s = np.linalg.solve(M, rhs.T).T
+    e = z - np.einsum("kab,nkb->nka", D, s[:, None] + Kr) - c[None]
+    return float(np.einsum("k,nka,nka->", wj, e, e))
+
+
+def _rms_parity(e: np.ndarray, moving: np.ndarray) -> np.ndarray:
+    y = e[moving] - e[moving].mean(axis=1, keepdims=True)
+    return np.sqrt(np.mean(y**2, axis=(0, 2)))
+
+
+def fit_positions(
+    layout: ArrayLayout, t: np.ndarray, accel: np.ndarray, gyro_fit: "RelativeFit | None" = None,
+    gyro: "np.ndarray | None" = None, omega: "np.ndarray | None" = None, nominal_positions_m: "np.ndarray | None" = None,
+    max_iter: int = 15, motion_threshold_deg_s: float = 30.0, gain: str = "absolute", align: bool = True,
+    offsets: bool = False,
+) -> PositionFit:
+    """Positions, gains and biases of the accelerometer triads from motion (Carlsson, Skog & Jalden 2021).
+
+    Parameters
+    ----------
+    layout : ArrayLayout
+        Triad rotations; its positions are the nominal ones unless ``nominal_positions_m`` is given.
+    t : ndarray (N,)
+    accel : ndarray (N, k, 3)
+        Raw accelerometer outputs in each triad's own axes [m/s^2].
+    gyro_fit, gyro : RelativeFit and ndarray (N, k, 3), optional
+        The gyros' relative calibration and raw outputs: give the array rate and each triad's sampling offset
+        (the accelerometer samples are moved by it). Or pass ``omega`` (N, 3) directly.
+    nominal_positions_m : ndarray (k, 3), optional
+        Default: ``layout.positions_m``.
+    gain : {"absolute", "relative", "none"}
+        ``"absolute"`` (Carlsson et al.): every triad's gain matrix, their common part (but for the isotropic
+        scale) seen through the lever-arm terms; needs nominal positions away from one point and lever-arm
+        excitation. ``"relative"``: gains relative to the array mean (``mean_j D_j = I``), like the gyros.
+        ``"none"``: gains kept at I, biases and positions only.
+    align : bool
+        Move every accelerometer triad by its gyro's sampling offset (one chip, one clock). False when the
+        accelerometers and gyros are separate chips.
+    offsets : bool
+        Also estimate every accelerometer triad's own sampling offset (relative: their mean is zero), on top of
+        ``align``; its column is the time derivative of the triad's modelled specific force.
+
+    Raises
+    ------
+    IdentifiabilityError
+        The motion cannot identify the gains or the positions; the message names the excitation they need.
+
+    Returns
+    -------
+    PositionFit
+    """
+    t = np.asarray(t, dtype=float)
+    z = layout.to_body(np.asarray(accel, dtype=float))
+    N, k = z.shape[:2]
+    nominal = np.asarray(layout.positions_m if nominal_positions_m is None else nominal_positions_m, dtype=float)
+    if nominal.shape != (k, 3):
+        raise ShapeError(f"nominal_positions_m must be ({k}, 3), got {nominal.shape}")
+    if omega is None:
+        if gyro_fit is None or gyro is None:
+            raise ShapeError("pass gyro_fit and gyro (the array's gyros), or omega (N, 3)")
+        u = gyro_fit.apply(t, gyro)
+        a = 1 / gyro_fit.sigma_rad_s**2
+        omega = np.einsum("k,nki->ni", a / a.sum(), u)
+        tau = gyro_fit.sampling_offset_s if align else np.zeros(k)
+    else:
+        omega = np.asarray(omega, dtype=float)
+        tau = np.zeros(k)
+    moving_all = np.linalg.norm(omega, axis=1) > np.radians(motion_threshold_deg_s)
+    raw_rms = _rms_parity(z, moving_all if moving_all.sum() >= 10 else np.ones(N, bool))
+    if np.any(tau != 0):
+        z = np.stack([time_shift(t, z[:, j], -tau[j]) for j in range(k)], axis=1)
+    aligned_rms = _rms_parity(z, moving_all if moving_all.sum() >= 10 else np.ones(N, bool))
+    m = int(np.ceil(np.abs(tau).max() / np.max(np.diff(t)))) + 3
+    z, t, omega = z[m:N - m], t[m:N - m], omega[m:N - m]
+    wd = derivative(t, omega)
+    Kt = _K(omega, wd)
+    n = len(t)
+    moving = np.linalg.norm(omega, axis=1) > np.radians(motion_threshold_deg_s)
+    if moving.sum() < 10:
+        moving[:] = True
+    D = np.repeat(np.eye(3)[None], k, axis=0)
+    c = np.zeros((k, 3))
+    r = nominal - nominal.mean(axis=0)
+    sigma = _noise_from_differences(z - z.mean(axis=1, keepdims=True))
+    p = 16 if offsets else 15
+    if gain not in ("absolute", "relative", "none"):
+        raise ShapeError(f"gain must be 'absolute', 'relative' or 'none', got {gain!r}")
+    # gauge constraints G theta = 0 on the update: sum r (3), sum c (3), and sum trace D (1, absolute),
+    # sum D (9, relative) or every D entry (none)
+    G = np.zeros((6 + {"absolute": 1, "relative": 9, "none": 9 * k}[gain] + int(offsets), k * p))
+    for j in range(k):
+        if offsets:
+            G[-1, j * p + 15] = 1.0
+        G[0:3, j * p + 12:j * p + 15] = np.eye(3)
+        G[3:6, j * p + 9:j * p + 12] = np.eye(3)
+        if gain == "absolute":
+            G[6, j * p + 0] = G[6, j * p + 4] = G[6, j * p + 8] = 1.0
+        elif gain == "relative":
+            G[6:15, j * p:j * p + 9] = np.eye(9)
+        else:
+            G[6 + 9 * j:6 + 9 * j + 9, j * p:j * p + 9] = np.eye(9)
+    nc = G.shape[0]
+    _check_identifiable(Kt, z, D, c, r, sigma, G, gain, t if offsets else None)
+    z0 = z
+    tau_a = np.zeros(k)
+    # weights fixed during the iterations (from the high-frequency noise): re-estimating them inside the loop
+    # lets the joint fit trade a triad's gain for its noise (a degenerate optimum with D_j -> 0)
+    wj = 1 / sigma**2
+    it = 0
+    # the fit leaves out the ends, where a time shift would reach past the recording
+    e0 = int(np.ceil(0.02 / np.median(np.diff(t)))) + 1 if offsets else 0
+    sl = slice(e0, n - e0)
+    Kt_f = Kt[sl]
+    for it in range(1, max_iter + 1):  # noqa: B007 - the count is reported
+        z = _shifted(t, z0, tau_a) if offsets else z0
+        zf = z[sl]
+        Kr = np.einsum("nab,kb->nka", Kt_f, r)
+        # s per sample by weighted LS given the parameters
+        M = np.einsum("k,kai,kaj->ij", wj, D, D)
+        rhs = np.einsum("k,kai,nka->ni", wj, D, zf - c[None] - np.einsum("kab,nkb->nka", D, Kr))
+        s = np.linalg.solve(M, rhs.T).T
+        e = zf - np.einsum("kab,nkb->nka", D, s[:, None] + Kr) - c[None]
+        dv = derivative(t[sl], s[:, None] + Kr) if offsets else None
+        KKT = _kkt(Kt_f, D, r, s, 1 / np.sqrt(wj), G, dv)
+        Xw = _jac(Kt_f, D, r, s, dv) * wj[None, :, None, None]
+        g = np.einsum("nkap,nka->kp", Xw, e).ravel()
+        # (s is already the LS solution, so the elimination term of the gradient vanishes)
+        sol = np.linalg.solve(KKT, np.concatenate([g, np.zeros(nc)]))
+        d = sol[:k * p].reshape(k, p)
+        # backtracking: a full Gauss-Newton step can overshoot when the motion barely excites the lever arms
+        c0 = _cost(zf, Kt_f, D, c, r, wj)
+        lam = 1.0
+        for _ in range(12):
+            Dn, cn, rn = D + lam * d[:, 0:9].reshape(k, 3, 3), c + lam * d[:, 9:12], r + lam * d[:, 12:15]
+            tn = tau_a + lam * d[:, 15] if offsets else tau_a
+            zn = _shifted(t, z0, tn)[sl] if offsets else zf
+            if _cost(zn, Kt_f, Dn, cn, rn, wj) <= c0 * (1 + 1e-12):
+                break
+            lam *= 0.5
+        else:
+            Dn, cn, rn, tn = D, c, r, tau_a
+        D, c, r, tau_a = Dn, cn, rn, tn
+        d = lam * d
+        sd = np.sqrt(np.maximum(np.diag(np.linalg.inv(KKT))[:k * p], 0)).reshape(k, p)
+        scale = np.hstack([D.reshape(k, 9), c, r] + ([tau_a[:, None]] if offsets else []))
+        if np.all(np.abs(d) <= 0.05 * sd + 1e-12 * (1 + np.abs(scale))):
+            break
+    if offsets:
+        z = _shifted(t, z0, tau_a)[sl]
+        Kt, t, n = Kt_f, t[sl], z.shape[0]
+        moving = moving[sl]
+    # covariance: the constrained inverse Fisher information with the noise from the residual
+    Kr = np.einsum("nab,kb->nka", Kt, r)
+    M = np.einsum("k,kai,kaj->ij", wj, D, D)
+    rhs = np.einsum("k,kai,nka->ni", wj, D, z - c[None] - np.einsum("kab,nkb->nka", D, Kr))
+    s = np.linalg.solve(M, rhs.T).T
+    e = z - np.einsum("kab,nkb->nka", D, s[:, None] + Kr) - c[None]
+    # residual of triad j has variance ~ sigma_j^2 - (its share in s); same fixed point as for the gyros
+    sigma = _sigma_from_residual_var(np.einsum("nka,nka->k", e, e) / (3 * n - p))
+    KKT = _kkt(Kt, D, r, s, sigma, G, derivative(t, s[:, None] + Kr) if offsets else None)
+    cov_full = np.linalg.inv(KKT)[:k * p, :k * p]
+    cov = np.stack([cov_full[j * p:(j + 1) * p, j * p:(j + 1) * p] for j in range(k)])
+    r = r + nominal.mean(axis=0)
+    # parity figures: the triads moved to the reference point, with and without the estimated terms
+    f_gb = np.einsum("kab,nkb->nka", np.linalg.inv(D), z - c[None])
+    nom_rms = _rms_parity(f_gb - np.einsum("nab,kb->nka", Kt, nominal - nominal.mean(axis=0)), moving)
+    pos_rms = _rms_parity(f_gb - np.einsum("nab,kb->nka", Kt, r - nominal.mean(axis=0)), moving)
+    raw_lever = _rms_parity(z - np.einsum("nab,kb->nka", Kt, nominal - nominal.mean(axis=0)), moving)
+    return PositionFit(layout.with_positions(r), D, c, r, cov, sigma,
+                       {"raw": raw_rms, "aligned": aligned_rms, "raw_nominal_lever_arms": raw_lever,
+                        "gain_bias_nominal_lever_arms": nom_rms, "positions": pos_rms},
+                       nominal, it, np.asarray(tau, dtype=float), gain,
+                       tau_a if offsets else None)

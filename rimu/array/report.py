@@ -1,0 +1,182 @@
+"""Report: the array's parity rms in motion before and after each calibration step, per triad, with a plot.
+
+Steps (gyros): raw -> relative gain and bias -> + sampling offsets; (accelerometers): raw -> lever arms at the
+nominal positions removed -> + gains and biases -> + estimated positions. After the gyro steps the nested F-test
+ranking (:func:`rimu.array.rank_candidates`) names the term that now limits the agreement.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import IdentifiabilityError, ShapeError
+from ..units import RAD_TO_DEG
+from .layout import ArrayLayout
+from .positions import PositionFit, fit_positions
+from .relative import RelativeFit, fit_relative_gyro
+
+__all__ = ["ArrayReport", "array_report", "lowpass"]
+
+
+def lowpass(t: np.ndarray, x: np.ndarray, cutoff_hz: float, order: int = 4) -> np.ndarray:
+    """Zero-phase Butterworth low-pass of ``x`` (N, ...) along time, at the median sampling rate of ``t``.
+
+    The rigid-body array model holds below the board's vibration modes; a recording from a vehicle (rotor
+    vibration) is best compared there. A linear time-invariant filter applied to every triad alike commutes with
+    gains, biases and time offsets, so it does not change what the relative calibration estimates.
+
+    Raises
+    ------
+    ShapeError
+        ``cutoff_hz`` not below the Nyquist frequency.
+    """
+    from scipy.signal import butter, sosfiltfilt
+
+    fs = 1.0 / float(np.median(np.diff(t)))
+    if not 0 < cutoff_hz < fs / 2:
+        raise ShapeError(f"cutoff_hz must be in (0, {fs / 2:.4g}) Hz (the Nyquist frequency), got {cutoff_hz}")
+    return sosfiltfilt(butter(order, cutoff_hz, fs=fs, output="sos"), np.asarray(x, dtype=float), axis=0)
+
+
+@dataclass
+class ArrayReport:
+    """Per-step parity rms in motion (gyro in deg/s, accelerometer in m/s^2), per triad, and the fits."""
+
+    names: tuple[str, ...]
+    gyro_steps: dict[str, np.ndarray]
+    accel_steps: dict[str, np.ndarray] = field(default_factory=dict)
+    limiting_term: str = ""
+    gyro_fit: "RelativeFit | None" = None
+    position_fit: "PositionFit | None" = None
+    notes: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {"triads": list(self.names),
+                "gyro_parity_rms_deg_s": {k: v.tolist() for k, v in self.gyro_steps.items()},
+                "accel_parity_rms_m_s2": {k: v.tolist() for k, v in self.accel_steps.items()},
+                "limiting_term": self.limiting_term,
+                "candidates": [c.to_dict() for c in (self.gyro_fit.candidates if self.gyro_fit else [])],
+                "notes": self.notes}
+
+    def to_markdown(self) -> str:
+        out = ["# Array report: parity rms in motion per step", ""]
+        for title, steps, unit in (("Gyros", self.gyro_steps, "deg/s"), ("Accelerometers", self.accel_steps, "m/s^2")):
+            if not steps:
+                continue
+            out += [f"## {title} [{unit}]", "", "| step | " + " | ".join(self.names) + " | mean |",
+                    "|---|" + "---|" * (len(self.names) + 1)]
+            for name, v in steps.items():
+                out.append(f"| {name} | " + " | ".join(f"{x:.4g}" for x in v) + f" | {v.mean():.4g} |")
+            out.append("")
+        if self.gyro_fit is not None:
+            out += ["## What limits the gyro agreement now", "", f"**{self.limiting_term}**", "",
+                    "| candidate | parameters | F | log10 p | share of residual |", "|---|---|---|---|---|"]
+            for c in self.gyro_fit.candidates:
+                out.append(f"| {c.name} | {c.n_params} | {c.f_stat:.3g} | {c.log10_p:.1f} | {c.explained:.3f} |")
+            out.append("")
+        out += [f"- {n}" for n in self.notes]
+        return "\n".join(out) + "\n"
+
+    def plot(self, path: "str | Path") -> Path:
+        """Bar chart per triad and step (PNG). Needs the ``plots`` extra (matplotlib)."""
+        try:
+            import matplotlib
+        except ImportError as exc:  # pragma: no cover - depends on the environment
+            raise ImportError("the array report plot needs matplotlib: pip install 'rimu[plots]'") from exc
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        panels = [(s, u, t) for s, u, t in ((self.gyro_steps, "deg/s", "gyro"), (self.accel_steps, "m/s^2", "accel"))
+                  if s]
+        fig, axes = plt.subplots(len(panels), 1, figsize=(max(6.0, 0.3 * len(self.names) + 3), 3.2 * len(panels)),
+                                 squeeze=False)
+        for ax, (steps, unit, title) in zip(axes[:, 0], panels):
+            x = np.arange(len(self.names))
+            wbar = 0.8 / len(steps)
+            for i, (name, v) in enumerate(steps.items()):
+                ax.bar(x + i * wbar - 0.4 + wbar / 2, v, wbar, label=name)
+            ax.set_yscale("log")
+            ax.set_xticks(x, self.names, rotation=90 if len(self.names) > 12 else 0)
+            ax.set_ylabel(f"parity rms [{unit}]")
+            ax.set_title(f"{title}: each triad against the array, in motion")
+            ax.legend(fontsize=7)
+        if self.limiting_term:
+            fig.suptitle(f"gyro agreement now limited by: {self.limiting_term}", fontsize=9)
+        fig.subplots_adjust(left=0.1, right=0.98, top=0.93, bottom=0.12, hspace=0.45)
+        path = Path(path)
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        return path
+
+
+def array_report(
+    layout: ArrayLayout, t: np.ndarray, gyro: np.ndarray, accel: "np.ndarray | None" = None,
+    nominal_positions_m: "np.ndarray | None" = None, motion_threshold_deg_s: float = 30.0,
+    lowpass_hz: "float | None" = None,
+) -> ArrayReport:
+    """Run the steps and collect the parity rms in motion after each, per triad.
+
+    Parameters as :func:`fit_relative_gyro` and :func:`fit_positions`; ``accel`` may be None (gyros only).
+    ``lowpass_hz`` filters every triad alike first (:func:`lowpass`). A step the motion cannot identify is
+    skipped with a note naming the missing excitation.
+    """
+    notes: list[str] = []
+    if lowpass_hz is not None:
+        gyro = lowpass(t, gyro, lowpass_hz)
+        accel = None if accel is None else lowpass(t, accel, lowpass_hz)
+        notes.append(f"every triad low-passed at {lowpass_hz:g} Hz (zero phase) before the fits")
+    base = fit_relative_gyro(layout, t, gyro, motion_threshold_deg_s=motion_threshold_deg_s)
+    steps = {"raw": base.parity_rms_rad_s["before"] * RAD_TO_DEG,
+             "relative gain+bias": base.parity_rms_rad_s["after"] * RAD_TO_DEG}
+    fit = base
+    try:
+        fit = fit_relative_gyro(layout, t, gyro, terms=("scale_misalignment", "bias", "sampling_offset"),
+                                motion_threshold_deg_s=motion_threshold_deg_s)
+        steps["+ sampling offsets"] = fit.parity_rms_rad_s["after"] * RAD_TO_DEG
+    except IdentifiabilityError as exc:
+        notes.append(f"sampling offsets skipped: {exc}")
+    if not fit.converged:
+        notes.append(f"the gyro fit stopped after {fit.iterations} iterations before converging")
+    rep = ArrayReport(layout.names, steps, limiting_term=fit.limiting_term(), gyro_fit=fit, notes=notes)
+    if accel is not None:
+        pf, gb = None, ""
+        align = True
+        for mode, label in (("absolute", "+ gain+bias"), ("relative", "+ relative gain+bias"), ("none", "+ bias")):
+            try:
+                cand = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
+                                     motion_threshold_deg_s=motion_threshold_deg_s, gain=mode, align=align)
+            except IdentifiabilityError as exc:
+                notes.append(f"accelerometer gain={mode!r} skipped: {exc}")
+                continue
+            if align and cand.parity_rms_m_s2["aligned"].mean() > cand.parity_rms_m_s2["raw"].mean():
+                align = False
+                try:
+                    cand = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
+                                         motion_threshold_deg_s=motion_threshold_deg_s, gain=mode, align=False,
+                                         offsets=True)
+                    notes.append("the gyros' sampling offsets do not fit the accelerometers (separate chips?): "
+                                 "the accelerometers' own offsets were estimated")
+                except IdentifiabilityError as exc:
+                    notes.append("the gyros' sampling offsets do not fit the accelerometers (separate chips?) and "
+                                 f"their own cannot be estimated ({exc}): accelerometers left on their own time")
+                    cand = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
+                                         motion_threshold_deg_s=motion_threshold_deg_s, gain=mode, align=False)
+            pf, gb = cand, label
+            break
+        if pf is None:
+            return rep
+        p = pf.parity_rms_m_s2
+        steps = {"raw": p["raw"]}
+        if align and np.any(fit.sampling_offset_s != 0):
+            steps["+ gyro sampling offsets"] = p["aligned"]
+        nominal = layout.positions_m if nominal_positions_m is None else np.asarray(nominal_positions_m)
+        if np.ptp(nominal, axis=0).max() > 0:
+            steps["+ nominal lever arms"] = p["raw_nominal_lever_arms"]
+        steps[gb] = p["gain_bias_nominal_lever_arms"]
+        steps["+ positions"] = p["positions"]
+        rep.accel_steps = steps
+        rep.position_fit = pf
+    return rep

@@ -1,0 +1,1179 @@
+"""Hand-held calibration: any number of static poses of unknown attitude, rotations by hand between them.
+
+No turntable, no attitude knowledge. The accelerometers are calibrated from the norm of the specific force at
+rest (Zhang et al. 2010, Eq. 7-8 and 12-14; Tedaldi, Pretto & Menegatti 2014, Eq. 10), the gyros from the
+rotations between poses: the compensated angular rate, integrated from one pose to the next, must turn the
+calibrated gravity direction of the first pose into that of the second (Tedaldi et al. 2014, Eq. 14-18).
+
+Model, per sensor i of an instrument (raw-domain form of Cho & Park 2005, Eq. 1-5)::
+
+    y_i = w_i . u + c_i + v_i         SF_i = 1 / |w_i|,  axis a_i = w_i / |w_i|,  bias b_i = SF_i c_i
+
+Accelerometers (:func:`fit_accel`)
+    1. a *well-posed* linear initial solution for a well-conditioned triple of sensors: the quadric
+       ``(y - c)^T M (y - c) = g^2`` (Zhang Eq. 12-13) written homogeneously as ``D v = 0`` and solved under the
+       normalisation ``|vec(M)| = 1`` (the smallest eigenvector of the reduced scatter matrix of the quadratic
+       part), so it can never return the trivial solution ``M = 0``; of the eigenvectors, the first whose M is
+       definite is used (a sphere fit if none is). ``M = A^T A`` gives A by the reversed Cholesky factor
+       (Zhang Eq. 14). The other sensors of a redundant set are then linear in the specific forces so found.
+    2. a nonlinear least-squares refinement (``scipy.optimize.least_squares``) of the full model of every sensor
+       on all poses. For each pose the specific force is the weighted least-squares estimate from all sensors,
+       ``f_k = (W^T S^-1 W)^-1 W^T S^-1 (ybar_k - c)``; the residuals are its norm minus g (one per pose) and,
+       for skewed sets (more than three sensors), the whitened parity residual ``ybar_k - c - W f_k``.
+    3. covariance from the Jacobian at the solution and the residual noise (scaled by chi-square per degree of
+       freedom when there are degrees of freedom), and an :class:`~rimu.errors.IdentifiabilityError` naming the
+       parameter combinations the poses do not determine (the right singular vectors of the Jacobian whose
+       singular values vanish).
+
+    Frame (gauge): without attitude knowledge a rotation of MB is invisible. MB is fixed as Zhang's platform
+    frame, generalised: the first sensor of the triple keeps its nominal axis, the second stays in the plane
+    of the two nominal axes. Those three misalignment angles are zero by definition (reported with zero
+    variance). :func:`gauge_fixed` expresses any calibration (e.g. a simulation's truth) in that frame.
+
+Gyros (:func:`fit_gyro`)
+    Bias from the static poses (each pose's mean output is a measurement of the bias; the Earth rate, below a
+    MEMS gyro's resolution, is not modelled), scale and misalignment (all nine, relative to the accelerometer
+    frame) from the motions: the compensated rate (least-squares estimate for skewed sets) is integrated
+    sample by sample as exact rotations (a quaternion per sample, combined by a parallel prefix product), from
+    the first sample of pose k to the last of pose k+1. The attitude of a pose is the mean attitude over its
+    samples, so the hand's tremor and sway during a "static" pose are integrated, not ignored (the accelerometer
+    mean of the pose is the specific force at that mean attitude). Residual: the calibrated gravity direction of
+    pose k+1 minus that of pose k turned by the integrated rotation, in the tangent plane (two components).
+    Skewed gyro sets add the parity of the integrated outputs of each motion. The fit is weighted by the
+    scatter of each residual group (two passes) with a Huber loss against outliers (a bumped pose), and the
+    covariance includes the accelerometer parameters' uncertainty (through the gravity directions).
+
+Redundant units: ``mode="joint"`` calibrates all sensors of an instrument together (skewed sets through the
+least-squares estimate of the specific force and angular rate); ``mode="subunits"`` calibrates each sub-unit
+triad on its own (each in its own gauge frame).
+
+Examples
+--------
+>>> from rimu.sim.handheld import handheld_run
+>>> run = handheld_run(n_poses=24, seed=3)
+>>> res = HandHeld().fit(run.session)
+>>> sorted(res.instruments)
+['accel', 'gyro']
+>>> bool(res.extra["norm_rms_accel"] < 3 * res.extra["norm_noise_accel"])
+True
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..errors import IdentifiabilityError, SessionFormatError
+from ..geometry import Geometry
+from ..session import Segment, Session, rotation_matrix
+from .estimate import CalibrationResult, estimate_noise_sigma, make_sensor_fit
+from .lsq import LsqResult
+from .model import ErrorModel, SensorContext
+from .result import Calibration, InstrumentCalibration
+
+__all__ = [
+    "STATIC_KINDS",
+    "AccelFit",
+    "GyroFit",
+    "HandHeld",
+    "clip_levels",
+    "ellipsoid_fit",
+    "fit_accel",
+    "fit_gyro",
+    "gauge_fixed",
+    "lower_factor",
+    "pose_windows",
+    "quat_exp",
+    "quat_mul",
+    "quat_to_matrix",
+    "white_noise_sigma_hf",
+]
+
+#: segment kinds that are poses at rest
+STATIC_KINDS = ("static", "static_unknown")
+
+
+# ---------------------------------------------------------------------- algebra
+def lower_factor(M: np.ndarray) -> np.ndarray:
+    """Lower-triangular A with positive diagonal and ``A^T A = M`` (Zhang et al. 2010, Eq. 14)."""
+    P = np.eye(3)[::-1]
+    L = np.linalg.cholesky(P @ M @ P)
+    return (P @ L @ P).T
+
+
+def _quad(y: np.ndarray) -> np.ndarray:
+    x, yy, z = y[:, 0], y[:, 1], y[:, 2]
+    return np.column_stack([x * x, yy * yy, z * z, 2 * x * yy, 2 * x * z, 2 * yy * z])
+
+
+def _sym(m: np.ndarray) -> np.ndarray:
+    return np.array([[m[0], m[3], m[4]], [m[3], m[1], m[5]], [m[4], m[5], m[2]]])
+
+
+def ellipsoid_fit(y: np.ndarray, weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Centre c and shape M (positive definite, up to scale) of the quadric ``(y - c)^T M (y - c) = 1`` through
+    points y (K, 3): Zhang et al. 2010, Eq. 12-13 posed homogeneously, ``D v = 0`` with ``|vec(M)| = 1``.
+
+    The linear part (``M c`` and the constant) is eliminated in closed form, leaving the 6 x 6 reduced scatter
+    matrix of the quadratic part; its eigenvectors, smallest first, are tried until one gives a definite M, so
+    the trivial solution ``v = 0`` cannot occur. If none is definite (degenerate or very noisy poses), the best
+    sphere is returned (M = I). Needs at least nine points.
+
+    >>> rng = np.random.default_rng(0)
+    >>> u = rng.normal(size=(30, 3)); u /= np.linalg.norm(u, axis=1)[:, None]
+    >>> A = np.array([[2.0, 0, 0], [0.1, 3.0, 0], [0.2, -0.1, 1.5]])
+    >>> y = u @ np.linalg.inv(A).T + [1.0, -2.0, 0.5]
+    >>> c, M = ellipsoid_fit(y)
+    >>> bool(np.allclose(c, [1.0, -2.0, 0.5])), bool(np.allclose(M / M[0, 0], A.T @ A / (A.T @ A)[0, 0]))
+    (True, True)
+    """
+    y = np.asarray(y, dtype=float)
+    w = np.ones(len(y)) if weights is None else np.asarray(weights, dtype=float)
+    mu = np.average(y, axis=0, weights=w)
+    s = float(np.sqrt(np.average(np.sum((y - mu) ** 2, axis=1), weights=w))) or 1.0
+    z = (y - mu) / s
+    sw = np.sqrt(w)[:, None]
+    D1 = _quad(z) * sw
+    D2 = np.column_stack([-2 * z, np.ones(len(z))]) * sw
+    # min |D1 m + D2 l| over l: l = -D2^+ D1 m; reduced scatter S = D1^T (I - P2) D1
+    Q, _ = np.linalg.qr(D2)
+    R = D1 - Q @ (Q.T @ D1)
+    S = R.T @ R
+    _ev, V = np.linalg.eigh(S)
+    for k in range(6):
+        Mz = _sym(V[:, k])
+        e = np.linalg.eigvalsh(Mz)
+        if e[0] * e[-1] > 0 and min(abs(e[0]), abs(e[-1])) > 1e-9 * max(abs(e[0]), abs(e[-1])):
+            Mz = Mz * np.sign(e[0])
+            l, *_ = np.linalg.lstsq(D2, -D1 @ (V[:, k] * np.sign(e[0])), rcond=None)
+            cz = np.linalg.solve(Mz, l[:3])
+            return mu + s * cz, Mz / s**2
+    # sphere: |z|^2 = 2 c.z - e (linear)
+    l, *_ = np.linalg.lstsq(D2, -np.sum(z * z, axis=1) * sw[:, 0], rcond=None)
+    return mu + s * l[:3], np.eye(3) / s**2
+
+
+def quat_mul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Hamilton product of quaternions (..., 4), scalar first."""
+    pw, px, py, pz = np.moveaxis(p, -1, 0)
+    qw, qx, qy, qz = np.moveaxis(q, -1, 0)
+    return np.stack([pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
+                     pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw], axis=-1)
+
+
+def quat_exp(rotvec: np.ndarray) -> np.ndarray:
+    """Unit quaternion (..., 4) of rotation vectors (..., 3): the exact rotation of one sample."""
+    th = np.linalg.norm(rotvec, axis=-1, keepdims=True)
+    half = 0.5 * th
+    k = np.where(th > 1e-12, np.sin(half) / np.where(th > 1e-12, th, 1.0), 0.5 - th**2 / 48.0)
+    return np.concatenate([np.cos(half), rotvec * k], axis=-1)
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of unit quaternions (..., 4) (body -> reference)."""
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
+
+
+def _prefix_product(q: np.ndarray, group: np.ndarray) -> np.ndarray:
+    """Cumulative quaternion products within contiguous groups (Hillis-Steele scan, log2(N) vector steps)."""
+    out = q.copy()
+    d = 1
+    n = len(q)
+    while d < n:
+        same = (group[d:] == group[:-d])[:, None]
+        prod = quat_mul(out[:-d], out[d:])
+        out[d:] = np.where(same, prod, out[d:])
+        d *= 2
+    return out / np.linalg.norm(out, axis=1, keepdims=True)
+
+
+# ---------------------------------------------------------------------- gauge
+def _gauge_basis(H: np.ndarray, a: int, b: int, c: int) -> np.ndarray:
+    """Orthonormal basis P (rows in MB): x along nominal axis a, y in the (a, b) plane, z towards axis c."""
+    x = H[a] / np.linalg.norm(H[a])
+    y = H[b] - x * (x @ H[b])
+    y /= np.linalg.norm(y)
+    z = np.cross(x, y)
+    if z @ H[c] < 0:
+        z = -z
+    return np.vstack([x, y, z])
+
+
+def _best_triple(H: np.ndarray) -> tuple[int, int, int]:
+    n = len(H)
+    if n == 3:
+        return (0, 1, 2)
+    combos = itertools.combinations(range(n), 3) if n <= 24 else [tuple(range(3))]
+    return max(combos, key=lambda t: abs(np.linalg.det(H[list(t)])))
+
+
+def gauge_fixed(cal: InstrumentCalibration, triple: Sequence[int], other: InstrumentCalibration | None = None,
+                members: Sequence[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Raw-domain rows ``W`` (n, 3) and raw biases ``c`` of a calibration expressed in the hand-held gauge frame
+    of accelerometer sensors ``triple`` (see the module docstring): the frame in which the calibrated axis of
+    ``triple[0]`` is its nominal one and that of ``triple[1]`` lies in the nominal plane of the two.
+
+    ``cal`` defines the frame (the accelerometers); pass ``other`` to express another instrument (the gyros)
+    in the same frame. ``members`` restricts the sensors defining the geometry's nominal rows (a sub-unit).
+    Used to compare an estimate with a known truth.
+    """
+    g = cal.geometry
+    H = g.nominal_rows() @ np.eye(3) if members is None else g.H
+    Hn = _mb_nominal(g)
+    a, b, c = triple
+    P_nom = _gauge_basis(Hn, a, b, c)
+    A = cal.axes_mb()
+    P_true = _gauge_basis(A, a, b, c)
+    R = P_nom.T @ P_true  # maps the true gauge basis onto the nominal one
+    del H
+    src = other if other is not None else cal
+    W = (src.axes_mb() / src.scale[:, None]) @ R.T
+    return W, src.bias / src.scale
+
+
+def _mb_nominal(g: Geometry) -> np.ndarray:
+    """Nominal sensing axes in MB (H itself: the nominal rows mapped back from each sub-unit basis)."""
+    return np.asarray(g.H, dtype=float)
+
+
+# ---------------------------------------------------------------------- pose data
+def white_noise_sigma_hf(session: Session, instrument: str, order: int = 3) -> np.ndarray:
+    """Per-sample white-noise standard deviation (raw) from differences of order ``order`` within the poses.
+
+    A hand-held pose is not still: tremor (8-12 Hz) and sway are real motion that the sensors measure and the
+    calibration integrates, not noise. Differences of order k multiply white noise variance by C(2k, k) and
+    attenuate a 10 Hz tremor sampled at 100 Hz by (2 sin(pi f / fs))^(2k) (0.06 for k = 3), so third
+    differences see the white noise and hardly the hand.
+    """
+    from math import comb
+
+    segs = _statics(session) or list(session.segments)
+    n = session.geometries[instrument].n
+    acc = np.zeros(n)
+    cnt = 0
+    for sg in segs:
+        y = sg.raw[instrument]
+        if y.shape[0] <= order + 2:
+            continue
+        d = np.diff(y, n=order, axis=0)
+        acc += np.sum(d**2, axis=0)
+        cnt += d.shape[0]
+    if cnt == 0:
+        return estimate_noise_sigma(session, instrument)
+    sig = np.sqrt(acc / cnt / comb(2 * order, order))
+    return np.where(sig > 0, sig, max(float(sig.max()), 1e-12))
+
+
+def _statics(session: Session) -> list[Segment]:
+    return [s for s in session.segments if s.kind in STATIC_KINDS]
+
+
+def _pose_stats(segs: Sequence[Segment], inst: str, idx: Sequence[int], sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean raw output of each pose (K, n) and its standard deviation from the per-sample noise (K, n)."""
+    ybar = np.array([s.raw[inst][:, idx].mean(axis=0) for s in segs])
+    N = np.array([s.n_samples for s in segs], dtype=float)
+    return ybar, sigma[None, :] / np.sqrt(N)[:, None]
+
+
+@dataclass
+class AccelFit:
+    """Result of :func:`fit_accel` for one set of accelerometers (all of a unit, or one sub-unit)."""
+
+    members: list[int]
+    triple: tuple[int, int, int]
+    W: np.ndarray  # (n, 3) raw per (m/s^2), rows in MB
+    c: np.ndarray  # (n,) raw bias
+    cov: np.ndarray  # covariance of theta (free parameters)
+    theta: np.ndarray
+    free: np.ndarray  # mask of the free entries of W_p (n, 3)
+    P: np.ndarray  # gauge basis: rows in MB
+    f: np.ndarray  # (K, 3) estimated specific force per pose, MB
+    norm_residual: np.ndarray  # (K,) |f_k| - g, m/s^2
+    norm_sigma: np.ndarray  # (K,) a-priori std of |f_k| from the white noise
+    chi2: float
+    dof: int
+    scale2: float  # residual variance factor applied to the covariance
+    parity: np.ndarray | None = None  # (K, n) whitened parity residuals of skewed sets
+    weak: list[str] = field(default_factory=list)  # weakly determined parameter combinations
+    ybar: np.ndarray | None = None  # (K, n) pose means the fit used
+    sd: np.ndarray | None = None  # (K, n) their weights (standard deviations, raw)
+    tau2: float = 0.0  # additive pose-to-pose variance of the norm, (m/s^2)^2
+
+    def rows_cov(self, i: int) -> np.ndarray:
+        """Covariance (4, 4) of sensor i's (w_i in MB, c_i)."""
+        J = self._row_jac(i)
+        return J @ self.cov @ J.T
+
+    def _row_jac(self, i: int) -> np.ndarray:
+        n = len(self.members)
+        nf = int(self.free.sum())
+        J = np.zeros((4, nf + n))
+        pos = np.cumsum(self.free.ravel()) - 1
+        for col in range(3):
+            if self.free[i, col]:
+                J[:3, pos[i * 3 + col]] = self.P[col]
+        J[3, nf + i] = 1.0
+        return J
+
+    def rms_norm(self) -> float:
+        return float(np.sqrt(np.mean(self.norm_residual**2)))
+
+
+def _unpack(theta: np.ndarray, free: np.ndarray, fixed: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    Wp = fixed.copy()
+    nf = int(free.sum())
+    Wp[free] = theta[:nf]
+    return Wp, theta[nf:nf + n]
+
+
+def _specific_forces(Wp: np.ndarray, c: np.ndarray, ybar: np.ndarray, sd: np.ndarray):
+    """Weighted least-squares estimate of f per pose, its information matrix, and the whitened residual."""
+    w = 1.0 / sd**2  # (K, n)
+    info = np.einsum("ki,ia,ib->kab", w, Wp, Wp)
+    rhs = np.einsum("ki,ia,ki->ka", w, Wp, ybar - c)
+    f = np.linalg.solve(info, rhs[..., None])[..., 0]
+    e = (ybar - c - f @ Wp.T) / sd
+    return f, info, e
+
+
+def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, names: Sequence[str],
+              members: Sequence[int] | None = None, robust: bool = False, model: str = "full",
+              quick: bool = False) -> AccelFit:
+    """Accelerometers from static poses of unknown attitude (module docstring, steps 1-3).
+
+    Parameters
+    ----------
+    ybar : ndarray (K, n)
+        Mean raw output of each pose.
+    sd : ndarray (K, n)
+        Its standard deviation from the white noise (raw).
+    H : ndarray (n, 3)
+        Nominal sensing axes in MB.
+    gravity : float
+        Local gravity, m/s^2 (the norm of the specific force at rest).
+    names : sequence of str
+        Sensor names (for messages).
+    model : {"full", "scale_bias"}
+        ``"full"``: scale, misalignment and bias (9 parameters for a triad); ``"scale_bias"`` (triads): the
+        axes kept nominal, 6 parameters, for poses that only put each axis up and down (a Ferraris recording).
+    quick : bool
+        One refinement without the pose-variance component, no covariance (zero) and no identifiability checks:
+        for scoring many candidate detections.
+    """
+    from scipy.optimize import least_squares
+
+    ybar = np.asarray(ybar, float)
+    K, n = ybar.shape
+    members = list(range(n)) if members is None else list(members)
+    if model not in ("full", "scale_bias"):
+        raise ValueError(f"model must be 'full' or 'scale_bias', got {model!r}")
+    if model == "scale_bias" and n != 3:
+        raise IdentifiabilityError("accel: model 'scale_bias' is for a triad; a skewed set needs the full model",
+                                   [])
+    p = 4 * n - 3 if model == "full" else 2 * n
+    distinct = _distinct_directions(ybar)
+    if model == "full" and n == 3 and K >= 9 and distinct < 9:
+        raise IdentifiabilityError(
+            f"accel: the {K} poses hold only {distinct} distinct orientations (repeated poses add nothing on the "
+            "misalignments); the full model needs at least 9: hold the unit in 20 to 50 different orientations, "
+            "or fit scale and bias alone (model 'scale_bias')", [f"{s}.mis" for s in names])
+    need = int(np.ceil(p / max(n - 2, 1))) if n > 3 else 9
+    if model == "scale_bias":
+        need = 6
+    if K < max(need, (9 if model == "full" else 6) if n == 3 else 4):
+        raise IdentifiabilityError(
+            f"accel: {K} static poses for {p} parameters of {n} sensors; the norm of gravity gives one equation per "
+            f"pose{' (plus ' + str(n - 3) + ' parity equations)' if n > 3 else ''}: record at least "
+            f"{max(need, (9 if model == 'full' else 6) if n == 3 else 4)} poses (hand-held: 20 to 50 in varied "
+            "orientations)",
+            [f"{s}.{q}" for s in names for q in ("scale", "bias")])
+    tri = _best_triple(H)
+    P = _gauge_basis(H, *tri)
+    Hp = H @ P.T
+    # 1. linear initial solution on the triple (Zhang Eq. 12-14 posed with |vec M| = 1)
+    t = list(tri)
+    if model == "full":
+        cen, M = ellipsoid_fit(ybar[:, t], 1.0 / np.mean(sd[:, t] ** 2, axis=1))
+    else:
+        cen, M = _axis_ellipsoid_fit(ybar)
+    q = np.einsum("ki,ij,kj->k", ybar[:, t] - cen, M, ybar[:, t] - cen)
+    M = M * gravity**2 / float(np.mean(q))
+    A = lower_factor(M)
+    # rows of the triple in its gauge basis: the triple's p frame (x along sensor a, y in the a-b plane)
+    Wt = np.linalg.inv(A)
+    sgn = np.sign(np.sum(Wt * Hp[t], axis=1))  # reflection ambiguity of the norm: take the nominal handedness
+    if sgn[2] < 0:
+        Wt[:, 2] *= -1
+    f0 = (ybar[:, t] - cen) @ np.linalg.inv(Wt).T
+    Wp0 = np.zeros((n, 3))
+    c0 = np.zeros(n)
+    Wp0[t] = Wt
+    c0[t] = cen
+    X = np.column_stack([f0, np.ones(K)])
+    for i in range(n):
+        if i not in t:
+            beta, *_ = np.linalg.lstsq(X, ybar[:, i], rcond=None)
+            Wp0[i], c0[i] = beta[:3], beta[3]
+    free = np.ones((n, 3), bool)
+    free[tri[0], 1] = free[tri[0], 2] = free[tri[1], 2] = False
+    if model == "scale_bias":
+        free = np.eye(3, dtype=bool)
+        Wp0 = np.diag(np.diag(Wp0))
+    fixed = np.zeros((n, 3))  # the gauge entries are zero by definition
+    if model == "scale_bias":
+        fixed = np.zeros((n, 3))  # nominal axes (an orthogonal triad is diagonal in its gauge frame)
+    theta0 = np.concatenate([Wp0[free], c0])
+    typ = np.concatenate([np.full(int(free.sum()), float(np.median(np.abs(Wp0[np.abs(Wp0) > 0])))),
+                          np.maximum(np.abs(c0), np.median(sd) * 10)])
+
+    def norm_parts(theta):
+        Wp, c = _unpack(theta, free, fixed, n)
+        f, info, e = _specific_forces(Wp, c, ybar, sd)
+        nf = np.linalg.norm(f, axis=1)
+        u = f / nf[:, None]
+        return nf - gravity, np.einsum("ka,kab,kb->k", u, np.linalg.inv(info), u), e
+
+    def resid(theta):
+        d, s2n, e = norm_parts(theta)
+        r = d / np.sqrt(s2n + tau2[0])
+        return np.concatenate([r, e.ravel()]) if n > 3 else r
+
+    # 2. nonlinear refinement of the full model on all poses. A pose held by hand is disturbed by more than the
+    # white noise (a pose-to-pose variance tau^2 that does not fall with the pose's length): when the norm
+    # residuals exceed the white-noise prediction, tau^2 is the additive variance that brings their chi-square
+    # to its degrees of freedom, and the fit is repeated with it (variance components; otherwise a long still
+    # period would outweigh every hand-held pose)
+    tau2 = [0.0]
+    theta = theta0
+    for _ in range(1 if quick else 3):
+        sol = least_squares(resid, theta, x_scale=typ, method="trf", loss="huber" if robust else "linear",
+                            f_scale=3.0, xtol=1e-10 if quick else 1e-13, ftol=1e-10 if quick else 1e-13,
+                            gtol=1e-10 if quick else 1e-13, max_nfev=200 * len(theta0))
+        theta = sol.x
+        if quick:
+            break
+        dof_n = K - len(theta) + (K * (n - 3) if n > 3 else 0)
+        if dof_n < 1:
+            break
+        d_, s2_, e_ = norm_parts(theta)
+        t_new = _extra_variance(d_, s2_, float(np.sum(e_**2)) if n > 3 else 0.0, dof_n)
+        if abs(t_new - tau2[0]) <= 1e-3 * max(t_new, 1e-300):
+            break
+        tau2[0] = t_new
+    if quick:
+        Wp, c = _unpack(theta, free, fixed, n)
+        d_, s2_, e_ = norm_parts(theta)
+        return AccelFit(members, tri, Wp @ P, c, np.zeros((len(theta), len(theta))), theta, free, P,
+                        np.zeros((K, 3)), d_, np.sqrt(s2_), 0.0, K - len(theta), 1.0, None, [], ybar, sd, 0.0)
+    # 3. covariance from the Jacobian (central differences) and the residual noise
+    J = _jac(resid, theta, typ * 1e-6)
+    r = resid(theta)
+    nobs = K + (K * (n - 3) if n > 3 else 0)
+    dof = nobs - len(theta)
+    _check_jacobian(J, typ, _theta_names(free, names, P_names=("x", "y", "z")), "accel")
+    Js = J * typ
+    cov = np.linalg.pinv(Js.T @ Js) * np.outer(typ, typ)
+    chi2 = float(r @ r)
+    # the a-priori noise (white noise from third differences) unless the residual says it is larger (tremor,
+    # pose-to-pose disturbances): an estimated variance of few degrees of freedom would make the errors
+    # Student-t, wider than their stated sigma
+    s2 = max(chi2 / dof, 1.0) if dof >= 1 else 1.0
+    size = np.concatenate([np.full(int(free.sum()), typ[0]), np.full(n, typ[0] * gravity)])  # full-scale sizes
+    weak = _check_spread(cov * s2 / np.outer(size, size), _theta_names(free, names), "accel")
+    Wp, c = _unpack(theta, free, fixed, n)
+    f, info, e = _specific_forces(Wp, c, ybar, sd)
+    nf = np.linalg.norm(f, axis=1)
+    u = f / nf[:, None]
+    sn = np.sqrt(np.einsum("ka,kab,kb->k", u, np.linalg.inv(info), u))
+    return AccelFit(members, tri, Wp @ P, c, cov * s2, theta, free, P, f @ P, nf - gravity, sn, chi2, dof, s2,
+                    e if n > 3 else None, weak, ybar, sd, tau2[0])
+
+
+def _distinct_directions(ybar: np.ndarray, deg: float = 5.0) -> int:
+    """Number of distinct directions among the pose means (centred roughly), clusters closer than ``deg``."""
+    y = ybar - 0.5 * (ybar.max(axis=0) + ybar.min(axis=0))
+    u = y / np.maximum(np.linalg.norm(y, axis=1, keepdims=True), 1e-300)
+    reps: list[np.ndarray] = []
+    c = np.cos(np.radians(deg))
+    for v in u:
+        if not any(float(v @ r) > c for r in reps):
+            reps.append(v)
+    return len(reps)
+
+
+def _axis_ellipsoid_fit(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned ellipsoid ``sum_j m_j (y_j - c_j)^2 = 1`` by linear least squares (scale and bias only)."""
+    D = np.column_stack([y**2, -2 * y, np.ones(len(y))])
+    _, _, Vt = np.linalg.svd(D / np.abs(D).max(axis=0))
+    v = Vt[-1] / np.abs(D).max(axis=0)
+    v = v * np.sign(v[0])
+    m = v[:3]
+    if np.any(m <= 0):
+        return y.mean(axis=0), np.eye(3) / float(np.mean(np.sum((y - y.mean(axis=0)) ** 2, axis=1)))
+    c = v[3:6] / m
+    return c, np.diag(m)
+
+
+def _extra_variance(d: np.ndarray, s2: np.ndarray, rest: float, dof: int) -> float:
+    """The additive pose variance tau^2 >= 0 with ``sum d_k^2 / (s2_k + tau^2) + rest = dof`` (0 when the white
+    noise explains the residuals already). Bisection; the sum falls monotonically with tau^2."""
+    if float(np.sum(d**2 / s2)) + rest <= dof:
+        return 0.0
+    lo, hi = 0.0, float(np.max(d**2)) * len(d) + float(np.max(s2))
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if float(np.sum(d**2 / (s2 + mid))) + rest > dof:
+            lo = mid
+        else:
+            hi = mid
+    return hi
+
+
+def _theta_names(free: np.ndarray, names: Sequence[str], P_names=("x", "y", "z")) -> list[str]:
+    out = [f"{names[i]}.w_{P_names[j]}" for i in range(free.shape[0]) for j in range(3) if free[i, j]]
+    return out + [f"{s}.bias" for s in names]
+
+
+def _check_jacobian(J: np.ndarray, typ: np.ndarray, names: list[str], inst: str) -> None:
+    """Raise IdentifiabilityError naming the parameter combinations the data leave free."""
+    Js = J * typ
+    _, s, Vt = np.linalg.svd(Js, full_matrices=True)
+    p = Js.shape[1]
+    s_full = np.concatenate([s, np.zeros(p - len(s))])
+    bad = np.flatnonzero(s_full < 1e-7 * s_full[0])
+    if bad.size == 0:
+        return
+    combos = []
+    for k in bad:
+        v = Vt[k]
+        order = np.argsort(-np.abs(v))[:3]
+        combos.append(" + ".join(f"{v[j]:+.2f} {names[j]}" for j in order if abs(v[j]) > 0.1))
+    raise IdentifiabilityError(
+        f"{inst}: the poses do not identify {len(bad)} direction(s) of the model: " + "; ".join(combos)
+        + ". Add poses that excite them (gravity along and between every sensor axis, both signs; for the gyros, "
+          "rotations about every axis)", sorted({names[j] for k in bad for j in np.argsort(-np.abs(Vt[k]))[:2]}))
+
+
+def _check_spread(C: np.ndarray, names: list[str], inst: str, limit: float = 0.5,
+                  weak: float = 0.02) -> list[str]:
+    """Raise IdentifiabilityError when a parameter combination is so poorly determined that its standard
+    deviation exceeds ``limit`` of the parameters' full-scale size (``C`` is the covariance divided by those
+    sizes: the scale factor for the axis rows, the scale times g (accelerometers) or 1 rad/s (gyros) for the
+    biases): the poses excite it only through the noise. Returns the combinations whose relative standard
+    deviation exceeds ``weak`` (weakly determined: reported, not refused)."""
+    ev, V = np.linalg.eigh((C + C.T) / 2)
+
+    def words(k: int) -> str:
+        v = V[:, k]
+        order = np.argsort(-np.abs(v))[:3]
+        return (" + ".join(f"{v[j]:+.2f} {names[j]}" for j in order if abs(v[j]) > 0.1)
+                + f" (relative sd {np.sqrt(max(ev[k], 0.0)):.2g})")
+
+    bad = np.flatnonzero(ev > limit**2)
+    if bad.size == 0:
+        return [words(k) for k in np.flatnonzero(ev > weak**2)[::-1]]
+    combos, params = [], set()
+    for k in bad[::-1]:
+        v = V[:, k]
+        order = np.argsort(-np.abs(v))[:3]
+        combos.append(" + ".join(f"{v[j]:+.2f} {names[j]}" for j in order if abs(v[j]) > 0.1)
+                      + f" (relative sd {np.sqrt(ev[k]):.2g})")
+        params |= {names[j] for j in order[:2]}
+    raise IdentifiabilityError(
+        f"{inst}: the poses do not identify {len(bad)} direction(s) of the model: " + "; ".join(combos)
+        + ". Add poses that excite them (gravity along and between every sensor axis, both signs; for the gyros, "
+          "rotations about every axis)", sorted(params))
+
+
+def _jac(f, p: np.ndarray, h: np.ndarray) -> np.ndarray:
+    f0 = f(p)
+    J = np.empty((f0.size, p.size))
+    for k in range(p.size):
+        d = np.zeros_like(p)
+        d[k] = h[k]
+        J[:, k] = (f(p + d) - f(p - d)) / (2 * h[k])
+    return J
+
+
+# ---------------------------------------------------------------------- gyros
+def pose_windows(session: Session) -> list[tuple[int, int, list[Segment]]]:
+    """Consecutive pose pairs (k, k+1) (indices into the static segments) with the segments from the start of
+    pose k to the end of pose k+1, when they are contiguous in time (no gap longer than two sample periods)."""
+    segs = session.segments
+    dt = 1.0 / session.sample_rate
+    st_idx = [j for j, s in enumerate(segs) if s.kind in STATIC_KINDS]
+    out = []
+    for k in range(len(st_idx) - 1):
+        a, b = st_idx[k], st_idx[k + 1]
+        chain = segs[a:b + 1]
+        if b - a < 2 or any(s.kind in ("rate", "angle") for s in chain[1:-1]):
+            continue  # no motion between, or a table segment
+        ok = all(abs(chain[j + 1].t[0] - chain[j].t[-1]) <= 2.5 * dt for j in range(len(chain) - 1))
+        if ok:
+            out.append((k, k + 1, chain))
+    return out
+
+
+@dataclass
+class GyroFit:
+    """Result of :func:`fit_gyro`."""
+
+    members: list[int]
+    W: np.ndarray  # (n, 3) raw per (rad/s), rows in the accelerometer MB gauge frame
+    c: np.ndarray
+    cov: np.ndarray  # of theta = [W.ravel(), c]
+    theta: np.ndarray
+    pairs: list[tuple[int, int]]
+    rotation_residual: np.ndarray  # (M, 2) rad: gravity-direction misfit after each motion
+    angle: np.ndarray  # (M,) rad: integrated rotation angle of each motion
+    static_residual: np.ndarray  # (K, n) raw: pose mean minus bias
+    chi2: dict[str, float] = field(default_factory=dict)
+    dof: int = 0
+    group_scale: dict[str, float] = field(default_factory=dict)
+    weak: list[str] = field(default_factory=list)
+    #: the final weighted problem: ``resid(theta)``, its analytic ``jac(theta)`` and typical sizes ``typ``
+    problem: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    def rows_cov(self, i: int) -> np.ndarray:
+        n = len(self.members)
+        J = np.zeros((4, 4 * n))
+        J[:3, 3 * i:3 * i + 3] = np.eye(3)
+        J[3, 3 * n + i] = 1.0
+        return J @ self.cov @ J.T
+
+    def rms_rotation_deg(self) -> float:
+        return float(np.degrees(np.sqrt(np.mean(np.sum(self.rotation_residual**2, axis=1)))))
+
+
+def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], accel_dirs: np.ndarray,
+             accel_dir_jac: np.ndarray | None, accel_cov: np.ndarray | None, idx: Sequence[int], sigma: np.ndarray,
+             H: np.ndarray, robust: bool = True, dir_cov: np.ndarray | None = None) -> GyroFit:
+    """Gyros from the rotations between poses (module docstring; Tedaldi et al. 2014, Eq. 14-18).
+
+    Parameters
+    ----------
+    windows : from :func:`pose_windows`
+    accel_dirs : ndarray (K, 3)
+        Calibrated gravity direction (unit specific force) of every pose, MB.
+    accel_dir_jac : ndarray (K*3, p_a), optional
+        d accel_dirs / d accelerometer parameters; with ``accel_cov`` their uncertainty is propagated.
+    idx : the gyro columns calibrated together; sigma their per-sample raw noise; H their nominal axes.
+    dir_cov : ndarray (K, 3, 3), optional
+        Covariance of each pose's gravity direction (from the accelerometer noise); default isotropic 1e-8.
+    """
+    from scipy.optimize import least_squares
+
+    statics = _statics(session)
+    inst = "gyro"
+    n = len(idx)
+    if not windows:
+        raise IdentifiabilityError("gyro: no motion between two consecutive static poses; record the rotations "
+                                   "between poses (do not cut them out) to calibrate the gyros",
+                                   ["scale", "misalignment"])
+    ybar, sd = _pose_stats(statics, inst, idx, sigma)
+    if dir_cov is None:
+        dir_cov = np.broadcast_to(np.eye(3) * 1e-8, (len(statics), 3, 3))
+    # samples of every window, back to back, grouped
+    M = len(windows)
+    ka = np.array([w[0] for w in windows])
+    kb = np.array([w[1] for w in windows])
+    # per window: the pose-k samples (first order: tremor and sway are small rotations), the motion samples
+    # (exact rotations, padded to a common power-of-two length with identity steps) and the pose-(k+1) samples
+    L = 1
+    ys: list[np.ndarray] = []
+    acc_ys: list[np.ndarray | None] = []
+    parts_idx: list[tuple[np.ndarray, np.ndarray, np.ndarray, int, int]] = []
+    mot_dt = []
+    SA_w, SB_w = np.zeros(M), np.zeros(M)
+    Tw, Tw2 = np.zeros(M), np.zeros(M)
+    q_ab_list: list[float] = []
+    for m, (_, _, chain) in enumerate(windows):
+        t = np.concatenate([s.t for s in chain])
+        y = np.vstack([s.raw[inst][:, idx] for s in chain])
+        dt = np.diff(t, append=t[-1] + (t[-1] - t[-2] if len(t) > 1 else 1.0 / session.sample_rate))
+        na, nb = chain[0].n_samples, chain[-1].n_samples
+        # attitude at sample i of pose k relative to the end of the pose: -sum_{tau >= i} w dt; its mean
+        wa = dt[:na] * (np.arange(na) + 1) / na
+        # attitude at sample j of pose k+1 relative to its start: sum_{tau < j} w dt; its mean
+        wb = dt[len(t) - nb:] * (nb - 1 - np.arange(nb)) / nb
+        SA_w[m], SB_w[m] = wa.sum(), wb.sum()
+        q_ab_list.append(float(wa @ wa + wb @ wb))
+        mot_dt.append(dt[na:len(t) - nb])
+        L = max(L, len(t) - na - nb)
+        Tw[m], Tw2[m] = dt.sum(), dt @ dt
+        ys.append(y)
+        acc_ys.append(np.vstack([s.raw["accel"] for s in chain]) if "accel" in chain[0].raw else None)
+        parts_idx.append((wa, wb, dt, na, nb))
+    L = 1 << int(np.ceil(np.log2(max(L, 1))))
+    q_ab = np.array(q_ab_list)
+    DM = np.zeros((M, L))
+    for m in range(M):
+        DM[m, :len(mot_dt[m])] = mot_dt[m]
+
+    def sums(ys_: list[np.ndarray]) -> dict[str, np.ndarray]:
+        """The data sums the residual needs, from the raw samples of every window (linear in them)."""
+        out = {"SA_y": np.zeros((M, n)), "SB_y": np.zeros((M, n)), "YM": np.zeros((M, L, n)),
+               "Yint": np.zeros((M, n))}
+        for m, (y, (wa, wb, dt, na, nb)) in enumerate(zip(ys_, parts_idx)):
+            out["SA_y"][m] = wa @ y[:na]
+            out["SB_y"][m] = wb @ y[len(y) - nb:]
+            out["YM"][m, :len(y) - na - nb] = y[na:len(y) - nb]
+            out["Yint"][m] = dt @ y
+        return out
+
+    D = sums(ys)
+    T = np.array([_tangent(accel_dirs[k]) for k in kb])  # (M, 2, 3) tangent basis at each measured end direction
+    sig_int = sigma[None, :] * np.sqrt(Tw2)[:, None]
+
+    def _G(W):
+        if n == 3:
+            return np.linalg.inv(W)
+        wi = 1.0 / sigma**2
+        return np.linalg.solve(W.T @ (W * wi[:, None]), W.T * wi)
+
+    def rotations(W, c):
+        Gm = _G(W)
+        psi_a = -(D["SA_y"] - c * SA_w[:, None]) @ Gm.T  # mean attitude of pose k (end of pose k = reference)
+        phi_b = (D["SB_y"] - c * SB_w[:, None]) @ Gm.T  # mean attitude of pose k+1 relative to its start
+        q = quat_exp(((D["YM"] - c) @ Gm.T) * DM[..., None])
+        q[DM == 0] = (1.0, 0.0, 0.0, 0.0)
+        while q.shape[1] > 1:  # pairwise products: the rotation over the motion
+            q = quat_mul(q[:, 0::2], q[:, 1::2])
+        Rm = quat_to_matrix(q[:, 0] / np.linalg.norm(q[:, 0], axis=1, keepdims=True))
+        Ca = rotation_matrix(psi_a)
+        Cb = Rm @ rotation_matrix(phi_b)
+        return np.einsum("mji,mjk->mik", Cb, Ca)  # Cb^T Ca: pose-k body vector -> pose-(k+1) body
+
+    def parts(theta, dirs):
+        W = theta[:3 * n].reshape(n, 3)
+        c = theta[3 * n:]
+        R = rotations(W, c)
+        pred = np.einsum("mij,mj->mi", R, dirs[ka])
+        rr = np.einsum("mai,mi->ma", T, pred - dirs[kb])
+        rs = (ybar - c) / sd
+        return rr, rs, parity(theta)
+
+    def parity(theta):
+        if n == 3:
+            return np.zeros((M, 0))
+        W = theta[:3 * n].reshape(n, 3)
+        c = theta[3 * n:]
+        z = D["Yint"] - c * Tw[:, None]
+        return (z - z @ _G(W).T @ W.T) / sig_int
+
+    def rot_jac(theta, dirs):
+        """d rr / d theta (M, 2, p), first order in the small pose rotations (module docstring)."""
+        W = theta[:3 * n].reshape(n, 3)
+        c = theta[3 * n:]
+        Gm = _G(W)
+        psi_a = -(D["SA_y"] - c * SA_w[:, None]) @ Gm.T
+        phi_b = (D["SB_y"] - c * SB_w[:, None]) @ Gm.T
+        om = (D["YM"] - c) @ Gm.T
+        q = quat_exp(om * DM[..., None])
+        q[DM == 0] = (1.0, 0.0, 0.0, 0.0)
+        qh = quat_exp(om * DM[..., None] / 2)
+        # suffix products Sigma_t = q_t q_t+1 ... (reverse scan), A_t = qh_t Sigma_t+1
+        r = q[:, ::-1].copy()
+        d = 1
+        while d < L:
+            r[:, d:] = quat_mul(r[:, d:], r[:, :-d])
+            d *= 2
+        suf = r[:, ::-1]
+        nxt = np.concatenate([suf[:, 1:], np.broadcast_to([1.0, 0, 0, 0], (M, 1, 4))], axis=1)
+        A = quat_to_matrix(quat_mul(qh, nxt))  # (M, L, 3, 3)
+        Rm = quat_to_matrix(suf[:, 0] / np.linalg.norm(suf[:, 0], axis=1, keepdims=True))
+        Qj = np.einsum("mt,mtj,mtba->mjab", DM, om, A)  # sum dt w_j A^T
+        Qc = np.einsum("mt,mtba->mab", DM, A)
+        Eb = rotation_matrix(phi_b)
+        Ca = rotation_matrix(psi_a)
+        Cb = Rm @ Eb
+        v = np.einsum("mij,mj->mi", Ca, dirs[ka])
+        pred = np.einsum("mji,mj->mi", Cb, v)
+        p = 4 * n
+        Dth = np.zeros((M, 3, p))
+        Dpsi = np.zeros((M, 3, p))
+        Dphi = np.zeros((M, 3, p))
+        for i in range(n):
+            gi = Gm[:, i]
+            for j in range(3):
+                Dth[:, :, 3 * i + j] = -Qj[:, j] @ gi
+                Dpsi[:, :, 3 * i + j] = -np.outer(psi_a[:, j], gi)
+                Dphi[:, :, 3 * i + j] = -np.outer(phi_b[:, j], gi)
+            Dth[:, :, 3 * n + i] = -Qc @ gi
+            Dpsi[:, :, 3 * n + i] = SA_w[:, None] * gi
+            Dphi[:, :, 3 * n + i] = -SB_w[:, None] * gi
+        Dbeta = np.einsum("mji,mjp->mip", Eb, Dth) + Dphi
+        dpred = (np.einsum("mij,mjp->mip", _skew_batch(pred), Dbeta)
+                 - np.einsum("mji,mjk,mkp->mip", Cb, _skew_batch(v), Dpsi))
+        return np.einsum("mai,mip->map", T, dpred)
+
+    # initial: W from the nominal axes and the accelerometers' scale ratio is not known; use the statics for c
+    # and a first motion-based guess of one common scale from the integrated angles
+    c0 = np.median(ybar, axis=0)
+    W0 = H.copy()
+    s0 = _initial_gyro_scale(D["Yint"], Tw, c0, H, accel_dirs, ka, kb)
+    theta0 = np.concatenate([(W0 * s0).ravel(), c0])
+    typ = np.concatenate([np.full(3 * n, abs(s0)), np.maximum(np.abs(c0), sd.mean() * 10)])
+    w_rot = 1.0e3  # 1 mrad to start with; both weights are then set from the residual scatter
+    w_st = 1.0
+    w_par = 1.0
+
+    Lw = np.eye(2 * M)  # whitening of the rotation residuals (set after the first pass)
+
+    def resid(theta, dirs=accel_dirs):
+        rr, rs, rp = parts(theta, dirs)
+        rw = np.linalg.solve(Lw, rr.ravel()) if M else rr.ravel()
+        return np.concatenate([rw * w_rot, rs.ravel() * w_st, rp.ravel() * w_par])
+
+    def rot_resid_shift(theta, deltas):
+        """The weighted rotation residuals with the raw gyro samples of every window shifted by ``deltas``."""
+        saved = dict(D)
+        D.update(sums([y + d for y, d in zip(ys, deltas)]))
+        try:
+            return resid(theta)[:2 * M]
+        finally:
+            D.update(saved)
+
+    def jac(theta, dirs=accel_dirs):
+        Jr = np.linalg.solve(Lw, rot_jac(theta, dirs).reshape(2 * M, -1)) * w_rot
+        Js_ = np.zeros((ybar.size, 4 * n))
+        for i in range(n):
+            Js_[i::n, 3 * n + i] = -w_st / sd[:, i]
+        out = [Jr, Js_]
+        if n > 3:
+            out.append(_jac(lambda th: parity(th).ravel(), theta, typ * 1e-6) * w_par)
+        return np.vstack(out)
+
+    gain = np.diag(np.linalg.inv(H.T @ (H / sigma[:, None] ** 2)))  # per-sample rate variance / s0^2 (nominal)
+    q_m = float(np.mean(gain)) / s0**2 * (np.array([d @ d for d in mot_dt]) + q_ab)
+    theta = theta0
+    for it in range(2):
+        sol = least_squares(resid, theta, jac=jac, x_scale=typ, loss="huber" if robust else "linear",
+                            f_scale=3.0, xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=100 * len(theta))
+        theta = sol.x
+        if it == 0:
+            # correlated residuals: the gravity direction of pose k enters motions k-1 and k; generalised least
+            # squares with the block-tridiagonal covariance of the pose-direction and integrated-gyro noise
+            R = rotations(theta[:3 * n].reshape(n, 3), theta[3 * n:])
+            Cr = np.zeros((2 * M, 2 * M))
+            for m in range(M):
+                Ta = T[m] @ R[m]
+                Cr[2 * m:2 * m + 2, 2 * m:2 * m + 2] = (Ta @ dir_cov[ka[m]] @ Ta.T + T[m] @ dir_cov[kb[m]] @ T[m].T
+                                                        + q_m[m] * np.eye(2))
+                for m2 in range(M):
+                    if ka[m2] == kb[m]:
+                        X = -T[m] @ dir_cov[kb[m]] @ (T[m2] @ R[m2]).T
+                        Cr[2 * m:2 * m + 2, 2 * m2:2 * m2 + 2] = X
+                        Cr[2 * m2:2 * m2 + 2, 2 * m:2 * m + 2] = X.T
+            Lw = np.linalg.cholesky(Cr)
+            w_rot = 1.0
+        rr, rs, rp = parts(theta, accel_dirs)
+        rw = np.linalg.solve(Lw, rr.ravel())
+        dof_rot = max(rw.size - 3 * n, 1)
+        # the rotation group has many degrees of freedom: its noise level is estimated; the static means and
+        # the parity of skewed sets are noisier than white noise (sway), never quieter
+        w_rot = 1.0 / np.sqrt(max(float(rw @ rw) / dof_rot, 1e-6)) if it == 1 else w_rot
+        w_st = 1.0 / max(_robust_rms(rs), 1.0)
+        w_par = 1.0 / max(_robust_rms(rp), 1.0) if rp.size else 1.0
+    J = jac(theta)
+    names = [f"{i}.w_{a}" for i in range(n) for a in "xyz"] + [f"{i}.bias" for i in range(n)]
+    _check_jacobian(J, typ, names, "gyro")
+    Js = J * typ
+    Ninv = np.linalg.pinv(Js.T @ Js) * np.outer(typ, typ)
+    size = np.concatenate([np.full(3 * n, abs(s0)), np.full(n, abs(s0) * 1.0)])  # scale; bias of 1 rad/s
+    weak = _check_spread(Ninv / np.outer(size, size), names, "gyro")
+    cov = Ninv
+    if accel_dir_jac is not None and accel_cov is not None:
+        # d resid / d accel params through the gravity directions (the rotations do not depend on them)
+        h = 1e-7
+        Ja = np.empty((J.shape[0], accel_dir_jac.shape[1]))
+        r0 = resid(theta)
+        for j in range(accel_dir_jac.shape[1]):
+            d = accel_dirs + h * accel_dir_jac[:, j].reshape(-1, 3)
+            Ja[:, j] = (resid(theta, d) - r0) / h
+        B = Ninv @ J.T @ Ja
+        cov = cov + B @ accel_cov @ B.T
+    rr, rs, rp = parts(theta, accel_dirs)
+    W = theta[:3 * n].reshape(n, 3)
+    c = theta[3 * n:]
+    R = rotations(W, c)
+    ang = np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1, 1))
+    rw = np.linalg.solve(Lw, rr.ravel())
+    chi2 = {"rotation": float(rw @ rw * w_rot**2), "static": float(np.sum(rs**2) * w_st**2)}
+    if rp.size:
+        chi2["parity"] = float(np.sum(rp**2) * w_par**2)
+    scale = {"rotation_rad": 1.0 / w_rot, "static_sigma": 1.0 / w_st}
+    return GyroFit(list(idx), W, c, cov, theta, list(zip(ka.tolist(), kb.tolist())), rr, ang, rs * sd,
+                   chi2, J.shape[0] - len(theta), scale, weak,
+                   {"resid": resid, "jac": jac, "typ": typ, "ys": ys, "accel_ys": acc_ys, "dt": [p[2] for p in parts_idx],
+                    "n_rot": 2 * M, "rot_resid_shift": rot_resid_shift})
+
+
+def _skew_batch(v: np.ndarray) -> np.ndarray:
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return out
+
+
+def _robust_rms(r: np.ndarray) -> float:
+    r = np.asarray(r).ravel()
+    if r.size == 0:
+        return 1.0
+    return float(1.4826 * np.median(np.abs(r)))
+
+
+def _tangent(u: np.ndarray) -> np.ndarray:
+    u = u / np.linalg.norm(u)
+    a = np.eye(3)[int(np.argmin(np.abs(u)))]
+    e1 = np.cross(u, a)
+    e1 /= np.linalg.norm(e1)
+    return np.vstack([e1, np.cross(u, e1)])
+
+
+def _initial_gyro_scale(Yint, Tw, c0, H, dirs, ka, kb) -> float:
+    """One common raw-per-(rad/s) factor: the median ratio of integrated raw rate magnitude to the angle between
+    the gravity directions of the two poses (a lower bound of the turn; good enough to start)."""
+    z = Yint - c0 * Tw[:, None]
+    u = np.linalg.lstsq(H, z.T, rcond=None)[0].T
+    ang = np.arccos(np.clip(np.sum(dirs[ka] * dirs[kb], axis=1), -1, 1))
+    ok = ang > np.radians(20)
+    if not np.any(ok):
+        raise IdentifiabilityError("gyro: no motion turns the gravity direction by more than 20 deg; rotate the "
+                                   "unit between poses", ["scale"])
+    return float(np.median(np.linalg.norm(u[ok], axis=1) / ang[ok]))
+
+
+def clip_levels(session: Session, instrument: str) -> np.ndarray:
+    """Per sensor, the raw level at which the output clips, or inf: the largest |raw| of the session when it is
+    reached at least twice and is a power of two or one less (an ADC's full scale, e.g. 32767 / 32768)."""
+    n = session.geometries[instrument].n
+    m = np.zeros(n)
+    for s in session.segments:
+        m = np.maximum(m, np.max(np.abs(s.raw[instrument]), axis=0))
+    out = np.full(n, np.inf)
+    for i in range(n):
+        v = round(m[i])
+        if v >= 128 and abs(m[i] - v) < 1e-9 and ((v & (v - 1)) == 0 or ((v + 1) & v) == 0):
+            cnt = sum(int(np.sum(np.abs(s.raw[instrument][:, i]) >= m[i])) for s in session.segments)
+            if cnt >= 2:
+                out[i] = m[i]
+    return out
+
+
+# ---------------------------------------------------------------------- estimator
+class HandHeld:
+    """Hand-held calibration of accelerometers (and gyros) from static poses of unknown attitude and the
+    rotations between them (module docstring).
+
+    Parameters
+    ----------
+    sigma : dict[str, float or array], optional
+        Per-sample raw white noise per instrument (default: first differences within the poses).
+    mode : {"joint", "subunits"}
+        ``"joint"``: every sensor of an instrument together (skewed sets through the least-squares estimate of
+        the specific force / rate). ``"subunits"``: each sub-unit triad on its own.
+    instruments : sequence of str, optional
+        Default: accelerometers, and gyros when the session has motions between poses.
+    robust : bool
+        Huber loss on the gyro residuals, against a bumped pose.
+    accel_model : {"full", "scale_bias"}
+        See :func:`fit_accel`.
+    pose_weights : {"noise", "equal"}
+        ``"noise"``: each pose mean weighted by its white noise (its length), plus a common pose-to-pose variance
+        when the residuals call for it; ``"equal"``: every pose alike (as imu_tk does).
+    """
+
+    method = "hand-held (Zhang et al. 2010 accelerometers, Tedaldi et al. 2014 gyros)"
+
+    def __init__(self, sigma: dict[str, Any] | None = None, mode: str = "joint",
+                 instruments: Sequence[str] | None = None, robust: bool = True, pose_weights: str = "noise",
+                 accel_model: str = "full") -> None:
+        self.accel_model = accel_model
+        if mode not in ("joint", "subunits"):
+            raise ValueError(f"mode must be 'joint' or 'subunits', got {mode!r}")
+        if pose_weights not in ("noise", "equal"):
+            raise ValueError(f"pose_weights must be 'noise' or 'equal', got {pose_weights!r}")
+        self.pose_weights = pose_weights
+        self.sigma = sigma
+        self.mode = mode
+        self.instruments = instruments
+        self.robust = robust
+
+    def _sigma(self, session: Session, inst: str) -> np.ndarray:
+        n = session.geometries[inst].n
+        if self.sigma and inst in self.sigma:
+            return np.broadcast_to(np.asarray(self.sigma[inst], float), (n,)).copy()
+        return white_noise_sigma_hf(session, inst)
+
+    def _groups(self, g: Geometry) -> list[list[int]]:
+        if self.mode == "joint":
+            return [list(range(g.n))]
+        groups = [list(su.members) for su in g.subunits]
+        bad = [su.name for su in g.subunits if len(su.members) != 3]
+        if bad:
+            raise SessionFormatError(f"mode 'subunits' calibrates triads; sub-units {bad} of {g.name!r} are not "
+                                     "triads: use mode 'joint' (skewed sets through the least-squares estimate)")
+        return groups
+
+    def fit(self, session: Session) -> CalibrationResult:
+        if "accel" not in session.geometries:
+            raise SessionFormatError("hand-held calibration needs the accelerometers (gravity defines the poses)")
+        statics = _statics(session)
+        if not statics:
+            raise SessionFormatError("the session has no static poses (segments of kind 'static_unknown' or "
+                                     "'static'); run 'rimu detect' on the raw recording first")
+        windows = pose_windows(session)
+        clipped: list[str] = []
+        if "gyro" in session.geometries and windows:
+            lim = clip_levels(session, "gyro")
+            keep = []
+            for w in windows:
+                if any(np.any(np.abs(s.raw["gyro"]) >= lim) for s in w[2]):
+                    clipped.append(f"{w[2][0].label}->{w[2][-1].label}")
+                else:
+                    keep.append(w)
+            windows = keep
+        if self.instruments is not None:
+            want = list(self.instruments)
+        else:
+            want = ["accel"] + (["gyro"] if "gyro" in session.geometries and windows else [])
+        ga = session.geometries["accel"]
+        sa = self._sigma(session, "accel")
+        model = ErrorModel.base()
+        out: dict[str, LsqResult] = {}
+        extra: dict[str, Any] = {}
+        notes = [("MB is the hand-held gauge frame: the first accelerometer of each calibrated set keeps its nominal "
+                 "axis and the second stays in their nominal plane (those misalignments are zero by definition)")]
+        afits: list[AccelFit] = []
+        gfits: list[GyroFit] = []
+        acc_sensors: dict[int, Any] = {}
+        labels = [s.label for s in statics]
+        for grp in self._groups(ga):
+            ybar, sd = _pose_stats(statics, "accel", grp, sa[grp])
+            if self.pose_weights == "equal":
+                sd = np.broadcast_to(np.median(sd, axis=0), sd.shape).copy()
+            af = fit_accel(ybar, sd, ga.H[grp], session.gravity, [ga.names[i] for i in grp], grp, robust=False,
+                           model=self.accel_model)
+            afits.append(af)
+            for j, i in enumerate(grp):
+                ctx = SensorContext("accel", i, ga, session.latitude, session.gravity)
+                beta = np.concatenate([af.W[j], [af.c[j]]])
+                fit = make_sensor_fit(model, ctx, beta, af.rows_cov(j), float(sa[i]), self.sigma is not None,
+                                      len(statics), 0.0, {lab: np.array([r]) for lab, r in
+                                                          zip(labels, af.norm_residual / ga.n)})
+                fit.rss = af.chi2 / max(af.dof, 1) * (fit.n_obs - 4) * fit.sigma**2 if af.dof > 0 else 0.0
+                acc_sensors[i] = fit
+        out["accel"] = LsqResult("accel", model, [acc_sensors[i] for i in range(ga.n)], labels, {})
+        norm_res = np.mean([a.norm_residual for a in afits], axis=0)
+        extra["norm_residual_accel"] = norm_res
+        extra["norm_rms_accel"] = float(np.sqrt(np.mean(norm_res**2)))
+        extra["norm_sigma_accel"] = np.mean([np.sqrt(a.norm_sigma**2 + a.tau2) for a in afits], axis=0)
+        extra["norm_noise_accel"] = float(np.sqrt(np.mean(np.mean([a.norm_sigma for a in afits], axis=0) ** 2)))
+        extra["gauge_accel"] = [[ga.names[a.members[t]] for t in a.triple[:2]] for a in afits]
+        extra["chi2_dof_accel"] = [a.chi2 / a.dof if a.dof > 0 else None for a in afits]
+        weak = [w for a in afits for w in a.weak]
+        if weak:
+            extra["weak_accel"] = weak
+            notes.append("accel: weakly determined by these poses (relative sd > 2 %): " + "; ".join(weak)
+                         + "; add poses (20 to 50, gravity along and between every axis)")
+        if "gyro" in want:
+            if "gyro" not in session.geometries:
+                raise SessionFormatError("the session has no gyro data")
+            gg = session.geometries["gyro"]
+            sg = self._sigma(session, "gyro")
+            gyro_sensors: dict[int, Any] = {}
+            ggroups = self._groups(gg) if self.mode == "subunits" else [list(range(gg.n))]
+            rot_res, angles = [], []
+            for j_g, grp in enumerate(ggroups):
+                af = afits[min(j_g, len(afits) - 1)]
+                dirs, djac, acov, dcov = _dirs_with_jacobian(af, statics, session, sa)
+                try:
+                    gf = fit_gyro(session, windows, dirs, djac, acov, grp, sg[grp], gg.H[grp], robust=self.robust,
+                                  dir_cov=dcov)
+                except IdentifiabilityError as exc:
+                    if self.instruments is not None:  # asked for explicitly: the caller hears why not
+                        raise
+                    notes.append(f"gyros not calibrated: {exc}")
+                    gyro_sensors = {}
+                    break
+                rot_res.append(gf.rotation_residual)
+                gfits.append(gf)
+                if gf.weak:
+                    extra.setdefault("weak_gyro", []).extend(gf.weak)
+                    notes.append("gyro: weakly determined by these motions (relative sd > 2 %): " + "; ".join(gf.weak)
+                                 + "; turn about every axis between poses")
+                angles.append(gf.angle)
+                for j, i in enumerate(grp):
+                    ctx = SensorContext("gyro", i, gg, session.latitude, session.gravity, include_earth_rate=False)
+                    beta = np.concatenate([gf.W[j], [gf.c[j]]])
+                    res = {lab: np.array([gf.static_residual[k, j]]) for k, lab in enumerate(labels)}
+                    fit = make_sensor_fit(model, ctx, beta, gf.rows_cov(j), float(sg[i]), self.sigma is not None,
+                                          len(statics) + 2 * len(windows), 0.0, res)
+                    # chi-square per degree of freedom of the weighted fit (rotation and static groups)
+                    fit.rss = sum(gf.chi2.values()) / max(gf.dof, 1) * max(fit.n_obs - 4, 1) * fit.sigma**2
+                    gyro_sensors[i] = fit
+        if "gyro" in want and len(gyro_sensors) == session.geometries["gyro"].n:
+            gg = session.geometries["gyro"]
+            out["gyro"] = LsqResult("gyro", model, [gyro_sensors[i] for i in range(gg.n)], labels, {})
+            rr = np.mean(rot_res, axis=0)
+            extra["rotation_residual_deg"] = np.degrees(np.linalg.norm(rr, axis=1))
+            extra["rotation_rms_deg"] = float(np.degrees(np.sqrt(np.mean(np.sum(rr**2, axis=1)))))
+            extra["rotation_sigma_deg"] = float(np.degrees(_robust_rms(rr)))
+            extra["motion_angle_deg"] = np.degrees(np.mean(angles, axis=0))
+            extra["motion_labels"] = [f"{labels[a]}->{labels[b]}" for a, b in gf.pairs]
+            notes.append("gyro bias from the static poses (Earth rate not modelled); scale and misalignment from "
+                         f"{len(windows)} motions between consecutive poses (Tedaldi et al. 2014)")
+        if clipped:
+            notes.append(f"{len(clipped)} motions left out of the gyro fit: the gyros clip (saturate) in them: "
+                         + ", ".join(clipped) + "; turn more slowly between poses")
+            extra["clipped_motions"] = clipped
+        fits = {"accel": afits, "gyro": gfits if "gyro" in out else []}
+        if "gyro" in session.geometries and "gyro" not in out and not any(
+                x.startswith("gyros not calibrated") for x in notes):
+            notes.append("gyros not calibrated: " + ("no motion segments between consecutive poses" if not windows
+                                                      else "not asked for"))
+        res = CalibrationResult(self.method, out, session.raw_unit, notes, extra)
+        res.fits = fits  # type: ignore[attr-defined]  # the fitted problems (AccelFit, GyroFit), for diagnosis
+        return res
+
+
+def _dirs_with_jacobian(af: AccelFit, statics: list[Segment], session: Session, sa: np.ndarray):
+    """Gravity direction of every pose from an accelerometer fit, with its Jacobian w.r.t. the fit's parameters."""
+    grp = af.members
+    ybar, sd = af.ybar, af.sd
+    n = len(grp)
+    fixed = np.zeros((n, 3))
+
+    def dirs(theta):
+        Wp, c = _unpack(theta, af.free, fixed, n)
+        f, _, _ = _specific_forces(Wp, c, ybar, sd)
+        f = f @ af.P
+        return (f / np.linalg.norm(f, axis=1)[:, None]).ravel()
+
+    typ = np.maximum(np.abs(af.theta), 1e-12)
+    J = _jac(dirs, af.theta, typ * 1e-6)
+    u = dirs(af.theta).reshape(-1, 3)
+    Wp, c = _unpack(af.theta, af.free, fixed, n)
+    f, info, _ = _specific_forces(Wp, c, ybar, sd)
+    Cf = af.P.T @ np.linalg.inv(info) @ af.P * af.scale2 / (np.linalg.norm(f, axis=1) ** 2)[:, None, None]
+    Pu = np.eye(3) - np.einsum("ki,kj->kij", u, u)
+    return u, J, af.cov, Pu @ Cf @ Pu
+
+
+def _fixed_part(af: AccelFit) -> np.ndarray:
+    Wp = af.W @ af.P.T
+    return np.where(af.free, 0.0, Wp)
+
+
+def to_calibration(result: CalibrationResult) -> Calibration:
+    """Shorthand for ``result.to_calibration()``."""
+    return result.to_calibration()

@@ -1,0 +1,305 @@
+"""What every ``rimu`` subcommand shares: the option convention, option validators, deprecated spellings, the check
+that output paths can be written before any work starts, and logging.
+
+The convention (docs/cli.md):
+
+``-o/--output FILE``
+    the main artifact of the command (a session, a calibration, a recording);
+``--report DIR``
+    human reports: markdown/HTML, PNG plots;
+``--json FILE``
+    a machine-readable summary (``-`` prints it on stdout).
+
+Options validated here fail with one line naming the option and the accepted range, exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import os
+import sys
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import Any
+
+from ..errors import OutputPathError
+
+__all__ = [
+    "Parser",
+    "positive_float",
+    "finite_float",
+    "nonnegative_float",
+    "probability",
+    "positive_int",
+    "nonnegative_int",
+    "Deprecated",
+    "add_json_option",
+    "add_report_option",
+    "add_accept_implausible",
+    "check_outputs",
+    "configure_logging",
+    "OUTPUT_FILE_OPTIONS",
+    "OUTPUT_DIR_OPTIONS",
+    "INPUT_OPTIONS",
+    "json_dump",
+]
+
+log = logging.getLogger("rimu.cli")
+
+#: attributes of a parsed namespace that name output files / output folders / input files (checked by
+#: :func:`check_outputs` for every subcommand, including ones added later that follow the convention)
+OUTPUT_FILE_OPTIONS = ("output", "json", "truth", "record", "side_log", "plot")
+OUTPUT_DIR_OPTIONS = ("report",)
+INPUT_OPTIONS = ("session", "data", "calibration", "layout", "csv", "npz", "replay", "ulog")
+
+
+class Parser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose usage errors are one line on stderr (exit status 2), naming the command."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
+# ---------------------------------------------------------------- value validators (argparse ``type=``)
+def _number(kind: Callable[[str], Any], text: str) -> Any:
+    try:
+        v = kind(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
+    if kind is float and not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+    return v
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0."""
+    v = _number(float, text)
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return v
+
+
+def finite_float(text: str) -> float:
+    """A finite number."""
+    return _number(float, text)
+
+
+def nonnegative_float(text: str) -> float:
+    """A finite number >= 0."""
+    v = _number(float, text)
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return v
+
+
+def probability(text: str) -> float:
+    """A probability strictly between 0 and 1 (a false-alarm probability, a significance level)."""
+    v = _number(float, text)
+    if not 0 < v < 1:
+        raise argparse.ArgumentTypeError(f"must be a probability strictly between 0 and 1, got {text}")
+    return v
+
+
+def positive_int(text: str) -> int:
+    """An integer >= 1."""
+    v = _number(int, text)
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text}")
+    return v
+
+
+def nonnegative_int(text: str) -> int:
+    """An integer >= 0."""
+    v = _number(int, text)
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text}")
+    return v
+
+
+# ---------------------------------------------------------------- deprecated spellings
+class Deprecated(argparse.Action):
+    """An old option spelling kept for one release: stores into ``dest`` (through ``convert``) and prints one
+    deprecation line on stderr naming the new spelling."""
+
+    def __init__(self, option_strings: list[str], dest: str, new: str = "", convert: Callable[[Any], Any] | None = None,
+                 **kw: Any) -> None:
+        self.new, self.convert = new, convert
+        kw.setdefault("help", argparse.SUPPRESS)
+        super().__init__(option_strings, dest, **kw)
+
+    def __call__(self, parser: argparse.ArgumentParser, ns: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        print(f"{parser.prog}: warning: {option_string} is deprecated and will be removed in the next release; "
+              f"use {self.new}", file=sys.stderr)
+        if self.convert is not None:
+            self.convert(ns, values)
+        else:
+            setattr(ns, self.dest, values)
+
+
+class _JsonAction(argparse.Action):
+    """``--json FILE`` (``-`` for stdout); a bare ``--json`` (the old flag) means stdout, with a deprecation line."""
+
+    def __call__(self, parser: argparse.ArgumentParser, ns: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        if values is None:
+            print(f"{parser.prog}: warning: --json without a FILE is deprecated and will be removed in the next "
+                  "release; use '--json -' to print the JSON summary on stdout", file=sys.stderr)
+            values = "-"
+        setattr(ns, self.dest, values)
+
+
+def add_json_option(p: argparse.ArgumentParser, what: str = "a machine-readable summary",
+                    allow_bare: bool = False) -> None:
+    """``--json FILE``: write ``what`` as JSON (``-``: stdout). ``allow_bare`` keeps the old flag spelling."""
+    if allow_bare:
+        p.add_argument("--json", nargs="?", const=None, default=None, action=_JsonAction, metavar="FILE",
+                       help=f"write {what} as JSON to FILE ('-': stdout)")
+    else:
+        p.add_argument("--json", default=None, metavar="FILE", help=f"write {what} as JSON to FILE ('-': stdout)")
+
+
+def add_report_option(p: argparse.ArgumentParser, what: str = "plots and reports", default: str | None = None) -> None:
+    """``--report DIR``: the folder for human reports (created if needed)."""
+    p.add_argument("--report", default=default, metavar="DIR", help=f"folder for {what} (created if needed)")
+
+
+def add_accept_implausible(p: argparse.ArgumentParser) -> None:
+    """``--accept-implausible``: turn refusals of the plausibility checks (units against gravity and commanded
+    rates, sample rate against timestamps; rimu.session.checks) into warnings."""
+    p.add_argument("--accept-implausible", action="store_true",
+                   help="read data that fail a plausibility check (units against gravity and table rates, sample "
+                        "rate against timestamps) with a warning instead of refusing them")
+
+
+def json_dump(doc: Any, target: str, **kw: Any) -> str:
+    """Write ``doc`` as JSON to ``target`` atomically, or print it (``-``). Returns where it went."""
+    import json
+
+    from ..atomic import write_text
+
+    text = json.dumps(doc, indent=1, default=_json_default, **kw)
+    if target == "-":
+        print(text)
+        return "stdout"
+    Path(target).parent.mkdir(parents=True, exist_ok=True)  # inside a --report folder (checked before the work)
+    write_text(target, text + "\n")
+    return str(target)
+
+
+def _json_default(o: Any) -> Any:
+    import numpy as np
+
+    if isinstance(o, (np.floating, np.integer, np.bool_)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    return str(o)
+
+
+# ---------------------------------------------------------------- outputs checked before work
+def _sidecar(p: Path) -> list[Path]:
+    return [p, p.with_suffix(".json")] if p.suffix == ".csv" else [p]
+
+
+def _check_file(opt: str, p: Path) -> None:
+    if p.is_dir():
+        raise OutputPathError(f"--{opt} {p}: is a folder; give a file name")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.exists():
+        raise OutputPathError(f"--{opt} {p}: the folder {parent} does not exist; create it or write elsewhere")
+    if not parent.is_dir():
+        raise OutputPathError(f"--{opt} {p}: {parent} is not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK) or (p.exists() and not os.access(p, os.W_OK)):
+        raise OutputPathError(f"--{opt} {p}: not writable (permission denied); write elsewhere")
+
+
+def _check_dir(opt: str, p: Path) -> None:
+    if p.exists() and not p.is_dir():
+        raise OutputPathError(f"--{opt} {p}: exists and is not a folder")
+    q = p
+    while not q.exists():
+        q = q.parent
+    if not q.is_dir():
+        raise OutputPathError(f"--{opt} {p}: {q} is a file, cannot create a folder in it")
+    if not os.access(q, os.W_OK | os.X_OK):
+        raise OutputPathError(f"--{opt} {p}: {q} is not writable (permission denied); write elsewhere")
+
+
+def check_outputs(args: argparse.Namespace, files: Iterable[str] = OUTPUT_FILE_OPTIONS,
+                  dirs: Iterable[str] = OUTPUT_DIR_OPTIONS, inputs: Iterable[str] = INPUT_OPTIONS) -> None:
+    """Refuse, before any work, output paths that cannot be written, that name the same file twice (including a
+    CSV's ``.json`` sidecar), or that would overwrite an input of the run.
+
+    Raises
+    ------
+    OutputPathError
+    """
+    files, dirs = list(files), list(dirs)
+    if getattr(args, "output_is_dir", False):  # a command whose main artifact is a folder (export-c)
+        files.remove("output")
+        dirs.append("output")
+    planned = []
+    for name in dirs:
+        v = getattr(args, name, None)
+        if v and isinstance(v, (str, os.PathLike)):
+            _check_dir(name.replace("_", "-"), Path(v))
+            planned.append(Path(v).resolve())
+    seen: dict[Path, tuple[str, str]] = {}
+    for name in files:
+        v = getattr(args, name, None)
+        if not v or v == "-" or not isinstance(v, (str, os.PathLike)):
+            continue
+        opt = name.replace("_", "-")
+        p = Path(v)
+        if not any(p.parent.resolve() == d or d in p.parent.resolve().parents for d in planned):
+            _check_file(opt, p)  # (a file inside a --report folder about to be created is checked with it)
+        elif p.is_dir():
+            raise OutputPathError(f"--{opt} {p}: is a folder; give a file name")
+        for q in _sidecar(p):
+            r = q.resolve()
+            what = f"{q} (the sidecar of --{opt} {p})" if q != p else f"--{opt} {q}"
+            if r in seen:
+                raise OutputPathError(f"{what} would overwrite {seen[r][1]}; give them different names")
+            seen[r] = (opt, what)
+    for name in inputs:
+        v = getattr(args, name, None)
+        if not v or not isinstance(v, (str, os.PathLike)):
+            continue
+        p = Path(v)
+        for q in _sidecar(p) + ([p.with_suffix(".csv")] if p.suffix == ".json" else []):
+            r = q.resolve()
+            if r in seen and q.exists():
+                raise OutputPathError(f"{seen[r][1]} would overwrite the input {q}; write the output elsewhere")
+
+
+# ---------------------------------------------------------------- logging
+def configure_logging(command: str, verbose: int = 0, quiet: bool = False) -> None:
+    """Standard ``logging`` for the ``rimu`` logger tree: warnings by default, ``-v`` info, ``-vv`` debug, ``-q``
+    errors only. One line per record on stderr, prefixed with the command."""
+    from .. import progress
+
+    level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
+    root = logging.getLogger("rimu")
+    for h in list(root.handlers):
+        if getattr(h, "_rimu_cli", False):
+            root.removeHandler(h)
+    h = logging.StreamHandler(sys.stderr)
+    h.setFormatter(_Formatter(f"rimu {command}".strip()))
+    h._rimu_cli = True  # type: ignore[attr-defined]
+    root.addHandler(h)
+    root.setLevel(level)
+    progress.set_enabled(not quiet)
+
+
+class _Formatter(logging.Formatter):
+    def __init__(self, prefix: str) -> None:
+        super().__init__()
+        self.prefix = prefix
+
+    def format(self, record: logging.LogRecord) -> str:
+        return f"{self.prefix}: {record.levelname.lower()}: {record.getMessage()}"

@@ -1,0 +1,88 @@
+"""``rimu array DATA.npz``: an array of k triads as one instrument: relative gyro calibration from the motion
+(gain, bias, sampling offset), the accelerometers' positions, gains and biases, the parity rms in motion after
+each step per triad, and the term that limits the agreement now (docs/array.md).
+
+DATA.npz holds ``t`` (N,) [s], ``gyro`` (N, k, 3) [rad/s] and optionally ``accel`` (N, k, 3) [m/s^2], each
+triad in its own axes; optionally ``rotations`` (k, 3, 3) (triad axes -> body, default identity),
+``positions_m`` (k, 3) nominal positions, and ``names`` (k,).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ._common import positive_float
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("array", help="self-calibration of an array of triads from motion, with its report",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("data", help="NPZ file with t, gyro[, accel, rotations, positions_m, names]")
+    p.add_argument("-o", "--output", default=None, help="JSON file for the fitted parameters (SI, body frame)")
+    p.add_argument("--report", default=None, metavar="DIR", help="folder for array_report.md and array_report.png")
+    p.add_argument("--json", default=None, metavar="FILE", help="machine-readable summary")
+    p.add_argument("--lowpass-hz", type=positive_float, default=None, help="low-pass every triad first (vehicles)")
+    p.add_argument("--motion-threshold-deg-s", type=positive_float, default=30.0,
+                   help="samples faster than this count as 'in motion' for the parity figures")
+    p.set_defaults(func=run)
+
+
+def _load(path: str):
+    from ..array import ArrayLayout
+    from ..errors import ShapeError
+
+    try:
+        d = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise ShapeError(f"cannot read {path!r} as NPZ ({exc}); write it with numpy.savez") from exc
+    missing = [k for k in ("t", "gyro") if k not in d.files]
+    if missing:
+        raise ShapeError(f"{path!r} lacks {', '.join(missing)}: it needs t (N,) and gyro (N, k, 3) [rad/s]")
+    gyro = np.asarray(d["gyro"], dtype=float)
+    if gyro.ndim != 3 or gyro.shape[2] != 3:
+        raise ShapeError(f"gyro must have shape (N, k, 3), got {gyro.shape}")
+    k = gyro.shape[1]
+    rot = d["rotations"] if "rotations" in d.files else np.repeat(np.eye(3)[None], k, axis=0)
+    pos = d["positions_m"] if "positions_m" in d.files else np.zeros((k, 3))
+    names = tuple(str(x) for x in d["names"]) if "names" in d.files else ()
+    accel = np.asarray(d["accel"], dtype=float) if "accel" in d.files else None
+    return ArrayLayout(rot, pos, names), np.asarray(d["t"], dtype=float), gyro, accel
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..array import array_report
+    from ..errors import RimuError
+
+    try:
+        layout, t, gyro, accel = _load(args.data)
+        rep = array_report(layout, t, gyro, accel, motion_threshold_deg_s=args.motion_threshold_deg_s,
+                           lowpass_hz=args.lowpass_hz)
+    except RimuError as exc:
+        print(f"rimu array: error: {exc}", file=sys.stderr)
+        return 2
+    if args.output:
+        doc = {"gyro": rep.gyro_fit.to_dict() if rep.gyro_fit else None,
+               "accel": rep.position_fit.to_dict() if rep.position_fit else None}
+        Path(args.output).write_text(json.dumps(doc, indent=1))
+    if args.report:
+        out = Path(args.report)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "array_report.md").write_text(rep.to_markdown())
+        try:
+            rep.plot(out / "array_report.png")
+        except ImportError as exc:
+            print(f"rimu array: no plot: {exc}", file=sys.stderr)
+    if args.json:
+        Path(args.json).write_text(json.dumps(rep.to_dict(), indent=1))
+    g = list(rep.gyro_steps.values())
+    line = (f"array of {layout.k} triads: gyro parity rms in motion {g[0].mean():.4g} -> {g[-1].mean():.4g} deg/s")
+    if rep.accel_steps:
+        a = list(rep.accel_steps.values())
+        line += f", accelerometers {a[0].mean():.4g} -> {a[-1].mean():.4g} m/s^2"
+    print(line + f"; limited now by {rep.limiting_term}")
+    return 0

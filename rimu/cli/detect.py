@@ -1,0 +1,96 @@
+"""``rimu detect``: turn a raw hand-held recording (text or CSV: time and raw columns, no labels) into a session
+of still poses and the motions between them, ready for ``rimu calibrate --method handheld``.
+
+Thresholds adapt to the data (per axis, from the initial still period when there is one; the multiple of it
+chosen as imu_tk does, see :func:`rimu.calibration.detect.detect_poses`); minimum durations are options. The
+report (``--report DIR``) holds the signal with the detected poses and motions shaded.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from ._common import positive_float
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("detect", help="find the still poses and motions of a raw hand-held recording",
+                       description="Read a raw log (text/CSV: an optional 'name,value' metadata block, an optional "
+                                   "header, a time or sample column and raw columns), detect still poses and the "
+                                   "motions between them, and write a session file.")
+    p.add_argument("raw", help="raw recording (.csv, .txt, ...)")
+    p.add_argument("-o", "--output", required=True, help="session file to write (.csv with .json sidecar, or .npz)")
+    p.add_argument("--rate", type=positive_float, default=None, help="sample rate, Hz (default: the file's 'Fs' row or its times)")
+    p.add_argument("--accel", default=None, help="accelerometer columns: comma-separated names or 0-based indices")
+    p.add_argument("--gyro", default=None, help="gyro columns: comma-separated names or 0-based indices")
+    p.add_argument("--time", default=None, help="time (s) or sample-index column (name or index)")
+    p.add_argument("--init-still", type=positive_float, default=None,
+                   help="seconds of rest at the start, the noise floor of the thresholds (default: the file's "
+                        "'Initialization time' row, else the quietest 10%% of the record)")
+    p.add_argument("--window", type=positive_float, default=0.5, help="moving-variance window, s (default %(default)s)")
+    p.add_argument("--factor", default="auto",
+                   help="threshold as a multiple of the noise floor, or 'auto' (imu_tk's search; default)")
+    p.add_argument("--min-static", type=positive_float, default=1.0, help="shortest pose kept, s (default %(default)s)")
+    p.add_argument("--min-motion", type=positive_float, default=0.2,
+                   help="shorter motions between two poses are bumps, merged into the pose, s (default %(default)s)")
+    p.add_argument("--margin", type=float, default=None, help="trimmed from both ends of each pose, s (default: window/2)")
+    p.add_argument("--gravity", type=positive_float, default=None, help="local gravity, m/s^2 (default 9.80665)")
+    p.add_argument("--report", metavar="DIR", help="write detection.png and detection.md here")
+    p.add_argument("--json", metavar="FILE", help="write a machine-readable summary here")
+    p.set_defaults(func=run)
+
+
+def _cols(text: str | None):
+    return None if text is None else [c.strip() for c in text.split(",") if c.strip()]
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..calibration.detect import detect_session, plot_detection
+    from ..io.rawtext import read_raw_text
+    from ..session import save_session
+    from ..units import G0
+
+    log = read_raw_text(args.raw, args.rate, _cols(args.accel), _cols(args.gyro), args.time)
+    init = args.init_still
+    if init is None:
+        for k, v in log.meta.items():
+            if "init" in str(k).lower() and isinstance(v, float) and v > 0:
+                init = v
+    factor: float | str = args.factor if args.factor == "auto" else float(args.factor)
+    session, det = detect_session(log.t, log.raw, log.sample_rate, gravity=args.gravity or G0,
+                                  window_s=args.window, factor=factor, init_still_s=init,
+                                  min_static_s=args.min_static, min_motion_s=args.min_motion, margin_s=args.margin)
+    poses = [s for s in session.segments if s.kind == "static_unknown"]
+    motions = [s for s in session.segments if s.kind == "motion"]
+    fs = log.sample_rate
+    chosen = det.settings.get("factor_chosen", det.threshold)
+    print(f"{args.raw}: {len(log.t)} samples at {fs:g} Hz, columns accel {log.columns['accel']}"
+          + (f", gyro {log.columns['gyro']}" if "gyro" in log.columns else ""))
+    print(f"threshold: {chosen:.4g} x the per-axis noise floor ("
+          + (f"initial still period {init:g} s" if init else "quietest 10% of the record") + ")")
+    for s in session.segments:
+        a, b = s.meta["detected"]
+        print(f"  {s.label:>5s} {s.kind:15s} {a / fs:8.2f} - {b / fs:8.2f} s ({(b - a) / fs:5.2f} s)")
+    summary = {"raw": str(args.raw), "sample_rate": fs, "n_samples": len(log.t), "poses": len(poses),
+               "motions": len(motions), "threshold_factor": chosen, "init_still_s": init,
+               "dropped_short": det.dropped_short,
+               "segments": [{"label": s.label, "kind": s.kind, "start": s.meta["detected"][0],
+                             "end": s.meta["detected"][1]} for s in session.segments]}
+    if args.report:
+        d = Path(args.report)
+        d.mkdir(parents=True, exist_ok=True)
+        fig = plot_detection(det, log.raw["accel"], fs, path=str(d / "detection.png"))
+        fig.clf()
+        lines = [f"# Detection of {args.raw}", "",
+                 f"{len(poses)} poses, {len(motions)} motions; threshold {chosen:.4g} x the noise floor.", "",
+                 "![detection](detection.png)", "", "| segment | kind | start (s) | end (s) |", "|---|---|---|---|"]
+        lines += [f"| {s['label']} | {s['kind']} | {s['start'] / fs:.2f} | {s['end'] / fs:.2f} |"
+                  for s in summary["segments"]]
+        (d / "detection.md").write_text("\n".join(lines) + "\n")
+    if args.json:
+        Path(args.json).write_text(json.dumps(summary, indent=1))
+    out = save_session(session, args.output)
+    print(f"session written to {out}: {len(poses)} poses, {len(motions)} motions")
+    return 0

@@ -1,0 +1,170 @@
+"""Parity check of a calibration on the segments at rest: the accelerometers' counterpart of de Oliveira's
+rate-pair check (:mod:`rimu.fdi.quality`).
+
+The +w / -w rate pairs of de Oliveira et al. 2012 (Eq. 21-25) excite the gyros; accelerometers see the same
+gravity in both sequences of a pair, so their ``g_w`` is zero and that check cannot fail for them. At rest the
+accelerometers measure gravity in every attitude, and the parity of the compensated outputs needs no known
+input at all: with ``z = SF * mean(y) - B`` (Cho & Park 2005, Eq. 20 without ``M^-1``) and ``v_c`` the parity
+rows of the calibrated axes ``M H`` (de Oliveira Eq. 22), a correct calibration gives ``q = v_c z`` = noise of the
+means only, whatever the attitude. A scale, misalignment or bias error left in the calibration shows as
+``v_c (A_true - A_cal) f + v_c (b_true - b_cal)``.
+
+Each static segment is tested with ``q^T C^-1 q`` against ``chi2(n - 3)`` at ``p_fa / segments`` (Bonferroni),
+``C = v_c diag(sigma^2 / N) v_c^T`` plus the calibration's own covariance propagated at the segment's specific
+force (:class:`rimu.fdi.calaware.CalibrationCovariance`). The statistic is the one of :mod:`rimu.fdi.quality`, so
+the report reads the same way; the misfit is given in micro-g.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.stats import chi2
+
+from ..calibration.result import InstrumentCalibration
+from ..errors import SessionFormatError
+from ..geometry import null_space_rows
+from ..session import Session
+from ..units import MS2_TO_UG
+from .calaware import CalibrationCovariance
+
+__all__ = ["SegmentQuality", "StaticQualityReport", "static_parity_quality"]
+
+
+@dataclass
+class SegmentQuality:
+    """One segment at rest."""
+
+    label: str
+    specific_force_mb: np.ndarray
+    parity: np.ndarray
+    statistic: float
+    threshold: float
+    misfit_ug: float
+
+    @property
+    def bad(self) -> bool:
+        return self.statistic > self.threshold
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"label": self.label, "specific_force_mb_m_s2": self.specific_force_mb.tolist(),
+                "parity": self.parity.tolist(), "statistic": self.statistic, "threshold": self.threshold,
+                "bad": self.bad, "misfit_ug": self.misfit_ug}
+
+
+@dataclass
+class StaticQualityReport:
+    """Per-segment statistics and the verdict."""
+
+    instrument: str
+    segments: list[SegmentQuality]
+    p_fa: float
+    uses_calibration_covariance: bool
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def good(self) -> bool:
+        return not any(s.bad for s in self.segments)
+
+    @property
+    def verdict(self) -> str:
+        return "good" if self.good else "bad"
+
+    def summary(self) -> str:
+        lines = [f"parity calibration check at rest ({self.instrument}): v_c (SF y - B), chi2({self.dof}) per segment",
+                 f"{'segment':>10} {'f (MB), g':>24} | {'|v_c z|, ug':>12} | {'chi2':>9} {'limit':>7}"]
+        for s in self.segments:
+            f = ", ".join(f"{c / 9.80665:+.2f}" for c in s.specific_force_mb)
+            flag = "  <-- error shows here" if s.bad else ""
+            lines.append(f"{s.label:>10} {('(' + f + ')'):>24} | {s.misfit_ug:12.1f} | {s.statistic:9.1f} "
+                         f"{s.threshold:7.1f}{flag}")
+        w = max(self.segments, key=lambda s: s.statistic)
+        lines.append(f"verdict: {self.verdict.upper()}" + ("" if self.good else
+                     f"; largest misfit in segment {w.label!r}, about {w.misfit_ug:.0f} micro-g"))
+        lines += [f"note: {n}" for n in self.notes]
+        return "\n".join(lines)
+
+    @property
+    def dof(self) -> int:
+        return int(self.segments[0].parity.shape[0]) if self.segments else 0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"instrument": self.instrument, "kind": "static", "verdict": self.verdict, "p_fa": self.p_fa,
+                "uses_calibration_covariance": self.uses_calibration_covariance,
+                "segments": [s.to_dict() for s in self.segments], "notes": self.notes}
+
+    def plot(self, path: str | Path) -> Path | None:
+        """Bar chart of the misfit per segment (red: above its threshold)."""
+        try:
+            import matplotlib
+
+            matplotlib.use("Agg")
+            import matplotlib.pyplot as plt
+        except ImportError:
+            return None
+        from ..atomic import atomic_path
+
+        fig, ax = plt.subplots(figsize=(8, 4))
+        k = np.arange(len(self.segments))
+        ax.bar(k, [s.misfit_ug for s in self.segments], color=["r" if s.bad else "g" for s in self.segments])
+        ax.set_xticks(k)
+        ax.set_xticklabels([s.label for s in self.segments], rotation=45, fontsize=7)
+        ax.set_ylabel("|v_c (SF y - B)|, micro-g")
+        ax.set_title(f"{self.instrument} parity check at rest: {self.verdict}")
+        fig.tight_layout()
+        path = Path(path)
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110)
+        plt.close(fig)
+        return path
+
+
+def static_parity_quality(session: Session, calibration: InstrumentCalibration, p_fa: float = 1e-3) -> StaticQualityReport:
+    """The parity check of a calibration on the session's segments at rest (module docstring).
+
+    Raises
+    ------
+    SessionFormatError
+        Fewer than four sensors (no parity space), no ``noise_sigma``, or no segment at rest.
+    """
+    cal = calibration
+    g = cal.geometry
+    if g.n < 4:
+        raise SessionFormatError(f"a parity check needs at least four sensors; {g.name} has {g.n} (no parity space)")
+    if cal.noise_sigma is None:
+        raise SessionFormatError("the calibration states no noise_sigma; the check needs the noise of each sensor")
+    if not 0 < p_fa < 1:
+        raise ValueError(f"p_fa must be in (0, 1), got {p_fa}")
+    segs = [s for s in session.segments if s.kind in ("static", "static_unknown") and s.n_samples >= 2]
+    if not segs:
+        raise SessionFormatError("the session has no segment at rest (kind 'static' or 'static_unknown')")
+    A = cal.axes_mb()
+    vc = null_space_rows(A)
+    Ap = np.linalg.pinv(A)
+    covm, notes = None, []
+    if cal.covariance is not None and cal.param_names:
+        covm = CalibrationCovariance(cal)
+        if covm.ignored:
+            notes.append(f"parameters not propagated: {', '.join(covm.ignored[:6])}"
+                         + (" ..." if len(covm.ignored) > 6 else ""))
+    else:
+        notes.append("no calibration covariance: the tolerance is the noise of the means only")
+    r = vc.shape[0]
+    thr = float(chi2.isf(p_fa / len(segs), r))
+    out = []
+    for s in segs:
+        y = s.raw[cal.instrument]
+        z = cal.compensate(y.mean(axis=0))
+        q = vc @ z
+        f = Ap @ z
+        C = (vc * (cal.noise_sigma**2 / y.shape[0])) @ vc.T
+        if covm is not None:
+            ut = np.concatenate([f, [1.0]])
+            L = vc @ np.einsum("c,cnp->np", ut, covm.D)
+            C = C + L @ covm.Sigma @ L.T
+        stat = float(q @ np.linalg.solve(C, q))
+        out.append(SegmentQuality(s.label, f, q, stat, thr, float(np.linalg.norm(q) * MS2_TO_UG)))
+    return StaticQualityReport(cal.instrument, out, p_fa, covm is not None, notes)
