@@ -79,7 +79,7 @@ def test_no_redundancy_and_unobservable_states():
         mgr.isolate(i)                                   # by command: the manager owns the active set
         r = mgr.step(y)
         assert mgr.state.value == want and r.state.value == want and int(r.validity) == val
-        assert r.active.sum() == (5 - i if r.observable else 0) and not mgr.pipeline.result.active[i]
+        assert r.active.sum() == 5 - i and not mgr.pipeline.result.active[i]
     assert not r.observable and np.all(np.isfinite(r.x)) and np.all(np.isinf(np.diag(r.P)))
     mgr.pipeline.readmit(0)                              # behind the manager's back: the manager's set rules
     assert not mgr.step(y).active[0]
