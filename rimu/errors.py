@@ -28,6 +28,8 @@ __all__ = [
     "OptionError",
     "OutputPathError",
     "NotApplicableError",
+    "NotCompensableError",
+    "MissingInputError",
 ]
 
 
@@ -124,6 +126,17 @@ class OutputPathError(RimuError, OSError):
 class NotApplicableError(RimuError, ValueError):
     """A check or method does not apply to this data (a parity check on a triad, a rate-pair check without rate
     pairs); the message says why and what would apply."""
+class NotCompensableError(RimuError, ValueError):
+    """An effect of the calibration has no runtime compensation (the message names it and says why)."""
+
+
+class MissingInputError(RimuError, ValueError):
+    """The runtime needs an input the data stream does not carry (the message names the effect and the input)."""
+
+    def __init__(self, message: str, effect: str = "", input_name: str = "") -> None:
+        super().__init__(message)
+        self.effect = effect
+        self.input_name = input_name
 
 
 class ExportError(RimuError, ValueError):

@@ -81,7 +81,9 @@ def _check_parity(g: Geometry) -> None:
     assert V.shape == (g.n - 3, g.n)
     assert np.allclose(V @ H, 0, atol=1e-12)
     assert np.allclose(V @ V.T, np.eye(g.n - 3), atol=1e-12)
-    assert np.allclose(V.T @ V, np.eye(g.n) - H @ np.linalg.solve(H.T @ H, H.T), atol=1e-12)
+    # the reference projector through the normal equations loses ~eps cond(H)^2 (a near-coplanar random H)
+    cond = np.linalg.cond(H)
+    assert np.allclose(V.T @ V, np.eye(g.n) - H @ np.linalg.solve(H.T @ H, H.T), atol=1e-12 + 1e-15 * cond**2)
 
 
 @pytest.mark.parametrize("name", ["cone6", "tetrad4", "triad3", "dodecahedron6", "cone"])

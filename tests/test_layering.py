@@ -22,7 +22,7 @@ STAGE = {
     "session": 2, "session_io": 2,
     "calibration": 3,
     "diagnose": 4,
-    "noise": 4,
+    "noise": 0,          # IEEE 952 noise model + Allan analysis: imports only foundations; calibration files hold it
     "array": 5,
     "fusion": 5,
     "fdi": 6,

@@ -26,6 +26,8 @@ from .lsq import (
     LsqResult,
     SensorFit,
     check_identifiable_gram,
+    first_axes,
+    on_calibrated_axes,
     physical_from_beta,
     rss_from_statistics,
 )
@@ -291,7 +293,9 @@ class LeastSquares:
             sig = _sigma_for(self.sigma, session, inst)
             skipped: dict[str, str] = {}
             base = [e.name for e in model.effects] == ["scale_misalignment", "bias"]
-            ctxs = contexts(session, inst)
+            # effects along an axis act on the calibrated axis: fit them there
+            axes = first_axes(session, model, inst, segs, sig) if on_calibrated_axes(model) else None
+            ctxs = contexts(session, inst, axes=axes)
             if base:
                 stats = self._base_statistics(session, segs, inst, ctxs[0], skipped)
             fits = []

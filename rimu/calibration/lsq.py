@@ -18,7 +18,7 @@ import numpy as np
 from ..errors import IdentifiabilityError
 from ..session import Session
 from .effects.scale_misalignment import ScaleMisalignment
-from .model import ErrorModel, ParamSpec, SensorContext, contexts
+from .model import ErrorModel, ParamSpec, SensorContext, axes_from_w, contexts
 from .result import InstrumentCalibration
 
 __all__ = ["LazyResiduals", "LsqResult", "SensorFit", "check_identifiable_gram", "fit_lsq", "physical_from_beta",
@@ -185,10 +185,42 @@ def fit_lsq(
         The usable segments cannot identify some parameters; they are named.
     """
     model = model or ErrorModel.base()
-    ctxs = contexts(session, instrument)
     segs = [session.segment(x) for x in segments] if segments is not None else list(session.segments)
-    n = len(ctxs)
-    sig = None if sigma is None else np.broadcast_to(np.asarray(sigma, dtype=float), (n,))
+    ctxs = contexts(session, instrument)
+    sig = None if sigma is None else np.broadcast_to(np.asarray(sigma, dtype=float), (len(ctxs),))
+    if on_calibrated_axes(model):
+        # the effects of the input along an axis act on what the sensor really senses: fit them on the axes a
+        # first fit of scale, misalignment and bias calibrates (whose bias by the other effects enters the
+        # effects' columns to second order only)
+        ctxs = contexts(session, instrument, axes=first_axes(session, model, instrument, segs, sig))
+    fits, used, skipped = _fit_sensors(session, model, instrument, ctxs, segs, sig)
+    return LsqResult(instrument, model, fits, used, skipped)
+
+
+def on_calibrated_axes(model: ErrorModel) -> bool:
+    """Whether a model's further effects are fitted on the calibrated axes (it has the scale/misalignment block
+    and some effect beyond scale, misalignment and bias)."""
+    return "scale_misalignment" in model and any(e.name not in ("bias", "scale_misalignment") for e in model)
+
+
+def first_axes(session: Session, model: ErrorModel, instrument: str, segs: list, sig: np.ndarray | None) -> np.ndarray:
+    """Calibrated axes from a fit of the model's scale/misalignment and bias alone on the nominal axes."""
+    base = ErrorModel([e for e in model if e.name in ("scale_misalignment", "bias")])
+    fits, _, _ = _fit_sensors(session, base, instrument, contexts(session, instrument), segs, sig)
+    return calibrated_axes(base, fits)
+
+
+def calibrated_axes(model: ErrorModel, fits: Sequence["SensorFit"]) -> np.ndarray:
+    """The calibrated axes (n, 3) in MB, a_i = w_i / |w_i|, from per-sensor fits of ``model``."""
+    W = np.empty((len(fits), 3))
+    for s in fits:
+        k = [s.beta_names.index(f"{s.name}.w_{a}") for a in "xyz"]
+        W[s.ctx.index] = s.beta[k]
+    return axes_from_w(W)
+
+
+def _fit_sensors(session: Session, model: ErrorModel, instrument: str, ctxs: list[SensorContext],
+                 segs: list, sig: np.ndarray | None) -> tuple[list[SensorFit], list[str], dict[str, str]]:
     fits: list[SensorFit] = []
     skipped: dict[str, str] = {}
     used: list[str] = []
@@ -229,7 +261,7 @@ def fit_lsq(
         fits.append(SensorFit(ctx, names, beta, bcov, [f"{ctx.name}.{p.name}" for p in specs], specs,
                               theta, tcov, s, known, n_obs, rss, res))
         used = labels
-    return LsqResult(instrument, model, fits, used, skipped)
+    return fits, used, skipped
 
 
 def rss_from_statistics(q: float, h: np.ndarray, G: np.ndarray, beta: np.ndarray) -> float:

@@ -22,17 +22,18 @@ plus one line in its registry.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, ClassVar, Iterable, Sequence
 
 import numpy as np
 
 from ..epoch import INSTRUMENTS
-from ..errors import ParameterNameError
+from ..errors import NotCompensableError, ParameterNameError
 from ..geometry import Geometry
 from ..session import Segment, Session
 
-__all__ = ["ParamSpec", "SensorContext", "Effect", "ErrorModel", "EFFECTS", "register_effect", "effect"]
+__all__ = ["ParamSpec", "SensorContext", "Effect", "ErrorModel", "EFFECTS", "register_effect", "effect",
+           "RuntimeInputs", "RUNTIME_INPUTS", "RuntimeForm", "MONOMIALS", "monomial", "unit_axes", "axes_from_w"]
 
 
 @dataclass(frozen=True)
@@ -70,6 +71,10 @@ class SensorContext:
     #: gyros: whether the known input includes the Earth rate (where attitude and latitude are known). False
     #: leaves it out, so that the ``earth_rate`` effect can test whether the gyros see it.
     include_earth_rate: bool = True
+    #: calibrated sensing axes of the instrument in MB (n, 3), unit rows; None: the nominal ones. The effects of
+    #: the input along an axis (nonlinearity, asymmetry, scale temperature terms, cross coupling, size effect)
+    #: act on what the sensor really senses, so fits, diagnosis and runtime evaluate them on these.
+    axes: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     @property
     def name(self) -> str:
@@ -77,8 +82,12 @@ class SensorContext:
 
     @property
     def axis(self) -> np.ndarray:
-        """Nominal sensing axis in MB."""
-        return self.geometry.H[self.index]
+        """Sensing axis in MB: the calibrated one where :attr:`axes` is given, else the nominal one."""
+        return self.geometry.H[self.index] if self.axes is None else self.axes[self.index]
+
+    def axis_of(self, j: int) -> np.ndarray:
+        """Sensing axis of sensor ``j`` of the same instrument (calibrated where known)."""
+        return self.geometry.H[j] if self.axes is None else self.axes[j]
 
     def input(self, segment: Segment) -> np.ndarray | None:
         """The known true input of this instrument in MB, (N, 3), or None when the segment does not know it.
@@ -92,6 +101,102 @@ class SensorContext:
                 return segment.angular_rate(self.latitude, include_earth=self.include_earth_rate)
             return None
         return segment.specific_force(self.gravity)
+
+
+#: What an effect may need at runtime (see :class:`RuntimeInputs` and :attr:`Effect.runtime_needs`).
+RUNTIME_INPUTS = ("time", "temperature", "specific_force", "angular_rate", "axis_input", "input")
+
+
+@dataclass
+class RuntimeInputs:
+    """What the runtime knows about N samples, SI, for evaluating effects outside a calibration session.
+
+    Attributes
+    ----------
+    t : ndarray (N,)
+        Time since the stream started, s (the calibration's session time runs from 0 too).
+    axis_input : ndarray (N, n) or None
+        Input of the instrument along each sensor's nominal axis, ``s_i = h_i . u`` (rad/s or m/s^2), with u
+        the current estimate in MB. The compensation solves for it (output-side effects are inverted).
+    temperature : ndarray (N,) or None
+        Unit temperature, degC.
+    specific_force : ndarray (N, 3) or None
+        Specific force in MB, m/s^2 (the accelerometers' estimate of the same epoch).
+    angular_rate : ndarray (N, 3) or None
+        Angular rate in MB, rad/s (the gyros' estimate of the same epoch).
+    input : ndarray (N, 3) or None
+        The instrument's own input in MB (its current estimate u, which the inversion updates).
+    """
+
+    t: np.ndarray
+    axis_input: np.ndarray | None = None
+    temperature: np.ndarray | None = None
+    specific_force: np.ndarray | None = None
+    angular_rate: np.ndarray | None = None
+    input: np.ndarray | None = None
+
+    def temperature_offset(self, ctx: SensorContext) -> np.ndarray:
+        """``T - T_ref`` (N,), K."""
+        if self.temperature is None:
+            raise NotCompensableError("this effect needs the temperature, and the inputs carry none")
+        return np.asarray(self.temperature, dtype=float) - ctx.reference_temperature
+
+
+def _monomials() -> tuple[str, ...]:
+    out = ["1", "t", "dT", "dT2"]
+    for v in ("f", "w"):
+        out += [f"{v}_{a}" for a in "xyz"]
+        out += [f"{v}_{a}{b}" for i, a in enumerate("xyz") for b in "xyz"[i:]]
+    return tuple(out)
+
+
+#: The exogenous monomials a :class:`RuntimeForm` is written in: 1, time since start t, dT = T - T_ref, dT^2,
+#: the specific force f and the angular rate w in MB (components ``f_x`` and products ``f_xy``, ``w_zz``, ...).
+MONOMIALS = _monomials()
+_MONO_INDEX = {m: i for i, m in enumerate(MONOMIALS)}
+
+
+def monomial(name: str, b: str | None = None) -> int:
+    """Index of a monomial in :data:`MONOMIALS`; ``monomial("f", "yx")`` is the product f_x f_y.
+
+    >>> MONOMIALS[monomial("w", "zx")]
+    'w_xz'
+    """
+    if b is None:
+        return _MONO_INDEX[name]
+    return _MONO_INDEX[f"{name}_{''.join(sorted(b))}"]
+
+
+@dataclass(frozen=True)
+class RuntimeForm:
+    """The structure of an effect's runtime regressors, for the compiled (per-sample fast) runtime path.
+
+    For sensor i and column k::
+
+        phi_ik = (sum_m F[i, k, m] * mono_m) * g_ik(s)
+
+    with mono the exogenous monomials of :data:`MONOMIALS` and, by ``kind``: ``"exogenous"`` g = 1;
+    ``"power"`` g = s_i**power; ``"absolute"`` g = |s_i|; ``"pair"`` g = (h_i . u)(d_ik . u) with h_i the
+    nominal axis, d_ik = ``directions[i, k]`` and u the instrument's MB input.
+    An effect that gives one (:meth:`Effect.runtime_form`) must give the same numbers as its
+    :meth:`Effect.runtime_columns` (tested for every effect of the registry); one that does not is evaluated
+    through :meth:`Effect.runtime_columns` (slower per sample, same result).
+    """
+
+    kind: str
+    F: np.ndarray
+    power: int = 0
+    directions: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("exogenous", "power", "absolute", "pair"):
+            raise ValueError(f"unknown runtime form kind {self.kind!r}")
+        if np.ndim(self.F) != 3 or np.shape(self.F)[2] != len(MONOMIALS):
+            raise ValueError(f"F must have shape (n, k, {len(MONOMIALS)}), got {np.shape(self.F)}")
+
+    @classmethod
+    def zeros(cls, kind: str, n: int, k: int, **kwargs: Any) -> "RuntimeForm":
+        return cls(kind, np.zeros((n, k, len(MONOMIALS))), **kwargs)
 
 
 class Effect:
@@ -113,6 +218,10 @@ class Effect:
     instruments: ClassVar[tuple[str, ...]] = INSTRUMENTS
     description: ClassVar[str] = ""
     physics: ClassVar[str] = ""
+    #: What :meth:`runtime_columns` needs, from :data:`RUNTIME_INPUTS`. ``"axis_input"`` (and ``"input"``, the
+    #: instrument's own MB input) make the effect output-side: the runtime inverts it exactly (Newton on each
+    #: sensor's own input, with :meth:`runtime_slope`).
+    runtime_needs: ClassVar[tuple[str, ...]] = ()
 
     def parameters(self, ctx: SensorContext) -> list[ParamSpec]:
         """The linear (raw-domain) parameters, one per column."""
@@ -128,6 +237,29 @@ class Effect:
 
     def applies_to(self, ctx: SensorContext) -> bool:
         return ctx.instrument in self.instruments
+
+    # ------------------------------------------------------------------ runtime compensation
+    def runtime_columns(self, inputs: RuntimeInputs, ctxs: Sequence[SensorContext]) -> np.ndarray:
+        """Regressors of every sensor of an instrument at runtime, (N, n, k), SI.
+
+        The output error of sensor i is ``runtime_columns[:, i] @ theta_i`` with theta_i its physical parameters
+        (in the order of :meth:`physical_parameters`, zero-padded to k). The same numbers as :meth:`columns`
+        where a segment's known inputs equal ``inputs``. The default: not compensable.
+        """
+        raise NotCompensableError(
+            f"effect {self.name!r} has no runtime compensation; it can be fitted and diagnosed, but the runtime "
+            "pipeline cannot undo it. Leave it out of the calibration used at runtime, or give the effect "
+            "runtime_columns()")
+
+    def runtime_slope(self, inputs: RuntimeInputs, ctxs: Sequence[SensorContext]) -> np.ndarray:
+        """``d runtime_columns[:, i] / d s_i`` (N, n, k) for output-side effects (``"axis_input"`` in
+        :attr:`runtime_needs`): the derivative against each sensor's own input, for the exact inversion."""
+        raise NotCompensableError(f"effect {self.name!r} is output-side but gives no runtime_slope()")
+
+    def runtime_form(self, ctxs: Sequence[SensorContext]) -> RuntimeForm | None:
+        """The structure of :meth:`runtime_columns` for the compiled runtime path, or None (the default: the
+        runtime evaluates :meth:`runtime_columns` itself)."""
+        return None
 
     def __add__(self, other: "Effect | ErrorModel") -> "ErrorModel":
         return ErrorModel([self]) + other
@@ -229,11 +361,25 @@ class ErrorModel:
 
 
 def contexts(session: Session, instrument: str, reference_temperature: float = 25.0,
-             include_earth_rate: bool = True) -> list[SensorContext]:
-    """One :class:`SensorContext` per sensor of ``instrument`` in ``session``."""
+             include_earth_rate: bool = True, axes: np.ndarray | None = None) -> list[SensorContext]:
+    """One :class:`SensorContext` per sensor of ``instrument`` in ``session`` (``axes``: calibrated axes)."""
     g = session.geometries[instrument]
-    return [SensorContext(instrument, i, g, session.latitude, session.gravity, reference_temperature, include_earth_rate)
-            for i in range(g.n)]
+    A = None if axes is None else unit_axes(axes)
+    return [SensorContext(instrument, i, g, session.latitude, session.gravity, reference_temperature, include_earth_rate,
+                          A) for i in range(g.n)]
+
+
+def unit_axes(axes: np.ndarray) -> np.ndarray:
+    """Rows normalised to unit length, read-only (the calibrated axes of :class:`SensorContext`)."""
+    A = np.asarray(axes, dtype=float)
+    A = A / np.linalg.norm(A, axis=1)[:, None]
+    A.setflags(write=False)
+    return A
+
+
+def axes_from_w(w: np.ndarray) -> np.ndarray:
+    """Calibrated axes (n, 3) from the raw-domain scale/misalignment rows w_i = a_i / SF_i (Cho & Park Eq. 10)."""
+    return unit_axes(w)
 
 
 #: registry: name -> Effect class

@@ -36,6 +36,7 @@ from ..errors import (
     UnsupportedVersionError,
 )
 from ..geometry import Geometry
+from ..noise.model import InstrumentNoise
 
 __all__ = ["InstrumentCalibration", "Calibration", "FORMAT_TAG", "FORMAT_VERSION", "SI_UNITS"]
 
@@ -75,6 +76,10 @@ class InstrumentCalibration:
         Range limit of each sensor in RAW output units (the units of y, before SF and B): a raw value with
         ``|y_i| >= range_raw_i`` is clipped (saturated) and the runtime routes around it for that sample.
         None: no limit known. For a sensor whose raw output is already in SI, this is the range in SI.
+    noise : InstrumentNoise or None
+        Optional noise terms of every sensor (IEEE Std 952: quantisation, random walk, bias instability,
+        rate random walk; :mod:`rimu.noise`), e.g. from ``rimu noise``; the detectors of :mod:`rimu.fdi` take
+        them as ``noise=``. Saved only when present, so files without it read and write as before.
     """
 
     instrument: str
@@ -87,6 +92,7 @@ class InstrumentCalibration:
     param_names: list[str] = field(default_factory=list)
     effects: dict[str, dict[str, float]] = field(default_factory=dict)
     range_raw: np.ndarray | None = None
+    noise: InstrumentNoise | None = None
 
     def __post_init__(self) -> None:
         if self.instrument not in INSTRUMENTS:
@@ -125,6 +131,13 @@ class InstrumentCalibration:
             if c.shape != (p, p):
                 raise ShapeError(f"covariance has shape {c.shape}, but {p} param_names are given")
             self.covariance = c
+        if self.noise is not None:
+            if isinstance(self.noise, dict):
+                self.noise = InstrumentNoise.from_dict(self.noise)
+            if list(self.noise.names) != list(self.geometry.names) or self.noise.instrument != self.instrument:
+                raise ShapeError(
+                    f"the noise model is for {self.noise.instrument} sensors {self.noise.names}, this calibration for "
+                    f"{self.instrument} sensors {list(self.geometry.names)}; identify the noise of this unit")
 
     # ------------------------------------------------------------------ constructors
     @classmethod
@@ -187,6 +200,7 @@ class InstrumentCalibration:
             "covariance": None if self.covariance is None else self.covariance.tolist(),
             "effects": self.effects,
             "range_raw": None if self.range_raw is None else self.range_raw.tolist(),
+            **({} if self.noise is None else {"noise": self.noise.to_dict()}),
         }
 
     @classmethod
@@ -209,6 +223,7 @@ class InstrumentCalibration:
             list(d.get("param_names") or []),
             dict(d.get("effects") or {}),
             None if d.get("range_raw") is None else np.array(d["range_raw"], dtype=float),
+            None if d.get("noise") is None else InstrumentNoise.from_dict(d["noise"]),
         )
 
 

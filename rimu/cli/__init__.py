@@ -32,6 +32,7 @@ COMMANDS = [
     "monitor",
     "replay", "campaign", "check",
     "detect",
+    "noise",
     "export_c",
     "array",
 ]

@@ -12,7 +12,11 @@ fault-free): the test then allows for the residual scale, misalignment, time off
 motion (docs/many-sensors.md). A range limit in the calibration (``range_raw``) makes clipped samples count as
 saturated: routed around, never isolated.
 DATA is a session file in rimu's format (``.npz``, or ``.csv`` with its ``.json`` sidecar; docs/session-format.md),
-as ``rimu simulate`` writes it; the segments are replayed back to back.
+as ``rimu simulate`` writes it; the segments are replayed back to back. Every effect of the calibration is
+compensated (docs/runtime.md). Where segments carry known inputs (static positions, rate steps), the runtime
+error is reported per instrument (``segment_error_rms``: rms over segments of the segment-mean estimate's
+error against the known input; ``sample_error_rms``; SI) with the number of alarms and isolations, and
+written to ``OUT/summary.json``: how a calibration is validated on a held-out session.
 """
 
 from __future__ import annotations
@@ -55,6 +59,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "vibration) on the first SECONDS of the data, taken as fault-free, and test with them "
                         "(docs/many-sensors.md)")
     p.add_argument("--motion-margin", type=positive_float, default=3.0, help="factor on the fitted motion variances")
+    p.add_argument("-o", "--output", default=None, metavar="DIR",
+                   help="folder for summary.json: the runtime error against the segments' known inputs, alarms and "
+                        "isolations per instrument (docs/runtime.md)")
     add_report_option(p, "the plot (replay.png)")
     add_json_option(p, "the events (time in s and sample index) and final states")
     p.add_argument("--out", action=Deprecated, new="--report DIR and --json FILE", convert=_old_out, metavar="DIR")
@@ -66,6 +73,7 @@ def _old_out(ns: argparse.Namespace, value: str) -> None:
     """``--out DIR`` (old): DIR/replay.png and DIR/replay.json."""
     ns.report = value
     ns.json = str(Path(value) / "replay.json")
+    ns.output = value
 
 
 #: replays longer than this many samples show a progress bar (in chunks of this size)
@@ -94,10 +102,12 @@ def run(args: argparse.Namespace) -> int:
     from ..fdi import RedundancyManager
     from ..fdi.campaign import CampaignSpec, make_detector
     from ..fdi.faults import inject, parse_injection
-    from ..fusion import InstrumentPipeline
+    from ..fusion import Pipeline
+    from ..fusion.validation import segment_errors, session_block
     from .check import read_session
 
-    session, block = read_session(args.data, "warn" if args.accept_implausible else "strict")
+    session, _ = read_session(args.data, "warn" if args.accept_implausible else "strict")
+    block, seg_index = session_block(session)
     # the calibration must be of this unit: its geometry fingerprint against the data's (a dodecahedron6
     # calibration on cone6 data would otherwise isolate healthy sensors)
     cal = Calibration.load(args.calibration, geometries=session.geometries)
@@ -131,9 +141,16 @@ def run(args: argparse.Namespace) -> int:
     if args.detector in ("kalman", "glt_window") and args.p_fa > 1e-4:
         print(f"  note: --p-fa is per sample; the {args.detector} statistic is correlated over several samples, so "
               "alarms come in episodes that confirmation does not filter; consider --p-fa 1e-5")
+    unit = Pipeline(Calibration({k: cal[k] for k in insts}, cal.raw_unit, cal.method, cal.created, dict(cal.metadata)),
+                    temperature=block.temperature is not None)
+    block = unit.compensate(block)
+    if unit.compensation:
+        print("  compensated effects: " + "; ".join(
+            f"{k}: {', '.join(t.effect.name for t in c.terms)}" for k, c in unit.compensation.items()))
     results = {}
+    summary: dict = {}
     for k in insts:
-        pipe = InstrumentPipeline(cal[k])
+        pipe = unit[k]
         spec = CampaignSpec(detector=args.detector, window=args.window, p_fa=args.p_fa, arl0=args.arl0)
         det = make_detector(spec, pipe.table.sigma)
         if args.motion_fit is not None and k == "gyro":
@@ -152,6 +169,19 @@ def run(args: argparse.Namespace) -> int:
         if len(shown) > 50:
             print(f"    ... {len(shown) - 50} more")
         print(f"    transient alarm episodes (not confirmed): {n_tr}; outputs finite: {bool(np.isfinite(res.x).all())}")
+        entry = {"samples": len(block), "alarms": int(np.count_nonzero(res.alarm)),
+                 "isolations": sum(1 for e in res.events if e.kind in ("isolated", "invalid_isolated")),
+                 "final_state": mgr.state.value}
+        try:
+            err = segment_errors(session, k, np.asarray(res.x), seg_index)
+        except ValueError:
+            err = None
+        if err is not None:
+            entry.update(err.to_dict())
+            print(f"    runtime error: segment_error_rms {err.segment_error_rms:.4g} {entry['unit']} over "
+                  f"{len(err.segments)} segments, sample_error_rms {err.sample_error_rms:.4g} {entry['unit']}")
+        print(f"    alarms {entry['alarms']}, isolations {entry['isolations']}")
+        summary[k] = entry
     if args.json:
         from ._common import json_dump
 
@@ -163,6 +193,19 @@ def run(args: argparse.Namespace) -> int:
         out.mkdir(parents=True, exist_ok=True)
         png = _plot(out / "replay.png", results)
         print(f"  plot:   {png}" if png else "  (matplotlib not installed: no plot; pip install 'rimu[plots]')")
+    if args.output:
+        import json
+
+        from ..atomic import write_text
+
+        out = Path(args.output)
+        out.mkdir(parents=True, exist_ok=True)
+        write_text(out / "summary.json", json.dumps(summary, indent=1))
+        print(f"  summary: {out / 'summary.json'}")
+    n_iso = sum(v["isolations"] for v in summary.values())
+    errs = ", ".join(f"{k} segment_error_rms {v['segment_error_rms']:.3g} {v['unit']}"
+                     for k, v in summary.items() if "segment_error_rms" in v)
+    print(f"replayed {len(block)} samples: {n_iso} isolation(s)" + (f"; {errs}" if errs else ""))
     return 0
 
 

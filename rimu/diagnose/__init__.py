@@ -18,15 +18,18 @@ from .api import (
     candidate_effects,
     compare,
     diagnose,
+    effect_sensors,
     format_p,
     iterate,
 )
 from .candidates import CandidateTest, SensorTest, holm, score_candidates
 from .fitting import ModelFit, SensorFit, fit_model, noise_from_differences
+from .handheld import diagnose_handheld  # registers the hand-held session kind with api.diagnose
 from .report import render_markdown, write_report
 from .residuals import SensorStats, autocorrelation, ljung_box, residual_statistics
 
 __all__ = [
+    "diagnose_handheld",
     "DEFAULT_ALPHA",
     "CandidateTest",
     "Comparison",
@@ -34,6 +37,7 @@ __all__ = [
     "Finding",
     "InstrumentDiagnosis",
     "Iteration",
+    "effect_sensors",
     "ModelFit",
     "SensorFit",
     "SensorStats",

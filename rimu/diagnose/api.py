@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.stats import chi2 as _chi2
 
 from ..calibration.effects._common import output_unit
 from ..calibration.model import EFFECTS, Effect, ErrorModel, effect
@@ -26,6 +27,7 @@ __all__ = [
     "Finding",
     "InstrumentDiagnosis",
     "Iteration",
+    "effect_sensors",
     "candidate_effects",
     "compare",
     "diagnose",
@@ -35,6 +37,18 @@ __all__ = [
 
 #: default family-wise significance of "something is missing"
 DEFAULT_ALPHA = 0.01
+
+
+#: sessions that need a diagnosis of their own: (applies(session), diagnose(...) -> (residuals, Diagnosis)); the
+#: modules that provide one register here (rimu.diagnose.handheld), so this module never imports them
+SESSION_KINDS: list[tuple[Any, Any]] = []
+
+
+def register_session_kind(applies: Any, special: Any) -> None:
+    """Route sessions for which ``applies(session)`` holds to ``special`` (same arguments as :func:`diagnose`,
+    returning ``(residuals, Diagnosis)``)."""
+    if all(a is not applies for a, _ in SESSION_KINDS):
+        SESSION_KINDS.append((applies, special))
 
 
 def format_p(log10_p: float) -> str:
@@ -291,11 +305,10 @@ def diagnose(
     if not isinstance(session, Session):
         hint = " (a simulation result: pass its .session)" if hasattr(session, "session") else ""
         raise SessionFormatError(f"diagnose needs a rimu.session.Session, got {type(session).__name__}{hint}")
-    from .handheld import diagnose_handheld, unknown_attitude
-
-    if unknown_attitude(session):  # hand-held poses: resolve the attitudes by the hand-held calibration first
-        return diagnose_handheld(session, model, candidates, alpha, instruments=instruments, sigma=sigma,
-                                 reference_temperature=reference_temperature)[1]
+    for applies, special in SESSION_KINDS:  # e.g. hand-held poses: attitudes resolved by their calibration first
+        if applies(session):
+            return special(session, model, candidates, alpha, instruments=instruments, sigma=sigma,
+                           reference_temperature=reference_temperature)[1]
     session = cached(session)
     models = _models(model, session, instruments)
     settings = {"alpha": alpha, "include_earth_rate": include_earth_rate,
@@ -401,10 +414,12 @@ def compare(session: Session, before: ModelFit, model: ErrorModel, sigma: Any = 
 
 @dataclass
 class Iteration:
-    """Rounds of diagnose -> add the top effect -> refit, until nothing is missing."""
+    """Rounds of diagnose -> add the top effect -> refit, until nothing real is missing."""
 
     rounds: list[tuple[Diagnosis, dict[str, Comparison]]]
     final: Diagnosis
+    #: why the iteration stopped short of a significant finding, per instrument
+    notes: dict[str, str] = field(default_factory=dict)
 
     @property
     def added(self) -> dict[str, list[str]]:
@@ -412,6 +427,17 @@ class Iteration:
         for _, comps in self.rounds:
             for k, c in comps.items():
                 out.setdefault(k, []).extend(c.added)
+        return out
+
+    @property
+    def sensors(self) -> dict[str, dict[str, list[str]]]:
+        """Per instrument and added effect, the sensors that need it in the final model (Wald test of the effect's
+        coefficients of each sensor, Bonferroni over the sensors at the diagnosis' alpha): a sensor named in an
+        early round only because another effect was still missing drops out here."""
+        out: dict[str, dict[str, list[str]]] = {}
+        for k, names in self.added.items():
+            idg = self.final[k]
+            out[k] = {e: effect_sensors(idg.fit, e, idg.alpha) for e in names}
         return out
 
     def summary(self) -> str:
@@ -423,20 +449,66 @@ class Iteration:
                 lines += c.lines()
         lines.append("--- final ---")
         lines.append(self.final.summary())
+        for k, per in self.sensors.items():
+            for e, sens in per.items():
+                lines.append(f"{k}: {e} needed on {', '.join(sens) if sens else 'no sensor on its own'}")
+        for k, note in self.notes.items():
+            lines.append(f"{k}: stopped: {note}")
         return "\n".join(lines)
+
+
+def effect_sensors(fit: ModelFit, name: str, alpha: float = DEFAULT_ALPHA) -> list[str]:
+    """Sensors whose coefficients of effect ``name`` in ``fit`` differ from zero: Wald statistic
+    ``theta^T Cov^-1 theta`` (chi-square with k degrees of freedom, divided by the noise inflation) against
+    Bonferroni over the sensors at level ``alpha``."""
+    eff = effect(name)
+    out = []
+    sens = [s for s in fit.sensors if eff.applies_to(s.ctx)]
+    for s in sens:
+        local = [p.name for p in eff.physical_parameters(s.ctx)]
+        idx = [k for k, p in enumerate(s.specs) if p.name in local]
+        if not idx:
+            continue
+        th = s.theta[idx]
+        C = s.theta_cov[np.ix_(idx, idx)]
+        w = float(th @ np.linalg.solve(C, th)) / s.inflation
+        if _chi2.sf(w, len(idx)) <= alpha / len(sens):
+            out.append(s.name)
+    return out
+
+
+def _bic_gain(test: CandidateTest) -> float:
+    """Change of the BIC if the candidate entered on the sensors it names (negative: supported)."""
+    return float(sum(x.dbic for x in test.sensors if x.significant))
 
 
 def iterate(session: Session, model: Any = None, max_rounds: int = 6, **kwargs: Any) -> Iteration:
     """Diagnose, add the best clearly identified missing effect of each instrument, refit; repeat until nothing
-    is missing (or only confounded groups remain, or ``max_rounds``). Keyword arguments go to :func:`diagnose`."""
+    real is missing (or only confounded groups remain, or ``max_rounds``). Keyword arguments go to
+    :func:`diagnose`.
+
+    An effect enters only when it is significant (Holm over the candidates) *and* lowers the BIC on the
+    sensors it names (Schwarz's criterion: its fit gain must pay ln(N) per parameter); a significant finding
+    that does not is reported in :attr:`Iteration.notes` and the iteration stops there. The candidates are
+    evaluated on the calibrated axes (:func:`rimu.diagnose.fit_model`), so a nonlinearity on a misaligned
+    sensor does not leave a cross-coupling-like residue."""
     rounds = []
+    notes: dict[str, str] = {}
     d = diagnose(session, model, **kwargs)
     for _ in range(max_rounds):
         comps = {}
         for k, idg in d.instruments.items():
             top = idg.top()
-            if top is not None:
-                comps.update(d.add(top, instrument=k))
+            if top is None:
+                continue
+            gain = _bic_gain(idg.test(top))
+            if gain >= 0.0:
+                notes[k] = (f"{top} is significant ({format_p(idg.test(top).log10_p_holm)} after Holm) but does "
+                            f"not lower the BIC on the sensors it names (dBIC {gain:+.1f}): not enough evidence to "
+                            "add it")
+                continue
+            notes.pop(k, None)
+            comps.update(d.add(top, instrument=k))
         if not comps:
             break
         rounds.append((d, comps))
@@ -444,7 +516,7 @@ def iterate(session: Session, model: Any = None, max_rounds: int = 6, **kwargs: 
         kw = dict(kwargs)
         kw.pop("instruments", None)
         d = diagnose(session, models, instruments=list(models), **kw)
-    return Iteration(rounds, d)
+    return Iteration(rounds, d, notes)
 
 
 def _models(model: Any, session: Session, instruments: Iterable[str] | None) -> dict[str, ErrorModel]:

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..calibration.lsq import physical_from_beta
-from ..calibration.model import Effect, ErrorModel, ParamSpec, SensorContext, contexts
+from ..calibration.model import Effect, ErrorModel, ParamSpec, SensorContext, axes_from_w, contexts
 from ..errors import IdentifiabilityError
 from ..session import Segment, Session
 from .series import autocorrelation
@@ -25,6 +25,7 @@ from .series import autocorrelation
 __all__ = [
     "RANK_TOL",
     "ModelFit",
+    "calibrated_axes_of",
     "SensorFit",
     "cached",
     "candidate_columns",
@@ -285,7 +286,14 @@ def fit_model(
     if instrument not in session.geometries:
         raise IdentifiabilityError(f"the session has no {instrument} data; instruments: {list(session.geometries)}")
     session = cached(session)
-    ctxs = ctxs or contexts(session, instrument, reference_temperature, include_earth_rate)
+    if ctxs is None:
+        ctxs = contexts(session, instrument, reference_temperature, include_earth_rate)
+        if "scale_misalignment" in model:
+            # candidates and effects along an axis are evaluated on the calibrated axes (what each sensor really
+            # senses), taken from a first fit of scale, misalignment and bias on the nominal ones
+            base = ErrorModel([e for e in model if e.name in ("scale_misalignment", "bias")])
+            first = fit_model(session, base, instrument, sigma, include_earth_rate, reference_temperature, ctxs)
+            ctxs = contexts(session, instrument, reference_temperature, include_earth_rate, calibrated_axes_of(first))
     sig = _sigma_vector(sigma, len(ctxs))
     skipped: dict[str, str] = {}
     fits: list[SensorFit] = []
@@ -348,6 +356,14 @@ def fit_model(
                               np.concatenate(ss), s, known, infl, rho1))
         labels_used = labels
     return ModelFit(instrument, model, fits, labels_used, skipped, list(ctxs))
+
+
+def calibrated_axes_of(fit: ModelFit) -> np.ndarray:
+    """The calibrated axes (n, 3) in MB of a fit with the scale/misalignment block: a_i = w_i / |w_i|."""
+    W = np.empty((len(fit.sensors), 3))
+    for s in fit.sensors:
+        W[s.ctx.index] = [s.beta[s.names.index(f"{s.name}.w_{a}")] for a in "xyz"]
+    return axes_from_w(W)
 
 
 def _orthonormalise(Xn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -33,6 +33,7 @@ from ..calibration.estimate import CalibrationResult
 from ..calibration.handheld import STATIC_KINDS, HandHeld
 from ..calibration.model import ErrorModel
 from ..session import Segment, Session
+from .api import _one, diagnose, format_p, register_session_kind
 
 __all__ = ["MOTION_CANDIDATES", "HandHeldResiduals", "MotionTest", "diagnose_handheld", "rank_motion_effects",
            "resolve_attitude", "unknown_attitude"]
@@ -119,8 +120,6 @@ class MotionTest:
     significant: bool = False
 
     def line(self) -> str:
-        from .api import format_p
-
         return (f"{self.name}: explains {100 * self.explained:.0f}% of the motion residual, F = {self.f_stat:.3g}, "
                 f"{format_p(self.log10_p_holm)} after Holm" + (" (significant)" if self.significant else ""))
 
@@ -237,8 +236,6 @@ def diagnose_handheld(session: Session, model: ErrorModel | str | Mapping[str, A
                       result: CalibrationResult | None = None, **kwargs: Any):
     """Residuals per pose and per motion, and the missing-effect ranking on the resolved session (module
     docstring). Returns ``(HandHeldResiduals, Diagnosis)``; the Diagnosis' summary starts with the residuals."""
-    from .api import _one, diagnose
-
     resolved, hh = resolve_attitude(session, result)
     hh.motion_tests = rank_motion_effects(hh.result, alpha)
     if isinstance(model, Mapping):
@@ -258,3 +255,6 @@ def diagnose_handheld(session: Session, model: ErrorModel | str | Mapping[str, A
     d.settings["preamble"] = hh.lines()
     d.settings["handheld"] = hh.to_dict()
     return hh, d
+
+
+register_session_kind(unknown_attitude, diagnose_handheld)

@@ -23,6 +23,7 @@ from .manager import FdiEvent, FdiResult, Health, HealthState, RedundancyManager
 from .multiple import FaultSetGlt, SetDecision, set_fault_rates, single_fault_rates
 from .motion import MotionAwareGlt, MotionNoiseModel, fit_motion_terms
 from .noise import NoiseEstimator
+from .px4_selector import Px4GyroSelector, Px4SelectorResult
 from .parity import IsolabilityReport, detection_probability, isolability, wrong_isolation_bounds
 from .quality import QualityReport, parity_quality
 
@@ -38,6 +39,8 @@ __all__ = [
     "markov_arl",
     "ParityKalman",
     "MeanDisagreement",
+    "Px4GyroSelector",
+    "Px4SelectorResult",
     "CalibrationAwareGlt",
     "MotionAwareGlt",
     "MotionNoiseModel",

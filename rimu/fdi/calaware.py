@@ -20,17 +20,28 @@ the test's noncentrality is ``b^2 v_j^T C^-1 v_j``, which is what detection cost
 ``D(u) = sum_c u~_c D_c`` with ``u~ = (u_x, u_y, u_z, 1)``, so per active set the blocks
 ``Q_cd = Vz D_c Sigma D_d^T Vz^T`` are computed once and ``C(u) = I + sum_cd u~_c u~_d Q_cd`` costs a few
 hundred multiplications per sample.
+
+Further effects (nonlinearity, g-sensitivity, temperature, drift, ...) enter the same way: the compensation
+subtracts ``phi_e . theta_e`` (:meth:`rimu.calibration.model.Effect.runtime_columns`), so an error in theta
+leaves ``phi_e(inputs) . d_theta`` in the output and adds the columns ``phi`` to D. Their covariance, and its
+correlation with scale, misalignment and bias, comes from the calibration's ``covariance`` over every fitted
+parameter (:class:`EffectCovariance`). Effects of the sensor's own input use the current estimate u; effects
+of other inputs (temperature, time, specific force, angular rate) use what :meth:`CalibrationAwareGlt.set_context`
+was last given (or the ``inputs`` of :meth:`CalibrationAwareGlt.block`).
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
+from ..calibration.model import RuntimeInputs, SensorContext, effect, unit_axes
 from ..calibration.result import InstrumentCalibration
-from ..errors import ParameterNameError
+from ..errors import MissingInputError, ParameterNameError
 from .glt import glt_threshold
 
-__all__ = ["CalibrationCovariance", "CalibrationAwareGlt", "stated_covariance"]
+__all__ = ["CalibrationAwareGlt", "CalibrationCovariance", "EffectCovariance", "stated_covariance"]
 
 
 def stated_covariance(cal: InstrumentCalibration, misalignment_rad: float, scale_rel: float,
@@ -97,11 +108,13 @@ class CalibrationCovariance:
                     continue
                 C = g.subunit_of(i).mat_sb_mb
                 D[:3, i, k] = E[off.index(par)] @ C
-            else:
+            elif not any(full in prm for prm in cal.effects.values()):
                 self.ignored.append(full)
         self.D = D
         self.Sigma = np.asarray(cal.covariance, dtype=float)
         self._cache: dict[int, np.ndarray] = {}
+        #: the fitted further effects' part of the parity covariance (None without such parameters)
+        self.effects = EffectCovariance.from_calibration(cal, self.D, self.Sigma)
 
     def blocks(self, Vz: np.ndarray, key: int | None = None) -> np.ndarray:
         """``Q_cd`` (4, 4, r, r) for the parity rows Vz (cached under ``key``, e.g. the table entry)."""
@@ -113,15 +126,20 @@ class CalibrationCovariance:
             self._cache[key] = Q
         return Q
 
-    def covariance(self, Vz: np.ndarray, u: np.ndarray, key: int | None = None) -> np.ndarray:
-        """``C(u)`` (r, r) for one input u (3,), or (N, r, r) for inputs (N, 3)."""
+    def covariance(self, Vz: np.ndarray, u: np.ndarray, key: int | None = None, inputs: Any = None) -> np.ndarray:
+        """``C(u)`` (r, r) for one input u (3,), or (N, r, r) for inputs (N, 3); ``inputs`` (a
+        :class:`~rimu.calibration.model.RuntimeInputs`) for effects of other inputs than u."""
         Q = self.blocks(Vz, key)
         u = np.asarray(u, dtype=float)
         ut = np.concatenate([u, np.ones(u.shape[:-1] + (1,))], axis=-1)
         r = Q.shape[-1]
         if ut.ndim == 1:
-            return np.eye(r) + np.einsum("c,d,cdrs->rs", ut, ut, Q)
-        return np.eye(r)[None] + np.einsum("nc,nd,cdrs->nrs", ut, ut, Q)
+            C = np.eye(r) + np.einsum("c,d,cdrs->rs", ut, ut, Q)
+        else:
+            C = np.eye(r)[None] + np.einsum("nc,nd,cdrs->nrs", ut, ut, Q)
+        if self.effects is not None:
+            C = C + self.effects.extra(Vz, u, inputs)
+        return C
 
 
 class CalibrationAwareGlt:
@@ -144,6 +162,7 @@ class CalibrationAwareGlt:
         self.p_fa = p_fa
         self._u = np.zeros(3)
         self._dof = 0
+        self._context: Any = None
 
     def configure(self, Vz: np.ndarray, dof: int) -> None:
         self._dof = int(dof)
@@ -155,6 +174,11 @@ class CalibrationAwareGlt:
     def set_input(self, u: np.ndarray) -> None:
         self._u = u
 
+    def set_context(self, inputs: Any) -> None:
+        """The epoch's other inputs (a one-sample :class:`~rimu.calibration.model.RuntimeInputs`: time,
+        temperature, specific force, angular rate) for the effects that need them."""
+        self._context = inputs
+
     def update(self, parity: np.ndarray) -> tuple[float, float]:
         d = self._dof
         if d < 1:
@@ -163,6 +187,8 @@ class CalibrationAwareGlt:
         ut = np.array([u[0], u[1], u[2], 1.0])
         C = np.einsum("c,d,cdrs->rs", ut, ut, self._Q)
         C.flat[:: d + 1] += 1.0
+        if self.model.effects is not None:
+            C += self.model.effects.extra(self._V, np.asarray(u, dtype=float), self._context)
         p = parity[:d]
         self._C = C
         self._Cinv_p = np.linalg.solve(C, p)
@@ -179,13 +205,14 @@ class CalibrationAwareGlt:
         ratios[ok] = (self._Cinv_p @ V[:, ok]) ** 2 / den[ok]
         return int(np.argmax(ratios)), ratios
 
-    def block(self, P: np.ndarray, Vz: np.ndarray, dof: int, U: np.ndarray | None = None
+    def block(self, P: np.ndarray, Vz: np.ndarray, dof: int, U: np.ndarray | None = None, inputs: Any = None
               ) -> tuple[np.ndarray, float, np.ndarray]:
-        """Vectorised over N samples with inputs U (N, 3) (the estimates x of the pipeline)."""
+        """Vectorised over N samples with inputs U (N, 3) (the estimates x of the pipeline), and the other
+        inputs of the samples (``RuntimeInputs``) where fitted effects need them."""
         if U is None:
             raise ValueError("the calibration-aware test needs the input of every sample (U)")
         V = Vz[:dof]
-        C = self.model.covariance(V, U)
+        C = self.model.covariance(V, U, inputs=inputs)
         p = P[:, :dof]
         Cip = np.linalg.solve(C, p[..., None])[..., 0]
         stat = np.einsum("ij,ij->i", p, Cip)
@@ -196,3 +223,79 @@ class CalibrationAwareGlt:
             R = (Cip @ V) ** 2 / np.where(den > 1e-12, den, np.inf)
             iso = np.argmax(R, axis=1)
         return stat, glt_threshold(self.p_fa, dof), iso
+
+
+class EffectCovariance:
+    """The part of the parity covariance that the fitted further effects add (see the module docstring).
+
+    With L(u) = Vz D(u) over every parameter of the calibration's covariance, D's base columns
+    ``sum_c u~_c D_c`` and the effect columns ``phi_ik(inputs)`` at sensor i::
+
+        C(u) - C_base(u) = L_b Sigma_be L_e^T + L_e Sigma_eb L_b^T + L_e Sigma_ee L_e^T
+
+    Built by :meth:`from_calibration` (None when the covariance holds no effect parameter).
+    """
+
+    def __init__(self, cal: InstrumentCalibration, D: np.ndarray, Sigma: np.ndarray,
+                 columns: list[tuple[int, int, str, int]]) -> None:
+        g = cal.geometry
+        A = unit_axes(cal.axes_mb())  # effects along an axis act on the calibrated one
+        self.ctxs = [SensorContext(cal.instrument, i, g, axes=A) for i in range(g.n)]
+        self.H = A
+        self.D = D
+        self.index = np.array([k for k, _, _, _ in columns])
+        self.sensor = np.array([i for _, i, _, _ in columns])
+        self.Sigma_ee = Sigma[np.ix_(self.index, self.index)]
+        self.Sigma_be = Sigma[:, self.index]
+        self.groups: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        for name in dict.fromkeys(e for _, _, e, _ in columns):
+            pos = np.array([m for m, c in enumerate(columns) if c[2] == name])
+            self.groups[name] = (pos, self.sensor[pos], np.array([columns[m][3] for m in pos]))
+        self.effects = {name: effect(name) for name in self.groups}
+        self.needs = sorted({x for e in self.effects.values() for x in e.runtime_needs if x not in ("axis_input", "input")})
+
+    @classmethod
+    def from_calibration(cls, cal: InstrumentCalibration, D: np.ndarray, Sigma: np.ndarray
+                         ) -> EffectCovariance | None:
+        g = cal.geometry
+        index = {nm: i for i, nm in enumerate(g.names)}
+        cols = []
+        for k, full in enumerate(cal.param_names):
+            sname, _, par = full.partition(".")
+            for name, prm in cal.effects.items():
+                if full in prm and sname in index:
+                    i = index[sname]
+                    specs = effect(name).physical_parameters(SensorContext(cal.instrument, i, g))
+                    col = [p.name for p in specs].index(par)
+                    cols.append((k, i, name, col))
+        return cls(cal, D, Sigma, cols) if cols else None
+
+    def columns(self, u: np.ndarray, inputs: RuntimeInputs | None) -> np.ndarray:
+        """phi of every effect parameter (N, p_e) at inputs u (N, 3) and the other inputs."""
+        N = u.shape[0]
+        if inputs is None:
+            if self.needs:
+                raise MissingInputError(
+                    f"the calibration's covariance holds effects that need {self.needs}; give them with "
+                    "CalibrationAwareGlt.set_context(RuntimeInputs(...)) or block(..., inputs=...)",
+                    ", ".join(self.groups), self.needs[0])
+            inputs = RuntimeInputs(t=np.zeros(N))
+        inp = RuntimeInputs(np.broadcast_to(np.asarray(inputs.t, dtype=float), (N,)), u @ self.H.T,
+                            None if inputs.temperature is None else np.broadcast_to(inputs.temperature, (N,)),
+                            None if inputs.specific_force is None else np.broadcast_to(inputs.specific_force, (N, 3)),
+                            None if inputs.angular_rate is None else np.broadcast_to(inputs.angular_rate, (N, 3)), u)
+        out = np.zeros((N, len(self.index)))
+        for name, (pos, sens, col) in self.groups.items():
+            out[:, pos] = self.effects[name].runtime_columns(inp, self.ctxs)[:, sens, col]
+        return out
+
+    def extra(self, Vz: np.ndarray, u: np.ndarray, inputs: RuntimeInputs | None) -> np.ndarray:
+        """``C(u) - C_base(u)``, (r, r) for u (3,) or (N, r, r) for u (N, 3)."""
+        one = u.ndim == 1
+        U = u[None] if one else u
+        ut = np.concatenate([U, np.ones((U.shape[0], 1))], axis=1)
+        Lb = np.einsum("nc,rm,cmp->nrp", ut, Vz, self.D)                       # (N, r, p)
+        Le = Vz[:, self.sensor][None] * self.columns(U, inputs)[:, None, :]   # (N, r, p_e)
+        cross = np.einsum("nrp,pe,nse->nrs", Lb, self.Sigma_be, Le)
+        out = cross + np.swapaxes(cross, 1, 2) + np.einsum("nre,ef,nsf->nrs", Le, self.Sigma_ee, Le)
+        return out[0] if one else out

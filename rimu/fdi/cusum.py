@@ -19,6 +19,20 @@ approaches ``ln(ARL0) / I`` with ``I = delta^2 / 2`` the Kullback-Leibler inform
 
 :func:`markov_arl` (Brook & Evans 1972) computes the run length of any CUSUM numerically; it checks
 Siegmund's formula in the tests and designs the dead-band baseline (:mod:`rimu.fdi.baseline`).
+
+Coloured noise (``noise=``, :mod:`rimu.fdi.whitening`). Bias instability and rate random walk make X_j's
+mean wander; a CUSUM designed for white X then alarms far more often than 1/ARL0 over a long run. Over one
+false-alarm excursion (about ``M = h / k`` samples) the slow part is nearly constant: X_j ~ N(mu, 1) with a
+mean ``mu ~ N(0, sigma_mu,j^2)`` that changes slowly from excursion to excursion, ``sigma_mu,j^2 =
+u_j^T C_slow(M) u_j`` (the bias-instability and random-walk part of the covariance of an M-sample mean of the
+parity, over the stated horizon). The long-run rate of false alarms is then the average of the rates
+(renewal: one alarm per ARL)::
+
+    1 / ARL0_eff = E_mu[ 1 / ARL(mu - k, h) ]     (Siegmund's ARL, Gauss-Hermite quadrature over mu)
+
+and each threshold is the h that makes this the design rate (:func:`cusum_threshold_mixture`), with M from
+the white design. The white-noise design is the special case ``sigma_mu = 0``. Where sigma_mu approaches k
+the threshold grows fast: the bank cannot tell a fault of the design size from the sensors' own wander.
 """
 
 from __future__ import annotations
@@ -30,7 +44,9 @@ import numpy as np
 from scipy.optimize import brentq
 from scipy.stats import norm  # noqa: F401  (used by the doctests)
 
-__all__ = ["siegmund_arl", "cusum_threshold", "markov_arl", "CusumBank"]
+from .whitening import window_covariance
+
+__all__ = ["siegmund_arl", "cusum_threshold", "cusum_threshold_mixture", "markov_arl", "CusumBank"]
 
 
 def siegmund_arl(drift: float, h: float) -> float:
@@ -66,6 +82,34 @@ def cusum_threshold(arl0: float, k: float) -> float:
     return float(brentq(lambda h: siegmund_arl(-k, h) - arl0, 0.0, hi))
 
 
+def cusum_threshold_mixture(arl0: float, k: float, sigma_mu: float, nodes: int = 40) -> float:
+    """Threshold h whose false-alarm rate averaged over a slowly varying mean ``mu ~ N(0, sigma_mu^2)`` is
+    ``1 / arl0`` (module docstring); :func:`cusum_threshold` when ``sigma_mu = 0``.
+
+    >>> h0 = cusum_threshold(1e4, 0.5)
+    >>> round(cusum_threshold_mixture(1e4, 0.5, 0.0), 6) == round(h0, 6), cusum_threshold_mixture(1e4, 0.5, 0.2) > h0
+    (True, True)
+    """
+    if not sigma_mu > 0:
+        return cusum_threshold(arl0, k)
+    x, w = np.polynomial.hermite_e.hermegauss(nodes)
+    w = w / w.sum()
+    mu = sigma_mu * x
+
+    def excess(h: float) -> float:
+        with np.errstate(over="ignore"):  # a very negative drift: ARL overflows to inf, its rate is 0
+            rate = sum(wi / siegmund_arl(m - k, h) for m, wi in zip(mu, w))
+        return float(np.log(rate * arl0))
+
+    lo = cusum_threshold(arl0, k)
+    hi = lo
+    while excess(hi) > 0:
+        hi *= 2.0
+        if hi > 1e9:
+            raise ValueError(f"no CUSUM threshold reaches ARL0 {arl0:g} with a wander of {sigma_mu:g} against k = {k:g}")
+    return float(brentq(excess, lo, hi)) if hi > lo else lo
+
+
 def markov_arl(h: float, cdf: Callable[[np.ndarray], np.ndarray], states: int = 300) -> float:
     """ARL of ``S = max(0, S + X)``, alarm when ``S > h``, from zero, for increments with cumulative ``cdf``.
 
@@ -89,6 +133,13 @@ def markov_arl(h: float, cdf: Callable[[np.ndarray], np.ndarray], states: int = 
 
 #: designs kept per detector (least recently used dropped first)
 _DESIGNS_KEPT = 128
+
+
+def _white_only(settings):  # type: ignore[no-untyped-def]
+    """The same settings at horizon 0 (white and quantisation part only)."""
+    from dataclasses import replace
+
+    return replace(settings, horizon_s=0.0)
 
 
 def cached_design(detector: object, Vz: np.ndarray, dof: int):  # type: ignore[no-untyped-def]
@@ -115,6 +166,8 @@ class CusumBank:
         ``k * sigma`` for a bias of k sigma.
     arl0 : float
         In-control average run length of the whole bank, samples.
+    noise : NoiseSettings or noise model, optional
+        The sensors' noise model: each statistic is designed on its effective sigma (module docstring).
 
     Notes
     -----
@@ -125,11 +178,14 @@ class CusumBank:
     name = "cusum"
     window = 1
 
-    def __init__(self, bias: float | np.ndarray, arl0: float = 1e5) -> None:
+    def __init__(self, bias: float | np.ndarray, arl0: float = 1e5, noise: object = None) -> None:
+        from .glt import as_noise_settings
+
         self.bias = np.asarray(bias, dtype=float)
         if np.any(self.bias <= 0):
             raise ValueError("the design bias must be positive")
         self.arl0 = float(arl0)
+        self.noise = as_noise_settings(noise)
         self._S = np.zeros((2, 0))
         self._dof = 0
         self._last = -1
@@ -151,8 +207,17 @@ class CusumBank:
         m = 2 * int(act.sum())
         thr = np.full(n, np.inf)
         for j in np.flatnonzero(act):
-            thr[j] = delta[j] * cusum_threshold(m * self.arl0, delta[j] / 2.0)
+            sigma_mu = self.wander(Vz, dof, U[:, j], delta[j], m * self.arl0) if self.noise is not None else 0.0
+            thr[j] = delta[j] * cusum_threshold_mixture(m * self.arl0, delta[j] / 2.0, sigma_mu)
         return U, delta, thr, act
+
+    def wander(self, Vz: np.ndarray, dof: int, u: np.ndarray, delta: float, arl: float) -> float:
+        """``sigma_mu`` (units of X) of the slow mean along the unit parity direction ``u`` (module docstring)."""
+        k = delta / 2.0
+        M = max(cusum_threshold(arl, k) / k, 1.0)
+        C = window_covariance(Vz, dof, self.noise, M) / M  # type: ignore[arg-type]  (covariance of the mean)
+        C_white = window_covariance(Vz, dof, _white_only(self.noise), M) / M  # type: ignore[arg-type]
+        return float(np.sqrt(max(u @ (C - C_white) @ u, 0.0)))
 
     def configure(self, Vz: np.ndarray, dof: int) -> None:
         """Use the parity rows of a new active set; every statistic restarts at zero."""

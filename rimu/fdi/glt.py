@@ -7,6 +7,10 @@ With the pipeline's normalised parity ``p = V_w W z`` (unit covariance without a
   at the design false-alarm probability;
 * isolation: a bias ``b`` on sensor j adds ``b v_j`` to p, where v_j is column j of ``V_w W``; the
   likelihood ratio of "sensor j" is ``(v_j^T p)^2 / |v_j|^2`` and the isolated sensor is its argmax.
+
+With a sensor noise model (``noise=``, :mod:`rimu.fdi.whitening`) the parity (or the window sum) is first
+whitened with ``L = chol(M C)^-1``, C the covariance of the window mean under white noise, quantisation,
+bias instability and rate random walk over the stated horizon: the statistic stays chi-square over long runs.
 """
 
 from __future__ import annotations
@@ -15,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.stats import chi2
+
+from .whitening import NoiseSettings, whitener
 
 __all__ = ["glt_threshold", "GltDecision", "glt_snapshot", "GltSnapshot", "GltWindow", "isolate_argmax", "block_isolate"]
 
@@ -83,6 +89,9 @@ class GltSnapshot:
     ----------
     p_fa : float
         Per-sample false-alarm probability.
+    noise : NoiseSettings or noise model, optional
+        The sensors' noise model (:class:`rimu.noise.InstrumentNoise`, or :class:`NoiseSettings` to state
+        the horizon); None: white noise of the pipeline's levels.
 
     Examples
     --------
@@ -98,13 +107,25 @@ class GltSnapshot:
     name = "glt"
     window = 1
 
-    def __init__(self, p_fa: float = 1e-3) -> None:
+    def __init__(self, p_fa: float = 1e-3, noise: object = None) -> None:
         if not 0 < p_fa < 1:
             raise ValueError(f"p_fa must be in (0, 1), got {p_fa}")
         self.p_fa = p_fa
+        self.noise = as_noise_settings(noise)
         self._thr = {d: glt_threshold(p_fa, d) for d in range(0, 64)}
         self._V = np.zeros((0, 0))
         self._dof = 0
+        self._L: np.ndarray | None = None
+
+    def whitening(self, Vz: np.ndarray, dof: int) -> np.ndarray | None:
+        """``L`` of :mod:`rimu.fdi.whitening` for this active set and window (cached per set), or None."""
+        if self.noise is None or dof < 1:
+            return None
+        key = (np.asarray(Vz)[:dof].tobytes(), int(dof))
+        cache = self.__dict__.setdefault("_whiteners", {})
+        if key not in cache:
+            cache[key] = whitener(Vz, dof, self.noise, self.window)
+        return cache[key]
 
     def threshold(self, dof: int) -> float:
         return self._thr[dof] if dof in self._thr else glt_threshold(self.p_fa, dof)
@@ -114,12 +135,18 @@ class GltSnapshot:
         self._V = np.asarray(Vz)[:dof]
         self._dof = int(dof)
         self._t = self.threshold(self._dof)
+        self._L = self.whitening(Vz, dof)
+        if self._L is not None:
+            self._V = self._L @ self._V
 
     def update(self, parity: np.ndarray) -> tuple[float, float]:
         """Statistic and threshold of one sample (the fast path: no isolation work)."""
         d = self._dof
         if d < 1:
             return 0.0, float("inf")
+        if self._L is not None:
+            q = self._L @ parity[:d]
+            return float(q @ q), self._t
         s = 0.0
         for x in parity.tolist()[:d]:  # a few components: Python floats beat numpy's per-call overhead
             s += x * x
@@ -127,13 +154,18 @@ class GltSnapshot:
 
     def isolate(self, parity: np.ndarray) -> tuple[int, np.ndarray]:
         """Most likely faulty sensor for the current sample (call after an alarm), and the ratios."""
-        return isolate_argmax(parity[:self._dof], self._V)
+        p = parity[:self._dof]
+        return isolate_argmax(p if self._L is None else self._L @ p, self._V)
 
     def block(self, P: np.ndarray, Vz: np.ndarray, dof: int) -> tuple[np.ndarray, float, np.ndarray]:
         """Vectorised statistics for N samples of one active set: (statistic (N,), threshold, isolated (N,))."""
         p = P[:, :dof]
+        V = Vz[:dof]
+        L = self.whitening(Vz, dof)
+        if L is not None:
+            p, V = p @ L.T, L @ V
         stat = np.einsum("ij,ij->i", p, p)
-        return stat, self.threshold(dof), block_isolate(p, Vz[:dof])
+        return stat, self.threshold(dof), block_isolate(p, V)
 
 
 class GltWindow(GltSnapshot):
@@ -150,12 +182,16 @@ class GltWindow(GltSnapshot):
         N samples.
     p_fa : float
         False-alarm probability of each statistic (consecutive statistics overlap and are correlated).
+    noise : NoiseSettings or noise model, optional
+        With it the window sum is whitened with the covariance of a window mean under the model's bias
+        instability and random walk (:mod:`rimu.fdi.whitening`); the first ``window - 1`` statistics use the
+        full window's covariance (conservative).
     """
 
     name = "glt_window"
 
-    def __init__(self, window: int = 5, p_fa: float = 1e-3) -> None:
-        super().__init__(p_fa)
+    def __init__(self, window: int = 5, p_fa: float = 1e-3, noise: object = None) -> None:
+        super().__init__(p_fa, noise)
         if window < 1:
             raise ValueError(f"window must be at least 1, got {window}")
         self.window = int(window)
@@ -192,10 +228,14 @@ class GltWindow(GltSnapshot):
         self._k = k
         if self._count < self.window:
             self._count += 1
+        if self._L is not None:
+            q = self._L @ np.array(s)
+            return float(q @ q) / self._count, self._t
         return sum(x * x for x in s) / self._count, self._t
 
     def isolate(self, parity: np.ndarray) -> tuple[int, np.ndarray]:
-        return isolate_argmax(np.array(self._sum), self._V)
+        S = np.array(self._sum)
+        return isolate_argmax(S if self._L is None else self._L @ S, self._V)
 
     def block(self, P: np.ndarray, Vz: np.ndarray, dof: int) -> tuple[np.ndarray, float, np.ndarray]:
         """Sliding-window statistics of N samples, (N,); the first ``window - 1`` use the samples available."""
@@ -204,8 +244,19 @@ class GltWindow(GltSnapshot):
         S = c.copy()
         S[self.window:] -= c[:-self.window]
         cnt = np.minimum(np.arange(1, len(p) + 1), self.window)
+        V = Vz[:dof]
+        L = self.whitening(Vz, dof)
+        if L is not None:
+            S, V = S @ L.T, L @ V
         stat = np.einsum("ij,ij->i", S, S) / cnt
-        return stat, self.threshold(dof), block_isolate(S, Vz[:dof])
+        return stat, self.threshold(dof), block_isolate(S, V)
+
+
+def as_noise_settings(noise: object) -> NoiseSettings | None:
+    """None, a :class:`NoiseSettings`, or a bare noise model (wrapped with the default horizon)."""
+    if noise is None or isinstance(noise, NoiseSettings):
+        return noise
+    return NoiseSettings(noise)
 
 
 def isolate_argmax(p: np.ndarray, V: np.ndarray) -> tuple[int, np.ndarray]:

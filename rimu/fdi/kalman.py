@@ -22,6 +22,13 @@ GLT (at 1e-3 and tau = 20 a replay of 8400 samples showed two false isolations; 
 
 A persistent bias b on sensor j makes ``beta_hat -> b v_j``; a drift (ramp) is followed with a lag of about
 ``rate / K``. The detector restarts when the active set changes.
+
+Coloured noise (``noise=``, :mod:`rimu.fdi.whitening`): the estimate is an exponential average whose white
+variance ``K / (2 - K)`` equals that of a boxcar of ``M = (2 - K) / K`` samples; under bias instability and
+rate random walk its covariance is taken as that of an M-sample mean, ``C(M)`` of the noise model, and the
+estimate test becomes ``T = |L beta_hat|^2`` with ``L = chol(C(M))^-1`` (the white case gives back
+``(2 - K) / K |beta_hat|^2``). The innovation test is a difference of consecutive samples and their
+average: the slow terms cancel in it, and it is left as it is.
 """
 
 from __future__ import annotations
@@ -30,7 +37,8 @@ import numpy as np
 from filterpy.kalman import KalmanFilter
 from scipy.signal import lfilter
 
-from .glt import block_isolate, glt_threshold, isolate_argmax
+from .glt import as_noise_settings, block_isolate, glt_threshold, isolate_argmax
+from .whitening import whitener
 
 __all__ = ["ParityKalman", "steady_gain"]
 
@@ -57,13 +65,16 @@ class ParityKalman:
         ``filterpy``: a ``filterpy.kalman.KalmanFilter`` per active set (predict/update each sample);
         ``steady``: the same filter written out at its steady-state gain on Python floats (identical numbers,
         some 20x cheaper per sample; the tests check the two agree).
+    noise : NoiseSettings or noise model, optional
+        The sensors' noise model: the estimate test whitens with the covariance of the exponential average
+        under it (module docstring).
     """
 
     name = "kalman"
     window = 1
 
     def __init__(self, tau: float = 20.0, p_fa: float = 1e-3, engine: str = "filterpy",
-                 test: str = "estimate") -> None:
+                 test: str = "estimate", noise: object = None) -> None:
         if engine not in ("filterpy", "steady"):
             raise ValueError(f"engine must be 'filterpy' or 'steady', got {engine!r}")
         if test not in ("estimate", "innovation"):
@@ -77,6 +88,8 @@ class ParityKalman:
         self.q = K * K / (1 - K)
         self.K = steady_gain(self.q)
         self.p_fa = p_fa
+        self.noise = as_noise_settings(noise)
+        self._L: np.ndarray | None = None
         self._dof = 0
         self.kf: KalmanFilter | None = None
         self.innovation_statistic = 0.0
@@ -90,6 +103,8 @@ class ParityKalman:
         if dof < 1:
             self.kf = None
             return
+        self._L = self.whitening(Vz, dof)
+        self._VL = self._V if self._L is None else self._L @ self._V
         self._S_inv = (2.0 - self.K) / 2.0  # inverse of the innovations' variance without a fault
         if self.engine == "steady":
             self.kf = None
@@ -122,6 +137,9 @@ class ParityKalman:
             self.innovation_statistic = nu2 * self._S_inv
             if self.test == "innovation":
                 return self.innovation_statistic, self._thr
+            if self._L is not None:
+                q = self._L @ np.array(x)
+                return float(q @ q), self._thr
             return t * self._scale, self._thr
         z = parity[:self._dof]
         kf.predict()
@@ -131,7 +149,27 @@ class ParityKalman:
         if self.test == "innovation":
             return self.innovation_statistic, self._thr
         x = kf.x
+        if self._L is not None:
+            q = self._L @ x
+            return float(q @ q), self._thr
         return float(x @ x) * self._scale, self._thr
+
+    @property
+    def equivalent_window(self) -> float:
+        """Samples of the boxcar with the white variance of the estimate: ``(2 - K) / K``."""
+        return (2.0 - self.K) / self.K
+
+    def whitening(self, Vz: np.ndarray, dof: int) -> np.ndarray | None:
+        """``L`` (dof, dof) of the estimate under the noise model (module docstring), cached per set; or None."""
+        if self.noise is None or dof < 1:
+            return None
+        key = (np.asarray(Vz)[:dof].tobytes(), int(dof))
+        cache = self.__dict__.setdefault("_whiteners", {})
+        if key not in cache:
+            M = self.equivalent_window
+            # whitener() whitens M C(M); the estimate's covariance is C(M) itself
+            cache[key] = np.sqrt(M) * whitener(Vz, dof, self.noise, M)
+        return cache[key]
 
     @property
     def bias(self) -> np.ndarray:
@@ -141,6 +179,8 @@ class ParityKalman:
     def isolate(self, parity: np.ndarray) -> tuple[int, np.ndarray]:
         if self._dof < 1:
             return -1, np.zeros(self._V.shape[1])
+        if self._L is not None:
+            return isolate_argmax(self._L @ self.bias, self._VL)
         return isolate_argmax(self.bias, self._V)
 
     def block(self, P: np.ndarray, Vz: np.ndarray, dof: int) -> tuple[np.ndarray, float, np.ndarray]:
@@ -152,5 +192,9 @@ class ParityKalman:
             nu = P[:, :dof] - prev
             stat = np.einsum("ij,ij->i", nu, nu) * (2 - K) / 2
             return stat, glt_threshold(self.p_fa, dof), block_isolate(nu, Vz[:dof])
+        L = self.whitening(Vz, dof)
+        if L is not None:
+            B = B @ L.T
+            return np.einsum("ij,ij->i", B, B), glt_threshold(self.p_fa, dof), block_isolate(B, L @ Vz[:dof])
         stat = np.einsum("ij,ij->i", B, B) * (2 - K) / K
         return stat, glt_threshold(self.p_fa, dof), block_isolate(B, Vz[:dof])

@@ -186,7 +186,7 @@ class RedundancyManager:
         Must know the noise of its sensors (the calibration's ``noise_sigma`` or ``sigma=``); otherwise
         :class:`rimu.errors.MissingNoiseError`.
     detector : Detector, optional
-        Default :class:`GltSnapshot` at ``p_fa``.
+        Default :class:`GltSnapshot` at ``p_fa`` (with the calibration's noise model, when it has one).
     p_fa : float
         Design false-alarm probability (default detector, the set test's level, the re-admission test).
     confirm : int
@@ -244,7 +244,8 @@ class RedundancyManager:
                 "without sigma=: fault detection would assume 1.0 SI per sample. Pass the noise explicitly, "
                 "InstrumentPipeline(cal, sigma=...) (SI per sample), or set the calibration's noise_sigma")
         self.pipeline = pipeline
-        self.detector = detector if detector is not None else GltSnapshot(p_fa)
+        # the default detector uses the calibration's noise model (rimu.noise) when it has one
+        self.detector = detector if detector is not None else GltSnapshot(p_fa, getattr(pipeline.calibration, "noise", None))
         self.p_fa = p_fa
         self.confirm = int(confirm)
         self.invalid_persist = int(invalid_persist)

@@ -1,8 +1,10 @@
 """Runtime pipeline: compensation, projection to the MB frame, parity vector, isolation (Cho & Park Eq. 20-21)."""
 
 from .compensation import cho_park_eq20, eq20_matrix
+from .effects import EffectCompensation, compensable_effects
 from .pipeline import BlockResult, InstrumentPipeline, Pipeline, StepResult
 from .projection import ActiveSet, ProjectionTable, bits_mask, mask_bits
+from .validation import InstrumentErrors, replay_errors, segment_errors, session_block
 from .validity import Validity
 
 __all__ = [
@@ -17,4 +19,10 @@ __all__ = [
     "bits_mask",
     "cho_park_eq20",
     "eq20_matrix",
+    "EffectCompensation",
+    "compensable_effects",
+    "InstrumentErrors",
+    "replay_errors",
+    "segment_errors",
+    "session_block",
 ]

@@ -40,9 +40,11 @@ from typing import Any
 
 import numpy as np
 
+from ..calibration.model import RuntimeInputs
 from ..calibration.result import Calibration, InstrumentCalibration
 from ..epoch import Epoch, EpochBlock
-from ..errors import ShapeError
+from ..errors import MissingInputError, ShapeError
+from .effects import EffectCompensation, _monomials_one
 from .projection import ActiveSet, ProjectionTable, mask_bits
 from .validity import Validity
 
@@ -141,7 +143,8 @@ class InstrumentPipeline:
     calibration : InstrumentCalibration
     sigma : float or ndarray (n,), optional
         Per-sample noise standard deviation of the compensated outputs, SI. Default: the calibration's
-        ``noise_sigma``; without one, 1.0 (covariances are then in units of sigma^2).
+        ``noise_sigma``, else the per-sample sigma of its ``noise`` model (:mod:`rimu.noise`); without
+        either, 1.0 (covariances are then in units of sigma^2).
     max_excluded : int, optional
         Deprecated, without effect (see :class:`~rimu.fusion.projection.ProjectionTable`).
     range_raw : float or ndarray (n,), optional
@@ -178,6 +181,8 @@ class InstrumentPipeline:
         self.noise_given = sigma is not None or calibration.noise_sigma is not None
         if sigma is None:
             sigma = calibration.noise_sigma if calibration.noise_sigma is not None else 1.0
+            if calibration.noise_sigma is None and getattr(calibration, "noise", None) is not None:
+                sigma = calibration.noise.sample_sigma()  # the identified noise model (rimu.noise)
         self.table = ProjectionTable(calibration.axes_mb(), sigma, max_excluded, cache_size=cache_size,
                                      scale=calibration.scale, bias=calibration.bias)
         if range_raw is None:
@@ -371,6 +376,28 @@ class InstrumentPipeline:
         validity[(bad | sat).any(axis=1) & (validity == Validity.NOMINAL)] = Validity.DEGRADED
         return BlockResult(out[:, :3], out[:, 3:], entry, dof, active, bad, obs, tab, sat, validity, Ps)
 
+    # ------------------------------------------------------------------ estimates without side effects
+    def estimate(self, Z: np.ndarray) -> np.ndarray:
+        """MB estimates (N, 3) of compensated outputs Z (N, n), SI, on the active sensors (non-finite entries
+        excluded per sample, isolated sensors left out), without touching counters or state; zero where the
+        remaining sensors are unobservable. The compensation stage uses it for the inputs of the effects."""
+        Z = np.asarray(Z, dtype=float)
+        good = np.isfinite(Z)
+        tab = self.table
+        if good.all() and self._set.observable:
+            return Z @ self._set.G.T
+        keys = np.packbits(good & ~self._isolated, axis=1, bitorder="little")
+        uniq, inv = np.unique(keys, axis=0, return_inverse=True)
+        inv = inv.reshape(-1)
+        Z0 = np.where(good, Z, 0.0)
+        X = np.zeros((Z.shape[0], 3))
+        for u in range(len(uniq)):
+            s = tab.get(int.from_bytes(uniq[u].tobytes(), "little"))
+            if s.observable:
+                rows = inv == u
+                X[rows] = Z0[rows] @ s.G.T
+        return X
+
     _CHUNK = 8192
 
     def _fast_block(self, Y: np.ndarray, out: np.ndarray) -> bool:
@@ -403,7 +430,16 @@ class InstrumentPipeline:
 
 
 class Pipeline:
-    """The runtime pipeline of a whole unit: one :class:`InstrumentPipeline` per instrument.
+    """The runtime pipeline of a whole unit: compensation of every calibrated effect, then one
+    :class:`InstrumentPipeline` per instrument.
+
+    Where the calibration holds further effects (``InstrumentCalibration.effects``: g-sensitivity,
+    temperature, nonlinearity, drift, size effect, ...), a compensation stage (:mod:`rimu.fusion.effects`)
+    inverts the full calibrated output model before the projection: the accelerometers are compensated and
+    projected first and their specific force feeds the gyros' g-sensitivity; the gyros' angular rate feeds
+    the accelerometers' size effect (the gyros then go first; where both are present, a two-round fixed point
+    between the two instruments gives the gyro rate the size effect uses, see :attr:`cycle_rounds`); temperature effects use the temperature channel; drift uses the time since the stream
+    started (``t0``, the first sample's time unless given).
 
     Parameters
     ----------
@@ -416,24 +452,175 @@ class Pipeline:
         Range limit per instrument in raw output units, overriding the calibration's ``range_raw``.
     cache_size : int, optional
         Active sets cached per instrument besides the full set (default ``max(64, 2 n)``).
+    temperature : bool, optional
+        Whether the stream carries the unit temperature. False refuses, when the pipeline is built, a
+        calibration with temperature effects; None (default) leaves the check to each sample.
+    t0 : float, optional
+        Time of switch-on (the origin of the drift), s; default the first sample's time.
+
+    Raises
+    ------
+    MissingInputError
+        An effect needs an input the stream does not carry (temperature declared absent, or the other
+        instrument not calibrated); the message names the effect and the input.
+    NotCompensableError
+        The calibration holds an effect without runtime compensation.
     """
 
     def __init__(self, calibration: Calibration, sigma: dict[str, Any] | None = None,
                  max_excluded: int | None = None, range_raw: dict[str, Any] | None = None,
-                 cache_size: int | None = None) -> None:
+                 cache_size: int | None = None, *, temperature: bool | None = None,
+                 t0: float | None = None) -> None:
         sigma = sigma or {}
         range_raw = range_raw or {}
         self.calibration = calibration
         self.instruments = {k: InstrumentPipeline(calibration[k], sigma.get(k), max_excluded, range_raw.get(k),
                                                   cache_size)
                             for k in calibration.instruments}
+        meta = calibration.metadata or {}
+        self._t_ref = float(meta.get("reference_temperature", 25.0))
+        comps = {k: EffectCompensation(calibration[k], self._t_ref) for k in calibration.instruments}
+        #: compensation stage per instrument with further effects
+        self.compensation: dict[str, EffectCompensation] = {k: c for k, c in comps.items() if c}
+        self._generic = any(c.has_generic for c in self.compensation.values())
+        self._estimators = {k: (lambda q, p=self.instruments[k]: p.estimate(q[None])[0]) for k in self.compensation}
+        self.t0 = t0
+        provided = {"time", "specific_force" if "accel" in self.instruments else "", "angular_rate"
+                    if "gyro" in self.instruments else ""}
+        if temperature:
+            provided.add("temperature")
+        for k, c in self.compensation.items():
+            for need in c.needs:
+                if need in provided or (need == "temperature" and temperature is None):
+                    continue
+                eff = c.effects_needing(need)[0]
+                why = {"temperature": "the stream carries no temperature channel",
+                       "specific_force": "the calibration has no accelerometers to give it",
+                       "angular_rate": "the calibration has no gyros to give it"}[need]
+                raise MissingInputError(
+                    f"{k} effect {eff!r} needs the {need.replace('_', ' ')}, and {why}; recalibrate without "
+                    f"{eff!r} or provide the input", eff, need)
+        acc, gyr = self.compensation.get("accel"), self.compensation.get("gyro")
+        acc_needs_w = bool(acc) and "angular_rate" in acc.needs
+        gyr_needs_f = bool(gyr) and "specific_force" in gyr.needs
+        self._cyclic = acc_needs_w and gyr_needs_f
+        first = ("gyro", "accel") if acc_needs_w and not gyr_needs_f else ("accel", "gyro")
+        self._order = [k for k in first if k in self.instruments]
 
     def __getitem__(self, instrument: str) -> InstrumentPipeline:
         return self.instruments[instrument]
 
+    # ------------------------------------------------------------------ compensation stage
+    #: rounds of the gyro <-> accelerometer fixed point where g-sensitivity and size effect are both present
+    cycle_rounds = 2
+
+    def _preliminary_rate(self, solve: Any, zeros: Any) -> Any:
+        """Gyro estimate for the accelerometers' size effect when the gyros need the specific force too: a fixed
+        point started from the accelerometers with zero rate (no size effect). Each round shrinks the error by
+        the loop gain (size-effect slope 2|w||r| times the g-sensitivity, ~1e-5); two rounds leave ~1e-12.
+        ``solve(k, f, w)`` is the MB estimate of instrument k given the other inputs."""
+        f = solve("accel", None, zeros)
+        w = solve("gyro", f, None)
+        for _ in range(self.cycle_rounds - 1):
+            f = solve("accel", None, w)
+            w = solve("gyro", f, None)
+        return w
+
+    def compensate(self, block: EpochBlock) -> EpochBlock:
+        """The block with every further effect removed from the raw outputs (an ideal SF/M/B unit's raw data),
+        for FDI managers and anything else built on :class:`InstrumentPipeline`. Equal to what
+        :meth:`process` feeds its instrument pipelines."""
+        raw, _ = self._compensate_block(block)
+        return EpochBlock(block.t, raw, dict(block.valid), block.temperature, dict(block.meta))
+
+    def _compensate_block(self, block: EpochBlock) -> tuple[dict[str, np.ndarray], dict[str, BlockResult]]:
+        out = dict(block.raw)
+        results: dict[str, BlockResult] = {}
+        if not self.compensation:
+            return out, results
+        temp = block.temperature
+        self._need_temperature(temp is not None)
+        if self.t0 is None:
+            self.t0 = float(block.t[0])
+        t = block.t - self.t0
+
+        def solve(k: str, f: np.ndarray | None, w: np.ndarray | None) -> np.ndarray:
+            inputs = RuntimeInputs(t=t, temperature=temp, specific_force=f, angular_rate=w)
+            return self.compensation[k].solve(block.raw[k], inputs, estimate=self.instruments[k].estimate)
+
+        f = w = None
+        if self._cyclic:
+            w = self._preliminary_rate(lambda k, f_, w_: self.instruments[k].estimate(solve(k, f_, w_)),
+                                       np.zeros((len(block), 3)))
+        for k in self._order:
+            comp = self.compensation.get(k)
+            if comp is not None:
+                out[k] = comp.raw(block.raw[k], RuntimeInputs(t=t, temperature=temp, specific_force=f, angular_rate=w),
+                                  self.instruments[k].estimate)
+            res = self.instruments[k].process(out[k], block.valid.get(k))
+            results[k] = res
+            if k == "accel":
+                f = np.asarray(res.x)
+            else:
+                w = np.asarray(res.x)
+        return out, results
+
+    def _need_temperature(self, present: bool) -> None:
+        if present:
+            return
+        for k, c in self.compensation.items():
+            if "temperature" in c.needs:
+                eff = c.effects_needing("temperature")[0]
+                raise MissingInputError(f"{k} effect {eff!r} needs the temperature, and the data carry none; "
+                                        "recalibrate without it or record the temperature", eff, "temperature")
+
+    # ------------------------------------------------------------------ run
     def step(self, epoch: Epoch) -> dict[str, StepResult]:
-        """One epoch through every instrument's pipeline."""
-        return {k: p.step(epoch.raw[k], epoch.valid.get(k)) for k, p in self.instruments.items()}
+        """One epoch through the compensation stage and every instrument's pipeline."""
+        if not self.compensation:
+            return {k: p.step(epoch.raw[k], epoch.valid.get(k)) for k, p in self.instruments.items()}
+        T = epoch.temperature
+        if T is None:
+            self._need_temperature(False)
+        if self.t0 is None:
+            self.t0 = float(epoch.t)
+        t = float(epoch.t) - self.t0
+        dT = 0.0 if T is None else float(T) - self._t_ref
+        generic = self._generic
+        comps = self.compensation
+
+        def solve_q(k: str, f: list[float] | None, w: list[float] | None, raw: bool = False) -> np.ndarray:
+            y = np.asarray(epoch.raw[k], dtype=float)
+            inputs = None
+            if generic:
+                inputs = RuntimeInputs(np.array([t]), None, None if T is None else np.array([float(T)]),
+                                       None if f is None else np.array([f]), None if w is None else np.array([w]))
+                comps[k]._check(inputs)
+            mono = _monomials_one(t, dT, f, w)
+            est = self._estimators[k]
+            if raw:
+                return comps[k].raw_one(y, mono, inputs, est)
+            return comps[k].solve_one(y, mono, inputs, est)
+
+        f = w = None
+        if self._cyclic:
+            w = self._preliminary_rate(lambda k, f_, w_: self.instruments[k].estimate(solve_q(k, f_, w_)[None])[0]
+                                       .tolist(), [0.0, 0.0, 0.0])
+        res: dict[str, StepResult] = {}
+        for k in self._order:
+            comp = comps.get(k)
+            y = epoch.raw[k] if comp is None else solve_q(k, f, w, raw=True)
+            r = self.instruments[k].step(y, epoch.valid.get(k))
+            res[k] = r
+            if k == "accel":
+                f = r.x.tolist()
+            else:
+                w = r.x.tolist()
+        return {k: res[k] for k in self.instruments}
 
     def process(self, block: EpochBlock) -> dict[str, BlockResult]:
-        return {k: p.process(block.raw[k], block.valid.get(k)) for k, p in self.instruments.items()}
+        """N epochs at once; the same numbers as :meth:`step` on each epoch."""
+        if not self.compensation:
+            return {k: p.process(block.raw[k], block.valid.get(k)) for k, p in self.instruments.items()}
+        _, results = self._compensate_block(block)
+        return {k: results[k] for k in self.instruments}

@@ -45,11 +45,23 @@ class SubUnit:
         expressing misalignment rows.
     members : tuple of int
         Indices of the sensors (rows of H) in this sub-unit.
+    position_mb_m : ndarray, shape (3,), or None
+        Where the sub-unit sits: its origin in MB coordinates, metres (the lever arm from the MB origin).
+        None (the default) when the position is not known or does not matter (gyros, co-located triads).
+        Accelerometers at a lever arm ``r`` measure ``f + w' x r + w x (w x r)`` besides the MB specific
+        force ``f``; rimu.array uses these positions to compensate that.
+
+    Examples
+    --------
+    >>> su = SubUnit("imu1", np.eye(3), (0, 1, 2), position_mb_m=np.array([0.01, 0.0, 0.0]))
+    >>> su.position_mb_m.tolist()
+    [0.01, 0.0, 0.0]
     """
 
     name: str
     mat_sb_mb: np.ndarray
     members: tuple[int, ...]
+    position_mb_m: np.ndarray | None = None
 
     @property
     def proper(self) -> bool:
@@ -219,10 +231,7 @@ class Geometry:
         payload = {
             "H": np.round(self._H, 9).tolist(),
             "names": list(self._names),
-            "subunits": [
-                {"name": su.name, "members": list(su.members), "mat_sb_mb": np.round(su.mat_sb_mb, 9).tolist()}
-                for su in self._subunits
-            ],
+            "subunits": [_subunit_dict(su, digits=9) for su in self._subunits],
         }
         blob = json.dumps(payload, sort_keys=True, separators=(",", ":")).replace("-0.0,", "0.0,")
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
@@ -234,10 +243,7 @@ class Geometry:
             "name": self.name,
             "names": list(self._names),
             "H": self._H.tolist(),
-            "subunits": [
-                {"name": su.name, "members": list(su.members), "mat_sb_mb": su.mat_sb_mb.tolist()}
-                for su in self._subunits
-            ],
+            "subunits": [_subunit_dict(su) for su in self._subunits],
             "fingerprint": self.fingerprint(),
         }
 
@@ -246,12 +252,27 @@ class Geometry:
         """Inverse of :meth:`to_dict`; raises GeometryError on a malformed description."""
         try:
             subunits = [
-                SubUnit(str(s["name"]), np.asarray(s["mat_sb_mb"], dtype=float), tuple(int(m) for m in s["members"]))
+                SubUnit(str(s["name"]), np.asarray(s["mat_sb_mb"], dtype=float), tuple(int(m) for m in s["members"]),
+                        None if s.get("position_mb_m") is None else np.asarray(s["position_mb_m"], dtype=float))
                 for s in d.get("subunits") or []
             ] or None
             return cls(d["H"], names=d.get("names"), subunits=subunits, name=d.get("name", "custom"))
         except (KeyError, TypeError) as exc:
             raise GeometryError(f"geometry description is malformed ({exc!r}); expected keys H, names, subunits") from exc
+
+    def positions_mb_m(self) -> np.ndarray:
+        """Position of each sensor's sub-unit in MB, metres, shape (n, 3); NaN rows where none is known.
+
+        >>> from rimu.geometry import triads
+        >>> g = triads([np.eye(3), np.eye(3)], positions_mb_m=[[0, 0, 0], [0.1, 0, 0]])
+        >>> g.positions_mb_m()[3].tolist()
+        [0.1, 0.0, 0.0]
+        """
+        out = np.full((self.n, 3), np.nan)
+        for su in self._subunits:
+            if su.position_mb_m is not None:
+                out[list(su.members)] = su.position_mb_m
+        return out
 
     def __repr__(self) -> str:
         return f"Geometry({self.name!r}, n={self.n}, subunits={[s.name for s in self._subunits]})"
@@ -334,7 +355,27 @@ def _check_subunit(su: SubUnit, H: np.ndarray, n: int) -> SubUnit:
     if bad:
         raise GeometryError(f"sub-unit {su.name!r} names sensor indices {bad} outside 0..{n - 1}")
     C.setflags(write=False)
-    return SubUnit(su.name, C, members)
+    pos = None
+    if su.position_mb_m is not None:
+        try:
+            pos = np.array(su.position_mb_m, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise GeometryError(f"sub-unit {su.name!r}: position_mb_m must be 3 numbers (metres): {exc}") from exc
+        if pos.shape != (3,) or not np.all(np.isfinite(pos)):
+            raise GeometryError(
+                f"sub-unit {su.name!r}: position_mb_m must be 3 finite numbers (metres in MB), got {pos.tolist()}")
+        pos.setflags(write=False)
+    return SubUnit(su.name, C, members, pos)
+
+
+def _subunit_dict(su: SubUnit, digits: int | None = None) -> dict[str, Any]:
+    """Plain-JSON form of a sub-unit; ``position_mb_m`` only when known (old fingerprints stay the same)."""
+    C = su.mat_sb_mb if digits is None else np.round(su.mat_sb_mb, digits)
+    d: dict[str, Any] = {"name": su.name, "members": list(su.members), "mat_sb_mb": C.tolist()}
+    if su.position_mb_m is not None:
+        p = su.position_mb_m if digits is None else np.round(su.position_mb_m, digits) + 0.0
+        d["position_mb_m"] = p.tolist()
+    return d
 
 
 def stack(rows: Iterable[Sequence[float]]) -> np.ndarray:

@@ -20,6 +20,10 @@ SOURCES: dict[str, str] = {
     "npz": "rimu.io.recorded:NpzSource",
     "ulog": "rimu.io.ulog:ULogSource",
     "block": "rimu.io.device:BlockSource",
+    "multi-imu-csv": "rimu.io.multiimu:MultiImuCsvSource",
+    "pixhawk-dual": "rimu.io.pixhawk_dual:PixhawkDualSource",
+    "xsens-dot": "rimu.io.xsens_dot:XsensDotSource",
+    "mpu6050-csv": "rimu.io.mpu6050_csv:Mpu6050CsvSource",
 }
 
 

@@ -7,8 +7,8 @@ For sensor i (Cho & Park 2005, Eq. 1 solved for the output)::
 with u the true input in MB: for gyros the table rate plus the Earth rate at the true attitude; for
 accelerometers the specific force at the true attitude plus the centripetal acceleration of a lever arm and
 an optional random perturbing acceleration. ``v_i`` is white noise of the given density (ARW, VRW) plus an
-optional bias random walk. Turntable imperfections: a random attitude error per position, a relative rate
-error per step, and a constant mounting error of the unit on the table. The session reports only what the
+optional bias random walk and an optional flicker bias (bias instability, :mod:`rimu.sim.noise`). Turntable
+imperfections: a random attitude error per position, a relative rate error per step, and a constant mounting error of the unit on the table. The session reports only what the
 procedure says the rig knows (commanded values), never the truth.
 
 Deterministic for a given seed.
@@ -21,10 +21,11 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from ..calibration.model import Effect, SensorContext
+from ..calibration.model import Effect, SensorContext, unit_axes
 from ..calibration.result import Calibration, InstrumentCalibration
 from ..epoch import INSTRUMENTS, EpochBlock
 from ..geometry import Geometry, cone6
+from ..noise.model import InstrumentNoise
 from ..session import Segment, Session, rotation_matrix
 from ..units import (
     ARCSEC_TO_RAD,
@@ -36,6 +37,7 @@ from ..units import (
     UG_TO_MS2,
     white_noise_sigma,
 )
+from .noise import FlickerSource
 from .procedures import SegmentSpec
 from .truth import default_truth
 
@@ -92,6 +94,11 @@ class Simulator:
         Accelerometer white noise density, micro-g/sqrt(Hz).
     gyro_bias_rw_deg_h_sqrt_h, accel_bias_rw_ug_sqrt_h : float
         Bias random walk densities ((deg/h)/sqrt(h) and micro-g/sqrt(h)); 0 disables.
+    gyro_bias_instability_deg_h, accel_bias_instability_ug : float
+        Bias instability B (flicker bias, :class:`rimu.sim.noise.FlickerSource`; the Allan deviation is flat
+        at 0.664 B), deg/h and micro-g; 0 disables.
+    flicker_band_s : (float, float), optional
+        Shortest and longest time constant of the flicker source, s (default ``(0.2 / sample_rate, 1e5)``).
     sample_rate : float
         Hz.
     latitude_deg : float or None
@@ -125,6 +132,9 @@ class Simulator:
         vrw_ug_sqrt_hz: float = 200.0,
         gyro_bias_rw_deg_h_sqrt_h: float = 0.0,
         accel_bias_rw_ug_sqrt_h: float = 0.0,
+        gyro_bias_instability_deg_h: float = 0.0,
+        accel_bias_instability_ug: float = 0.0,
+        flicker_band_s: tuple[float, float] | None = None,
         sample_rate: float = 100.0,
         latitude_deg: float | None = 36.37,
         gravity: float = G0,
@@ -144,6 +154,9 @@ class Simulator:
         self.vrw_ug_sqrt_hz = vrw_ug_sqrt_hz
         self.gyro_bias_rw_deg_h_sqrt_h = gyro_bias_rw_deg_h_sqrt_h
         self.accel_bias_rw_ug_sqrt_h = accel_bias_rw_ug_sqrt_h
+        self.gyro_bias_instability_deg_h = gyro_bias_instability_deg_h
+        self.accel_bias_instability_ug = accel_bias_instability_ug
+        self.flicker_band_s = None if flicker_band_s is None else tuple(flicker_band_s)
         self.sample_rate = sample_rate
         self.latitude_deg = latitude_deg
         self.gravity = gravity
@@ -164,6 +177,16 @@ class Simulator:
             return white_noise_sigma(self.arw_deg_sqrt_h * ARW_DSQH_TO_RSQS, self.sample_rate)
         return white_noise_sigma(self.vrw_ug_sqrt_hz * UG_TO_MS2, self.sample_rate)
 
+    def noise_model(self, instrument: str) -> InstrumentNoise | None:
+        """The simulated noise terms (IEEE Std 952, SI) when bias instability or random walk are on, else None."""
+        b, k = self._bias_instability(instrument), self._bias_rw_density(instrument)
+        if b <= 0 and k <= 0:
+            return None
+        g = self.geometries[instrument]
+        white = self.noise_sigma(instrument) / np.sqrt(self.sample_rate)
+        return InstrumentNoise.from_terms(instrument, list(g.names), self.sample_rate, white=white,
+                                          bias_instability=b, rate_random_walk=k)
+
     def truth_calibration(self) -> Calibration:
         base = self.truth or default_truth(self.geometries, seed=0 if self.seed is None else int(self.seed))
         out = {}
@@ -172,7 +195,7 @@ class Simulator:
             if c.geometry.fingerprint() != g.fingerprint():
                 raise ValueError(f"the truth for {k} is for geometry {c.geometry.name!r}, the simulator has {g.name!r}")
             out[k] = InstrumentCalibration(k, g, c.scale, c.misalignment, c.bias, np.full(g.n, self.noise_sigma(k)),
-                                           effects=dict(c.effects))
+                                           effects=dict(c.effects), noise=self.noise_model(k))
         return Calibration(out, method=base.method)
 
     # ------------------------------------------------------------------ run
@@ -185,8 +208,12 @@ class Simulator:
         fs = self.sample_rate
         lat = None if self.latitude_deg is None else self.latitude_deg * DEG_TO_RAD
         mount = rotation_matrix(np.zeros(3) if self.mount_error_rad is None else np.asarray(self.mount_error_rad, float))
-        ctxs = {k: [SensorContext(k, i, g, lat, self.gravity) for i in range(g.n)] for k, g in self.geometries.items()}
+        # further effects act on what each sensor really senses: its true axis
+        ctxs = {k: [SensorContext(k, i, g, lat, self.gravity, axes=unit_axes(truth[k].axes_mb())) for i in range(g.n)]
+                for k, g in self.geometries.items()}
         rw_state = {k: np.zeros(g.n) for k, g in self.geometries.items()}
+        flicker = {k: FlickerSource(g.n, fs, self._bias_instability(k), self.flicker_band_s, rng=rng)
+                   for k, g in self.geometries.items() if self._bias_instability(k) > 0}
         lever = None if self.lever_arm_m is None else np.asarray(self.lever_arm_m, dtype=float)
         segments, truth_segments, inputs_all, idx_all = [], [], {k: [] for k in self.geometries}, []
         t0 = 0.0
@@ -233,6 +260,8 @@ class Simulator:
                     walk = rw_state[k] + np.cumsum(steps, axis=0)
                     rw_state[k] = walk[-1]
                     z = z + walk
+                if k in flicker:
+                    z = z + flicker[k].draw(N)
                 y = z / cal.scale
                 if self.quantize:
                     y = np.round(y)
@@ -264,6 +293,9 @@ class Simulator:
             "vrw_ug_sqrt_hz": self.vrw_ug_sqrt_hz,
             "gyro_bias_rw_deg_h_sqrt_h": self.gyro_bias_rw_deg_h_sqrt_h,
             "accel_bias_rw_ug_sqrt_h": self.accel_bias_rw_ug_sqrt_h,
+            "gyro_bias_instability_deg_h": self.gyro_bias_instability_deg_h,
+            "accel_bias_instability_ug": self.accel_bias_instability_ug,
+            "flicker_band_s": None if self.flicker_band_s is None else list(self.flicker_band_s),
             "sample_rate": self.sample_rate,
             "latitude_deg": self.latitude_deg,
             "table_angle_error_arcsec": self.table_angle_error_arcsec,
@@ -282,6 +314,12 @@ class Simulator:
         if instrument == "gyro":
             return self.gyro_bias_rw_deg_h_sqrt_h * DH_TO_RS / 60.0
         return self.accel_bias_rw_ug_sqrt_h * UG_TO_MS2 / 60.0
+
+    def _bias_instability(self, instrument: str) -> float:
+        """Bias instability B in SI (rad/s, m/s^2)."""
+        if instrument == "gyro":
+            return self.gyro_bias_instability_deg_h * DH_TO_RS
+        return self.accel_bias_instability_ug * UG_TO_MS2
 
     def _reported(self, spec: SegmentSpec, t: np.ndarray, raw: dict[str, np.ndarray], temp: np.ndarray) -> Segment:
         kind = spec.report

@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+from typing import Any
+
 import numpy as np
 
 from ...session import Segment
 from ...units import DEG_TO_RAD, G0, MS2_TO_UG, PPM, RS_TO_DH
-from ..model import SensorContext
+from ..model import RuntimeInputs, SensorContext
 
-__all__ = ["axis_input", "input_unit", "output_unit", "per_input_power", "temperature_offset"]
+__all__ = ["axis_input", "geometry_cache", "input_unit", "output_unit", "per_input_power", "runtime_temperature_offset",
+           "temperature_offset"]
 
 
 def axis_input(segment: Segment, ctx: SensorContext) -> np.ndarray | None:
@@ -51,3 +55,24 @@ def temperature_offset(segment: Segment, ctx: SensorContext) -> np.ndarray | Non
     return np.asarray(segment.temperature, dtype=float) - ctx.reference_temperature
 
 
+
+
+_CACHE: dict[tuple[str, int, int], tuple[Any, Any]] = {}
+
+
+def geometry_cache(key: str, ctxs: Sequence[SensorContext], make: Callable[[], Any]) -> Any:
+    """A constant an effect derives from the geometry once (axes, cross axes, ...), kept per geometry object and
+    calibrated axes (which the entry holds, so their ids stay unique) so that the per-sample runtime work is
+    arithmetic only."""
+    g = ctxs[0].geometry
+    A = ctxs[0].axes
+    k = (key, id(g), id(A))
+    hit = _CACHE.get(k)
+    if hit is None:
+        hit = _CACHE[k] = ((g, A), make())
+    return hit[1]
+
+
+def runtime_temperature_offset(inputs: RuntimeInputs, ctxs: Sequence[SensorContext]) -> np.ndarray:
+    """``T - T_ref`` as (N, 1, 1), K (one reference temperature per instrument)."""
+    return inputs.temperature_offset(ctxs[0])[:, None, None]

@@ -2,18 +2,21 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from ...session import Segment
 from ...units import PPM
-from ..model import Effect, ParamSpec, SensorContext
-from ._common import axis_input, temperature_offset
+from ..model import Effect, ParamSpec, RuntimeForm, RuntimeInputs, SensorContext, monomial
+from ._common import axis_input, runtime_temperature_offset, temperature_offset
 
 __all__ = ["ScaleTemperature2"]
 
 
 class ScaleTemperature2(Effect):
     name = "scale_temperature2"
+    runtime_needs = ("temperature", "axis_input")
     description = "scale-factor temperature coefficient (quadratic): the scale changes in proportion to (T - T_ref)^2"
     physics = "Curvature of the scale-temperature characteristic. Error = ks2 (T - T_ref)^2 s; reported in ppm/K^2."
     needs = "temperature"
@@ -26,3 +29,17 @@ class ScaleTemperature2(Effect):
         dT = temperature_offset(segment, ctx)
         s = axis_input(segment, ctx)
         return None if dT is None or s is None else (dT**2 * s)[:, None]
+
+    def runtime_columns(self, inputs: RuntimeInputs, ctxs: Sequence[SensorContext]) -> np.ndarray:
+        """``(T - T_ref)^2 s_i``, (N, n, 1): output-side, inverted with the sensor's own input."""
+        dT = runtime_temperature_offset(inputs, ctxs)[:, :, 0]
+        return (dT * dT * inputs.axis_input)[:, :, None]
+
+    def runtime_slope(self, inputs: RuntimeInputs, ctxs: Sequence[SensorContext]) -> np.ndarray:
+        dT = runtime_temperature_offset(inputs, ctxs)
+        return np.broadcast_to(dT * dT, (dT.shape[0], len(ctxs), 1))
+
+    def runtime_form(self, ctxs: Sequence[SensorContext]) -> RuntimeForm:
+        form = RuntimeForm.zeros("power", len(ctxs), 1, power=1)
+        form.F[:, 0, monomial("dT2")] = 1.0
+        return form

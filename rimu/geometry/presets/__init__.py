@@ -12,8 +12,9 @@ from .cone6 import cone6
 from .dodecahedron6 import dodecahedron6
 from .tetrad4 import tetrad4
 from .triad3 import triad3
+from .triads import triads
 
-__all__ = ["PRESETS", "preset", "cone", "cone6", "tetrad4", "triad3", "dodecahedron6"]
+__all__ = ["PRESETS", "preset", "cone", "cone6", "tetrad4", "triad3", "triads", "dodecahedron6"]
 
 #: name -> factory returning a Geometry
 PRESETS: dict[str, Callable[..., Geometry]] = {
@@ -22,11 +23,13 @@ PRESETS: dict[str, Callable[..., Geometry]] = {
     "triad3": triad3,
     "dodecahedron6": dodecahedron6,
     "cone": cone,
+    "triads": triads,
 }
 
 
 def preset(name: str, **kwargs: Any) -> Geometry:
-    """Build a named geometry (``cone`` takes ``n`` and ``half_angle``).
+    """Build a named geometry (``cone`` takes ``n`` and ``half_angle``; ``triads`` takes
+    ``rotations``, ``positions_mb_m``, ``names``).
 
     >>> preset("cone6").n
     6

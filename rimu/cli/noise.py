@@ -1,0 +1,145 @@
+"""``rimu noise RECORDING -o NOISE.json``: Allan deviation and IEEE Std 952 noise terms of every sensor.
+
+RECORDING is a static recording: a session file in rimu's format (``.npz``, or ``.csv`` with its ``.json``
+sidecar; the longest static segment, or ``--segment``), or a plain array of compensated outputs in SI
+(``.npy``, or a ``.csv`` without a sidecar: N rows, one column per sensor) with ``--sample-rate``. Counts need
+``--calibration`` for the scale factors. Writes the noise model (JSON, ``format: rimu.noise``); ``--report DIR``
+adds one log-log plot per instrument with the fitted slopes, the parity plot and a markdown summary;
+``--json FILE`` a short machine-readable summary; ``--write-calibration OUT`` the calibration with the noise
+terms in its optional ``noise`` section (what the detectors of rimu.fdi read). See docs/noise.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("noise", help="Allan deviation and noise terms (ARW/VRW, bias instability, RRW) of a static "
+                       "recording", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("recording", help="session file (.npz, .csv + .json sidecar) or plain .npy/.csv in SI")
+    p.add_argument("-o", "--output", default="noise.json", help="noise model file (default noise.json)")
+    p.add_argument("--report", default=None, metavar="DIR", help="folder for the plots and noise.md")
+    p.add_argument("--json", default=None, metavar="FILE", help="machine-readable summary")
+    p.add_argument("--calibration", default=None, help="calibration file: scale factors, biases and axes")
+    p.add_argument("--write-calibration", default=None, metavar="OUT",
+                   help="write the calibration with the identified noise in its 'noise' section")
+    p.add_argument("--segment", default=None, help="segment label (default: the longest static one)")
+    p.add_argument("--instrument", action="append", default=None, help="gyro or accel (repeatable; default all)")
+    p.add_argument("--terms", default="quantization,white,bias_instability,rate_random_walk",
+                   help="terms to fit, comma-separated")
+    p.add_argument("--sample-rate", type=float, default=None, help="Hz (plain recordings)")
+    p.add_argument("--geometry", default=None, help="geometry preset of a plain recording (for the parity check)")
+    p.add_argument("--p-fa", type=float, default=1e-3, help="false-verdict probability of each parity check")
+    p.set_defaults(func=run)
+
+
+def _plain(args: argparse.Namespace, path: Path) -> Any:
+    from ..errors import SessionFormatError
+    from ..noise.api import identify
+
+    if args.sample_rate is None:
+        raise SessionFormatError(f"{path} is a plain array: give its --sample-rate (Hz)")
+    z = np.load(path) if path.suffix == ".npy" else np.loadtxt(path, delimiter=",", ndmin=2)
+    inst = (args.instrument or ["gyro"])[0]
+    axes = names = None
+    if args.geometry:
+        from ..geometry import preset
+
+        g = preset(args.geometry)
+        if g.n != z.shape[1]:
+            raise SessionFormatError(f"{path} has {z.shape[1]} columns, geometry {g.name!r} {g.n} sensors")
+        axes, names = {inst: g.H}, {inst: list(g.names)}
+    return identify({inst: z}, args.sample_rate, axes, names, _terms(args), args.p_fa,
+                    meta={"recording": str(path), "plain": True})
+
+
+def _terms(args: argparse.Namespace) -> tuple[str, ...]:
+    return tuple(t.strip() for t in args.terms.split(",") if t.strip())
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..errors import RimuError
+
+    try:
+        return _run(args)
+    except (RimuError, OSError, ValueError) as exc:
+        print(f"rimu noise: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def _run(args: argparse.Namespace) -> int:
+    from ..noise.api import identify_session
+
+    path = Path(args.recording)
+    if not path.exists():
+        raise FileNotFoundError(f"no such recording: {path}")
+    cal = None
+    if path.suffix == ".npy" or (path.suffix == ".csv" and not path.with_suffix(".json").exists()):
+        model = _plain(args, path)
+    else:
+        from ..calibration import Calibration
+        from ..session import load_session
+
+        session = load_session(path)
+        if args.calibration:
+            cal = Calibration.load(args.calibration, geometries=session.geometries)
+        model = identify_session(session, cal, args.segment, args.instrument, _terms(args), args.p_fa)
+        model.meta["recording"] = str(path)
+    for k, m in model.instruments.items():
+        print(m.table())
+        if k in model.parity:
+            print("  " + model.parity[k]["verdict"])
+    out = model.save(args.output)
+    extra = []
+    if args.report:
+        extra.append(f"report {_report(model, Path(args.report))}")
+    if args.json:
+        summary = {"output": str(out), "instruments": {k: m.table_rows() for k, m in model.instruments.items()},
+                   "parity": {k: {"white": v["white"], "independent": v["independent"], "verdict": v["verdict"]}
+                              for k, v in model.parity.items()}}
+        Path(args.json).write_text(json.dumps(summary, indent=1))
+        extra.append(f"summary {args.json}")
+    if args.write_calibration:
+        if cal is None:
+            from ..errors import CalibrationFileError
+
+            raise CalibrationFileError("--write-calibration needs --calibration (the file to add the noise to)")
+        for k, m in model.instruments.items():
+            if k in cal:
+                cal[k].noise = m
+        cal.save(args.write_calibration)
+        extra.append(f"calibration with noise {args.write_calibration}")
+    insts = ", ".join(f"{k} ({m.n} sensors)" for k, m in model.instruments.items())
+    print(f"noise of {insts} -> {out}" + ("; " + "; ".join(extra) if extra else ""))
+    return 0
+
+
+def _report(model: Any, folder: Path) -> Path:
+    from ..noise.model import FIELD_UNITS, TERMS
+    from ..noise.plots import plot_instrument, plot_parity
+
+    folder.mkdir(parents=True, exist_ok=True)
+    lines = ["# Noise identification (IEEE Std 952 / 1554)", ""]
+    for k, m in model.instruments.items():
+        png = plot_instrument(m, folder / f"allan-{k}.png")
+        units = FIELD_UNITS[k]
+        lines += [f"## {k}", "", f"![Allan deviation]({png.name})", "",
+                  "| sensor | " + " | ".join(f"{t.replace('_', ' ')} [{units[t][0]}]" for t in TERMS) + " |",
+                  "|---|" + "---|" * len(TERMS)]
+        for r in m.table_rows():
+            lines.append(f"| {r['sensor']} | " + " | ".join(f"{r[t]:.4g} +/- {r[t + '_sigma']:.2g}" for t in TERMS)
+                         + " |")
+        lines.append("")
+        if k in model.parity:
+            pp = plot_parity(model.parity[k], folder / f"parity-{k}.png")
+            lines += [model.parity[k]["verdict"], "", f"![parity]({pp.name})", ""]
+    md = folder / "noise.md"
+    md.write_text("\n".join(lines))
+    return md

@@ -1,0 +1,67 @@
+"""Done-when of issue 19: a full replay of every shared real multi-IMU recording, fault-free as recorded, ends
+with every unit that delivers data active and no isolation. Skips cleanly when the data are absent.
+
+The unit is set up by the recipe of docs/real-units.md from the first half of each recording (clock offsets,
+axis alignment, bias differences, noise from the disagreement, 0.1 s block averages) and replayed whole through
+a fresh :class:`RedundancyManager` per instrument (GLT snapshot, p_fa 1e-3, 3 confirmations). Failures name the
+isolations (sensor, time) and the parity rms, which is what the motion-aware thresholds must bring down.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rimu.calibration.multi_imu import setup_multi_imu
+from rimu.fdi import HealthState, RedundancyManager
+from rimu.fusion import InstrumentPipeline
+from rimu.io.pixhawk_dual import read_pixhawk_dual
+from rimu.io.xsens_dot import read_xsens_dot_run
+from tests.conftest import shared_data
+
+XSENS = ("Horizontal/path_10", "Horizontal/path_11", "Vertical/path_1", "Vertical/path_8", "Vertical/path_30",
+         "StraightLine/path_1")
+CASES = [("pixhawk", "")] + [("xsens", r) for r in XSENS]
+
+
+def _load(kind: str, run: str):
+    if kind == "pixhawk":
+        return read_pixhawk_dual(shared_data("pixhawk1_dual_imu_flight"))
+    d = shared_data("quadrotor_4x_xsens_dot") / run
+    if not Path(d).exists():
+        pytest.skip(f"run {run} is not in the shared data")
+    return read_xsens_dot_run(d)
+
+
+@pytest.mark.parametrize("kind, run", CASES, ids=[f"{k}-{r}" if r else k for k, r in CASES])
+def test_full_replay_without_isolation(kind, run):
+    rec = _load(kind, run)
+    t_end = max(u.t[-1] for u in rec.units)
+    su = setup_multi_imu(rec, average_s=0.1, fit_window_s=(-np.inf, 0.5 * t_end))
+    assert su.delivering == rec.names           # every unit of these recordings delivers data
+    problems = []
+    for inst in su.calibration.instruments:
+        n = su.calibration[inst].geometry.n
+        # exclusion sets of up to 3 sensors: the full tables of 12 sensors take seconds to build (issue 19,
+        # item 2 makes them on demand)
+        pipe = InstrumentPipeline(su.calibration[inst], max_excluded=min(3, n - 3))
+        mgr = RedundancyManager(pipe, p_fa=1e-3, confirm=3)
+        res = mgr.run(su.block.raw[inst], su.block.valid[inst], su.block.t)
+        iso = [(e.sensor, round(e.t, 2)) for e in res.events if e.kind in ("isolated", "invalid_isolated")]
+        mgr.pipeline.set_isolated(np.zeros(n, bool))
+        P = mgr.pipeline.process(su.block.raw[inst], su.block.valid[inst])
+        dof = int(P.dof.max())
+        rms = float(np.sqrt(np.mean(P.parity[:, :dof] ** 2))) if dof else 0.0
+        if iso or mgr.isolated.any():
+            problems.append(f"{inst}: isolations {iso}, parity rms {rms:.2f} sigma, "
+                            f"alarm rate {res.alarm.mean():.3%}")
+        # the alarm rate is far above the design 0.1 % (heavy-tailed flight disagreement); the confirmation carries
+        # it today (docs/real-units.md: "up to 10 %")
+        assert res.alarm.mean() < 0.10, (inst, res.alarm.mean())
+        # the unit's state is the one its geometry allows, with every sensor active
+        k = len(rec.names)
+        want = {1: HealthState.NO_REDUNDANCY, 2: HealthState.DETECTION_ONLY}.get(k, HealthState.NOMINAL)
+        assert mgr.state == want, (inst, mgr.state)
+    assert not problems, "; ".join(problems)
