@@ -490,9 +490,9 @@ class RedundancyManager:
         if exclude and r.observable:
             act = r.active.copy()
             act[list(exclude)] = False
-            code = mask_bits(act)
+            code = self._code(r.entry)  # the state is the sample's set; suspects left out show in active/validity
             tab = self.pipeline.table
-            e1 = tab.lookup(code)
+            e1 = tab.lookup(mask_bits(act))
             res.active = act
             res.invalid = r.invalid
             if e1 >= 0 and tab.observable[e1]:
@@ -520,7 +520,7 @@ class RedundancyManager:
             res.state = HealthState.UNOBSERVABLE
         else:
             res.state = self._state_of(code)
-            full = code == self._full_code  # every expected sensor in this sample's estimate
+            full = code == self._full_code and not exclude  # every expected sensor in this sample's estimate
             # an open alarm episode (an alarm in the last `episode_gap` samples, not resolved) is an unresolved fault
             ok = full and not h.alarm and not self._not_isolable and not self._ep_alarms
             res.validity = Validity.NOMINAL if ok else Validity.DEGRADED
