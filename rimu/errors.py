@@ -23,6 +23,7 @@ __all__ = [
     "ParameterNameError",
     "TransportError",
     "FrameError",
+    "MissingNoiseError",
     "PlausibilityError",
     "OptionError",
     "OutputPathError",
@@ -99,6 +100,8 @@ class FrameError(RimuError, ValueError):
     """A frame or packet could not be decoded."""
 
 
+class MissingNoiseError(RimuError, ValueError):
+    """A noise figure the computation needs (a calibration's ``noise_sigma``) is missing and was not given."""
 class PlausibilityError(SessionFormatError):
     """Data that parse but cannot be what the file declares (values in m/s^2 under a column declared in g, a
     ``sample_rate_hz`` the time column contradicts, ...). The message names the column and the likely cause; where

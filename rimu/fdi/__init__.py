@@ -1,12 +1,15 @@
 """Fault detection and isolation on the parity vector.
 
-* :class:`RedundancyManager` wraps an :class:`rimu.fusion.InstrumentPipeline`: detection, confirmation,
-  isolation (Cho & Park 2005, Eq. 21), reconfiguration, re-admission, explicit :class:`HealthState` and events.
+* :class:`RedundancyManager` wraps an :class:`rimu.fusion.InstrumentPipeline`: detection, isolation of one or
+  several sensors (:class:`FaultSetGlt`, the GLT over sensor sets; Cho & Park 2005, Eq. 21), reconfiguration,
+  per-sensor health with re-admission (:mod:`rimu.fdi.health`), a validity flag per output, explicit
+  :class:`HealthState` and events.
 * Detectors, thresholds from a stated false-alarm probability or ARL0: :class:`GltSnapshot`,
   :class:`GltWindow` (Daly, Gai & Harrison 1979), :class:`CusumBank`, :class:`ParityKalman` (filterpy),
   :class:`CalibrationAwareGlt`, and the autopilot-style baseline :class:`MeanDisagreement`.
 * :func:`isolability`: what a geometry can detect and isolate, with wrong-isolation bounds.
-* :mod:`rimu.fdi.faults`: fault injection; :mod:`rimu.fdi.campaign`: campaigns; :mod:`rimu.fdi.quality`:
+* :mod:`rimu.fdi.faults`: fault injection; :mod:`rimu.fdi.campaign`: campaigns; :mod:`rimu.fdi.scenarios`: the
+  fault-management campaign (every fault type, closed loop, three geometries); :mod:`rimu.fdi.quality`:
   parity-based calibration quality (de Oliveira et al. 2012, Eq. 21-25).
 """
 
@@ -15,7 +18,9 @@ from .calaware import CalibrationAwareGlt, CalibrationCovariance, stated_covaria
 from .cusum import CusumBank, cusum_threshold, markov_arl, siegmund_arl
 from .glt import GltDecision, GltSnapshot, GltWindow, glt_snapshot, glt_threshold
 from .kalman import ParityKalman
-from .manager import FdiEvent, Health, HealthState, RedundancyManager, ReplayResult
+from .health import SensorHealth, SensorState
+from .manager import FdiEvent, FdiResult, Health, HealthState, RedundancyManager, ReplayResult
+from .multiple import FaultSetGlt, SetDecision, set_fault_rates, single_fault_rates
 from .motion import MotionAwareGlt, MotionNoiseModel, fit_motion_terms
 from .noise import NoiseEstimator
 from .px4_selector import Px4GyroSelector, Px4SelectorResult
@@ -48,6 +53,13 @@ __all__ = [
     "Health",
     "FdiEvent",
     "ReplayResult",
+    "FdiResult",
+    "SensorState",
+    "SensorHealth",
+    "FaultSetGlt",
+    "SetDecision",
+    "single_fault_rates",
+    "set_fault_rates",
     "IsolabilityReport",
     "isolability",
     "detection_probability",

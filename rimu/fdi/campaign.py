@@ -40,7 +40,8 @@ from .glt import GltSnapshot, GltWindow, glt_threshold
 from .kalman import ParityKalman
 from .manager import HealthState, RedundancyManager
 
-__all__ = ["CampaignSpec", "CampaignResult", "run_campaign", "run_task", "clopper_pearson", "make_detector"]
+__all__ = ["CampaignSpec", "CampaignResult", "run_campaign", "run_task", "clopper_pearson", "make_detector",
+           "simulated_truth"]
 
 DETECTORS = ("glt", "glt_window", "cusum", "kalman", "baseline")
 
@@ -152,6 +153,16 @@ def _setup(spec: CampaignSpec) -> tuple[Any, InstrumentPipeline, float]:
         _CACHE.clear()
         _CACHE[key] = (truth, InstrumentPipeline(truth[spec.instrument]), sim.noise_sigma(spec.instrument))
     return _CACHE[key]
+
+
+def simulated_truth(geometry: str, instrument: str, sample_rate: float, seed: int) -> Any:
+    """The simulator's truth calibration of one instrument of a preset geometry (Cho & Park-like coefficients,
+    noise_sigma of the simulated white noise); used by the fault-management campaign (:mod:`rimu.fdi.scenarios`)."""
+    from ..geometry import preset
+    from ..sim import Simulator
+
+    sim = Simulator({instrument: preset(geometry)}, sample_rate=sample_rate, seed=seed)
+    return sim.truth_calibration()[instrument]
 
 
 def make_detector(spec: CampaignSpec, sigma: float | np.ndarray) -> Any:

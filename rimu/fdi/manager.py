@@ -1,42 +1,52 @@
-"""Redundancy management: detection, confirmation, isolation, reconfiguration and re-admission.
+"""Redundancy management: detection, isolation of one or several sensors, re-admission, honest outputs.
 
 :class:`RedundancyManager` wraps one :class:`rimu.fusion.InstrumentPipeline` and, sample by sample:
 
-1. runs the pipeline (compensation, projection, normalised parity);
+1. applies its own active set to the pipeline (the manager owns the isolation set; change it through
+   :meth:`RedundancyManager.isolate` / :meth:`RedundancyManager.readmit`, not on the pipeline) and runs it
+   (compensation, projection, normalised parity);
 2. feeds the parity vector to a detector (GLT snapshot by default; any detector of :mod:`rimu.fdi`);
-3. on an alarm, asks the detector for the most likely faulty sensor and counts consecutive alarms on it;
-   after ``confirm`` of them the sensor is isolated (Cho & Park 2005, Eq. 21, through
-   :meth:`InstrumentPipeline.isolate`) and detection continues on the remaining sensors with their own
-   parity space; a shorter alarm episode is logged as a transient event;
-4. never isolates where the active set cannot (parity dimension 1, or collinear parity columns): the fault
-   is then reported as detected but not isolable;
-5. isolates a sensor whose output stays invalid (non-finite, dropout) for ``invalid_persist`` samples;
-   shorter gaps are routed around by the pipeline and logged as transient;
-6. optionally re-admits an isolated sensor after ``readmit_after`` consecutive samples in which its
-   output agrees with the estimate of the others (each sample, and the mean over the clean period, pass a
-   chi-square test at the design false-alarm probability);
-7. reports an explicit :class:`HealthState` and logs every event.
+3. on an alarm, accumulates the alarm episode's evidence and asks the generalised likelihood test over
+   sensor sets (:class:`rimu.fdi.multiple.FaultSetGlt`) which set of 1..k sensors explains it; the same set
+   named on ``confirm`` consecutive alarms is isolated (Cho & Park 2005, Eq. 21, for every sensor of the
+   set). Until then the alarm sample's output already leaves the named set out. Where no set can be named
+   (ambiguous, more faults than the parity space separates, or parity dimension below 2) the fault is
+   reported as present but not isolable and every output is flagged DEGRADED until the alarms stop;
+4. isolates a sensor whose output stays invalid (non-finite, dropout) for ``invalid_persist`` samples
+   unless that would leave fewer sensors than span three dimensions;
+5. re-admits an isolated sensor after its output agrees with the estimate of the others (each sample and
+   the mean over the clean period pass a chi-square test), with a clean period that doubles with each
+   isolation of that sensor and a FAILED state after ``fail_after`` isolations (no ping-pong; see
+   :mod:`rimu.fdi.health`);
+6. returns per sample one consistent :class:`FdiResult`: ``x``, ``P``, ``parity``, ``active`` describe the same
+   sensor set, including on the isolation sample, with a :class:`rimu.fusion.validity.Validity` flag.
 
-States: ``nominal`` (isolation possible, nothing isolated), ``fault_isolated`` (one or more sensors out, one
-more can still be isolated), ``detection_only`` (the active set detects but cannot isolate, e.g. four
-sensors), ``no_redundancy`` (three sensors), ``unobservable`` (fewer than three, or rank deficient).
+States of the set in use (:class:`HealthState`): ``nominal`` (all sensors, isolation possible),
+``fault_isolated`` (one or more sensors out, isolation still possible), ``detection_only`` (the active set
+detects but cannot isolate, e.g. four sensors), ``no_redundancy`` (three sensors), ``unobservable`` (the
+sensors in use this sample do not span 3-D). Per-sensor states: :class:`rimu.fdi.health.SensorState`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any, Protocol
 
 import numpy as np
 
-from ..errors import ShapeError
+from ..errors import MissingNoiseError, ShapeError
 from ..fusion import InstrumentPipeline, StepResult
-from ..fusion.projection import ActiveSet, ProjectionTable
-from .glt import GltSnapshot, glt_threshold
+from ..fusion.projection import bits_mask, mask_bits
+from ..fusion.validity import Validity
+from .glt import GltSnapshot, glt_threshold, isolate_argmax
+from .health import SensorHealth, SensorState
+from .kalman import ParityKalman
+from .multiple import FaultSetGlt, SetDecision
 from .parity import column_correlations
 
-__all__ = ["HealthState", "FdiEvent", "Health", "RedundancyManager", "ReplayResult", "Detector"]
+__all__ = ["Detector", "FdiEvent", "FdiResult", "Health", "HealthState", "RedundancyManager", "ReplayResult",
+           "SensorState", "Validity"]
 
 
 class Detector(Protocol):
@@ -68,7 +78,8 @@ class FdiEvent:
     """One logged event.
 
     kind: ``isolated``, ``transient`` (alarm episode shorter than the confirmation), ``detected_not_isolable``,
-    ``invalid_isolated``, ``invalid_transient``, ``readmitted``, ``state``.
+    ``not_isolable_cleared``, ``invalid_isolated``, ``invalid_transient``, ``readmitted``, ``failed``,
+    ``state``.
     """
 
     sample: int
@@ -95,11 +106,36 @@ class Health:
     threshold: float
     isolated: list[str]
     fault_not_isolable: bool = False
+    validity: Validity = Validity.NOMINAL
+    suspects: list[str] = field(default_factory=list)
+
+
+@dataclass
+class FdiResult(StepResult):
+    """One sample out of :meth:`RedundancyManager.step` (reused object: copy what you keep).
+
+    ``x``, ``P``, ``parity``, ``dof``, ``active`` and ``entry`` describe the same sensor set: the isolation set
+    minus the sensors invalid in this sample, minus (on an alarm sample) the set the isolation test names.
+    ``observable`` is False exactly when there is no estimate (``x`` is then zero and not to be used,
+    ``P`` infinite, ``validity`` UNOBSERVABLE). ``statistic``/``threshold``/``alarm`` are the detector's on the
+    pipeline's set of the sample.
+    """
+
+    validity: Validity = Validity.NOMINAL
+    state: HealthState = HealthState.NOMINAL
+    alarm: bool = False
+    statistic: float = 0.0
+    threshold: float = float("inf")
+    fault_not_isolable: bool = False
 
 
 @dataclass
 class ReplayResult:
-    """What :meth:`RedundancyManager.run` returns for N samples."""
+    """What :meth:`RedundancyManager.run` returns for N samples.
+
+    ``validity`` (N,) holds :class:`Validity` codes, ``sensor_state`` (N, n) :class:`SensorState` codes,
+    ``active`` (N, n) the sensors in each sample's estimate.
+    """
 
     t: np.ndarray
     x: np.ndarray
@@ -110,6 +146,10 @@ class ReplayResult:
     n_active: np.ndarray
     events: list[FdiEvent]
     names: list[str]
+    validity: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int8))
+    sensor_state: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.int8))
+    active: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), bool))
+    P_diag: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
     def state_names(self) -> list[str]:
         inv = {k: s.value for s, k in STATE_CODES.items()}
@@ -122,28 +162,59 @@ class ReplayResult:
                 return e
         return None
 
+    def transitions(self, sensor: str | int) -> int:
+        """How many times a sensor went out of or back into the estimate (isolations plus re-admissions)."""
+        i = self.names.index(sensor) if isinstance(sensor, str) else int(sensor)
+        out = self.sensor_state[:, i] >= SensorState.ISOLATED
+        return int(np.count_nonzero(out[1:] != out[:-1]) + (1 if len(out) and out[0] else 0))
+
+
+def _evidence_detector(det: Any) -> bool:
+    """Detectors whose alarms come from the parity vector's size (the set GLT can then name the set)."""
+    return isinstance(det, (GltSnapshot, ParityKalman))
+
 
 class RedundancyManager:
     """Fault detection, isolation and reconfiguration around an :class:`InstrumentPipeline`.
 
+    The manager owns the pipeline's isolation set: at every :meth:`step` it applies its own set
+    (:attr:`isolated`); :meth:`reset` clears it. :meth:`run` and :meth:`step` continue from the current state.
+
     Parameters
     ----------
     pipeline : InstrumentPipeline
+        Must know the noise of its sensors (the calibration's ``noise_sigma`` or ``sigma=``); otherwise
+        :class:`rimu.errors.MissingNoiseError`.
     detector : Detector, optional
         Default :class:`GltSnapshot` at ``p_fa`` (with the calibration's noise model, when it has one).
     p_fa : float
-        Design false-alarm probability (default detector, and the re-admission test).
+        Design false-alarm probability (default detector, the set test's level, the re-admission test).
     confirm : int
-        Consecutive alarms pointing at the same sensor before it is isolated (1 for the CUSUM bank, which
-        accumulates evidence itself).
+        Consecutive alarms naming the same set before it is isolated (1 for the CUSUM bank, which
+        accumulates evidence itself); also the alarm length after which an unnamed fault is reported as
+        not isolable.
     invalid_persist : int
         Consecutive invalid samples of one sensor before it is isolated.
     readmit_after : int or None
-        Clean samples before an isolated sensor is re-admitted; None: never.
+        Clean samples before an isolated sensor is re-admitted the first time (doubled at each further
+        isolation of that sensor, ``backoff``); None: never automatically.
     sample_rate : float, optional
         Hz, for event times when :meth:`step` gets no ``t``.
     max_events : int
         Events kept (counts in :attr:`counts` are always complete).
+    isolator : FaultSetGlt, "detector" or None
+        How an alarm is attributed: the set GLT (default for the GLT and Kalman detectors:
+        ``FaultSetGlt(alpha=1e-6)``, up to two simultaneous faults where the parity dimension allows; the
+        small alpha keeps the true set from being rejected by chance while evidence accumulates), or
+        ``"detector"`` (the detector's own single-sensor choice; default for the CUSUM bank and the
+        baselines).
+    fail_after, backoff : int, float
+        See :class:`rimu.fdi.health.SensorHealth`.
+    clear_after : int
+        Alarm-free samples after which a "not isolable" report is withdrawn.
+    episode_gap : int, optional
+        An alarm episode, whose parity vectors are pooled as evidence for the set test, ends after this
+        many consecutive alarm-free samples (default ``max(confirm, 5)``).
 
     Examples
     --------
@@ -155,16 +226,23 @@ class RedundancyManager:
     >>> for k in range(10):
     ...     y = cal.raw_output(np.array([0.1, 0.2, 0.3])) + 0.01 * rng.standard_normal(6)
     ...     y[4] += 0.2 if k >= 5 else 0.0          # 20 sigma bias on y2 from sample 5
-    ...     _ = mgr.step(y)
-    >>> mgr.health.state.value, mgr.health.isolated
-    ('fault_isolated', ['y2'])
+    ...     r = mgr.step(y)
+    >>> mgr.health.state.value, mgr.health.isolated, r.validity.name, bool(r.active[4])
+    ('fault_isolated', ['y2'], 'DEGRADED', False)
     """
 
     def __init__(self, pipeline: InstrumentPipeline, detector: Detector | None = None, *, p_fa: float = 1e-3,
-                 confirm: int = 3, invalid_persist: int = 10, readmit_after: int | None = None,
-                 sample_rate: float | None = None, max_events: int = 10000) -> None:
+                 confirm: int = 3, invalid_persist: int = 10, readmit_after: int | None = 100,
+                 sample_rate: float | None = None, max_events: int = 10000,
+                 isolator: FaultSetGlt | str | None = None, fail_after: int = 4, backoff: float = 2.0,
+                 clear_after: int = 50, episode_gap: int | None = None) -> None:
         if confirm < 1 or invalid_persist < 1:
             raise ValueError("confirm and invalid_persist must be at least 1 sample")
+        if not getattr(pipeline, "noise_given", True):
+            raise MissingNoiseError(
+                f"the {pipeline.calibration.instrument} calibration has no noise_sigma and the pipeline was built "
+                "without sigma=: fault detection would assume 1.0 SI per sample. Pass the noise explicitly, "
+                "InstrumentPipeline(cal, sigma=...) (SI per sample), or set the calibration's noise_sigma")
         self.pipeline = pipeline
         # the default detector uses the calibration's noise model (rimu.noise) when it has one
         self.detector = detector if detector is not None else GltSnapshot(p_fa, getattr(pipeline.calibration, "noise", None))
@@ -174,21 +252,38 @@ class RedundancyManager:
         self.readmit_after = None if readmit_after is None else int(readmit_after)
         self.sample_rate = sample_rate
         self.max_events = int(max_events)
+        self.clear_after = int(clear_after)
+        self.episode_gap = int(episode_gap) if episode_gap is not None else max(self.confirm, 5)
+        if isolator is None:
+            isolator = FaultSetGlt(alpha=1e-4) if _evidence_detector(self.detector) else "detector"
+        if isinstance(isolator, str) and isolator != "detector":
+            raise ValueError(f"isolator must be a FaultSetGlt or 'detector', got {isolator!r}")
+        self.isolator = isolator
         cal = pipeline.calibration
         self.names = list(cal.geometry.names)
-        self.isolable = _Isolable(pipeline.table)  # per active set, computed when the set first occurs
+        self.n = pipeline.n
+        self._full_code = (1 << self.n) - 1
         self._uses_input = bool(getattr(self.detector, "uses_input", False))
         self._thr1 = glt_threshold(p_fa, 1)
         self._axes = cal.axes_mb()
         self._scale = cal.scale
         self._bias = cal.bias
+        self.sensors = SensorHealth(self.n, self.readmit_after, backoff, fail_after, self._thr1,
+                                    glt_threshold(1e-6, 1))
+        self._set_state: dict[int, HealthState] = {}
+        self._remap: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         self.events: list[FdiEvent] = []
         self.counts: dict[str, int] = {}
         self.health = Health(HealthState.NOMINAL, False, 0.0, float("inf"), [])
+        n, r = self.n, max(self.n - 3, 0)
+        self._x = np.zeros(3)
+        self._p = np.zeros(r)
+        self.result = FdiResult(self._x, np.diag([np.inf] * 3), self._p, 0, np.zeros(n, bool), np.zeros(n, bool),
+                                False, -1)
         self.reset()
 
     @classmethod
-    def for_unit(cls, pipeline: Any, **kwargs: Any) -> dict[str, "RedundancyManager"]:
+    def for_unit(cls, pipeline: Any, **kwargs: Any) -> dict[str, RedundancyManager]:
         """One manager per instrument of a :class:`rimu.fusion.Pipeline` (same settings for each; a detector
         object cannot be shared, so pass ``detector_factory=lambda instrument_pipeline: ...`` instead).
 
@@ -205,22 +300,37 @@ class RedundancyManager:
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
-        """Forget everything: all sensors re-admitted, counters and events cleared."""
-        self.pipeline.set_isolated(np.zeros(self.pipeline.n, bool))
-        n = self.pipeline.n
+        """Start over: every sensor healthy and in the estimate, counters, episode and events cleared."""
+        n = self.n
+        self.sensors.reset()
+        self._suspects_on = False
+        self._apply()
+        self.pipeline.set_isolated(self._iso)
         self.samples = 0
         self._entry = -2
-        self._suspect = -1
-        self._streak = 0
-        self._unisolable_streak = 0
-        self._not_isolable_reported = False
+        self._new_episode()
+        self._not_isolable = False
+        self._quiet = 0
         self._invalid_run = np.zeros(n, dtype=np.int64)
         self._invalid_pending = False
-        self._clean = np.zeros(n, dtype=np.int64)
-        self._clean_sum = np.zeros(n)
         self.events.clear()
         self.counts.clear()
-        self._update_state(log=False)
+        self._plain_entry = -99
+        h = self.health
+        h.alarm, h.statistic, h.threshold, h.fault_not_isolable = False, 0.0, float("inf"), False
+        h.isolated, h.suspects, h.validity = [], [], Validity.NOMINAL
+        h.state = self._state_of(self.pipeline.table.full_code)
+
+    def _new_episode(self) -> None:
+        self._ep_entry = -1
+        self._ep_n = 0          # samples of the episode (alarms and the quiet gaps between them)
+        self._ep_alarms = 0     # alarm samples of the episode
+        self._ep_quiet = 0      # consecutive quiet samples at its end
+        self._ep_sum: np.ndarray | None = None
+        self._ep_M: np.ndarray | None = None
+        self._cand: tuple[int, ...] = ()
+        self._streak = 0
+        self._last_dec: SetDecision | None = None
 
     @property
     def state(self) -> HealthState:
@@ -228,7 +338,47 @@ class RedundancyManager:
 
     @property
     def isolated(self) -> np.ndarray:
-        return self.pipeline.isolated
+        """Sensors the manager keeps out of the estimate (copy)."""
+        return self._iso.copy()
+
+    @property
+    def sensor_states(self) -> dict[str, str]:
+        """Name -> per-sensor state (``healthy``, ``suspect``, ``isolated``, ``recovering``, ``failed``)."""
+        return {nm: SensorState(int(s)).name.lower() for nm, s in zip(self.names, self.sensors.state)}
+
+    def _index(self, sensor: str | int) -> int:
+        if isinstance(sensor, str):
+            if sensor not in self.names:
+                raise ShapeError(f"no sensor named {sensor!r}; sensors: {self.names}")
+            return self.names.index(sensor)
+        return self.pipeline._check_index(sensor)
+
+    def isolate(self, sensor: str | int) -> None:
+        """Take a sensor out by command (logged; counts as an isolation of that sensor)."""
+        i = self._index(sensor)
+        t = self._t_last
+        if self.sensors.isolate(i, "command"):
+            self._log("failed", i, "isolated by command, isolation limit reached: FAILED", t)
+        self._log("isolated", i, "isolated by command", t)
+        self._apply()
+
+    def readmit(self, sensor: str | int) -> None:
+        """Bring a sensor back by command (also a FAILED one)."""
+        i = self._index(sensor)
+        self.sensors.readmit(i)
+        self._log("readmitted", i, "re-admitted by command", self._t_last)
+        self._apply()
+
+    _t_last = float("nan")
+
+    def _apply(self) -> None:
+        """Take the sensor states' isolation set; the pipeline gets it at the start of the next step (changing it
+        now would rewrite the pipeline's result of the current sample behind this sample's output)."""
+        self._iso = self.sensors.out.copy()
+        self._iso_bytes = self._iso.tobytes()
+        self._n_iso = int(self._iso.sum())
+        self._iso_entry = self.pipeline.table.lookup(mask_bits(~self._iso))
+        self.health.isolated = [self.names[i] for i in np.flatnonzero(self._iso)]
 
     def _log(self, kind: str, sensor: int | None, message: str, t: float, statistic: float = float("nan")) -> None:
         self.counts[kind] = self.counts.get(kind, 0) + 1
@@ -236,48 +386,60 @@ class RedundancyManager:
             self.events.append(FdiEvent(self.samples - 1, t, kind, None if sensor is None else self.names[sensor],
                                         message, float(statistic)))
 
-    def _update_state(self, log: bool = True, t: float = float("nan")) -> None:
-        tab = self.pipeline.table
-        iso = self.pipeline.isolated
-        e = tab.lookup(tab.full_code & ~sum(1 << int(i) for i in np.flatnonzero(iso)))
-        self._iso_entry = e
-        self._n_isolated = int(iso.sum())
-        n_act = int((~iso).sum())
-        if e < 0 or not tab.observable[e]:
-            st = HealthState.UNOBSERVABLE
-        elif n_act == 3 or tab.dof[e] == 0:
-            st = HealthState.NO_REDUNDANCY
-        elif not self.isolable[e]:
-            st = HealthState.DETECTION_ONLY
-        elif iso.any():
-            st = HealthState.FAULT_ISOLATED
-        else:
-            st = HealthState.NOMINAL
-        old = self.health.state
-        self.health.state = st
-        self.health.isolated = [self.names[i] for i in np.flatnonzero(iso)]
-        if log and st != old:
-            self._log("state", None, f"state {old.value} -> {st.value} ({n_act} sensors active)", t)
+    def _state_of(self, code: int) -> HealthState:
+        """State of a sensor set (cached per set)."""
+        st = self._set_state.get(code)
+        if st is None:
+            tab = self.pipeline.table
+            e = tab.lookup(code)
+            n_act = int(code).bit_count()
+            if e < 0 or not tab.observable[e]:
+                st = HealthState.UNOBSERVABLE
+            elif n_act == 3 or tab.dof[e] == 0:
+                st = HealthState.NO_REDUNDANCY
+            else:
+                d = int(tab.dof[e])
+                act = bits_mask(code, self.n)
+                ok = d >= 2
+                if ok:
+                    rho = column_correlations(tab.Vz[e][:d])[np.ix_(act, act)]
+                    ok = bool(np.all(np.abs(rho[~np.eye(len(rho), dtype=bool)]) < 1 - 1e-6))
+                if not ok:
+                    st = HealthState.DETECTION_ONLY
+                elif n_act < self.n:
+                    st = HealthState.FAULT_ISOLATED
+                else:
+                    st = HealthState.NOMINAL
+            self._set_state[code] = st
+        return st
+
+    def _code(self, e: int) -> int:
+        return int(self.pipeline.table.codes[e]) if e >= 0 else 0
 
     # ------------------------------------------------------------------ per sample
-    def step(self, y: np.ndarray, valid: np.ndarray | None = None, t: float | None = None) -> StepResult:
-        """Process one raw sample; returns the pipeline's (reused) :class:`StepResult`.
+    def step(self, y: np.ndarray, valid: np.ndarray | None = None, t: float | None = None) -> FdiResult:
+        """Process one raw sample; returns the manager's (reused) :class:`FdiResult`.
 
         :attr:`health` holds the state, alarm and statistic after this sample.
         """
         pipe = self.pipeline
+        if pipe._isolated.tobytes() != self._iso_bytes:  # someone changed the pipeline: the manager's set rules
+            pipe.set_isolated(self._iso)
         r = pipe.step(y, valid)
         self.samples += 1
         h = self.health
         if t is None:
             t = (self.samples - 1) / self.sample_rate if self.sample_rate else float(self.samples - 1)
+        self._t_last = t
         e = r.entry
         if e != self._entry:
             self._entry = e
-            self.detector.configure(pipe.table.Vz[e] if e >= 0 else np.zeros((0, pipe.n)), r.dof)
-            self._streak = 0
-        if e != self._iso_entry or self._invalid_pending:
-            self._invalid(r.invalid, t)
+            self.detector.configure(pipe.table.Vz[e] if e >= 0 else np.zeros((max(self.n - 3, 0), self.n)), r.dof)
+            if self._ep_n:
+                self._end_episode(t)
+        changed = False
+        if e != self._iso_entry or self._invalid_pending:  # the pipeline left a sensor out: invalid data
+            changed = self._invalid(r.invalid, t)
         if r.dof >= 1:
             if self._uses_input:
                 self.detector.set_input(r.x)
@@ -288,97 +450,286 @@ class RedundancyManager:
         h.threshold = thr
         alarm = stat > thr
         h.alarm = alarm
+        exclude: tuple[int, ...] = ()
         if alarm:
-            self._on_alarm(r, stat, t)
-        elif self._streak or self._unisolable_streak:
-            if self._streak:
-                self._log("transient", self._suspect, f"alarm episode of {self._streak} sample(s), not confirmed", t)
-            self._streak = 0
-            self._unisolable_streak = 0
-            self._suspect = -1
-        if self._n_isolated and self.readmit_after is not None:
-            self._readmission(np.asarray(y, dtype=float), valid, r, t)
-        return r
+            self._quiet = 0
+            exclude, changed2 = self._on_alarm(r, stat, t)
+            changed = changed or changed2
+        else:
+            if self._ep_n:
+                self._ep_quiet += 1
+                gap = self.clear_after if self._not_isolable else self.episode_gap  # an unresolved fault: keep pooling
+                if self._ep_quiet >= gap or r.dof < 1:
+                    self._end_episode(t)
+                else:
+                    self._accumulate(r)
+                    self._streak = 0
+            if self._not_isolable:
+                self._quiet += 1
+                if self._quiet >= self.clear_after:
+                    self._clear_not_isolable(t, f"no alarm for {self._quiet} samples")
+            if self._suspects_on:
+                self.sensors.set_suspects(r.invalid)
+                self._suspects_on = bool(np.any(self.sensors.state == SensorState.SUSPECT))
+        res = self._output(r, exclude if not changed else tuple(np.flatnonzero(self._iso & r.active)))
+        if self._n_iso and self.readmit_after is not None and res.observable and not alarm \
+                and not self._not_isolable and not self._ep_alarms:
+            self._readmission(np.asarray(y, dtype=float), valid, res, t)
+        return res
 
-    def _on_alarm(self, r: StepResult, stat: float, t: float) -> None:
-        j, _ = self.detector.isolate(r.parity)
-        if j < 0 or not self.isolable[r.entry]:
-            self._unisolable_streak += 1
-            if self._unisolable_streak >= self.confirm and not self._not_isolable_reported:
-                self._not_isolable_reported = True
-                self.health.fault_not_isolable = True
+    def _output(self, r: StepResult, exclude: tuple[int, ...]) -> FdiResult:
+        """Fill the result: the pipeline's sample, or the same sample without ``exclude`` (x, P, parity together)."""
+        res = self.result
+        h = self.health
+        if not exclude and r.entry == self._plain_entry and not h.alarm and not self._not_isolable \
+                and not self._ep_alarms:
+            # the common case: the same set as the previous sample, nothing going on; only the numbers changed
+            res.statistic, res.threshold, res.alarm = h.statistic, h.threshold, False
+            return res
+        self._plain_entry = -99
+        if exclude and r.observable:
+            act = r.active.copy()
+            act[list(exclude)] = False
+            code = self._code(r.entry)  # the state is the sample's set; suspects left out show in active/validity
+            tab = self.pipeline.table
+            e1 = tab.lookup(mask_bits(act))
+            res.active = act
+            res.invalid = r.invalid
+            if e1 >= 0 and tab.observable[e1]:
+                A, B = self._remap_of(r.entry, e1, r.active)
+                d0 = r.dof
+                zin = np.concatenate([r.x, r.parity[:d0]])
+                self._x[:] = A @ zin
+                self._p[:] = 0.0
+                self._p[:B.shape[0]] = B @ zin
+                res.x, res.parity, res.P = self._x, self._p, tab.P[e1]
+                res.dof, res.entry, res.observable = int(tab.dof[e1]), e1, True
+            else:
+                self._x[:] = 0.0
+                self._p[:] = 0.0
+                res.x, res.parity, res.P = self._x, self._p, np.diag([np.inf] * 3)
+                res.dof, res.entry, res.observable = 0, e1, False
+        else:
+            res.x, res.P, res.parity, res.dof = r.x, r.P, r.parity, r.dof
+            res.active, res.invalid, res.observable, res.entry = r.active, r.invalid, r.observable, r.entry
+            code = self._code(r.entry) if r.observable else -1
+        res.alarm, res.statistic, res.threshold = h.alarm, h.statistic, h.threshold
+        res.fault_not_isolable = self._not_isolable
+        if not res.observable:
+            res.validity = Validity.UNOBSERVABLE
+            res.state = HealthState.UNOBSERVABLE
+        else:
+            res.state = self._state_of(code)
+            full = code == self._full_code and not exclude  # every expected sensor in this sample's estimate
+            # an open alarm episode (an alarm in the last `episode_gap` samples, not resolved) is an unresolved fault
+            ok = full and not h.alarm and not self._not_isolable and not self._ep_alarms
+            res.validity = Validity.NOMINAL if ok else Validity.DEGRADED
+        h.state = res.state
+        h.validity = res.validity
+        if not exclude and not h.alarm and not self._not_isolable and not self._ep_alarms:
+            self._plain_entry = r.entry
+        h.fault_not_isolable = self._not_isolable
+        return res
+
+    def _remap_of(self, e0: int, e1: int, act0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Linear maps from (x, parity) of set e0 to x and parity of its subset e1.
+
+        On the active sensors of e0 the compensated outputs are recovered exactly from the pipeline's outputs,
+        ``z = A x + diag(sigma^2) Vz^T p`` (the projection and the parity split the whitened z), then projected
+        with the subset's G and Vz.
+        """
+        tab = self.pipeline.table
+        key = (int(tab.codes[e0]), int(tab.codes[e1]))  # by sensor set, not by entry (a table may renumber)
+        m = self._remap.get(key)
+        if m is None:
+            d0 = int(tab.dof[e0])
+            n = self.n
+            Z = np.zeros((n, 3 + d0))
+            a = act0
+            Z[a, :3] = tab.axes[a]
+            Z[a, 3:] = (tab.sigma[a] ** 2)[:, None] * tab.Vz[e0][:d0, a].T
+            d1 = int(tab.dof[e1])
+            m = (tab.G[e1] @ Z, tab.Vz[e1][:d1] @ Z)
+            if len(self._remap) > 1024:
+                self._remap.clear()
+            self._remap[key] = m
+        return m
+
+    # ------------------------------------------------------------------ alarms and isolation
+    def _accumulate(self, r: StepResult) -> None:
+        """Add the sample's parity vector to the episode's evidence (its sum and scatter)."""
+        d = r.dof
+        p = r.parity[:d]
+        if self._ep_sum is None or self._ep_sum.shape[0] != d:
+            self._ep_sum = np.zeros(d)
+            self._ep_M = np.zeros((d, d))
+        self._ep_sum += p
+        self._ep_M += np.outer(p, p)
+        self._ep_n += 1
+        self._ep_entry = r.entry
+
+    def _decide(self, r: StepResult) -> SetDecision:
+        d = r.dof
+        N = self._ep_n
+        last = self._last_dec
+        if last is not None and last.kind != "isolated" and self._ep_alarms > 4 * self.confirm \
+                and self._ep_alarms % 10:
+            return last  # an unresolved fault: re-decide every 10th alarm (the evidence changes slowly)
+        if self.isolator == "detector":
+            j, _ = self.detector.isolate(r.parity)
+            st = self._state_of(self._code(r.entry))
+            if j < 0 or st not in (HealthState.NOMINAL, HealthState.FAULT_ISOLATED):
+                return SetDecision("not_isolable")
+            return SetDecision("isolated", (int(j),), (int(j),))
+        iso = self.isolator
+        Vz = self.pipeline.table.Vz[r.entry]
+        mean = self._ep_sum / np.sqrt(N)
+        dec = iso.decide(mean, Vz, d)
+        if dec.kind != "isolated" and N > 1:
+            # a fault whose size changes (sign) has little mean: the scatter of the episode may name it
+            dec2 = iso.decide_scatter(self._ep_M, N, Vz, d)
+            if dec2.kind == "isolated" or float(mean @ mean) < iso.threshold(d, 0):
+                dec = dec2
+        return dec
+
+    def _on_alarm(self, r: StepResult, stat: float, t: float) -> tuple[tuple[int, ...], bool]:
+        """Returns (sensors to leave out of this sample's output, whether the isolation set changed)."""
+        self._ep_alarms += 1
+        self._ep_quiet = 0
+        if r.dof >= 1:
+            self._accumulate(r)
+        dec = self._decide(r) if r.dof >= 1 else SetDecision("not_isolable")
+        self._last_dec = dec
+        sus = np.zeros(self.n, bool)
+        sus[list(dec.suspects)] = True
+        self.sensors.set_suspects(sus | r.invalid)
+        self._suspects_on = True
+        if dec.kind != "isolated":
+            self._streak = 0
+            self._cand = ()
+            if self._ep_alarms >= self.confirm and not self._not_isolable:
+                self._not_isolable = True
+                self._quiet = 0
+                what = {"ambiguous": "several sensor sets explain it equally well"
+                        + (f" (suspects {[self.names[i] for i in dec.suspects]})" if dec.suspects else ""),
+                        "unexplained": "no set of up to "
+                        f"{getattr(self.isolator, 'max_size', 1)} sensors explains it",
+                        "not_isolable": f"parity dimension {r.dof} cannot isolate"}.get(dec.kind, dec.kind)
                 self._log("detected_not_isolable", None,
-                          f"fault detected with {int(r.active.sum())} active sensors: isolation impossible "
-                          f"(parity dimension {r.dof}); output continues on all of them", t, stat)
-            return
-        if j == self._suspect:
+                          f"fault present with {int(r.active.sum())} active sensors, not isolable: {what}; "
+                          "output DEGRADED", t, stat)
+            self.health.suspects = [self.names[i] for i in dec.suspects]
+            if dec.suspects:  # leave every suspect out of this sample's output when the rest still spans 3-D
+                rest = r.active.copy()
+                rest[list(dec.suspects)] = False
+                if self._state_of(mask_bits(rest)) is not HealthState.UNOBSERVABLE:
+                    return dec.suspects, False
+            return (), False
+        S = dec.sensors
+        self.health.suspects = [self.names[i] for i in S]
+        if S == self._cand:
             self._streak += 1
         else:
-            if self._streak:
-                self._log("transient", self._suspect, f"alarm episode of {self._streak} sample(s), not confirmed", t)
-            self._suspect, self._streak = j, 1
-        if self._streak >= self.confirm:
-            self.pipeline.isolate(j)
-            self._log("isolated", j, f"isolated after {self._streak} consecutive alarms (Eq. 21)", t, stat)
-            self._streak, self._suspect = 0, -1
-            self._clean[j] = 0
-            self._clean_sum[j] = 0.0
-            self._not_isolable_reported = False
-            self.health.fault_not_isolable = False
-            self._update_state(t=t)
+            self._cand, self._streak = S, 1
+        remaining = r.active.copy()
+        remaining[list(S)] = False
+        if self._state_of(mask_bits(remaining)) is HealthState.UNOBSERVABLE:
+            return (), False  # never isolate into blindness
+        if self._streak < self.confirm:
+            return S, False
+        names = [self.names[i] for i in S]
+        for i in S:
+            if self.sensors.isolate(i, "fault"):
+                self._log("failed", i, f"isolated {int(self.sensors.isolations[i])} times: FAILED, "
+                                       "re-admitted only on command", t, stat)
+            self._log("isolated", i, f"isolated with {names} after {self._streak} consecutive alarms "
+                                     f"(GLT over sensor sets, Eq. 21)", t, stat)
+        old = self.health.state
+        self._apply()
+        self._new_episode()
+        if self._not_isolable:
+            self._clear_not_isolable(t, f"isolated {names}")
+        self._log_state(old, t)
+        return S, True
 
-    def _invalid(self, inv: np.ndarray, t: float) -> None:
+    def _end_episode(self, t: float) -> None:
+        if self._ep_alarms:
+            who = self._cand
+            if not who and self._ep_sum is not None and self._ep_entry >= 0:
+                j, _ = isolate_argmax(self._ep_sum, self.pipeline.table.Vz[self._ep_entry][:len(self._ep_sum)])
+                who = (j,) if j >= 0 else ()
+            for i in who:
+                self._log("transient", i, f"alarm episode of {self._ep_alarms} alarm(s), not confirmed"
+                          + ("" if self._cand else " (most likely sensor)"), t)
+        self._new_episode()
+
+    def _clear_not_isolable(self, t: float, why: str) -> None:
+        self._not_isolable = False
+        self._quiet = 0
+        self._log("not_isolable_cleared", None, f"fault no longer reported: {why}", t)
+
+    def _log_state(self, old: HealthState, t: float) -> None:
+        new = self._state_of(mask_bits(~self._iso))
+        if new != old:
+            self._log("state", None, f"state {old.value} -> {new.value} ({int((~self._iso).sum())} sensors active)", t)
+
+    def _invalid(self, inv: np.ndarray, t: float) -> bool:
         run = self._invalid_run
         ended = (~inv) & (run > 0)
         for i in np.flatnonzero(ended):
-            self._log("invalid_transient", int(i), f"{int(run[i])} invalid sample(s), routed around", t)
+            if not self._iso[i]:
+                self._log("invalid_transient", int(i), f"{int(run[i])} invalid sample(s), routed around", t)
         run[ended] = 0
         run[inv] += 1
         self._invalid_pending = bool(run.any())
-        iso = self.pipeline._isolated
-        for i in np.flatnonzero((run >= self.invalid_persist) & ~iso):
-            tab = self.pipeline.table
-            e = tab.lookup(tab.full_code & ~sum(1 << k for k in np.flatnonzero(iso)) & ~(1 << int(i)))
-            if e < 0 or not tab.observable[e]:
+        self.sensors.set_suspects(inv | (self.sensors.state == SensorState.SUSPECT))
+        self._suspects_on = True
+        changed = False
+        for i in np.flatnonzero((run >= self.invalid_persist) & ~self._iso):
+            keep = ~self._iso
+            keep[i] = False
+            if self._state_of(mask_bits(keep)) is HealthState.UNOBSERVABLE:
                 continue  # isolating it would leave the unit blind; the pipeline routes around it per sample
-            self.pipeline.isolate(int(i))
-            run[i] = 0
-            self._invalid_pending = bool(run.any())
-            self._clean[i] = 0
-            self._clean_sum[i] = 0.0
-            self._log("invalid_isolated", int(i), f"output invalid for {self.invalid_persist} samples", t)
-            self._update_state(t=t)
+            old = self._state_of(mask_bits(~self._iso))
+            if self.sensors.isolate(int(i), "invalid"):
+                self._log("failed", int(i), "isolated too often: FAILED, re-admitted only on command", t)
+            self._apply()
+            self._log("invalid_isolated", int(i), f"output invalid for {int(run[i])} samples", t)
+            self._log_state(old, t)
+            changed = True
+        return changed
 
-    def _readmission(self, y: np.ndarray, valid: np.ndarray | None, r: StepResult, t: float) -> None:
-        if not r.observable:
-            return
+    def _readmission(self, y: np.ndarray, valid: np.ndarray | None, res: FdiResult, t: float) -> None:
         sig = self.pipeline.table.sigma
-        for j in np.flatnonzero(self.pipeline._isolated):
-            ok = np.isfinite(y[j]) and (valid is None or bool(valid[j]))
-            if ok:
-                a = self._axes[j]
-                res = (self._scale[j] * y[j] - self._bias[j]) - a @ r.x
-                var = sig[j] ** 2 + a @ r.P @ a
-                zn = res / np.sqrt(var)
-                ok = zn * zn < self._thr1
-            if not ok:
-                self._clean[j] = 0
-                self._clean_sum[j] = 0.0
+        sh = self.sensors
+        back = []
+        for j in np.flatnonzero(self._iso):
+            if sh.state[j] == SensorState.FAILED:
                 continue
-            self._clean[j] += 1
-            self._clean_sum[j] += zn
-            if self._clean[j] >= self.readmit_after:
-                N = self._clean[j]
-                if self._clean_sum[j] ** 2 / N < self._thr1:
-                    self.pipeline.readmit(int(j))
-                    self._log("readmitted", int(j), f"clean for {N} samples: re-admitted", t)
-                    self._update_state(t=t)
-                self._clean[j] = 0
-                self._clean_sum[j] = 0.0
+            ok = np.isfinite(y[j]) and (valid is None or bool(valid[j]))
+            if not ok:
+                sh.unclean(int(j))
+                continue
+            a = self._axes[j]
+            rj = (self._scale[j] * y[j] - self._bias[j]) - a @ res.x
+            zn = float(rj / np.sqrt(sig[j] ** 2 + a @ res.P @ a))
+            n_before = sh.clean_count(int(j))
+            if sh.clean_sample(int(j), zn):
+                back.append(int(j))
+                self._log("readmitted", int(j), f"clean for {n_before + 1} samples: re-admitted", t)
+        if back:
+            old = self._state_of(mask_bits(~self._iso))
+            self._apply()
+            self._log_state(old, t)
 
     # ------------------------------------------------------------------ blocks
     def run(self, Y: np.ndarray, valid: np.ndarray | None = None, t: np.ndarray | None = None) -> ReplayResult:
-        """Process N samples one by one (closed loop) and collect the outputs; (N, n) raw samples."""
+        """Process N samples one by one (closed loop) and collect the outputs; (N, n) raw samples.
+
+        Continues from the manager's current state (isolated sensors, counters, sample count): a stream cut
+        into blocks gives the same outputs as one call. Call :meth:`reset` first to start over. The returned
+        ``events`` are the events of this call.
+        """
         Y = np.asarray(Y, dtype=float)
         if Y.ndim != 2 or Y.shape[1] != self.pipeline.n:
             raise ShapeError(f"a block of raw samples must have shape (N, {self.pipeline.n}), got {Y.shape}")
@@ -386,45 +737,40 @@ class RedundancyManager:
         if t is None:
             base = self.samples
             t = (base + np.arange(N)) / (self.sample_rate or 1.0)
-        x = np.zeros((N, 3))
-        stat = np.zeros(N)
-        thr = np.zeros(N)
-        alarm = np.zeros(N, bool)
-        state = np.zeros(N, np.int8)
-        n_act = np.zeros(N, np.int8)
+        n = self.n
+        out = {"x": np.zeros((N, 3)), "stat": np.zeros(N), "thr": np.zeros(N), "alarm": np.zeros(N, bool),
+               "state": np.zeros(N, np.int8), "n_act": np.zeros(N, np.int8), "validity": np.zeros(N, np.int8),
+               "sensor": np.zeros((N, n), np.int8), "active": np.zeros((N, n), bool), "P": np.zeros((N, 3))}
         first = len(self.events)
         with np.errstate(invalid="ignore", over="ignore"):  # non-finite raw values are routed around, not warned
-            self._run_loop(Y, valid, t, x, stat, thr, alarm, state, n_act)
-        return ReplayResult(np.asarray(t, float), x, stat, thr, alarm, state, n_act, self.events[first:], self.names)
+            self._run_loop(Y, valid, np.asarray(t, float), out)
+        return ReplayResult(np.asarray(t, float), out["x"], out["stat"], out["thr"], out["alarm"], out["state"],
+                            out["n_act"], self.events[first:], self.names, out["validity"], out["sensor"],
+                            out["active"], out["P"])
 
-    def _run_loop(self, Y, valid, t, x, stat, thr, alarm, state, n_act) -> None:  # type: ignore[no-untyped-def]
-        h = self.health
+    def _run_loop(self, Y: np.ndarray, valid: np.ndarray | None, t: np.ndarray, o: dict[str, np.ndarray]) -> None:
+        x, stat, thr, alarm, state = o["x"], o["stat"], o["thr"], o["alarm"], o["state"]
+        validity, sensor = o["validity"], o["sensor"]
+        entry = np.full(len(Y), -1, dtype=np.int64)
+        obs = np.zeros(len(Y), bool)
+        codes = STATE_CODES
+        sh = self.sensors
+        seen: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # entry -> (active, diag P), while the set is cached
         for k in range(len(Y)):
             r = self.step(Y[k], None if valid is None else valid[k], float(t[k]))
             x[k] = r.x
-            stat[k], thr[k], alarm[k] = h.statistic, h.threshold, h.alarm
-            state[k] = STATE_CODES[h.state]
-            n_act[k] = r.dof + 3 if r.observable else int(r.active.sum())
-
-
-class _Isolable:
-    """``isolable[entry]``: the active set can isolate one fault (dof >= 2 and no two parity columns collinear),
-    computed once per set when it first occurs (a unit of many sensors has too many sets to tabulate)."""
-
-    def __init__(self, table: ProjectionTable) -> None:
-        self._table = table
-
-    @staticmethod
-    def _compute(s: ActiveSet) -> bool:
-        d = s.dof
-        if d < 2 or not s.observable:
-            return False
-        act = s.active
-        rho = column_correlations(s.Vz[:d])[np.ix_(act, act)]
-        off = np.abs(rho[~np.eye(len(rho), dtype=bool)])
-        return bool(np.all(off < 1 - 1e-6))
-
-    def __getitem__(self, entry: int) -> bool:
-        if entry < 0:
-            return False
-        return bool(self._table.derived("isolable", int(entry), self._compute))
+            stat[k], thr[k], alarm[k] = r.statistic, r.threshold, r.alarm
+            state[k] = codes[r.state]
+            validity[k] = r.validity
+            e = r.entry
+            entry[k] = e
+            obs[k] = r.observable
+            sensor[k] = sh.state
+            if e not in seen:
+                seen[e] = (np.asarray(r.active, bool).copy(), np.diagonal(r.P).copy())
+        for e, (act, pd) in seen.items():
+            rows = (entry == e) & obs
+            o["active"][rows] = act
+            o["P"][rows] = pd
+        o["P"][~obs] = np.inf
+        o["n_act"][:] = o["active"].sum(axis=1)

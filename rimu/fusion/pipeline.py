@@ -177,6 +177,8 @@ class InstrumentPipeline:
     ) -> None:
         self.calibration = calibration
         n = calibration.geometry.n
+        #: True when the noise came from ``sigma`` or the calibration's ``noise_sigma``, False when 1.0 was assumed
+        self.noise_given = sigma is not None or calibration.noise_sigma is not None
         if sigma is None:
             sigma = calibration.noise_sigma if calibration.noise_sigma is not None else 1.0
             if calibration.noise_sigma is None and getattr(calibration, "noise", None) is not None:

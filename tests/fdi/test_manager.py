@@ -56,23 +56,36 @@ def test_two_successive_faults_then_a_third(manoeuvre):
     states = res.state_names()
     k5, k15, k25 = (np.searchsorted(res.t, s) for s in (4.9, 15.0, 25.0))
     assert states[k5] == "nominal" and states[k15] == "detection_only" and states[-1] == "detection_only"
-    nf = res.first("detected_not_isolable")
-    assert nf is not None and nf.t >= 20.0
+    # the ramp is ambiguous while it is still small (flagged, then withdrawn when y2 is isolated); the third
+    # fault is reported as not isolable and stays reported
+    nf = [e for e in res.events if e.kind == "detected_not_isolable"]
+    assert nf and nf[-1].t >= 20.0
+    y2 = res.first("isolated", "y2")
+    assert all(e.t < y2.t for e in nf[:-1])
+    assert (res.validity[res.t > 21.0] == 1).all()
     assert mgr.health.fault_not_isolable
     assert np.all(np.isfinite(res.x)) and np.all(np.isfinite(res.statistic))
     # a fourth isolation would leave three sensors: the manager never claims one it cannot make
-    assert (res.n_active >= 4).all()
+    assert ((res.sensor_state >= 2).sum(axis=1) <= 2).all()
+    assert (res.n_active >= 3).all()    # alarm samples may leave suspects out of their own output, never blind
 
 
 def test_no_redundancy_and_unobservable_states():
     cal = InstrumentCalibration.nominal("gyro", cone6(), 1.0, noise_sigma=0.01)
     mgr = RedundancyManager(InstrumentPipeline(cal))
-    for i, want in ((0, "fault_isolated"), (1, "detection_only"), (2, "no_redundancy"), (3, "unobservable")):
-        mgr.pipeline.isolate(i)
-        mgr._update_state()
-        assert mgr.state.value == want
-    r = mgr.step(np.zeros(6))
-    assert not r.observable and np.all(np.isfinite(r.x))
+    y = cal.raw_output(np.array([0.1, 0.2, 0.3]))
+    for i, want, val in ((0, "fault_isolated", 1), (1, "detection_only", 1), (2, "no_redundancy", 1),
+                         (3, "unobservable", 2)):
+        mgr.isolate(i)                                   # by command: the manager owns the active set
+        r = mgr.step(y)
+        assert mgr.state.value == want and r.state.value == want and int(r.validity) == val
+        assert r.active.sum() == 5 - i and not mgr.pipeline.result.active[i]
+    assert not r.observable and np.all(np.isfinite(r.x)) and np.all(np.isinf(np.diag(r.P)))
+    mgr.pipeline.readmit(0)                              # behind the manager's back: the manager's set rules
+    assert not mgr.step(y).active[0]
+    mgr.reset()
+    r = mgr.step(y)
+    assert r.active.all() and r.validity == 0 and mgr.state.value == "nominal"
 
 
 def test_tetrad_never_claims_an_isolation():
@@ -167,6 +180,7 @@ def test_any_fault_sequence_keeps_the_invariants(faults, seed):
     assert np.all(np.isfinite(res.x)) and np.all(np.isfinite(res.statistic))
     assert sum(1 for e in res.events if e.kind == "isolated") <= 2 + sum(1 for e in res.events if e.kind == "readmitted")
     n_act = 6 - len(mgr.health.isolated)
+    assert int(res.n_active[-1]) <= n_act   # alarm samples may leave suspects out of their own output
     expect = {6: {"nominal", "fault_isolated"}, 5: {"fault_isolated"}, 4: {"detection_only"},
               3: {"no_redundancy"}}.get(n_act, {"unobservable"})
     assert mgr.state.value in expect

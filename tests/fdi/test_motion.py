@@ -97,7 +97,10 @@ def test_statistic_is_chi_square_under_its_model():
 def test_hand_held_motion_raises_no_isolation(unit):
     _truth, cal, stated, fitted, Y = unit
     mgr, res = _run(cal, None, Y)
-    assert len([e for e in res.events if e.kind == "isolated"]) >= 3  # the still-unit model fails in motion
+    # the still-unit model fails in motion: false isolations, or (with the set GLT, which finds no sensor set that
+    # explains a model error) faults reported as present but not isolable
+    kinds = [e.kind for e in res.events]
+    assert kinds.count("isolated") >= 3 or ("detected_not_isolable" in kinds and (res.validity == 1).mean() > 0.5)
     for model in (stated, fitted):
         mgr, res = _run(cal, MotionAwareGlt(model, p_fa=1e-3, sample_rate=FS), Y)
         assert res.first("isolated") is None and not mgr.isolated.any()
