@@ -30,12 +30,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from rimu.calibration.model import RuntimeInputs  # noqa: E402
-from rimu.epoch import EpochBlock  # noqa: E402
-from rimu.fusion import EffectCompensation, Pipeline  # noqa: E402
-from rimu.sim import cho_park_table3  # noqa: E402
-from rimu.sim.typical import TYPICAL_EFFECTS, with_effects  # noqa: E402
-from rimu.units import DEG_TO_RAD, G0  # noqa: E402
+from rimu.calibration.model import RuntimeInputs
+from rimu.epoch import EpochBlock
+from rimu.fusion import EffectCompensation, Pipeline
+from rimu.sim import cho_park_table3
+from rimu.sim.typical import TYPICAL_EFFECTS, with_effects
+from rimu.units import DEG_TO_RAD, G0
 
 EXOGENOUS = ("g_sensitivity", "g2_sensitivity", "bias_temperature", "bias_temperature2", "bias_drift")
 OUTPUT_SIDE = ("sf_quadratic", "sf_cubic", "sf_asymmetry", "scale_temperature", "scale_temperature2", "cross_coupling")

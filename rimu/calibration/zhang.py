@@ -388,7 +388,7 @@ class Zhang:
         nG = len(phi) + len(yg)
         chi_a = float(np.sum(r[:nA] ** 2))
         chi_g = float(np.sum(r[nA:] ** 2))
-        for inst, L, b, R, sig, offs, chi, nobs in (
+        for inst, L, b, R, sig, offs, _chi, nobs in (
             ("accel", La, ba, np.eye(3), sa, (0, 6), chi_a, nA),
             ("gyro", Lg, bg, Rpo, sg, (9, 15), chi_g, nG),
         ):

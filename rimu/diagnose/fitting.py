@@ -301,7 +301,7 @@ def fit_model(
     for ctx in ctxs:
         Xs, ys, idx, ts, Ts, ss, labels = [], [], [], [], [], [], []
         have_T = True
-        for k, seg in enumerate(session.segments):
+        for _k, seg in enumerate(session.segments):
             X = model.design(seg, ctx)
             if X is None:
                 skipped[seg.label] = "the segment lacks inputs the model needs (a known rate, attitude or temperature)"

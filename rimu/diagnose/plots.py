@@ -105,7 +105,7 @@ def plot_input(fit: ModelFit, path: str | Path) -> Path:
     """Mean residual against the input along the sensing axis (magnitude and sign), per sensor."""
     plt = _plt()
     fig, axes = plt.subplots(1, len(fit.sensors), figsize=(2.6 * len(fit.sensors), 2.8), squeeze=False)
-    si, field, per = input_unit(fit.contexts[0])
+    _si, field, per = input_unit(fit.contexts[0])
     for ax, s in zip(axes[0], fit.sensors):
         b = input_bins(s, 12)
         if b:

@@ -17,14 +17,14 @@ from .baseline import MeanDisagreement
 from .calaware import CalibrationAwareGlt, CalibrationCovariance, stated_covariance
 from .cusum import CusumBank, cusum_threshold, markov_arl, siegmund_arl
 from .glt import GltDecision, GltSnapshot, GltWindow, glt_snapshot, glt_threshold
-from .kalman import ParityKalman
 from .health import SensorHealth, SensorState
+from .kalman import ParityKalman
 from .manager import FdiEvent, FdiResult, Health, HealthState, RedundancyManager, ReplayResult
-from .multiple import FaultSetGlt, SetDecision, set_fault_rates, single_fault_rates
 from .motion import MotionAwareGlt, MotionNoiseModel, fit_motion_terms
+from .multiple import FaultSetGlt, SetDecision, set_fault_rates, single_fault_rates
 from .noise import NoiseEstimator
-from .px4_selector import Px4GyroSelector, Px4SelectorResult
 from .parity import IsolabilityReport, detection_probability, isolability, wrong_isolation_bounds
+from .px4_selector import Px4GyroSelector, Px4SelectorResult
 from .quality import QualityReport, parity_quality
 
 __all__ = [

@@ -106,7 +106,7 @@ class MeanDisagreement:
         return (self._last if self._dof >= 2 else -1), self._E / self._h_all
 
     def block(self, P: np.ndarray, Vz: np.ndarray, dof: int) -> tuple[np.ndarray, float, np.ndarray]:
-        M, h, act = self.design(Vz, dof)
+        M, h, _act = self.design(Vz, dof)
         D = np.abs(P[:, :dof] @ M) - self.dead_band
         N, n = D.shape
         out = np.zeros(N)

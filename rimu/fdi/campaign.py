@@ -23,10 +23,11 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable, Sequence
 from concurrent.futures import Executor, ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 from scipy.stats import beta as _beta
@@ -188,7 +189,7 @@ def run_task(spec: CampaignSpec, task: Sequence[int]) -> dict[str, Any]:
     from .faults import Injection, inject
 
     f_i, sensor, z_i, rep = (int(x) for x in task)
-    truth, pipe, sigma = _setup(spec)
+    truth, pipe, _sigma = _setup(spec)
     cal = truth[spec.instrument]
     seed = task_seed(spec, task)
     sim = Simulator({spec.instrument: cal.geometry}, truth=truth, arw_deg_sqrt_h=spec.arw,

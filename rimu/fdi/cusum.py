@@ -38,7 +38,7 @@ the threshold grows fast: the bank cannot tell a fault of the design size from t
 from __future__ import annotations
 
 from collections import OrderedDict
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 from scipy.optimize import brentq
@@ -258,7 +258,7 @@ class CusumBank:
 
     def block(self, P: np.ndarray, Vz: np.ndarray, dof: int) -> tuple[np.ndarray, float, np.ndarray]:
         """Run the bank over N samples of one set, restarting after each alarm; (stat/thr (N,), 1.0, sensor (N,))."""
-        U, d, thr, act = self.design(Vz, dof)
+        U, d, thr, _act = self.design(Vz, dof)
         X = P[:, :dof] @ U
         N, n = X.shape
         out = np.zeros(N)

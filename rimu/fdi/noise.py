@@ -43,7 +43,7 @@ class NoiseEstimator:
     def __init__(self, Vz: np.ndarray) -> None:
         V = np.asarray(Vz, dtype=float)
         self.V = V
-        r, n = V.shape
+        r, _n = V.shape
         iu = np.triu_indices(r)
         self._iu = iu
         self._A = V[iu[0]] * V[iu[1]]  # (r(r+1)/2, n)

@@ -20,8 +20,9 @@ Eq. 6-11, on the whitened rows). A bias ``b`` (SI) on sensor j moves the normali
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 from scipy.stats import chi2, ncx2, norm

@@ -161,7 +161,7 @@ def test_mpu6050_validation_turn(mpu):
     determined: 7 usable motions, scale sd up to 2.5 %); the authors' 1.4 deg. Bias from the turn's still start."""
     from rimu.calibration.handheld import quat_exp, quat_mul, quat_to_matrix
 
-    folder, log, session, det = mpu
+    folder, _log, session, _det = mpu
     cal = HandHeld().fit(session).to_calibration()
     v = read_raw_text(folder / "results_test_data" / "imu_90_x_rot.csv")
     ya, yg = v.raw["accel"], v.raw["gyro"]

@@ -75,6 +75,6 @@ def test_wavelet_denoising(run):
     assert np.allclose(d.mean(axis=0), y.mean(axis=0), rtol=0, atol=3 * y.std(axis=0).max() / np.sqrt(len(y)))
     assert np.all(d.std(axis=0) < y.std(axis=0))
     a = Oliveira(wavelet=True).fit(run.session)
-    names, z = normalised_errors(a.to_calibration()["gyro"], run.truth["gyro"])
+    _names, z = normalised_errors(a.to_calibration()["gyro"], run.truth["gyro"])
     assert np.all(np.abs(z) < 3)
     assert any("db4" in n for n in a.notes)

@@ -123,7 +123,7 @@ def test_not_testable_without_excitation():
 
 
 def test_fit_agrees_with_fit_lsq():
-    run, truth, sc = simulate("g_sensitivity", "cone6", seed=0)
+    run, _truth, _sc = simulate("g_sensitivity", "cone6", seed=0)
     model = ErrorModel.base() + "g_sensitivity"
     sig = known_sigma(run, "gyro")
     mine = fit_model(run.session, model, "gyro", sigma=sig)
@@ -185,7 +185,7 @@ def test_bad_inputs_raise_specific_errors():
 
 def test_epoch_time_stamps_keep_drift_testable():
     """Time stamps of a real logger (seconds since 1970) must not cost the drift test its digits."""
-    run, truth, sc = simulate("bias_drift", "triad3", seed=0)
+    run, _truth, _sc = simulate("bias_drift", "triad3", seed=0)
     for seg in run.session.segments:
         seg.t = seg.t + 1.7e9
     d = diagnose(run.session, sigma={"gyro": known_sigma(run, "gyro")})

@@ -86,7 +86,7 @@ def test_cli_text_lists_effects_and_errors(tmp_path, capsys):
 
 
 def test_report_of_simulated_hidden_effect(tmp_path):
-    run, truth, sc = simulate("size_effect", "triad3", seed=1)
+    run, _truth, _sc = simulate("size_effect", "triad3", seed=1)
     d = diagnose(run.session, sigma={"accel": known_sigma(run, "accel")})
     comps = list(d.add("size_effect").values())
     md = write_report(d, tmp_path, comps, html_page=False, figures=False)

@@ -81,7 +81,7 @@ def test_false_alarms_at_design_through_manoeuvres_and_pd_as_theory(setting):
     # detection of a 10 sigma bias: no worse than the theory for the inflated covariance
     j = rng.integers(0, 6, N)
     res2 = pipe.process(_truth_outputs(g, est, sig, rng, N, bias_on=j))
-    s2, t2, iso = det.block(res2.parity, pipe.table.Vz[0], 3, U=res2.x)
+    s2, t2, _iso = det.block(res2.parity, pipe.table.Vz[0], 3, U=res2.x)
     V = pipe.table.Vz[0][:, j].T
     C = model.covariance(pipe.table.Vz[0], res2.x)
     lam = (10 * sig) ** 2 * np.einsum("ni,ni->n", V, np.linalg.solve(C, V[..., None])[..., 0])

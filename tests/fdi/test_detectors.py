@@ -39,7 +39,7 @@ def test_window_step_equals_block_and_restarts():
     det = GltWindow(5)
     det.configure(V6, 3)
     step = np.array([det.update(p)[0] for p in P])
-    block, _, iso = det.block(P, V6, 3)
+    block, _, _iso = det.block(P, V6, 3)
     np.testing.assert_allclose(step, block, rtol=1e-10)
     det.configure(V6, 3)  # a new active set: the window starts empty
     assert det.update(P[0])[0] == pytest.approx(P[0] @ P[0])
@@ -62,7 +62,7 @@ def test_cusum_delay_matches_lorden_at_arl0_1e5():
         j = r % 6
         P = rng.standard_normal((300, 3))
         P[100:] += V6[:, j]
-        s, _, iso = bank.block(P, V6, 3)
+        s, _, _iso = bank.block(P, V6, 3)
         hits = np.flatnonzero((s > 1) & (np.arange(300) >= 100))
         assert hits.size
         delays.append(hits[0] - 100 + 1)
@@ -108,7 +108,7 @@ def test_kalman_filterpy_step_equals_block_and_false_alarms():
     kf = ParityKalman(20, 1e-2)
     kf.configure(V6, 3)
     step = np.array([kf.update(p)[0] for p in P])
-    block, thr, iso = kf.block(P, V6, 3)
+    block, thr, _iso = kf.block(P, V6, 3)
     np.testing.assert_allclose(step, block, rtol=1e-9)
     assert kf.isolate(P[-1])[0] == 2
     fast = ParityKalman(20, 1e-2, engine="steady")

@@ -2,10 +2,12 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from rimu.calibration import InstrumentCalibration
 from rimu.fdi import CusumBank, GltWindow, HealthState, RedundancyManager
-from rimu.fdi.faults import Injection, inject
+from rimu.fdi.faults import FAULTS, Injection, inject
 from rimu.fusion import InstrumentPipeline
 from rimu.geometry import cone6, tetrad4
 from rimu.sim import Simulator, rotation
@@ -54,7 +56,7 @@ def test_two_successive_faults_then_a_third(manoeuvre):
     iso = [e.sensor for e in res.events if e.kind == "isolated"]
     assert iso == ["x1", "y2"]
     states = res.state_names()
-    k5, k15, k25 = (np.searchsorted(res.t, s) for s in (4.9, 15.0, 25.0))
+    k5, k15, _k25 = (np.searchsorted(res.t, s) for s in (4.9, 15.0, 25.0))
     assert states[k5] == "nominal" and states[k15] == "detection_only" and states[-1] == "detection_only"
     # the ramp is ambiguous while it is still small (flagged, then withdrawn when y2 is isolated); the third
     # fault is reported as not isolable and stays reported
@@ -148,11 +150,6 @@ def test_other_detectors_in_the_manager(manoeuvre, det):
     iso = [e for e in res.events if e.kind == "isolated"]
     assert [e.sensor for e in iso] == ["y2"] and iso[0].t >= 15.0
 
-
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
-from rimu.fdi.faults import FAULTS
 
 # (type, sensor, start s, size sigma, duration s or None)
 _fault = st.tuples(st.sampled_from(sorted(FAULTS)), st.integers(0, 5), st.floats(0.2, 2.5),

@@ -14,8 +14,9 @@ Injection(fault='bias', instrument='gyro', sensor='y2', start=15.0, size=10.0, i
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
