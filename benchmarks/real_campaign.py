@@ -102,12 +102,11 @@ _MANAGERS: dict[int, RedundancyManager] = {}
 
 
 def manager(su: MultiImuSetup) -> RedundancyManager:
-    """One manager per setup, reset before every replay (building the projection tables of 12 sensors for
-    every exclusion set takes seconds; ``max_excluded=3`` until they are made on demand)."""
+    """One manager per setup, reset before every replay."""
     key = id(su)
     if key not in _MANAGERS:
         cal = su.calibration["gyro"]
-        pipe = InstrumentPipeline(cal, max_excluded=min(3, cal.geometry.n - 3))
+        pipe = InstrumentPipeline(cal)
         _MANAGERS[key] = RedundancyManager(pipe, p_fa=P_FA, confirm=CONFIRM)
     mgr = _MANAGERS[key]
     mgr.reset()

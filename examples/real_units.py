@@ -44,7 +44,7 @@ def load(which: str, data: Path) -> Any:
 def replay(su: MultiImuSetup, block: Any, instrument: str = "gyro") -> dict[str, Any]:
     """Fuse and monitor one instrument over a block: estimate, covariance, parity, statistic, state, events."""
     cal = su.calibration[instrument]
-    pipe = InstrumentPipeline(cal, max_excluded=min(3, cal.geometry.n - 3))
+    pipe = InstrumentPipeline(cal)
     mgr = RedundancyManager(pipe, p_fa=1e-3, confirm=3)
     res = mgr.run(block.raw[instrument], block.valid[instrument], block.t)
     return {"t": block.t, "x": res.x, "statistic": res.statistic, "threshold": res.threshold,

@@ -44,9 +44,7 @@ def test_full_replay_without_isolation(kind, run):
     problems = []
     for inst in su.calibration.instruments:
         n = su.calibration[inst].geometry.n
-        # exclusion sets of up to 3 sensors: the full tables of 12 sensors take seconds to build (issue 19,
-        # item 2 makes them on demand)
-        pipe = InstrumentPipeline(su.calibration[inst], max_excluded=min(3, n - 3))
+        pipe = InstrumentPipeline(su.calibration[inst])
         mgr = RedundancyManager(pipe, p_fa=1e-3, confirm=3)
         res = mgr.run(su.block.raw[inst], su.block.valid[inst], su.block.t)
         iso = [(e.sensor, round(e.t, 2)) for e in res.events if e.kind in ("isolated", "invalid_isolated")]
