@@ -377,7 +377,9 @@ class RedundancyManager:
         self._iso = self.sensors.out.copy()
         self._iso_bytes = self._iso.tobytes()
         self._n_iso = int(self._iso.sum())
-        self._iso_entry = self.pipeline.table.lookup(mask_bits(~self._iso))
+        self._iso_code = mask_bits(~self._iso)
+        self._iso_entry = self.pipeline.table.lookup(self._iso_code)
+        self.health.state = self._state_of(self._iso_code)
         self.health.isolated = [self.names[i] for i in np.flatnonzero(self._iso)]
 
     def _log(self, kind: str, sensor: int | None, message: str, t: float, statistic: float = float("nan")) -> None:
@@ -524,7 +526,7 @@ class RedundancyManager:
             # an open alarm episode (an alarm in the last `episode_gap` samples, not resolved) is an unresolved fault
             ok = full and not h.alarm and not self._not_isolable and not self._ep_alarms
             res.validity = Validity.NOMINAL if ok else Validity.DEGRADED
-        h.state = res.state
+        h.state = self._state_of(self._iso_code)  # the manager's state: its isolation set (res.state: the sample's)
         h.validity = res.validity
         if not exclude and not h.alarm and not self._not_isolable and not self._ep_alarms:
             self._plain_entry = r.entry
