@@ -56,7 +56,9 @@ def bench(names: list[str]) -> int:
 
     bdir = ROOT / "benchmarks"
     skip = {"render_results", "imucal_reference"}  # the renderer; a reference script run by hand (see its doc)
-    scripts = [b for b in sorted(bdir.glob("*.py")) if b.stem not in skip and (not names or b.stem in names)]
+    # (modules starting with "_" are shared helpers, not benchmarks)
+    scripts = [b for b in sorted(bdir.glob("*.py"))
+               if b.stem not in skip and not b.stem.startswith("_") and (not names or b.stem in names)]
     unknown = set(names) - {b.stem for b in scripts}
     if unknown:
         print(f"[dev] no benchmark called {sorted(unknown)}; known: {sorted(b.stem for b in bdir.glob('*.py'))}")

@@ -22,6 +22,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from _timing import median_time as timeit
+
 from rimu.epoch import EpochBlock
 from rimu.io.accounting import Accounting
 from rimu.io.can import CanFrameProcessor, CanReplaySource, items_to_block
@@ -38,17 +40,6 @@ from rimu.io.fuzz import (
 )
 from rimu.io.layout import load_layout
 from rimu.io.serial import CobsDecoder, SerialDecoder
-
-
-def timeit(fn, repeat):
-    ts = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t0)
-    return statistics.median(ts)
-
-
 
 
 def bench_can(layout, n_frames, repeat):

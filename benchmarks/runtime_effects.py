@@ -21,14 +21,14 @@ from __future__ import annotations
 
 import json
 import os
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from _timing import median_time
 
 from rimu.calibration.model import RuntimeInputs
 from rimu.epoch import EpochBlock
@@ -41,13 +41,6 @@ EXOGENOUS = ("g_sensitivity", "g2_sensitivity", "bias_temperature", "bias_temper
 OUTPUT_SIDE = ("sf_quadratic", "sf_cubic", "sf_asymmetry", "scale_temperature", "scale_temperature2", "cross_coupling")
 
 
-def median_time(fn, repeats: int) -> float:
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t0)
-    return statistics.median(ts)
 
 
 def configurations():

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import json
 import math
-import statistics
 import sys
 import time
 import tracemalloc
@@ -30,21 +29,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from _timing import median_time
+
 from rimu.calibration import InstrumentCalibration
 from rimu.fdi import MotionAwareGlt, MotionNoiseModel, RedundancyManager
 from rimu.fusion import InstrumentPipeline
 from rimu.fusion.reference import FullProjectionTable
 from rimu.geometry import cone6
 from rimu.sim.multitriad import triad_array
-
-
-def median_time(fn, repeats: int) -> float:
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t0)
-    return statistics.median(ts)
 
 
 def peak_bytes(fn) -> int:

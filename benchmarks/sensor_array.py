@@ -15,27 +15,18 @@ Prints a table and one JSON line. Medians over repeats; ratios are what to compa
 from __future__ import annotations
 
 import json
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from _timing import median_time
+
 from rimu.array import ArrayLayout, accel_model, crb, fit_positions, fit_relative_gyro, ml_motion
 from rimu.sim.array import random_array_truth, simulate_array
 from rimu.units import RAD_TO_DEG
-
-
-def median_time(fn, repeats: int) -> float:
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t0)
-    return statistics.median(ts)
 
 
 def bench_ml(rows: int, cols: int) -> dict:
