@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import NonFiniteError, ShapeError
+from ..session import skew  # re-exported: the cross-product matrices this module uses
 from .layout import ArrayLayout
 
 __all__ = [
@@ -34,20 +35,6 @@ __all__ = [
     "crb",
     "ml_motion",
 ]
-
-
-def skew(v: np.ndarray) -> np.ndarray:
-    """Cross-product matrices ``[v x]`` of vectors ``v`` (..., 3) -> (..., 3, 3).
-
-    >>> bool(np.allclose(skew(np.array([1.0, 2, 3])) @ [4.0, 5, 6], np.cross([1, 2, 3], [4, 5, 6])))
-    True
-    """
-    v = np.asarray(v, dtype=float)
-    S = np.zeros(v.shape + (3,))
-    S[..., 0, 1], S[..., 0, 2] = -v[..., 2], v[..., 1]
-    S[..., 1, 0], S[..., 1, 2] = v[..., 2], -v[..., 0]
-    S[..., 2, 0], S[..., 2, 1] = -v[..., 1], v[..., 0]
-    return S
 
 
 def lever_arm_acceleration(omega: np.ndarray, omega_dot: np.ndarray, positions_m: np.ndarray) -> np.ndarray:

@@ -139,11 +139,6 @@ def rotvec_of(R: np.ndarray) -> np.ndarray:
     return th / (2.0 * np.sin(th)) * w
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    x, y, z = v
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-
-
 def effective_fraction(residuals: np.ndarray, max_lag: int = 200, cutoff: float = 0.05) -> float:
     """N_eff / N of a residual series (N, m) from its autocorrelation (Bartlett):
     ``1 / (1 + 2 sum_k rho_k)``, summing lags until the mean autocorrelation first drops below ``cutoff``.

@@ -69,9 +69,9 @@ import numpy as np
 
 from ..errors import IdentifiabilityError, SessionFormatError
 from ..geometry import Geometry
-from ..session import Segment, Session, rotation_matrix
+from ..session import Segment, Session, rotation_matrix, skew
 from .estimate import CalibrationResult, estimate_noise_sigma, make_sensor_fit
-from .lsq import LsqResult
+from .lsq import LsqResult, central_jacobian
 from .model import ErrorModel, SensorContext
 from .result import Calibration, InstrumentCalibration
 
@@ -474,7 +474,7 @@ def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, n
         return AccelFit(members, tri, Wp @ P, c, np.zeros((len(theta), len(theta))), theta, free, P,
                         np.zeros((K, 3)), d_, np.sqrt(s2_), 0.0, K - len(theta), 1.0, None, [], ybar, sd, 0.0)
     # 3. covariance from the Jacobian (central differences) and the residual noise
-    J = _jac(resid, theta, typ * 1e-6)
+    J = central_jacobian(resid, theta, typ * 1e-6)
     r = resid(theta)
     nobs = K + (K * (n - 3) if n > 3 else 0)
     dof = nobs - len(theta)
@@ -593,14 +593,6 @@ def _check_spread(C: np.ndarray, names: list[str], inst: str, limit: float = 0.5
           "rotations about every axis)", sorted(params))
 
 
-def _jac(f, p: np.ndarray, h: np.ndarray) -> np.ndarray:
-    f0 = f(p)
-    J = np.empty((f0.size, p.size))
-    for k in range(p.size):
-        d = np.zeros_like(p)
-        d[k] = h[k]
-        J[:, k] = (f(p + d) - f(p - d)) / (2 * h[k])
-    return J
 
 
 # ---------------------------------------------------------------------- gyros
@@ -811,8 +803,8 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
             Dpsi[:, :, 3 * n + i] = SA_w[:, None] * gi
             Dphi[:, :, 3 * n + i] = -SB_w[:, None] * gi
         Dbeta = np.einsum("mji,mjp->mip", Eb, Dth) + Dphi
-        dpred = (np.einsum("mij,mjp->mip", _skew_batch(pred), Dbeta)
-                 - np.einsum("mji,mjk,mkp->mip", Cb, _skew_batch(v), Dpsi))
+        dpred = (np.einsum("mij,mjp->mip", skew(pred), Dbeta)
+                 - np.einsum("mji,mjk,mkp->mip", Cb, skew(v), Dpsi))
         return np.einsum("mai,mip->map", T, dpred)
 
     # initial: W from the nominal axes and the accelerometers' scale ratio is not known; use the statics for c
@@ -849,7 +841,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
             Js_[i::n, 3 * n + i] = -w_st / sd[:, i]
         out = [Jr, Js_]
         if n > 3:
-            out.append(_jac(lambda th: parity(th).ravel(), theta, typ * 1e-6) * w_par)
+            out.append(central_jacobian(lambda th: parity(th).ravel(), theta, typ * 1e-6) * w_par)
         return np.vstack(out)
 
     gain = np.diag(np.linalg.inv(H.T @ (H / sigma[:, None] ** 2)))  # per-sample rate variance / s0^2 (nominal)
@@ -915,13 +907,6 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
                    chi2, J.shape[0] - len(theta), scale, weak,
                    {"resid": resid, "jac": jac, "typ": typ, "ys": ys, "accel_ys": acc_ys, "dt": [p[2] for p in parts_idx],
                     "n_rot": 2 * M, "rot_resid_shift": rot_resid_shift})
-
-
-def _skew_batch(v: np.ndarray) -> np.ndarray:
-    out = np.zeros(v.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
-    return out
 
 
 def _robust_rms(r: np.ndarray) -> float:
@@ -1160,7 +1145,7 @@ def _dirs_with_jacobian(af: AccelFit, statics: list[Segment], session: Session, 
         return (f / np.linalg.norm(f, axis=1)[:, None]).ravel()
 
     typ = np.maximum(np.abs(af.theta), 1e-12)
-    J = _jac(dirs, af.theta, typ * 1e-6)
+    J = central_jacobian(dirs, af.theta, typ * 1e-6)
     u = dirs(af.theta).reshape(-1, 3)
     Wp, c = _unpack(af.theta, af.free, fixed, n)
     f, info, _ = _specific_forces(Wp, c, ybar, sd)

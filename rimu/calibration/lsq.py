@@ -21,7 +21,7 @@ from .effects.scale_misalignment import ScaleMisalignment
 from .model import ErrorModel, ParamSpec, SensorContext, axes_from_w, contexts
 from .result import InstrumentCalibration
 
-__all__ = ["LazyResiduals", "LsqResult", "SensorFit", "check_identifiable_gram", "fit_lsq", "physical_from_beta",
+__all__ = ["LazyResiduals", "LsqResult", "SensorFit", "central_jacobian", "check_identifiable_gram", "fit_lsq", "physical_from_beta",
            "rss_from_statistics"]
 
 
@@ -262,6 +262,17 @@ def _fit_sensors(session: Session, model: ErrorModel, instrument: str, ctxs: lis
                               theta, tcov, s, known, n_obs, rss, res))
         used = labels
     return fits, used, skipped
+
+
+def central_jacobian(f: Callable[[np.ndarray], np.ndarray], p: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Jacobian of ``f`` at ``p`` by central differences with steps ``h`` (one per parameter)."""
+    f0 = f(p)
+    J = np.empty((f0.size, p.size))
+    for k in range(p.size):
+        d = np.zeros_like(p)
+        d[k] = h[k]
+        J[:, k] = (f(p + d) - f(p - d)) / (2 * h[k])
+    return J
 
 
 def rss_from_statistics(q: float, h: np.ndarray, G: np.ndarray, beta: np.ndarray) -> float:

@@ -41,10 +41,10 @@ from typing import Any
 import numpy as np
 
 from ..errors import IdentifiabilityError, SessionFormatError
-from ..session import Segment, Session
+from ..session import Segment, Session, skew
 from ..units import EARTH_RATE
 from .estimate import CalibrationResult, _sigma_for, make_sensor_fit
-from .lsq import LsqResult
+from .lsq import LsqResult, central_jacobian
 from .model import ErrorModel, contexts
 from .result import Calibration, InstrumentCalibration
 
@@ -338,7 +338,7 @@ class Zhang:
             p = sol.x
         else:
             p = p0
-        J = _jac(resid, p, typ * 1e-6)
+        J = central_jacobian(resid, p, typ * 1e-6)
         r = resid(p)
         cov_p = np.linalg.pinv(J.T @ J)
         La, ba, Lg, bg = unpack(p)
@@ -378,7 +378,7 @@ class Zhang:
                         for v, n in zip(var_raw, n_raw_a)])
         Rpo = wahba(lo_a, lp_a, w_a)
         info = sum(w * (np.eye(3) - np.outer(l, l)) for w, l in zip(w_a, lp_a))
-        Jt = _jac(theta_of, p, typ * 1e-6)
+        Jt = central_jacobian(theta_of, p, typ * 1e-6)
         cov_th = np.linalg.inv(info) + Jt @ cov_p @ Jt.T
         theta = np.array([Rpo[2, 1] - Rpo[1, 2], Rpo[0, 2] - Rpo[2, 0], Rpo[1, 0] - Rpo[0, 1]]) / 2.0
         # map to rimu's per-sensor raw-domain coefficients in MB = p
@@ -409,7 +409,7 @@ class Zhang:
                     for k in range(3):
                         e = np.zeros(3)
                         e[k] = 1.0
-                        G[:, k] = L[i] @ _skew(e) @ R
+                        G[:, k] = L[i] @ skew(e) @ R
                     bc[:3, :3] += G @ cov_th @ G.T
                 bc = (bc + bc.T) / 2
                 beta = np.concatenate([W[i], [b[i]]])
@@ -457,16 +457,3 @@ def _accel_only(est: Zhang, session: Session, statics: list[Segment]) -> Calibra
     return res
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    x, y, z = v
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-
-
-def _jac(f, p: np.ndarray, h: np.ndarray) -> np.ndarray:
-    f0 = f(p)
-    J = np.empty((f0.size, p.size))
-    for k in range(p.size):
-        d = np.zeros_like(p)
-        d[k] = h[k]
-        J[:, k] = (f(p + d) - f(p - d)) / (2 * h[k])
-    return J

@@ -42,9 +42,17 @@ SEGMENT_KINDS = ("static", "static_unknown", "rate", "angle", "motion")
 
 
 def skew(v: np.ndarray) -> np.ndarray:
-    """Cross-product matrix: ``skew(a) @ b == cross(a, b)``."""
-    x, y, z = np.asarray(v, dtype=float)
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    """Cross-product matrices, vectorised over leading axes: ``skew(a) @ b == cross(a, b)``; (..., 3) -> (..., 3, 3).
+
+    >>> bool(np.allclose(skew(np.array([1.0, 2, 3])) @ [4.0, 5, 6], np.cross([1, 2, 3], [4, 5, 6])))
+    True
+    """
+    v = np.asarray(v, dtype=float)
+    S = np.zeros(v.shape + (3,))
+    S[..., 0, 1], S[..., 0, 2] = -v[..., 2], v[..., 1]
+    S[..., 1, 0], S[..., 1, 2] = v[..., 2], -v[..., 0]
+    S[..., 2, 0], S[..., 2, 1] = -v[..., 1], v[..., 0]
+    return S
 
 
 def rotation_matrix(rotvec: np.ndarray) -> np.ndarray:

@@ -187,7 +187,8 @@ def test_gyro_rotation_jacobian_matches_central_differences():
     """The analytic Jacobian of the integrated rotations (first order in the small pose motions) against
     central differences of the exact residual, on a tremor-laden recording: the bias columns to 1e-2 (they
     enter through the small pose rotations), the axis columns to 1e-3."""
-    from rimu.calibration.handheld import _dirs_with_jacobian, _jac, _pose_stats, _statics, fit_gyro, pose_windows
+    from rimu.calibration.handheld import _dirs_with_jacobian, _pose_stats, _statics, fit_gyro, pose_windows
+    from rimu.calibration.lsq import central_jacobian as _jac
 
     run = handheld_run(n_poses=12, static_s=2.0, seed=13)
     s = run.session
