@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
-from .whitening import NoiseSettings, whitener
+from .whitening import NoiseSettings, cached_whitener
 
 __all__ = ["glt_threshold", "GltDecision", "glt_snapshot", "GltSnapshot", "GltWindow", "isolate_argmax", "block_isolate"]
 
@@ -119,13 +119,7 @@ class GltSnapshot:
 
     def whitening(self, Vz: np.ndarray, dof: int) -> np.ndarray | None:
         """``L`` of :mod:`rimu.fdi.whitening` for this active set and window (cached per set), or None."""
-        if self.noise is None or dof < 1:
-            return None
-        key = (np.asarray(Vz)[:dof].tobytes(), int(dof))
-        cache = self.__dict__.setdefault("_whiteners", {})
-        if key not in cache:
-            cache[key] = whitener(Vz, dof, self.noise, self.window)
-        return cache[key]
+        return cached_whitener(self, Vz, dof, self.window)
 
     def threshold(self, dof: int) -> float:
         return self._thr[dof] if dof in self._thr else glt_threshold(self.p_fa, dof)

@@ -38,7 +38,7 @@ from filterpy.kalman import KalmanFilter
 from scipy.signal import lfilter
 
 from .glt import as_noise_settings, block_isolate, glt_threshold, isolate_argmax
-from .whitening import whitener
+from .whitening import cached_whitener
 
 __all__ = ["ParityKalman", "steady_gain"]
 
@@ -161,15 +161,9 @@ class ParityKalman:
 
     def whitening(self, Vz: np.ndarray, dof: int) -> np.ndarray | None:
         """``L`` (dof, dof) of the estimate under the noise model (module docstring), cached per set; or None."""
-        if self.noise is None or dof < 1:
-            return None
-        key = (np.asarray(Vz)[:dof].tobytes(), int(dof))
-        cache = self.__dict__.setdefault("_whiteners", {})
-        if key not in cache:
-            M = self.equivalent_window
-            # whitener() whitens M C(M); the estimate's covariance is C(M) itself
-            cache[key] = np.sqrt(M) * whitener(Vz, dof, self.noise, M)
-        return cache[key]
+        M = self.equivalent_window
+        # whitener() whitens M C(M); the estimate's covariance is C(M) itself
+        return cached_whitener(self, Vz, dof, M, np.sqrt(M))
 
     @property
     def bias(self) -> np.ndarray:

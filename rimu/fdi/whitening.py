@@ -31,7 +31,7 @@ import numpy as np
 
 from ..errors import ShapeError
 
-__all__ = ["NoiseSettings", "SensorNoise", "whitener", "window_covariance"]
+__all__ = ["NoiseSettings", "SensorNoise", "cached_whitener", "whitener", "window_covariance"]
 
 
 class SensorNoise(Protocol):
@@ -97,3 +97,16 @@ def whitener(Vz: np.ndarray, dof: int, settings: NoiseSettings, samples: float) 
     """``L`` (dof, dof) with ``L (M C) L^T = I`` (inverse Cholesky factor of :func:`window_covariance`)."""
     C = window_covariance(Vz, dof, settings, samples)
     return np.linalg.inv(np.linalg.cholesky(C))
+
+
+def cached_whitener(detector: Any, Vz: np.ndarray, dof: int, samples: float, factor: float | None = None) -> np.ndarray | None:
+    """A detector's :func:`whitener` for the active set (``Vz``, ``dof``), cached on the detector per set, times
+    ``factor`` when given; None without a noise model (``detector.noise``) or parity space."""
+    if detector.noise is None or dof < 1:
+        return None
+    key = (np.asarray(Vz)[:dof].tobytes(), int(dof))
+    cache = detector.__dict__.setdefault("_whiteners", {})
+    if key not in cache:
+        L = whitener(Vz, dof, detector.noise, samples)
+        cache[key] = L if factor is None else factor * L
+    return cache[key]

@@ -328,6 +328,17 @@ def read_header(reader: Any, path: Path, need: list[str]) -> list[str]:
     return header
 
 
+def npz_layout(side: dict, present: Any, path: Path) -> tuple[dict, list[str]]:
+    """The geometries of an NPZ session's sidecar and the arrays it must hold, checked against those ``present``."""
+    _check_sidecar(side, str(path))
+    geoms = _geometries(side, str(path))
+    need = ["t", "segment"] + [f"raw_{k}" for k in geoms]
+    missing = [c for c in need if c not in present]
+    if missing:
+        raise SessionFormatError(f"{path}: arrays {missing} are missing; present: {present}")
+    return geoms, need
+
+
 def _load_csv(path: Path, side: dict, src: Path) -> Session:
     if not path.exists():
         raise SessionFormatError(f"{src}: its data file {path} does not exist")
@@ -418,12 +429,7 @@ def _load_npz(path: Path) -> Session:
         side = json.loads(str(z["meta"]))
     except json.JSONDecodeError as exc:
         raise SessionFormatError(f"{path}: 'meta' is not valid JSON ({exc})") from exc
-    _check_sidecar(side, str(path))
-    geoms = _geometries(side, str(path))
-    need = ["t", "segment"] + [f"raw_{k}" for k in geoms]
-    missing = [c for c in need if c not in files]
-    if missing:
-        raise SessionFormatError(f"{path}: arrays {missing} are missing; present: {files}")
+    geoms, _ = npz_layout(side, files, path)
     try:
         t = np.asarray(z["t"], dtype=float)
         seg_idx = np.asarray(z["segment"])

@@ -30,7 +30,7 @@ import numpy as np
 
 from ..epoch import EpochBlock
 from ..errors import SessionFormatError
-from .native import _check_sidecar, _columns, _geometries, _read_sidecar, read_header
+from .native import _check_sidecar, _columns, _geometries, _read_sidecar, npz_layout, read_header
 
 __all__ = ["iter_blocks"]
 
@@ -203,12 +203,7 @@ def _iter_npz(path: Path, chunk: int) -> Iterator[EpochBlock]:
                 side = json.loads(str(np.lib.format.read_array(fh, allow_pickle=False)))
         except (ValueError, json.JSONDecodeError) as exc:
             raise SessionFormatError(f"{path}: 'meta' is not valid JSON ({exc})") from exc
-        _check_sidecar(side, str(path))
-        geoms = _geometries(side, str(path))
-        need = ["t", "segment"] + [f"raw_{k}" for k in geoms]
-        missing = [c for c in need if c not in names]
-        if missing:
-            raise SessionFormatError(f"{path}: arrays {missing} are missing; present: {sorted(names)}")
+        geoms, need = npz_layout(side, sorted(names), path)
         keys = need + (["temperature"] if "temperature" in names else [])
         streams = {k: _NpyStream(zf, f"{k}.npy", path) for k in keys}
         try:
