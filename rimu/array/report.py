@@ -82,12 +82,9 @@ class ArrayReport:
 
     def plot(self, path: "str | Path") -> Path:
         """Bar chart per triad and step (PNG). Needs the ``plots`` extra (matplotlib)."""
-        try:
-            import matplotlib
-        except ImportError as exc:  # pragma: no cover - depends on the environment
-            raise ImportError("the array report plot needs matplotlib: pip install 'rimu[plots]'") from exc
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        from ..plotting import pyplot
+
+        plt = pyplot()
 
         panels = [(s, u, t) for s, u, t in ((self.gyro_steps, "deg/s", "gyro"), (self.accel_steps, "m/s^2", "accel"))
                   if s]

@@ -232,10 +232,9 @@ def greedy_d_optimal(geometry: Geometry, candidates: np.ndarray, n: int, which: 
 
 def plot_fig3(curve: dict[str, np.ndarray], path: str | None = None, title: str = ""):
     """Plot :func:`fig3_curve` (Cho & Park 2005, Fig. 3). Returns the matplotlib Figure."""
-    import matplotlib
+    from ..plotting import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, ax = plt.subplots(1, 2, figsize=(10, 4))
     for k, lab in enumerate("xyz"):

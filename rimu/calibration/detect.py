@@ -339,10 +339,9 @@ def plot_detection(det: Detection, accel: np.ndarray, sample_rate: float, labell
     """Plot the accelerometer magnitude, the normalised moving variance and threshold, and the intervals
     (static green, rotation orange, motion grey); ``labelled`` {name: (start, end)} is drawn for comparison.
     Returns the matplotlib Figure (saved to ``path`` if given)."""
-    import matplotlib
+    from ..plotting import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     t = np.arange(len(det.moving_variance)) / sample_rate
     step = max(1, len(t) // 4000)  # enough points for the eye

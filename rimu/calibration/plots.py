@@ -37,10 +37,9 @@ def residual_table(result: Any, instrument: str) -> tuple[list[str], list[str], 
 
 def plot_residuals(result: Any, path: str | None = None):
     """Plot :func:`residual_table` for every instrument; returns the matplotlib Figure (saved to ``path``)."""
-    import matplotlib
+    from ..plotting import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     insts = list(result.instruments)
     fig, axes = plt.subplots(len(insts), 2, figsize=(13, 3.6 * len(insts)), squeeze=False)

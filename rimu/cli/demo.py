@@ -249,12 +249,10 @@ def _close_the_loop(sim, cal_run, cal, top: str, out: Path) -> dict:
 
 
 def _plot(out: Path, t, xs, truth, stats, thresholds, events, faults) -> Path | None:
-    try:
-        import matplotlib
+    from ..plotting import pyplot
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
+    plt = pyplot(optional=True)
+    if plt is None:
         return None
     from ..units import G0, RS_TO_DS
 

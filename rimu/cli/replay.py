@@ -234,12 +234,10 @@ def _motion_detector(cal, block, seconds: float, margin: float, p_fa: float, fs:
 
 
 def _plot(path: Path, results: dict) -> Path | None:
-    try:
-        import matplotlib
+    from ..plotting import pyplot
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
+    plt = pyplot(optional=True)
+    if plt is None:
         return None
     from ..fdi.manager import HealthState
 

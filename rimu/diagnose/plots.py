@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..calibration.effects._common import input_unit, output_unit
+from ..plotting import pyplot
 from .residuals import input_bins
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -27,15 +28,6 @@ __all__ = [
     "plot_segment_map",
     "plot_temperature",
 ]
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def _grid(n: int, plt, width: float = 10.0, height: float = 1.8):
@@ -64,7 +56,7 @@ def _decimate(n: int, keep: int = 4000) -> slice:
 def plot_residual_time(fit: ModelFit, path: str | Path) -> Path:
     """Residual / noise level against time for every sensor, with each segment's mean (x 10 for visibility
     is not applied: the mean is drawn in units of its own standard error on the right axis)."""
-    plt = _plt()
+    plt = pyplot()
     fig, axes = _grid(len(fit.sensors), plt)
     for ax, s in zip(axes, fit.sensors):
         k = _decimate(s.n_obs)
@@ -85,7 +77,7 @@ def plot_residual_time(fit: ModelFit, path: str | Path) -> Path:
 
 def plot_segment_map(d: InstrumentDiagnosis, path: str | Path) -> Path:
     """Mean residual of each sensor on each segment, in units of its standard error (where it fails)."""
-    plt = _plt()
+    plt = pyplot()
     labels = d.fit.segment_labels
     Z = np.zeros((len(d.stats), len(labels)))
     for i, st in enumerate(d.stats):
@@ -103,7 +95,7 @@ def plot_segment_map(d: InstrumentDiagnosis, path: str | Path) -> Path:
 
 def plot_input(fit: ModelFit, path: str | Path) -> Path:
     """Mean residual against the input along the sensing axis (magnitude and sign), per sensor."""
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(1, len(fit.sensors), figsize=(2.6 * len(fit.sensors), 2.8), squeeze=False)
     _si, field, per = input_unit(fit.contexts[0])
     for ax, s in zip(axes[0], fit.sensors):
@@ -124,7 +116,7 @@ def plot_temperature(fit: ModelFit, path: str | Path) -> Path | None:
     s0 = fit.sensors[0]
     if s0.temperature is None or np.ptp(s0.temperature) < 0.1:
         return None
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 3.5))
     for s in fit.sensors:
         T = s.temperature
@@ -145,7 +137,7 @@ def plot_temperature(fit: ModelFit, path: str | Path) -> Path | None:
 def plot_candidate(fit: ModelFit, test: CandidateTest, path: str | Path) -> Path:
     """The plot that shows a finding: for each sensor, the segment means of the residual against the segment
     means of the part of it the candidate explains (added-variable plot; points on the diagonal = explained)."""
-    plt = _plt()
+    plt = pyplot()
     idx = test.sensor_indices
     fig, axes = plt.subplots(1, max(1, len(idx)), figsize=(2.6 * max(1, len(idx)), 2.8), squeeze=False)
     for ax, i in zip(axes[0], idx):
@@ -170,7 +162,7 @@ def plot_regressors(fit: ModelFit, tests: list[CandidateTest], path: str | Path,
     tt = [t for t in tests if sensor in t.sensor_indices][:12]
     if not tt:
         return None
-    plt = _plt()
+    plt = pyplot()
     cols = 4
     rows = int(np.ceil(len(tt) / cols))
     fig, axes = plt.subplots(rows, cols, figsize=(2.8 * cols, 2.4 * rows), squeeze=False)
@@ -197,7 +189,7 @@ def plot_regressors(fit: ModelFit, tests: list[CandidateTest], path: str | Path,
 
 def plot_comparison(comp: Comparison, path: str | Path) -> Path:
     """Before and after: rms per sensor (field units) and the residual of the most improved sensor over time."""
-    plt = _plt()
+    plt = pyplot()
     u = output_unit(comp.before.contexts[0])
     rb, ra = comp.before.rms_si() * u[2], comp.after.rms_si() * u[2]
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 3.4), gridspec_kw={"width_ratios": [1, 2]})

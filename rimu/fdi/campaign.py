@@ -347,12 +347,10 @@ class CampaignResult:
 
     def plot(self, path: str | Path) -> Path | None:
         """Detection probability against size per fault type, with the chi-square theory curve for biases."""
-        try:
-            import matplotlib
+        from ..plotting import pyplot
 
-            matplotlib.use("Agg")
-            import matplotlib.pyplot as plt
-        except ImportError:
+        plt = pyplot(optional=True)
+        if plt is None:
             return None
         spec = self.spec
         summ = self.summary()

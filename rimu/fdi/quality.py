@@ -118,12 +118,10 @@ class QualityReport:
 
     def plot(self, path: str | Path) -> Path | None:
         """Bar chart of the equivalent misalignment per pair, nominal and calibrated parity (their Fig. 5)."""
-        try:
-            import matplotlib
+        from ..plotting import pyplot
 
-            matplotlib.use("Agg")
-            import matplotlib.pyplot as plt
-        except ImportError:
+        plt = pyplot(optional=True)
+        if plt is None:
             return None
         fig, ax = plt.subplots(figsize=(8, 4))
         k = np.arange(len(self.pairs))

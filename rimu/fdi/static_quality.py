@@ -98,12 +98,10 @@ class StaticQualityReport:
 
     def plot(self, path: str | Path) -> Path | None:
         """Bar chart of the misfit per segment (red: above its threshold)."""
-        try:
-            import matplotlib
+        from ..plotting import pyplot
 
-            matplotlib.use("Agg")
-            import matplotlib.pyplot as plt
-        except ImportError:
+        plt = pyplot(optional=True)
+        if plt is None:
             return None
         from ..atomic import atomic_path
 

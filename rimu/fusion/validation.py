@@ -115,12 +115,10 @@ def plot_segment_errors(errors: dict[str, InstrumentErrors], path: str | Path, t
     """Bar plot of the segment-mean error (norm over the three axes, in the field's unit) per segment for each
     labelled result, e.g. ``{"base model": before, "+ g_sensitivity": after}``; None without matplotlib (the
     ``plots`` extra)."""
-    try:
-        import matplotlib
+    from ..plotting import pyplot
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
+    plt = pyplot(optional=True)
+    if plt is None:
         return None
     first = next(iter(errors.values()))
     unit, f = ("deg/h", RS_TO_DH) if first.instrument == "gyro" else ("ug", MS2_TO_UG)

@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from ..plotting import pyplot
 from ..units import MS2_TO_UG, RS_TO_DH
 from .model import FIELD_UNITS, FLICKER_AVAR, TERMS, InstrumentNoise
 
@@ -17,17 +18,6 @@ __all__ = ["plot_instrument", "plot_parity"]
 SLOPES = {"quantization": -1.0, "white": -0.5, "bias_instability": 0.0, "rate_random_walk": 0.5}
 #: deviation units of the curve itself (rate) per instrument, and the factor from SI
 DEV_UNITS = {"gyro": ("deg/h", RS_TO_DH), "accel": ("micro-g", MS2_TO_UG)}
-
-
-def _plt() -> Any:
-    try:
-        import matplotlib
-    except ImportError as exc:  # pragma: no cover - depends on the environment
-        raise ImportError("plots need matplotlib: pip install 'rimu[plots]'") from exc
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def _asymptote(term: str, value: float, tau: np.ndarray) -> np.ndarray:
@@ -44,7 +34,7 @@ def _asymptote(term: str, value: float, tau: np.ndarray) -> np.ndarray:
 def plot_instrument(model: InstrumentNoise, path: str | Path) -> Path:
     """Every sensor's Allan deviation with its one-sigma interval and fitted model, and the mean fitted slopes
     (-1, -1/2, 0, +1/2) labelled with their values in the field's units. Returns the PNG path."""
-    plt = _plt()
+    plt = pyplot()
     if model.allan is None:
         raise ValueError("this noise model holds no measured Allan deviation to plot (it was given by hand)")
     unit, f = DEV_UNITS[model.instrument]
@@ -87,7 +77,7 @@ def plot_instrument(model: InstrumentNoise, path: str | Path) -> Path:
 def plot_parity(parity: dict[str, Any], path: str | Path) -> Path:
     """The normalised parity components' Allan deviation ``adev sqrt(m)`` (1 for white noise), their
     intervals, and the prediction from independent sensors. ``parity`` is a ParityWhiteness ``to_dict()``."""
-    plt = _plt()
+    plt = pyplot()
     tau = np.asarray(parity["tau"])
     nd, lo, hi = (np.asarray(parity[k]) for k in ("normalised_adev", "normalised_lo", "normalised_hi"))
     pred = parity.get("predicted_independent")
