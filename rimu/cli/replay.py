@@ -17,6 +17,14 @@ compensated (docs/runtime.md). Where segments carry known inputs (static positio
 error is reported per instrument (``segment_error_rms``: rms over segments of the segment-mean estimate's
 error against the known input; ``sample_error_rms``; SI) with the number of alarms and isolations, and
 written to ``OUT/summary.json``: how a calibration is validated on a held-out session.
+``--estimates FILE.csv`` writes the estimates of every sample (the columns the exported C filter writes).
+
+The replay streams: the file is read twice in chunks (:func:`rimu.session.iter_blocks`), once for the format
+and plausibility checks, the time span and the sample rate, once through the runtime; the summary figures are
+accumulated and the estimates written chunk by chunk, so a replay of 1e8 samples runs in the memory of one
+chunk. The ``--report`` plot holds a decimated series (every d-th sample, at most 40 000 points per series).
+Faults other than bias, ramp, dropout and zero need their whole window: with one of them the file is read as
+one chunk (a note says so).
 """
 
 from __future__ import annotations
@@ -64,9 +72,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "isolations per instrument (docs/runtime.md)")
     add_report_option(p, "the plot (replay.png)")
     add_json_option(p, "the events (time in s and sample index) and final states")
+    p.add_argument("--estimates", default=None, metavar="FILE.csv",
+                   help="write per sample t, then per instrument {k}_x/_y/_z (SI, master-body frame), {k}_validity "
+                        "(rimu.fusion.Validity code) and {k}_isolated (0-based indices of the isolated sensors joined "
+                        "by ';'): the columns the exported C filter writes")
     p.add_argument("--out", action=Deprecated, new="--report DIR and --json FILE", convert=_old_out, metavar="DIR")
     add_accept_implausible(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, output_is_dir=True)  # -o names a folder (summary.json), checked as one
 
 
 def _old_out(ns: argparse.Namespace, value: str) -> None:
@@ -76,122 +88,448 @@ def _old_out(ns: argparse.Namespace, value: str) -> None:
     ns.output = value
 
 
-#: replays longer than this many samples show a progress bar (in chunks of this size)
+#: samples per chunk of the streaming replay; replays longer than this show a progress bar (one step per chunk)
 _CHUNK = 20_000
+#: points per series the --report plot keeps (every d-th sample, d doubling as the replay grows)
+_PLOT_POINTS = 20_000
+#: fault types that act on each sample alone: injected chunk by chunk, they give the samples of one pass over
+#: the whole file. The others (a median over the fault window, the sample before it, random draws in sequence)
+#: need the whole window: with one of them the replay reads the file as one chunk.
+_POINTWISE_FAULTS = frozenset({"bias", "ramp", "dropout", "zero"})
 
 
-def _run(mgr, Y, valid, t, desc: str):  # type: ignore[no-untyped-def]
-    """``mgr.run`` over the whole block, in chunks with a progress bar when the block is long (the manager keeps
-    its state between calls, so the result is the same)."""
-    from dataclasses import replace
+class _Median:
+    """Exact median of a stream of time steps, kept as (distinct value, count) pairs: memory grows with the
+    number of distinct steps, not the number of samples. Beyond ``cap`` distinct values (heavily jittered time
+    stamps) the steps are rounded to 1e-9 of the running median, which is then exact to that precision."""
 
-    from ..progress import bar
+    def __init__(self, cap: int = 100_000) -> None:
+        self.keys = np.zeros(0)
+        self.counts = np.zeros(0, np.int64)
+        self.cap = cap
+        self.res = 0.0
 
-    n = len(Y)
-    if n <= _CHUNK:
-        return mgr.run(Y, valid, t)
-    parts = [mgr.run(Y[a:a + _CHUNK], None if valid is None else valid[a:a + _CHUNK], t[a:a + _CHUNK])
-             for a in bar(range(0, n, _CHUNK), total=-(-n // _CHUNK), desc=desc, unit="chunk")]
-    cat = {f: np.concatenate([getattr(r, f) for r in parts]) for f in
-           ("t", "x", "statistic", "threshold", "alarm", "state", "n_active")}
-    return replace(parts[0], events=[e for r in parts for e in r.events], **cat)
+    def add(self, v: np.ndarray) -> None:
+        if not v.size:
+            return
+        if self.res:
+            v = np.round(v / self.res) * self.res
+        u, c = np.unique(v, return_counts=True)
+        self.keys, inv = np.unique(np.concatenate([self.keys, u]), return_inverse=True)
+        self.counts = np.bincount(inv, weights=np.concatenate([self.counts, c])).astype(np.int64)
+        if len(self.keys) > self.cap and not self.res:
+            self.res = abs(self.median()) * 1e-9 or 1e-12
+            keys, counts = self.keys, self.counts
+            self.keys, self.counts = np.zeros(0), np.zeros(0, np.int64)
+            self.keys, inv = np.unique(np.round(keys / self.res) * self.res, return_inverse=True)
+            self.counts = np.bincount(inv, weights=counts).astype(np.int64)
+
+    @property
+    def n(self) -> int:
+        return int(self.counts.sum())
+
+    def median(self) -> float:
+        """``np.median`` of every value added (NaN when none)."""
+        n = self.n
+        if n == 0:
+            return float("nan")
+        cum = np.cumsum(self.counts)
+        a = self.keys[np.searchsorted(cum, (n - 1) // 2, side="right")]
+        b = self.keys[np.searchsorted(cum, n // 2, side="right")]
+        return float(a) if a == b else float((a + b) / 2)
+
+
+class _SegmentStats:
+    """What the plausibility checks need of one segment, accumulated over the stream."""
+
+    def __init__(self, angle: bool) -> None:
+        self.n = 0
+        self.angle = angle
+        self.t0 = self.t_last = 0.0
+        self.first: dict[str, np.ndarray] = {}
+        self.last: dict[str, np.ndarray] = {}
+        self.sum: dict[str, np.ndarray] = {}
+        self.lo: dict[str, np.ndarray] = {}
+        self.hi: dict[str, np.ndarray] = {}
+        self.trap: dict[str, np.ndarray] = {}  # sum of 0.5 (y[k] + y[k+1]) dt_k (angle segments)
+        self.steps: list[np.ndarray] = []  # time steps held until the segment has 3 samples
+
+    def add(self, t: np.ndarray, raw: dict[str, np.ndarray], within: _Median) -> None:
+        d = np.diff(t) if self.n == 0 else np.diff(np.concatenate([[self.t_last], t]))
+        if self.n + len(t) < 3:
+            self.steps.append(d)
+        else:
+            within.add(np.concatenate(self.steps + [d]))
+            self.steps = []
+        for k, y in raw.items():
+            if self.n == 0:
+                self.first[k] = y[0].copy()
+                self.sum[k] = np.zeros(y.shape[1])
+                self.lo[k], self.hi[k] = y[0].copy(), y[0].copy()
+                self.trap[k] = np.zeros(y.shape[1])
+            self.sum[k] += y.sum(axis=0)
+            np.minimum(self.lo[k], y.min(axis=0), out=self.lo[k])
+            np.maximum(self.hi[k], y.max(axis=0), out=self.hi[k])
+            if self.angle:
+                yy = y if self.n == 0 else np.vstack([self.last[k], y])
+                self.trap[k] += (0.5 * (yy[1:] + yy[:-1]) * d[:, None]).sum(axis=0)
+            self.last[k] = y[-1].copy()
+        if self.n == 0:
+            self.t0 = float(t[0])
+        self.n += len(t)
+        self.t_last = float(t[-1])
+
+    def rows(self, k: str) -> tuple[np.ndarray, np.ndarray]:
+        """Four samples (t, raw) with this segment's first sample, column minima and maxima, and its mean (or,
+        for an angle segment, its trapezoidal integral over time): what rimu.session.checks reads of a segment."""
+        T = self.t_last - self.t0
+        t = self.t0 + T * np.array([0.0, 1 / 3, 2 / 3, 1.0])
+        r0, r1, r2 = self.first[k], self.lo[k], self.hi[k]
+        if self.angle:
+            r3 = 2.0 * (3.0 * self.trap[k] / T - 0.5 * r0 - r1 - r2)
+        else:
+            r3 = 4.0 * self.sum[k] / self.n - r0 - r1 - r2
+        r3 = np.where(r1 == r2, r0, r3)  # a constant column stays constant
+        return t, np.vstack([r0, r1, r2, r3])
+
+
+class _Scan:
+    """One streaming pass over a session file: every format check of the reader, the plausibility checks of
+    rimu.session.checks on per-segment statistics, the sample count, time span and sample rate, and the
+    session's segments (their known inputs) without their samples."""
+
+    def __init__(self, path: Path, checks: str) -> None:
+        from ..session import iter_blocks
+
+        self.path = path
+        self.n = 0
+        self.t_first = self.t_last = 0.0
+        self.in_order = True  # the samples are in the sidecar's segment order
+        steps, within = _Median(), _Median()
+        stats: list[_SegmentStats] = []
+        side: dict = {}
+        last_t, last_seg = None, -1
+        self.has_temp = False
+        for blk in iter_blocks(path, _CHUNK):
+            seg = blk.meta["segment"]
+            if not stats:
+                side = blk.meta["sidecar"]
+                stats = [_SegmentStats(str(d.get("kind")) == "angle") for d in side["segments"]]
+                self.t_first = float(blk.t[0])
+                self.has_temp = blk.temperature is not None
+            steps.add(np.diff(blk.t if last_t is None else np.concatenate([[last_t], blk.t])))
+            cut = np.flatnonzero(np.diff(seg)) + 1
+            for a, b in zip(np.concatenate([[0], cut]), np.concatenate([cut, [len(seg)]])):
+                i = int(seg[a])
+                if i < last_seg:
+                    self.in_order = False
+                last_seg = i
+                stats[i].add(blk.t[a:b], {k: y[a:b] for k, y in blk.raw.items()}, within)
+            self.n += len(blk)
+            last_t = float(blk.t[-1])
+        self.t_last = last_t if last_t is not None else 0.0
+        self.side = side
+        self.stats = stats
+        self.fs = 1.0 / steps.median() if self.n > 1 else 1.0
+        self.session = self._reduced(side, stats)
+        self._check(within, checks)
+
+    def _reduced(self, side: dict, stats: list[_SegmentStats]):  # type: ignore[no-untyped-def]
+        """The session with four samples per segment (see :meth:`_SegmentStats.rows`); its segments carry the
+        known inputs, their first sample time and the sidecar's validation."""
+        from ..session.native import _build, _geometries
+
+        geoms = _geometries(side, str(self.path))
+        t, idx, raw = [], [], {k: [] for k in geoms}
+        for i, st in enumerate(stats):
+            if st.n == 0:
+                continue  # _build names the segment without samples
+            for k in geoms:
+                tk, rk = (np.full(1, st.t0), st.first[k][None]) if st.n < 4 else st.rows(k)
+                raw[k].append(rk)
+            t.append(tk)
+            idx.append(np.full(len(tk), i))
+        temp = np.zeros(sum(len(x) for x in t)) if self.has_temp else None
+        return _build(side, np.concatenate(t), np.concatenate(idx), {k: np.vstack(v) for k, v in raw.items()},
+                      temp, str(self.path))
+
+    def _check(self, within: _Median, mode: str) -> None:
+        """rimu.session.checks on the reduced session (units: segment means and angle integrals; constant
+        columns: first values, minima, maxima), and the sample-rate check on the exact median time step within
+        segments; acted on as load_session does."""
+        from ..session import Segment, Session
+        from ..session.checks import check_session, enforce
+
+        if mode == "off":
+            return
+        src = str(self.path)
+        small = sum(s.n_samples for s in self.session.segments)
+        found = []
+        for f in check_session(self.session, src):
+            if f.check == "sample_rate":
+                continue
+            if f.check == "constant":
+                f.message = f.message.replace(f"in all {small} samples", f"in all {self.n} samples")
+            found.append(f)
+        dt = within.median()
+        if within.n and dt > 0:
+            s = self.session
+            probe = Session([Segment("steps", "static_unknown", np.array([0.0, dt, 2 * dt]),
+                                     {k: np.zeros((3, g.n)) for k, g in s.geometries.items()})],
+                            s.geometries, s.sample_rate, s.latitude, s.gravity, s.raw_unit, s.meta)
+            found += [f for f in check_session(probe, src) if f.check == "sample_rate"]
+        enforce(found, mode)
+
+
+class _Plot:
+    """The series of the --report plot, decimated online: every d-th sample, d doubling whenever more than
+    twice ``_PLOT_POINTS`` are held (so between ``_PLOT_POINTS`` and twice that many points per series)."""
+
+    def __init__(self) -> None:
+        self.stride, self.seen = 1, 0
+        self.parts: dict[str, list[np.ndarray]] = {f: [] for f in ("t", "statistic", "threshold", "x", "state")}
+        self.events: list = []
+
+    def add(self, r) -> None:  # type: ignore[no-untyped-def]
+        sel = slice((-self.seen) % self.stride, None, self.stride)
+        self.seen += len(r.t)
+        for f, v in self.parts.items():
+            v.append(np.asarray(getattr(r, f))[sel])
+        self.events += [e for e in r.events if e.kind in ("isolated", "invalid_isolated", "readmitted")][:1000]
+        if sum(len(p) for p in self.parts["t"]) > 2 * _PLOT_POINTS:
+            for f, v in self.parts.items():
+                self.parts[f] = [np.concatenate(v)[::2]]
+            self.stride *= 2
+
+    def series(self):  # type: ignore[no-untyped-def]
+        from types import SimpleNamespace
+
+        return SimpleNamespace(events=self.events, **{f: np.concatenate(v) for f, v in self.parts.items()})
+
+
+class _Errors:
+    """segment_error_rms and sample_error_rms of rimu.fusion.validation.segment_errors, accumulated over the
+    stream: per segment with a known input the sums of the estimates and of the known input, and the sum of the
+    squared sample errors."""
+
+    def __init__(self, session, instrument: str) -> None:  # type: ignore[no-untyped-def]
+        self.session, self.k = session, instrument
+        self.sx: dict[int, np.ndarray] = {}
+        self.su: dict[int, np.ndarray] = {}
+        self.n: dict[int, int] = {}
+        self.sq, self.count = 0.0, 0
+
+    def add(self, x: np.ndarray, t: np.ndarray, seg: np.ndarray) -> None:
+        from dataclasses import replace
+        from types import SimpleNamespace
+
+        from ..fusion.validation import known_inputs
+
+        cut = np.flatnonzero(np.diff(seg)) + 1
+        s = self.session
+        for a, b in zip(np.concatenate([[0], cut]), np.concatenate([cut, [len(seg)]])):
+            i = int(seg[a])
+            full = s.segments[i]
+            part = replace(full, t=np.concatenate([full.t[:1], t[a:b]]), raw={}, temperature=None)
+            u = known_inputs(SimpleNamespace(segments=[part], latitude=s.latitude, gravity=s.gravity), self.k)[0]
+            if u is None:
+                continue
+            u = u[1:]
+            d = x[a:b] - u
+            self.sq += float(np.sum(d * d))
+            self.count += d.size
+            if i not in self.n:
+                self.sx[i], self.su[i], self.n[i] = np.zeros(3), np.zeros(3), 0
+            self.sx[i] += x[a:b].sum(axis=0)
+            self.su[i] += u.sum(axis=0)
+            self.n[i] += b - a
+
+    def result(self):  # type: ignore[no-untyped-def]
+        """:class:`rimu.fusion.validation.InstrumentErrors`, or None when no segment has a known input."""
+        from ..fusion.validation import InstrumentErrors
+
+        if not self.n:
+            return None
+        order = sorted(self.n)
+        E = np.array([self.sx[i] / self.n[i] - self.su[i] / self.n[i] for i in order])
+        return InstrumentErrors(self.k, float(np.sqrt(np.mean(E * E))), float(np.sqrt(self.sq / self.count)),
+                                [self.session.segments[i].label for i in order], E)
+
+
+def estimate_columns(instruments: list[str]) -> list[str]:
+    """The columns of ``--estimates``: ``t``, then per instrument ``{k}_x, {k}_y, {k}_z`` (SI, master-body
+    frame), ``{k}_validity`` (:class:`rimu.fusion.Validity` code) and ``{k}_isolated`` (0-based indices of the
+    isolated sensors joined by ``;``, empty when none): what the exported C filter writes."""
+    cols = ["t"]
+    for k in instruments:
+        cols += [f"{k}_x", f"{k}_y", f"{k}_z", f"{k}_validity", f"{k}_isolated"]
+    return cols
+
+
+def _estimate_rows(t: np.ndarray, results: dict) -> str:
+    """The CSV rows of one chunk (floats with 17 significant digits: they read back exactly)."""
+    from ..fdi.health import SensorState
+
+    cols = [np.char.mod("%.17g", t)]
+    for r in results.values():
+        xs = np.char.mod("%.17g", np.asarray(r.x))
+        out = np.asarray(r.sensor_state) >= SensorState.ISOLATED
+        sets, inv = np.unique(out, axis=0, return_inverse=True)
+        names = np.array([";".join(str(i) for i in np.flatnonzero(row)) for row in sets], dtype=object)
+        cols += [xs[:, 0], xs[:, 1], xs[:, 2], np.asarray(r.validity).astype(int).astype(str),
+                 names[np.asarray(inv).reshape(-1)]]
+    return "".join(",".join(row) + "\n" for row in zip(*cols))
 
 
 def run(args: argparse.Namespace) -> int:
+    import contextlib
+
     from ..calibration import Calibration
+    from ..epoch import EpochBlock
+    from ..errors import CalibrationFileError, OptionError, RimuError, SessionFormatError
     from ..fdi import RedundancyManager
     from ..fdi.campaign import CampaignSpec, make_detector
     from ..fdi.faults import inject, parse_injection
     from ..fusion import Pipeline
-    from ..fusion.validation import segment_errors, session_block
-    from .check import read_session
+    from ..progress import bar
+    from ..session import iter_blocks
+    from ._common import check_outputs
 
-    session, _ = read_session(args.data, "warn" if args.accept_implausible else "strict")
-    block, seg_index = session_block(session)
+    check_outputs(args, files=("output", "json", "estimates"), dirs=("report",))
+    path = Path(args.data)
+    if path.is_dir():
+        raise SessionFormatError(f"{path} is a folder; give a session file (.csv with its .json sidecar, or .npz)")
+    try:  # pass 1: every format and plausibility check, the sample count, time span and rate; constant memory
+        scan = _Scan(path, "warn" if args.accept_implausible else "strict")
+    except RimuError:
+        raise
+    except (ValueError, TypeError, KeyError, IndexError, AttributeError, UnicodeDecodeError) as exc:
+        raise SessionFormatError(f"{path}: malformed session file ({type(exc).__name__}: {exc}); see "
+                                 "docs/session-format.md") from exc
+    session = scan.session
+    if not scan.in_order:
+        print("  note: the samples are not in the order of the sidecar's segments; they are replayed in file order")
     # the calibration must be of this unit: its geometry fingerprint against the data's (a dodecahedron6
     # calibration on cone6 data would otherwise isolate healthy sensors)
     cal = Calibration.load(args.calibration, geometries=session.geometries)
-    insts = [k for k in cal.instruments if k in block.raw]
+    insts = [k for k in cal.instruments if k in session.geometries]
     if not insts:
-        from ..errors import CalibrationFileError
-
         raise CalibrationFileError(f"the calibration ({', '.join(cal.instruments)}) and the data "
                                    f"({', '.join(session.instruments)}) have no instrument in common: nothing to replay")
-    t_end = float(block.t[-1])
+    t0, t_end = scan.t_first, scan.t_last
     for k in insts:
         if cal[k].noise_sigma is None:
             if args.noise is None:
-                from ..errors import CalibrationFileError
-
                 raise CalibrationFileError(f"the {k} calibration states no noise; pass --noise SIGMA (SI per sample)")
             cal[k].noise_sigma = np.full(cal[k].geometry.n, float(args.noise))
     injections = [parse_injection(s) for s in args.inject]
     for inj in injections:  # a fault outside the data would be "injected" without touching a sample
-        if not float(block.t[0]) <= inj.start < t_end:
-            from ..errors import OptionError
-
+        if not t0 <= inj.start < t_end:
             raise OptionError(f"--inject {inj.fault}:{inj.instrument}:{inj.sensor}:{inj.start:g}: starts at "
-                              f"{inj.start:g} s, outside the data (t = {float(block.t[0]):g} .. {t_end:g} s)")
-    if injections:
-        block = inject(block, injections, cal, seed=args.seed)
+                              f"{inj.start:g} s, outside the data (t = {t0:g} .. {t_end:g} s)")
+    chunk = _CHUNK
+    if injections:  # names, sensors and sizes checked before the replay starts
+        inject(EpochBlock(np.array([t0]), {k: np.zeros((1, g.n)) for k, g in session.geometries.items()}),
+               injections, cal, seed=args.seed)
         for inj in injections:
             print(f"  injected {inj.fault} on {inj.instrument} {inj.sensor} at {inj.start:g} s, size "
                   f"{inj.size:g}{' sigma' if inj.in_sigma else ' SI'}")
-    fs = 1.0 / float(np.median(np.diff(block.t))) if len(block) > 1 else 1.0
+        whole = sorted({inj.fault for inj in injections} - _POINTWISE_FAULTS)
+        if whole and scan.n > chunk:
+            chunk = scan.n
+            print(f"  note: {', '.join(whole)} faults need their whole window: this replay holds the session in "
+                  "memory (bias, ramp, dropout and zero stream in constant memory)")
+    fs = scan.fs
     if args.detector in ("kalman", "glt_window") and args.p_fa > 1e-4:
         print(f"  note: --p-fa is per sample; the {args.detector} statistic is correlated over several samples, so "
               "alarms come in episodes that confirmation does not filter; consider --p-fa 1e-5")
-    unit = Pipeline(Calibration({k: cal[k] for k in insts}, cal.raw_unit, cal.method, cal.created, dict(cal.metadata)),
-                    temperature=block.temperature is not None)
-    block = unit.compensate(block)
+    sub = Calibration({k: cal[k] for k in insts}, cal.raw_unit, cal.method, cal.created, dict(cal.metadata))
+    unit = Pipeline(sub, temperature=scan.has_temp)
     if unit.compensation:
         print("  compensated effects: " + "; ".join(
             f"{k}: {', '.join(t.effect.name for t in c.terms)}" for k, c in unit.compensation.items()))
-    results = {}
-    summary: dict = {}
+
+    def blocks(pipe):  # type: ignore[no-untyped-def]
+        """pass 2 (and the motion fit): the file again, chunk by chunk, faults injected, effects compensated"""
+        for blk in iter_blocks(path, chunk):
+            if injections:
+                blk = inject(blk, injections, cal, seed=args.seed)
+            yield pipe.compensate(blk)
+
+    managers = {}
     for k in insts:
         pipe = unit[k]
         spec = CampaignSpec(detector=args.detector, window=args.window, p_fa=args.p_fa, arl0=args.arl0)
         det = make_detector(spec, pipe.table.sigma)
         if args.motion_fit is not None and k == "gyro":
-            det = _motion_detector(cal[k], block, args.motion_fit, args.motion_margin, args.p_fa, fs)
-        mgr = RedundancyManager(pipe, det, p_fa=args.p_fa,
-                                confirm=1 if args.detector == "cusum" else args.confirm,
-                                readmit_after=args.readmit_after, sample_rate=fs)
-        res = _run(mgr, block.raw[k], block.valid.get(k), block.t, f"replay {k}")
-        results[k] = res
-        print(f"\n  {k}: {len(block)} samples, detector {getattr(det, 'name', args.detector)}; final state {mgr.state.value}"
+            det = _motion_detector(cal[k], _first_seconds(blocks(Pipeline(sub, temperature=scan.has_temp)),
+                                                          t0 + args.motion_fit),
+                                   args.motion_fit, args.motion_margin, args.p_fa, fs)
+        managers[k] = (RedundancyManager(pipe, det, p_fa=args.p_fa,
+                                         confirm=1 if args.detector == "cusum" else args.confirm,
+                                         readmit_after=args.readmit_after, sample_rate=fs), det)
+    alarms = dict.fromkeys(insts, 0)
+    events: dict[str, list] = {k: [] for k in insts}
+    finite = dict.fromkeys(insts, True)
+    last_state: dict[str, str | None] = dict.fromkeys(insts)
+    errors = {k: _Errors(session, k) for k in insts}
+    plots = {k: _Plot() for k in insts} if args.report else {}
+    n_chunks = -(-scan.n // chunk)
+    with contextlib.ExitStack() as stack:  # pass 2: the replay, one chunk in memory at a time
+        est = None
+        if args.estimates:
+            from ..atomic import atomic_path
+
+            est = stack.enter_context(stack.enter_context(atomic_path(args.estimates)).open("w"))
+            est.write(",".join(estimate_columns(insts)) + "\n")
+        for blk in bar(blocks(unit), total=n_chunks, desc="replay", unit="chunk", enabled=None if n_chunks > 1 else False):
+            results = {}
+            for k in insts:
+                mgr = managers[k][0]
+                r = mgr.run(blk.raw[k], blk.valid.get(k), blk.t)
+                results[k] = r
+                alarms[k] += int(np.count_nonzero(r.alarm))
+                events[k] += r.events
+                finite[k] = finite[k] and bool(np.isfinite(r.x).all())
+                last_state[k] = r.state_names()[-1]
+                errors[k].add(np.asarray(r.x), blk.t, blk.meta["segment"])
+                if plots:
+                    plots[k].add(r)
+            if est is not None:
+                est.write(_estimate_rows(blk.t, results))
+    summary: dict = {}
+    for k in insts:
+        mgr, det = managers[k]
+        print(f"\n  {k}: {scan.n} samples, detector {getattr(det, 'name', args.detector)}; final state {mgr.state.value}"
               + (f", isolated {', '.join(mgr.health.isolated)}" if mgr.health.isolated else ""))
-        shown = [e for e in res.events if e.kind != "transient"]
-        n_tr = sum(1 for e in res.events if e.kind == "transient")
+        shown = [e for e in events[k] if e.kind != "transient"]
+        n_tr = sum(1 for e in events[k] if e.kind == "transient")
         for e in shown[:50]:
             print(f"    t = {e.t:8.3f} s (sample {e.sample:>7d})  {e.kind:22s} {e.sensor or '':4s} {e.message}")
         if len(shown) > 50:
             print(f"    ... {len(shown) - 50} more")
-        print(f"    transient alarm episodes (not confirmed): {n_tr}; outputs finite: {bool(np.isfinite(res.x).all())}")
-        entry = {"samples": len(block), "alarms": int(np.count_nonzero(res.alarm)),
-                 "isolations": sum(1 for e in res.events if e.kind in ("isolated", "invalid_isolated")),
+        print(f"    transient alarm episodes (not confirmed): {n_tr}; outputs finite: {finite[k]}")
+        entry = {"samples": scan.n, "alarms": alarms[k],
+                 "isolations": sum(1 for e in events[k] if e.kind in ("isolated", "invalid_isolated")),
                  "final_state": mgr.state.value}
-        try:
-            err = segment_errors(session, k, np.asarray(res.x), seg_index)
-        except ValueError:
-            err = None
+        err = errors[k].result()
         if err is not None:
             entry.update(err.to_dict())
             print(f"    runtime error: segment_error_rms {err.segment_error_rms:.4g} {entry['unit']} over "
                   f"{len(err.segments)} segments, sample_error_rms {err.sample_error_rms:.4g} {entry['unit']}")
         print(f"    alarms {entry['alarms']}, isolations {entry['isolations']}")
         summary[k] = entry
+    if args.estimates:
+        print(f"\n  estimates: {args.estimates} ({scan.n} rows)")
     if args.json:
         from ._common import json_dump
 
-        doc = {k: {"events": [e.to_dict() for e in r.events], "final_state": r.state_names()[-1] if len(r.t) else None}
-               for k, r in results.items()}
+        doc = {k: {"events": [e.to_dict() for e in events[k]], "final_state": last_state[k]} for k in insts}
         print(f"\n  events: {json_dump(doc, args.json)}")
     if args.report:
         out = Path(args.report)
         out.mkdir(parents=True, exist_ok=True)
-        png = _plot(out / "replay.png", results)
+        png = _plot(out / "replay.png", {k: p.series() for k, p in plots.items()})
         print(f"  plot:   {png}" if png else "  (matplotlib not installed: no plot; pip install 'rimu[plots]')")
     if args.output:
         import json
@@ -205,8 +543,23 @@ def run(args: argparse.Namespace) -> int:
     n_iso = sum(v["isolations"] for v in summary.values())
     errs = ", ".join(f"{k} segment_error_rms {v['segment_error_rms']:.3g} {v['unit']}"
                      for k, v in summary.items() if "segment_error_rms" in v)
-    print(f"replayed {len(block)} samples: {n_iso} isolation(s)" + (f"; {errs}" if errs else ""))
+    print(f"replayed {scan.n} samples: {n_iso} isolation(s)" + (f"; {errs}" if errs else ""))
     return 0
+
+
+def _first_seconds(blocks, t_stop: float):  # type: ignore[no-untyped-def]
+    """The samples before ``t_stop`` of a stream of blocks, as one block (the motion fit's span)."""
+    from ..epoch import EpochBlock
+
+    parts = []
+    for blk in blocks:
+        parts.append(blk)
+        if blk.t[-1] >= t_stop:
+            break
+    blocks.close()
+    ks = list(parts[0].raw)
+    return EpochBlock(np.concatenate([b.t for b in parts]), {k: np.vstack([b.raw[k] for b in parts]) for k in ks},
+                      {k: np.vstack([b.valid[k] for b in parts]) for k in parts[0].valid})
 
 
 def _motion_detector(cal, block, seconds: float, margin: float, p_fa: float, fs: float):  # type: ignore[no-untyped-def]
