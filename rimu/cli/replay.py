@@ -257,6 +257,8 @@ class _Scan:
         """rimu.session.checks on the reduced session (units: segment means and angle integrals; constant
         columns: first values, minima, maxima), and the sample-rate check on the exact median time step within
         segments; acted on as load_session does."""
+        from dataclasses import replace
+
         from ..session import Segment, Session
         from ..session.checks import check_session, enforce
 
@@ -269,7 +271,7 @@ class _Scan:
             if f.check == "sample_rate":
                 continue
             if f.check == "constant":
-                f.message = f.message.replace(f"in all {small} samples", f"in all {self.n} samples")
+                f = replace(f, message=f.message.replace(f"in all {small} samples", f"in all {self.n} samples"))
             found.append(f)
         dt = within.median()
         if within.n and dt > 0:
@@ -395,7 +397,14 @@ def run(args: argparse.Namespace) -> int:
     from ..session import iter_blocks
     from ._common import check_outputs
 
-    check_outputs(args, files=("output", "json", "estimates"), dirs=("report",))
+    if args.estimates:  # a CSV without a sidecar: checked alone, then against the other outputs and the inputs
+        from ..errors import OutputPathError
+
+        check_outputs(argparse.Namespace(estimates=args.estimates), files=("estimates",), dirs=(), inputs=())
+        est_path = Path(args.estimates).resolve()
+        for opt, v in (("--json", args.json), ("--data", args.data), ("--calibration", args.calibration)):
+            if v and v != "-" and Path(v).resolve() == est_path:
+                raise OutputPathError(f"--estimates {args.estimates} would overwrite {opt} {v}; give another name")
     path = Path(args.data)
     if path.is_dir():
         raise SessionFormatError(f"{path} is a folder; give a session file (.csv with its .json sidecar, or .npz)")

@@ -253,6 +253,12 @@ CASES = [
     (["replay", "{s}", "--calibration", "{cal}", "--inject", "bias:gyro:9:1"], 2, ["no gyro sensor 9"]),
     (["replay", "{s}", "--calibration", "{cal}", "--detector", "foo"], 2, ["--detector", "foo"]),
     (["replay", "{s}", "--calibration", "{cal}", "--json", "{s}"], 2, ["would overwrite the input"]),
+    (["replay", "{s}", "--calibration", "{cal}", "--estimates", "{afile}/x.csv"], 2, ["--estimates", "not a folder"]),
+    (["replay", "{s}", "--calibration", "{cal}", "--estimates", "{dir}/missing/x.csv"], 2, ["--estimates", "does not exist"]),
+    (["replay", "{s}", "--calibration", "{cal}", "--estimates", "{dir}"], 2, ["--estimates", "is a folder"]),
+    (["replay", "{s}", "--calibration", "{cal}", "--estimates", "{s}"], 2, ["--estimates", "would overwrite --data"]),
+    (["replay", "{s}", "--calibration", "{cal}", "--estimates", "{dir}/e.csv", "--json", "{dir}/e.csv"], 2,
+     ["--estimates", "would overwrite --json"]),
     # simulate, design, campaign options
     (["simulate", "--duration", "0"], 2, ["--duration", "> 0"]),
     (["simulate", "--duration", "-5"], 2, ["--duration"]),
