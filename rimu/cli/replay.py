@@ -311,13 +311,12 @@ class _Plot:
 
 class _Errors:
     """segment_error_rms and sample_error_rms of rimu.fusion.validation.segment_errors, accumulated over the
-    stream: per segment with a known input the sums of the estimates and of the known input, and the sum of the
-    squared sample errors."""
+    stream: per segment with a known input the sum of the sample errors (its mean is the segment-mean estimate's
+    error, without the cancellation of two means of ~1 g), and the sum of the squared sample errors."""
 
     def __init__(self, session, instrument: str) -> None:  # type: ignore[no-untyped-def]
         self.session, self.k = session, instrument
-        self.sx: dict[int, np.ndarray] = {}
-        self.su: dict[int, np.ndarray] = {}
+        self.sd: dict[int, np.ndarray] = {}
         self.n: dict[int, int] = {}
         self.sq, self.count = 0.0, 0
 
@@ -341,9 +340,8 @@ class _Errors:
             self.sq += float(np.sum(d * d))
             self.count += d.size
             if i not in self.n:
-                self.sx[i], self.su[i], self.n[i] = np.zeros(3), np.zeros(3), 0
-            self.sx[i] += x[a:b].sum(axis=0)
-            self.su[i] += u.sum(axis=0)
+                self.sd[i], self.n[i] = np.zeros(3), 0
+            self.sd[i] += d.sum(axis=0)
             self.n[i] += b - a
 
     def result(self):  # type: ignore[no-untyped-def]
@@ -353,7 +351,7 @@ class _Errors:
         if not self.n:
             return None
         order = sorted(self.n)
-        E = np.array([self.sx[i] / self.n[i] - self.su[i] / self.n[i] for i in order])
+        E = np.array([self.sd[i] / self.n[i] for i in order])
         return InstrumentErrors(self.k, float(np.sqrt(np.mean(E * E))), float(np.sqrt(self.sq / self.count)),
                                 [self.session.segments[i].label for i in order], E)
 
