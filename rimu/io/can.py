@@ -23,6 +23,7 @@ from ..errors import ShapeError, TransportError
 from .accounting import Accounting, SideLog
 from .assembly import EpochAssembler
 from .base import ReconnectPolicy, Source
+from .canlog import KIND_DATA, KIND_ERROR, NATIVE_LOG_SUFFIXES, LogFrames, iter_candump
 from .layout import STATUS_OK, STATUS_REASONS, CanCodec, DecodedFrames, Layout, load_layout
 
 __all__ = ["CanFrameProcessor", "EpochChunk", "items_to_block", "CanSource", "CanReplaySource", "ReconnectPolicy", "decode_log"]
@@ -142,10 +143,45 @@ class CanFrameProcessor:
                     out.extend(add(mi, cnt, m.timestamp, vals, flags, bytes(m.data) if side else None))
             return out
         ids, data, dlc, ext, ts = self.codec.pack_all(keep)
+        return self._process_arrays(ids, data, dlc, ext, ts)
+
+    def process_frames(self, frames: LogFrames) -> list[Epoch | EpochChunk]:
+        """As :meth:`process_items`, for frames read into arrays from a log's text (:mod:`rimu.io.canlog`): no
+        python-can message per frame. Malformed lines count as received frames rejected for
+        ``malformed_line`` (their text and line number go to the side log)."""
+        acc = self.acc
+        acc.received += len(frames) + len(frames.malformed)
+        side = acc.side_log is not None
+        for ln, text in frames.malformed:
+            acc.reject("malformed_line", 1, text.encode() if side else None, None, line=ln)
+        if not len(frames):
+            return []
+        odd = np.flatnonzero(frames.kind != KIND_DATA)
+        if len(odd):
+            for i in odd.tolist():
+                ident, t = int(frames.ids[i]), float(frames.ts[i])
+                if frames.kind[i] == KIND_ERROR:
+                    acc.reject("error_frame", 1, bytes(frames.data[i, :frames.dlc[i]]) if side else None, t, id=ident)
+                    if ident & CAN_ERR_BUSOFF:
+                        acc.event("bus_off")
+                else:
+                    acc.reject("remote_frame", 1, b"" if side else None, t, id=ident)
+            frames = frames.take(frames.kind == KIND_DATA)
+            if not len(frames):
+                return []
+        return self._process_arrays(frames.ids, frames.data, frames.dlc, frames.ext, frames.ts)
+
+    def _process_arrays(self, ids: np.ndarray, data: np.ndarray, dlc: np.ndarray, ext: np.ndarray,
+                        ts: np.ndarray) -> list[Epoch | EpochChunk]:
+        """Decode and assemble N data frames given as arrays (already counted as received)."""
+        acc = self.acc
+        side = acc.side_log is not None
+        add = self.assembler.add
+        out: list = []
         dec = self.codec.decode(ids, data, dlc, ext)
         K = self.codec.n_messages
-        n = len(keep)
-        status = msgi = cnt = vals = flags = None
+        n = len(ids)
+        status = msgi = cnt = vals = flags = tsl = None
         base = 0
         pos = 0
         retry_at = 0
@@ -153,7 +189,8 @@ class CanFrameProcessor:
             if pos >= retry_at and not self.assembler.open:
                 E = self._clean_prefix(_slice(dec, pos))
                 if E >= 4:
-                    out.extend(self._fast(keep[pos:pos + E * K], _slice(dec, pos), ts[pos:pos + E * K], E))
+                    w = slice(pos, pos + E * K)
+                    out.extend(self._fast(data[w], dlc[w], _slice(dec, pos), ts[w], E))
                     pos += E * K
                     continue
                 retry_at = pos + 16 * K   # damaged stretch: frame by frame for a while before trying again
@@ -162,13 +199,14 @@ class CanFrameProcessor:
                 base, w = pos, pos + 64 * K
                 status, msgi, cnt = dec.status[pos:w].tolist(), dec.message[pos:w].tolist(), dec.counter[pos:w].tolist()
                 vals, flags = dec.values[pos:w].tolist(), dec.flags_ok[pos:w].tolist()
-            m = keep[pos]
+                tsl = ts[pos:w].tolist()
             j = pos - base
             st = status[j]
+            raw = bytes(data[pos, :dlc[pos]]) if side else None
             if st != STATUS_OK:
-                acc.reject(STATUS_REASONS[st], 1, bytes(m.data) if side else None, m.timestamp, id=m.arbitration_id)
+                acc.reject(STATUS_REASONS[st], 1, raw, tsl[j], id=int(ids[pos]))
             else:
-                out.extend(add(msgi[j], cnt[j], m.timestamp, vals[j], flags[j], bytes(m.data) if side else None))
+                out.extend(add(msgi[j], cnt[j], tsl[j], vals[j], flags[j], raw))
             pos += 1
         return out
 
@@ -189,7 +227,7 @@ class CanFrameProcessor:
         bad = np.flatnonzero(~(good & step))
         return int(E if not len(bad) else bad[0])
 
-    def _fast(self, msgs: list, dec: DecodedFrames, ts: np.ndarray, E: int) -> list:
+    def _fast(self, data: np.ndarray, dlc: np.ndarray, dec: DecodedFrames, ts: np.ndarray, E: int) -> list:
         """Vectorised assembly of ``E`` clean samples (see :meth:`_clean_prefix`) continuing the stream: one
         :class:`EpochChunk`, with the same epochs, counts and assembler state as the per-frame path. Where that
         cannot be proven (a time gap, a jump from the last epoch, a sample spread beyond the time window) the
@@ -221,9 +259,10 @@ class CanFrameProcessor:
             out: list = []
             vl, fl, ml, cl = (dec.values[:N].tolist(), dec.flags_ok[:N].tolist(), dec.message[:N].tolist(),
                               dec.counter[:N].tolist())
+            tl = ts.reshape(-1).tolist()
             side = self.acc.side_log is not None
-            for i, m in enumerate(msgs):
-                out.extend(a.add(ml[i], cl[i], m.timestamp, vl[i], fl[i], bytes(m.data) if side else None))
+            for i in range(N):
+                out.extend(a.add(ml[i], cl[i], tl[i], vl[i], fl[i], bytes(data[i, :dlc[i]]) if side else None))
             return out
         vals = np.zeros((E, c.n_slots))
         valid = np.ones((E, c.n_sensors), dtype=bool)
@@ -396,7 +435,8 @@ class CanReplaySource(Source):
     realtime : bool
         Pace the frames by their timestamps (scaled by ``speed``) instead of as fast as possible.
     chunk : int
-        Frames decoded together (vectorised) when not in real time.
+        Frames decoded together (vectorised) when not in real time (a candump ``.log``, read natively by
+        :mod:`rimu.io.canlog`: chunks of ``48 * chunk`` bytes of text).
     """
 
     def __init__(self, path: str | os.PathLike[str], layout: Any, realtime: bool = False, speed: float = 1.0,
@@ -409,11 +449,27 @@ class CanReplaySource(Source):
         self.proc = CanFrameProcessor(layout, self.accounting, max_lag, timeout)
         self.layout = self.proc.layout
         self.realtime, self.speed, self.chunk = realtime, float(speed), int(chunk)
+        #: candump .log files are read from their text (rimu.io.canlog); other formats through can.LogReader
+        self.native = os.path.splitext(self.path)[1].lower() in NATIVE_LOG_SUFFIXES
+
+    def _batches(self, reader: Any) -> Iterator[list]:
+        """The log's frames, decoded and assembled a batch at a time (as fast as possible)."""
+        if self.native:
+            for frames in iter_candump(self.path, 48 * self.chunk):
+                yield self.proc.process_frames(frames)
+            return
+        buf = []
+        for m in reader:
+            buf.append(m)
+            if len(buf) >= self.chunk:
+                yield self.proc.process_items(buf)
+                buf = []
+        yield self.proc.process_items(buf)
 
     def _epochs(self) -> Iterator[Epoch]:
         import can
 
-        reader = can.LogReader(self.path)
+        reader = None if self.native and not self.realtime else can.LogReader(self.path)
         try:
             if self.realtime:
                 t0 = w0 = None
@@ -427,16 +483,14 @@ class CanReplaySource(Source):
                         break
                     yield from self.proc.process([m])
             else:
-                buf = []
-                for m in reader:
-                    buf.append(m)
-                    if len(buf) >= self.chunk:
-                        yield from self.proc.process(buf)
-                        buf = []
-                        if self.stop_event.is_set():
-                            break
-                if buf:
-                    yield from self.proc.process(buf)
+                for items in self._batches(reader):
+                    for item in items:
+                        if isinstance(item, EpochChunk):
+                            yield from item.epochs()
+                        else:
+                            yield item
+                    if self.stop_event.is_set():
+                        break
             yield from self.proc.flush()
         finally:
             stop = getattr(reader, "stop", None)
@@ -449,16 +503,11 @@ class CanReplaySource(Source):
             return super().read_block(max_epochs)
         import can
 
-        reader = can.LogReader(self.path)
+        reader = None if self.native else can.LogReader(self.path)
         items: list = []
         try:
-            buf = []
-            for m in reader:
-                buf.append(m)
-                if len(buf) >= self.chunk:
-                    items.extend(self.proc.process_items(buf))
-                    buf = []
-            items.extend(self.proc.process_items(buf))
+            for batch in self._batches(reader):
+                items.extend(batch)
             items.extend(self.proc.flush())
         finally:
             stop = getattr(reader, "stop", None)
