@@ -23,6 +23,7 @@ are kept (so a bus-off error frame is recognised as one).
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
@@ -37,17 +38,6 @@ NATIVE_LOG_SUFFIXES = (".log",)
 
 KIND_DATA, KIND_ERROR, KIND_REMOTE = 0, 1, 2
 
-_HEX = np.full(256, 16, dtype=np.int64)
-for _c in b"0123456789":
-    _HEX[_c] = _c - 48
-for _c in b"abcdef":
-    _HEX[_c] = _c - 87
-    _HEX[_c - 32] = _c - 87
-_DEC = np.full(256, 10, dtype=np.int64)
-for _c in b"0123456789":
-    _DEC[_c] = _c - 48
-_POW16 = 16 ** np.arange(8, dtype=np.int64)
-_POW10 = 10 ** np.arange(16, dtype=np.int64)
 
 
 @dataclass
@@ -93,114 +83,174 @@ def _empty() -> LogFrames:
                      np.zeros((0, 8), np.uint8), np.zeros(0, np.int8), np.zeros(0, np.int64))
 
 
-def _first_at_or_after(pos: np.ndarray, at: np.ndarray, end: np.ndarray) -> np.ndarray:
-    """Per line, the first position in the sorted ``pos`` at or after ``at`` and before ``end``; -1 if none."""
-    i = np.searchsorted(pos, at)
-    p = np.append(pos, np.iinfo(np.int64).max)[i]
-    return np.where(p < end, p, -1)
+_SHAPE = re.compile(rb"\((\d+)\.(\d+)\) ([^ ]+) ([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8})#([0-9A-Fa-f]*)( [RTrt])?")
 
 
-def _gather(buf: np.ndarray, start: np.ndarray, n: np.ndarray, width: int, table: np.ndarray,
-            reverse: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Digits of the fields [start, start + n) of every line (n <= width), via ``table``; (values (N, width) with
-    0 beyond each field, and whether every digit of the field is valid). ``reverse``: column j is the j-th digit
-    from the field's end (least significant first)."""
-    j = np.arange(width)
-    used = j[None, :] < n[:, None]
-    idx = (start + n - 1)[:, None] - j[None, :] if reverse else start[:, None] + j[None, :]
-    idx = np.clip(idx, 0, len(buf) - 1)
-    d = table[buf[idx]]
-    bad = (d >= (16 if table is _HEX else 10)) & used
-    return np.where(used, d, 0), ~bad.any(axis=1)
+def _shape(line: bytes) -> tuple | None:
+    """Where the fields of a regular candump line sit: (length, separator offsets and bytes, digit offsets and
+    sizes), or None for a line the vectorised pass does not take."""
+    m = _SHAPE.fullmatch(line)
+    if m is None:
+        return None
+    n_int, n_frac, n_data = len(m[1]), len(m[2]), len(m[5])
+    if n_int + n_frac > 15 or n_data % 2 or n_data > 16:
+        return None
+    seps = [(0, 40), (m.end(1), 46), (m.end(2), 41), (m.end(2) + 1, 32), (m.end(3), 32), (m.end(4), 35)]
+    if m[6]:
+        seps.append((m.start(6), 32))
+    return (len(line), seps, list(range(m.start(3), m.end(3))), m.start(1), n_int, n_frac, m.start(4), len(m[4]),
+            m.start(5), n_data, m.start(6) + 1 if m[6] else -1)
+
+
+def _pair_tables() -> tuple[np.ndarray, np.ndarray]:
+    """Two ASCII characters read as one little-endian uint16 -> their value: hex byte (0-255) and decimal pair
+    (0-99); 256 where either character is not a digit of the base."""
+    hexv = np.full(256, 256, np.int32)
+    decv = np.full(256, 256, np.int32)
+    for c in b"0123456789":
+        hexv[c] = decv[c] = c - 48
+    for c in b"abcdef":
+        hexv[c] = hexv[c - 32] = c - 87
+    lo, hi = np.meshgrid(np.arange(256), np.arange(256), indexing="xy")   # uint16 = lo | hi << 8: lo first
+    hx = np.where((hexv[lo] < 16) & (hexv[hi] < 16), hexv[lo] * 16 + hexv[hi], 256)
+    dc = np.where((decv[lo] < 10) & (decv[hi] < 10), decv[lo] * 10 + decv[hi], 256)
+    return hx.reshape(-1).astype(np.uint16), dc.reshape(-1).astype(np.uint16)
+
+
+_HEX2, _DEC2 = _pair_tables()
+
+
+def _shaped(buf: np.ndarray, starts: np.ndarray, shape: tuple) -> tuple[np.ndarray, tuple]:
+    """The lines (starts of candidate lines of the shape's length) that have the shape, and their fields: every
+    two characters of a field converted by one table lookup."""
+    L, seps, chan, o_int, n_int, n_frac, o_id, n_id, o_data, n_data, o_flag = shape
+    n = len(starts)
+    rows = np.lib.stride_tricks.sliding_window_view(buf, L)[starts]      # (n, L): one copy per line
+    ok = rows[:, seps[0][0]] == seps[0][1]
+    for off, byte in seps[1:]:   # column by column: a reduction along a short axis is slow in numpy
+        ok &= rows[:, off] == byte
+    for c in chan:
+        ok &= rows[:, c] != 32
+    if o_flag >= 0:
+        f = rows[:, o_flag] | 32
+        ok &= (f == ord("r")) | (f == ord("t"))
+    # identifier right-aligned in 8 characters, data left-aligned in 16, '0'-padded: 12 pairs per line
+    hexc = np.full((n, 24), 0x30, np.uint8)
+    hexc[:, 8 - n_id:8] = rows[:, o_id:o_id + n_id]
+    hexc[:, 8:8 + n_data] = rows[:, o_data:o_data + n_data]
+    hv = _HEX2[hexc.view("<u2")]                                          # (n, 12)
+    # timestamp digits right-aligned in 16, '0'-padded: 8 pairs
+    decc = np.full((n, 16), 0x30, np.uint8)
+    decc[:, 16 - n_frac - n_int:16 - n_frac] = rows[:, o_int:o_int + n_int]
+    decc[:, 16 - n_frac:] = rows[:, o_int + n_int + 1:o_int + n_int + 1 + n_frac]
+    dv = _DEC2[decc.view("<u2")]                                          # (n, 8)
+    hw, dw = hv.view("<u8"), dv.view("<u8")                              # 4 values per word: invalid has bit 8
+    inval = (hw[:, 0] | hw[:, 1] | hw[:, 2] | dw[:, 0] | dw[:, 1]) & np.uint64(0x0100010001000100)
+    ok &= inval == 0
+    if not ok.all():
+        hv, dv = hv[ok], dv[ok]
+    num = dv @ (100.0 ** np.arange(7, -1, -1))                            # exact: below 1e15 < 2**53
+    ts = num / 10.0 ** n_frac                                             # one correctly rounded division
+    can_id = ((hv[:, 0].astype(np.int64) << 24) | (hv[:, 1].astype(np.int64) << 16) | (hv[:, 2].astype(np.int64) << 8)
+              | hv[:, 3])
+    data = hv[:, 4:].astype(np.uint8)
+    return ok, (ts, can_id, n_id > 3, n_data // 2, data)
 
 
 def parse_candump(text: bytes, first_line: int = 1) -> LogFrames:
     """The frames of candump ``-L`` text (whole lines; see the module docstring). ``first_line`` numbers the
-    first line of ``text``."""
+    first line of ``text``.
+
+    The lines are grouped by shape (length and the places of their separators: a log has a handful, as the
+    timestamp gains digits and messages differ in length); a group's digits sit at fixed offsets and are
+    converted with one gather and one product per field."""
     if not text:
         return _empty()
     if not text.endswith(b"\n"):
         text += b"\n"
     buf = np.frombuffer(text, dtype=np.uint8)
     nl = np.flatnonzero(buf == 10)
-    starts = np.concatenate([[0], nl[:-1] + 1]).astype(np.int64)
+    starts = np.empty(len(nl), np.int64)
+    starts[0] = 0
+    starts[1:] = nl[:-1] + 1
     ends = nl.astype(np.int64)
-    cr = (ends > starts) & (buf[np.maximum(ends - 1, 0)] == 13)
-    ends = ends - cr
-    lineno = first_line + np.arange(len(starts))
-    # fields of a regular line: "(" ts ")" " " channel " " id "#" data [" " R|T]
-    rp = _first_at_or_after(np.flatnonzero(buf == 41), starts, ends)              # ')'
-    sp = np.flatnonzero(buf == 32)
-    sp1 = np.where(rp >= 0, rp + 1, -1)
-    ok = (buf[starts] == 40) & (rp >= 0) & (buf[np.clip(sp1, 0, len(buf) - 1)] == 32) & (sp1 < ends)
-    sp2 = _first_at_or_after(sp, sp1 + 1, ends)                                    # after the channel
-    ok &= (sp2 > sp1 + 1)
-    hs = _first_at_or_after(np.flatnonzero(buf == 35), sp2 + 1, ends)              # '#'
-    ok &= hs >= 0
-    sp3 = _first_at_or_after(sp, hs + 1, ends)                                      # before R/T
-    dend = np.where(sp3 >= 0, sp3, ends)
-    tail = np.where(sp3 >= 0, ends - sp3, 0)
-    flag = buf[np.clip(sp3 + 1, 0, len(buf) - 1)] | 32
-    ok &= (tail == 0) | ((tail == 2) & ((flag == ord("r")) | (flag == ord("t"))))
-    # timestamp: integer . fraction, both decimal, at most 15 digits together (exact as a float numerator)
-    dot = _first_at_or_after(np.flatnonzero(buf == 46), starts + 1, rp)
-    ok &= dot > starts + 1
-    n_int = dot - starts - 1
-    n_frac = rp - dot - 1
-    ok &= (n_int + n_frac <= 15) & (n_frac >= 1)
-    n_id = hs - sp2 - 1
-    n_data = dend - hs - 1
-    ok &= ((n_id == 3) | (n_id == 8)) & (n_data % 2 == 0) & (n_data <= 16)
-    n_int, n_frac, n_id, n_data = (np.where(ok, v, 0) for v in (n_int, n_frac, n_id, n_data))
-    di, good = _gather(buf, starts + 1, n_int, 15, _DEC, True)
-    ok &= good
-    df, good = _gather(buf, dot + 1, n_frac, 15, _DEC, False)
-    ok &= good
-    hi, good = _gather(buf, sp2 + 1, n_id, 8, _HEX, True)
-    ok &= good
-    hd, good = _gather(buf, hs + 1, n_data, 16, _HEX, False)
-    ok &= good
-    blank = ends - starts == 0
-    if not blank.all():  # whitespace-only lines are blank too
-        ws = (buf == 32) | (buf == 9) | (buf == 13) | (buf == 10)
-        cs = np.concatenate([[0], np.cumsum(~ws)])
-        blank = cs[ends] - cs[starts] == 0
-    ok &= ~blank
-    fr = ok.nonzero()[0]
-    ints = (di[fr] * _POW10[:15]).sum(axis=1)
-    fracs = (df[fr] * _POW10[:15][::-1]).sum(axis=1) // _POW10[15 - n_frac[fr]]
-    scale = _POW10[n_frac[fr]]
-    ts = (ints * scale + fracs) / scale.astype(float)
-    can_id = (hi[fr] * _POW16).sum(axis=1)
-    data = (hd[fr, 0::2] * 16 + hd[fr, 1::2]).astype(np.uint8)
-    err = (can_id & CAN_ERR_FLAG) != 0
-    fast = LogFrames(ts, can_id & 0x1FFFFFFF, n_id[fr] > 3, n_data[fr] // 2, data,
-                     np.where(err, KIND_ERROR, KIND_DATA).astype(np.int8), lineno[fr])
-    rest = np.flatnonzero(~ok & ~blank)
-    if not len(rest):
-        return fast
-    # irregular lines: one by one, python-can's rules
-    slow: list[tuple] = []
+    cr = np.flatnonzero(buf[np.maximum(ends - 1, 0)] == 13)
+    if len(cr):
+        ends[cr[ends[cr] > starts[cr]]] -= 1
+    length = ends - starts
+    rem = np.flatnonzero(length > 0)                 # empty lines are not frames
+    groups: list[tuple[np.ndarray, tuple]] = []
+    slow: list[int] = []
+    rounds = 0
+    while len(rem) and rounds < 64:
+        rounds += 1
+        i0 = int(rem[0])
+        shape = _shape(text[starts[i0]:ends[i0]])
+        if shape is None:
+            slow.append(i0)
+            rem = rem[1:]
+            continue
+        cand = np.flatnonzero(length[rem] == shape[0])
+        ok, fields = _shaped(buf, starts[rem[cand]], shape)
+        groups.append((rem[cand[ok]], fields))
+        keep = np.ones(len(rem), bool)
+        keep[cand[ok]] = False
+        rem = rem[keep]
+    slow += rem.tolist()
     bad: list[tuple[int, str]] = []
-    for i in rest.tolist():
+    slow_rows: list[int] = []
+    got: list[tuple] = []
+    for i in sorted(slow):
         line = text[starts[i]:ends[i]].decode("utf-8", "replace")
+        if not line.strip():
+            continue                                  # whitespace only: not a frame
         f = _parse_line(line)
         if f is None:
-            bad.append((int(lineno[i]), line))
+            bad.append((first_line + i, line))
         else:
-            slow.append((int(lineno[i]), *f))
-    if slow:
-        ln, t, cid, ext, dlc, payload, kind = zip(*slow)
-        d = np.zeros((len(slow), 8), np.uint8)
-        for r, p in enumerate(payload):
-            d[r, :len(p)] = np.frombuffer(p, np.uint8)
-        more = LogFrames(np.array(t, float), np.array(cid, np.int64), np.array(ext, bool), np.array(dlc, np.int64),
-                         d, np.array(kind, np.int8), np.array(ln, np.int64))
-        order = np.argsort(np.concatenate([fast.line, more.line]), kind="stable")
-        fast = LogFrames(*(np.concatenate([getattr(fast, f), getattr(more, f)])[order]
-                           for f in ("ts", "ids", "ext", "dlc", "data", "kind", "line")))
-    fast.malformed = bad
-    return fast
+            slow_rows.append(i)
+            got.append(f)
+    # every frame in line order: each group scattered to its rows' places among the frames
+    n_fast = sum(len(g[0]) for g in groups)
+    n = n_fast + len(got)
+    out = LogFrames(np.empty(n), np.empty(n, np.int64), np.empty(n, bool), np.empty(n, np.int64),
+                    np.empty((n, 8), np.uint8), np.empty(n, np.int8), np.empty(n, np.int64), bad)
+    groups.sort(key=lambda g: int(g[0][0]) if len(g[0]) else -1)
+    if not got and all(len(r) == 0 or int(r[-1]) - int(r[0]) + 1 == len(r) for r, _ in groups):
+        # each group a run of consecutive lines (the usual log: the timestamp gains a digit now and then)
+        where, a = [], 0
+        for rows, f in groups:
+            where.append((slice(a, a + len(rows)), f))
+            out.line[a:a + len(rows)] = rows
+            a += len(rows)
+    else:
+        is_frame = np.zeros(len(starts), bool)
+        for rows, _ in groups:
+            is_frame[rows] = True
+        is_frame[slow_rows] = True
+        pos = np.cumsum(is_frame) - 1
+        where = [(pos[rows], f) for rows, f in groups]
+        out.line[pos[is_frame]] = np.flatnonzero(is_frame)
+        if got:
+            at_slow = pos[slow_rows]
+    for at, (ts, cid, ext, dlc, data) in where:
+        out.ts[at] = ts
+        out.ids[at] = cid
+        out.ext[at] = ext
+        out.dlc[at] = dlc
+        out.data[at] = data
+    out.kind[:] = np.where((out.ids & CAN_ERR_FLAG) != 0, KIND_ERROR, KIND_DATA)
+    if got:
+        at = at_slow
+        t, cid, ext, dlc, payload, kind = zip(*got)
+        out.ts[at], out.ids[at], out.ext[at], out.dlc[at], out.kind[at] = t, cid, ext, dlc, kind
+        d = np.zeros((len(got), 8), np.uint8)
+        for r, pl in enumerate(payload):
+            d[r, :len(pl)] = np.frombuffer(pl, np.uint8)
+        out.data[at] = d
+    out.ids &= 0x1FFFFFFF
+    out.line += first_line
+    return out
 
 
 def _parse_line(line: str) -> tuple | None:
