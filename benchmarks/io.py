@@ -1,4 +1,5 @@
-"""rimu.io benchmarks: CAN decoding vs cantools on the same frames, serial decoding in MB/s, long fuzz runs.
+"""rimu.io benchmarks: CAN decoding vs cantools on the same frames (python-can messages, and candump log text),
+serial decoding in MB/s, long fuzz runs.
 
     python benchmarks/io.py            # full sizes (about a minute)
     python benchmarks/io.py --quick    # smaller sizes
@@ -80,15 +81,46 @@ def bench_can(layout, n_frames, repeat):
         for m in msgs:
             dec(m.arbitration_id, m.data)
 
+    # the same frames as a candump .log: rimu reads its text (rimu.io.canlog, no python-can message per frame)
+    import can
+
+    logdir = tempfile.TemporaryDirectory()
+    log_path = Path(logdir.name) / "run.log"
+    with can.Logger(str(log_path)) as lg:
+        for m in msgs:
+            lg.on_message_received(m)
+    log_bytes = log_path.read_bytes()
+
+    def rimu_log_decode():      # log text -> decoded signals (what cantools does from frames)
+        from rimu.io.canlog import parse_candump
+
+        for i in range(0, len(log_bytes), 1 << 21):
+            j = log_bytes.rfind(b"\n", 0, i + (1 << 21)) + 1
+            fr = parse_candump(log_bytes[i:j] if j > i else log_bytes[i:])
+            codec.decode(fr.ids, fr.data, fr.dlc, fr.ext)
+
+    def rimu_log_replay():      # log file -> EpochBlock (decode, checks, assembly), CanReplaySource.read_block
+        CanReplaySource(log_path, layout).read_block()
+
+    def logreader_cantools():   # the python-can route for a log file: can.LogReader + cantools
+        dec = db.decode_message
+        for m in can.LogReader(str(log_path)):
+            dec(m.arbitration_id, m.data)
+
     # interleaved: each repeat times rimu and cantools back to back, so that both see the same machine load;
     # the ratios are medians of the per-repeat ratios
     rows = []
     for _ in range(repeat):
-        rows.append((timeit(rimu_decode, 1), timeit(rimu_replay, 1), timeit(rimu_epochs, 1), timeit(cantools_decode, 1)))
-    t_dec, t_rep, t_eps, t_ct = (statistics.median(c) for c in zip(*rows))
-    r_dec = statistics.median(ct / d for d, _, _, ct in rows)
-    r_rep = statistics.median(ct / r for _, r, _, ct in rows)
-    r_eps = statistics.median(ct / e for _, _, e, ct in rows)
+        rows.append((timeit(rimu_decode, 1), timeit(rimu_replay, 1), timeit(rimu_epochs, 1), timeit(cantools_decode, 1),
+                     timeit(rimu_log_decode, 1), timeit(rimu_log_replay, 1), timeit(logreader_cantools, 1)))
+    t_dec, t_rep, t_eps, t_ct, t_ld, t_lr, t_lrc = (statistics.median(c) for c in zip(*rows))
+    r_dec = statistics.median(r[3] / r[0] for r in rows)
+    r_rep = statistics.median(r[3] / r[1] for r in rows)
+    r_eps = statistics.median(r[3] / r[2] for r in rows)
+    r_log_dec = statistics.median(r[3] / r[4] for r in rows)
+    r_log_rep = statistics.median(r[3] / r[5] for r in rows)
+    r_log_e2e = statistics.median(r[6] / r[5] for r in rows)
+    logdir.cleanup()
     t_pf = timeit(rimu_per_frame, 1)
     # a real log through can.LogReader (BLF) and the whole replay source
     with tempfile.TemporaryDirectory() as d:
@@ -99,6 +131,8 @@ def bench_can(layout, n_frames, repeat):
         t_read = timeit(lambda: sum(1 for _ in can.LogReader(str(path))), 1)
         t_src = timeit(lambda: CanReplaySource(path, layout).read_block(), 1)
     return {"layout": layout, "frames": N,
+            "rimu_log_decode_fps": N / t_ld, "rimu_log_replay_fps": N / t_lr, "logreader_cantools_fps": N / t_lrc,
+            "ratio_log_decode": r_log_dec, "ratio_log_replay": r_log_rep, "ratio_log_vs_logreader_cantools": r_log_e2e,
             "rimu_decode_fps": N / t_dec, "rimu_replay_fps": N / t_rep, "rimu_epochs_fps": N / t_eps,
             "rimu_per_frame_fps": len(sub) / t_pf,
             "cantools_fps": N / t_ct, "ratio_decode": r_dec, "ratio_replay": r_rep,
@@ -213,6 +247,15 @@ def main() -> None:
               f"{r['rimu_epochs_fps']:8.0f} {r['rimu_per_frame_fps']:8.0f} {r['cantools_fps']:8.0f} "
               f"{r['ratio_decode']:6.1f} {r['ratio_replay']:6.1f} {r['ratio_epochs']:6.1f} "
               f"{r['logreader_blf_fps']:7.0f} {r['replay_source_blf_fps']:7.0f}")
+    print("\nCAN logs (candump .log text read by rimu.io.canlog), frames/s; x = speed-up on cantools decoding the frames")
+    print("  (already python-can messages in memory); log decode: text -> signals; log replay: file -> EpochBlock;")
+    print("  LR+ct: the python-can route for the file (can.LogReader, then cantools per frame)")
+    print(f"{'layout':15s} {'frames':>7s} {'log dec':>8s} {'log repl':>8s} {'cantools':>8s} {'LR+ct':>8s} "
+          f"{'x dec':>6s} {'x repl':>6s} {'x LR+ct':>7s}")
+    for r in out["can"]:
+        print(f"{r['layout']:15s} {r['frames']:7d} {r['rimu_log_decode_fps']:8.0f} {r['rimu_log_replay_fps']:8.0f} "
+              f"{r['cantools_fps']:8.0f} {r['logreader_cantools_fps']:8.0f} {r['ratio_log_decode']:6.1f} "
+              f"{r['ratio_log_replay']:6.1f} {r['ratio_log_vs_logreader_cantools']:7.1f}")
     s = out["serial"]
     print(f"\nserial decoding: {s['clean_MBps']:.1f} MB/s clean ({s['clean_frames_per_s']:.0f} frames/s of "
           f"{s['frame_bytes']} bytes), {s['damaged_MBps']:.1f} MB/s with ~20% of frames damaged; "
