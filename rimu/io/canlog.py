@@ -102,9 +102,9 @@ def _shape(line: bytes) -> tuple | None:
             m.start(5), n_data, m.start(6) + 1 if m[6] else -1)
 
 
-def _pair_tables() -> tuple[np.ndarray, np.ndarray]:
+def _pair_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Two ASCII characters read as one little-endian uint16 -> their value: hex byte (0-255) and decimal pair
-    (0-99); 256 where either character is not a digit of the base."""
+    (0-99); one character -> its hex or decimal digit. 256 where a character is not a digit of the base."""
     hexv = np.full(256, 256, np.int32)
     decv = np.full(256, 256, np.int32)
     for c in b"0123456789":
@@ -114,15 +114,35 @@ def _pair_tables() -> tuple[np.ndarray, np.ndarray]:
     lo, hi = np.meshgrid(np.arange(256), np.arange(256), indexing="xy")   # uint16 = lo | hi << 8: lo first
     hx = np.where((hexv[lo] < 16) & (hexv[hi] < 16), hexv[lo] * 16 + hexv[hi], 256)
     dc = np.where((decv[lo] < 10) & (decv[hi] < 10), decv[lo] * 10 + decv[hi], 256)
-    return hx.reshape(-1).astype(np.uint16), dc.reshape(-1).astype(np.uint16)
+    return (hx.reshape(-1).astype(np.uint16), dc.reshape(-1).astype(np.uint16), hexv.astype(np.uint16),
+            decv.astype(np.uint16))
 
 
-_HEX2, _DEC2 = _pair_tables()
+_HEX2, _DEC2, _HEX1, _DEC1 = _pair_tables()
+
+
+def _number(rows: np.ndarray, off: int, n: int, base: int, bad: np.ndarray) -> np.ndarray:
+    """The unsigned number written in ``n`` digits at column ``off`` of every row (base 10 or 16), two digits per
+    table look-up on a uint16 view of the rows; ``bad`` gets True where a character is not a digit. int64."""
+    one, two = (_HEX1, _HEX2) if base == 16 else (_DEC1, _DEC2)
+    v = np.zeros(len(rows), np.int64)
+    if n % 2:
+        d = one[rows[:, off]]
+        bad |= d > 255
+        v += d
+        off, n = off + 1, n - 1
+    if n:
+        pairs = np.ndarray((len(rows), n // 2), "<u2", rows, off, (rows.shape[1], 2))
+        d = two[pairs]
+        for j in range(n // 2):   # column by column: a reduction along a short axis is slow in numpy
+            bad |= d[:, j] > 255
+            v = v * (base * base) + d[:, j]
+    return v
 
 
 def _shaped(buf: np.ndarray, starts: np.ndarray, shape: tuple) -> tuple[np.ndarray, tuple]:
     """The lines (starts of candidate lines of the shape's length) that have the shape, and their fields: every
-    two characters of a field converted by one table lookup."""
+    two characters of a field converted by one table look-up."""
     L, seps, chan, o_int, n_int, n_frac, o_id, n_id, o_data, n_data, o_flag = shape
     n = len(starts)
     rows = np.lib.stride_tricks.sliding_window_view(buf, L)[starts]      # (n, L): one copy per line
@@ -134,26 +154,20 @@ def _shaped(buf: np.ndarray, starts: np.ndarray, shape: tuple) -> tuple[np.ndarr
     if o_flag >= 0:
         f = rows[:, o_flag] | 32
         ok &= (f == ord("r")) | (f == ord("t"))
-    # identifier right-aligned in 8 characters, data left-aligned in 16, '0'-padded: 12 pairs per line
-    hexc = np.full((n, 24), 0x30, np.uint8)
-    hexc[:, 8 - n_id:8] = rows[:, o_id:o_id + n_id]
-    hexc[:, 8:8 + n_data] = rows[:, o_data:o_data + n_data]
-    hv = _HEX2[hexc.view("<u2")]                                          # (n, 12)
-    # timestamp digits right-aligned in 16, '0'-padded: 8 pairs
-    decc = np.full((n, 16), 0x30, np.uint8)
-    decc[:, 16 - n_frac - n_int:16 - n_frac] = rows[:, o_int:o_int + n_int]
-    decc[:, 16 - n_frac:] = rows[:, o_int + n_int + 1:o_int + n_int + 1 + n_frac]
-    dv = _DEC2[decc.view("<u2")]                                          # (n, 8)
-    hw, dw = hv.view("<u8"), dv.view("<u8")                              # 4 values per word: invalid has bit 8
-    inval = (hw[:, 0] | hw[:, 1] | hw[:, 2] | dw[:, 0] | dw[:, 1]) & np.uint64(0x0100010001000100)
-    ok &= inval == 0
+    bad = np.zeros(n, bool)
+    whole = _number(rows, o_int, n_int, 10, bad)
+    frac = _number(rows, o_int + n_int + 1, n_frac, 10, bad)
+    can_id = _number(rows, o_id, n_id, 16, bad)
+    data = np.zeros((n, 8), np.uint8)
+    if n_data:
+        d = _HEX2[np.ndarray((n, n_data // 2), "<u2", rows, o_data, (L, 2))]
+        for j in range(n_data // 2):
+            bad |= d[:, j] > 255
+        data[:, :n_data // 2] = d
+    ok &= ~bad
+    ts = (whole * 10 ** n_frac + frac) / 10.0 ** n_frac   # an exact numerator below 1e15, one rounded division
     if not ok.all():
-        hv, dv = hv[ok], dv[ok]
-    num = dv @ (100.0 ** np.arange(7, -1, -1))                            # exact: below 1e15 < 2**53
-    ts = num / 10.0 ** n_frac                                             # one correctly rounded division
-    can_id = ((hv[:, 0].astype(np.int64) << 24) | (hv[:, 1].astype(np.int64) << 16) | (hv[:, 2].astype(np.int64) << 8)
-              | hv[:, 3])
-    data = hv[:, 4:].astype(np.uint8)
+        ts, can_id, data = ts[ok], can_id[ok], data[ok]
     return ok, (ts, can_id, n_id > 3, n_data // 2, data)
 
 
