@@ -17,7 +17,8 @@ compensated (docs/runtime.md). Where segments carry known inputs (static positio
 error is reported per instrument (``segment_error_rms``: rms over segments of the segment-mean estimate's
 error against the known input; ``sample_error_rms``; SI) with the number of alarms and isolations, and
 written to ``OUT/summary.json``: how a calibration is validated on a held-out session.
-``--estimates FILE.csv`` writes the estimates of every sample (the columns the exported C filter writes).
+``--estimates FILE.csv`` writes the estimates of every sample (the columns the exported C filter writes;
+floats in Python's shortest round-trip form).
 
 The replay streams: the file is read twice in chunks (:func:`rimu.session.iter_blocks`), once for the format
 and plausibility checks, the time span and the sample rate, once through the runtime; the summary figures are
@@ -367,17 +368,17 @@ def estimate_columns(instruments: list[str]) -> list[str]:
 
 
 def _estimate_rows(t: np.ndarray, results: dict) -> str:
-    """The CSV rows of one chunk (floats with 17 significant digits: they read back exactly)."""
+    """The CSV rows of one chunk (floats as Python's shortest repr: they read back exactly)."""
     from ..fdi.health import SensorState
 
-    cols = [np.char.mod("%.17g", t)]
+    cols = [list(map(repr, np.asarray(t, float).tolist()))]
     for r in results.values():
-        xs = np.char.mod("%.17g", np.asarray(r.x))
+        x = np.asarray(r.x, float)
         out = np.asarray(r.sensor_state) >= SensorState.ISOLATED
         sets, inv = np.unique(out, axis=0, return_inverse=True)
-        names = np.array([";".join(str(i) for i in np.flatnonzero(row)) for row in sets], dtype=object)
-        cols += [xs[:, 0], xs[:, 1], xs[:, 2], np.asarray(r.validity).astype(int).astype(str),
-                 names[np.asarray(inv).reshape(-1)]]
+        names = [";".join(str(i) for i in np.flatnonzero(row)) for row in sets]
+        cols += [list(map(repr, x[:, a].tolist())) for a in range(3)]
+        cols += [list(map(str, np.asarray(r.validity).tolist())), [names[i] for i in np.asarray(inv).reshape(-1).tolist()]]
     return "".join(",".join(row) + "\n" for row in zip(*cols))
 
 
