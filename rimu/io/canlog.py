@@ -69,6 +69,8 @@ class LogFrames:
     kind: np.ndarray
     line: np.ndarray
     malformed: list[tuple[int, str]] = field(default_factory=list)
+    #: lines of text read (frames, malformed and blank lines)
+    n_lines: int = 0
 
     def __len__(self) -> int:
         return len(self.ts)
@@ -264,6 +266,7 @@ def parse_candump(text: bytes, first_line: int = 1) -> LogFrames:
         out.data[at] = d
     out.ids &= 0x1FFFFFFF
     out.line += first_line
+    out.n_lines = len(starts)
     return out
 
 
@@ -316,7 +319,8 @@ def iter_candump(path: str | os.PathLike[str], chunk_bytes: int = 1 << 22) -> It
                 rest = block
                 continue
             body, rest = block[:cut], block[cut:]
-            yield parse_candump(body, line)
-            line += body.count(b"\n")
+            fr = parse_candump(body, line)
+            line += fr.n_lines
+            yield fr
     if rest:
         yield parse_candump(rest, line)
