@@ -401,9 +401,9 @@ def run(args: argparse.Namespace) -> int:
 
         check_outputs(argparse.Namespace(estimates=args.estimates), files=("estimates",), dirs=(), inputs=())
         est_path = Path(args.estimates).resolve()
-        for opt, v in (("--json", args.json), ("--data", args.data), ("--calibration", args.calibration)):
+        for what, v in (("--json", args.json), ("the data file", args.data), ("--calibration", args.calibration)):
             if v and v != "-" and Path(v).resolve() == est_path:
-                raise OutputPathError(f"--estimates {args.estimates} would overwrite {opt} {v}; give another name")
+                raise OutputPathError(f"--estimates {args.estimates} would overwrite {what} {v}; give another name")
     path = Path(args.data)
     if path.is_dir():
         raise SessionFormatError(f"{path} is a folder; give a session file (.csv with its .json sidecar, or .npz)")
