@@ -136,9 +136,10 @@ def _number(rows: np.ndarray, off: int, n: int, base: int, bad: np.ndarray) -> n
     if n:
         pairs = np.ndarray((len(rows), n // 2), "<u2", rows, off, (rows.shape[1], 2))
         d = two[pairs]
-        for j in range(n // 2):   # column by column: a reduction along a short axis is slow in numpy
-            bad |= d[:, j] > 255
-            v = v * (base * base) + d[:, j]
+        if d.max() > 255:   # some character is no digit (rare): find the rows, column by column
+            for j in range(n // 2):
+                bad |= d[:, j] > 255
+        v = v * (base * base) ** (n // 2) + (d @ (float(base * base) ** np.arange(n // 2 - 1, -1, -1))).astype(np.int64)
     return v
 
 
@@ -163,8 +164,9 @@ def _shaped(buf: np.ndarray, starts: np.ndarray, shape: tuple) -> tuple[np.ndarr
     data = np.zeros((n, 8), np.uint8)
     if n_data:
         d = _HEX2[np.ndarray((n, n_data // 2), "<u2", rows, o_data, (L, 2))]
-        for j in range(n_data // 2):
-            bad |= d[:, j] > 255
+        if d.max() > 255:
+            for j in range(n_data // 2):
+                bad |= d[:, j] > 255
         data[:, :n_data // 2] = d
     ok &= ~bad
     ts = (whole * 10 ** n_frac + frac) / 10.0 ** n_frac   # an exact numerator below 1e15, one rounded division
