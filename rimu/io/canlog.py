@@ -228,6 +228,11 @@ def parse_candump(text: bytes, first_line: int = 1) -> LogFrames:
         else:
             slow_rows.append(i)
             got.append(f)
+    if len(groups) == 1 and not got:     # one shape (most chunks of a long log): its arrays as they are
+        rows, (ts, cid, ext, dlc, data) = groups[0]
+        kind = np.where(cid & CAN_ERR_FLAG, KIND_ERROR, KIND_DATA).astype(np.int8)
+        return LogFrames(ts, cid & 0x1FFFFFFF, np.full(len(rows), ext), np.full(len(rows), dlc, np.int64), data, kind,
+                         rows + first_line, bad, len(starts))
     # every frame in line order: each group scattered to its rows' places among the frames
     n_fast = sum(len(g[0]) for g in groups)
     n = n_fast + len(got)
