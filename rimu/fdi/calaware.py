@@ -33,7 +33,6 @@ was last given (or the ``inputs`` of :meth:`CalibrationAwareGlt.block`).
 from __future__ import annotations
 
 import dataclasses
-
 from typing import Any
 
 import numpy as np
