@@ -123,20 +123,34 @@ def _pair_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
 _HEX2, _DEC2, _HEX1, _DEC1 = _pair_tables()
 
 
-def _number(rows: np.ndarray, off: int, n: int, base: int, bad: np.ndarray) -> np.ndarray:
-    """The unsigned number written in ``n`` digits at column ``off`` of every row (base 10 or 16), two digits per
-    table look-up on a uint16 view of the rows; ``bad`` gets True where a character is not a digit. int64."""
+class _Lines:
+    """n lines of one length as strided views: rows ``origin + k * stride`` of the contiguous uint8 ``base``
+    (the text itself when the lines are evenly spaced, else a copy of them)."""
+
+    def __init__(self, base: np.ndarray, origin: int, stride: int, n: int) -> None:
+        self.base, self.origin, self.stride, self.n = base, origin, stride, n
+
+    def col(self, off: int) -> np.ndarray:
+        return np.ndarray((self.n,), np.uint8, self.base, self.origin + off, (self.stride,))
+
+    def pairs(self, off: int, k: int) -> np.ndarray:
+        """(n, k) uint16: the characters off, off + 1 | off + 2, off + 3 | ... of every line, little-endian."""
+        return np.ndarray((self.n, k), "<u2", self.base, self.origin + off, (self.stride, 2))
+
+
+def _number(lines: _Lines, off: int, n: int, base: int, bad: np.ndarray) -> np.ndarray:
+    """The unsigned number written in ``n`` digits at column ``off`` of every line (base 10 or 16), two digits per
+    table look-up on a uint16 view; ``bad`` gets True where a character is not a digit. int64."""
     one, two = (_HEX1, _HEX2) if base == 16 else (_DEC1, _DEC2)
-    v = np.zeros(len(rows), np.int64)
+    v = np.zeros(lines.n, np.int64)
     if n % 2:
-        d = one[rows[:, off]]
+        d = one[lines.col(off)]
         bad |= d > 255
         v += d
         off, n = off + 1, n - 1
     if n:
-        pairs = np.ndarray((len(rows), n // 2), "<u2", rows, off, (rows.shape[1], 2))
-        d = two[pairs]
-        if d.max() > 255:   # some character is no digit (rare): find the rows, column by column
+        d = two[lines.pairs(off, n // 2)]
+        if d.max() > 255:   # some character is no digit (rare): find the lines, column by column
             for j in range(n // 2):
                 bad |= d[:, j] > 255
         v = v * (base * base) ** (n // 2) + (d @ (float(base * base) ** np.arange(n // 2 - 1, -1, -1))).astype(np.int64)
@@ -148,22 +162,26 @@ def _shaped(buf: np.ndarray, starts: np.ndarray, shape: tuple) -> tuple[np.ndarr
     two characters of a field converted by one table look-up."""
     L, seps, chan, o_int, n_int, n_frac, o_id, n_id, o_data, n_data, o_flag = shape
     n = len(starts)
-    rows = np.lib.stride_tricks.sliding_window_view(buf, L)[starts]      # (n, L): one copy per line
-    ok = rows[:, seps[0][0]] == seps[0][1]
+    step = int(starts[1] - starts[0]) if n > 1 else L
+    if n > 1 and step >= L and int(starts[-1] - starts[0]) == step * (n - 1) and (n < 3 or (np.diff(starts) == step).all()):
+        lines = _Lines(buf, int(starts[0]), step, n)        # evenly spaced (a run of one shape): views, no copy
+    else:
+        lines = _Lines(np.ascontiguousarray(np.lib.stride_tricks.sliding_window_view(buf, L)[starts]), 0, L, n)
+    ok = lines.col(seps[0][0]) == seps[0][1]
     for off, byte in seps[1:]:   # column by column: a reduction along a short axis is slow in numpy
-        ok &= rows[:, off] == byte
+        ok &= lines.col(off) == byte
     for c in chan:
-        ok &= rows[:, c] != 32
+        ok &= lines.col(c) != 32
     if o_flag >= 0:
-        f = rows[:, o_flag] | 32
+        f = lines.col(o_flag) | 32
         ok &= (f == ord("r")) | (f == ord("t"))
     bad = np.zeros(n, bool)
-    whole = _number(rows, o_int, n_int, 10, bad)
-    frac = _number(rows, o_int + n_int + 1, n_frac, 10, bad)
-    can_id = _number(rows, o_id, n_id, 16, bad)
+    whole = _number(lines, o_int, n_int, 10, bad)
+    frac = _number(lines, o_int + n_int + 1, n_frac, 10, bad)
+    can_id = _number(lines, o_id, n_id, 16, bad)
     data = np.zeros((n, 8), np.uint8)
     if n_data:
-        d = _HEX2[np.ndarray((n, n_data // 2), "<u2", rows, o_data, (L, 2))]
+        d = _HEX2[lines.pairs(o_data, n_data // 2)]
         if d.max() > 255:
             for j in range(n_data // 2):
                 bad |= d[:, j] > 255
