@@ -1,10 +1,12 @@
-"""CAN sources through python-can: live buses (any interface) and recorded logs (ASC, BLF, CSV, candump .log).
+"""CAN sources: live buses through python-can (any interface) and recorded logs (candump .log read from its text
+by :mod:`rimu.io.canlog`; ASC, BLF, CSV through python-can).
 
 Frames -> :class:`CanFrameProcessor` (accounting, error/remote frames, vectorised decoding and checksum check
 with :class:`~rimu.io.layout.CanCodec`, epoch assembly with :class:`~rimu.io.assembly.EpochAssembler`)
 -> epochs. Rejection reasons counted: ``error_frame``, ``remote_frame``, ``unknown_id``, ``bad_length``,
-``checksum``, ``duplicate``, ``late``, ``counter_jump``. Events: ``bus_error``, ``bus_off``, ``reconnect``,
-``missing_frame``, ``counter_gap``, ``missing_epochs``, ``resync``, ``time_extrapolated``.
+``checksum``, ``duplicate``, ``late``, ``counter_jump``, ``malformed_line`` (a log line that is no frame).
+Events: ``bus_error``, ``bus_off``, ``reconnect``, ``missing_frame``, ``counter_gap``, ``missing_epochs``,
+``resync``, ``time_extrapolated``.
 """
 
 from __future__ import annotations
