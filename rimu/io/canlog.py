@@ -193,7 +193,7 @@ def _shaped(buf: np.ndarray, starts: np.ndarray, shape: tuple) -> tuple[np.ndarr
     return ok, (ts, can_id, n_id > 3, n_data // 2, data)
 
 
-def parse_candump(text: bytes, first_line: int = 1) -> LogFrames:
+def parse_candump(text: bytes | memoryview, first_line: int = 1) -> LogFrames:
     """The frames of candump ``-L`` text (whole lines; see the module docstring). ``first_line`` numbers the
     first line of ``text``.
 
@@ -202,8 +202,8 @@ def parse_candump(text: bytes, first_line: int = 1) -> LogFrames:
     converted with one gather and one product per field."""
     if not text:
         return _empty()
-    if not text.endswith(b"\n"):
-        text += b"\n"
+    if bytes(text[-1:]) != b"\n":
+        text = bytes(text) + b"\n"
     buf = np.frombuffer(text, dtype=np.uint8)
     nl = np.flatnonzero(buf == 10)
     starts = np.empty(len(nl), np.int64)
@@ -221,7 +221,7 @@ def parse_candump(text: bytes, first_line: int = 1) -> LogFrames:
     while len(rem) and rounds < 64:
         rounds += 1
         i0 = int(rem[0])
-        shape = _shape(text[starts[i0]:ends[i0]])
+        shape = _shape(bytes(text[starts[i0]:ends[i0]]))
         if shape is None:
             slow.append(i0)
             rem = rem[1:]
@@ -237,7 +237,7 @@ def parse_candump(text: bytes, first_line: int = 1) -> LogFrames:
     slow_rows: list[int] = []
     got: list[tuple] = []
     for i in sorted(slow):
-        line = text[starts[i]:ends[i]].decode("utf-8", "replace")
+        line = bytes(text[starts[i]:ends[i]]).decode("utf-8", "replace")
         if not line.strip():
             continue                                  # whitespace only: not a frame
         f = _parse_line(line)
@@ -338,13 +338,14 @@ def iter_candump(path: str | os.PathLike[str], chunk_bytes: int = 1 << 22) -> It
             block = fh.read(chunk_bytes)
             if not block:
                 break
-            block = rest + block
+            if rest:
+                block = rest + block
             cut = block.rfind(b"\n") + 1
             if cut == 0:
                 rest = block
                 continue
-            body, rest = block[:cut], block[cut:]
-            fr = parse_candump(body, line)
+            rest = block[cut:]
+            fr = parse_candump(memoryview(block)[:cut], line)   # the lines without a copy of them
             line += fr.n_lines
             yield fr
     if rest:
