@@ -1,0 +1,370 @@
+"""The compensation of every further effect of a calibration as C99, generated from the same compiled matrices as
+the Python runtime (:class:`rimu.fusion.effects.EffectCompensation`), for :func:`rimu.export.export_c`.
+
+Per epoch and per instrument with further effects (the module docstring of :mod:`rimu.fusion.effects` has the
+model)::
+
+    m = (1, t, dT, dT^2, f, f products, w, w products)         the epoch's monomials (22)
+    K = D m                                                   exogenous error and output-side coefficients
+    z_i = SF_i y_i - b_i - K_exo,i
+    q_i <- q_i - (q_i + c_i(q) - z_i) / (1 + dc_i/dq_i)       Newton, ``newton_steps`` times, from q = z
+    c_i = (k1_i + (k2_i + k3_i q_i) q_i) q_i + ka_i |q_i| + (h_i . u)(Hx_i . u)
+
+with u the instrument's weighted least-squares estimate of q on its usable sensors, re-made before each step
+where cross coupling needs it. The result is handed to the projection as the raw output of an ideal sensor,
+``(q + b) / SF``; an instrument with exogenous effects only is corrected in the raw domain,
+``y - (D_exo / SF) m``, as the Python runtime does.
+
+Between instruments the order, the inputs and the rounds are those of :meth:`rimu.fusion.Pipeline.step`: the
+accelerometers go first and their estimate of the epoch is the specific force of the gyros' g-sensitivity;
+where the accelerometers' size effect needs the angular rate and the gyros need nothing from them, the gyros go
+first; where both need the other, ``Pipeline.cycle_rounds`` rounds of accelerometers-then-gyros with estimates
+(the fixed point of ``Pipeline._preliminary_rate``) give the angular rate the size effect uses.
+
+One difference, deliberate: inside the compensation the C estimate of u and of the preliminary rounds uses the
+sensors the projection uses (not isolated, valid flag set, finite), where the Python runtime uses every finite,
+non-isolated output; they agree wherever invalid samples are non-finite (as the C filter makes them).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..calibration.model import MONOMIALS
+from ..calibration.result import Calibration
+from ..errors import CalibrationFileError, ExportError, MissingInputError, NotCompensableError
+from ..fusion.effects import EffectCompensation
+from ..fusion.pipeline import Pipeline
+
+__all__ = ["EffectsPlan", "plan"]
+
+_NAMES = {"exo": "kexo", 1: "k1", 2: "k2", 3: "k3", "abs": "kabs"}
+
+
+@dataclass
+class EffectsPlan:
+    """What the generated C does per epoch: the instruments' compensations, their order and the rounds."""
+
+    instruments: list[str]
+    comps: dict[str, EffectCompensation] = field(default_factory=dict)
+    order: list[str] = field(default_factory=list)
+    cyclic: bool = False
+    rounds: int = 2
+    reference_temperature: float = 25.0
+
+    @property
+    def needs_temperature(self) -> bool:
+        return any("temperature" in c.needs for c in self.comps.values())
+
+    @property
+    def needs_time(self) -> bool:
+        return any("time" in c.needs for c in self.comps.values())
+
+    def public_step(self, k: str) -> bool:
+        """Whether ``rimu_<k>_step`` stays public: the instrument has no further effect (scale and bias only)."""
+        return k not in self.comps
+
+
+def plan(cal: Calibration) -> EffectsPlan:
+    """The compensation plan of ``cal``, as :class:`rimu.fusion.Pipeline` would run it.
+
+    Raises
+    ------
+    ExportError
+        An effect without runtime compensation, or without a compiled form (its Python runtime evaluates
+        ``runtime_columns``, which has no C counterpart); an effect needing the other instrument's estimate
+        where the calibration has no such instrument; parameters that do not fit the geometry.
+    """
+    meta = cal.metadata or {}
+    t_ref = float(meta.get("reference_temperature", 25.0))
+    comps: dict[str, EffectCompensation] = {}
+    for k in cal.instruments:
+        try:
+            c = EffectCompensation(cal[k], t_ref)
+        except (NotCompensableError, CalibrationFileError) as exc:
+            raise ExportError(f"cannot export: {exc}") from exc
+        if not c:
+            continue
+        if c.has_generic:
+            names = sorted({t.effect.name for t in c._generic_exo + c._generic_out})
+            raise ExportError(f"{k}: effect(s) {', '.join(names)} have no compiled runtime form (RuntimeForm), so "
+                              "no C compensation; give the effect a runtime_form(), or export a calibration without "
+                              "them")
+        comps[k] = c
+    have = {"specific_force": "accel" in cal.instruments, "angular_rate": "gyro" in cal.instruments}
+    for k, c in comps.items():
+        for need, ok in have.items():
+            if need in c.needs and not ok:
+                eff = c.effects_needing(need)[0]
+                raise ExportError(str(MissingInputError(
+                    f"{k} effect {eff!r} needs the {need.replace('_', ' ')}, and the calibration has no "
+                    f"{'accelerometers' if need == 'specific_force' else 'gyros'} to give it; recalibrate without "
+                    f"{eff!r}", eff, need)))
+    # the order of Pipeline.__init__ (accelerometers first unless only the size effect needs the other's input)
+    acc, gyr = comps.get("accel"), comps.get("gyro")
+    acc_needs_w = acc is not None and "angular_rate" in acc.needs
+    gyr_needs_f = gyr is not None and "specific_force" in gyr.needs
+    first = ("gyro", "accel") if acc_needs_w and not gyr_needs_f else ("accel", "gyro")
+    return EffectsPlan(list(cal.instruments), comps, [k for k in first if k in cal.instruments],
+                       acc_needs_w and gyr_needs_f, int(Pipeline.cycle_rounds), t_ref)
+
+
+# ---------------------------------------------------------------------------------------------------- C text
+def _num(v: float, real: str) -> str:
+    s = repr(float(v))
+    if "e" not in s and "." not in s:
+        s += ".0"
+    return s + ("f" if real == "float" else "")
+
+
+def _dot(row: np.ndarray, var: str, real: str) -> str:
+    """``sum_m row[m] var[m]`` over the nonzero entries (``var[0]`` is the constant monomial 1)."""
+    terms = []
+    for m in np.flatnonzero(row):
+        c = _num(row[m], real)
+        terms.append(c if m == 0 else f"{c} * {var}[{m}]")
+    return " + ".join(terms) if terms else _num(0.0, real)
+
+
+def _arr(values: np.ndarray, real: str) -> str:
+    return "{" + ", ".join(_num(v, real) for v in np.asarray(values, dtype=float).ravel()) + "}"
+
+
+def header(cal: Calibration, real: str) -> str:
+    """Declarations for ``rimu_unit.h``: what the unit step needs and its prototype."""
+    p = plan(cal)
+    args = ", ".join(f"const rimu_state *{k}_state, const rimu_real *{k}_y, const unsigned char *{k}_valid, "
+                     f"rimu_output *{k}_out" for k in p.instruments)
+    effects = {k: sorted(t.effect.name for t in c.terms) for k, c in p.comps.items()}
+    desc = "; ".join(f"{k}: {', '.join(v)}" for k, v in effects.items()) or "none (scale factor and bias only)"
+    lines = [
+        f"/* further effects compensated: {desc} */",
+        f"#define RIMU_NEEDS_TEMPERATURE {int(p.needs_temperature)}  /* rimu_step reads temperature */",
+        f"#define RIMU_NEEDS_TIME {int(p.needs_time)}  /* rimu_step reads t (drift) */",
+        f"#define RIMU_REFERENCE_TEMPERATURE {_num(p.reference_temperature, real)}  /* degC, T_ref of the "
+        "temperature effects */",
+        "",
+        "/* One epoch of the whole unit, every calibrated effect compensated: t = time since switch-on (s; the origin",
+        " * of the drift terms), temperature = unit temperature (degC; read only when RIMU_NEEDS_TEMPERATURE), then",
+        " * per instrument its state, raw outputs (device units), valid flags (NULL: all) and output. The",
+        " * instruments run in the order of rimu's Python pipeline, each fed the other's estimate of the epoch. */",
+        f"void rimu_step(rimu_real t, rimu_real temperature, {args});",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+_COMMON = r"""
+/* ---- further effects (rimu.export.c_effects; rimu.fusion.effects is the reference) ---- */
+#define RIMU_NMONO 22
+
+/* the epoch's monomials (rimu.calibration.model.MONOMIALS): 1, t, dT, dT^2, f, f_xx f_xy f_xz f_yy f_yz f_zz,
+   w, w products */
+static void rimu_monomials(rimu_real t, rimu_real dT, const rimu_real *f, const rimu_real *w, rimu_real *m)
+{
+    int k;
+    const rimu_real *v;
+    rimu_real *o;
+    m[0] = 1; m[1] = t; m[2] = dT; m[3] = dT * dT;
+    for (k = 0; k < 2; ++k) {
+        v = k == 0 ? f : w;
+        o = m + 4 + 9 * k;
+        o[0] = v[0]; o[1] = v[1]; o[2] = v[2];
+        o[3] = v[0] * v[0]; o[4] = v[0] * v[1]; o[5] = v[0] * v[2];
+        o[6] = v[1] * v[1]; o[7] = v[1] * v[2]; o[8] = v[2] * v[2];
+    }
+}
+"""
+
+_WLS = r"""
+/* weighted least-squares estimate x of outputs z on the sensors in use (not isolated, valid, finite); 0 when they
+   do not span 3-D (the estimate the compensation feeds its cross coupling and the other instrument) */
+static void rimu_wls(int n, const rimu_real *ax, const rimu_real *w, const rimu_state *st,
+                     const unsigned char *valid, const rimu_real *z, rimu_real *x)
+{
+    rimu_real N00 = 0, N01 = 0, N02 = 0, N11 = 0, N12 = 0, N22 = 0, h0 = 0, h1 = 0, h2 = 0, scale = 0;
+    rimu_real P00, P01, P02, P11, P12, P22, det, id;
+    int i, m = 0;
+    for (i = 0; i < n; ++i) {
+        const rimu_real *a = ax + 3 * i;
+        if (st->isolated[i] || (valid != 0 && !valid[i]) || !isfinite(z[i])) continue;
+        N00 += w[i] * a[0] * a[0]; N01 += w[i] * a[0] * a[1]; N02 += w[i] * a[0] * a[2];
+        N11 += w[i] * a[1] * a[1]; N12 += w[i] * a[1] * a[2]; N22 += w[i] * a[2] * a[2];
+        h0 += w[i] * z[i] * a[0]; h1 += w[i] * z[i] * a[1]; h2 += w[i] * z[i] * a[2];
+        scale += w[i];
+        ++m;
+    }
+    x[0] = x[1] = x[2] = 0;
+    P00 = N11 * N22 - N12 * N12;
+    P01 = N02 * N12 - N01 * N22;
+    P02 = N01 * N12 - N02 * N11;
+    det = N00 * P00 + N01 * P01 + N02 * P02;
+    if (m < 3 || !(det > RIMU_RANK_TOL * scale * scale * scale)) return;
+    id = 1 / det;
+    P11 = (N00 * N22 - N02 * N02) * id;
+    P12 = (N01 * N02 - N00 * N12) * id;
+    P22 = (N00 * N11 - N01 * N01) * id;
+    P00 *= id; P01 *= id; P02 *= id;
+    x[0] = P00 * h0 + P01 * h1 + P02 * h2;
+    x[1] = P01 * h0 + P11 * h1 + P12 * h2;
+    x[2] = P02 * h0 + P12 * h1 + P22 * h2;
+}
+"""
+
+
+def _instrument(k: str, c: EffectCompensation, real: str, with_q: bool) -> str:
+    """``<k>_q`` (effect-free compensated outputs q, EffectCompensation.solve_one) and ``<k>_raw`` (the raw
+    outputs of an ideal SF/M/B sensor, EffectCompensation.raw_one) of one instrument."""
+    n, P = c.n, f"RIMU_{k.upper()}_N"
+    names = sorted({t.effect.name for t in c.terms})
+    out = [f"/* {k}: {', '.join(names)} */"]
+    keys = list(c._dyn_keys) + [key for key in c._const]
+    for key in c._const:
+        out.append(f"static const rimu_real {k}_{_NAMES[key]}[{P}] = {_arr(c._const[key], real)};")
+    if c._Hx is not None:
+        out.append(f"static const rimu_real {k}_hnom[3 * {P}] = {_arr(c._H, real)};  /* nominal axes */")
+        out.append(f"static const rimu_real {k}_hx[3 * {P}] = {_arr(c._Hx, real)};  /* cross coupling */")
+    ref = {key: (f"{_NAMES[key]}[i]" if key in c._dyn_keys else f"{k}_{_NAMES[key]}[i]") for key in keys}
+    dyn_decl = ", ".join(f"{_NAMES[key]}[{P}]" for key in c._dyn_keys)
+    body = [f"static void {k}_q(const rimu_state *st, const unsigned char *valid, const rimu_real *y, "
+            "const rimu_real *m, rimu_real *q)", "{"]
+    if dyn_decl:
+        body.append(f"    rimu_real {dyn_decl};")
+    if c.output_side:
+        body.append(f"    rimu_real z[{P}], s, cc, dc;")
+        body.append("    int it;")
+    if c._Hx is not None:
+        body.append("    rimu_real u[3];")
+    body.append("    int i;")
+    if not c._dyn_keys:
+        body.append("    (void)m;")
+    if not c._needs_u:
+        body.append("    (void)st; (void)valid;")
+    nm = len(MONOMIALS)
+    for j, key in enumerate(c._dyn_keys):
+        D = c._dyn[j * n:(j + 1) * n]
+        assert D.shape == (n, nm)
+        body.append(f"    /* {_NAMES[key]}: the epoch's monomials times the compiled coefficients */")
+        for i in range(n):
+            body.append(f"    {_NAMES[key]}[{i}] = {_dot(D[i], 'm', real)};")
+    zt = f" - {ref['exo']}" if "exo" in ref else ""
+    dst = "z" if c.output_side else "q"
+    body.append(f"    for (i = 0; i < {P}; ++i) {dst}[i] = {k}_sf[i] * y[i] - {k}_b[i]{zt};")
+    if c.output_side:
+        k1, k2, k3, ka = (ref.get(x) for x in (1, 2, 3, "abs"))
+        body += ["    for (i = 0; i < " + P + "; ++i) q[i] = z[i];",
+                 f"    for (it = 0; it < {c.newton_steps}; ++it) {{  /* Newton on each sensor's own input */"]
+        if c._Hx is not None:
+            body.append(f"        rimu_wls({P}, {k}_axes, {k}_w, st, valid, q, u);  /* the instrument's input */")
+        body += [f"        for (i = 0; i < {P}; ++i) {{", "            s = q[i];"]
+        lin = k1 if k1 is not None else None
+        # the arithmetic of EffectCompensation._output_poly, term by term
+        if k3 is not None:
+            quad = f"({k3} * s + {k2})" if k2 is not None else f"{k3} * s"
+            slope2 = f"(2 * {k2} + 3 * ({k3} * s))" if k2 is not None else f"3 * ({k3} * s)"
+        elif k2 is not None:
+            quad, slope2 = k2, f"2 * {k2}"
+        else:
+            quad = slope2 = None
+        lin_s = lin if lin is not None else "0"
+        if quad is not None:
+            body.append(f"            cc = ({lin_s} + {quad} * s) * s;")
+            body.append(f"            dc = {lin_s} + {slope2} * s;")
+        else:
+            body.append(f"            cc = {lin_s} * s;")
+            body.append(f"            dc = {lin_s};")
+        if ka is not None:
+            body.append(f"            cc += {ka} * {'fabsf' if real == 'float' else 'fabs'}(s);")
+            body.append(f"            dc += {ka} * (rimu_real)((s > 0) - (s < 0));")
+        if c._Hx is not None:
+            h, x = f"{k}_hnom + 3 * i", f"{k}_hx + 3 * i"
+            body.append(f"            {{ const rimu_real *h = {h}, *g = {x};")
+            body.append("              cc += (h[0] * u[0] + h[1] * u[1] + h[2] * u[2]) "
+                        "* (g[0] * u[0] + g[1] * u[1] + g[2] * u[2]); }")
+        body += ["            q[i] = s - (s + cc - z[i]) / (1 + dc);", "        }", "    }"]
+    body.append("}")
+    # the raw outputs handed to the projection
+    raw = [f"static void {k}_raw(const rimu_state *st, const unsigned char *valid, const rimu_real *y, "
+           "const rimu_real *m, rimu_real *yr)", "{"]
+    if c._raw_exo is not None:  # exogenous effects only: y - (D_exo / SF) m in the raw domain
+        raw += ["    (void)st; (void)valid;"]
+        if not np.any(c._raw_exo):
+            raw += ["    (void)m;"]
+        raw += [f"    yr[{i}] = y[{i}] - ({_dot(c._raw_exo[i], 'm', real)});" for i in range(n)]
+    else:
+        raw += ["    int i;", f"    {k}_q(st, valid, y, m, yr);",
+                f"    for (i = 0; i < {P}; ++i) yr[i] = (yr[i] + {k}_b[i]) / {k}_sf[i];"]
+    raw.append("}")
+    if c._raw_exo is not None and not with_q:
+        body = []  # the raw path does not use q (and C warns about unused static functions)
+    return "\n".join(out + body + raw) + "\n"
+
+
+def source(cal: Calibration, real: str) -> str:
+    """C text for the end of ``rimu_unit.c`` (after the instruments' constants and steps): the compensation of
+    each instrument and ``rimu_step``."""
+    p = plan(cal)
+    parts = [_COMMON] if p.comps else []
+    if p.cyclic or any(c._needs_u for c in p.comps.values()):
+        parts.append(_WLS)
+    for k, c in p.comps.items():
+        parts.append(_instrument(k, c, real, p.cyclic))
+    args = ", ".join(f"const rimu_state *{k}_state, const rimu_real *{k}_y, const unsigned char *{k}_valid, "
+                     f"rimu_output *{k}_out" for k in p.instruments)
+    b = [f"void rimu_step(rimu_real t, rimu_real temperature, {args})", "{"]
+    if p.comps:
+        b += ["    rimu_real f[3] = {0, 0, 0}, w[3] = {0, 0, 0}, m[RIMU_NMONO], yr[RIMU_NMAX], dT;"]
+        if p.cyclic:
+            b += ["    rimu_real zero[3] = {0, 0, 0}, fp[3];", "    int r;"]
+        b += [f"    dT = {'temperature - RIMU_REFERENCE_TEMPERATURE' if p.needs_temperature else '0'};"]
+        if not p.needs_time:
+            b += ["    t = 0;  /* no drift term: the time is not read */"]
+        if not p.needs_temperature:
+            b += ["    (void)temperature;"]
+        if p.cyclic:
+            # Pipeline._preliminary_rate: accelerometers with zero rate, gyros with their force, then rounds
+            est = {k: f"rimu_wls(RIMU_{k.upper()}_N, {k}_axes, {k}_w, {k}_state, {k}_valid, yr, " for k in p.comps}
+            b += ["    /* the gyro <-> accelerometer fixed point (Pipeline._preliminary_rate) */",
+                  "    rimu_monomials(t, dT, zero, zero, m);",
+                  "    accel_q(accel_state, accel_valid, accel_y, m, yr);",
+                  f"    {est['accel']}fp);",
+                  "    rimu_monomials(t, dT, fp, zero, m);",
+                  "    gyro_q(gyro_state, gyro_valid, gyro_y, m, yr);",
+                  f"    {est['gyro']}w);",
+                  f"    for (r = 1; r < {p.rounds}; ++r) {{",
+                  "        rimu_monomials(t, dT, zero, w, m);",
+                  "        accel_q(accel_state, accel_valid, accel_y, m, yr);",
+                  f"        {est['accel']}fp);",
+                  "        rimu_monomials(t, dT, fp, zero, m);",
+                  "        gyro_q(gyro_state, gyro_valid, gyro_y, m, yr);",
+                  f"        {est['gyro']}w);",
+                  "    }"]
+        for k in p.order:
+            if k in p.comps:
+                b += ["    rimu_monomials(t, dT, f, w, m);",
+                      f"    {k}_raw({k}_state, {k}_valid, {k}_y, m, yr);",
+                      f"    rimu_{k}_step({k}_state, yr, {k}_valid, {k}_out);"]
+            else:
+                b += [f"    rimu_{k}_step({k}_state, {k}_y, {k}_valid, {k}_out);"]
+            if k != p.order[-1]:  # the estimate of the epoch feeds the next instrument
+                v = "f" if k == "accel" else "w"
+                b += [f"    {v}[0] = {k}_out->x[0]; {v}[1] = {k}_out->x[1]; {v}[2] = {k}_out->x[2];"]
+    else:
+        b += ["    (void)t; (void)temperature;"]
+        b += [f"    rimu_{k}_step({k}_state, {k}_y, {k}_valid, {k}_out);" for k in p.instruments]
+    b.append("}")
+    parts.append("\n".join(b) + "\n")
+    return "\n".join(parts)
+
+
+def filter_call(cal: Calibration) -> str:
+    """The filter's call of ``rimu_step`` (``tt``: time since the first row; ``temp``: the temperature column)."""
+    p = plan(cal)
+    args = ", ".join(f"&st_{k}, y_{k}, v_{k}, &o_{k}" for k in p.instruments)
+    return f"        rimu_step((rimu_real)tt, (rimu_real)temp, {args});"
+
+
+def needs_temperature(cal: Calibration) -> bool:
+    """Whether the filter reads a ``temperature`` column (after the raw values, as in the session format)."""
+    return plan(cal).needs_temperature
