@@ -206,3 +206,19 @@ def test_base_calibration_keeps_the_per_instrument_steps(tmp_path):
     _build(cal, tmp_path / "d")
     h = (tmp_path / "d" / "rimu_unit.h").read_text()
     assert "void rimu_gyro_step(" in h and "void rimu_accel_step(" not in h
+
+
+@needs_cc
+def test_the_documented_main_loop_compiles(tmp_path):
+    """docs/flying.md's main-loop example compiles against the export of a unit with every effect."""
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "flying.md").read_text()
+    snippet = doc.split("```c\n", 1)[1].split("```", 1)[0]
+    export_c(with_effects(_base("cone6")), tmp_path)
+    stubs = ("void use_rate(const rimu_real *x);\nextern const rimu_real threshold[];\n"
+             "void hold_last_or_switch_source(void);\n")
+    head, body = snippet.split("\n", 1)
+    (tmp_path / "main_loop.c").write_text(head + "\n" + stubs + body)
+    res = subprocess.run([CC, *CFLAGS.split(), "-c", "main_loop.c"], cwd=tmp_path, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
