@@ -178,37 +178,82 @@ static void rimu_monomials(rimu_real t, rimu_real dT, const rimu_real *f, const 
 """
 
 _WLS = r"""
-/* weighted least-squares estimate x of outputs z on the sensors in use (not isolated, valid, finite); 0 when they
-   do not span 3-D (the estimate the compensation feeds its cross coupling and the other instrument) */
-static void rimu_wls(int n, const rimu_real *ax, const rimu_real *w, const rimu_state *st,
-                     const unsigned char *valid, const rimu_real *z, rimu_real *x)
+/* The weighted least-squares estimate x of outputs z on the sensors in use (not isolated, valid, finite); 0 when
+   they do not span 3-D: the estimate the compensation feeds its cross coupling and the other instrument. The
+   normal matrix depends only on which sensors are in use, so the Newton steps of one instrument set it up once
+   (rimu_wls_setup) and apply it to each new q (rimu_wls_next): a q that is non-finite where z was finite (which
+   the steps do not make) is set up afresh. */
+typedef struct {
+    unsigned char use[RIMU_NMAX];
+    rimu_real P00, P01, P02, P11, P12, P22;
+    int observable;
+} rimu_wls_set;
+
+static void rimu_wls_setup(int n, const rimu_real *ax, const rimu_real *w, const rimu_state *st,
+                           const unsigned char *valid, const rimu_real *z, rimu_wls_set *s)
 {
-    rimu_real N00 = 0, N01 = 0, N02 = 0, N11 = 0, N12 = 0, N22 = 0, h0 = 0, h1 = 0, h2 = 0, scale = 0;
-    rimu_real P00, P01, P02, P11, P12, P22, det, id;
+    rimu_real N00 = 0, N01 = 0, N02 = 0, N11 = 0, N12 = 0, N22 = 0, scale = 0, det, id;
     int i, m = 0;
     for (i = 0; i < n; ++i) {
         const rimu_real *a = ax + 3 * i;
-        if (st->isolated[i] || (valid != 0 && !valid[i]) || !isfinite(z[i])) continue;
+        s->use[i] = (unsigned char)(!st->isolated[i] && (valid == 0 || valid[i]) && isfinite(z[i]));
+        if (!s->use[i]) continue;
         N00 += w[i] * a[0] * a[0]; N01 += w[i] * a[0] * a[1]; N02 += w[i] * a[0] * a[2];
         N11 += w[i] * a[1] * a[1]; N12 += w[i] * a[1] * a[2]; N22 += w[i] * a[2] * a[2];
-        h0 += w[i] * z[i] * a[0]; h1 += w[i] * z[i] * a[1]; h2 += w[i] * z[i] * a[2];
         scale += w[i];
         ++m;
     }
-    x[0] = x[1] = x[2] = 0;
-    P00 = N11 * N22 - N12 * N12;
-    P01 = N02 * N12 - N01 * N22;
-    P02 = N01 * N12 - N02 * N11;
-    det = N00 * P00 + N01 * P01 + N02 * P02;
-    if (m < 3 || !(det > RIMU_RANK_TOL * scale * scale * scale)) return;
+    s->P00 = N11 * N22 - N12 * N12;
+    s->P01 = N02 * N12 - N01 * N22;
+    s->P02 = N01 * N12 - N02 * N11;
+    det = N00 * s->P00 + N01 * s->P01 + N02 * s->P02;
+    s->observable = m >= 3 && det > RIMU_RANK_TOL * scale * scale * scale;
+    if (!s->observable) return;
     id = 1 / det;
-    P11 = (N00 * N22 - N02 * N02) * id;
-    P12 = (N01 * N02 - N00 * N12) * id;
-    P22 = (N00 * N11 - N01 * N01) * id;
-    P00 *= id; P01 *= id; P02 *= id;
-    x[0] = P00 * h0 + P01 * h1 + P02 * h2;
-    x[1] = P01 * h0 + P11 * h1 + P12 * h2;
-    x[2] = P02 * h0 + P12 * h1 + P22 * h2;
+    s->P11 = (N00 * N22 - N02 * N02) * id;
+    s->P12 = (N01 * N02 - N00 * N12) * id;
+    s->P22 = (N00 * N11 - N01 * N01) * id;
+    s->P00 *= id; s->P01 *= id; s->P02 *= id;
+}
+
+/* x from the set s; 0 (x untouched) when some sensor of the set has a non-finite z */
+static int rimu_wls_apply(int n, const rimu_real *ax, const rimu_real *w, const rimu_wls_set *s,
+                          const rimu_real *z, rimu_real *x)
+{
+    rimu_real h0 = 0, h1 = 0, h2 = 0;
+    int i;
+    for (i = 0; i < n; ++i) {
+        const rimu_real *a = ax + 3 * i;
+        if (!s->use[i]) continue;
+        if (!isfinite(z[i])) return 0;
+        h0 += w[i] * z[i] * a[0]; h1 += w[i] * z[i] * a[1]; h2 += w[i] * z[i] * a[2];
+    }
+    x[0] = x[1] = x[2] = 0;
+    if (!s->observable) return 1;
+    x[0] = s->P00 * h0 + s->P01 * h1 + s->P02 * h2;
+    x[1] = s->P01 * h0 + s->P11 * h1 + s->P12 * h2;
+    x[2] = s->P02 * h0 + s->P12 * h1 + s->P22 * h2;
+    return 1;
+}
+"""
+
+_WLS_NEXT = r"""
+static void rimu_wls_next(int n, const rimu_real *ax, const rimu_real *w, const rimu_state *st,
+                          const unsigned char *valid, rimu_wls_set *s, const rimu_real *z, rimu_real *x)
+{
+    if (rimu_wls_apply(n, ax, w, s, z, x)) return;
+    rimu_wls_setup(n, ax, w, st, valid, z, s);  /* the sensors in use changed */
+    (void)rimu_wls_apply(n, ax, w, s, z, x);
+}
+"""
+
+_WLS_ONE = r"""
+static void rimu_wls(int n, const rimu_real *ax, const rimu_real *w, const rimu_state *st,
+                     const unsigned char *valid, const rimu_real *z, rimu_real *x)
+{
+    rimu_wls_set s;
+    rimu_wls_setup(n, ax, w, st, valid, z, &s);
+    (void)rimu_wls_apply(n, ax, w, &s, z, x);
 }
 """
 
@@ -236,6 +281,7 @@ def _instrument(k: str, c: EffectCompensation, real: str, with_q: bool) -> str:
         body.append("    int it;")
     if c._Hx is not None:
         body.append("    rimu_real u[3];")
+        body.append("    rimu_wls_set ws;")
     body.append("    int i;")
     if not c._dyn_keys:
         body.append("    (void)m;")
@@ -253,10 +299,13 @@ def _instrument(k: str, c: EffectCompensation, real: str, with_q: bool) -> str:
     body.append(f"    for (i = 0; i < {P}; ++i) {dst}[i] = {k}_sf[i] * y[i] - {k}_b[i]{zt};")
     if c.output_side:
         k1, k2, k3, ka = (ref.get(x) for x in (1, 2, 3, "abs"))
-        body += ["    for (i = 0; i < " + P + "; ++i) q[i] = z[i];",
+        body += ["    for (i = 0; i < " + P + "; ++i) q[i] = z[i];"]
+        if c._Hx is not None:
+            body.append(f"    rimu_wls_setup({P}, {k}_axes, {k}_w, st, valid, z, &ws);  /* the sensors in use */")
+        body += [
                  f"    for (it = 0; it < {c.newton_steps}; ++it) {{  /* Newton on each sensor's own input */"]
         if c._Hx is not None:
-            body.append(f"        rimu_wls({P}, {k}_axes, {k}_w, st, valid, q, u);  /* the instrument's input */")
+            body.append(f"        rimu_wls_next({P}, {k}_axes, {k}_w, st, valid, &ws, q, u);  /* the instrument's input */")
         body += [f"        for (i = 0; i < {P}; ++i) {{", "            s = q[i];"]
         lin = k1 if k1 is not None else None
         # the arithmetic of EffectCompensation._output_poly, term by term
@@ -306,8 +355,13 @@ def source(cal: Calibration, real: str) -> str:
     each instrument and ``rimu_step``."""
     p = plan(cal)
     parts = [_COMMON] if p.comps else []
-    if p.cyclic or any(c._needs_u for c in p.comps.values()):
+    needs_u = any(c._needs_u for c in p.comps.values())
+    if p.cyclic or needs_u:
         parts.append(_WLS)
+    if needs_u:
+        parts.append(_WLS_NEXT)
+    if p.cyclic:
+        parts.append(_WLS_ONE)
     for k, c in p.comps.items():
         parts.append(_instrument(k, c, real, p.cyclic))
     args = ", ".join(f"const rimu_state *{k}_state, const rimu_real *{k}_y, const unsigned char *{k}_valid, "

@@ -107,6 +107,8 @@ def unit(request, tmp_path_factory):
     """A unit with every compensable effect, its noisy session, the Python estimates and the C filters (double,
     float; gcc/cc, and clang where present), built once per geometry."""
     cal = with_effects(_base(request.param))
+    if request.param == "tetrad4":  # a calibration's own reference temperature (25 degC by default)
+        cal.metadata["reference_temperature"] = 35.0
     t, T, raw, _ = _session(cal, 2000, noise=True)
     py = Pipeline(cal).process(EpochBlock(t, {k: v.copy() for k, v in raw.items()}, temperature=T))
     d = tmp_path_factory.mktemp(f"ce_{request.param}")
@@ -157,6 +159,22 @@ def test_each_effect_alone(instrument, effect, tmp_path):
     py = Pipeline(cal).process(EpochBlock(t, {k: v.copy() for k, v in raw.items()}, temperature=T))
     needs_t = "temperature" in EffectCompensation(cal[instrument]).needs
     c = _run(_build(cal, tmp_path / "c", opt="-O0"), t, raw, T if needs_t else None)
+    _compare(cal, c, py, TOL["double"])
+    for k in cal.instruments:
+        x = np.column_stack([c[f"{k}_x"], c[f"{k}_y"], c[f"{k}_z"]])
+        assert np.abs(x - U[k]).max() <= 1e-10 * np.abs(U[k]).max()
+
+
+@needs_cc
+@pytest.mark.parametrize("names", [{"gyro": ["g_sensitivity"], "accel": ["size_effect"]},
+                                   {"gyro": ["g2_sensitivity", "sf_quadratic"], "accel": ["size_effect", "sf_cubic"]}],
+                         ids=["cycle", "cycle+output-side"])
+def test_the_gyro_accelerometer_cycle(names, tmp_path):
+    """Both instruments need the other's estimate: the rounds of Pipeline._preliminary_rate, in C."""
+    cal = with_effects(_base("tetrad4"), names)
+    t, T, raw, U = _session(cal, 600, noise=False, seed=5)
+    py = Pipeline(cal).process(EpochBlock(t, {k: v.copy() for k, v in raw.items()}, temperature=T))
+    c = _run(_build(cal, tmp_path / "c"), t, raw)
     _compare(cal, c, py, TOL["double"])
     for k in cal.instruments:
         x = np.column_stack([c[f"{k}_x"], c[f"{k}_y"], c[f"{k}_z"]])
@@ -222,3 +240,20 @@ def test_the_documented_main_loop_compiles(tmp_path):
     (tmp_path / "main_loop.c").write_text(head + "\n" + stubs + body)
     res = subprocess.run([CC, *CFLAGS.split(), "-c", "main_loop.c"], cwd=tmp_path, capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
+
+
+@needs_cc
+def test_cli_exports_a_calibration_file_with_effects(tmp_path, capsys):
+    from rimu.cli import main
+
+    cal = with_effects(_base("triad3"))
+    cal.metadata["reference_temperature"] = 20.0
+    cal.save(tmp_path / "cal.json")
+    assert main(["export-c", str(tmp_path / "cal.json"), "-o", str(tmp_path / "c"), "--build"]) == 0
+    assert "built" in capsys.readouterr().out
+    h = (tmp_path / "c" / "rimu_unit.h").read_text()
+    assert "#define RIMU_NEEDS_TEMPERATURE 1" in h and "#define RIMU_REFERENCE_TEMPERATURE 20.0" in h
+    cal["gyro"].effects["earth_rate"] = {"x.k": 1.0}
+    cal.save(tmp_path / "bad.json")
+    assert main(["export-c", str(tmp_path / "bad.json"), "-o", str(tmp_path / "d")]) == 2
+    assert "earth_rate" in capsys.readouterr().err
