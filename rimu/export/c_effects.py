@@ -34,7 +34,7 @@ import numpy as np
 
 from ..calibration.model import MONOMIALS
 from ..calibration.result import Calibration
-from ..errors import CalibrationFileError, ExportError, MissingInputError, NotCompensableError
+from ..errors import CalibrationFileError, ExportError, NotCompensableError
 from ..fusion.effects import EffectCompensation
 from ..fusion.pipeline import Pipeline
 
@@ -98,10 +98,9 @@ def plan(cal: Calibration) -> EffectsPlan:
         for need, ok in have.items():
             if need in c.needs and not ok:
                 eff = c.effects_needing(need)[0]
-                raise ExportError(str(MissingInputError(
-                    f"{k} effect {eff!r} needs the {need.replace('_', ' ')}, and the calibration has no "
-                    f"{'accelerometers' if need == 'specific_force' else 'gyros'} to give it; recalibrate without "
-                    f"{eff!r}", eff, need)))
+                raise ExportError(f"{k} effect {eff!r} needs the {need.replace('_', ' ')}, and the calibration has "
+                                  f"no {'accelerometers' if need == 'specific_force' else 'gyros'} to give it; "
+                                  f"recalibrate without {eff!r}")
     # the order of Pipeline.__init__ (accelerometers first unless only the size effect needs the other's input)
     acc, gyr = comps.get("accel"), comps.get("gyro")
     acc_needs_w = acc is not None and "angular_rate" in acc.needs
@@ -189,14 +188,14 @@ typedef struct {
     int observable;
 } rimu_wls_set;
 
-static void rimu_wls_setup(int n, const rimu_real *ax, const rimu_real *w, const rimu_state *st,
+static void rimu_wls_setup(int n, const rimu_real *ax, const rimu_real *w, const unsigned char *iso,
                            const unsigned char *valid, const rimu_real *z, rimu_wls_set *s)
 {
     rimu_real N00 = 0, N01 = 0, N02 = 0, N11 = 0, N12 = 0, N22 = 0, scale = 0, det, id;
     int i, m = 0;
     for (i = 0; i < n; ++i) {
         const rimu_real *a = ax + 3 * i;
-        s->use[i] = (unsigned char)(!st->isolated[i] && (valid == 0 || valid[i]) && isfinite(z[i]));
+        s->use[i] = (unsigned char)(!iso[i] && (valid == 0 || valid[i]) && isfinite(z[i]));
         if (!s->use[i]) continue;
         N00 += w[i] * a[0] * a[0]; N01 += w[i] * a[0] * a[1]; N02 += w[i] * a[0] * a[2];
         N11 += w[i] * a[1] * a[1]; N12 += w[i] * a[1] * a[2]; N22 += w[i] * a[2] * a[2];
@@ -238,21 +237,21 @@ static int rimu_wls_apply(int n, const rimu_real *ax, const rimu_real *w, const 
 """
 
 _WLS_NEXT = r"""
-static void rimu_wls_next(int n, const rimu_real *ax, const rimu_real *w, const rimu_state *st,
+static void rimu_wls_next(int n, const rimu_real *ax, const rimu_real *w, const unsigned char *iso,
                           const unsigned char *valid, rimu_wls_set *s, const rimu_real *z, rimu_real *x)
 {
     if (rimu_wls_apply(n, ax, w, s, z, x)) return;
-    rimu_wls_setup(n, ax, w, st, valid, z, s);  /* the sensors in use changed */
+    rimu_wls_setup(n, ax, w, iso, valid, z, s);  /* the sensors in use changed */
     (void)rimu_wls_apply(n, ax, w, s, z, x);
 }
 """
 
 _WLS_ONE = r"""
-static void rimu_wls(int n, const rimu_real *ax, const rimu_real *w, const rimu_state *st,
+static void rimu_wls(int n, const rimu_real *ax, const rimu_real *w, const unsigned char *iso,
                      const unsigned char *valid, const rimu_real *z, rimu_real *x)
 {
     rimu_wls_set s;
-    rimu_wls_setup(n, ax, w, st, valid, z, &s);
+    rimu_wls_setup(n, ax, w, iso, valid, z, &s);
     (void)rimu_wls_apply(n, ax, w, &s, z, x);
 }
 """
@@ -272,7 +271,7 @@ def _instrument(k: str, c: EffectCompensation, real: str, with_q: bool) -> str:
         out.append(f"static const rimu_real {k}_hx[3 * {P}] = {_arr(c._Hx, real)};  /* cross coupling */")
     ref = {key: (f"{_NAMES[key]}[i]" if key in c._dyn_keys else f"{k}_{_NAMES[key]}[i]") for key in keys}
     dyn_decl = ", ".join(f"{_NAMES[key]}[{P}]" for key in c._dyn_keys)
-    body = [f"static void {k}_q(const rimu_state *st, const unsigned char *valid, const rimu_real *y, "
+    body = [f"static void {k}_q(const unsigned char *iso, const unsigned char *valid, const rimu_real *y, "
             "const rimu_real *m, rimu_real *q)", "{"]
     if dyn_decl:
         body.append(f"    rimu_real {dyn_decl};")
@@ -286,7 +285,7 @@ def _instrument(k: str, c: EffectCompensation, real: str, with_q: bool) -> str:
     if not c._dyn_keys:
         body.append("    (void)m;")
     if not c._needs_u:
-        body.append("    (void)st; (void)valid;")
+        body.append("    (void)iso; (void)valid;")
     nm = len(MONOMIALS)
     for j, key in enumerate(c._dyn_keys):
         D = c._dyn[j * n:(j + 1) * n]
@@ -301,11 +300,11 @@ def _instrument(k: str, c: EffectCompensation, real: str, with_q: bool) -> str:
         k1, k2, k3, ka = (ref.get(x) for x in (1, 2, 3, "abs"))
         body += ["    for (i = 0; i < " + P + "; ++i) q[i] = z[i];"]
         if c._Hx is not None:
-            body.append(f"    rimu_wls_setup({P}, {k}_axes, {k}_w, st, valid, z, &ws);  /* the sensors in use */")
+            body.append(f"    rimu_wls_setup({P}, {k}_axes, {k}_w, iso, valid, z, &ws);  /* the sensors in use */")
         body += [
                  f"    for (it = 0; it < {c.newton_steps}; ++it) {{  /* Newton on each sensor's own input */"]
         if c._Hx is not None:
-            body.append(f"        rimu_wls_next({P}, {k}_axes, {k}_w, st, valid, &ws, q, u);  /* the instrument's input */")
+            body.append(f"        rimu_wls_next({P}, {k}_axes, {k}_w, iso, valid, &ws, q, u);  /* the instrument's input */")
         body += [f"        for (i = 0; i < {P}; ++i) {{", "            s = q[i];"]
         lin = k1 if k1 is not None else None
         # the arithmetic of EffectCompensation._output_poly, term by term
@@ -334,15 +333,15 @@ def _instrument(k: str, c: EffectCompensation, real: str, with_q: bool) -> str:
         body += ["            q[i] = s - (s + cc - z[i]) / (1 + dc);", "        }", "    }"]
     body.append("}")
     # the raw outputs handed to the projection
-    raw = [f"static void {k}_raw(const rimu_state *st, const unsigned char *valid, const rimu_real *y, "
+    raw = [f"static void {k}_raw(const unsigned char *iso, const unsigned char *valid, const rimu_real *y, "
            "const rimu_real *m, rimu_real *yr)", "{"]
     if c._raw_exo is not None:  # exogenous effects only: y - (D_exo / SF) m in the raw domain
-        raw += ["    (void)st; (void)valid;"]
+        raw += ["    (void)iso; (void)valid;"]
         if not np.any(c._raw_exo):
             raw += ["    (void)m;"]
         raw += [f"    yr[{i}] = y[{i}] - ({_dot(c._raw_exo[i], 'm', real)});" for i in range(n)]
     else:
-        raw += ["    int i;", f"    {k}_q(st, valid, y, m, yr);",
+        raw += ["    int i;", f"    {k}_q(iso, valid, y, m, yr);",
                 f"    for (i = 0; i < {P}; ++i) yr[i] = (yr[i] + {k}_b[i]) / {k}_sf[i];"]
     raw.append("}")
     if c._raw_exo is not None and not with_q:
@@ -364,9 +363,21 @@ def source(cal: Calibration, real: str) -> str:
         parts.append(_WLS_ONE)
     for k, c in p.comps.items():
         parts.append(_instrument(k, c, real, p.cyclic))
-    args = ", ".join(f"const rimu_state *{k}_state, const rimu_real *{k}_y, const unsigned char *{k}_valid, "
-                     f"rimu_output *{k}_out" for k in p.instruments)
-    b = [f"void rimu_step(rimu_real t, rimu_real temperature, {args})", "{"]
+    parts.append(unit_step(cal, "rimu_step", "const rimu_state *{k}_state, const rimu_real *{k}_y, "
+                           "const unsigned char *{k}_valid, rimu_output *{k}_out", "{k}_state->isolated",
+                           "rimu_{k}_step({k}_state, {y}, {k}_valid, {k}_out);", "{k}_out->x"))
+    return "\n".join(parts)
+
+
+def unit_step(cal: Calibration, name: str, params: str, iso: str, call: str, x: str) -> str:
+    """A C function ``void name(rimu_real t, rimu_real temperature, <params per instrument>)`` that runs one
+    epoch of the unit through the compensation and a per-instrument step, in the order and rounds of
+    :meth:`rimu.fusion.Pipeline.step`. Templates (``{k}``: the instrument): ``params`` its parameters (with
+    ``{k}_y`` the raw outputs and ``{k}_valid`` the flags), ``iso`` its isolated flags (unsigned char[n]),
+    ``call`` its step on raw outputs ``{y}``, ``x`` its estimate of the epoch (rimu_real[3]) after the step."""
+    p = plan(cal)
+    args = ", ".join(params.format(k=k) for k in p.instruments)
+    b = [f"void {name}(rimu_real t, rimu_real temperature, {args})", "{"]
     if p.comps:
         b += ["    rimu_real f[3] = {0, 0, 0}, w[3] = {0, 0, 0}, m[RIMU_NMONO], yr[RIMU_NMAX], dT;"]
         if p.cyclic:
@@ -378,38 +389,39 @@ def source(cal: Calibration, real: str) -> str:
             b += ["    (void)temperature;"]
         if p.cyclic:
             # Pipeline._preliminary_rate: accelerometers with zero rate, gyros with their force, then rounds
-            est = {k: f"rimu_wls(RIMU_{k.upper()}_N, {k}_axes, {k}_w, {k}_state, {k}_valid, yr, " for k in p.comps}
+            q = {k: f"{k}_q({iso.format(k=k)}, {k}_valid, {k}_y, m, yr);" for k in p.comps}
+            est = {k: f"rimu_wls(RIMU_{k.upper()}_N, {k}_axes, {k}_w, {iso.format(k=k)}, {k}_valid, yr, "
+                   for k in p.comps}
             b += ["    /* the gyro <-> accelerometer fixed point (Pipeline._preliminary_rate) */",
                   "    rimu_monomials(t, dT, zero, zero, m);",
-                  "    accel_q(accel_state, accel_valid, accel_y, m, yr);",
+                  f"    {q['accel']}",
                   f"    {est['accel']}fp);",
                   "    rimu_monomials(t, dT, fp, zero, m);",
-                  "    gyro_q(gyro_state, gyro_valid, gyro_y, m, yr);",
+                  f"    {q['gyro']}",
                   f"    {est['gyro']}w);",
                   f"    for (r = 1; r < {p.rounds}; ++r) {{",
                   "        rimu_monomials(t, dT, zero, w, m);",
-                  "        accel_q(accel_state, accel_valid, accel_y, m, yr);",
+                  f"        {q['accel']}",
                   f"        {est['accel']}fp);",
                   "        rimu_monomials(t, dT, fp, zero, m);",
-                  "        gyro_q(gyro_state, gyro_valid, gyro_y, m, yr);",
+                  f"        {q['gyro']}",
                   f"        {est['gyro']}w);",
                   "    }"]
         for k in p.order:
             if k in p.comps:
                 b += ["    rimu_monomials(t, dT, f, w, m);",
-                      f"    {k}_raw({k}_state, {k}_valid, {k}_y, m, yr);",
-                      f"    rimu_{k}_step({k}_state, yr, {k}_valid, {k}_out);"]
+                      f"    {k}_raw({iso.format(k=k)}, {k}_valid, {k}_y, m, yr);",
+                      "    " + call.format(k=k, y="yr")]
             else:
-                b += [f"    rimu_{k}_step({k}_state, {k}_y, {k}_valid, {k}_out);"]
+                b += ["    " + call.format(k=k, y=f"{k}_y")]
             if k != p.order[-1]:  # the estimate of the epoch feeds the next instrument
-                v = "f" if k == "accel" else "w"
-                b += [f"    {v}[0] = {k}_out->x[0]; {v}[1] = {k}_out->x[1]; {v}[2] = {k}_out->x[2];"]
+                v, xk = ("f" if k == "accel" else "w"), x.format(k=k)
+                b += [f"    {v}[0] = {xk}[0]; {v}[1] = {xk}[1]; {v}[2] = {xk}[2];"]
     else:
         b += ["    (void)t; (void)temperature;"]
-        b += [f"    rimu_{k}_step({k}_state, {k}_y, {k}_valid, {k}_out);" for k in p.instruments]
+        b += ["    " + call.format(k=k, y=f"{k}_y") for k in p.instruments]
     b.append("}")
-    parts.append("\n".join(b) + "\n")
-    return "\n".join(parts)
+    return "\n".join(b) + "\n"
 
 
 def filter_call(cal: Calibration) -> str:
