@@ -257,3 +257,29 @@ def test_cli_exports_a_calibration_file_with_effects(tmp_path, capsys):
     cal.save(tmp_path / "bad.json")
     assert main(["export-c", str(tmp_path / "bad.json"), "-o", str(tmp_path / "d")]) == 2
     assert "earth_rate" in capsys.readouterr().err
+
+
+@needs_cc
+def test_isolated_sensors_leave_the_compensation_too(tmp_path):
+    """With a sensor of each instrument isolated (rimu_state.isolated), the estimates inside the compensation (cross
+    coupling, the gyro <-> accelerometer rounds) leave it out, as InstrumentPipeline.isolate does in Python."""
+    cal = with_effects(_base("cone6"))
+    t, T, raw, _ = _session(cal, 500, noise=True, seed=9)
+    raw["gyro"][:, 1] += 0.2 / cal["gyro"].scale[1]   # the isolated sensors are faulty: 0.2 rad/s, 0.5 m/s^2
+    raw["accel"][:, 4] -= 0.5 / cal["accel"].scale[4]
+    pipe = Pipeline(cal)
+    pipe["gyro"].isolate(1)
+    pipe["accel"].isolate(4)
+    py = pipe.process(EpochBlock(t, {k: v.copy() for k, v in raw.items()}, temperature=T))
+    d = tmp_path / "c"
+    export_c(cal, d)
+    src = (d / "rimu_filter.c").read_text()
+    mark = '    printf("t,'
+    assert src.count(mark) == 1
+    (d / "rimu_filter.c").write_text(src.replace(mark, "    st_gyro.isolated[1] = 1;\n    st_accel.isolated[4] = 1;\n"
+                                                 + mark))
+    res = subprocess.run(["make", "-s", f"CC={CC}", f"CFLAGS={CFLAGS} -O0"], cwd=d, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    c = _run(d / "rimu_filter", t, raw, T)
+    _compare(cal, c, py, TOL["double"])
+    assert np.all(c["gyro_dof"][c["gyro_observable"] == 1] <= 2)  # five sensors at most
