@@ -106,7 +106,7 @@ def plan(cal: Calibration) -> EffectsPlan:
     acc_needs_w = acc is not None and "angular_rate" in acc.needs
     gyr_needs_f = gyr is not None and "specific_force" in gyr.needs
     first = ("gyro", "accel") if acc_needs_w and not gyr_needs_f else ("accel", "gyro")
-    return EffectsPlan(list(cal.instruments), comps, [k for k in first if k in cal.instruments],
+    return EffectsPlan([k for k in ("gyro", "accel") if k in cal.instruments], comps, [k for k in first if k in cal.instruments],
                        acc_needs_w and gyr_needs_f, int(Pipeline.cycle_rounds), t_ref)
 
 

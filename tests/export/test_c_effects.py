@@ -224,6 +224,11 @@ def test_base_calibration_keeps_the_per_instrument_steps(tmp_path):
     _build(cal, tmp_path / "d")
     h = (tmp_path / "d" / "rimu_unit.h").read_text()
     assert "void rimu_gyro_step(" in h and "void rimu_accel_step(" not in h
+    # the parameters of rimu_step are gyros then accelerometers, whatever the calibration's order
+    flipped = Calibration({"accel": cal["accel"], "gyro": cal["gyro"]})
+    export_c(flipped, tmp_path / "e")
+    h = (tmp_path / "e" / "rimu_unit.h").read_text()
+    assert "rimu_step(rimu_real t, rimu_real temperature, const rimu_state *gyro_state," in h
 
 
 @needs_cc
