@@ -38,7 +38,7 @@ from ..errors import CalibrationFileError, ExportError, NotCompensableError
 from ..fusion.effects import EffectCompensation
 from ..fusion.pipeline import Pipeline
 
-__all__ = ["EffectsPlan", "plan"]
+__all__ = ["EffectsPlan", "filter_call", "header", "needs_temperature", "plan", "source", "unit_step"]
 
 _NAMES = {"exo": "kexo", 1: "k1", 2: "k2", 3: "k3", "abs": "kabs"}
 
