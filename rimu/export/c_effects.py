@@ -76,6 +76,21 @@ def plan(cal: Calibration) -> EffectsPlan:
         An effect without runtime compensation, or without a compiled form (its Python runtime evaluates
         ``runtime_columns``, which has no C counterpart); an effect needing the other instrument's estimate
         where the calibration has no such instrument; parameters that do not fit the geometry.
+
+    Examples
+    --------
+    >>> from rimu.calibration.result import InstrumentCalibration
+    >>> from rimu.geometry import triad3
+    >>> g = InstrumentCalibration.nominal("gyro", triad3(), scale=0.01, noise_sigma=0.001)
+    >>> a = InstrumentCalibration.nominal("accel", triad3(), scale=0.001, noise_sigma=0.01)
+    >>> g.effects = {"g_sensitivity": {"x.g_x": 1e-5}}         # gyros need the specific force
+    >>> p = plan(Calibration({"gyro": g, "accel": a}))
+    >>> p.order, p.cyclic, p.public_step("accel")
+    (['accel', 'gyro'], False, True)
+    >>> a.effects = {"size_effect": {"x.r_x": 0.01}}           # and the accelerometers the rate: the cycle
+    >>> p = plan(Calibration({"gyro": g, "accel": a}))
+    >>> p.order, p.cyclic, p.rounds, p.needs_temperature
+    (['accel', 'gyro'], True, 2, False)
     """
     meta = cal.metadata or {}
     t_ref = float(meta.get("reference_temperature", 25.0))
