@@ -83,7 +83,7 @@ def plan(cal: Calibration) -> EffectsPlan:
     >>> from rimu.geometry import triad3
     >>> g = InstrumentCalibration.nominal("gyro", triad3(), scale=0.01, noise_sigma=0.001)
     >>> a = InstrumentCalibration.nominal("accel", triad3(), scale=0.001, noise_sigma=0.01)
-    >>> g.effects = {"g_sensitivity": {"x.g_x": 1e-5}}         # gyros need the specific force
+    >>> g.effects = {"g_sensitivity": {"x.gsens_x": 1e-5}}     # gyros need the specific force
     >>> p = plan(Calibration({"gyro": g, "accel": a}))
     >>> p.order, p.cyclic, p.public_step("accel")
     (['accel', 'gyro'], False, True)
