@@ -288,3 +288,20 @@ def test_isolated_sensors_leave_the_compensation_too(tmp_path):
     c = _run(d / "rimu_filter", t, raw, T)
     _compare(cal, c, py, TOL["double"])
     assert np.all(c["gyro_dof"][c["gyro_observable"] == 1] <= 2)  # five sensors at most
+
+
+@needs_cc
+def test_many_axes_with_every_effect(tmp_path):
+    """A 24-axis unit (one sub-unit: cross coupling with 23 partners per sensor) with every effect."""
+    from rimu.geometry import cone
+
+    g = cone(24, 40.0)
+    rng = np.random.default_rng(2)
+    cal = Calibration({k: random_truth(g, k, rng) for k in ("gyro", "accel")})
+    for k in cal.instruments:
+        cal[k].noise_sigma = np.full(g.n, 1e-3 if k == "gyro" else 1e-2)
+    cal = with_effects(cal)
+    t, T, raw, _ = _session(cal, 300, noise=True, seed=4)
+    py = Pipeline(cal).process(EpochBlock(t, {k: v.copy() for k, v in raw.items()}, temperature=T))
+    c = _run(_build(cal, tmp_path / "c", opt="-O0"), t, raw, T)
+    _compare(cal, c, py, TOL["double"])
