@@ -126,7 +126,16 @@ def plan(cal: Calibration) -> EffectsPlan:
 
 
 # ---------------------------------------------------------------------------------------------------- C text
+_FLT_MIN, _FLT_MAX = 1.1754943508222875e-38, 3.4028234663852886e+38
+
+
 def _num(v: float, real: str) -> str:
+    """A C literal of ``v``; in float, magnitudes below FLT_MIN are 0 (a literal that rounds to zero does not
+    build with -Werror, and such a coefficient changes no float result) and above FLT_MAX refused."""
+    if real == "float" and abs(v) < _FLT_MIN:
+        v = 0.0
+    if real == "float" and abs(v) > _FLT_MAX:
+        raise ExportError(f"a compensation coefficient ({v:.3g}) exceeds the float range; export with real='double'")
     s = repr(float(v))
     if "e" not in s and "." not in s:
         s += ".0"

@@ -305,3 +305,16 @@ def test_many_axes_with_every_effect(tmp_path):
     py = Pipeline(cal).process(EpochBlock(t, {k: v.copy() for k, v in raw.items()}, temperature=T))
     c = _run(_build(cal, tmp_path / "c", opt="-O0"), t, raw, T)
     _compare(cal, c, py, TOL["double"])
+
+
+@needs_cc
+def test_float_coefficients_out_of_range(tmp_path):
+    """In float, a coefficient below FLT_MIN is 0 (a literal that rounds to zero fails -Werror) and one above
+    FLT_MAX is refused."""
+    cal = _single("gyro", "sf_quadratic")
+    cal["gyro"].effects["sf_quadratic"]["x1.k2"] = 1e-50
+    _build(cal, tmp_path / "a", real="float")
+    cal["gyro"].effects["sf_quadratic"]["x1.k2"] = 1e50
+    with pytest.raises(ExportError, match="float range"):
+        export_c(cal, tmp_path / "b", real="float")
+    _build(cal, tmp_path / "c", real="double")
