@@ -318,3 +318,23 @@ def test_float_coefficients_out_of_range(tmp_path):
     with pytest.raises(ExportError, match="float range"):
         export_c(cal, tmp_path / "b", real="float")
     _build(cal, tmp_path / "c", real="double")
+
+
+@needs_cc
+def test_an_invalid_value_does_not_enter_the_compensation(tmp_path):
+    """A value flagged invalid stays out of the compensation's estimates, whatever it holds: the filter made to
+    store 1e6 (not 0) for an empty field gives the same numbers, bit for bit. (Python's Pipeline, which takes every
+    finite output into those estimates, is moved by hundreds of rad/s by such a value.)"""
+    cal = with_effects(_base("cone6"))
+    t, T, raw, _ = _session(cal, 300, noise=True, seed=8)
+    d = tmp_path / "c"
+    ref = _run(_build(cal, d, opt="-O0"), t, raw, T)
+    src = (d / "rimu_filter.c").read_text()
+    assert src.count("*val = 0;") == 1
+    (d / "rimu_filter.c").write_text(src.replace("*val = 0;", "*val = 1e6;"))
+    res = subprocess.run(["make", "-s", f"CC={CC}", f"CFLAGS={CFLAGS} -O0"], cwd=d, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    c = _run(d / "rimu_filter", t, raw, T)
+    assert any(not np.all(np.isfinite(v)) for v in raw.values())
+    for h in ref:
+        assert np.array_equal(c[h], ref[h]), h
