@@ -133,6 +133,14 @@ def test_every_effect_matches_python_on_every_sample(unit, compiler, real):
     _compare(cal, c, py, TOL[real])
     if (compiler, real) != ("cc", "double"):
         return
+    # the per-sample path (Pipeline.step) too, on the first 200 epochs
+    pipe = Pipeline(cal)
+    block = EpochBlock(t[:200], {k: v[:200].copy() for k, v in raw.items()}, temperature=T[:200])
+    for i, e in enumerate(block.epochs()):
+        r = pipe.step(e)
+        for k in cal.instruments:
+            x = np.array([c[f"{k}_x"][i], c[f"{k}_y"][i], c[f"{k}_z"][i]])
+            assert np.abs(x - r[k].x).max() <= TOL[real] * max(np.abs(r[k].x).max(), 1e-300), (k, i)
     # the effects are not small against the tolerance: without them the estimate moves by far more
     plain = Calibration({k: type(cal[k])(k, cal[k].geometry, cal[k].scale, cal[k].misalignment, cal[k].bias,
                                          cal[k].noise_sigma) for k in cal.instruments})
