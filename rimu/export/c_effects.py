@@ -38,7 +38,8 @@ from ..errors import CalibrationFileError, ExportError, NotCompensableError
 from ..fusion.effects import EffectCompensation
 from ..fusion.pipeline import Pipeline
 
-__all__ = ["EffectsPlan", "filter_call", "header", "needs_temperature", "plan", "source", "unit_step"]
+__all__ = ["STEP_PARAMS", "EffectsPlan", "filter_call", "header", "needs_temperature", "plan", "source",
+           "unit_declaration", "unit_step"]
 
 _NAMES = {"exo": "kexo", 1: "k1", 2: "k2", 3: "k3", "abs": "kabs"}
 
@@ -155,11 +156,19 @@ def _arr(values: np.ndarray, real: str) -> str:
     return "{" + ", ".join(_num(v, real) for v in np.asarray(values, dtype=float).ravel()) + "}"
 
 
+#: the per-instrument parameters of ``rimu_step`` (``{k}``: the instrument)
+STEP_PARAMS = "const rimu_state *{k}_state, const rimu_real *{k}_y, const unsigned char *{k}_valid, rimu_output *{k}_out"
+
+
+def unit_declaration(cal: Calibration, name: str, params: str) -> str:
+    """The prototype of a unit step made by :func:`unit_step` (``params`` per instrument, ``{k}`` templated)."""
+    args = ", ".join(params.format(k=k) for k in plan(cal).instruments)
+    return f"void {name}(rimu_real t, rimu_real temperature, {args});"
+
+
 def header(cal: Calibration, real: str) -> str:
     """Declarations for ``rimu_unit.h``: what the unit step needs and its prototype."""
     p = plan(cal)
-    args = ", ".join(f"const rimu_state *{k}_state, const rimu_real *{k}_y, const unsigned char *{k}_valid, "
-                     f"rimu_output *{k}_out" for k in p.instruments)
     effects = {k: sorted(t.effect.name for t in c.terms) for k, c in p.comps.items()}
     desc = "; ".join(f"{k}: {', '.join(v)}" for k, v in effects.items()) or "none (scale factor and bias only)"
     lines = [
@@ -173,7 +182,7 @@ def header(cal: Calibration, real: str) -> str:
         " * of the drift terms), temperature = unit temperature (degC; read only when RIMU_NEEDS_TEMPERATURE), then",
         " * per instrument its state, raw outputs (device units), valid flags (NULL: all) and output. The",
         " * instruments run in the order of rimu's Python pipeline, each fed the other's estimate of the epoch. */",
-        f"void rimu_step(rimu_real t, rimu_real temperature, {args});",
+        unit_declaration(cal, "rimu_step", STEP_PARAMS),
     ]
     return "\n".join(lines) + "\n"
 
@@ -387,8 +396,7 @@ def source(cal: Calibration, real: str) -> str:
         parts.append(_WLS_ONE)
     for k, c in p.comps.items():
         parts.append(_instrument(k, c, real, p.cyclic))
-    parts.append(unit_step(cal, "rimu_step", "const rimu_state *{k}_state, const rimu_real *{k}_y, "
-                           "const unsigned char *{k}_valid, rimu_output *{k}_out", "{k}_state->isolated",
+    parts.append(unit_step(cal, "rimu_step", STEP_PARAMS, "{k}_state->isolated",
                            "rimu_{k}_step({k}_state, {y}, {k}_valid, {k}_out);", "{k}_out->x"))
     return "\n".join(parts)
 
@@ -448,11 +456,11 @@ def unit_step(cal: Calibration, name: str, params: str, iso: str, call: str, x: 
     return "\n".join(b) + "\n"
 
 
-def filter_call(cal: Calibration) -> str:
-    """The filter's call of ``rimu_step`` (``tt``: time since the first row; ``temp``: the temperature column)."""
+def filter_call(cal: Calibration, name: str = "rimu_step", args: str = "&st_{k}, y_{k}, v_{k}, &o_{k}") -> str:
+    """The filter's call of a unit step (``tt``: time since the first row; ``temp``: the temperature column;
+    ``args`` per instrument, ``{k}`` templated)."""
     p = plan(cal)
-    args = ", ".join(f"&st_{k}, y_{k}, v_{k}, &o_{k}" for k in p.instruments)
-    return f"        rimu_step((rimu_real)tt, (rimu_real)temp, {args});"
+    return f"        {name}((rimu_real)tt, (rimu_real)temp, {', '.join(args.format(k=k) for k in p.instruments)});"
 
 
 def needs_temperature(cal: Calibration) -> bool:
