@@ -79,7 +79,10 @@ def _run(exe, t, raw: dict, T=None) -> dict:
         if T is not None:
             cells.append(repr(float(T[r])))
         rows.append(",".join(cells))
-    res = subprocess.run([str(exe)], input="\n".join(rows) + "\n", capture_output=True, text=True, check=True)
+    # --stats: the step's own statistics, without the redundancy manager's decisions (a filter without options
+    # ignores it)
+    res = subprocess.run([str(exe), "--stats"], input="\n".join(rows) + "\n", capture_output=True, text=True,
+                         check=True)
     lines = res.stdout.strip().splitlines()
     head = lines[0].split(",")
     data = np.array([[float(c) for c in ln.split(",")] for ln in lines[1:]])
