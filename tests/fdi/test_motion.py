@@ -186,7 +186,7 @@ def test_fit_motion_detector_is_the_recipe_on_raw_data(unit):
     from rimu.errors import ShapeError
     from rimu.fdi import fit_motion_detector
 
-    truth, cal, stated, fitted, moving = unit
+    truth, cal, _, fitted, _ = unit
     other = truth.output(handheld_motion(300.0, seed=13), np.arange(0, 60, 1 / FS)[:3000], seed=14)
     det = fit_motion_detector(cal, other, None, FS, margin=1.0)
     for term in ("scale_rel", "misalignment_rad", "time_offset_s", "rate_var", "accel_var"):
