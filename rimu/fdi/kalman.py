@@ -104,6 +104,7 @@ class ParityKalman:
         self._V = np.asarray(Vz)[:dof]
         self._thr = glt_threshold(self.p_fa, dof) if dof >= 1 else float("inf")
         self._x = [0.0] * max(dof, 0)
+        self._nu = [0.0] * max(dof, 0)
         if dof < 1:
             self.kf = None
             return
@@ -131,11 +132,11 @@ class ParityKalman:
             d = self._dof
             if d < 1:
                 return 0.0, float("inf")
-            x = self._x
+            x, nuv = self._x, self._nu
             K, a = self.K, 1.0 - self.K
             t = nu2 = 0.0
             for i, z in enumerate(parity.tolist()[:d]):
-                nu = z - x[i]
+                nuv[i] = nu = z - x[i]
                 nu2 += nu * nu
                 x[i] = xi = a * x[i] + K * z  # the steady filter, as lfilter([K], [1, -(1 - K)]) computes it
                 t += xi * xi
@@ -176,8 +177,13 @@ class ParityKalman:
         return np.array(self._x) if self.kf is None else self.kf.x.copy()
 
     def isolate(self, parity: np.ndarray) -> tuple[int, np.ndarray]:
+        """The sensor that best explains what the test saw: the bias estimate (``test="estimate"``) or the
+        last innovation (``test="innovation"``), as :meth:`block` isolates."""
         if self._dof < 1:
             return -1, np.zeros(self._V.shape[1])
+        if self.test == "innovation":
+            nu = np.array(self._nu) if self.kf is None else np.asarray(self.kf.y, dtype=float).copy()
+            return isolate_argmax(nu, self._V)
         if self._L is not None:
             return isolate_argmax(self._L @ self.bias, self._VL)
         return isolate_argmax(self.bias, self._V)
