@@ -409,35 +409,44 @@ class CusumBank:
     def _alarms(Ct: np.ndarray, a: int, m: int, inv: np.ndarray, idx: np.ndarray, dof: int, out: np.ndarray,
                 iso: np.ndarray) -> np.ndarray:
         """After the alarm at ``a`` of a chunk, the rest of it in time order (``Ct`` (stat, >= m)); fills
-        ``out`` and ``iso``, returns the running minima at the chunk's end."""
+        ``out`` and ``iso``, returns the running minima at the chunk's end.
+
+        A restart at ``a`` sets ``M = C_a``, so the running minimum of the window that starts at ``a`` itself
+        is the restarted one: one ``np.minimum.accumulate`` per alarm."""
         na = len(idx)
-        Mi = Ct[:, a].copy()                                     # restart: S = 0 at the alarm sample
-        s, w = a + 1, max(32, 2 * (a + 1))
         inv = inv[:, None]
-        while s < m:
-            e = min(m, s + w)
-            Cw = Ct[:, s:e]
-            Mw = np.minimum.accumulate(Cw, axis=1)
-            np.minimum(Mw, Mi[:, None], out=Mw)
-            Mlast = Mw[:, -1].copy()
-            Sw = np.subtract(Cw, Mw, out=Mw)
+        w = max(32, 2 * (a + 1))
+        Mi: np.ndarray | None = None                             # None: the window starts at the alarm sample
+        s = a
+        while True:
+            if Mi is None:                                       # window [s, e): s is the alarm, M starts at C_s
+                e = min(m, s + 1 + w)
+                Mw = np.minimum.accumulate(Ct[:, s:e], axis=1)[:, 1:]
+                s += 1
+            else:
+                e = min(m, s + w)
+                Mw = np.minimum.accumulate(Ct[:, s:e], axis=1)
+                np.minimum(Mw, Mi[:, None], out=Mw)
+            if e <= s:
+                return Ct[:, s - 1].copy() if Mi is None else Mi
+            Sw = Ct[:, s:e] - Mw
             Sw *= inv
             best = Sw.max(axis=0)
-            hit = best > 1.0
-            if hit.any():
-                k = int(np.argmax(hit))
+            k = int(np.argmax(best > 1.0))
+            if best[k] > 1.0:
                 out[s:s + k + 1] = best[:k + 1]
                 if dof >= 2:
                     iso[s + k] = idx[int(np.argmax(Sw[:, k])) % na]
-                Mi = Ct[:, s + k].copy()
-                s += k + 1
+                s += k
+                Mi = None
                 w = max(32, 2 * (k + 1))
             else:
                 out[s:e] = best
-                Mi = Mlast
+                Mi = Mw[:, -1].copy()
                 s = e
                 w = 2 * w
-        return Mi
+            if s >= m:
+                return Mi if Mi is not None else Ct[:, m - 1].copy()
 
 
 #: samples per block of the running sums (both paths: the sum is the earlier blocks' sum plus a partial sum)
