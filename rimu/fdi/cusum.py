@@ -359,6 +359,10 @@ class CusumBank:
         KH = half[:, None, None] * k                            # k delta^2 / 2
         inv3 = inv[:, None, None]
         M0 = np.zeros(2 * na)
+        # buffers of one chunk, reused (fresh large arrays per chunk cost page faults)
+        Abuf, Tbuf = np.empty((na, B, nbR)), np.empty((na, B, nbR))
+        Cbuf, Mbuf = np.empty((2 * na, B, nbR)), np.empty((2 * na, B, nbR))
+        ws: dict = {}
         for t in range(0, N, R):
             m = min(N - t, R)
             nb = -(-m // B)
@@ -366,59 +370,69 @@ class CusumBank:
             if nb * B > m:
                 Pc = np.concatenate([Pc, np.zeros((nb * B - m, dof))])
             Pt = np.ascontiguousarray(Pc.reshape(nb, B, dof).transpose(2, 1, 0))   # (dof, 16, blocks)
-            A = W[0][:, None, None] * Pt[0]
+            A, T, C, Mt = Abuf[..., :nb], Tbuf[..., :nb], Cbuf[..., :nb], Mbuf[..., :nb]
+            np.multiply(W[0][:, None, None], Pt[0], out=A)
             for i in range(1, dof):
-                A += W[i][:, None, None] * Pt[i]
+                np.multiply(W[i][:, None, None], Pt[i], out=T)
+                A += T
             for i in range(1, B):                                # partial sums inside each block, in order
                 np.add(A[:, i - 1], A[:, i], out=A[:, i])
             base = np.zeros((na, nb))
             np.cumsum(A[:, -1, :-1], axis=1, out=base[:, 1:])    # the sums of the earlier blocks, in order
             A += base[:, None, :]
-            C = np.empty((2 * na, B, nb))
             np.subtract(A, KH[..., :nb], out=C[:na])             # C+ = A - k delta^2 / 2
             np.negative(A, out=A)
             np.subtract(A, KH[..., :nb], out=C[na:])             # C- = -A - k delta^2 / 2
-            Mt = C.copy()
+            Mt[:, 0] = C[:, 0]
             for i in range(1, B):                                # running minima inside each block
-                np.minimum(Mt[:, i - 1], Mt[:, i], out=Mt[:, i])
+                np.minimum(Mt[:, i - 1], C[:, i], out=Mt[:, i])
             carry = np.empty((2 * na, nb))                       # the minimum before each block, from M0
             carry[:, 0] = M0
             if nb > 1:
                 np.minimum.accumulate(Mt[:, -1, :-1], axis=1, out=carry[:, 1:])
                 np.minimum(carry[:, 1:], M0[:, None], out=carry[:, 1:])
             np.minimum(Mt, carry[:, None, :], out=Mt)
-            S = C - Mt
+            last = ((m - 1) % B, (m - 1) // B)
+            M_end = Mt[:, last[0], last[1]].copy()
+            S = np.subtract(C, Mt, out=Mt)                       # the minima are not needed past here
             S *= inv3
             best = S.max(axis=0).T.ravel()[:m]                   # time order
-            last = ((m - 1) % B, (m - 1) // B)
             hit = best > 1.0
             if not hit.any():
                 out[t:t + m] = best
-                Mi = Mt[:, last[0], last[1]].copy()
+                Mi = M_end
             else:
                 a = int(np.argmax(hit))
                 out[t:t + a + 1] = best[:a + 1]
                 if dof >= 2:
                     iso[t + a] = idx[int(np.argmax(S[:, a % B, a // B])) % na]
                 Ct = C.transpose(0, 2, 1).reshape(2 * na, nb * B)
-                Mi = self._alarms(Ct, a, m, inv, idx, dof, out[t:t + m], iso[t:t + m])
+                Mi = self._alarms(Ct, a, m, inv, idx, dof, out[t:t + m], iso[t:t + m], ws)
             M0 = Mi - C[:, last[0], last[1]] if m == R else Mi  # the origin moves (update() does the same)
         return out, 1.0, iso
 
     @staticmethod
     def _alarms(Ct: np.ndarray, a: int, m: int, inv: np.ndarray, idx: np.ndarray, dof: int, out: np.ndarray,
-                iso: np.ndarray) -> np.ndarray:
+                iso: np.ndarray, ws: dict) -> np.ndarray:
         """After the alarm at ``a`` of a chunk, the rest of it in time order (``Ct`` (stat, >= m)); fills
         ``out`` and ``iso``, returns the running minima at the chunk's end.
 
-        A restart at ``a`` sets ``M = C_a``, so the running minimum of the window that starts at ``a`` itself
-        is the restarted one: one ``np.minimum.accumulate`` per alarm."""
+        A restart at ``a`` sets ``M = C_a``, so the running minimum of a window that starts at the alarm
+        sample is the restarted one: one ``np.minimum.accumulate`` per alarm. Where alarms come within
+        :data:`_DENSE` samples of each other, :func:`_dense_alarms` finds many per call."""
         na = len(idx)
         inv = inv[:, None]
         w = max(32, 2 * (a + 1))
         Mi: np.ndarray | None = None                             # None: the window starts at the alarm sample
         s = a
+        gap = a + 1
         while True:
+            if Mi is None and gap <= _DENSE // 2 and s < m - 1:
+                s, Mi, gap = _dense_alarms(Ct, s, m, inv, idx, dof, out, iso, ws)
+                if s >= m:
+                    return Mi                                    # type: ignore[return-value]
+                if Mi is None:
+                    continue
             if Mi is None:                                       # window [s, e): s is the alarm, M starts at C_s
                 e = min(m, s + 1 + w)
                 Mw = np.minimum.accumulate(Ct[:, s:e], axis=1)[:, 1:]
@@ -439,7 +453,8 @@ class CusumBank:
                     iso[s + k] = idx[int(np.argmax(Sw[:, k])) % na]
                 s += k
                 Mi = None
-                w = max(32, 2 * (k + 1))
+                gap = k + 1
+                w = max(32, 2 * gap)
             else:
                 out[s:e] = best
                 Mi = Mw[:, -1].copy()
@@ -447,6 +462,68 @@ class CusumBank:
                 w = 2 * w
             if s >= m:
                 return Mi if Mi is not None else Ct[:, m - 1].copy()
+
+
+#: alarms at most this many samples apart are found together (:func:`_dense_alarms`)
+_DENSE = 8
+
+
+def _dense_alarms(Ct: np.ndarray, a0: int, m: int, inv: np.ndarray, idx: np.ndarray, dof: int, out: np.ndarray,
+                  iso: np.ndarray, ws: dict) -> tuple[int, np.ndarray | None, int]:
+    """Alarms close together, from the alarm (restart) at ``a0``, over a window of up to 512 samples.
+
+    With a restart at a, the statistic j at k is ``(C_jk - min_{a<=i<=k} C_ji) inv_j``, the largest of
+    ``(C_jk - C_ji) inv_j`` over i (the rounding is monotone: the same bits). For the gaps d = k - a up to
+    L = :data:`_DENSE` the whole window gets ``V_d[j, k] = max_{i >= k-d} (C_jk - C_ji) inv_j`` at once; the
+    chain of alarms (a -> the first k in (a, a+L] with ``max_j V_{k-a}[j, k] > 1``) is then a walk over
+    Python floats. Returns (position, M, last gap): the next alarm sample with M None when the chain ran to
+    the window's end; else the sample after L alarm-free samples with their running minimum M (or the
+    chunk's end)."""
+    L = _DENSE
+    na = len(idx)
+    e0 = min(m, a0 + 512)
+    Cw = Ct[:, a0:e0]
+    n = Cw.shape[1]
+    if "V" not in ws:                                           # one buffer per block() call
+        ws["V"] = np.zeros((L + 1, Cw.shape[0], 512))
+    V = ws["V"][..., :n]
+    for d in range(1, L + 1):
+        if d < n:
+            V[d, :, :d] = 0.0                                   # never read (k >= d); kept finite
+            Dd = np.subtract(Cw[:, d:], Cw[:, :-d], out=V[d, :, d:])
+            Dd *= inv
+            np.maximum(Dd, V[d - 1, :, d:], out=Dd)
+    Q = V.max(axis=1)                                           # (L + 1, n): the bank's ratio for each gap
+    hit = Q > 1.0
+    nxt = np.full(n, -1)                                        # the next alarm after a restart at each sample
+    pos = np.arange(n)
+    for d in range(min(L, n - 1), 0, -1):                       # the smallest gap wins
+        h = hit[d, d:]
+        nxt[:n - d][h] = pos[d:][h]
+    nl = nxt.tolist()
+    restarts = [0]
+    a = 0
+    while nl[a] >= 0:                                           # the chain of alarms: pointer chasing
+        a = nl[a]
+        restarts.append(a)
+    quiet_end = a + L if a + L < n else -1                      # L samples after a without an alarm, or the end
+    end = quiet_end if quiet_end >= 0 else n - 1                # the last sample covered here
+    ks = np.arange(1, end + 1)
+    R = np.asarray(restarts)
+    d_k = ks - R[np.searchsorted(R, ks - 1, side="right") - 1]
+    out[a0 + 1:a0 + end + 1] = Q[d_k, ks]
+    if dof >= 2 and len(R) > 1:
+        al = R[1:]
+        d_al = np.diff(R)
+        iso[a0 + al] = idx[np.argmax(V[d_al, :, al], axis=1) % na]
+    if quiet_end >= 0:
+        s = a0 + quiet_end + 1
+        M = Cw[:, a:quiet_end + 1].min(axis=1)
+        return s, M, L + 1
+    last = a0 + restarts[-1]
+    if e0 >= m:                                                 # the chunk ends inside the chain
+        return m, Ct[:, last:m].min(axis=1), 1
+    return last, None, 1
 
 
 #: samples per block of the running sums (both paths: the sum is the earlier blocks' sum plus a partial sum)
