@@ -354,14 +354,14 @@ class CusumBank:
         if na == 0:
             return out, 1.0, iso
         B, R = _BLK, int(self.REBASE)
-        nbR = R // B
-        k = np.arange(1.0, R + 1.0).reshape(nbR, B).T          # samples since the origin, (16, blocks)
+        nbm = -(-min(N, R) // B)                                # blocks of the largest chunk
+        k = np.arange(1.0, nbm * B + 1.0).reshape(nbm, B).T     # samples since the origin, (16, blocks)
         KH = half[:, None, None] * k                            # k delta^2 / 2
         inv3 = inv[:, None, None]
         M0 = np.zeros(2 * na)
         # buffers of one chunk, reused (fresh large arrays per chunk cost page faults)
-        Abuf, Tbuf = np.empty((na, B, nbR)), np.empty((na, B, nbR))
-        Cbuf, Mbuf = np.empty((2 * na, B, nbR)), np.empty((2 * na, B, nbR))
+        Abuf, Tbuf = np.empty((na, B, nbm)), np.empty((na, B, nbm))
+        Cbuf, Mbuf = np.empty((2 * na, B, nbm)), np.empty((2 * na, B, nbm))
         ws: dict = {}
         for t in range(0, N, R):
             m = min(N - t, R)
@@ -402,10 +402,10 @@ class CusumBank:
                 out[t:t + m] = best
                 Mi = M_end
             else:
-                a = int(np.argmax(hit))
+                a = int(hit.argmax())
                 out[t:t + a + 1] = best[:a + 1]
                 if dof >= 2:
-                    iso[t + a] = idx[int(np.argmax(S[:, a % B, a // B])) % na]
+                    iso[t + a] = idx[int(S[:, a % B, a // B].argmax()) % na]
                 Ct = C.transpose(0, 2, 1).reshape(2 * na, nb * B)
                 Mi = self._alarms(Ct, a, m, inv, idx, dof, out[t:t + m], iso[t:t + m], ws)
             M0 = Mi - C[:, last[0], last[1]] if m == R else Mi  # the origin moves (update() does the same)
@@ -446,11 +446,11 @@ class CusumBank:
             Sw = Ct[:, s:e] - Mw
             Sw *= inv
             best = Sw.max(axis=0)
-            k = int(np.argmax(best > 1.0))
+            k = int((best > 1.0).argmax())
             if best[k] > 1.0:
                 out[s:s + k + 1] = best[:k + 1]
                 if dof >= 2:
-                    iso[s + k] = idx[int(np.argmax(Sw[:, k])) % na]
+                    iso[s + k] = idx[int(Sw[:, k].argmax()) % na]
                 s += k
                 Mi = None
                 gap = k + 1
