@@ -211,7 +211,8 @@ class ParityKalman:
 
 def _sum_squares(X: np.ndarray) -> np.ndarray:
     """Row sums of squares of X (N, d), summed in column order (the order of the per-sample path)."""
-    s = X[:, 0] * X[:, 0]
-    for i in range(1, X.shape[1]):
-        s += X[:, i] * X[:, i]
+    T = np.ascontiguousarray(X.T)                    # contiguous columns: some 4x faster than strided ones
+    s = T[0] * T[0]
+    for i in range(1, T.shape[0]):
+        s += T[i] * T[i]
     return s
