@@ -199,8 +199,9 @@ class ParityKalman:
         Z = np.asarray(P, dtype=float)[:, :dof]
         B = lfilter([K], [1.0, -(1.0 - K)], Z, axis=0)   # beta_k = (1 - K) beta_{k-1} + K p_k
         if self.test == "innovation":
-            nu = Z.copy()
-            nu[1:] -= B[:-1]
+            nu = np.empty_like(B)
+            nu[:1] = Z[:1]
+            np.subtract(Z[1:], B[:-1], out=nu[1:])
             return _sum_squares(nu) * ((2.0 - K) / 2.0), thr, block_isolate(nu, Vz[:dof])
         L = self.whitening(Vz, dof)
         if L is not None:

@@ -127,12 +127,15 @@ def test_cusum_block_run_length_matches_brook_evans():
     assert measured == pytest.approx(arl_member / 2, rel=0.08)
 
 
-def test_cusum_block_empty_and_no_parity():
+def test_block_paths_empty_and_no_parity():
     bank = CusumBank(1.0, 1e4)
     s, _, iso = bank.block(np.zeros((0, 3)), V6, 3)
     assert s.shape == (0,) and iso.shape == (0,)
     s, _, iso = bank.block(np.ones((5, 3)), V6, 0)
     assert np.all(s == 0) and np.all(iso == -1)
+    for test in ("estimate", "innovation"):
+        s, _, iso = ParityKalman(20, 1e-3, test=test).block(np.zeros((0, 3)), V6, 3)
+        assert s.shape == (0,) and iso.shape == (0,)
 
 
 @pytest.mark.parametrize("test", ["estimate", "innovation"])
