@@ -103,6 +103,16 @@ def main() -> None:
 V6 = cone6().parity_matrix()
 
 
+class _NoRestart:
+    """The CUSUM bank's block path with the manager's semantics (nothing restarts at an alarm)."""
+
+    def __init__(self, bank: CusumBank) -> None:
+        self.bank = bank
+
+    def block(self, P, Vz, dof):  # type: ignore[no-untyped-def]
+        return self.bank.block(P, Vz, dof, restart=False)
+
+
 def block_paths(N: int, repeats: int) -> dict:
     """ns per sample of each detector's block() on the same parity blocks (cone6, dof 3), interleaved so that
     the machine's load hits every detector alike; ratio = median over repeats of (detector / GLT of that repeat)."""
@@ -113,6 +123,7 @@ def block_paths(N: int, repeats: int) -> dict:
     large = quiet.copy()
     large[N // 2:] += 10.0 * V6[:, 2]                     # 10 sigma: an alarm every second sample
     dets = {"GLT snapshot (reference)": GltSnapshot(1e-3), "CUSUM bank, ARL0 1e5": CusumBank(1.0, 1e5),
+            "CUSUM, no restart at alarms": _NoRestart(CusumBank(1.0, 1e5)),
             "Kalman, estimate test": ParityKalman(20.0, 1e-3), "Kalman, innovation test": ParityKalman(20.0, 1e-3, test="innovation")}
     ref = "GLT snapshot (reference)"
     res: dict = {}

@@ -333,12 +333,15 @@ class CusumBank:
             ratios[self._idx] = np.maximum(R[: self._na], R[self._na:])
         return (self._last if self._dof >= 2 else -1), ratios
 
-    def block(self, P: np.ndarray, Vz: np.ndarray, dof: int) -> tuple[np.ndarray, float, np.ndarray]:
+    def block(self, P: np.ndarray, Vz: np.ndarray, dof: int,
+              restart: bool = True) -> tuple[np.ndarray, float, np.ndarray]:
         """Run the bank over N samples of one set, restarting after each alarm: (statistic / threshold (N,), 1.0,
         isolated sensor (N,), -1 except at alarms).
 
         Equal, bit for bit, to :meth:`configure` then :meth:`update` per sample with :meth:`reset` after each
-        alarm (class notes). Vectorised over samples, in chunks of :data:`REBASE` samples, each cut into blocks
+        alarm (class notes); with ``restart=False``, to :meth:`update` alone (what the manager does while the
+        active set stays the same: nothing restarts at an alarm), and then one vectorised pass whatever the
+        alarms. Vectorised over samples, in chunks of :data:`REBASE` samples, each cut into blocks
         of 16 laid side by side, (stat, 16, blocks): the 16 steps of the running sums and minima inside the
         blocks are whole-array operations, the carries between blocks a short sequential scan. After an alarm
         the next one is searched in time order, over windows that grow from twice the last gap.
@@ -398,9 +401,12 @@ class CusumBank:
             S *= inv3
             best = S.max(axis=0).T.ravel()[:m]                   # time order
             hit = best > 1.0
-            if not hit.any():
+            if not restart or not hit.any():
                 out[t:t + m] = best
                 Mi = M_end
+                if hit.any() and dof >= 2:                       # open loop: the sensor at every alarm
+                    al = np.flatnonzero(hit)
+                    iso[t + al] = idx[S[:, al % B, al // B].argmax(axis=0) % na]
             else:
                 a = int(hit.argmax())
                 out[t:t + a + 1] = best[:a + 1]

@@ -73,6 +73,23 @@ def test_cusum_block_equals_steps_with_faults(rebase):
     assert np.any(alarms % rebase == rebase - 1) or rebase > 300  # an alarm on the last sample of a chunk
 
 
+def test_cusum_block_without_restart_equals_update_alone():
+    """restart=False: the manager's semantics within one active set (no reset at alarms), bit for bit."""
+    P = faulted_parity(20_000, V6, 17)
+    bank = CusumBank(1.0, 1e4)
+    bank.REBASE = 1024
+    blk, _, iso = bank.block(P, V6, 3, restart=False)
+    bank.configure(V6, 3)
+    step = np.zeros(len(P))
+    iso_s = np.full(len(P), -1)
+    for k, p in enumerate(P):
+        step[k] = bank.update(p)[0]
+        if step[k] > 1.0:
+            iso_s[k] = bank.isolate(p)[0]
+    assert np.array_equal(blk, step) and np.array_equal(iso, iso_s)
+    assert (blk > 1.0).sum() > (bank.block(P, V6, 3)[0] > 1.0).sum() > 100   # no renewal: longer alarm runs
+
+
 def test_cusum_block_equals_page_recursion():
     """The closed form against Page's recursion written independently: same alarms, same isolations, values
     to rounding (the recursion adds in another order)."""
