@@ -182,6 +182,49 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
         np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
 
 
+# component-first ("planar") forms of the three helpers above, for the gyro fit's many-sample products: the same
+# formulas in the same order (bit-identical results), on contiguous component planes (4, ...) instead of the
+# interleaved last axis, without np.stack: about twice as fast on (motions x samples) arrays
+def _qmul_planar(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    out = np.empty((4, *np.broadcast_shapes(pw.shape, qw.shape)))
+    out[0] = pw * qw - px * qx - py * qy - pz * qz
+    out[1] = pw * qx + px * qw + py * qz - pz * qy
+    out[2] = pw * qy - px * qz + py * qw + pz * qx
+    out[3] = pw * qz + px * qy - py * qx + pz * qw
+    return out
+
+
+def _qexp_planar(rotvec: np.ndarray) -> np.ndarray:
+    """quat_exp of rotation vectors given as planes (3, ...) -> (4, ...)."""
+    x, y, z = rotvec
+    th = np.sqrt(x * x + y * y + z * z)
+    half = 0.5 * th
+    big = th > 1e-12
+    k = np.where(big, np.sin(half) / np.where(big, th, 1.0), 0.5 - th**2 / 48.0)
+    out = np.empty((4, *th.shape))
+    out[0] = np.cos(half)
+    out[1:] = rotvec * k
+    return out
+
+
+def _qmat_planar(q: np.ndarray) -> np.ndarray:
+    """quat_to_matrix of quaternion planes (4, ...) -> (..., 3, 3)."""
+    w, x, y, z = q
+    R = np.empty((*w.shape, 3, 3))
+    R[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    R[..., 0, 1] = 2 * (x * y - w * z)
+    R[..., 0, 2] = 2 * (x * z + w * y)
+    R[..., 1, 0] = 2 * (x * y + w * z)
+    R[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    R[..., 1, 2] = 2 * (y * z - w * x)
+    R[..., 2, 0] = 2 * (x * z - w * y)
+    R[..., 2, 1] = 2 * (y * z + w * x)
+    R[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return R
+
+
 def _prefix_product(q: np.ndarray, group: np.ndarray) -> np.ndarray:
     """Cumulative quaternion products within contiguous groups (Hillis-Steele scan, log2(N) vector steps)."""
     out = q.copy()
@@ -735,11 +778,11 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         Gm = _G(W)
         psi_a = -(D["SA_y"] - c * SA_w[:, None]) @ Gm.T  # mean attitude of pose k (end of pose k = reference)
         phi_b = (D["SB_y"] - c * SB_w[:, None]) @ Gm.T  # mean attitude of pose k+1 relative to its start
-        q = quat_exp(((D["YM"] - c) @ Gm.T) * DM[..., None])
-        q[DM == 0] = (1.0, 0.0, 0.0, 0.0)
-        while q.shape[1] > 1:  # pairwise products: the rotation over the motion
-            q = quat_mul(q[:, 0::2], q[:, 1::2])
-        Rm = quat_to_matrix(q[:, 0] / np.linalg.norm(q[:, 0], axis=1, keepdims=True))
+        q = _qexp_planar(np.moveaxis((D["YM"] - c) @ Gm.T, -1, 0) * DM)  # (4, M, L)
+        q[:, DM == 0] = ((1.0,), (0.0,), (0.0,), (0.0,))
+        while q.shape[2] > 1:  # pairwise products: the rotation over the motion
+            q = _qmul_planar(q[:, :, 0::2], q[:, :, 1::2])
+        Rm = _qmat_planar(q[:, :, 0] / np.linalg.norm(q[:, :, 0], axis=0, keepdims=True))
         Ca = rotation_matrix(psi_a)
         Cb = Rm @ rotation_matrix(phi_b)
         return np.einsum("mji,mjk->mik", Cb, Ca)  # Cb^T Ca: pose-k body vector -> pose-(k+1) body
@@ -769,19 +812,22 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         psi_a = -(D["SA_y"] - c * SA_w[:, None]) @ Gm.T
         phi_b = (D["SB_y"] - c * SB_w[:, None]) @ Gm.T
         om = (D["YM"] - c) @ Gm.T
-        q = quat_exp(om * DM[..., None])
-        q[DM == 0] = (1.0, 0.0, 0.0, 0.0)
-        qh = quat_exp(om * DM[..., None] / 2)
+        omp = np.moveaxis(om, -1, 0) * DM  # (3, M, L)
+        q = _qexp_planar(omp)
+        q[:, DM == 0] = ((1.0,), (0.0,), (0.0,), (0.0,))
+        qh = _qexp_planar(omp / 2)
         # suffix products Sigma_t = q_t q_t+1 ... (reverse scan), A_t = qh_t Sigma_t+1
-        r = q[:, ::-1].copy()
+        r = q[:, :, ::-1].copy()
         d = 1
         while d < L:
-            r[:, d:] = quat_mul(r[:, d:], r[:, :-d])
+            r[:, :, d:] = _qmul_planar(r[:, :, d:], r[:, :, :-d])
             d *= 2
-        suf = r[:, ::-1]
-        nxt = np.concatenate([suf[:, 1:], np.broadcast_to([1.0, 0, 0, 0], (M, 1, 4))], axis=1)
-        A = quat_to_matrix(quat_mul(qh, nxt))  # (M, L, 3, 3)
-        Rm = quat_to_matrix(suf[:, 0] / np.linalg.norm(suf[:, 0], axis=1, keepdims=True))
+        suf = r[:, :, ::-1]
+        nxt = np.empty_like(suf)
+        nxt[:, :, :-1] = suf[:, :, 1:]
+        nxt[:, :, -1] = ((1.0,), (0.0,), (0.0,), (0.0,))
+        A = _qmat_planar(_qmul_planar(qh, nxt))  # (M, L, 3, 3)
+        Rm = _qmat_planar(suf[:, :, 0] / np.linalg.norm(suf[:, :, 0], axis=0, keepdims=True))
         Qj = np.einsum("mt,mtj,mtba->mjab", DM, om, A)  # sum dt w_j A^T
         Qc = np.einsum("mt,mtba->mab", DM, A)
         Eb = rotation_matrix(phi_b)
