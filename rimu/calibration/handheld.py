@@ -787,10 +787,10 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         Cb = Rm @ rotation_matrix(phi_b)
         return np.einsum("mji,mjk->mik", Cb, Ca)  # Cb^T Ca: pose-k body vector -> pose-(k+1) body
 
-    def parts(theta, dirs):
+    def parts(theta, dirs, R=None):
         W = theta[:3 * n].reshape(n, 3)
         c = theta[3 * n:]
-        R = rotations(W, c)
+        R = rotations(W, c) if R is None else R  # R: the rotations at theta, when already known
         pred = np.einsum("mij,mj->mi", R, dirs[ka])
         rr = np.einsum("mai,mi->ma", T, pred - dirs[kb])
         rs = (ybar - c) / sd
@@ -866,8 +866,8 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
 
     Lw = np.eye(2 * M)  # whitening of the rotation residuals (set after the first pass)
 
-    def resid(theta, dirs=accel_dirs):
-        rr, rs, rp = parts(theta, dirs)
+    def resid(theta, dirs=accel_dirs, R=None):
+        rr, rs, rp = parts(theta, dirs, R)
         rw = np.linalg.solve(Lw, rr.ravel()) if M else rr.ravel()
         return np.concatenate([rw * w_rot, rs.ravel() * w_st, rp.ravel() * w_par])
 
@@ -897,10 +897,10 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         sol = least_squares(resid, theta, jac=jac, x_scale=typ, loss="huber" if robust else "linear",
                             f_scale=3.0, xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=100 * len(theta))
         theta = sol.x
+        R = rotations(theta[:3 * n].reshape(n, 3), theta[3 * n:])  # at theta: for Cr, the weights and the end
         if it == 0:
             # correlated residuals: the gravity direction of pose k enters motions k-1 and k; generalised least
             # squares with the block-tridiagonal covariance of the pose-direction and integrated-gyro noise
-            R = rotations(theta[:3 * n].reshape(n, 3), theta[3 * n:])
             Cr = np.zeros((2 * M, 2 * M))
             for m in range(M):
                 Ta = T[m] @ R[m]
@@ -913,7 +913,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
                         Cr[2 * m2:2 * m2 + 2, 2 * m:2 * m + 2] = X.T
             Lw = np.linalg.cholesky(Cr)
             w_rot = 1.0
-        rr, rs, rp = parts(theta, accel_dirs)
+        rr, rs, rp = parts(theta, accel_dirs, R)
         rw = np.linalg.solve(Lw, rr.ravel())
         dof_rot = max(rw.size - 3 * n, 1)
         # the rotation group has many degrees of freedom: its noise level is estimated; the static means and
@@ -933,16 +933,15 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         # d resid / d accel params through the gravity directions (the rotations do not depend on them)
         h = 1e-7
         Ja = np.empty((J.shape[0], accel_dir_jac.shape[1]))
-        r0 = resid(theta)
+        r0 = resid(theta, accel_dirs, R)
         for j in range(accel_dir_jac.shape[1]):
             d = accel_dirs + h * accel_dir_jac[:, j].reshape(-1, 3)
-            Ja[:, j] = (resid(theta, d) - r0) / h
+            Ja[:, j] = (resid(theta, d, R) - r0) / h
         B = Ninv @ J.T @ Ja
         cov = cov + B @ accel_cov @ B.T
-    rr, rs, rp = parts(theta, accel_dirs)
+    rr, rs, rp = parts(theta, accel_dirs, R)
     W = theta[:3 * n].reshape(n, 3)
     c = theta[3 * n:]
-    R = rotations(W, c)
     ang = np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1, 1))
     rw = np.linalg.solve(Lw, rr.ravel())
     chi2 = {"rotation": float(rw @ rw * w_rot**2), "static": float(np.sum(rs**2) * w_st**2)}
