@@ -304,33 +304,37 @@ def norm_problem(groups: Sequence[tuple]) -> Callable[[np.ndarray], tuple[np.nda
                    for g in groups])  # variance of each datum, (K, 3)
     mb = np.concatenate([np.full(len(g[0]), 1.0 if g[4] else 0.0) for g in groups])  # rows with the bias
     il = _IL
-    mA = -mb[None, :, None, None]
+    i0, i1 = il
+    mbk = mb[None, :, None]
 
     def prob(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         q = np.asarray(q, float)
         Q = q.reshape(-1, 9)
         B = len(Q)
         L = np.zeros((B, 3, 3))
-        L[:, il[0], il[1]] = Q[:, :6]
+        L[:, i0, i1] = Q[:, :6]
         A = np.linalg.inv(L)
         At = np.swapaxes(A, 1, 2)
-        s = (Y[None] - mb[None, :, None] * Q[:, None, 6:9]) @ At  # (B, K, 3)
+        s = (Y[None] - mbk * Q[:, None, 6:9]) @ At  # (B, K, 3)
         n = np.sqrt(np.sum(s * s, axis=2))
         u = s / n[..., None]
-        g = u @ A  # d|s| / dy
+        g = u @ A  # d|s| / dy = A^T u
         gc = g * C[None]
-        v = np.sqrt(np.sum(g * gc, axis=2))
+        v2 = np.sum(g * gc, axis=2)
+        v = np.sqrt(v2)
         r = (n - tgt) / v
-        # directions: dL = E_ij gives dA = -A E_ij A, ds = -A[:, i] s_j, dA^T u = -A[j, :] g_i; db_m gives -A[:, m]
-        ds = np.empty((B, K, 9, 3))
-        ds[:, :, :6, :] = -s[:, :, il[1], None] * At[:, None, il[0], :]
-        ds[:, :, 6:, :] = mA * At[:, None, :, :]
-        dn = (ds @ u[..., None])[..., 0]
-        du = (ds - u[:, :, None, :] * dn[..., None]) / n[..., None, None]
-        dg = (du.reshape(B, K * 9, 3) @ A).reshape(B, K, 9, 3)
-        dg[:, :, :6, :] -= g[:, :, il[0], None] * A[:, None, il[1], :]
-        dv = (dg @ gc[..., None])[..., 0] / v[..., None]
-        J = (dn - r[..., None] * dv) / v[..., None]
+        # directions: dL = E_ij gives dA = -A E_ij A, ds = -A[:, i] s_j, dA^T u = -A[j, :] g_i; db_m gives
+        # ds = -A[:, m]. Then dn = u.ds, d(A^T u) = (A^T ds - g dn) / n + dA^T u and dv = d(A^T u).gc / v, with
+        # A^T A[:, i] . gc = w_i (w = gc A^T A) and A[j, :] . gc = z_j (z = gc A^T)
+        w = gc @ (At @ A)
+        z = gc @ At
+        dn = np.empty((B, K, 9))
+        dn[..., :6] = -s[..., i1] * g[..., i0]
+        dn[..., 6:] = -mbk * g
+        dv = np.empty((B, K, 9))
+        dv[..., :6] = (-s[..., i1] * w[..., i0] - v2[..., None] * dn[..., :6]) / n[..., None] - z[..., i1] * g[..., i0]
+        dv[..., 6:] = (-mbk * w - v2[..., None] * dn[..., 6:]) / n[..., None]
+        J = (dn - r[..., None] * dv / v[..., None]) / v[..., None]
         if q.ndim == 1:
             return r[0], J[0]
         return r.reshape(*q.shape[:-1], K), J.reshape(*q.shape[:-1], K, 9)
