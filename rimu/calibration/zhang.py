@@ -343,7 +343,7 @@ def norm_problem(groups: Sequence[tuple]) -> Callable[[np.ndarray], tuple[np.nda
 
 
 def refine_norms(prob: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], q0: np.ndarray, typ: np.ndarray,
-                 max_iter: int = 100) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+                 max_iter: int = 100) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, bool]:
     """Minimise ``|r(q)|^2`` for ``prob(q) -> (r, J)`` (:func:`norm_residuals`) by damped Newton steps on the
     exact cost: analytic gradient ``J^T r``, Hessian by forward differences of that gradient (one stacked call per
     step), Levenberg-Marquardt damping when the Hessian is not positive definite or a step does not lower the cost.
@@ -351,7 +351,8 @@ def refine_norms(prob: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], q0
     Gauss-Newton (``scipy.optimize.least_squares``) leaves out the curvature of the residuals, which is not small
     here: the weights depend on the parameters and the static gyro norms (the Earth rate, Eq. 23) are of the size
     of their noise, so it converges only linearly there (hundreds of steps); with the full Hessian a few steps
-    reach the minimum. Converged when the step, in units of ``typ``, is below 1e-12. Returns (q, r(q), J(q), steps).
+    reach the minimum. Converged when the step, in units of ``typ``, is below 1e-12. Returns (q, r(q), J(q), steps,
+    converged).
     """
     p = len(q0)
     h = typ * 1e-7
@@ -372,10 +373,10 @@ def refine_norms(prob: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], q0
         gs = g * typ
         d0 = float(np.max(np.abs(np.diag(Hs))))
         if not (np.isfinite(d0) and d0 > 0 and np.all(np.isfinite(Hs))):
-            return q, r, J, it
+            return q, r, J, it, False
         while True:
             if mu > 1e12:
-                return q, r, J, it
+                return q, r, J, it, False
             try:
                 C = np.linalg.cholesky(Hs + (mu * d0) * np.eye(p))
             except np.linalg.LinAlgError:
@@ -383,7 +384,7 @@ def refine_norms(prob: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], q0
                 continue
             step = -np.linalg.solve(C.T, np.linalg.solve(C, gs)) * typ
             if np.max(np.abs(step / typ)) <= 1e-12:
-                return q, r, J, it
+                return q, r, J, it, True
             r_n, J_n, g_n, H_n = evaluate(q + step)
             cost_n = float(r_n @ r_n)
             if np.isfinite(cost_n) and cost_n <= cost:
@@ -391,7 +392,7 @@ def refine_norms(prob: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], q0
                 mu = 0.0 if mu < 1e-8 else mu / 10
                 break
             mu = max(10 * mu, 1e-9)
-    return q, r, J, max_iter
+    return q, r, J, max_iter, False
 
 
 # ---------------------------------------------------------------------- estimator
@@ -476,15 +477,17 @@ class Zhang:
         )
         p0 = np.concatenate([np.linalg.inv(Aa)[il], ba, np.linalg.inv(Ag)[il], bg])
         p = p0.copy()
-        Js, rs_, typs, steps = [], [], [], []
+        Js, rs_, typs, steps, stalled = [], [], [], [], []
         for k, (prob, sig) in enumerate(zip(problems, (sa, sg))):
             sl = slice(9 * k, 9 * k + 9)
             rows = np.linalg.norm(np.linalg.inv(Aa if k == 0 else Ag), axis=1)
             typ = np.concatenate([rows[il[0]], np.maximum(np.abs(p0[sl][6:]), sig)])  # row size; bias or noise
             typs.append(typ)
             if self.refine:
-                p[sl], rk, Jk, nit = refine_norms(prob, p0[sl], typ)
+                p[sl], rk, Jk, nit, ok = refine_norms(prob, p0[sl], typ)
                 steps.append(nit)
+                if not ok:
+                    stalled.append(f"{('accelerometer', 'gyro')[k]} norms after {nit} steps")
             else:
                 rk, Jk = prob(p[sl])
             rs_.append(rk)
@@ -594,6 +597,9 @@ class Zhang:
         # residuals of the norms per segment, in units of their standard deviation
         notes = [("MB is Zhang's platform frame p: x along the x accelerometer, y in the x-y accelerometer plane; "
                   "x.mis_y, x.mis_z, y.mis_z of the accelerometers are zero by that definition")]
+        if stalled:
+            notes.append("the nonlinear refinement (step 4) stopped before converging: " + "; ".join(stalled)
+                         + "; the estimates are the last accepted step (check the static positions and rotations)")
         if dur_mismatch:
             notes.append(f"CW/CCW segments of unequal length ({dur_mismatch}): the gyro bias does not cancel "
                          "exactly in Eq. 18")

@@ -12,7 +12,7 @@ from scipy.optimize._numdiff import approx_derivative
 
 from rimu.calibration import Zhang
 from rimu.calibration.lsq import central_jacobian
-from rimu.calibration.zhang import accel_rotation_axis, norm_problem, norm_residuals, rotation_pairs
+from rimu.calibration.zhang import accel_rotation_axis, norm_problem, norm_residuals, refine_norms, rotation_pairs
 from rimu.geometry import triad3
 from rimu.sim import Simulator, zhang_scheme
 
@@ -127,3 +127,17 @@ def test_rotation_axis_equals_the_svd_null_vector(fitted):
         assert abs(v1 / v0 - 1) < 1e-9
         l2, v2 = accel_rotation_axis(np.vstack([fa, fb]))
         assert np.max(np.abs(l2 - l1)) < 1e-13 and abs(v2 / v1 - 1) < 1e-10
+
+
+def test_refine_reports_whether_it_converged(fitted):
+    """From the closed-form start the gyro problem needs several Newton steps: one step is reported as not
+    converged, and the full run is; from the optimum, one step confirms it."""
+    _, res = fitted
+    ref = res.refinement
+    prob, p0, p, typ = ref["problems"][1], ref["p0"][1], ref["p"][1], ref["typ"][1]
+    *_, steps, ok = refine_norms(prob, p0, typ, max_iter=1)
+    assert (steps, ok) == (1, False)
+    q, _, _, steps, ok = refine_norms(prob, p0, typ)
+    assert ok and steps > 1 and np.allclose(q, p, rtol=0, atol=0)
+    *_, steps, ok = refine_norms(prob, p, typ)
+    assert ok and steps == 1
