@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import IdentifiabilityError, SessionFormatError
-from ..session import Segment, Session, skew
+from ..session import Segment, Session
 from ..units import EARTH_RATE
 from .estimate import CalibrationResult, _sigma_for, make_sensor_fit
 from .lsq import LsqResult
@@ -576,18 +576,14 @@ class Zhang:
                 i = ctx.index
                 # d w_i / d params: w_i = L[i, :] R; L[i, j] is parameter offs[0] + index in tril order
                 Jb = np.zeros((4, 18))
-                for k, (ri, ci) in enumerate(zip(*il)):
-                    if ri == i:
-                        Jb[:3, k + offs[0]] = R[ci, :]
+                ks = np.flatnonzero(il[0] == i)  # the tril entries of row i: L[i, il[1][k]]
+                Jb[:3, ks + offs[0]] = R[il[1][ks], :].T
                 Jb[3, (6 if inst == "accel" else 15) + i] = 1.0
                 bc = Jb @ cov_p @ Jb.T
                 if inst == "gyro":
-                    # theta uncertainty: d(L R) = L skew(dth) R -> row i: (L[i] @ skew(dth)) @ R
-                    G = np.zeros((3, 3))
-                    for k in range(3):
-                        e = np.zeros(3)
-                        e[k] = 1.0
-                        G[:, k] = L[i] @ skew(e) @ R
+                    # theta uncertainty: d(L R) = L skew(dth) R -> row i: (L[i] @ skew(dth)) @ R, and
+                    # L[i] @ skew(e_k) = L[i] x e_k
+                    G = (np.cross(L[i], np.eye(3)) @ R).T
                     bc[:3, :3] += G @ cov_th @ G.T
                 bc = (bc + bc.T) / 2
                 beta = np.concatenate([W[i], [b[i]]])
