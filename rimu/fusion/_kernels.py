@@ -32,7 +32,10 @@ except ImportError as exc:  # pragma: no cover - the caller checks availability 
 
 __all__ = ["Program", "epoch_block", "epoch_step", "project_block", "project_one"]
 
-_jit = numba.njit(cache=True, nogil=True)
+#: IEEE arithmetic as numpy's (error_model="numpy": x / 0 is inf or nan, not an exception); no fast-math
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+#: the helpers of the per-epoch kernel, inlined into it (one function per kernel, no calls per sensor)
+_inline = numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 
 #: monomials of an epoch (rimu.calibration.model.MONOMIALS): 1, t, dT, dT^2, f, f pairs, w, w pairs
 M = 22
@@ -98,7 +101,7 @@ def project_block(Y: Any, R: Any, off: Any, rng: Any, out: Any) -> bool:  # prag
 W_MONO, W_F, W_W, W_U = 0, M, M + 3, M + 6
 
 
-@_jit
+@_inline
 def _monomials(t: float, dT: float, have_f: bool, have_w: bool, W: Any) -> None:  # pragma: no cover - compiled
     """rimu.fusion.effects._monomials_one of (t, dT, f = W[W_F:], w = W[W_W:]) into W[0:M]; absent as zeros."""
     W[0] = 1.0
@@ -118,7 +121,7 @@ def _monomials(t: float, dT: float, have_f: bool, have_w: bool, W: Any) -> None:
                 W[j + a] = 0.0
 
 
-@_jit
+@_inline
 def _coefs(F: Any, L: Any, base: int, W: Any, k0: int) -> None:  # pragma: no cover - compiled
     """Coefficients of every present block for every sensor into W[k0:k0 + 5 n]: each row of C times the
     monomials it uses, in the order of the monomials (EffectCompensation._coefficient_arrays; only the constant
@@ -146,7 +149,7 @@ def _coefs(F: Any, L: Any, base: int, W: Any, k0: int) -> None:  # pragma: no co
         cols += nc
 
 
-@_jit
+@_inline
 def _estimate(F: Any, L: Any, base: int, W: Any, q0: int, u0: int) -> bool:  # pragma: no cover - compiled
     """MB estimate W[u0:u0+3] = G q on the current set (InstrumentPipeline.estimate); False if q is not finite."""
     n = L[base + S_N]
@@ -164,7 +167,7 @@ def _estimate(F: Any, L: Any, base: int, W: Any, q0: int, u0: int) -> bool:  # p
     return True
 
 
-@_jit
+@_inline
 def _solve(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - compiled
     """EffectCompensation.solve_one of the slot's input y: the effect-free outputs q into the work area
     (Newton on each sensor's own input, the cross coupling from the estimate); False if not finite."""
@@ -230,7 +233,7 @@ def _solve(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - com
     return True
 
 
-@_jit
+@_inline
 def _raw(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - compiled
     """EffectCompensation.raw_one: the raw outputs of an ideal scale/misalignment/bias sensor into the slot's raw
     area."""
@@ -260,7 +263,7 @@ def _raw(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - compi
     return True
 
 
-@_jit
+@_inline
 def _project(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - compiled
     """InstrumentPipeline.step's common path on the compensated raw sample: range, R raw - off, finiteness."""
     n = L[base + S_N]
