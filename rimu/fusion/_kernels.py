@@ -37,6 +37,10 @@ _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 #: the helpers of the per-epoch kernel, inlined into it (one function per kernel, no calls per sensor)
 _inline = numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 
+#: index cast: an unsigned index needs no negative-index wraparound check (numba adds one to every signed index
+#: whose sign it cannot prove, which costs half the speed of these loops); every index here is >= 0
+_u = numba.uint64
+
 #: monomials of an epoch (rimu.calibration.model.MONOMIALS): 1, t, dT, dT^2, f, f pairs, w, w pairs
 M = 22
 #: coefficient blocks of the compensation (rows of 5 n x M): exogenous error, k1, k2, k3, k_abs
@@ -59,15 +63,15 @@ def project_one(y: Any, R: Any, off: Any, rng: Any, out: Any) -> bool:  # pragma
     if y.shape[0] != n:
         return False
     for i in range(n):
-        if not abs(y[i]) < rng[i]:
+        if not abs(y[_u(i)]) < rng[_u(i)]:
             return False
     s = 0.0
     for j in range(R.shape[0]):
         acc = 0.0
         for i in range(n):
-            acc += R[j, i] * y[i]
-        acc -= off[j]
-        out[j] = acc
+            acc += R[_u(j), _u(i)] * y[_u(i)]
+        acc -= off[_u(j)]
+        out[_u(j)] = acc
         s += acc
     return s - s == 0.0
 
@@ -79,15 +83,15 @@ def project_block(Y: Any, R: Any, off: Any, rng: Any, out: Any) -> bool:  # prag
     m = R.shape[0]
     for k in range(Y.shape[0]):
         for i in range(n):
-            if not abs(Y[k, i]) < rng[i]:
+            if not abs(Y[_u(k), _u(i)]) < rng[_u(i)]:
                 return False
         s = 0.0
         for j in range(m):
             acc = 0.0
             for i in range(n):
-                acc += R[j, i] * Y[k, i]
-            acc -= off[j]
-            out[k, j] = acc
+                acc += R[_u(j), _u(i)] * Y[_u(k), _u(i)]
+            acc -= off[_u(j)]
+            out[_u(k), _u(j)] = acc
             s += acc
         if not s - s == 0.0:
             return False
@@ -104,21 +108,21 @@ W_MONO, W_F, W_W, W_U = 0, M, M + 3, M + 6
 @_inline
 def _monomials(t: float, dT: float, have_f: bool, have_w: bool, W: Any) -> None:  # pragma: no cover - compiled
     """rimu.fusion.effects._monomials_one of (t, dT, f = W[W_F:], w = W[W_W:]) into W[0:M]; absent as zeros."""
-    W[0] = 1.0
-    W[1] = t
-    W[2] = dT
-    W[3] = dT * dT
+    W[_u(0)] = 1.0
+    W[_u(1)] = t
+    W[_u(2)] = dT
+    W[_u(3)] = dT * dT
     for b in range(2):
         j = 4 + 9 * b
         v = W_F if b == 0 else W_W
         if have_f if b == 0 else have_w:
-            x, y, z = W[v], W[v + 1], W[v + 2]
-            W[j], W[j + 1], W[j + 2] = x, y, z
-            W[j + 3], W[j + 4], W[j + 5] = x * x, x * y, x * z
-            W[j + 6], W[j + 7], W[j + 8] = y * y, y * z, z * z
+            x, y, z = W[_u(v)], W[_u(v + 1)], W[_u(v + 2)]
+            W[_u(j)], W[_u(j + 1)], W[_u(j + 2)] = x, y, z
+            W[_u(j + 3)], W[_u(j + 4)], W[_u(j + 5)] = x * x, x * y, x * z
+            W[_u(j + 6)], W[_u(j + 7)], W[_u(j + 8)] = y * y, y * z, z * z
         else:
             for a in range(9):
-                W[j + a] = 0.0
+                W[_u(j + a)] = 0.0
 
 
 @_inline
@@ -126,44 +130,44 @@ def _coefs(F: Any, L: Any, base: int, W: Any, k0: int) -> None:  # pragma: no co
     """Coefficients of every present block for every sensor into W[k0:k0 + 5 n]: each row of C times the
     monomials it uses, in the order of the monomials (EffectCompensation._coefficient_arrays; only the constant
     where a block does not vary). C is stored (block, monomial, sensor): the sensors' sums run side by side."""
-    n = L[base + S_N]
-    present = L[base + S_PRESENT]
-    dyn = L[base + S_DYN]
-    cols = L[base + S_COLS]
-    c_base = L[base + S_C]
+    n = L[_u(base + S_N)]
+    present = L[_u(base + S_PRESENT)]
+    dyn = L[_u(base + S_DYN)]
+    cols = L[_u(base + S_COLS)]
+    c_base = L[_u(base + S_C)]
     for blk in range(5):
-        nc = L[cols]
+        nc = L[_u(cols)]
         cols += 1
         if (present >> blk) & 1:
             c0 = c_base + blk * M * n
             o = k0 + blk * n
             for i in range(n):
-                W[o + i] = F[c0 + i]
+                W[_u(o + i)] = F[_u(c0 + i)]
             if (dyn >> blk) & 1:
                 for a in range(nc):
-                    j = L[cols + a]
-                    mj = W[j]
+                    j = L[_u(cols + a)]
+                    mj = W[_u(j)]
                     cj = c0 + j * n
                     for i in range(n):
-                        W[o + i] += F[cj + i] * mj
+                        W[_u(o + i)] += F[_u(cj + i)] * mj
         cols += nc
 
 
 @_inline
 def _estimate(F: Any, L: Any, base: int, W: Any, q0: int, u0: int) -> bool:  # pragma: no cover - compiled
     """MB estimate W[u0:u0+3] = G q on the current set (InstrumentPipeline.estimate); False if q is not finite."""
-    n = L[base + S_N]
-    g0 = L[base + S_G]
+    n = L[_u(base + S_N)]
+    g0 = L[_u(base + S_G)]
     s = 0.0
     for i in range(n):
-        s += W[q0 + i]
+        s += W[_u(q0 + i)]
     if not s - s == 0.0:
         return False
     for j in range(3):
         acc = 0.0
         for i in range(n):
-            acc += F[g0 + j * n + i] * W[q0 + i]
-        W[u0 + j] = acc
+            acc += F[_u(g0 + j * n + i)] * W[_u(q0 + i)]
+        W[_u(u0 + j)] = acc
     return True
 
 
@@ -171,47 +175,47 @@ def _estimate(F: Any, L: Any, base: int, W: Any, q0: int, u0: int) -> bool:  # p
 def _solve(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - compiled
     """EffectCompensation.solve_one of the slot's input y: the effect-free outputs q into the work area
     (Newton on each sensor's own input, the cross coupling from the estimate); False if not finite."""
-    n = L[base + S_N]
-    sc = L[base + S_SCALE]
-    bi = L[base + S_BIAS]
-    y0 = L[base + S_WY]
-    q0 = L[H_WORK]
+    n = L[_u(base + S_N)]
+    sc = L[_u(base + S_SCALE)]
+    bi = L[_u(base + S_BIAS)]
+    y0 = L[_u(base + S_WY)]
+    q0 = L[_u(H_WORK)]
     z0 = q0 + n
     n0 = z0 + n
     k0 = n0 + n
-    present = L[base + S_PRESENT]
+    present = L[_u(base + S_PRESENT)]
     _coefs(F, L, base, W, k0)
     for i in range(n):
-        z = W[y0 + i] * F[sc + i] - F[bi + i]
+        z = W[_u(y0 + i)] * F[_u(sc + i)] - F[_u(bi + i)]
         if present & 1:
-            z = z - W[k0 + i]
-        W[z0 + i] = z
-        W[q0 + i] = z
-    if not L[base + S_OUT]:
+            z = z - W[_u(k0 + i)]
+        W[_u(z0 + i)] = z
+        W[_u(q0 + i)] = z
+    if not L[_u(base + S_OUT)]:
         return True
-    needs_u = L[base + S_NEEDU]
-    hx = L[base + S_HX]
-    h0 = L[base + S_H]
+    needs_u = L[_u(base + S_NEEDU)]
+    hx = L[_u(base + S_HX)]
+    h0 = L[_u(base + S_H)]
     has1, has2, has3, hasa = (present >> 1) & 1, (present >> 2) & 1, (present >> 3) & 1, (present >> 4) & 1
     u0 = W_U
-    for _ in range(L[base + S_STEPS]):
+    for _ in range(L[_u(base + S_STEPS)]):
         if needs_u:
             if not _estimate(F, L, base, W, q0, u0):
                 return False
         for i in range(n):
-            s = W[q0 + i]
-            lin = W[k0 + B_K1 * n + i] if has1 else 0.0
+            s = W[_u(q0 + i)]
+            lin = W[_u(k0 + B_K1 * n + i)] if has1 else 0.0
             if has3:
-                a = W[k0 + B_K3 * n + i] * s
+                a = W[_u(k0 + B_K3 * n + i)] * s
                 if has2:
-                    k2 = W[k0 + B_K2 * n + i]
+                    k2 = W[_u(k0 + B_K2 * n + i)]
                     quad = a + k2
                     slope2 = 2.0 * k2 + 3.0 * a
                 else:
                     quad = a
                     slope2 = 3.0 * a
             elif has2:
-                k2 = W[k0 + B_K2 * n + i]
+                k2 = W[_u(k0 + B_K2 * n + i)]
                 quad = k2
                 slope2 = 2.0 * k2
             else:
@@ -220,16 +224,16 @@ def _solve(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - com
             c = (lin + quad * s) * s
             dc = lin + slope2 * s
             if hasa:
-                ka = W[k0 + B_KA * n + i]
+                ka = W[_u(k0 + B_KA * n + i)]
                 c = c + ka * abs(s)
                 dc = dc + ka * (1.0 if s > 0.0 else (-1.0 if s < 0.0 else 0.0 * s))
             if needs_u:
-                hu = F[h0 + 3 * i] * W[u0] + F[h0 + 3 * i + 1] * W[u0 + 1] + F[h0 + 3 * i + 2] * W[u0 + 2]
-                xu = F[hx + 3 * i] * W[u0] + F[hx + 3 * i + 1] * W[u0 + 1] + F[hx + 3 * i + 2] * W[u0 + 2]
+                hu = F[_u(h0 + 3 * i)] * W[_u(u0)] + F[_u(h0 + 3 * i + 1)] * W[_u(u0 + 1)] + F[_u(h0 + 3 * i + 2)] * W[_u(u0 + 2)]
+                xu = F[_u(hx + 3 * i)] * W[_u(u0)] + F[_u(hx + 3 * i + 1)] * W[_u(u0 + 1)] + F[_u(hx + 3 * i + 2)] * W[_u(u0 + 2)]
                 c = c + hu * xu
-            W[n0 + i] = s - (s + c - W[z0 + i]) / (1.0 + dc)
+            W[_u(n0 + i)] = s - (s + c - W[_u(z0 + i)]) / (1.0 + dc)
         for i in range(n):
-            W[q0 + i] = W[n0 + i]
+            W[_u(q0 + i)] = W[_u(n0 + i)]
     return True
 
 
@@ -237,54 +241,54 @@ def _solve(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - com
 def _raw(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - compiled
     """EffectCompensation.raw_one: the raw outputs of an ideal scale/misalignment/bias sensor into the slot's raw
     area."""
-    n = L[base + S_N]
-    mode = L[base + S_MODE]
-    y0 = L[base + S_WY]
-    r0 = L[base + S_WRAW]
+    n = L[_u(base + S_N)]
+    mode = L[_u(base + S_MODE)]
+    y0 = L[_u(base + S_WY)]
+    r0 = L[_u(base + S_WRAW)]
     if mode == MODE_NONE:
         for i in range(n):
-            W[r0 + i] = W[y0 + i]
+            W[_u(r0 + i)] = W[_u(y0 + i)]
         return True
     if mode == MODE_RAWEXO:
-        e0 = L[base + S_RAWEXO]
+        e0 = L[_u(base + S_RAWEXO)]
         for i in range(n):
             acc = 0.0
             for a in range(M):
-                acc += F[e0 + i * M + a] * W[a]
-            W[r0 + i] = W[y0 + i] - acc
+                acc += F[_u(e0 + i * M + a)] * W[_u(a)]
+            W[_u(r0 + i)] = W[_u(y0 + i)] - acc
         return True
     if not _solve(F, L, base, W):
         return False
-    sc = L[base + S_SCALE]
-    bi = L[base + S_BIAS]
-    q0 = L[H_WORK]
+    sc = L[_u(base + S_SCALE)]
+    bi = L[_u(base + S_BIAS)]
+    q0 = L[_u(H_WORK)]
     for i in range(n):
-        W[r0 + i] = (W[q0 + i] + F[bi + i]) / F[sc + i]
+        W[_u(r0 + i)] = (W[_u(q0 + i)] + F[_u(bi + i)]) / F[_u(sc + i)]
     return True
 
 
 @_inline
 def _project(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - compiled
     """InstrumentPipeline.step's common path on the compensated raw sample: range, R raw - off, finiteness."""
-    n = L[base + S_N]
-    m = L[base + S_M]
-    if not L[base + S_OBS]:
+    n = L[_u(base + S_N)]
+    m = L[_u(base + S_M)]
+    if not L[_u(base + S_OBS)]:
         return False
-    rg = L[base + S_RANGE]
-    x0 = L[base + S_WRAW]
+    rg = L[_u(base + S_RANGE)]
+    x0 = L[_u(base + S_WRAW)]
     for i in range(n):
-        if not abs(W[x0 + i]) < F[rg + i]:
+        if not abs(W[_u(x0 + i)]) < F[_u(rg + i)]:
             return False
-    r0 = L[base + S_R]
-    o0 = L[base + S_OFF]
-    w0 = L[base + S_WOUT]
+    r0 = L[_u(base + S_R)]
+    o0 = L[_u(base + S_OFF)]
+    w0 = L[_u(base + S_WOUT)]
     s = 0.0
     for j in range(m):
         acc = 0.0
         for i in range(n):
-            acc += F[r0 + j * n + i] * W[x0 + i]
-        acc -= F[o0 + j]
-        W[w0 + j] = acc
+            acc += F[_u(r0 + j * n + i)] * W[_u(x0 + i)]
+        acc -= F[_u(o0 + j)]
+        W[_u(w0 + j)] = acc
         s += acc
     return s - s == 0.0
 
@@ -298,13 +302,13 @@ def _epoch(F: Any, L: Any, W: Any, t: float, dT: float) -> bool:  # pragma: no c
         return False
     have_f = False
     have_w = False
-    if L[H_CYCLIC]:
-        ba = H_SIZE + S_SIZE * L[H_ACC]
-        bg = H_SIZE + S_SIZE * L[H_GYR]
-        q0 = L[H_WORK]
+    if L[_u(H_CYCLIC)]:
+        ba = H_SIZE + S_SIZE * L[_u(H_ACC)]
+        bg = H_SIZE + S_SIZE * L[_u(H_GYR)]
+        q0 = L[_u(H_WORK)]
         for a in range(3):
-            W[W_W + a] = 0.0
-        for _ in range(L[H_ROUNDS]):
+            W[_u(W_W + a)] = 0.0
+        for _ in range(L[_u(H_ROUNDS)]):
             _monomials(t, dT, False, True, W)
             if not _solve(F, L, ba, W) or not _estimate(F, L, ba, W, q0, W_F):
                 return False
@@ -312,18 +316,18 @@ def _epoch(F: Any, L: Any, W: Any, t: float, dT: float) -> bool:  # pragma: no c
             if not _solve(F, L, bg, W) or not _estimate(F, L, bg, W, q0, W_W):
                 return False
         have_w = True
-    for s in range(L[H_NSLOT]):
+    for s in range(L[_u(H_NSLOT)]):
         base = H_SIZE + S_SIZE * s
-        if L[base + S_MODE] != MODE_NONE:
+        if L[_u(base + S_MODE)] != MODE_NONE:
             _monomials(t, dT, have_f, have_w, W)
         if not _raw(F, L, base, W):
             return False
         if not _project(F, L, base, W):
             return False
-        w0 = L[base + S_WOUT]
-        v = W_F if L[base + S_KIND] == KIND_ACC else W_W
-        W[v], W[v + 1], W[v + 2] = W[w0], W[w0 + 1], W[w0 + 2]
-        if L[base + S_KIND] == KIND_ACC:
+        w0 = L[_u(base + S_WOUT)]
+        v = W_F if L[_u(base + S_KIND)] == KIND_ACC else W_W
+        W[_u(v)], W[_u(v + 1)], W[_u(v + 2)] = W[_u(w0)], W[_u(w0 + 1)], W[_u(w0 + 2)]
+        if L[_u(base + S_KIND)] == KIND_ACC:
             have_f = True
         else:
             have_w = True
@@ -334,24 +338,24 @@ def _epoch(F: Any, L: Any, W: Any, t: float, dT: float) -> bool:  # pragma: no c
 def epoch_step(F: Any, L: Any, W: Any, y0: Any, y1: Any, t: float, dT: float, out0: Any,
                out1: Any) -> bool:  # pragma: no cover - compiled
     """One epoch (Pipeline.step); outputs (x, parity) into out0/out1 (the instrument pipelines' buffers)."""
-    nslot = L[H_NSLOT]
+    nslot = L[_u(H_NSLOT)]
     for s in range(nslot):
         base = H_SIZE + S_SIZE * s
         y = y0 if s == 0 else y1
-        n = L[base + S_N]
+        n = L[_u(base + S_N)]
         if y.shape[0] != n:
             return False
-        a = L[base + S_WY]
+        a = L[_u(base + S_WY)]
         for i in range(n):
-            W[a + i] = y[i]
+            W[_u(a + i)] = y[_u(i)]
     if not _epoch(F, L, W, t, dT):
         return False
     for s in range(nslot):
         base = H_SIZE + S_SIZE * s
         out = out0 if s == 0 else out1
-        w0 = L[base + S_WOUT]
-        for j in range(L[base + S_M]):
-            out[j] = W[w0 + j]
+        w0 = L[_u(base + S_WOUT)]
+        for j in range(L[_u(base + S_M)]):
+            out[_u(j)] = W[_u(w0 + j)]
     return True
 
 
@@ -360,35 +364,35 @@ def epoch_block(F: Any, L: Any, W: Any, Y0: Any, Y1: Any, t: Any, dT: Any, O0: A
                 want_raw: bool) -> int:  # pragma: no cover - compiled
     """Every epoch of a block (Pipeline.process); -1 when all were clean, else the first row that was not.
     Outputs into O0/O1 (N, m); the compensated raw outputs into R0/R1 (N, n) when ``want_raw``."""
-    nslot = L[H_NSLOT]
+    nslot = L[_u(H_NSLOT)]
     for k in range(Y0.shape[0]):
         for s in range(nslot):
             base = H_SIZE + S_SIZE * s
-            a = L[base + S_WY]
+            a = L[_u(base + S_WY)]
             if s == 0:
-                for i in range(L[base + S_N]):
-                    W[a + i] = Y0[k, i]
+                for i in range(L[_u(base + S_N)]):
+                    W[_u(a + i)] = Y0[_u(k), _u(i)]
             else:
-                for i in range(L[base + S_N]):
-                    W[a + i] = Y1[k, i]
+                for i in range(L[_u(base + S_N)]):
+                    W[_u(a + i)] = Y1[_u(k), _u(i)]
         if not _epoch(F, L, W, t[k], dT[k]):
             return k
         for s in range(nslot):
             base = H_SIZE + S_SIZE * s
-            w0 = L[base + S_WOUT]
-            r0 = L[base + S_WRAW]
+            w0 = L[_u(base + S_WOUT)]
+            r0 = L[_u(base + S_WRAW)]
             if s == 0:
-                for j in range(L[base + S_M]):
-                    O0[k, j] = W[w0 + j]
+                for j in range(L[_u(base + S_M)]):
+                    O0[_u(k), _u(j)] = W[_u(w0 + j)]
                 if want_raw:
-                    for i in range(L[base + S_N]):
-                        R0[k, i] = W[r0 + i]
+                    for i in range(L[_u(base + S_N)]):
+                        R0[_u(k), _u(i)] = W[_u(r0 + i)]
             else:
-                for j in range(L[base + S_M]):
-                    O1[k, j] = W[w0 + j]
+                for j in range(L[_u(base + S_M)]):
+                    O1[_u(k), _u(j)] = W[_u(w0 + j)]
                 if want_raw:
-                    for i in range(L[base + S_N]):
-                        R1[k, i] = W[r0 + i]
+                    for i in range(L[_u(base + S_N)]):
+                        R1[_u(k), _u(i)] = W[_u(r0 + i)]
     return -1
 
 
