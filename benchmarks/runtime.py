@@ -5,7 +5,9 @@
   (a) a C kernel of the same arithmetic (range check, ``R y - off``, finiteness check per sample; built at run
   time with the system compiler, ``-O3 -march=native``, timed inside C) and (b) one fused numpy product
   ``Y @ K.T`` over the same array (the numpy memory floor). Targets: numba process >= 0.7x the C kernel's
-  throughput at 1e5 samples, >= 0.5x at 1e3 (a whole ``process`` call, result object included).
+  throughput at 1e5 samples, >= 0.5x at 1e3 (a whole ``process`` call, result object included). The numba
+  backend projects blocks of up to 512 samples with its kernel and longer ones with numpy's chunked BLAS
+  product, which is faster there; the kernel alone is timed too ("kernel" rows).
 * ``step`` path, both backends, against a loop of one bare numpy mat-vec per sample (``G @ y``). Targets: numpy
   <= 3x, numba <= 1.5x its time.
 
@@ -60,6 +62,16 @@ def main() -> dict:
                     p.process(Y)
             row[f"{b}_ns_per_sample"] = median_time(run, reps) / (inner * N) * 1e9
 
+        if "numba" in pipes:  # the compiled kernel itself (process takes the BLAS path past 512 samples)
+            pn = pipes["numba"]
+            buf = np.empty((N, 3 + pn.r))
+
+            def kern(Y=Y, inner=inner, pn=pn, buf=buf):
+                for _ in range(inner):
+                    pn._kblock(Y, pn._Re, pn._offe, pn._range, buf)
+            kern()
+            row["numba_kernel_ns_per_sample"] = median_time(kern, reps) / (inner * N) * 1e9
+
         def floor(Y=Y, inner=inner):
             for _ in range(inner):
                 Y @ K.T
@@ -72,6 +84,8 @@ def main() -> dict:
             np.testing.assert_allclose(out, Y @ K.T - off, rtol=1e-9, atol=1e-9)  # it computed the same
             for b in backends:
                 row[f"{b}_vs_c"] = row["c_ns_per_sample"] / row[f"{b}_ns_per_sample"]
+            if "numba_kernel_ns_per_sample" in row:
+                row["numba_kernel_vs_c"] = row["c_ns_per_sample"] / row["numba_kernel_ns_per_sample"]
         for b in backends:
             row[f"{b}_vs_matmul"] = row["numpy_matmul_ns_per_sample"] / row[f"{b}_ns_per_sample"]
         res["block"][str(N)] = row
@@ -114,6 +128,9 @@ def main() -> dict:
             tgt = f">= {res['targets']['numba_block_vs_c_min'][str(N)]} of C" if b == "numba" else ""
             print(f"{N:>9}{b:>9}{r[f'{b}_ns_per_sample']:>10.2f}{c:>10.2f}{r['numpy_matmul_ns_per_sample']:>10.2f}"
                   f"{vc:>8.2f}{r[f'{b}_vs_matmul']:>10.2f}  {tgt}")
+        if "numba_kernel_ns_per_sample" in r:
+            print(f"{N:>9}{'kernel':>9}{r['numba_kernel_ns_per_sample']:>10.2f}{r.get('c_ns_per_sample', 0):>10.2f}"
+                  f"{'':>10}{r.get('numba_kernel_vs_c', float('nan')):>8.2f}{'':>10}  (numba kernel alone)")
     print(f"\nstep (per sample), us; bare numpy G @ y: {res['bare_matvec_us_per_sample']:.3f} us")
     for b in backends:
         s = res["step"][b]

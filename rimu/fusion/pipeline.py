@@ -352,7 +352,7 @@ class InstrumentPipeline:
         self.samples += N
         n, r, tab = self.n, self.r, self.table
         out = np.empty((N, 3 + r))
-        if self._kblock is not None:
+        if self._kblock is not None and N <= self._KERNEL_BLOCK_MAX:
             if N and (valid is None or np.all(valid)):
                 if self._kblock(np.ascontiguousarray(Y), self._Re, self._offe, self._range, out):
                     return self._clean_block(out)
@@ -437,6 +437,10 @@ class InstrumentPipeline:
         return X
 
     _CHUNK = 8192
+    #: longest block the compiled backend projects sample by sample; longer clean blocks take the chunked BLAS
+    #: product below, which is faster there (the kernel does the C arithmetic of benchmarks/_ckernel.py, one
+    #: sample at a time, ~25 ns/sample on cone6; BLAS ~10 ns/sample past ~1000 samples, benchmarks/runtime.py)
+    _KERNEL_BLOCK_MAX = 512
 
     def _fast_block(self, Y: np.ndarray, out: np.ndarray) -> bool:
         """``out = Y @ R.T - off`` in cache-sized chunks; False as soon as a chunk is not finite.
