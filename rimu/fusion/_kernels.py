@@ -414,7 +414,7 @@ class Program:
         L = np.zeros(H_SIZE + S_SIZE * len(slots), dtype=np.int64)
         L[H_NSLOT] = len(slots)
         L[H_CYCLIC] = int(cyclic)
-        L[H_ROUNDS] = int(rounds)
+        L[H_ROUNDS] = self.rounds = int(rounds)
         chunks: list[np.ndarray] = []
         pos = 0
 

@@ -631,7 +631,7 @@ class Pipeline:
     def _program_ready(self) -> Any:
         """The compiled program with the current active sets and rounds."""
         prog = self._program
-        prog.L[2] = self.cycle_rounds
+        prog.L[2] = prog.rounds = self.cycle_rounds
         if prog.changed():
             prog.refresh()
         return prog
@@ -683,7 +683,7 @@ class Pipeline:
         prog = self._program
         pipes = prog.pipes
         if pipes[0]._set is not prog._sets[0] or pipes[-1]._set is not prog._sets[-1] \
-                or prog.L[2] != self.cycle_rounds:
+                or prog.rounds != self.cycle_rounds:
             self._program_ready()
         raw = epoch.raw
         y0 = raw[self._order[0]]

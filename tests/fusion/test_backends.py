@@ -250,3 +250,18 @@ def test_instrument_step_writes_into_its_buffers_and_refuses_bad_shapes():
         p.process(np.zeros((4, 5)))
     np.testing.assert_allclose(p.step([float(v) for v in cal.raw_output(np.array([0.0, 0.0, 1.0]))]).x, [0, 0, 1],
                                atol=1e-12)  # a list takes the careful path
+
+
+def test_cycle_rounds_changed_on_the_pipeline_are_followed():
+    """``Pipeline.cycle_rounds`` (the gyro <-> accelerometer fixed point) set after construction: the compiled
+    path uses it as the numpy path does (one round leaves ~1e-5 of the size effect's rate error: visibly different)."""
+    cal = _unit(cone6(), seed=11)
+    block = _stream(cal, 5, seed=12)
+    outs = {}
+    for rounds in (1, 2):
+        a, b = _pair(cal, temperature=True)
+        a.cycle_rounds = b.cycle_rounds = rounds
+        for ep in block.epochs():
+            _same_step(a.step(ep), b.step(ep), f"rounds {rounds}")
+        outs[rounds] = a.step(next(block.epochs()))["accel"].x.copy()
+    assert np.abs(outs[1] - outs[2]).max() > 1e3 * REL * np.abs(outs[2]).max()
