@@ -153,12 +153,14 @@ static int raw_out(const double *F, const i64 *L, i64 base, double *W) {
     i64 n = L[base + S_N], mode = L[base + S_MODE], y0 = L[base + S_WY], r0 = L[base + S_WRAW];
     if (mode == MODE_NONE) { for (i64 i = 0; i < n; i++) W[r0 + i] = W[y0 + i]; return 1; }
     if (mode == MODE_RAWEXO) {
-        i64 e0 = L[base + S_RAWEXO];
-        for (i64 i = 0; i < n; i++) {
-            double acc = 0.0;
-            for (int a = 0; a < M; a++) acc += F[e0 + i * M + a] * W[a];
-            W[r0 + i] = W[y0 + i] - acc;
+        i64 e0 = L[base + S_RAWEXO], cols = L[base + S_COLS];
+        for (i64 i = 0; i < n; i++) W[r0 + i] = F[e0 + i];
+        for (i64 a = 0; a < L[cols]; a++) {
+            i64 j = L[cols + 1 + a], ej = e0 + j * n;
+            double mj = W[j];
+            for (i64 i = 0; i < n; i++) W[r0 + i] += F[ej + i] * mj;
         }
+        for (i64 i = 0; i < n; i++) W[r0 + i] = W[y0 + i] - W[r0 + i];
         return 1;
     }
     if (!solve(F, L, base, W)) return 0;

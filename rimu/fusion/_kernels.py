@@ -34,8 +34,6 @@ __all__ = ["Program", "epoch_block", "epoch_step", "project_block", "project_one
 
 #: IEEE arithmetic as numpy's (error_model="numpy": x / 0 is inf or nan, not an exception); no fast-math
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
-#: the helpers of the per-epoch kernel, inlined into it (one function per kernel, no calls per sensor)
-_inline = numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 
 #: index cast: an unsigned index needs no negative-index wraparound check (numba adds one to every signed index
 #: whose sign it cannot prove, which costs half the speed of these loops); every index here is >= 0
@@ -105,7 +103,7 @@ def project_block(Y: Any, R: Any, off: Any, rng: Any, out: Any) -> bool:  # prag
 W_MONO, W_F, W_W, W_U = 0, M, M + 3, M + 6
 
 
-@_inline
+@_jit
 def _monomials(t: float, dT: float, have_f: bool, have_w: bool, W: Any) -> None:  # pragma: no cover - compiled
     """rimu.fusion.effects._monomials_one of (t, dT, f = W[W_F:], w = W[W_W:]) into W[0:M]; absent as zeros."""
     W[_u(0)] = 1.0
@@ -125,7 +123,7 @@ def _monomials(t: float, dT: float, have_f: bool, have_w: bool, W: Any) -> None:
                 W[_u(j + a)] = 0.0
 
 
-@_inline
+@_jit
 def _coefs(F: Any, L: Any, base: int, W: Any, k0: int) -> None:  # pragma: no cover - compiled
     """Coefficients of every present block for every sensor into W[k0:k0 + 5 n]: each row of C times the
     monomials it uses, in the order of the monomials (EffectCompensation._coefficient_arrays; only the constant
@@ -153,7 +151,7 @@ def _coefs(F: Any, L: Any, base: int, W: Any, k0: int) -> None:  # pragma: no co
         cols += nc
 
 
-@_inline
+@_jit
 def _estimate(F: Any, L: Any, base: int, W: Any, q0: int, u0: int) -> bool:  # pragma: no cover - compiled
     """MB estimate W[u0:u0+3] = G q on the current set (InstrumentPipeline.estimate); False if q is not finite."""
     n = L[_u(base + S_N)]
@@ -171,7 +169,7 @@ def _estimate(F: Any, L: Any, base: int, W: Any, q0: int, u0: int) -> bool:  # p
     return True
 
 
-@_inline
+@_jit
 def _solve(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - compiled
     """EffectCompensation.solve_one of the slot's input y: the effect-free outputs q into the work area
     (Newton on each sensor's own input, the cross coupling from the estimate); False if not finite."""
@@ -237,7 +235,7 @@ def _solve(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - com
     return True
 
 
-@_inline
+@_jit
 def _raw(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - compiled
     """EffectCompensation.raw_one: the raw outputs of an ideal scale/misalignment/bias sensor into the slot's raw
     area."""
@@ -249,13 +247,19 @@ def _raw(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - compi
         for i in range(n):
             W[_u(r0 + i)] = W[_u(y0 + i)]
         return True
-    if mode == MODE_RAWEXO:
+    if mode == MODE_RAWEXO:  # y - E mono / SF, E stored (monomial, sensor): the sensors' sums side by side
         e0 = L[_u(base + S_RAWEXO)]
+        cols = L[_u(base + S_COLS)]  # the exogenous block's monomials come first
         for i in range(n):
-            acc = 0.0
-            for a in range(M):
-                acc += F[_u(e0 + i * M + a)] * W[_u(a)]
-            W[_u(r0 + i)] = W[_u(y0 + i)] - acc
+            W[_u(r0 + i)] = F[_u(e0 + i)]
+        for a in range(L[_u(cols)]):
+            j = L[_u(cols + 1 + a)]
+            mj = W[_u(j)]
+            ej = e0 + j * n
+            for i in range(n):
+                W[_u(r0 + i)] += F[_u(ej + i)] * mj
+        for i in range(n):
+            W[_u(r0 + i)] = W[_u(y0 + i)] - W[_u(r0 + i)]
         return True
     if not _solve(F, L, base, W):
         return False
@@ -267,7 +271,7 @@ def _raw(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - compi
     return True
 
 
-@_inline
+@_jit
 def _project(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - compiled
     """InstrumentPipeline.step's common path on the compensated raw sample: range, R raw - off, finiteness."""
     n = L[_u(base + S_N)]
@@ -465,7 +469,7 @@ class Program:
                     dyn |= 1 << blk
                 if comp._raw_exo is not None:
                     L[b + S_MODE] = MODE_RAWEXO
-                    L[b + S_RAWEXO] = put(comp._raw_exo)
+                    L[b + S_RAWEXO] = put(comp._raw_exo.T)  # (monomial, sensor)
                 else:
                     L[b + S_MODE] = MODE_FULL
                 L[b + S_OUT] = int(bool(comp.output_side))
