@@ -2,6 +2,7 @@
 by sample: cone6 (Cho & Park Table 3), tetrad4 and triad3 units with every compensable effect at grade-typical
 size (rimu.sim.typical), temperature ramping 10 -> 50 degC, rates up to ~600 deg/s and forces up to ~6 g; then
 each effect alone, so that a wrong effect is named. Skips without a C compiler; clang is used too where present.
+The Python reference is the numpy backend of the pipeline.
 """
 
 from __future__ import annotations
@@ -113,7 +114,7 @@ def unit(request, tmp_path_factory):
     if request.param == "tetrad4":  # a calibration's own reference temperature (25 degC by default)
         cal.metadata["reference_temperature"] = 35.0
     t, T, raw, _ = _session(cal, 2000, noise=True)
-    py = Pipeline(cal).process(EpochBlock(t, {k: v.copy() for k, v in raw.items()}, temperature=T))
+    py = Pipeline(cal, backend="numpy").process(EpochBlock(t, {k: v.copy() for k, v in raw.items()}, temperature=T))
     d = tmp_path_factory.mktemp(f"ce_{request.param}")
     exes = {}
     if CC is not None:
@@ -137,7 +138,7 @@ def test_every_effect_matches_python_on_every_sample(unit, compiler, real):
     if (compiler, real) != ("cc", "double"):
         return
     # the per-sample path (Pipeline.step) too, on the first 200 epochs
-    pipe = Pipeline(cal)
+    pipe = Pipeline(cal, backend="numpy")
     block = EpochBlock(t[:200], {k: v[:200].copy() for k, v in raw.items()}, temperature=T[:200])
     for i, e in enumerate(block.epochs()):
         r = pipe.step(e)
@@ -147,7 +148,7 @@ def test_every_effect_matches_python_on_every_sample(unit, compiler, real):
     # the effects are not small against the tolerance: without them the estimate moves by far more
     plain = Calibration({k: type(cal[k])(k, cal[k].geometry, cal[k].scale, cal[k].misalignment, cal[k].bias,
                                          cal[k].noise_sigma) for k in cal.instruments})
-    base = Pipeline(plain).process(EpochBlock(t, {k: v.copy() for k, v in raw.items()}, temperature=T))
+    base = Pipeline(plain, backend="numpy").process(EpochBlock(t, {k: v.copy() for k, v in raw.items()}, temperature=T))
     for k in cal.instruments:
         obs = py[k].observable
         assert np.abs(base[k].x[obs] - py[k].x[obs]).max() > 1e6 * TOL["double"] * np.abs(py[k].x[obs]).max()
@@ -167,7 +168,7 @@ def test_each_effect_alone(instrument, effect, tmp_path):
     true input of the forward model (the inversion is exact, not first order)."""
     cal = _single(instrument, effect)
     t, T, raw, U = _session(cal, 600, noise=False, seed=3)
-    py = Pipeline(cal).process(EpochBlock(t, {k: v.copy() for k, v in raw.items()}, temperature=T))
+    py = Pipeline(cal, backend="numpy").process(EpochBlock(t, {k: v.copy() for k, v in raw.items()}, temperature=T))
     needs_t = "temperature" in EffectCompensation(cal[instrument]).needs
     c = _run(_build(cal, tmp_path / "c", opt="-O0"), t, raw, T if needs_t else None)
     _compare(cal, c, py, TOL["double"])
@@ -184,7 +185,7 @@ def test_the_gyro_accelerometer_cycle(names, tmp_path):
     """Both instruments need the other's estimate: the rounds of Pipeline._preliminary_rate, in C."""
     cal = with_effects(_base("tetrad4"), names)
     t, T, raw, U = _session(cal, 600, noise=False, seed=5)
-    py = Pipeline(cal).process(EpochBlock(t, {k: v.copy() for k, v in raw.items()}, temperature=T))
+    py = Pipeline(cal, backend="numpy").process(EpochBlock(t, {k: v.copy() for k, v in raw.items()}, temperature=T))
     c = _run(_build(cal, tmp_path / "c"), t, raw)
     _compare(cal, c, py, TOL["double"])
     for k in cal.instruments:
@@ -283,7 +284,7 @@ def test_isolated_sensors_leave_the_compensation_too(tmp_path):
     t, T, raw, _ = _session(cal, 500, noise=True, seed=9)
     raw["gyro"][:, 1] += 0.2 / cal["gyro"].scale[1]   # the isolated sensors are faulty: 0.2 rad/s, 0.5 m/s^2
     raw["accel"][:, 4] -= 0.5 / cal["accel"].scale[4]
-    pipe = Pipeline(cal)
+    pipe = Pipeline(cal, backend="numpy")
     pipe["gyro"].isolate(1)
     pipe["accel"].isolate(4)
     py = pipe.process(EpochBlock(t, {k: v.copy() for k, v in raw.items()}, temperature=T))
@@ -313,7 +314,7 @@ def test_many_axes_with_every_effect(tmp_path):
         cal[k].noise_sigma = np.full(g.n, 1e-3 if k == "gyro" else 1e-2)
     cal = with_effects(cal)
     t, T, raw, _ = _session(cal, 300, noise=True, seed=4)
-    py = Pipeline(cal).process(EpochBlock(t, {k: v.copy() for k, v in raw.items()}, temperature=T))
+    py = Pipeline(cal, backend="numpy").process(EpochBlock(t, {k: v.copy() for k, v in raw.items()}, temperature=T))
     c = _run(_build(cal, tmp_path / "c", opt="-O0"), t, raw, T)
     _compare(cal, c, py, TOL["double"])
 
