@@ -214,21 +214,30 @@ _WLS = r"""
    they do not span 3-D: the estimate the compensation feeds its cross coupling and the other instrument. The
    normal matrix depends only on which sensors are in use, so the Newton steps of one instrument set it up once
    (rimu_wls_setup) and apply it to each new q (rimu_wls_next): a q that is non-finite where z was finite (which
-   the steps do not make) is set up afresh. */
+   the steps do not make) is set up afresh. With every sensor in use, x = G z with G the export-time
+   weighted least-squares matrix of the full set (as InstrumentPipeline.estimate does). */
 typedef struct {
     unsigned char use[RIMU_NMAX];
     rimu_real P00, P01, P02, P11, P12, P22;
     int observable;
+    const rimu_real *G;  /* the full set's 3 x n estimator when every sensor is in use, else 0 */
 } rimu_wls_set;
 
-static void rimu_wls_setup(int n, const rimu_real *ax, const rimu_real *w, const unsigned char *iso,
-                           const unsigned char *valid, const rimu_real *z, rimu_wls_set *s)
+static void rimu_wls_setup(int n, const rimu_real *ax, const rimu_real *w, const rimu_real *G,
+                           const unsigned char *iso, const unsigned char *valid, const rimu_real *z, rimu_wls_set *s)
 {
     rimu_real N00 = 0, N01 = 0, N02 = 0, N11 = 0, N12 = 0, N22 = 0, scale = 0, det, id;
     int i, m = 0;
     for (i = 0; i < n; ++i) {
-        const rimu_real *a = ax + 3 * i;
         s->use[i] = (unsigned char)(!iso[i] && (valid == 0 || valid[i]) && isfinite(z[i]));
+        m += s->use[i];
+    }
+    s->G = m == n ? G : 0;
+    s->observable = s->G != 0;
+    if (s->G != 0) return;
+    m = 0;
+    for (i = 0; i < n; ++i) {
+        const rimu_real *a = ax + 3 * i;
         if (!s->use[i]) continue;
         N00 += w[i] * a[0] * a[0]; N01 += w[i] * a[0] * a[1]; N02 += w[i] * a[0] * a[2];
         N11 += w[i] * a[1] * a[1]; N12 += w[i] * a[1] * a[2]; N22 += w[i] * a[2] * a[2];
@@ -254,6 +263,15 @@ static int rimu_wls_apply(int n, const rimu_real *ax, const rimu_real *w, const 
 {
     rimu_real h0 = 0, h1 = 0, h2 = 0;
     int i;
+    if (s->G != 0) {
+        const rimu_real *G = s->G;
+        for (i = 0; i < n; ++i) {
+            if (!isfinite(z[i])) return 0;
+            h0 += G[i] * z[i]; h1 += G[n + i] * z[i]; h2 += G[2 * n + i] * z[i];
+        }
+        x[0] = h0; x[1] = h1; x[2] = h2;
+        return 1;
+    }
     for (i = 0; i < n; ++i) {
         const rimu_real *a = ax + 3 * i;
         if (!s->use[i]) continue;
@@ -270,24 +288,37 @@ static int rimu_wls_apply(int n, const rimu_real *ax, const rimu_real *w, const 
 """
 
 _WLS_NEXT = r"""
-static void rimu_wls_next(int n, const rimu_real *ax, const rimu_real *w, const unsigned char *iso,
-                          const unsigned char *valid, rimu_wls_set *s, const rimu_real *z, rimu_real *x)
+static void rimu_wls_next(int n, const rimu_real *ax, const rimu_real *w, const rimu_real *G,
+                          const unsigned char *iso, const unsigned char *valid, rimu_wls_set *s, const rimu_real *z,
+                          rimu_real *x)
 {
     if (rimu_wls_apply(n, ax, w, s, z, x)) return;
-    rimu_wls_setup(n, ax, w, iso, valid, z, s);  /* the sensors in use changed */
+    rimu_wls_setup(n, ax, w, G, iso, valid, z, s);  /* the sensors in use changed */
     (void)rimu_wls_apply(n, ax, w, s, z, x);
 }
 """
 
 _WLS_ONE = r"""
-static void rimu_wls(int n, const rimu_real *ax, const rimu_real *w, const unsigned char *iso,
-                     const unsigned char *valid, const rimu_real *z, rimu_real *x)
+static void rimu_wls(int n, const rimu_real *ax, const rimu_real *w, const rimu_real *G,
+                     const unsigned char *iso, const unsigned char *valid, const rimu_real *z, rimu_real *x)
 {
     rimu_wls_set s;
-    rimu_wls_setup(n, ax, w, iso, valid, z, &s);
+    rimu_wls_setup(n, ax, w, G, iso, valid, z, &s);
     (void)rimu_wls_apply(n, ax, w, &s, z, x);
 }
 """
+
+
+def _full_set_estimator(c: EffectCompensation) -> np.ndarray | None:
+    """G = (A^T W A)^-1 A^T W (3, n) of the full set (W = 1/sigma^2), or None where it does not span 3-D (the
+    generated code then takes the general path; the C test of observability is the same as rimu_solve's)."""
+    A = c.calibration.axes_mb()
+    sigma = np.broadcast_to(np.asarray(c.calibration.noise_sigma, dtype=float), (c.n,))
+    w = 1.0 / sigma**2
+    N = (A * w[:, None]).T @ A
+    if not np.linalg.det(N) > 1e-9 * np.sum(w) ** 3:
+        return None
+    return np.linalg.solve(N, (A * w[:, None]).T)
 
 
 def _instrument(k: str, c: EffectCompensation, real: str, with_q: bool) -> str:
@@ -299,6 +330,10 @@ def _instrument(k: str, c: EffectCompensation, real: str, with_q: bool) -> str:
     keys = list(c._dyn_keys) + [key for key in c._const]
     for key in c._const:
         out.append(f"static const rimu_real {k}_{_NAMES[key]}[{P}] = {_arr(c._const[key], real)};")
+    if c._needs_u or with_q:
+        G = _full_set_estimator(c)
+        out.append(f"static const rimu_real *const {k}_G = 0;  /* the full set does not span 3-D */" if G is None
+                   else f"static const rimu_real {k}_G[3 * {P}] = {_arr(G, real)};  /* full set: x = G q */")
     if c._Hx is not None:
         out.append(f"static const rimu_real {k}_hnom[3 * {P}] = {_arr(c._H, real)};  /* nominal axes */")
         out.append(f"static const rimu_real {k}_hx[3 * {P}] = {_arr(c._Hx, real)};  /* cross coupling */")
@@ -333,11 +368,11 @@ def _instrument(k: str, c: EffectCompensation, real: str, with_q: bool) -> str:
         k1, k2, k3, ka = (ref.get(x) for x in (1, 2, 3, "abs"))
         body += ["    for (i = 0; i < " + P + "; ++i) q[i] = z[i];"]
         if c._Hx is not None:
-            body.append(f"    rimu_wls_setup({P}, {k}_axes, {k}_w, iso, valid, z, &ws);  /* the sensors in use */")
+            body.append(f"    rimu_wls_setup({P}, {k}_axes, {k}_w, {k}_G, iso, valid, z, &ws);  /* the sensors in use */")
         body += [
                  f"    for (it = 0; it < {c.newton_steps}; ++it) {{  /* Newton on each sensor's own input */"]
         if c._Hx is not None:
-            body.append(f"        rimu_wls_next({P}, {k}_axes, {k}_w, iso, valid, &ws, q, u);  /* the instrument's input */")
+            body.append(f"        rimu_wls_next({P}, {k}_axes, {k}_w, {k}_G, iso, valid, &ws, q, u);  /* the instrument's input */")
         body += [f"        for (i = 0; i < {P}; ++i) {{", "            s = q[i];"]
         lin = k1 if k1 is not None else None
         # the arithmetic of EffectCompensation._output_poly, term by term
@@ -422,7 +457,7 @@ def unit_step(cal: Calibration, name: str, params: str, iso: str, call: str, x: 
         if p.cyclic:
             # Pipeline._preliminary_rate: accelerometers with zero rate, gyros with their force, then rounds
             q = {k: f"{k}_q({iso.format(k=k)}, {k}_valid, {k}_y, m, yr);" for k in p.comps}
-            est = {k: f"rimu_wls(RIMU_{k.upper()}_N, {k}_axes, {k}_w, {iso.format(k=k)}, {k}_valid, yr, "
+            est = {k: f"rimu_wls(RIMU_{k.upper()}_N, {k}_axes, {k}_w, {k}_G, {iso.format(k=k)}, {k}_valid, yr, "
                    for k in p.comps}
             b += ["    /* the gyro <-> accelerometer fixed point (Pipeline._preliminary_rate) */",
                   "    rimu_monomials(t, dT, zero, zero, m);",
