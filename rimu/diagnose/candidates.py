@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 from ..calibration.model import Effect
 from ..session import Session
@@ -131,11 +131,29 @@ class CandidateTest:
         }
 
 
+def chi2_logsf(x: float, k: float) -> float:
+    """Natural log of the chi-square(k) survival function, as ``scipy.stats.chi2.logsf`` computes it (log of
+    the upper tail above the median, log1p of the lower below), from :mod:`scipy.special` (whose import is
+    cheap, unlike :mod:`scipy.stats`'s)."""
+    with np.errstate(divide="ignore"):
+        if x > 2.0 * special.gammaincinv(k / 2.0, 0.5):
+            return float(np.log(special.chdtrc(k, x)))
+        return float(np.log1p(-special.chdtr(k, x)))
+
+
+def f_logsf(x: float, d1: float, d2: float) -> float:
+    """Natural log of the F(d1, d2) survival function, as ``scipy.stats.f.logsf`` computes it."""
+    with np.errstate(divide="ignore"):
+        if x > special.fdtri(d1, d2, 0.5):
+            return float(np.log(special.fdtrc(d1, d2, x)))
+        return float(np.log1p(-special.fdtr(d1, d2, x)))
+
+
 def _log10_chi2sf(x: float, k: int) -> float:
     """log10 of the chi-square survival function, with the asymptotic tail where scipy underflows."""
     if x <= 0:
         return 0.0
-    v = float(stats.chi2.logsf(x, k))
+    v = chi2_logsf(x, k)
     if not np.isfinite(v):
         from math import lgamma, log
 
@@ -147,7 +165,7 @@ def _log10_fsf(f: float, d1: int, d2: int) -> float:
     """log10 of the F(d1, d2) survival function (chi-square tail of d1 F where it underflows)."""
     if f <= 0:
         return 0.0
-    v = float(stats.f.logsf(f, d1, d2))
+    v = f_logsf(f, d1, d2)
     if not np.isfinite(v):
         return _log10_chi2sf(f * d1, d1)
     return float(min(0.0, v / _LN10))

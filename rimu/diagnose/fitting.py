@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..calibration.lsq import physical_from_beta
+from ..calibration.lsq import physical_from_beta, sensor_segments
 from ..calibration.model import Effect, ErrorModel, ParamSpec, SensorContext, axes_from_w, contexts
 from ..errors import IdentifiabilityError
 from ..session import Segment, Session
@@ -92,7 +92,7 @@ def noise_level(r: np.ndarray, seg_index: np.ndarray) -> float:
     not enter; coloured noise is counted with its full variance (unlike first differences).
     """
     w = within_segment(r, seg_index)
-    nseg = int(np.unique(seg_index).size)
+    nseg = int(np.count_nonzero(np.bincount(seg_index)))
     return float(np.sqrt((w @ w) / max(r.size - nseg, 1)))
 
 
@@ -263,6 +263,7 @@ def fit_model(
     include_earth_rate: bool = True,
     reference_temperature: float = 25.0,
     ctxs: list[SensorContext] | None = None,
+    _beta_only: bool = False,
 ) -> ModelFit:
     """Least-squares fit of ``model`` to one instrument, keeping what the diagnostics need.
 
@@ -292,7 +293,8 @@ def fit_model(
             # candidates and effects along an axis are evaluated on the calibrated axes (what each sensor really
             # senses), taken from a first fit of scale, misalignment and bias on the nominal ones
             base = ErrorModel([e for e in model if e.name in ("scale_misalignment", "bias")])
-            first = fit_model(session, base, instrument, sigma, include_earth_rate, reference_temperature, ctxs)
+            first = fit_model(session, base, instrument, sigma, include_earth_rate, reference_temperature, ctxs,
+                              _beta_only=True)
             ctxs = contexts(session, instrument, reference_temperature, include_earth_rate, calibrated_axes_of(first))
     sig = _sigma_vector(sigma, len(ctxs))
     skipped: dict[str, str] = {}
@@ -301,13 +303,9 @@ def fit_model(
     for ctx in ctxs:
         Xs, ys, idx, ts, Ts, ss, labels = [], [], [], [], [], [], []
         have_T = True
-        for _k, seg in enumerate(session.segments):
-            X = model.design(seg, ctx)
-            if X is None:
-                skipped[seg.label] = "the segment lacks inputs the model needs (a known rate, attitude or temperature)"
-                continue
+        for seg, X, y in sensor_segments(model, ctx, session.segments, instrument, skipped):
             Xs.append(X)
-            ys.append(seg.raw[instrument][:, ctx.index])
+            ys.append(y)
             idx.append(np.full(seg.n_samples, len(labels)))
             ts.append(seg.t)
             if seg.temperature is None:
@@ -340,6 +338,10 @@ def fit_model(
                 "add segments whose inputs differ in the directions involved", involved)
         Rinv = np.linalg.inv(R)
         beta = (Rinv @ (Q.T @ y)) / norms
+        if _beta_only:  # the first fit on the nominal axes: only its scale/misalignment vectors are used
+            fits.append(SensorFit(ctx, names, beta, np.empty((0, 0)), beta, np.empty((0, 0)), [], y, X, Q, y, y, y,
+                                  None, None))
+            continue
         r = y - X @ beta
         seg_index = np.concatenate(idx)
         s_est = noise_level(r, seg_index)
