@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import special
+from scipy.special import chdtrc
 
 from ..calibration.effects._common import output_unit
 from ..calibration.model import EFFECTS, Effect, ErrorModel, effect
@@ -472,7 +472,7 @@ def effect_sensors(fit: ModelFit, name: str, alpha: float = DEFAULT_ALPHA) -> li
         th = s.theta[idx]
         C = s.theta_cov[np.ix_(idx, idx)]
         w = float(th @ np.linalg.solve(C, th)) / s.inflation
-        if special.chdtrc(len(idx), max(w, 0.0)) <= alpha / len(sens):  # chi-square survival function
+        if chdtrc(len(idx), max(w, 0.0)) <= alpha / len(sens):  # the chi-square survival function
             out.append(s.name)
     return out
 

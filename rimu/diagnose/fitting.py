@@ -29,6 +29,7 @@ __all__ = [
     "SensorFit",
     "cached",
     "candidate_columns",
+    "candidate_design",
     "fit_model",
     "noise_from_differences",
     "noise_inflation",
@@ -37,7 +38,7 @@ __all__ = [
 ]
 
 class _CachedSegment(Segment):
-    """A segment whose attitude history (the costly part of every input) is computed once."""
+    """A segment whose attitude history and inputs (the costly part of every column) are computed once."""
 
     def attitude(self) -> np.ndarray | None:
         c = self.__dict__.get("_att_cache", False)
@@ -56,6 +57,15 @@ class _CachedSegment(Segment):
         key = ("_we_cache", latitude)
         if key not in self.__dict__:
             self.__dict__[key] = Segment.earth_rate(self, latitude)
+        return self.__dict__[key]
+
+    def angular_rate(self, latitude: float | None = None, include_earth: bool = True) -> np.ndarray:
+        # the gyros' input, asked for by every effect of every sensor: held once, read-only (shared)
+        key = ("_w_cache", latitude, include_earth)
+        if key not in self.__dict__:
+            w = Segment.angular_rate(self, latitude, include_earth)
+            w.flags.writeable = False
+            self.__dict__[key] = w
         return self.__dict__[key]
 
 
@@ -395,28 +405,56 @@ def _skip_note(session: Session, skipped: dict[str, str]) -> str:
     return note
 
 
+def candidate_design(session: Session, fit: ModelFit, effects: Sequence[Effect],
+                     sensor: int) -> tuple[np.ndarray, dict[str, slice], dict[str, str]]:
+    """The shared design of one sensor's candidate effects, built in one pass over the segments the fit used.
+
+    Returns ``(B, slices, reasons)``: the columns of every effect that applies to the sensor and can be built on
+    every segment, side by side in one array B (N, K) (each column centred when the model has a bias, see
+    below), their column slices by effect name, and for the applicable effects left out why. Effects that do
+    not apply to the sensor are in neither.
+    """
+    ctx = fit.contexts[sensor]
+    use = [e for e in effects if e.applies_to(ctx)]
+    widths = [len(e.parameters(ctx)) for e in use]
+    offs = np.concatenate([[0], np.cumsum(widths)]).astype(int)
+    B = np.empty((fit.sensors[sensor].n_obs, int(offs[-1])))
+    missing: dict[str, list[str]] = {e.name: [] for e in use}
+    row = 0
+    for lab in fit.segment_labels:
+        seg = session.segment(lab)
+        n = seg.n_samples
+        for e, a, b in zip(use, offs[:-1], offs[1:]):
+            c = e.columns(seg, ctx)
+            if c is None:
+                missing[e.name].append(lab)
+            else:
+                B[row:row + n, a:b] = np.asarray(c, dtype=float).reshape(n, b - a)
+        row += n
+    reasons: dict[str, str] = {}
+    slices: dict[str, slice] = {}
+    keep: list[int] = []
+    for e, a, b in zip(use, offs[:-1], offs[1:]):
+        miss = missing[e.name]
+        if miss:
+            reasons[e.name] = (f"segments {miss[:4]}{'...' if len(miss) > 4 else ''} lack the inputs it needs"
+                               if len(miss) < len(fit.segment_labels) else "no segment carries the inputs it needs")
+            continue
+        slices[e.name] = slice(len(keep), len(keep) + b - a)
+        keep += range(a, b)
+    if len(keep) < B.shape[1]:
+        B = B[:, keep]
+    if "bias" in fit.model:
+        # a constant shift lies in the model's span (its bias column): removing the mean changes nothing
+        # in the tests but keeps digits (time stamps far from zero, temperatures far from T_ref)
+        B -= B.mean(axis=0)
+    return B, slices, reasons
+
+
 def candidate_columns(session: Session, fit: ModelFit, effect: Effect, sensor: int) -> tuple[np.ndarray | None, str]:
     """Columns of ``effect`` for one sensor over the segments the fit used, or (None, reason)."""
     ctx = fit.contexts[sensor]
     if not effect.applies_to(ctx):
         return None, f"does not apply to {fit.instrument} {ctx.name}"
-    cols = []
-    missing = []
-    for lab in fit.segment_labels:
-        seg = session.segment(lab)
-        c = effect.columns(seg, ctx)
-        if c is None:
-            missing.append(lab)
-            continue
-        cols.append(np.asarray(c, dtype=float).reshape(seg.n_samples, -1))
-    if missing:
-        return None, (f"segments {missing[:4]}{'...' if len(missing) > 4 else ''} lack the inputs it needs"
-                      if len(missing) < len(fit.segment_labels) else "no segment carries the inputs it needs")
-    C = np.vstack(cols)
-    if "bias" in fit.model:
-        # a constant shift lies in the model's span (its bias column): removing the mean changes nothing
-        # in the tests but keeps digits (time stamps far from zero, temperatures far from T_ref)
-        C = C - C.mean(axis=0)
-    return C, ""
-
-
+    B, slices, reasons = candidate_design(session, fit, [effect], sensor)
+    return (B, "") if effect.name in slices else (None, reasons[effect.name])
