@@ -214,9 +214,10 @@ class _Workspace:
 
 
 def _workspace(B: np.ndarray, slices: dict[str, slice], s: SensorFit) -> _Workspace:
-    """The candidates' columns appended to the model's design: their Gram block ``B^T B`` and cross block
-    ``Q^T B`` with the model's orthonormal basis, and ``B^T r``; two products over the samples, then every
-    candidate is tested in the small space (Schur complement ``B^T B - B^T Q Q^T B``), never refitted."""
+    """The candidates' columns appended to the model's design by their inner products: the Gram block
+    ``B^T B``, the cross block ``Q^T B`` with the model's orthonormal basis and ``B^T r``, from two products
+    over the samples; every candidate is then tested in the small space through the Schur complement
+    ``B^T B - B^T Q Q^T B`` (:meth:`_Workspace.perp_gram`), never refitted."""
     G = B.T @ B
     H = B.T @ np.column_stack([s.Q, s.r])
     nr = np.sqrt(np.diag(G))
@@ -238,12 +239,17 @@ def _refit_workspace(B: np.ndarray, slices: dict[str, slice], s: SensorFit) -> _
 
 
 def _refit(s: SensorFit, Cn: np.ndarray, norms: np.ndarray) -> tuple[float, np.ndarray]:
-    """The straightforward refit of the model plus a candidate's (normalised) columns on one sensor: its
-    ``RSS_0 - RSS_1`` and the candidate's coefficients (raw units per column unit)."""
+    """The straightforward refit of the model plus a candidate's (normalised) columns on one sensor, by least
+    squares on the samples (SVD). Returns the candidate's dRSS = RSS_0 - RSS_1 and its coefficients (raw
+    units per column unit).
+
+    The model's residual is refitted on the whole design ``A = [X C]`` (Frisch-Waugh: the same coefficients
+    of C and the same RSS_1 as refitting y, since X is in A), so that dRSS is the squared norm of the fitted
+    part, ``|A gamma|^2``, not a difference of two sums of N squares (which resolves it only to ~N eps RSS)."""
     A = np.column_stack([s.X, Cn])
-    beta = np.linalg.lstsq(A, s.y, rcond=None)[0]
-    r1 = s.y - A @ beta
-    return float(s.rss - r1 @ r1), beta[s.X.shape[1]:] / np.where(norms == 0, 1.0, norms)
+    gamma = np.linalg.lstsq(A, s.r, rcond=None)[0]
+    fitted = A @ gamma
+    return float(fitted @ fitted), gamma[s.X.shape[1]:] / np.where(norms == 0, 1.0, norms)
 
 
 def _whitener(ws: _Workspace, name: str, n_cols: int) -> tuple[np.ndarray | None, list[int]]:
