@@ -33,12 +33,13 @@ from scipy import special
 
 from ..calibration.model import Effect
 from ..session import Session
-from .fitting import ModelFit, SensorFit, candidate_columns, candidate_design
+from .fitting import ModelFit, SensorFit, candidate_design
 
 __all__ = [
     "CandidateTest",
     "SensorTest",
     "canonical_correlation",
+    "candidate_bases",
     "conditional_log10_p",
     "confounding",
     "holm",
@@ -100,12 +101,8 @@ class CandidateTest:
 
     def basis(self, i: int) -> np.ndarray:
         """Orthonormal basis U (N x k) of the candidate's columns outside the model's span on sensor i
-        (recomputed on demand, for plots)."""
-        s = self._fit.sensors[i]
-        C, _ = candidate_columns(self._session, self._fit, self._effect, i)
-        norms = np.linalg.norm(C, axis=0)
-        Cn = C / np.where(norms == 0, 1.0, norms)
-        return (Cn - s.Q @ (s.Q.T @ Cn)) @ self._W[i]
+        (recomputed on demand, for plots; :func:`candidate_bases` for many candidates at once)."""
+        return candidate_bases([self], i)[self.name]
 
     def coefficients(self, i: int) -> np.ndarray:
         """The candidate's coefficients on sensor i in the fit of the model plus the candidate (raw output per
@@ -153,6 +150,25 @@ def f_logsf(x: float, d1: float, d2: float) -> float:
         if x > special.fdtri(d1, d2, 0.5):
             return float(np.log(special.fdtrc(d1, d2, x)))
         return float(np.log1p(-special.fdtr(d1, d2, x)))
+
+
+def candidate_bases(tests: Sequence[CandidateTest], i: int) -> dict[str, np.ndarray]:
+    """Orthonormal bases U = C_perp W (N x k) of several candidates' columns outside the model's span on sensor
+    i, from one shared design (the columns are built once for all of them). Candidates not tested on sensor i
+    are left out."""
+    tests = [t for t in tests if i in t._W]
+    if not tests:
+        return {}
+    fit, session = tests[0]._fit, tests[0]._session
+    s = fit.sensors[i]
+    B, slices, _ = candidate_design(session, fit, [t._effect for t in tests], i)
+    out = {}
+    for t in tests:
+        C = B[:, slices[t.name]]
+        norms = np.linalg.norm(C, axis=0)
+        Cn = C / np.where(norms == 0, 1.0, norms)
+        out[t.name] = (Cn - s.Q @ (s.Q.T @ Cn)) @ t._W[i]
+    return out
 
 
 def _log10_chi2sf(x: float, k: int) -> float:
