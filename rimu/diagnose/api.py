@@ -276,6 +276,7 @@ def diagnose(
     alpha: float = DEFAULT_ALPHA,
     include_earth_rate: bool = True,
     reference_temperature: float = 25.0,
+    method: str = "fast",
 ) -> Diagnosis:
     """Compare ``model`` with the measurement in ``session`` and find which effect is missing.
 
@@ -296,6 +297,9 @@ def diagnose(
         Whether the gyro input includes the Earth rate; False makes ``earth_rate`` a candidate.
     reference_temperature : float
         T_ref of the temperature effects, degC.
+    method : {"fast", "refit"}
+        How the candidates are tested (:func:`~rimu.diagnose.candidates.score_candidates`): in the small space
+        of one shared design (default), or by the straightforward refit of each (the reference; same numbers).
 
     Instruments whose model cannot be fitted from the session are reported in ``Diagnosis.errors``
     (with the reason) instead of raising, unless none can be fitted.
@@ -322,17 +326,17 @@ def diagnose(
         except IdentifiabilityError as exc:
             errors[k] = str(exc)
             continue
-        out[k] = diagnose_fit(session, fit, candidates, alpha)
+        out[k] = diagnose_fit(session, fit, candidates, alpha, method)
     if not out:
         raise IdentifiabilityError("no instrument could be fitted: " + "; ".join(f"{k}: {v}" for k, v in errors.items()))
     return Diagnosis(session, out, settings, errors)
 
 
 def diagnose_fit(session: Session, fit: ModelFit, candidates: Sequence[str] | None = None,
-                 alpha: float = DEFAULT_ALPHA) -> InstrumentDiagnosis:
+                 alpha: float = DEFAULT_ALPHA, method: str = "fast") -> InstrumentDiagnosis:
     """Diagnose an existing :class:`ModelFit` (residual statistics, candidate tests, confounding)."""
     st = residual_statistics(fit)
-    tests = score_candidates(session, fit, candidate_effects(fit.model, candidates), alpha)
+    tests = score_candidates(session, fit, candidate_effects(fit.model, candidates), alpha, method)
     groups = confounding(fit, tests, alpha)
     secondary: dict[str, str] = {}
     if groups:
