@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -138,10 +139,10 @@ class InstrumentDiagnosis:
         return None
 
     def test(self, name: str) -> CandidateTest:
-        for c in self.tests:
-            if c.name == name:
-                return c
-        raise KeyError(f"{name!r} was not a candidate; candidates: {[c.name for c in self.tests]}")
+        found = next((c for c in self.tests if c.name == name), None)
+        if found is None:
+            raise KeyError(f"{name!r} was not a candidate; candidates: {[c.name for c in self.tests]}")
+        return found
 
     def lines(self) -> list[str]:
         """The diagnosis in plain language."""
@@ -201,7 +202,7 @@ class InstrumentDiagnosis:
         return {
             "instrument": self.instrument, "model": self.model.label, "chi2_dof": self.fit.chi2_dof,
             "bic": self.fit.bic, "nothing_missing": self.nothing_missing, "alpha": self.alpha,
-            "sensors": [s.to_dict() for s in self.stats], "failures": _jsonable(self.failures),
+            "sensors": [s.to_dict() for s in self.stats], "failures": json.loads(json.dumps(self.failures)),  # a plain copy
             "findings": [{"effects": f.effects, "confounded": f.confounded,
                           "secondary_to": self.secondary.get(f.effects[0])} for f in self.findings],
             "candidates": [c.to_dict() for c in self.tests], "skipped_segments": self.fit.skipped,
@@ -541,13 +542,3 @@ def _one(m: Any) -> ErrorModel:
     if isinstance(m, Effect):
         return ErrorModel([m])
     return m
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, (np.floating, np.integer)):
-        return x.item()
-    return x
