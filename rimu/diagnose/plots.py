@@ -120,21 +120,23 @@ def plot_segment_map(d: InstrumentDiagnosis, path: str | Path) -> Path:
 
 
 def plot_input(fit: ModelFit, path: str | Path) -> Path:
-    """Mean residual against the input along the sensing axis (magnitude and sign), per sensor."""
+    """Mean residual against the input along the sensing axis (magnitude and sign), one line per sensor on one
+    axes (one axes instead of one per sensor: a figure's time goes mostly into its axes' decorations)."""
     plt = pyplot()
-    fig, axes = plt.subplots(1, len(fit.sensors), figsize=(2.6 * len(fit.sensors), 2.8), squeeze=False)
+    fig, ax = plt.subplots(figsize=(7.5, 3.6))
     _si, field, per = input_unit(fit.contexts[0])
-    for ax, s in zip(axes[0], fit.sensors):
+    for s in fit.sensors:
         b = input_bins(s, 12)
         if b:
             x, m, e, _ = (np.array(v) for v in zip(*b))
-            ax.errorbar(x / per, m, yerr=e, fmt="o-", ms=3)
-        ax.axhline(0, color="k", lw=0.5)
-        ax.set_title(s.name, fontsize=9, y=1.0)  # a fixed place: no measuring of the ticks
-        ax.set_xlabel(f"input along axis [{field}]", fontsize=7)
-    axes[0][0].set_ylabel("mean residual / sigma")
-    fig.suptitle(f"{fit.instrument}: residual against input")
-    return _save(fig, path, (0.6, 0.15, 0.5, 0.6), wspace=0.35)
+            ax.errorbar(x / per, m, yerr=e, fmt="o-", ms=3, capsize=0, label=s.name)
+    ax.axhline(0, color="k", lw=0.5)
+    ax.set_xlabel(f"input along the sensor's axis [{field}]")
+    ax.set_ylabel("mean residual / sigma")
+    if 1 < len(fit.sensors) <= 12:
+        ax.legend(fontsize=7, ncol=min(len(fit.sensors), 6), loc="upper center")
+    ax.set_title(f"{fit.instrument}: residual against input", y=1.0)
+    return _save(fig, path, (0.75, 0.2, 0.55, 0.35))
 
 
 def plot_temperature(fit: ModelFit, path: str | Path) -> Path | None:
@@ -191,11 +193,12 @@ def plot_regressors(fit: ModelFit, tests: list[CandidateTest], path: str | Path,
     plt = pyplot()
     cols = 4
     rows = int(np.ceil(len(tt) / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(2.8 * cols, 2.4 * rows), squeeze=False)
+    fig = plt.figure(figsize=(2.8 * cols, 2.4 * rows))
     s = fit.sensors[sensor]
     z = s.r / s.sigma
     bases = candidate_bases(tt, sensor)  # every candidate's columns built once, from one shared design
-    for ax, t in zip(axes.ravel(), tt):
+    for j, t in enumerate(tt):
+        ax = fig.add_subplot(rows, cols, j + 1)  # only the cells used: an axes costs even when hidden
         x = bases[t.name][:, 0]
         edges = np.quantile(x, np.linspace(0, 1, 11))
         k = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, 9)
@@ -209,8 +212,6 @@ def plot_regressors(fit: ModelFit, tests: list[CandidateTest], path: str | Path,
         ax.set_title(t.name, fontsize=8, y=1.0)  # a fixed place: no measuring of the ticks
         ax.tick_params(labelsize=6)
         _few_ticks(ax, x=True)
-    for ax in axes.ravel()[len(tt):]:
-        ax.axis("off")
     fig.suptitle(f"{fit.instrument} {s.name}: mean residual / sigma against each candidate's regressor")
     return _save(fig, path, (0.4, 0.15, 0.3, 0.55), hspace=0.45, wspace=0.3)
 
