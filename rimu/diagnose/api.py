@@ -412,7 +412,13 @@ class Comparison:
 def compare(session: Session, before: ModelFit, model: ErrorModel, sigma: Any = None, include_earth_rate: bool = True,
             reference_temperature: float = 25.0) -> Comparison:
     """Refit ``model`` (usually ``before.model + effect``) and compare with ``before``."""
-    after = fit_model(session, model, before.instrument, sigma, include_earth_rate, reference_temperature)
+    base = {"scale_misalignment", "bias"}
+    c0 = before.contexts[0]
+    # the same first fit (scale, misalignment and bias on the nominal axes) as before's: its calibrated axes
+    same_axes = ("scale_misalignment" in model and base & {e.name for e in model} == base & {e.name for e in before.model}
+                 and (c0.reference_temperature, c0.include_earth_rate) == (reference_temperature, include_earth_rate))
+    after = fit_model(session, model, before.instrument, sigma, include_earth_rate, reference_temperature,
+                      ctxs=before.contexts if same_axes else None)
     added = [e.name for e in model.effects if e.name not in before.model]
     return Comparison(before.instrument, added, before, after)
 

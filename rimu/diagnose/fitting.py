@@ -303,9 +303,14 @@ def fit_model(
             # candidates and effects along an axis are evaluated on the calibrated axes (what each sensor really
             # senses), taken from a first fit of scale, misalignment and bias on the nominal ones
             base = ErrorModel([e for e in model if e.name in ("scale_misalignment", "bias")])
-            first = fit_model(session, base, instrument, sigma, include_earth_rate, reference_temperature, ctxs,
-                              _beta_only=True)
+            # the model is the first fit's own (its design, the input and a constant, does not depend on the
+            # axes): the first fit is the fit, only seen from the calibrated axes
+            only_base = len(base.effects) == len(model.effects)
+            first = fit_model(session, base if not only_base else model, instrument, sigma, include_earth_rate,
+                              reference_temperature, ctxs, _beta_only=not only_base)
             ctxs = contexts(session, instrument, reference_temperature, include_earth_rate, calibrated_axes_of(first))
+            if only_base:
+                return _on_axes(session, first, ctxs)
     sig = _sigma_vector(sigma, len(ctxs))
     skipped: dict[str, str] = {}
     fits: list[SensorFit] = []
@@ -368,6 +373,23 @@ def fit_model(
                               np.concatenate(ss), s, known, infl, rho1))
         labels_used = labels
     return ModelFit(instrument, model, fits, labels_used, skipped, list(ctxs))
+
+
+def _on_axes(session: Session, fit: ModelFit, ctxs: list[SensorContext]) -> ModelFit:
+    """The same fit with its sensors' contexts on other axes: the physical parameters and the input along the
+    axis follow the new axis; the design, estimate and residual do not depend on it (models of scale,
+    misalignment and bias only)."""
+    for s in fit.sensors:
+        ctx = ctxs[s.ctx.index]
+        theta, J, specs = physical_from_beta(fit.model, ctx, s.beta)
+        ss = []
+        for lab in fit.segment_labels:
+            seg = session.segment(lab)
+            u = ctx.input(seg)
+            ss.append(np.full(seg.n_samples, np.nan) if u is None else np.asarray(u) @ ctx.axis)
+        s.ctx, s.theta, s.theta_cov, s.specs, s.axis_input = ctx, theta, J @ s.beta_cov @ J.T, specs, np.concatenate(ss)
+    fit.contexts = list(ctxs)
+    return fit
 
 
 def calibrated_axes_of(fit: ModelFit) -> np.ndarray:

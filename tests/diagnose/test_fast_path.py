@@ -89,3 +89,15 @@ def test_unknown_method_is_refused():
     fit = fit_model(run.session, ErrorModel.base(), "gyro")
     with pytest.raises(ValueError, match="fast"):
         score_candidates(run.session, fit, candidate_effects(fit.model), method="exact")
+
+
+def test_base_model_fit_is_its_own_first_fit_seen_from_the_calibrated_axes():
+    """A model of scale, misalignment and bias only is fitted once (its design does not depend on the axes): the
+    result equals the fit on the calibrated axes done from scratch, to the bit."""
+    run, _truth, _sc = simulate("g_sensitivity", "cone6", seed=1)
+    a = fit_model(run.session, ErrorModel.base(), "gyro")
+    b = fit_model(run.session, ErrorModel.base(), "gyro", ctxs=a.contexts)
+    for x, y in zip(a.sensors, b.sensors):
+        for name in ("beta", "beta_cov", "theta", "theta_cov", "r", "axis_input"):
+            np.testing.assert_array_equal(getattr(x, name), getattr(y, name))
+        assert x.ctx.axis.tolist() == y.ctx.axis.tolist() and x.sigma == y.sigma
