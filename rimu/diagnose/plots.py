@@ -79,26 +79,26 @@ def _decimate(n: int, keep: int = 4000) -> slice:
 
 
 def plot_residual_time(fit: ModelFit, path: str | Path) -> Path:
-    """Residual / noise level against time for every sensor, with each segment's mean (x 10 for visibility
-    is not applied: the mean is drawn in units of its own standard error on the right axis)."""
+    """Residual / noise level against time for every sensor, with each segment's mean residual drawn over the
+    segment (red). The means in units of their own standard error are the segment map's
+    (:func:`plot_segment_map`); a second y axis for them here would double the figure's drawing time."""
     plt = pyplot()
     fig, axes = _grid(len(fit.sensors), plt)
     for ax, s in zip(axes, fit.sensors):
         k = _decimate(s.n_obs)
         ax.plot(s.t[k], (s.r / s.sigma)[k], ".", ms=1, color="0.6")
-        counts = np.bincount(s.seg_index)
-        means = np.bincount(s.seg_index, weights=s.r) / np.maximum(counts, 1)
-        tm = np.bincount(s.seg_index, weights=s.t) / np.maximum(counts, 1)
-        z = means / (s.sigma / np.sqrt(np.maximum(counts, 1)))
-        ax2 = ax.twinx()
-        ax2.plot(tm, z, "o", color="C3", ms=3)
-        ax2.axhline(0, color="C3", lw=0.5)
-        ax2.set_ylabel("segment mean\n[std. err.]", color="C3", fontsize=7)
+        counts = np.maximum(np.bincount(s.seg_index), 1)
+        means = np.bincount(s.seg_index, weights=s.r) / counts / s.sigma
+        edges = np.flatnonzero(np.diff(s.seg_index)) + 1
+        t0 = s.t[np.concatenate([[0], edges])]
+        t1 = s.t[np.concatenate([edges - 1, [s.n_obs - 1]])]
+        ax.hlines(means[s.seg_index[np.concatenate([[0], edges])]], t0, t1, color="C3", lw=1.5)
+        ax.axhline(0, color="k", lw=0.5)
         ax.set_ylabel(f"{s.name}\nr/sigma", fontsize=8)
-        _few_ticks(ax, ax2)
+        _few_ticks(ax)
     axes[-1].set_xlabel("time [s]")
-    fig.suptitle(f"{fit.instrument}: residual of {fit.model.label}")
-    return _save(fig, path, (0.75, 0.75, 0.5, 0.45), hspace=0.12)
+    fig.suptitle(f"{fit.instrument}: residual of {fit.model.label} (red: segment means)")
+    return _save(fig, path, (0.75, 0.2, 0.5, 0.45), hspace=0.12)
 
 
 def plot_segment_map(d: InstrumentDiagnosis, path: str | Path) -> Path:
