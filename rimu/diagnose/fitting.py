@@ -95,25 +95,27 @@ def within_segment(r: np.ndarray, seg_index: np.ndarray) -> np.ndarray:
     return r - (np.bincount(seg_index, weights=r) / cnt)[seg_index]
 
 
-def noise_level(r: np.ndarray, seg_index: np.ndarray) -> float:
+def noise_level(r: np.ndarray, seg_index: np.ndarray, within: np.ndarray | None = None) -> float:
     """White-noise level from the residual about its segment means: ``sum (r - mean_seg)^2 / (N - n_seg)``.
 
     Errors that are constant over a segment (most missing effects on static and constant-rate segments) do
-    not enter; coloured noise is counted with its full variance (unlike first differences).
+    not enter; coloured noise is counted with its full variance (unlike first differences). ``within``: the
+    residual's :func:`within_segment` part, when already computed.
     """
-    w = within_segment(r, seg_index)
+    w = within_segment(r, seg_index) if within is None else within
     nseg = int(np.count_nonzero(np.bincount(seg_index)))
     return float(np.sqrt((w @ w) / max(r.size - nseg, 1)))
 
 
-def noise_inflation(r: np.ndarray, seg_index: np.ndarray, max_lag: int = 50) -> tuple[float, float]:
+def noise_inflation(r: np.ndarray, seg_index: np.ndarray, max_lag: int = 50,
+                    within: np.ndarray | None = None) -> tuple[float, float]:
     """(variance inflation factor, lag-1 autocorrelation) of the within-segment residual.
 
     The factor is the long-run variance over the variance, ``1 + 2 sum_k (1 - k/(L+1)) rho_k`` (Bartlett
     weights, Newey & West 1987), computed only when the lag-1 autocorrelation is significant
     (``rho_1 sqrt(N) > 4``); else 1. Statistics built on averages of many samples are divided by it.
     """
-    w = within_segment(r, seg_index)
+    w = within_segment(r, seg_index) if within is None else within
     rho = autocorrelation(w, seg_index, 1)
     r1 = float(rho[0])
     if r1 * np.sqrt(r.size) <= 4.0:
@@ -359,8 +361,9 @@ def fit_model(
             continue
         r = y - X @ beta
         seg_index = np.concatenate(idx)
-        s_est = noise_level(r, seg_index)
-        infl, rho1 = noise_inflation(r, seg_index)
+        w = within_segment(r, seg_index)
+        s_est = noise_level(r, seg_index, w)
+        infl, rho1 = noise_inflation(r, seg_index, within=w)
         known = sig is not None
         s = float(sig[ctx.index]) if known else max(s_est, np.finfo(float).tiny)
         # covariance of beta: sigma^2 (X^T X)^-1 = sigma^2 D^-1 R^-1 R^-T D^-1 (D = column norms)
