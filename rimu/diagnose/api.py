@@ -523,10 +523,18 @@ def iterate(session: Session, model: Any = None, max_rounds: int = 6, **kwargs: 
         if not comps:
             break
         rounds.append((d, comps))
-        models = {k: (comps[k].after.model if k in comps else m) for k, m in d.models.items()}
-        kw = dict(kwargs)
-        kw.pop("instruments", None)
-        d = diagnose(session, models, instruments=list(models), **kw)
+        if any(applies(session) for applies, _ in SESSION_KINDS):  # a session kind with a diagnosis of its own
+            models = {k: (comps[k].after.model if k in comps else m) for k, m in d.models.items()}
+            kw = dict(kwargs)
+            kw.pop("instruments", None)
+            d = diagnose(session, models, instruments=list(models), **kw)
+            continue
+        # the next round diagnoses the fits at hand (the refits of this round, the unchanged ones), not fits
+        # made again from scratch: the same fits, since the refit used the calibrated axes a new fit would find
+        d = Diagnosis(d.session, {k: diagnose_fit(d.session, comps[k].after if k in comps else idg.fit,
+                                                  d.settings["candidates"], d.settings["alpha"],
+                                                  kwargs.get("method", "fast"))
+                                  for k, idg in d.instruments.items()}, dict(d.settings))
     return Iteration(rounds, d, notes)
 
 
