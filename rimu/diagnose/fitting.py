@@ -443,7 +443,7 @@ def candidate_design(session: Session, fit: ModelFit, effects: Sequence[Effect],
     use = [e for e in effects if e.applies_to(ctx)]
     widths = [len(e.parameters(ctx)) for e in use]
     offs = np.concatenate([[0], np.cumsum(widths)]).astype(int)
-    B = np.empty((fit.sensors[sensor].n_obs, int(offs[-1])))
+    B = np.empty((fit.sensors[sensor].n_obs, int(offs[-1])), order="F")  # filled and reduced column by column
     missing: dict[str, list[str]] = {e.name: [] for e in use}
     row = 0
     for lab in fit.segment_labels:
