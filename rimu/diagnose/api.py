@@ -415,10 +415,12 @@ def compare(session: Session, before: ModelFit, model: ErrorModel, sigma: Any = 
     base = {"scale_misalignment", "bias"}
     c0 = before.contexts[0]
     # the same first fit (scale, misalignment and bias on the nominal axes) as before's: its calibrated axes
-    same_axes = ("scale_misalignment" in model and base & {e.name for e in model} == base & {e.name for e in before.model}
+    same_axes = (before.own_axes and "scale_misalignment" in model
+                 and base & {e.name for e in model} == base & {e.name for e in before.model}
                  and (c0.reference_temperature, c0.include_earth_rate) == (reference_temperature, include_earth_rate))
     after = fit_model(session, model, before.instrument, sigma, include_earth_rate, reference_temperature,
                       ctxs=before.contexts if same_axes else None)
+    after.own_axes = after.own_axes or same_axes
     added = [e.name for e in model.effects if e.name not in before.model]
     return Comparison(before.instrument, added, before, after)
 

@@ -232,6 +232,9 @@ class ModelFit:
     segment_labels: list[str]
     skipped: dict[str, str]
     contexts: list[SensorContext]
+    #: the contexts are on the calibrated axes of the model's own first fit (not given by the caller): a refit
+    #: of the model plus further effects would find the same axes
+    own_axes: bool = False
 
     @property
     def chi2_dof(self) -> float:
@@ -299,9 +302,11 @@ def fit_model(
     if instrument not in session.geometries:
         raise IdentifiabilityError(f"the session has no {instrument} data; instruments: {list(session.geometries)}")
     session = cached(session)
+    own_axes = False
     if ctxs is None:
         ctxs = contexts(session, instrument, reference_temperature, include_earth_rate)
-        if "scale_misalignment" in model:
+        own_axes = "scale_misalignment" in model
+        if own_axes:
             # candidates and effects along an axis are evaluated on the calibrated axes (what each sensor really
             # senses), taken from a first fit of scale, misalignment and bias on the nominal ones
             base = ErrorModel([e for e in model if e.name in ("scale_misalignment", "bias")])
@@ -375,7 +380,7 @@ def fit_model(
                               np.concatenate(ts), np.concatenate(Ts) if have_T and Ts else None,
                               np.concatenate(ss), s, known, infl, rho1))
         labels_used = labels
-    return ModelFit(instrument, model, fits, labels_used, skipped, list(ctxs))
+    return ModelFit(instrument, model, fits, labels_used, skipped, list(ctxs), own_axes)
 
 
 def _on_axes(session: Session, fit: ModelFit, ctxs: list[SensorContext]) -> ModelFit:
@@ -391,7 +396,7 @@ def _on_axes(session: Session, fit: ModelFit, ctxs: list[SensorContext]) -> Mode
             u = ctx.input(seg)
             ss.append(np.full(seg.n_samples, np.nan) if u is None else np.asarray(u) @ ctx.axis)
         s.ctx, s.theta, s.theta_cov, s.specs, s.axis_input = ctx, theta, J @ s.beta_cov @ J.T, specs, np.concatenate(ss)
-    fit.contexts = list(ctxs)
+    fit.contexts, fit.own_axes = list(ctxs), True
     return fit
 
 

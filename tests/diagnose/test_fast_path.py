@@ -101,3 +101,24 @@ def test_base_model_fit_is_its_own_first_fit_seen_from_the_calibrated_axes():
         for name in ("beta", "beta_cov", "theta", "theta_cov", "r", "axis_input"):
             np.testing.assert_array_equal(getattr(x, name), getattr(y, name))
         assert x.ctx.axis.tolist() == y.ctx.axis.tolist() and x.sigma == y.sigma
+
+
+def test_adding_an_effect_reuses_only_the_fits_own_calibrated_axes():
+    """``compare`` (Diagnosis.add) refits on the calibrated axes of the fit it extends when that fit found them
+    itself: the result equals a fit of the extended model from scratch, to the bit; a fit on axes the caller
+    gave (here the nominal ones) is not taken as the model's own, and the refit again equals the fit from
+    scratch."""
+    from rimu.calibration.model import contexts
+    from rimu.diagnose.api import compare
+
+    run, _truth, _sc = simulate("g_sensitivity", "cone6", seed=2)
+    s = cached(run.session)
+    model = ErrorModel.base() + "g_sensitivity"
+    scratch = fit_model(s, model, "gyro")
+    for before in (fit_model(s, ErrorModel.base(), "gyro"),
+                   fit_model(s, ErrorModel.base(), "gyro", ctxs=contexts(s, "gyro"))):
+        after = compare(s, before, model).after
+        for x, y in zip(after.sensors, scratch.sensors):
+            np.testing.assert_array_equal(x.beta, y.beta)
+            np.testing.assert_array_equal(x.theta_cov, y.theta_cov)
+            assert x.ctx.axis.tolist() == y.ctx.axis.tolist()
