@@ -116,7 +116,10 @@ def plot_segment_map(d: InstrumentDiagnosis, path: str | Path) -> Path:
     ax.set_xticks(range(len(labels)), labels, rotation=90, fontsize=6)
     fig.colorbar(im, ax=ax, label="segment mean / std. err.")
     ax.set_title(f"{d.instrument}: where the model fails (threshold +-{d.failures['segment_threshold_z']:.1f})")
-    return _save(fig, path)
+    # margins from the longest labels (sensor names at 10 pt, segment labels turned upright at 6 pt)
+    left = 0.3 + 0.085 * max(len(s.name) for s in d.stats)
+    bottom = 0.3 + 0.052 * max((len(lab) for lab in labels), default=1)
+    return _save(fig, path, (left, 1.45, bottom, 0.4))
 
 
 def plot_input(fit: ModelFit, path: str | Path) -> Path:
