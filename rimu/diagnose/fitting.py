@@ -360,9 +360,10 @@ def fit_model(
                 "add segments whose inputs differ in the directions involved", involved)
         Rinv = np.linalg.inv(R)
         beta = (Rinv @ (Q.T @ y)) / norms
-        if _beta_only:  # the first fit on the nominal axes: only its scale/misalignment vectors are used
-            fits.append(SensorFit(ctx, names, beta, np.empty((0, 0)), beta, np.empty((0, 0)), [], y, X, Q, y, y, y,
-                                  None, None))
+        if _beta_only:  # the first fit on the nominal axes: only beta is read (calibrated_axes_of); no residual
+            none = np.empty(0)
+            fits.append(SensorFit(ctx, names, beta, beta_cov=none, theta=none, theta_cov=none, specs=[], y=y, X=X,
+                                  Q=Q, r=none, seg_index=none, t=none, temperature=None, axis_input=None))
             continue
         r = y - X @ beta
         seg_index = np.concatenate(idx)
