@@ -122,3 +122,24 @@ def test_adding_an_effect_reuses_only_the_fits_own_calibrated_axes():
             np.testing.assert_array_equal(x.beta, y.beta)
             np.testing.assert_array_equal(x.theta_cov, y.theta_cov)
             assert x.ctx.axis.tolist() == y.ctx.axis.tolist()
+
+
+def test_a_candidate_whose_inputs_some_segments_lack_is_not_tested_and_says_which():
+    """The shared design leaves out, per sensor, the effects that cannot be built on every segment, with the
+    segments named; both paths agree, and the other candidates are tested as before."""
+    import dataclasses
+
+    from rimu.session import Session
+
+    run, _truth, _sc = simulate("bias_temperature", "cone6", seed=0)
+    s0 = run.session
+    segs = list(s0.segments)
+    segs[3] = dataclasses.replace(segs[3], temperature=None)
+    s = Session(segs, dict(s0.geometries), s0.sample_rate, s0.latitude, s0.gravity, s0.raw_unit, dict(s0.meta))
+    fit = fit_model(s, ErrorModel.base(), "gyro", known_sigma(run, "gyro"))
+    cands = candidate_effects(fit.model)
+    fast, ref = score_candidates(s, fit, cands), score_candidates(s, fit, cands, method="refit")
+    t = next(x for x in fast if x.name == "bias_temperature")
+    assert not t.testable and segs[3].label in t.reason and "lack the inputs it needs" in t.reason
+    assert [(x.name, x.testable, x.reason) for x in fast] == [(x.name, x.testable, x.reason) for x in ref]
+    assert any(x.testable and x.sensors for x in fast)
