@@ -112,7 +112,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmpd:
         tmp = Path(tmpd)
         s_path, cal_path = standard_session(tmp)
-        std = cached(load_session(s_path))
+        # the session as loaded: every diagnosis computes its inputs afresh (attitudes, specific force), as a
+        # user's call does
+        std = load_session(s_path)
         model, sigma = model_and_sigma(std, cal_path)
         res["standard_session"] = {"segments": len(std.segments), "samples": sum(g.n_samples for g in std.segments)}
         for k in std.instruments:
