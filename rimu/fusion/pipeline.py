@@ -415,12 +415,26 @@ class InstrumentPipeline:
                            {cur.entry: cur.P if cur.observable else _INF_P})
 
     # ------------------------------------------------------------------ estimates without side effects
-    def estimate(self, Z: np.ndarray) -> np.ndarray:
+    def usable(self, Y: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
+        """Mask (N, n) of the raw samples Y (N, n) that are measurements: finite, flagged valid, and inside the
+        range (``|y| < range_raw``)."""
+        Y = np.asarray(Y, dtype=float)
+        with np.errstate(invalid="ignore"):
+            ok = np.isfinite(Y) & (np.abs(Y) < self._range)
+        if valid is not None:
+            ok &= np.asarray(valid, dtype=bool)
+        return ok
+
+    def estimate(self, Z: np.ndarray, usable: np.ndarray | None = None) -> np.ndarray:
         """MB estimates (N, 3) of compensated outputs Z (N, n), SI, on the active sensors (non-finite entries
-        excluded per sample, isolated sensors left out), without touching counters or state; zero where the
-        remaining sensors are unobservable. The compensation stage uses it for the inputs of the effects."""
+        and entries where ``usable`` (N, n) is False excluded per sample, isolated sensors left out), without
+        touching counters or state; zero where the remaining sensors are unobservable. The compensation stage
+        uses it for the inputs of the effects, with ``usable`` from :meth:`usable` of the raw samples (a value
+        flagged invalid or clipped at the range limit must not move the estimate that compensates the others)."""
         Z = np.asarray(Z, dtype=float)
         good = np.isfinite(Z)
+        if usable is not None:
+            good &= np.asarray(usable, dtype=bool)
         tab = self.table
         if good.all() and self._set.observable:
             return Z @ self._set.G.T
@@ -607,19 +621,28 @@ class Pipeline:
             self.t0 = float(block.t[0])
         t = block.t - self.t0
 
+        ests, clipped = {}, {}
+        for k in self.compensation:
+            ip = self.instruments[k]
+            use = ip.usable(block.raw[k], block.valid.get(k))
+            ests[k] = ip.estimate if use.all() else (lambda q, ip=ip, use=use: ip.estimate(q, use))
+            with np.errstate(invalid="ignore"):
+                clipped[k] = np.abs(block.raw[k]) >= ip._range
+
         def solve(k: str, f: np.ndarray | None, w: np.ndarray | None) -> np.ndarray:
             inputs = RuntimeInputs(t=t, temperature=temp, specific_force=f, angular_rate=w)
-            return self.compensation[k].solve(block.raw[k], inputs, estimate=self.instruments[k].estimate)
+            return self.compensation[k].solve(block.raw[k], inputs, estimate=ests[k])
 
         f = w = None
         if self._cyclic:
-            w = self._preliminary_rate(lambda k, f_, w_: self.instruments[k].estimate(solve(k, f_, w_)),
-                                       np.zeros((len(block), 3)))
+            w = self._preliminary_rate(lambda k, f_, w_: ests[k](solve(k, f_, w_)), np.zeros((len(block), 3)))
         for k in self._order:
             comp = self.compensation.get(k)
             if comp is not None:
                 out[k] = comp.raw(block.raw[k], RuntimeInputs(t=t, temperature=temp, specific_force=f, angular_rate=w),
-                                  self.instruments[k].estimate)
+                                  ests[k])
+                if clipped[k].any():  # a clipped output stays clipped: the projection routes around it
+                    out[k] = np.where(clipped[k], block.raw[k], out[k])
             res = self.instruments[k].process(out[k], block.valid.get(k))
             results[k] = res
             if k == "accel":
@@ -643,6 +666,10 @@ class Pipeline:
         N = len(block)
         if not N or any(not np.all(v) for v in block.valid.values()):
             return None
+        for k in self._order:  # a clipped raw value is judged before compensation: the numpy path routes it
+            ip = self.instruments[k]
+            if ip.range_raw is not None and not np.all(np.abs(block.raw[k]) < ip._range):
+                return None
         temp = block.temperature
         self._need_temperature(temp is not None)
         if self.t0 is None:
@@ -690,6 +717,10 @@ class Pipeline:
         y1 = raw[self._order[-1]]
         if type(y0) is not _NDARRAY or type(y1) is not _NDARRAY:
             return None
+        for k in self._order:  # a clipped raw value is judged before compensation: the numpy path routes it
+            ip = self.instruments[k]
+            if ip.range_raw is not None and not np.all(np.abs(raw[k]) < ip._range):
+                return None
         try:
             ok = self._epoch_step(prog.F, prog.L, prog.W, y0, y1, float(epoch.t) - self.t0,
                                   0.0 if T is None else float(T) - self._t_ref, pipes[0]._out, pipes[-1]._out)
@@ -731,6 +762,13 @@ class Pipeline:
         generic = self._generic
         comps = self.compensation
 
+        ests = {}
+        for k in comps:
+            ip = self.instruments[k]
+            use = ip.usable(np.asarray(epoch.raw[k], dtype=float)[None],
+                            None if epoch.valid.get(k) is None else np.asarray(epoch.valid[k])[None])
+            ests[k] = self._estimators[k] if use.all() else (lambda q, ip=ip, use=use: ip.estimate(q[None], use)[0])
+
         def solve_q(k: str, f: list[float] | None, w: list[float] | None, raw: bool = False) -> np.ndarray:
             y = np.asarray(epoch.raw[k], dtype=float)
             inputs = None
@@ -739,19 +777,25 @@ class Pipeline:
                                        None if f is None else np.array([f]), None if w is None else np.array([w]))
                 comps[k]._check(inputs)
             mono = _monomials_one(t, dT, f, w)
-            est = self._estimators[k]
+            est = ests[k]
             if raw:
                 return comps[k].raw_one(y, mono, inputs, est)
             return comps[k].solve_one(y, mono, inputs, est)
 
         f = w = None
         if self._cyclic:
-            w = self._preliminary_rate(lambda k, f_, w_: self.instruments[k].estimate(solve_q(k, f_, w_)[None])[0]
-                                       .tolist(), [0.0, 0.0, 0.0])
+            w = self._preliminary_rate(lambda k, f_, w_: np.asarray(ests[k](solve_q(k, f_, w_))).tolist(),
+                                       [0.0, 0.0, 0.0])
         res: dict[str, StepResult] = {}
         for k in self._order:
             comp = comps.get(k)
             y = epoch.raw[k] if comp is None else solve_q(k, f, w, raw=True)
+            if comp is not None:
+                y0 = np.asarray(epoch.raw[k], dtype=float)
+                with np.errstate(invalid="ignore"):
+                    clip = np.abs(y0) >= self.instruments[k]._range
+                if clip.any():  # a clipped output stays clipped: the projection routes around it
+                    y = np.where(clip, y0, y)
             r = self.instruments[k].step(y, epoch.valid.get(k))
             res[k] = r
             if k == "accel":
