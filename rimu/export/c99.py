@@ -1,9 +1,11 @@
-"""A calibration as dependency-free C99: compensation, projection to the master-body frame, covariance, parity.
+"""A calibration as dependency-free C99: compensation, projection to the master-body frame, covariance, parity,
+and the redundancy manager's fault management (:mod:`rimu.export.c_fdi`).
 
 :func:`export_c` writes, for one calibrated unit, ``rimu_unit.h`` / ``rimu_unit.c`` (the runtime: no dynamic
 memory, no recursion, fixed-size arrays sized at export time, only ``<math.h>``), a command-line filter
-``rimu_filter.c`` that reads raw samples as CSV on stdin and writes the estimates on stdout, and a ``Makefile``.
-``double`` by default, ``float`` with ``real="float"``.
+``rimu_filter.c`` that reads raw samples as CSV on stdin and writes the estimates file
+(:mod:`rimu.export.estimates`) on stdout, and a ``Makefile``. ``double`` by default, ``float`` with
+``real="float"``.
 
 Per instrument and per sample, on the sensors that are active (not isolated) and valid (flag set, value finite):
 
@@ -18,7 +20,8 @@ Per instrument and per sample, on the sensors that are active (not isolated) and
   ``q_j = 1 - w_j a_j^T P a_j`` (the GLT of a fault on sensor j; Cho & Park Eq. 21 removes the sensor with the
   largest one).
 
-Nothing depends on a table of active sets: the same O(n) arithmetic serves any set of sensors, so a unit of 96
+The statistics-only step below (``rimu_<instrument>_step``) decides nothing; ``rimu_<instrument>_fdi_step`` adds the
+decisions (:mod:`rimu.export.c_fdi`). Nothing depends on a table of active sets: the same O(n) arithmetic serves any set of sensors, so a unit of 96
 axes exports as easily as a tetrad. An active set that does not span 3-D gives ``valid = 0`` (unobservable) and
 ``x = 0``, never a NaN.
 

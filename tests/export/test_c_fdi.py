@@ -155,7 +155,7 @@ def _compare(cal, c, py, real):
         err = np.abs(x - r.x).max(axis=1) / np.abs(r.x).max()
         if real == "float":
             # float rounding of the inputs grows with the conditioning of the sensor set in use: a set of three
-            # neighbours of a cone of nine has a covariance ~400 times the full set's. The error is divided by
+            # neighbours of a cone of nine has a covariance hundreds of times the full set's. The error is divided by
             # sqrt(trace P / trace P_full), the amplification of that set (1 for the full set).
             tr = r.P_diag.sum(axis=1)
             amp = np.sqrt(np.where(np.isfinite(tr), tr, np.inf) / tr[np.isfinite(tr)].min())
@@ -331,3 +331,25 @@ def test_codes_in_the_header_are_the_python_enums(tmp_path):
         assert defs[v.name] == int(v)
     for st in SensorState:
         assert defs[st.name] == int(st)
+
+
+@needs_cc
+def test_cli_bakes_the_manager_settings(tmp_path, capsys):
+    """`rimu export-c --confirm 1 --readmit-after 20 --fail-after 2 --max-set-size 1 --build`: the filter makes
+    the decisions of the manager with those settings (and not those of the defaults)."""
+    from rimu.cli import main
+
+    cal = _unit(cone6())
+    cal.save(tmp_path / "cal.json")
+    args = ["--confirm", "1", "--readmit-after", "20", "--fail-after", "2", "--max-set-size", "1", "--p-fa", "1e-4"]
+    assert main(["export-c", str(tmp_path / "cal.json"), "-o", str(tmp_path / "c"), "--build", *args]) == 0
+    assert "built" in capsys.readouterr().out
+    s = FdiSettings(confirm=1, readmit_after=20, fail_after=2, max_size=1, p_fa=1e-4)
+    Y, valid = _scenario(cal["gyro"], "repeat", 11)
+    t = np.arange(N) / FS
+    r = s.manager(cal["gyro"]).run(Y, valid, t)
+    c = _table(_run(tmp_path / "c" / "rimu_filter", t, {"gyro": Y}, {"gyro": valid}, "--detail"))
+    assert _compare(cal, c, {"gyro": r}, "double")[0] == 0
+    default = SETTINGS.manager(cal["gyro"]).run(Y, valid, t)
+    assert not np.array_equal(default.sensor_state, r.sensor_state)  # the settings matter on this run
+    assert (r.sensor_state == SensorState.FAILED).any()
