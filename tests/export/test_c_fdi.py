@@ -37,9 +37,20 @@ KINDS = ("single", "double", "intermittent", "dropout", "stuck", "ramp", "burst"
 
 
 def _build(cal, d, real="double", fdi=SETTINGS):
-    export_c(cal, d, real=real, fdi=fdi)
-    subprocess.run(["make", "-s", f"CC={CC}"], cwd=d, check=True, capture_output=True, text=True)
-    return d / "rimu_filter"
+    return _build_all(cal, {real: d}, fdi)[real]
+
+
+def _build_all(cal, dirs: dict, fdi=SETTINGS):
+    """Export and build one filter per real type, the compilers running side by side."""
+    procs = {}
+    for real, d in dirs.items():
+        export_c(cal, d, real=real, fdi=fdi)
+        procs[real] = subprocess.Popen(["make", "-s", f"CC={CC}"], cwd=d, stdout=subprocess.PIPE,
+                                       stderr=subprocess.PIPE, text=True)
+    for real, p in procs.items():
+        _, err = p.communicate()
+        assert p.returncode == 0, f"the {real} build failed: {err}"
+    return {real: d / "rimu_filter" for real, d in dirs.items()}
 
 
 def _run(exe, t, raw: dict, valid: dict, *args):
@@ -178,7 +189,7 @@ EXPECT = {"cone6": {"isolated", "readmitted", "invalid_isolated", "failed", "tra
 def test_same_decisions_as_the_manager_on_every_sample(name, tmp_path):
     geom, insts = GEOMS[name]
     cal = _unit(geom, insts)
-    exe = {real: _build(cal, tmp_path / real, real) for real in ("double", "float")}
+    exe = _build_all(cal, {real: tmp_path / real for real in ("double", "float")})
     t = np.arange(N) / FS
     kinds_seen: set[str] = set()
     scatter = 0
