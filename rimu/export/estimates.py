@@ -46,13 +46,17 @@ def _sizes(cal: Any) -> dict[str, int]:
 
 
 def estimate_columns(cal: Any) -> list[str]:
-    """The header of an estimates file for a calibration (or a mapping instrument -> sensor count).
+    """The header of an estimates file for a calibration (or a mapping instrument -> sensor count, or a list of
+    instrument names).
 
     >>> estimate_columns({"gyro": 6})
     ['t', 'gyro_x', 'gyro_y', 'gyro_z', 'gyro_validity', 'gyro_isolated']
+    >>> estimate_columns(["gyro", "accel"])[-1]
+    'accel_isolated'
     """
+    names = list(cal) if isinstance(cal, (list, tuple)) else list(_sizes(cal))
     cols = ["t"]
-    for k in _sizes(cal):
+    for k in names:
         cols += [f"{k}_x", f"{k}_y", f"{k}_z", f"{k}_validity", f"{k}_isolated"]
     return cols
 
