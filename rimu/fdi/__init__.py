@@ -20,7 +20,7 @@ from .glt import GltDecision, GltSnapshot, GltWindow, glt_snapshot, glt_threshol
 from .health import SensorHealth, SensorState
 from .kalman import ParityKalman
 from .manager import FdiEvent, FdiResult, Health, HealthState, RedundancyManager, ReplayResult
-from .motion import MotionAwareGlt, MotionNoiseModel, fit_motion_terms
+from .motion import MotionAwareGlt, MotionNoiseModel, fit_motion_detector, fit_motion_terms
 from .multiple import FaultSetGlt, SetDecision, set_fault_rates, single_fault_rates
 from .noise import NoiseEstimator
 from .parity import IsolabilityReport, detection_probability, isolability, wrong_isolation_bounds
@@ -44,6 +44,7 @@ __all__ = [
     "CalibrationAwareGlt",
     "MotionAwareGlt",
     "MotionNoiseModel",
+    "fit_motion_detector",
     "fit_motion_terms",
     "CalibrationCovariance",
     "stated_covariance",
