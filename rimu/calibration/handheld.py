@@ -1027,16 +1027,12 @@ class HandHeld:
     def __init__(self, sigma: dict[str, Any] | None = None, mode: str = "joint",
                  instruments: Sequence[str] | None = None, robust: bool = True, pose_weights: str = "noise",
                  accel_model: str = "full") -> None:
-        self.accel_model = accel_model
-        if mode not in ("joint", "subunits"):
-            raise ValueError(f"mode must be 'joint' or 'subunits', got {mode!r}")
-        if pose_weights not in ("noise", "equal"):
-            raise ValueError(f"pose_weights must be 'noise' or 'equal', got {pose_weights!r}")
-        self.pose_weights = pose_weights
-        self.sigma = sigma
-        self.mode = mode
-        self.instruments = instruments
-        self.robust = robust
+        choices = (("mode", mode, ("joint", "subunits")), ("pose_weights", pose_weights, ("noise", "equal")))
+        for name, value, allowed in choices:
+            if value not in allowed:
+                raise ValueError(f"{name} must be {' or '.join(repr(x) for x in allowed)}, got {value!r}")
+        self.sigma, self.mode, self.instruments, self.robust = sigma, mode, instruments, robust
+        self.pose_weights, self.accel_model = pose_weights, accel_model
 
     def _sigma(self, session: Session, inst: str) -> np.ndarray:
         n = session.geometries[inst].n

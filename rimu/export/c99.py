@@ -25,8 +25,11 @@ decisions (:mod:`rimu.export.c_fdi`). Nothing depends on a table of active sets:
 axes exports as easily as a tetrad. An active set that does not span 3-D gives ``valid = 0`` (unobservable) and
 ``x = 0``, never a NaN.
 
-Effects beyond scale factor, misalignment and bias are refused with :class:`~rimu.errors.ExportError` naming
-them (their runtime compensation is not exported yet), as are non-finite coefficients.
+Every further effect the Python runtime compensates (temperature, drift, g-sensitivity, nonlinearity, asymmetry,
+cross coupling, size effect) is compensated before the projection by code generated in
+:mod:`rimu.export.c_effects`; ``rimu_step(t, temperature, ...)`` runs one epoch of the whole unit in the order of
+:meth:`rimu.fusion.Pipeline.step`. An effect without runtime compensation is refused with
+:class:`~rimu.errors.ExportError` naming it, as are non-finite coefficients.
 """
 
 from __future__ import annotations
@@ -39,12 +42,15 @@ import numpy as np
 
 from ..calibration.result import Calibration, InstrumentCalibration
 from ..errors import ExportError
+from . import c_effects
 from .c_fdi import _FDI_SOURCE, FdiSettings, detection_variance, fdi_defines, fdi_header, fdi_tables
 
 __all__ = ["REALS", "export_c"]
 
 REALS = ("double", "float")
 _PREFIX = {"gyro": "RIMU_GYRO", "accel": "RIMU_ACCEL"}
+#: parameters of each instrument in rimu_fdi_step (c_effects.unit_step template)
+FDI_PARAMS = "rimu_fdi *{k}_m, const rimu_real *{k}_y, const unsigned char *{k}_valid, rimu_fdi_output *{k}_out"
 
 
 def _num(v: float, real: str) -> str:
@@ -61,11 +67,6 @@ def _array(values: np.ndarray, real: str, per_line: int = 4) -> str:
 
 
 def _check(inst: InstrumentCalibration) -> None:
-    extra = sorted(k for k, v in (inst.effects or {}).items() if v)
-    if extra:
-        raise ExportError(f"{inst.instrument}: the calibration has effects beyond scale, misalignment and bias "
-                          f"({', '.join(extra)}); their C compensation is not available yet: export a calibration "
-                          "fitted with the base model, or use the Python pipeline")
     if inst.noise_sigma is None:
         raise ExportError(f"{inst.instrument}: the calibration states no noise_sigma; the projection weights and the "
                           "parity statistic need each sensor's noise (fit it, or set noise_sigma in the file)")
@@ -110,7 +111,7 @@ def _header(cal: Calibration, real: str, fdi: FdiSettings) -> str:
         "} rimu_state;",
         "",
     ]
-    for k in cal.instruments:
+    for k in (k for k in cal.instruments if c_effects.plan(cal).public_step(k)):
         lc = k.lower()
         lines += [
             f"/* {k}: y = raw outputs ({_PREFIX[k]}_N values, device units), valid = 1 per usable value (NULL: all). */",
@@ -118,11 +119,14 @@ def _header(cal: Calibration, real: str, fdi: FdiSettings) -> str:
             "rimu_output *out);",
         ]
     lines += [fdi_header(fdi)]
-    for k in cal.instruments:
+    for k in (k for k in cal.instruments if c_effects.plan(cal).public_step(k)):
         lines += [f"/* {k}: one sample through the redundancy manager (detection, isolation, re-admission). */",
                   f"void rimu_{k.lower()}_fdi_step(rimu_fdi *m, const rimu_real *y, const unsigned char *valid, "
                   "rimu_fdi_output *out);"]
-    lines += ["", "#endif"]
+    lines += ["", c_effects.header(cal, real),
+              "/* One epoch of the whole unit through the redundancy managers, every calibrated effect compensated",
+              " * first (arguments as rimu_step's, with each instrument's manager state and output). */",
+              c_effects.unit_declaration(cal, "rimu_fdi_step", FDI_PARAMS), "", "#endif"]
     return "\n".join(lines) + "\n"
 
 
@@ -206,18 +210,23 @@ def _source(cal: Calibration, real: str, fdi: FdiSettings) -> str:
             f"static const rimu_real {lc}_axes[3 * {P}_N] = {_array(inst.axes_mb(), real, 3)};",
             f"static const rimu_real {lc}_w[{P}_N] = {_array(1.0 / inst.noise_sigma**2, real)};",
             "",
-            f"void rimu_{lc}_step(const rimu_state *st, const rimu_real *y, const unsigned char *valid, "
-            "rimu_output *out)",
+            f"{'' if c_effects.plan(cal).public_step(k) else 'static '}void rimu_{lc}_step(const rimu_state *st, "
+            "const rimu_real *y, const unsigned char *valid, rimu_output *out)",
             "{",
             f"    rimu_solve({n}, {lc}_sf, {lc}_b, {lc}_axes, {lc}_w, st, y, valid, out);",
             "}",
             "",
         ]
-        out += _fdi_unit(k, inst, real, fdi, max(cal[j].geometry.n for j in cal.instruments))
+        out += _fdi_unit(k, inst, real, fdi, max(cal[j].geometry.n for j in cal.instruments),
+                         c_effects.plan(cal).public_step(k))
+    out.append(c_effects.source(cal, real))
+    out.append(c_effects.unit_step(cal, "rimu_fdi_step", FDI_PARAMS, "{k}_m->iso",
+                                   "rimu_{k}_fdi_step({k}_m, {y}, {k}_valid, {k}_out);", "{k}_out->x"))
     return "\n".join(out)
 
 
-def _fdi_unit(k: str, inst: InstrumentCalibration, real: str, fdi: FdiSettings, nmax: int) -> list[str]:
+def _fdi_unit(k: str, inst: InstrumentCalibration, real: str, fdi: FdiSettings, nmax: int,
+              public: bool = True) -> list[str]:
     """The constants of one instrument's redundancy manager and its step function (tables sized for nmax)."""
     P, lc, n = _PREFIX[k], k.lower(), inst.geometry.n
     det, st = fdi_tables(fdi, nmax)
@@ -241,7 +250,8 @@ def _fdi_unit(k: str, inst: InstrumentCalibration, real: str, fdi: FdiSettings, 
         f"static const rimu_fdi_unit {lc}_unit = {{{n}, {lc}_sf, {lc}_b, {lc}_axes, {lc}_w, {lc}_sig2, {wdet}, "
         f"{lc + '_range' if rr is not None else 'NULL'}, {lc}_thr_det, {lc}_thr_set}};",
         "",
-        f"void rimu_{lc}_fdi_step(rimu_fdi *m, const rimu_real *y, const unsigned char *valid, rimu_fdi_output *out)",
+        f"{'' if public else 'static '}void rimu_{lc}_fdi_step(rimu_fdi *m, const rimu_real *y, "
+        "const unsigned char *valid, rimu_fdi_output *out)",
         "{",
         f"    rimu_fdi_run(&{lc}_unit, m, y, valid, out);",
         "}",
@@ -258,9 +268,7 @@ def _filter(cal: Calibration, real: str) -> str:
     for k in insts:
         P, lc = _PREFIX[k], k.lower()
         reads.append(f"        for (i = 0; i < {P}_N; ++i) ok &= read_field(&p, &y_{lc}[i], &v_{lc}[i]);")
-        stats.append(f"            rimu_{lc}_step(&st_{lc}, y_{lc}, v_{lc}, &o_{lc});")
         stats.append(f"            put_output(&o_{lc}, {P}_N);")
-        fdi.append(f"            rimu_{lc}_fdi_step(&m_{lc}, y_{lc}, v_{lc}, &f_{lc});")
         fdi.append(f"            put_fdi(&m_{lc}, &f_{lc}, {P}_N, detail);")
     decl = "\n".join(f"    rimu_real y_{k.lower()}[{_PREFIX[k]}_N];\n    unsigned char v_{k.lower()}[{_PREFIX[k]}_N];\n"
                      f"    rimu_output o_{k.lower()};\n    rimu_state st_{k.lower()} = {{{{0}}}};\n"
@@ -270,10 +278,16 @@ def _filter(cal: Calibration, real: str) -> str:
     head_detail = ",".join(f"{k}_x,{k}_y,{k}_z,{k}_validity,{k}_isolated,{k}_state,{k}_alarm,{k}_statistic,{k}_dof,"
                            f"{k}_not_isolable,{k}_sensors" for k in insts)
     fmt = "%.17g" if real == "double" else "%.9g"
+    temp_read = ("        p += (*p == ','); temp = strtod(p, &end);\n"
+                 "        if (end == p || !isfinite(temp)) {\n"
+                 "            fprintf(stderr, \"rimu_filter: row %ld: the temperature (last column, degC) is not a "
+                 "number\\n\", row);\n            return 2;\n        }\n"
+                 if c_effects.needs_temperature(cal) else "")
     return f"""/* rimu_filter.c -- generated by rimu: raw samples as CSV on stdin, estimates as CSV on stdout.
  * Input rows: t, then the raw values of {', '.join(f'{k} ({cal[k].geometry.n})' for k in insts)}, in the session
- * format's column order; an empty field is an invalid sample of that sensor. A first line that does not start
- * with a number is taken as a header and skipped.
+ * format's column order{", then the temperature (degC)" if c_effects.needs_temperature(cal) else ""}; an empty field
+ * is an invalid sample of that sensor (t: s; the first row's t is the origin of the drift terms). A first
+ * line that does not start with a number is taken as a header and skipped.
  * Output (default): t, then per instrument x, y, z (SI, master-body frame), validity (0 nominal, 1 degraded,
  * 2 unobservable) and isolated (0-based indices of the sensors the redundancy manager keeps out, ';'-separated).
  * --detail adds per instrument the set's health state, alarm, detection statistic, dof, the not-isolable flag
@@ -329,6 +343,8 @@ int main(int argc, char **argv)
     static char line[65536];
     long row = 0;
     int stats = 0, detail = 0, a;
+    int row0 = 1;
+    double t0 = 0;
 {decl}
     for (a = 1; a < argc; ++a) {{
         if (strcmp(argv[a], "--stats") == 0) stats = 1;
@@ -341,7 +357,7 @@ int main(int argc, char **argv)
     printf("t,%s\\n", stats ? "{head_stats}" : detail ? "{head_detail}" : "{head_fdi}");
     while (fgets(line, sizeof line, stdin)) {{
         char *p = line, *end;
-        double t;
+        double t, tt, temp = 0;
         int i, ok = 1;
         ++row;
         t = strtod(p, &end);
@@ -351,15 +367,20 @@ int main(int argc, char **argv)
             return 2;
         }}
         p = end;
+        if (row0) {{ t0 = t; row0 = 0; }}
+        tt = t - t0;  /* time since the first sample: the origin of the drift terms */
 {chr(10).join(reads)}
+{temp_read}
         if (!ok) {{
             fprintf(stderr, "rimu_filter: row %ld: a raw value is not a number\\n", row);
             return 2;
         }}
         printf("{fmt}", t);
         if (stats) {{
+    {c_effects.filter_call(cal)}
 {chr(10).join(stats)}
         }} else {{
+    {c_effects.filter_call(cal, "rimu_fdi_step", "&m_{k}, y_{k}, v_{k}, &f_{k}")}
 {chr(10).join(fdi)}
         }}
         printf("\\n");

@@ -5,7 +5,7 @@
   per-sensor health with re-admission (:mod:`rimu.fdi.health`), a validity flag per output, explicit
   :class:`HealthState` and events.
 * Detectors, thresholds from a stated false-alarm probability or ARL0: :class:`GltSnapshot`,
-  :class:`GltWindow` (Daly, Gai & Harrison 1979), :class:`CusumBank`, :class:`ParityKalman` (filterpy),
+  :class:`GltWindow` (Daly, Gai & Harrison 1979), :class:`CusumBank`, :class:`ParityKalman` (steady-state filter; filterpy as its reference),
   :class:`CalibrationAwareGlt`, and the autopilot-style baseline :class:`MeanDisagreement`.
 * :func:`isolability`: what a geometry can detect and isolate, with wrong-isolation bounds.
 * :mod:`rimu.fdi.faults`: fault injection; :mod:`rimu.fdi.campaign`: campaigns; :mod:`rimu.fdi.scenarios`: the
