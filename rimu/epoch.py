@@ -78,6 +78,8 @@ class EpochBlock:
             if y.ndim != 2 or y.shape[0] != N:
                 raise ShapeError(f"raw[{k!r}] must have shape (N={N}, n); got {y.shape}")
             self.raw[k] = y
+        if self.valid is None:  # None: every sample valid (as the pipeline's own valid=None)
+            self.valid = {}
         for k, v in self.valid.items():
             if np.shape(v) != self.raw[k].shape:
                 raise ShapeError(f"valid[{k!r}] has shape {np.shape(v)}, raw has {self.raw[k].shape}")

@@ -38,7 +38,7 @@ def _run(exe, t, raw: dict, valid: dict | None = None):
                 cells.append(repr(float(v)) if ok else "")
         rows.append(",".join(cells))
     del cols
-    res = subprocess.run([str(exe)], input="t,raw\n" + "\n".join(rows) + "\n", capture_output=True, text=True,
+    res = subprocess.run([str(exe), "--stats"], input="t,raw\n" + "\n".join(rows) + "\n", capture_output=True, text=True,
                          check=True)
     lines = res.stdout.strip().splitlines()
     head = lines[0].split(",")

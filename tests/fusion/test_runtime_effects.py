@@ -290,3 +290,44 @@ def test_compiled_forms_equal_runtime_columns(instrument):
         inputs.axis_input = sp
         num = (comp.output_error(inputs)[:, i] - c_ref[:, i]) / h
         np.testing.assert_allclose(dc_ref[:, i], num, rtol=1e-4, atol=1e-9)
+
+
+@pytest.mark.parametrize("how", ["invalid", "saturated"])
+def test_a_value_that_is_not_a_measurement_does_not_move_the_compensation(how):
+    """The compensation's own estimates (the specific force for g-sensitivity, the rate for the size effect and
+    cross coupling) leave out a value flagged invalid or clipped at the range limit, as the projection does: the
+    outputs equal those with that value replaced by NaN, block and step (the exported C does the same). Before,
+    a finite value flagged invalid moved the gyro estimate by hundreds of rad/s."""
+    from rimu.epoch import Epoch
+
+    cal = _all_effects_calibration()
+    rng = np.random.default_rng(5)
+    N = 50
+    t = np.arange(N) * 0.01
+    T = 25.0 + np.linspace(0, 5, N)
+    Y = _forward(cal, _random_inputs(rng, N), t, T)
+    valid = {k: np.ones((N, 6), bool) for k in INSTS}
+    bad = {k: Y[k].copy() for k in INSTS}
+    ref = {k: Y[k].copy() for k in INSTS}
+    rng_raw = {k: None for k in INSTS}
+    for k in INSTS:
+        if how == "invalid":
+            bad[k][::3, 2] = 1e4                      # a wild finite value, flagged invalid
+            valid[k][::3, 2] = False
+        else:
+            rng_raw[k] = float(np.abs(Y[k]).max() * 1.5)
+            bad[k][::3, 2] = rng_raw[k]               # clipped at the range limit
+        ref[k][::3, 2] = np.nan
+    for backend in ("numpy", "auto"):            # auto: the compiled backend when numba is installed
+        pb = Pipeline(cal, range_raw=rng_raw, backend=backend)
+        pr = Pipeline(cal, range_raw=rng_raw, backend=backend)
+        out_b = pb.process(EpochBlock(t, bad, valid, T))
+        out_r = pr.process(EpochBlock(t, ref, None, T))
+        for k in INSTS:
+            np.testing.assert_allclose(out_b[k].x, out_r[k].x, rtol=0, atol=1e-12 * np.abs(out_r[k].x).max())
+        ps = Pipeline(cal, range_raw=rng_raw, backend=backend)
+        for j in (0, 3, 6):
+            r = ps.step(Epoch(float(t[j]), {k: bad[k][j] for k in INSTS}, {k: valid[k][j] for k in INSTS},
+                              float(T[j])))
+            for k in INSTS:
+                np.testing.assert_allclose(r[k].x, out_r[k].x[j], rtol=0, atol=1e-12 * np.abs(out_r[k].x).max())

@@ -1,0 +1,861 @@
+"""The decision logic of :class:`rimu.fdi.RedundancyManager` as generated C99 (used by :func:`rimu.export.export_c`).
+
+What the generated ``rimu_<instrument>_fdi_step`` does per sample is the manager's ``step`` with its default
+detector (:class:`rimu.fdi.GltSnapshot`) and isolator (:class:`rimu.fdi.multiple.FaultSetGlt`), decision for
+decision:
+
+* the GLT snapshot detector: ``|p|^2 > chi2_{1 - p_fa}(dof)`` (Daly, Gai & Harrison 1979), thresholds tabulated
+  per parity dof at export time; with a calibration noise model (``cal.noise``) the statistic is the manager's
+  whitened one, ``|L p|^2``, which equals the residual chi-square of the least squares weighted with the model's
+  per-sample variances ``v_i`` (a parity statistic does not depend on the parity basis), so no per-set Cholesky
+  factor is needed;
+* the alarm episode's evidence (sum and scatter of the parity vectors) and the generalised likelihood test over
+  sets of 1..``max_size`` sensors (``max_size`` <= 2) on its mean and on its scatter, confirmation over
+  ``confirm`` consecutive alarms naming the same set, isolation (Cho & Park 2005, Eq. 21), the "fault present,
+  not isolable" report and its clearing after ``clear_after`` quiet samples;
+* isolation of a sensor invalid for ``invalid_persist`` consecutive samples (unless the rest would not span 3-D);
+* the per-sensor state machine of :mod:`rimu.fdi.health` (SUSPECT, ISOLATED, RECOVERING, FAILED after
+  ``fail_after`` isolations; clean period ``readmit_after * backoff^(isolations - 1)``, its length and energy
+  thresholds tabulated) and the re-admission test;
+* the set state (:class:`rimu.fdi.HealthState`) and the :class:`rimu.fusion.validity.Validity` flag.
+
+What is precomputed and what is not. Nothing is tabulated per active set: the parity-space quantities of a set
+are computed from the O(n) weighted least-squares solution (the closed form of :mod:`rimu.export.c99`). With
+``e = W r`` the whitened residuals and ``Pi = I - W A P A^T W`` (``Pi_jk = delta_jk - sqrt(w_j w_k) a_j^T P a_k``),
+the normalised parity ``p`` of any parity basis satisfies ``V^T p = e``, ``v_j . v_k = sqrt(w_j w_k) Pi_jk`` and for
+a sensor set S ``|Q_S^T p|^2 = e_S^T Pi_SS^-1 e_S``, so the set test's ``R_S = trace(M) - trace(Pi_SS^-1 M_SS)``
+needs the episode's scatter in sensor space (n(n+1)/2 numbers) and a 1x1 or 2x2 inverse per hypothesis. The
+thresholds that depend only on the configuration and the dof (detection, consistency of a set on one sample,
+re-admission) are tables written at export time by scipy; the consistency threshold of the scatter over N
+samples, ``chi2_{1 - alpha}(N (dof - k))``, has no bound on N and is computed on the target
+(:c:func:`rimu_chi2_isf`: Newton's method on the regularised incomplete gamma function, in double).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.stats import chi2, norm
+
+from ..errors import ExportError
+
+__all__ = ["FdiSettings"]
+
+
+@dataclass(frozen=True)
+class FdiSettings:
+    """The redundancy manager's configuration baked into the generated code (defaults: the manager's).
+
+    ``p_fa``, ``confirm``, ``invalid_persist``, ``readmit_after`` (None: never automatically), ``fail_after``,
+    ``backoff``, ``clear_after``, ``episode_gap`` (None: ``max(confirm, 5)``) as in
+    :class:`rimu.fdi.RedundancyManager`; ``alpha``, ``max_size`` (1 or 2), ``max_sets``, ``collinear_tol`` as in
+    :class:`rimu.fdi.multiple.FaultSetGlt` (the manager's default isolator has ``alpha=1e-4``).
+
+    >>> FdiSettings(confirm=5).manager_kwargs()["confirm"]
+    5
+    """
+
+    p_fa: float = 1e-3
+    confirm: int = 3
+    invalid_persist: int = 10
+    readmit_after: int | None = 100
+    fail_after: int = 4
+    backoff: float = 2.0
+    clear_after: int = 50
+    episode_gap: int | None = None
+    alpha: float = 1e-4
+    max_size: int = 2
+    max_sets: int = 20000
+    collinear_tol: float = 1e-3
+
+    def __post_init__(self) -> None:
+        checks = [
+            (0 < self.p_fa < 1, f"p_fa must be in (0, 1), got {self.p_fa}"),
+            (0 < self.alpha < 1, f"alpha must be in (0, 1), got {self.alpha}"),
+            (self.confirm >= 1, f"confirm must be at least 1 sample, got {self.confirm}"),
+            (self.invalid_persist >= 1, f"invalid_persist must be at least 1 sample, got {self.invalid_persist}"),
+            (self.readmit_after is None or self.readmit_after >= 1,
+             f"readmit_after must be at least 1 sample (or None), got {self.readmit_after}"),
+            (self.fail_after >= 1, f"fail_after must be at least 1, got {self.fail_after}"),
+            (self.backoff >= 1.0, f"backoff must be at least 1, got {self.backoff}"),
+            (self.clear_after >= 1, f"clear_after must be at least 1 sample, got {self.clear_after}"),
+            (self.episode_gap is None or self.episode_gap >= 1,
+             f"episode_gap must be at least 1 sample, got {self.episode_gap}"),
+            (self.max_size in (1, 2), f"the C export tests sets of 1 or 2 sensors (max_size), got {self.max_size}"),
+            (self.max_sets >= 1, f"max_sets must be at least 1, got {self.max_sets}"),
+            (0 <= self.collinear_tol < 1, f"collinear_tol must be in [0, 1), got {self.collinear_tol}"),
+        ]
+        for ok, msg in checks:
+            if not ok:
+                raise ExportError(msg)
+
+    @property
+    def gap(self) -> int:
+        return int(self.episode_gap) if self.episode_gap is not None else max(self.confirm, 5)
+
+    def manager_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments of :class:`rimu.fdi.RedundancyManager` that make the same decisions."""
+        from ..fdi.multiple import FaultSetGlt
+
+        return {"p_fa": self.p_fa, "confirm": self.confirm, "invalid_persist": self.invalid_persist,
+                "readmit_after": self.readmit_after, "fail_after": self.fail_after, "backoff": self.backoff,
+                "clear_after": self.clear_after, "episode_gap": self.episode_gap,
+                "isolator": FaultSetGlt(alpha=self.alpha, max_size=self.max_size, max_sets=self.max_sets,
+                                        collinear_tol=self.collinear_tol)}
+
+    def manager(self, inst: Any) -> Any:
+        """The Python :class:`rimu.fdi.RedundancyManager` of one instrument calibration with these settings."""
+        from ..fdi import RedundancyManager
+        from ..fusion import InstrumentPipeline
+
+        return RedundancyManager(InstrumentPipeline(inst), **self.manager_kwargs())
+
+    # ---------------------------------------------------------------- tables
+    def required(self) -> list[int]:
+        """Clean samples before re-admission after the 1st, 2nd, ... isolation (rimu.fdi.health.SensorHealth)."""
+        if self.readmit_after is None:
+            return [0]
+        return [round(self.readmit_after * self.backoff ** k) for k in range(max(self.fail_after - 1, 1))]
+
+    def mean_threshold(self) -> float:
+        return float(chi2.isf(self.p_fa, 1))
+
+    def energy(self) -> list[float]:
+        """chi2(N) quantile at the mean test's probability for each clean period N (SensorHealth._energy_threshold)."""
+        p = chi2.sf(self.mean_threshold(), 1)
+        return [float(chi2.isf(p, max(N, 1))) for N in self.required()]
+
+
+def detection_variance(inst: Any) -> np.ndarray | None:
+    """Per-sample variances the manager's default detector whitens with (calibration noise model), or None."""
+    noise = getattr(inst, "noise", None)
+    if noise is None:
+        return None
+    from ..fdi.glt import as_noise_settings
+
+    return np.asarray(as_noise_settings(noise).variance(1), dtype=float)
+
+
+_FDI_HEADER = """
+/* ---- fault detection, isolation and re-admission (rimu.fdi.RedundancyManager, generated with:
+ * {settings}) */
+#define RIMU_HEALTHY 0
+#define RIMU_SUSPECT 1
+#define RIMU_ISOLATED 2
+#define RIMU_RECOVERING 3
+#define RIMU_FAILED 4
+/* Validity (rimu.fusion.validity.Validity) */
+#define RIMU_NOMINAL 0
+#define RIMU_DEGRADED 1
+#define RIMU_UNOBSERVABLE 2
+/* HealthState of a sensor set (rimu.fdi.HealthState, in the order of its STATE_CODES) */
+#define RIMU_STATE_NOMINAL 0
+#define RIMU_STATE_FAULT_ISOLATED 1
+#define RIMU_STATE_DETECTION_ONLY 2
+#define RIMU_STATE_NO_REDUNDANCY 3
+#define RIMU_STATE_UNOBSERVABLE 4
+#define RIMU_NTRI (RIMU_NMAX * (RIMU_NMAX + 1) / 2)
+#define RIMU_STATE_CACHE 4
+
+/* The manager's state of one instrument. Zero-initialise it (or call rimu_fdi_reset): every sensor healthy. */
+typedef struct {{
+    signed char sensor[RIMU_NMAX];      /* per-sensor state: RIMU_HEALTHY ... RIMU_FAILED */
+    unsigned char iso[RIMU_NMAX];       /* 1: kept out of the estimate (isolated, recovering or failed) */
+    int isolations[RIMU_NMAX];
+    long clean[RIMU_NMAX];
+    rimu_real csum[RIMU_NMAX], csumsq[RIMU_NMAX];
+    long invalid_run[RIMU_NMAX];
+    int invalid_pending, started, suspects_on, not_isolable;
+    long quiet, samples;
+    unsigned char prev[RIMU_NMAX];      /* the previous sample's set */
+    long ep_n, ep_alarms, ep_quiet;     /* alarm episode: samples, alarms, quiet samples at its end */
+    rimu_real ep_sum[RIMU_NMAX];        /* sum of the whitened residuals (= parity vectors) */
+    rimu_real ep_M[RIMU_NTRI];          /* their scatter, packed upper triangle */
+    int cand[2], ncand;
+    long streak;
+    int last_kind, last_nset, last_set[2];
+    unsigned char last_sus[RIMU_NMAX];
+    unsigned char cache_mask[RIMU_STATE_CACHE][RIMU_NMAX];
+    signed char cache_state[RIMU_STATE_CACHE];
+    int cache_next;
+}} rimu_fdi;
+
+/* One instrument's output for one sample, with the manager's decisions. */
+typedef struct {{
+    rimu_real x[3];             /* estimate in the master-body frame, SI (0 when validity is RIMU_UNOBSERVABLE) */
+    rimu_real P[9];             /* its covariance (zeros when unobservable) */
+    int validity;               /* RIMU_NOMINAL, RIMU_DEGRADED or RIMU_UNOBSERVABLE */
+    int state;                  /* HealthState of the sample's sensor set (RIMU_STATE_...) */
+    int alarm;                  /* the detection test alarmed on this sample */
+    rimu_real statistic, threshold;  /* the detector's, on the sample's set (threshold < 0: no parity) */
+    int fault_not_isolable;     /* a fault is reported present but not isolable */
+    int dof;                    /* parity dimension of the set x was computed from */
+    unsigned char active[RIMU_NMAX];  /* sensors in x */
+}} rimu_fdi_output;
+
+void rimu_fdi_reset(rimu_fdi *m);
+/* chi2_{{1-alpha}}(nu) quantile (evaluated in double; used for the scatter test over many samples) */
+double rimu_chi2_isf(double alpha, long nu);
+"""
+
+
+_FDI_SOURCE = r"""
+/* ======================================================================== fault management */
+typedef struct {
+    int n;
+    const rimu_real *sf, *b, *ax, *w, *sig2, *wdet, *range; /* range: NULL when the calibration states none */
+    const rimu_real *thr_det;   /* detection threshold by dof (index 0 unused) */
+    const rimu_real *thr_set;   /* chi2_{1-alpha}(dof - k) at [dof * (RIMU_FDI_K + 1) + k] */
+} rimu_fdi_unit;
+
+typedef struct {
+    rimu_real x[3], P[9], Pa[3 * RIMU_NMAX], q[RIMU_NMAX], e[RIMU_NMAX], chi2;
+    int used, dof, observable;
+} rimu_fit;
+
+typedef struct {
+    int kind, nset, set[2];
+    unsigned char sus[RIMU_NMAX];
+} rimu_dec;
+
+enum { RIMU_DEC_NONE = 0, RIMU_DEC_ISOLATED, RIMU_DEC_AMBIGUOUS, RIMU_DEC_UNEXPLAINED, RIMU_DEC_NOT_ISOLABLE };
+
+void rimu_fdi_reset(rimu_fdi *m)
+{
+    unsigned char *p = (unsigned char *)m;
+    size_t i;
+    for (i = 0; i < sizeof *m; ++i) p[i] = 0;
+}
+
+/* ---- chi-square quantile: ln Q(a, x), the regularised upper incomplete gamma function */
+static double rimu_lnq(double a, double x)
+{
+    int i;
+    double lead = a * log(x) - x - lgamma(a);
+    if (x < a + 1) {  /* series for P(a, x), Q = 1 - P */
+        double ap = a, del = 1 / a, sum = del;
+        for (i = 0; i < 100000; ++i) {
+            ap += 1;
+            del *= x / ap;
+            sum += del;
+            if (fabs(del) < fabs(sum) * 1e-17) break;
+        }
+        return log1p(-sum * exp(lead));
+    } else {  /* continued fraction (modified Lentz) */
+        double b = x + 1 - a, c = 1 / 1e-300, d = 1 / b, h = d, an, del;
+        for (i = 1; i < 100000; ++i) {
+            an = -i * (i - a);
+            b += 2;
+            d = an * d + b;
+            if (fabs(d) < 1e-300) d = 1e-300;
+            c = b + an / c;
+            if (fabs(c) < 1e-300) c = 1e-300;
+            d = 1 / d;
+            del = d * c;
+            h *= del;
+            if (fabs(del - 1) < 1e-17) break;
+        }
+        return lead + log(h);
+    }
+}
+
+double rimu_chi2_isf(double alpha, long nu)
+{
+    double a = 0.5 * (double)nu, q, la = log(alpha), s, t;
+    int i;
+    if (nu < 1) return 0;
+    /* Wilson-Hilferty start, then Newton on ln Q(nu/2, q/2) = ln alpha (d/dq ln Q = -pdf / Q) */
+    s = 2.0 / (9.0 * (double)nu);
+    t = 1 - s + RIMU_FDI_ALPHA_Z * sqrt(s);
+    q = t > 0.05 ? (double)nu * t * t * t : (double)nu * 0.0001;
+    for (i = 0; i < 200; ++i) {
+        double lq = rimu_lnq(a, 0.5 * q);
+        double lpdf = (a - 1) * log(0.5 * q) - 0.5 * q - lgamma(a) - log(2.0);
+        double dq = (lq - la) / exp(lpdf - lq);  /* f / (-f') with f = ln Q - ln alpha */
+        double qn = q + dq;
+        if (qn <= 0) qn = 0.5 * q;
+        if (fabs(qn - q) <= 1e-15 * q) {
+            q = qn;
+            break;
+        }
+        q = qn;
+    }
+    return q;
+}
+
+/* table index of a dof (the tables are sized for RIMU_NMAX; the clamp only tells the compiler so) */
+#define RIMU_DOFC(d) ((d) < 0 ? 0 : (d) > RIMU_NMAX - 3 ? RIMU_NMAX - 3 : (d))
+
+static rimu_real rimu_thr_set(const rimu_fdi_unit *u, int dof, int k, long samples)
+{
+    if (samples == 1) return u->thr_set[RIMU_DOFC(dof) * (RIMU_FDI_K + 1) + (k < 0 ? 0 : k > RIMU_FDI_K ? RIMU_FDI_K : k)];
+    return (rimu_real)rimu_chi2_isf(RIMU_FDI_ALPHA, samples * (long)(dof - k));
+}
+
+/* ---- weighted least squares on one sensor set (weights w), with P a_i, q_i = 1 - w_i a_i^T P a_i and the
+ * whitened residuals e_i = sqrt(w_i) (z_i - a_i . x) when z is given */
+static void rimu_fit_set(const rimu_fdi_unit *u, const rimu_real *w, const unsigned char *use, const rimu_real *z,
+                         rimu_fit *f)
+{
+    rimu_real N00 = 0, N01 = 0, N02 = 0, N11 = 0, N12 = 0, N22 = 0, h0 = 0, h1 = 0, h2 = 0, scale = 0, det, id;
+    rimu_real P00, P01, P02, P11, P12, P22;
+    int i, m = 0, n = u->n;
+    for (i = 0; i < n; ++i) {
+        const rimu_real *a = u->ax + 3 * i;
+        f->e[i] = 0;
+        f->q[i] = 0;
+        if (!use[i]) continue;
+        N00 += w[i] * a[0] * a[0]; N01 += w[i] * a[0] * a[1]; N02 += w[i] * a[0] * a[2];
+        N11 += w[i] * a[1] * a[1]; N12 += w[i] * a[1] * a[2]; N22 += w[i] * a[2] * a[2];
+        if (z) {
+            h0 += w[i] * z[i] * a[0]; h1 += w[i] * z[i] * a[1]; h2 += w[i] * z[i] * a[2];
+        }
+        scale += w[i];
+        ++m;
+    }
+    for (i = 0; i < 9; ++i) f->P[i] = 0;
+    f->x[0] = f->x[1] = f->x[2] = 0;
+    f->chi2 = 0;
+    f->used = m;
+    f->dof = 0;
+    P00 = N11 * N22 - N12 * N12;
+    P01 = N02 * N12 - N01 * N22;
+    P02 = N01 * N12 - N02 * N11;
+    det = N00 * P00 + N01 * P01 + N02 * P02;
+    if (m < 3 || !(det > RIMU_RANK_TOL * scale * scale * scale)) {
+        f->observable = 0;
+        return;
+    }
+    f->observable = 1;
+    f->dof = m - 3;
+    id = 1 / det;
+    P11 = (N00 * N22 - N02 * N02) * id;
+    P12 = (N01 * N02 - N00 * N12) * id;
+    P22 = (N00 * N11 - N01 * N01) * id;
+    P00 *= id; P01 *= id; P02 *= id;
+    f->P[0] = P00; f->P[1] = P01; f->P[2] = P02;
+    f->P[3] = P01; f->P[4] = P11; f->P[5] = P12;
+    f->P[6] = P02; f->P[7] = P12; f->P[8] = P22;
+    f->x[0] = P00 * h0 + P01 * h1 + P02 * h2;
+    f->x[1] = P01 * h0 + P11 * h1 + P12 * h2;
+    f->x[2] = P02 * h0 + P12 * h1 + P22 * h2;
+    for (i = 0; i < n; ++i) {
+        const rimu_real *a = u->ax + 3 * i;
+        rimu_real *pa = f->Pa + 3 * i;
+        if (!use[i]) continue;
+        pa[0] = P00 * a[0] + P01 * a[1] + P02 * a[2];
+        pa[1] = P01 * a[0] + P11 * a[1] + P12 * a[2];
+        pa[2] = P02 * a[0] + P12 * a[1] + P22 * a[2];
+        f->q[i] = 1 - w[i] * (a[0] * pa[0] + a[1] * pa[1] + a[2] * pa[2]);
+        if (z) {
+            rimu_real r = z[i] - (a[0] * f->x[0] + a[1] * f->x[1] + a[2] * f->x[2]);
+            f->e[i] = sqrt(w[i]) * r;
+            f->chi2 += w[i] * r * r;
+        }
+    }
+}
+
+/* Pi_jk of the set fitted in f (j != k) */
+static rimu_real rimu_pi(const rimu_fdi_unit *u, const rimu_fit *f, int j, int k)
+{
+    const rimu_real *a = u->ax + 3 * j, *pb = f->Pa + 3 * k;
+    return -sqrt(u->w[j] * u->w[k]) * (a[0] * pb[0] + a[1] * pb[1] + a[2] * pb[2]);
+}
+
+static int rimu_same(const unsigned char *a, const unsigned char *b, int n)
+{
+    int i;
+    for (i = 0; i < n; ++i)
+        if ((a[i] != 0) != (b[i] != 0)) return 0;
+    return 1;
+}
+
+/* HealthState of a sensor set (RedundancyManager._state_of), cached for a few sets */
+static int rimu_state_of(const rimu_fdi_unit *u, rimu_fdi *m, const unsigned char *use)
+{
+    rimu_fit f;
+    int i, j, k, n = u->n, st, ok;
+    for (i = 0; i < RIMU_STATE_CACHE; ++i)
+        if (m->cache_state[i] > 0 && rimu_same(m->cache_mask[i], use, n)) return m->cache_state[i] - 1;
+    rimu_fit_set(u, u->w, use, 0, &f);
+    if (!f.observable) {
+        st = RIMU_STATE_UNOBSERVABLE;
+    } else if (f.used == 3 || f.dof == 0) {
+        st = RIMU_STATE_NO_REDUNDANCY;
+    } else {
+        ok = f.dof >= 2;
+        for (j = 0; ok && j < n; ++j) {
+            if (!use[j] || !(sqrt(u->w[j] * f.q[j]) > 1e-9)) continue;
+            for (k = j + 1; k < n; ++k) {
+                rimu_real rho;
+                if (!use[k] || !(sqrt(u->w[k] * f.q[k]) > 1e-9)) continue;
+                rho = rimu_pi(u, &f, j, k) / sqrt(f.q[j] * f.q[k]);
+                if (!(fabs(rho) < 1 - 1e-6)) {
+                    ok = 0;
+                    break;
+                }
+            }
+        }
+        st = !ok ? RIMU_STATE_DETECTION_ONLY : (f.used < n ? RIMU_STATE_FAULT_ISOLATED : RIMU_STATE_NOMINAL);
+    }
+    i = m->cache_next;
+    m->cache_next = (i + 1) % RIMU_STATE_CACHE;
+    for (j = 0; j < n; ++j) m->cache_mask[i][j] = (unsigned char)(use[j] != 0);
+    m->cache_state[i] = (signed char)(st + 1);
+    return st;
+}
+
+#define RIMU_TRI(i, j) ((j) * ((j) + 1) / 2 + (i))  /* i <= j */
+
+/* Generalised likelihood test over sensor sets of 1..RIMU_FDI_K (FaultSetGlt.decide_scatter), on the scatter
+ * M (packed; samples of it) or, when M is NULL, on the single vector s (M = s s^T). f: the set's fit. */
+static void rimu_decide(const rimu_fdi_unit *u, const rimu_fit *f, const unsigned char *use, const rimu_real *M,
+                        const rimu_real *s, long samples, rimu_dec *dec)
+{
+    int n = u->n, d = f->dof, cand[RIMU_NMAX], mm = 0, K, i, a, b, nmin = 0;
+    unsigned char single[RIMU_NMAX] = {0};
+    rimu_real total = 0, c;
+    dec->kind = RIMU_DEC_NOT_ISOLABLE;
+    dec->nset = 0;
+    for (i = 0; i < n; ++i) dec->sus[i] = 0;
+    if (d < 2) return;
+    for (i = 0; i < n; ++i) {
+        single[i] = 0;
+        if (use[i] && sqrt(u->w[i] * f->q[i]) > 1e-12) cand[mm++] = i;
+        if (use[i]) total += M ? M[RIMU_TRI(i, i)] : s[i] * s[i];
+    }
+    K = RIMU_FDI_K;
+    if (K > d - 1) K = d - 1;
+    if (K > mm) K = mm;
+    if (K >= 1 && mm <= RIMU_FDI_MAX_SETS) {
+        c = rimu_thr_set(u, d, 1, samples);
+        for (a = 0; a < mm; ++a) {
+            int j = cand[a];
+            rimu_real Mjj = M ? M[RIMU_TRI(j, j)] : s[j] * s[j];
+            rimu_real R = total - Mjj / f->q[j];
+            if (R <= c) {
+                single[j] = 1;
+                dec->sus[j] = 1;
+                if (nmin++ == 0) {
+                    dec->set[0] = j;
+                    dec->nset = 1;
+                }
+            }
+        }
+        if (K >= 2 && (long)mm * (mm - 1) / 2 <= RIMU_FDI_MAX_SETS) {
+            int nsingle = nmin, tested = 0;
+            rimu_real c2 = 0;
+            for (a = 0; a < mm; ++a) {
+                int j = cand[a];
+                for (b = a + 1; b < mm; ++b) {
+                    int l = cand[b];
+                    rimu_real pjl = rimu_pi(u, f, j, l), rho = pjl / sqrt(f->q[j] * f->q[l]), det, T, R;
+                    rimu_real Mjj, Mll, Mjl;
+                    if (!(sqrt(1 - fabs(rho)) > RIMU_FDI_COLLINEAR_TOL)) continue;  /* not a hypothesis */
+                    if (!tested) {
+                        c2 = rimu_thr_set(u, d, 2, samples);
+                        tested = 1;
+                    }
+                    if (M) {
+                        Mjj = M[RIMU_TRI(j, j)]; Mll = M[RIMU_TRI(l, l)]; Mjl = M[RIMU_TRI(j, l)];
+                    } else {
+                        Mjj = s[j] * s[j]; Mll = s[l] * s[l]; Mjl = s[j] * s[l];
+                    }
+                    det = f->q[j] * f->q[l] - pjl * pjl;
+                    T = (f->q[l] * Mjj - 2 * pjl * Mjl + f->q[j] * Mll) / det;
+                    R = total - T;
+                    if (R <= c2 && (nsingle == 0 || !(single[j] || single[l]))) {
+                        dec->sus[j] = dec->sus[l] = 1;
+                        if (nmin++ == 0) {
+                            dec->set[0] = j;
+                            dec->set[1] = l;
+                            dec->nset = 2;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    if (nmin == 1) {
+        dec->kind = RIMU_DEC_ISOLATED;
+    } else if (nmin > 1) {
+        dec->kind = RIMU_DEC_AMBIGUOUS;
+        dec->nset = 0;
+    } else {
+        dec->kind = RIMU_DEC_UNEXPLAINED;
+        dec->nset = 0;
+    }
+}
+
+static void rimu_set_suspects(rimu_fdi *m, int n, const unsigned char *mask)
+{
+    int i;
+    for (i = 0; i < n; ++i) {
+        if (mask[i] && m->sensor[i] == RIMU_HEALTHY) m->sensor[i] = RIMU_SUSPECT;
+        else if (!mask[i] && m->sensor[i] == RIMU_SUSPECT) m->sensor[i] = RIMU_HEALTHY;
+    }
+}
+
+static void rimu_new_episode(rimu_fdi *m, int n)
+{
+    int i;
+    m->ep_n = m->ep_alarms = m->ep_quiet = 0;
+    for (i = 0; i < n; ++i) m->ep_sum[i] = 0;
+    for (i = 0; i < n * (n + 1) / 2; ++i) m->ep_M[i] = 0;
+    m->ncand = 0;
+    m->streak = 0;
+    m->last_kind = RIMU_DEC_NONE;
+}
+
+static void rimu_accumulate(rimu_fdi *m, int n, const rimu_fit *f)
+{
+    int i, j;
+    for (j = 0; j < n; ++j) {
+        if (f->e[j] == 0) continue;
+        m->ep_sum[j] += f->e[j];
+        for (i = 0; i <= j; ++i) m->ep_M[RIMU_TRI(i, j)] += f->e[i] * f->e[j];
+    }
+    m->ep_n += 1;
+}
+
+static void rimu_apply(rimu_fdi *m, int n)
+{
+    int i;
+    for (i = 0; i < n; ++i) m->iso[i] = (unsigned char)(m->sensor[i] >= RIMU_ISOLATED);
+}
+
+/* SensorHealth.isolate */
+static void rimu_isolate(rimu_fdi *m, int i)
+{
+    if (m->sensor[i] >= RIMU_ISOLATED) return;
+    m->isolations[i] += 1;
+    m->clean[i] = 0;
+    m->csum[i] = m->csumsq[i] = 0;
+    m->sensor[i] = (signed char)(m->isolations[i] >= RIMU_FDI_FAIL_AFTER ? RIMU_FAILED : RIMU_ISOLATED);
+}
+
+static void rimu_unclean(rimu_fdi *m, int i)
+{
+    if (m->sensor[i] == RIMU_RECOVERING) m->sensor[i] = RIMU_ISOLATED;
+    m->clean[i] = 0;
+    m->csum[i] = m->csumsq[i] = 0;
+}
+
+/* SensorHealth.clean_sample: 1 when sensor i is re-admitted by this sample */
+static int rimu_clean_sample(rimu_fdi *m, int i, rimu_real z)
+{
+    int k;
+    long need;
+    if (m->sensor[i] != RIMU_ISOLATED && m->sensor[i] != RIMU_RECOVERING) return 0;
+    if (RIMU_FDI_READMIT_AFTER <= 0) return 0;
+    k = m->isolations[i] - 1;
+    if (k < 0) k = 0;
+    if (k >= RIMU_FDI_NREQ) k = RIMU_FDI_NREQ - 1;
+    need = rimu_fdi_required[k];
+    if (!(z * z < RIMU_FDI_SAMPLE_THR)) {
+        rimu_unclean(m, i);
+        return 0;
+    }
+    m->sensor[i] = RIMU_RECOVERING;
+    m->clean[i] += 1;
+    m->csum[i] += z;
+    m->csumsq[i] += z * z;
+    if (m->clean[i] >= need) {
+        rimu_real N = (rimu_real)m->clean[i];
+        if (m->csum[i] * m->csum[i] / N < RIMU_FDI_MEAN_THR && m->csumsq[i] < rimu_fdi_energy[k]) {
+            m->sensor[i] = RIMU_HEALTHY;
+            m->clean[i] = 0;
+            m->csum[i] = m->csumsq[i] = 0;
+            return 1;
+        }
+        rimu_unclean(m, i);
+    }
+    return 0;
+}
+
+/* RedundancyManager._invalid: 1 when the isolation set changed */
+static int rimu_invalid(const rimu_fdi_unit *u, rimu_fdi *m, const unsigned char *inv)
+{
+    int i, j, n = u->n, changed = 0, any = 0, nc = 0, cand[RIMU_NMAX];
+    unsigned char mask[RIMU_NMAX] = {0};
+    for (i = 0; i < n; ++i) {
+        if (!inv[i] && m->invalid_run[i] > 0) m->invalid_run[i] = 0;
+        if (inv[i]) m->invalid_run[i] += 1;
+        if (m->invalid_run[i]) any = 1;
+        mask[i] = (unsigned char)(inv[i] || m->sensor[i] == RIMU_SUSPECT);
+    }
+    m->invalid_pending = any;
+    rimu_set_suspects(m, n, mask);
+    m->suspects_on = 1;
+    for (i = 0; i < n; ++i)
+        if (m->invalid_run[i] >= RIMU_FDI_INVALID_PERSIST && !m->iso[i]) cand[nc++] = i;
+    for (j = 0; j < nc; ++j) {
+        unsigned char keep[RIMU_NMAX] = {0};
+        i = cand[j];
+        for (int k = 0; k < n; ++k) keep[k] = (unsigned char)!m->iso[k];
+        keep[i] = 0;
+        if (rimu_state_of(u, m, keep) == RIMU_STATE_UNOBSERVABLE) continue;
+        rimu_isolate(m, i);
+        rimu_apply(m, n);
+        changed = 1;
+    }
+    return changed;
+}
+
+/* RedundancyManager._decide */
+static void rimu_decide_episode(const rimu_fdi_unit *u, rimu_fdi *m, const rimu_fit *f, const unsigned char *use,
+                                rimu_dec *dec)
+{
+    int i, n = u->n;
+    long N = m->ep_n;
+    rimu_real s[RIMU_NMAX] = {0}, ss = 0, sq = sqrt((rimu_real)N);
+    if (m->last_kind != RIMU_DEC_NONE && m->last_kind != RIMU_DEC_ISOLATED && m->ep_alarms > 4 * RIMU_FDI_CONFIRM
+        && m->ep_alarms % 10) {
+        dec->kind = m->last_kind;
+        dec->nset = m->last_nset;
+        dec->set[0] = m->last_set[0];
+        dec->set[1] = m->last_set[1];
+        for (i = 0; i < n; ++i) dec->sus[i] = m->last_sus[i];
+        return;
+    }
+    for (i = 0; i < n; ++i) {
+        s[i] = m->ep_sum[i] / sq;
+        ss += s[i] * s[i];
+    }
+    rimu_decide(u, f, use, 0, s, 1, dec);
+    if (dec->kind != RIMU_DEC_ISOLATED && N > 1) {
+        rimu_dec d2;
+        rimu_decide(u, f, use, m->ep_M, 0, N, &d2);
+        if (d2.kind == RIMU_DEC_ISOLATED || ss < u->thr_set[RIMU_DOFC(f->dof) * (RIMU_FDI_K + 1)]) *dec = d2;
+    }
+}
+
+/* RedundancyManager._on_alarm: the sensors to leave out of this sample's output (excl), 1 when isolated */
+static int rimu_on_alarm(const rimu_fdi_unit *u, rimu_fdi *m, const rimu_fit *f, const unsigned char *use,
+                         const unsigned char *inv, unsigned char *excl)
+{
+    int i, n = u->n, same;
+    unsigned char mask[RIMU_NMAX] = {0}, rest[RIMU_NMAX] = {0};
+    rimu_dec dec;
+    m->ep_alarms += 1;
+    m->ep_quiet = 0;
+    if (f->dof >= 1) {
+        rimu_accumulate(m, n, f);
+        rimu_decide_episode(u, m, f, use, &dec);
+    } else {
+        dec.kind = RIMU_DEC_NOT_ISOLABLE;
+        dec.nset = 0;
+        for (i = 0; i < n; ++i) dec.sus[i] = 0;
+    }
+    m->last_kind = dec.kind;
+    m->last_nset = dec.nset;
+    m->last_set[0] = dec.set[0];
+    m->last_set[1] = dec.set[1];
+    for (i = 0; i < n; ++i) {
+        m->last_sus[i] = dec.sus[i];
+        mask[i] = (unsigned char)(dec.sus[i] || inv[i]);
+    }
+    rimu_set_suspects(m, n, mask);
+    m->suspects_on = 1;
+    if (dec.kind != RIMU_DEC_ISOLATED) {
+        int any = 0;
+        m->streak = 0;
+        m->ncand = 0;
+        if (m->ep_alarms >= RIMU_FDI_CONFIRM && !m->not_isolable) {
+            m->not_isolable = 1;
+            m->quiet = 0;
+        }
+        for (i = 0; i < n; ++i) {
+            rest[i] = (unsigned char)(use[i] && !dec.sus[i]);
+            any |= dec.sus[i];
+        }
+        if (any && rimu_state_of(u, m, rest) != RIMU_STATE_UNOBSERVABLE)
+            for (i = 0; i < n; ++i) excl[i] = dec.sus[i];
+        return 0;
+    }
+    same = dec.nset == m->ncand;
+    for (i = 0; same && i < dec.nset; ++i) same = dec.set[i] == m->cand[i];
+    if (same) {
+        m->streak += 1;
+    } else {
+        m->ncand = dec.nset;
+        m->cand[0] = dec.set[0];
+        m->cand[1] = dec.set[1];
+        m->streak = 1;
+    }
+    for (i = 0; i < n; ++i) rest[i] = use[i];
+    for (i = 0; i < dec.nset; ++i) rest[dec.set[i]] = 0;
+    if (rimu_state_of(u, m, rest) == RIMU_STATE_UNOBSERVABLE) return 0;  /* never isolate into blindness */
+    for (i = 0; i < dec.nset; ++i) excl[dec.set[i]] = 1;
+    if (m->streak < RIMU_FDI_CONFIRM) return 0;
+    for (i = 0; i < dec.nset; ++i) rimu_isolate(m, dec.set[i]);
+    rimu_apply(m, n);
+    rimu_new_episode(m, n);
+    if (m->not_isolable) {
+        m->not_isolable = 0;
+        m->quiet = 0;
+    }
+    return 1;
+}
+
+static void rimu_fdi_run(const rimu_fdi_unit *u, rimu_fdi *m, const rimu_real *y, const unsigned char *valid,
+                         rimu_fdi_output *out)
+{
+    int i, n = u->n, changed = 0, alarm, nex = 0, code_full = 1, state;
+    unsigned char inv[RIMU_NMAX] = {0}, use[RIMU_NMAX] = {0}, excl[RIMU_NMAX] = {0}, notiso[RIMU_NMAX] = {0};
+    rimu_real z[RIMU_NMAX] = {0}, stat = 0, thr = -1;
+    rimu_fit f, g;
+    const rimu_fit *o;
+    m->samples += 1;
+    /* the pipeline: compensation (Cho & Park Eq. 20) on the valid, unsaturated, not isolated sensors */
+    for (i = 0; i < n; ++i) {
+        int good = (valid == 0 || valid[i]) && isfinite(y[i]);
+        int sat = good && u->range && fabs(y[i]) >= u->range[i];
+        inv[i] = (unsigned char)!good;
+        use[i] = (unsigned char)(good && !sat && !m->iso[i]);
+        z[i] = use[i] ? u->sf[i] * y[i] - u->b[i] : 0;
+        excl[i] = 0;
+        notiso[i] = (unsigned char)!m->iso[i];
+    }
+    rimu_fit_set(u, u->w, use, z, &f);
+    if (!m->started || !rimu_same(use, m->prev, n)) {  /* a new set: the episode ends */
+        m->started = 1;
+        for (i = 0; i < n; ++i) m->prev[i] = use[i];
+        if (m->ep_n) rimu_new_episode(m, n);
+    }
+    if (!rimu_same(use, notiso, n) || m->invalid_pending) changed = rimu_invalid(u, m, inv);
+    if (f.dof >= 1) {
+        if (u->wdet != u->w) {
+            rimu_fit_set(u, u->wdet, use, z, &g);
+            stat = g.chi2;
+        } else {
+            stat = f.chi2;
+        }
+        thr = u->thr_det[RIMU_DOFC(f.dof)];
+    }
+    alarm = f.dof >= 1 && stat > thr;
+    if (alarm) {
+        m->quiet = 0;
+        changed |= rimu_on_alarm(u, m, &f, use, inv, excl);
+    } else {
+        if (m->ep_n) {
+            m->ep_quiet += 1;
+            if (m->ep_quiet >= (m->not_isolable ? RIMU_FDI_CLEAR_AFTER : RIMU_FDI_EPISODE_GAP) || f.dof < 1) {
+                rimu_new_episode(m, n);
+            } else {
+                rimu_accumulate(m, n, &f);
+                m->streak = 0;
+            }
+        }
+        if (m->not_isolable) {
+            m->quiet += 1;
+            if (m->quiet >= RIMU_FDI_CLEAR_AFTER) {
+                m->not_isolable = 0;
+                m->quiet = 0;
+            }
+        }
+        if (m->suspects_on) {
+            int any = 0;
+            rimu_set_suspects(m, n, inv);
+            for (i = 0; i < n; ++i) any |= m->sensor[i] == RIMU_SUSPECT;
+            m->suspects_on = any;
+        }
+    }
+    if (changed)
+        for (i = 0; i < n; ++i) excl[i] = (unsigned char)(m->iso[i] && use[i]);
+    /* the output: the sample's set, or that set without the excluded sensors (x, P, dof together) */
+    for (i = 0; i < n; ++i) {
+        nex += excl[i] != 0;
+        code_full &= use[i];
+    }
+    o = &f;
+    for (i = 0; i < n; ++i) out->active[i] = use[i];
+    if (nex && f.observable) {
+        unsigned char act1[RIMU_NMAX] = {0};
+        for (i = 0; i < n; ++i) act1[i] = (unsigned char)(use[i] && !excl[i]);
+        rimu_fit_set(u, u->w, act1, z, &g);
+        o = &g;
+        for (i = 0; i < n; ++i) out->active[i] = act1[i];
+    }
+    for (i = 0; i < 3; ++i) out->x[i] = o->x[i];
+    for (i = 0; i < 9; ++i) out->P[i] = o->P[i];
+    out->dof = o->dof;
+    out->alarm = alarm;
+    out->statistic = stat;
+    out->threshold = thr;
+    out->fault_not_isolable = m->not_isolable;
+    if (!o->observable) {
+        out->validity = RIMU_UNOBSERVABLE;
+        out->state = RIMU_STATE_UNOBSERVABLE;
+    } else {
+        state = rimu_state_of(u, m, use);
+        out->state = state;
+        out->validity = (code_full && !nex && !alarm && !m->not_isolable && !m->ep_alarms) ? RIMU_NOMINAL
+                                                                                           : RIMU_DEGRADED;
+    }
+    /* re-admission of isolated sensors that agree with the estimate of the others */
+    if (RIMU_FDI_READMIT_AFTER > 0 && o->observable && !alarm && !m->not_isolable && !m->ep_alarms) {
+        int back = 0;
+        for (i = 0; i < n; ++i) {
+            const rimu_real *a = u->ax + 3 * i;
+            const rimu_real *P = o->P;
+            rimu_real r, v;
+            if (!m->iso[i] || m->sensor[i] == RIMU_FAILED) continue;
+            if (!((valid == 0 || valid[i]) && isfinite(y[i]))) {
+                rimu_unclean(m, i);
+                continue;
+            }
+            r = (u->sf[i] * y[i] - u->b[i]) - (a[0] * o->x[0] + a[1] * o->x[1] + a[2] * o->x[2]);
+            v = u->sig2[i] + a[0] * (P[0] * a[0] + P[1] * a[1] + P[2] * a[2])
+                + a[1] * (P[3] * a[0] + P[4] * a[1] + P[5] * a[2]) + a[2] * (P[6] * a[0] + P[7] * a[1] + P[8] * a[2]);
+            back |= rimu_clean_sample(m, i, r / sqrt(v));
+        }
+        if (back) rimu_apply(m, n);
+    }
+}
+"""
+
+
+def fdi_header(settings: FdiSettings) -> str:
+    return _FDI_HEADER.format(settings=", ".join(f"{k}={v!r}" for k, v in settings.__dict__.items()))
+
+
+def fdi_defines(settings: FdiSettings, num: Any) -> str:
+    """The configuration as #defines and the re-admission tables (``num`` formats a number for the real type)."""
+    s = settings
+    req = s.required()
+    lines = [
+        f"#define RIMU_FDI_CONFIRM {s.confirm}",
+        f"#define RIMU_FDI_INVALID_PERSIST {s.invalid_persist}",
+        f"#define RIMU_FDI_READMIT_AFTER {s.readmit_after or 0}  /* 0: never automatically */",
+        f"#define RIMU_FDI_FAIL_AFTER {s.fail_after}",
+        f"#define RIMU_FDI_CLEAR_AFTER {s.clear_after}",
+        f"#define RIMU_FDI_EPISODE_GAP {s.gap}",
+        f"#define RIMU_FDI_K {s.max_size}  /* largest sensor set the isolation test names */",
+        f"#define RIMU_FDI_MAX_SETS {s.max_sets}L",
+        f"#define RIMU_FDI_COLLINEAR_TOL {num(s.collinear_tol)}",
+        f"#define RIMU_FDI_ALPHA {float(s.alpha)!r}  /* level of the consistency test of a sensor set */",
+        f"#define RIMU_FDI_ALPHA_Z {float(norm.isf(s.alpha))!r}  /* its normal quantile (Wilson-Hilferty start) */",
+        f"#define RIMU_FDI_MEAN_THR {num(s.mean_threshold())}  /* chi2_(1-p_fa)(1): mean residual, re-admission */",
+        f"#define RIMU_FDI_SAMPLE_THR {num(float(chi2.isf(1e-6, 1)))}  /* chi2_(1-1e-6)(1): each clean sample */",
+        f"#define RIMU_FDI_NREQ {len(req)}",
+        "/* clean samples before re-admission after the 1st, 2nd, ... isolation, and the energy threshold */",
+        f"static const long rimu_fdi_required[RIMU_FDI_NREQ] = {{{', '.join(f'{r}L' for r in req)}}};",
+        f"static const rimu_real rimu_fdi_energy[RIMU_FDI_NREQ] = {{{', '.join(num(e) for e in s.energy())}}};",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def fdi_tables(settings: FdiSettings, nmax: int) -> tuple[np.ndarray, np.ndarray]:
+    """Detection thresholds by dof (0..nmax-3) and set-consistency thresholds [dof, k] (k = 0..max_size)."""
+    r = max(nmax - 3, 0)
+    det = np.array([0.0] + [float(chi2.isf(settings.p_fa, d)) for d in range(1, r + 1)])
+    K = settings.max_size
+    st = np.zeros((r + 1, K + 1))
+    for d in range(1, r + 1):
+        for k in range(K + 1):
+            if d - k >= 1:
+                st[d, k] = float(chi2.isf(settings.alpha, d - k))
+    return det, st

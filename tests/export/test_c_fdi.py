@@ -1,0 +1,366 @@
+"""The exported C fault management against rimu.fdi.RedundancyManager, sample by sample (skips without a C compiler).
+
+Seeded runs with the faults of the fault-management campaign (rimu.fdi.scenarios: bias step, two faults at once,
+an intermittent fault that clears so the sensor is re-admitted, a dropout of several sensors, a stuck output, a
+ramp) plus a noise burst, a fault that keeps coming back (FAILED after ``fail_after`` isolations) and invalid
+samples, replayed through the Python manager and the generated ``rimu_filter``: the same validity, set state and
+per-sensor state on every sample, the estimate within 1e-12 relative (double) and 1e-5 (float).
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from rimu.calibration.result import Calibration, InstrumentCalibration
+from rimu.errors import ExportError, SessionFormatError
+from rimu.export import Estimates, FdiSettings, estimate_columns, export_c, read_estimates, write_estimates
+from rimu.fdi.health import SensorState
+from rimu.fdi.manager import STATE_CODES
+from rimu.fdi.scenarios import ScenarioSpec, _inject
+from rimu.geometry import cone, cone6, tetrad4, triad3
+
+CC = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
+needs_cc = pytest.mark.skipif(CC is None, reason="no C compiler on this machine")
+
+FS = 100.0
+N = 1600
+K0 = 400
+SETTINGS = FdiSettings(readmit_after=100, fail_after=3)
+KINDS = ("single", "double", "intermittent", "dropout", "stuck", "ramp", "burst", "repeat", "invalid", "triple",
+         "scale")
+
+
+def _build(cal, d, real="double", fdi=SETTINGS):
+    return _build_all(cal, {real: d}, fdi)[real]
+
+
+def _build_all(cal, dirs: dict, fdi=SETTINGS):
+    """Export and build one filter per real type, the compilers running side by side."""
+    procs = {}
+    for real, d in dirs.items():
+        export_c(cal, d, real=real, fdi=fdi)
+        procs[real] = subprocess.Popen(["make", "-s", f"CC={CC}"], cwd=d, stdout=subprocess.PIPE,
+                                       stderr=subprocess.PIPE, text=True)
+    for real, p in procs.items():
+        _, err = p.communicate()
+        assert p.returncode == 0, f"the {real} build failed: {err}"
+    return {real: d / "rimu_filter" for real, d in dirs.items()}
+
+
+def _run(exe, t, raw: dict, valid: dict, *args):
+    rows = []
+    for r in range(len(t)):
+        cells = [repr(float(t[r]))]
+        for k in raw:
+            cells += [repr(float(v)) if valid[k][r, i] else "" for i, v in enumerate(raw[k][r])]
+        rows.append(",".join(cells))
+    res = subprocess.run([str(exe), *args], input="t,raw\n" + "\n".join(rows) + "\n", capture_output=True,
+                         text=True, check=True)
+    return res.stdout
+
+
+def _table(text):
+    lines = text.strip().splitlines()
+    head = lines[0].split(",")
+    cols = list(zip(*[ln.split(",") for ln in lines[1:]]))
+    return {h: cols[j] for j, h in enumerate(head)}
+
+
+def _scenario(cal, kind, seed):
+    """Raw samples (N, n) and validity of one seeded run with one injected fault (sizes in sigma)."""
+    rng = np.random.default_rng(seed)
+    n = cal.geometry.n
+    sig = np.broadcast_to(cal.noise_sigma, (n,))
+    t = np.arange(N)[:, None] / FS
+    u = math.radians(30.0) * np.sin(2 * np.pi * t / np.array([7.0, 11.0, 13.0]) + rng.uniform(0, 2 * np.pi, 3))
+    Y = cal.raw_output(u) + rng.standard_normal((N, n)) * (sig / cal.scale)
+    valid = np.ones((N, n), bool)
+    raw = sig / cal.scale
+    if kind in ("single", "double", "intermittent", "dropout", "stuck", "ramp"):
+        spec = ScenarioSpec(duration=N / FS, onset=K0 / FS, sample_rate=FS, ramp_sigma_per_s=5.0)
+        _inject(kind, Y, valid, K0, rng, spec, sig, cal.scale)
+    elif kind == "burst":  # noise 20 times the sensor's for 2 s, then clean again
+        j = int(rng.integers(n))
+        Y[K0:K0 + 200, j] += 20 * raw[j] * rng.standard_normal(200)
+    elif kind == "repeat":  # a bias that comes back after every re-admission: FAILED after fail_after isolations
+        j = int(rng.integers(n))
+        for a in range(K0, N, 250):
+            Y[a:a + 60, j] += 15 * raw[j]
+    elif kind == "triple":  # three ramps at once: more faults than the set test names (not isolable, long episode)
+        j = rng.choice(n, 3, replace=False)
+        for a, rate in zip(j, (3.0, -5.0, 8.0)):
+            Y[K0:, a] += rate * raw[a] * np.arange(N - K0) / FS
+    elif kind == "scale":  # scale-factor errors on two sensors under the swinging rate: faults that change sign
+        j = rng.choice(n, 2, replace=False)
+        Y[K0:, j] *= np.array([1.03, 0.96])
+    else:  # invalid samples: one sensor out for 40 samples (isolated, later re-admitted), short gaps elsewhere
+        j = int(rng.integers(n))
+        valid[K0:K0 + 40, j] = False
+        Y[K0 + 100:K0 + 103, (j + 1) % n] = np.nan
+        valid[K0 + 300:K0 + 305, (j + 2) % n] = False
+    return Y, valid
+
+
+def _unit(geom, instruments=("gyro",), seed=0):
+    cals = {}
+    for k in instruments:
+        rng = np.random.default_rng([seed, geom.n, ("gyro", "accel").index(k)])
+        scale = 0.01 * (1 + 0.01 * rng.standard_normal(geom.n))
+        bias = 0.3 * rng.standard_normal(geom.n)
+        sigma = (0.002 if k == "gyro" else 0.02) * (1 + 0.2 * rng.random(geom.n))
+        c = InstrumentCalibration.nominal(k, geom, scale=1.0, noise_sigma=sigma)
+        c.scale = scale
+        c.bias = bias
+        cals[k] = c
+    return Calibration(cals)
+
+
+class _Counting:
+    """Counts the set tests on an episode's scatter over several samples (the path through rimu_chi2_isf)."""
+
+    def __init__(self, mgr):
+        self.n = 0
+        iso = mgr.isolator
+        orig = iso.decide_scatter
+
+        def wrapped(M, samples, Vz, dof):
+            self.n += samples > 1 and dof >= 2
+            return orig(M, samples, Vz, dof)
+
+        iso.decide_scatter = wrapped
+
+
+def _python(cal, raws, valids, t):
+    out, events, scatter = {}, set(), 0
+    for k in cal.instruments:
+        mgr = SETTINGS.manager(cal[k])
+        cnt = _Counting(mgr)
+        out[k] = mgr.run(raws[k], valids[k], t)
+        events |= {(e.kind, e.sensor) for e in out[k].events}
+        scatter += cnt.n
+    return out, events, scatter
+
+
+def _compare(cal, c, py, real):
+    """Differences per instrument: samples whose decisions differ, and the largest relative estimate error."""
+    worst = 0.0
+    diffs = 0
+    for k in cal.instruments:
+        r = py[k]
+        val = np.array(c[f"{k}_validity"], int)
+        st = np.array(c[f"{k}_state"], int)
+        sens = np.array([[int(v) for v in s.split(";")] for s in c[f"{k}_sensors"]])
+        iso = np.array([[str(i) in s.split(";") for i in range(cal[k].geometry.n)] for s in c[f"{k}_isolated"]])
+        bad = (val != r.validity) | (st != r.state) | (sens != r.sensor_state).any(axis=1) \
+            | (iso != (r.sensor_state >= SensorState.ISOLATED)).any(axis=1)
+        diffs += int(bad.sum())
+        x = np.column_stack([np.array(c[f"{k}_{a}"], float) for a in "xyz"])
+        assert np.all(np.isfinite(x))
+        assert np.all(x[r.validity == 2] == 0)
+        err = np.abs(x - r.x).max(axis=1) / np.abs(r.x).max()
+        if real == "float":
+            # float rounding of the inputs grows with the conditioning of the sensor set in use: a set of three
+            # neighbours of a cone of nine has a covariance hundreds of times the full set's. The error is divided by
+            # sqrt(trace P / trace P_full), the amplification of that set (1 for the full set).
+            tr = r.P_diag.sum(axis=1)
+            amp = np.sqrt(np.where(np.isfinite(tr), tr, np.inf) / tr[np.isfinite(tr)].min())
+            err = np.where(np.isfinite(amp), err / np.maximum(amp, 1.0), err)
+        worst = max(worst, float(err.max()))
+    return diffs, worst
+
+
+GEOMS = {"cone6": (cone6(), ("gyro", "accel")), "tetrad4": (tetrad4(), ("gyro",)), "triad3": (triad3(), ("gyro",)),
+         "cone9": (cone(9, 50.0), ("gyro",))}
+#: what each geometry's runs must have shown (so that agreement is not agreement on nothing)
+EXPECT = {"cone6": {"isolated", "readmitted", "invalid_isolated", "failed", "transient"},
+          "tetrad4": {"detected_not_isolable", "not_isolable_cleared", "invalid_isolated", "readmitted"},
+          "triad3": set(),
+          "cone9": {"isolated", "readmitted", "invalid_isolated", "failed"}}
+
+
+@needs_cc
+@pytest.mark.parametrize("name", list(GEOMS))
+def test_same_decisions_as_the_manager_on_every_sample(name, tmp_path):
+    geom, insts = GEOMS[name]
+    cal = _unit(geom, insts)
+    exe = _build_all(cal, {real: tmp_path / real for real in ("double", "float")})
+    t = np.arange(N) / FS
+    kinds_seen: set[str] = set()
+    scatter = 0
+    pairs = 0
+    samples = 0
+    for s, kind in enumerate(KINDS):
+        if geom.n < 4 and kind in ("double", "dropout", "triple", "scale"):
+            continue
+        raws, valids = {}, {}
+        for i, k in enumerate(cal.instruments):
+            raws[k], valids[k] = _scenario(cal[k], kind if i == 0 else "single", 100 * s + i)
+        py, events, sc = _python(cal, raws, valids, t)
+        kinds_seen |= {e[0] for e in events}
+        scatter += sc
+        pairs += sum(int(np.any(np.sum(r.sensor_state >= SensorState.ISOLATED, axis=1) >= 2)) for r in py.values())
+        samples += N
+        for real, tol in (("double", 1e-12), ("float", 1e-5)):
+            c = _table(_run(exe[real], t, raws, valids, "--detail"))
+            diffs, err = _compare(cal, c, py, real)
+            assert diffs == 0, f"{name} {kind} ({real}): {diffs} samples with other decisions"
+            assert err <= tol, f"{name} {kind} ({real}): estimate off by {err:.2e} relative"
+    assert EXPECT[name] <= kinds_seen, f"{name}: the runs never showed {EXPECT[name] - kinds_seen}"
+    if name == "cone9":
+        assert scatter > 0   # the scatter test over an episode of several samples ran
+        assert pairs > 0     # two sensors out at once (the two-fault run)
+    if name == "triad3":
+        assert kinds_seen <= {"invalid_transient"}  # no redundancy: nothing to decide
+
+
+@needs_cc
+def test_filter_writes_the_estimates_file_of_the_replay(tmp_path):
+    """The default output is exactly the estimates file: read back, it equals the manager's replay written by
+    rimu.export.write_estimates."""
+    cal = _unit(cone6(), ("gyro", "accel"))
+    exe = _build(cal, tmp_path / "c")
+    t = np.arange(N) / FS
+    raws, valids = {}, {}
+    for i, k in enumerate(cal.instruments):
+        raws[k], valids[k] = _scenario(cal[k], ("intermittent", "dropout")[i], 7 + i)
+    out = _run(exe, t, raws, valids)
+    assert out.splitlines()[0].split(",") == estimate_columns(cal)
+    (tmp_path / "c.csv").write_text(out)
+    c = read_estimates(tmp_path / "c.csv", cal)
+    py, _, _ = _python(cal, raws, valids, t)
+    write_estimates(tmp_path / "py.csv", Estimates.from_replay(t, py))
+    p = read_estimates(tmp_path / "py.csv", cal)
+    assert np.array_equal(c.t, p.t)
+    for k in cal.instruments:
+        assert np.array_equal(c.validity[k], p.validity[k])
+        assert np.array_equal(c.isolated[k], p.isolated[k])
+        assert np.allclose(c.x[k], p.x[k], rtol=0, atol=1e-12 * np.abs(p.x[k]).max())
+    assert c.isolated["gyro"].any()            # the intermittent fault was isolated
+    assert (c.validity["accel"] == 2).any()     # four of six accelerometers invalid: unobservable samples
+
+
+def test_estimates_file_rejects_a_wrong_header_and_bad_cells(tmp_path):
+    f = tmp_path / "e.csv"
+    f.write_text("t,gyro_x,gyro_y,gyro_z,gyro_validity\n0,1,2,3,0\n")
+    with pytest.raises(SessionFormatError, match="header"):
+        read_estimates(f, {"gyro": 6})
+    f.write_text("t,gyro_x,gyro_y,gyro_z,gyro_validity,gyro_isolated\n0,1,2,3,0,7\n")
+    with pytest.raises(SessionFormatError, match="index"):
+        read_estimates(f, {"gyro": 6})
+    f.write_text("t,gyro_x,gyro_y,gyro_z,gyro_validity,gyro_isolated\n0,1,2,3,5,\n")
+    with pytest.raises(SessionFormatError, match="validity"):
+        read_estimates(f, {"gyro": 6})
+
+
+@needs_cc
+def test_chi2_quantile_on_the_target_matches_scipy(tmp_path):
+    """rimu_chi2_isf (the scatter test's threshold over N samples) against scipy, 1e-12 relative."""
+    cal = _unit(cone6())
+    d = tmp_path / "c"
+    export_c(cal, d)
+    nus = [1, 2, 3, 4, 7, 10, 33, 100, 457, 1000, 4000, 25000, 100000]
+    alphas = [1e-4, 1e-3, 1e-6, 0.05]
+    (d / "q.c").write_text('#include <stdio.h>\n#include "rimu_unit.h"\nint main(void) {\n'
+                           f"    static const long nu[] = {{{', '.join(map(str, nus))}}};\n"
+                           f"    static const double al[] = {{{', '.join(map(repr, alphas))}}};\n"
+                           "    int i, j;\n"
+                           f"    for (j = 0; j < {len(alphas)}; ++j) for (i = 0; i < {len(nus)}; ++i)\n"
+                           '        printf("%.17g\\n", rimu_chi2_isf(al[j], nu[i]));\n    return 0;\n}\n')
+    subprocess.run([CC, "-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-pedantic", "-o", "q", "q.c",
+                    "rimu_unit.c", "-lm"], cwd=d, check=True, capture_output=True, text=True)
+    got = np.array([float(v) for v in subprocess.run([str(d / "q")], capture_output=True, text=True,
+                                                     check=True).stdout.split()])
+    want = np.array([chi2.isf(a, nu) for a in alphas for nu in nus])
+    assert np.allclose(got, want, rtol=1e-12, atol=0)
+
+
+@needs_cc
+def test_noise_model_and_saturation(tmp_path):
+    """With a calibration noise model the manager whitens its detection statistic (rimu.fdi.whitening); the C
+    code uses the equivalent least-squares residual weighted with the model's variances. Saturated samples are
+    routed around (not invalid). Same decisions either way."""
+    from rimu.noise.model import InstrumentNoise
+
+    geom = cone6()
+    cal = _unit(geom)
+    g = cal["gyro"]
+    n = geom.n
+    g.noise = InstrumentNoise.from_terms("gyro", list(geom.names), FS, white=g.noise_sigma / math.sqrt(FS),
+                                         bias_instability=np.linspace(1e-5, 3e-5, n), rate_random_walk=1e-6)
+    g.range_raw = np.full(n, 60.0)
+    Y, valid = _scenario(g, "single", 5)
+    Y[900:905, 2] = 70.0  # saturated for 5 samples
+    exe = _build(cal, tmp_path / "c")
+    t = np.arange(N) / FS
+    mgr = SETTINGS.manager(g)
+    assert mgr.detector.noise is not None
+    r = mgr.run(Y, valid, t)
+    assert r.first("isolated") is not None
+    c = _table(_run(exe, t, {"gyro": Y}, {"gyro": valid}, "--detail"))
+    diffs, err = _compare(cal, c, {"gyro": r}, "double")
+    assert diffs == 0 and err <= 1e-12
+    assert np.all(np.array(c["gyro_validity"], int)[900:905] == 1)
+    # the whitened statistic itself (not only the decisions): |L p|^2 of the manager on the clean part
+    stat = np.array(c["gyro_statistic"], float)[:K0]
+    assert np.allclose(stat, r.statistic[:K0], rtol=1e-10)
+    assert not np.allclose(stat, np.array(_table(_run(exe, t, {"gyro": Y}, {"gyro": valid}, "--stats"))
+                                          ["gyro_chi2"], float)[:K0], rtol=1e-3)
+
+
+def test_settings_are_checked():
+    with pytest.raises(ExportError, match="max_size"):
+        FdiSettings(max_size=3)
+    with pytest.raises(ExportError, match="confirm"):
+        FdiSettings(confirm=0)
+    with pytest.raises(ExportError, match="p_fa"):
+        FdiSettings(p_fa=1.5)
+    # the tables baked into the code are the manager's thresholds
+    s = FdiSettings(readmit_after=40, backoff=1.5, fail_after=4)
+    assert s.required() == [40, 60, 90]
+    assert np.isclose(s.energy()[0], chi2.isf(chi2.sf(chi2.isf(1e-3, 1), 1), 40))
+
+
+
+def test_codes_in_the_header_are_the_python_enums(tmp_path):
+    """The integers the filter prints (validity, set state, sensor state) are rimu's enums."""
+    import re
+
+    from rimu.fusion.validity import Validity
+
+    export_c(_unit(cone6()), tmp_path)
+    h = (tmp_path / "rimu_unit.h").read_text()
+    defs = {m[1]: int(m[2]) for m in re.finditer(r"#define RIMU_(\w+) (\d+)\n", h)}
+    for s, code in STATE_CODES.items():
+        assert defs[f"STATE_{s.name}"] == code
+    for v in Validity:
+        assert defs[v.name] == int(v)
+    for st in SensorState:
+        assert defs[st.name] == int(st)
+
+
+@needs_cc
+def test_cli_bakes_the_manager_settings(tmp_path, capsys):
+    """`rimu export-c --confirm 1 --readmit-after 20 --fail-after 2 --max-set-size 1 --build`: the filter makes
+    the decisions of the manager with those settings (and not those of the defaults)."""
+    from rimu.cli import main
+
+    cal = _unit(cone6())
+    cal.save(tmp_path / "cal.json")
+    args = ["--confirm", "1", "--readmit-after", "20", "--fail-after", "2", "--max-set-size", "1", "--p-fa", "1e-4"]
+    assert main(["export-c", str(tmp_path / "cal.json"), "-o", str(tmp_path / "c"), "--build", *args]) == 0
+    assert "built" in capsys.readouterr().out
+    s = FdiSettings(confirm=1, readmit_after=20, fail_after=2, max_size=1, p_fa=1e-4)
+    Y, valid = _scenario(cal["gyro"], "repeat", 11)
+    t = np.arange(N) / FS
+    r = s.manager(cal["gyro"]).run(Y, valid, t)
+    c = _table(_run(tmp_path / "c" / "rimu_filter", t, {"gyro": Y}, {"gyro": valid}, "--detail"))
+    assert _compare(cal, c, {"gyro": r}, "double")[0] == 0
+    default = SETTINGS.manager(cal["gyro"]).run(Y, valid, t)
+    assert not np.array_equal(default.sensor_state, r.sensor_state)  # the settings matter on this run
+    assert (r.sensor_state == SensorState.FAILED).any()
