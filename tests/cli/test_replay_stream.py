@@ -89,6 +89,13 @@ def test_a_replay_in_many_chunks_gives_the_in_memory_figures(files, tmp_path, mo
         np.testing.assert_array_equal(np.array([int(x[c + 3]) for x in body]), rk.validity)
         iso = [";".join(str(i) for i in np.flatnonzero(s >= 2)) for s in rk.sensor_state]
         assert [x[c + 4] for x in body] == iso
+    # the same file as the exported C filter's format (rimu.export.estimates reads it back)
+    from rimu.export.estimates import read_estimates
+
+    back = read_estimates(tmp_path / "est.csv", {"gyro": 6, "accel": 6})
+    for k in ("gyro", "accel"):
+        np.testing.assert_array_equal(back.x[k], ref[k][0].x)
+        np.testing.assert_array_equal(back.isolated[k], ref[k][0].sensor_state >= 2)
     y2 = ref["gyro"][0].names.index("y2")
     assert body[-1][5] == str(y2) and body[0][5] == ""   # y2 isolated at the end, nothing at the start
 
