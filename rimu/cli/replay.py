@@ -357,37 +357,13 @@ class _Errors:
                                 [self.session.segments[i].label for i in order], E)
 
 
-def estimate_columns(instruments: list[str]) -> list[str]:
-    """The columns of ``--estimates``: ``t``, then per instrument ``{k}_x, {k}_y, {k}_z`` (SI, master-body
-    frame), ``{k}_validity`` (:class:`rimu.fusion.Validity` code) and ``{k}_isolated`` (0-based indices of the
-    isolated sensors joined by ``;``, empty when none): what the exported C filter writes."""
-    cols = ["t"]
-    for k in instruments:
-        cols += [f"{k}_x", f"{k}_y", f"{k}_z", f"{k}_validity", f"{k}_isolated"]
-    return cols
-
-
-def _estimate_rows(t: np.ndarray, results: dict) -> str:
-    """The CSV rows of one chunk (floats as Python's shortest repr: they read back exactly)."""
-    from ..fdi.health import SensorState
-
-    cols = [list(map(repr, np.asarray(t, float).tolist()))]
-    for r in results.values():
-        x = np.asarray(r.x, float)
-        out = np.asarray(r.sensor_state) >= SensorState.ISOLATED
-        sets, inv = np.unique(out, axis=0, return_inverse=True)
-        names = [";".join(str(i) for i in np.flatnonzero(row)) for row in sets]
-        cols += [list(map(repr, x[:, a].tolist())) for a in range(3)]
-        cols += [list(map(str, np.asarray(r.validity).tolist())), [names[i] for i in np.asarray(inv).reshape(-1).tolist()]]
-    return "".join(",".join(row) + "\n" for row in zip(*cols))
-
-
 def run(args: argparse.Namespace) -> int:
     import contextlib
 
     from ..calibration import Calibration
     from ..epoch import EpochBlock
     from ..errors import CalibrationFileError, OptionError, RimuError, SessionFormatError
+    from ..export.estimates import Estimates, estimate_columns, write_estimates
     from ..fdi import RedundancyManager
     from ..fdi.campaign import CampaignSpec, make_detector
     from ..fdi.faults import inject, parse_injection
@@ -504,7 +480,7 @@ def run(args: argparse.Namespace) -> int:
                 if plots:
                     plots[k].add(r)
             if est is not None:
-                est.write(_estimate_rows(blk.t, results))
+                write_estimates(est, Estimates.from_replay(blk.t, results), header=False)
     summary: dict = {}
     for k in insts:
         mgr, det = managers[k]

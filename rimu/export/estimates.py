@@ -85,25 +85,30 @@ class Estimates:
                    {k: np.asarray(r.sensor_state) >= SensorState.ISOLATED for k, r in results.items()})
 
 
-def write_estimates(dest: str | os.PathLike[str] | TextIO, est: Estimates) -> None:
-    """Write an estimates file (a path or an open text stream)."""
+def write_estimates(dest: str | os.PathLike[str] | TextIO, est: Estimates, header: bool = True) -> None:
+    """Write an estimates file (a path or an open text stream); ``header=False`` appends rows only, so that a
+    long replay writes its chunks one after another (floats as Python's shortest repr: they read back
+    exactly)."""
     N = len(est.t)
     for k in est.x:
         if est.x[k].shape != (N, 3) or est.validity[k].shape != (N,) or est.isolated[k].ndim != 2 \
                 or len(est.isolated[k]) != N:
             raise ShapeError(f"{k}: x must be (N, 3), validity (N,), isolated (N, n) with N = {N} samples")
-    cols = estimate_columns({k: est.isolated[k].shape[1] for k in est.x})
+    cols = [list(map(repr, np.asarray(est.t, float).tolist()))]
+    for k in est.x:
+        x = np.asarray(est.x[k], float)
+        sets, inv = np.unique(np.asarray(est.isolated[k], bool), axis=0, return_inverse=True)
+        names = [";".join(str(i) for i in np.flatnonzero(row)) for row in sets]
+        cols += [list(map(repr, x[:, a].tolist())) for a in range(3)]
+        cols += [list(map(str, np.asarray(est.validity[k], int).tolist())),
+                 [names[i] for i in np.asarray(inv).reshape(-1).tolist()]]
+    text = "".join(",".join(row) + "\n" for row in zip(*cols))
+    if header:
+        text = ",".join(estimate_columns({k: est.isolated[k].shape[1] for k in est.x})) + "\n" + text
     own = not hasattr(dest, "write")
     fh: Any = open(dest, "w", newline="") if own else dest
     try:
-        fh.write(",".join(cols) + "\n")
-        for r in range(N):
-            cells = [repr(float(est.t[r]))]
-            for k in est.x:
-                cells += [repr(float(v)) for v in est.x[k][r]]
-                cells.append(str(int(est.validity[k][r])))
-                cells.append(";".join(str(i) for i in np.flatnonzero(est.isolated[k][r])))
-            fh.write(",".join(cells) + "\n")
+        fh.write(text)
     finally:
         if own:
             fh.close()
