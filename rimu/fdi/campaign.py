@@ -119,13 +119,9 @@ class CampaignSpec:
     base_seed: int = 0
 
     def __post_init__(self) -> None:
-        unknown = [f for f in self.faults if f not in FAULTS]
-        if unknown:
-            raise ValueError(f"unknown fault types {unknown}; known: {sorted(FAULTS)}")
+        check_spec("fault types", self.faults, sorted(FAULTS), "fault_start", self.fault_start, self.duration)
         if self.detector not in DETECTORS:
             raise ValueError(f"unknown detector {self.detector!r}; known: {DETECTORS}")
-        if not 0 < self.fault_start < self.duration:
-            raise ValueError("fault_start must lie inside the run")
 
     def tasks(self) -> list[tuple[int, int, int, int]]:
         """(fault index, sensor, size index, repetition) for every task, in a fixed order."""
@@ -135,6 +131,24 @@ class CampaignSpec:
         sensors = self.sensors if self.sensors is not None else list(range(n))
         return [(f, s, z, r) for f in range(len(self.faults)) for s in sensors
                 for z in range(len(self.sizes)) for r in range(self.repetitions)]
+
+
+def check_spec(what: str, names: Sequence[str], known: Sequence[str], start_name: str, start: float,
+               duration: float) -> None:
+    """ValueError for names outside ``known`` or a fault onset outside the run (both campaigns' specs)."""
+    unknown = [f for f in names if f not in known]
+    if unknown:
+        raise ValueError(f"unknown {what} {unknown}; known: {list(known)}")
+    if not 0 < start < duration:
+        raise ValueError(f"{start_name} must lie inside the run")
+
+
+def split_isolations(events: Sequence[Any], onset: float, at: Callable[[Any], float] = lambda e: e.t
+                     ) -> tuple[list[Any], list[Any]]:
+    """The isolations among a manager's events (``isolated`` and ``invalid_isolated``), before and after the
+    fault's onset (``at(event)``: its time by default)."""
+    isol = [e for e in events if e.kind in ("isolated", "invalid_isolated")]
+    return [e for e in isol if at(e) < onset], [e for e in isol if at(e) >= onset]
 
 
 # ---------------------------------------------------------------------- one task (runs in a worker)
@@ -243,9 +257,7 @@ def run_task(spec: CampaignSpec, task: Sequence[int]) -> dict[str, Any]:
                                 sample_rate=spec.sample_rate)
         rr = mgr.run(Y, V, t)
         name = cal.geometry.names[sensor]
-        isol = [e for e in rr.events if e.kind in ("isolated", "invalid_isolated")]
-        before = [e for e in isol if e.t < spec.fault_start]
-        after = [e for e in isol if e.t >= spec.fault_start]
+        before, after = split_isolations(rr.events, spec.fault_start)
         out["false_isolations"] = len(before)
         out["isolated"] = after[0].sensor if after else None
         out["isolation_correct"] = bool(after and after[0].sensor == name)

@@ -31,6 +31,7 @@ from scipy.stats import chi2, ncx2
 
 from ..fusion import InstrumentPipeline
 from ..fusion.validity import Validity
+from .campaign import check_spec, split_isolations
 from .manager import RedundancyManager
 
 __all__ = ["SCENARIOS", "ScenarioSpec", "run_scenarios", "scenario_table"]
@@ -43,27 +44,38 @@ class ScenarioSpec:
     """Settings of the fault-management campaign (sizes in sigma of the sensor noise)."""
 
     geometries: list[str] = field(default_factory=lambda: ["cone6", "tetrad4", "dodecahedron6"])
+    """Preset geometries, one gyro unit each."""
     scenarios: list[str] = field(default_factory=lambda: list(SCENARIOS))
+    """Names from :data:`SCENARIOS`."""
     runs: int = 10
+    """Seeded runs per (geometry, scenario)."""
     duration: float = 30.0
+    """Length of a run, s."""
     onset: float = 10.0
+    """Time of the fault's onset, s (inside the run)."""
     sample_rate: float = 100.0
+    """Hz."""
     rate_dps: float = 30.0
+    """Amplitude of the swinging manoeuvre rates, deg/s."""
     single_sigma: float = 10.0
+    """Step of the ``single`` fault, sigma."""
     double_sigma: tuple[float, float] = (8.0, 20.0)
+    """Range of the two steps of ``double``, sigma."""
     intermittent_sigma: float = 15.0
+    """Step of each ``intermittent`` burst, sigma."""
     ramp_sigma_per_s: float = 0.5
+    """Slope of ``ramp``, sigma/s."""
     p_fa: float = 1e-3
+    """False-alarm probability per sample of the manager's detection test."""
     confirm: int = 3
+    """Alarms in a row before the manager isolates."""
     readmit_after: int = 100
+    """Clean samples before an isolated sensor is re-admitted."""
     base_seed: int = 14
+    """Seed of the whole campaign (each run's seed derives from it)."""
 
     def __post_init__(self) -> None:
-        bad = [s for s in self.scenarios if s not in SCENARIOS]
-        if bad:
-            raise ValueError(f"unknown scenarios {bad}; known: {list(SCENARIOS)}")
-        if not 0 < self.onset < self.duration:
-            raise ValueError("onset must lie inside the run")
+        check_spec("scenarios", self.scenarios, SCENARIOS, "onset", self.onset, self.duration)
 
 
 def _lambda_md(dof: int, p_fa: float, p_md: float = 1e-6) -> float:
@@ -147,9 +159,7 @@ def _one_run(spec: ScenarioSpec, geometry: str, kind: str, run: int, cal: Any, m
     biased = int(np.sum((bias > 3.0) & (lam > lam_md)))
     undetectable = bias[(bias > 3.0) & (lam <= lam_md)]
     ev = res.events
-    iso_ev = [e for e in ev if e.kind in ("isolated", "invalid_isolated")]
-    before = [e for e in iso_ev if e.sample < k0]
-    after = [e for e in iso_ev if e.sample >= k0]
+    before, after = split_isolations(ev, k0, lambda e: e.sample)
     fset = {names[j] for j in faulty}
     alarms_before = int(np.count_nonzero(res.alarm[:k0] & ~np.concatenate([[False], res.alarm[:k0 - 1]])))
     if kind == "dropout":
