@@ -64,7 +64,9 @@ def _split(line: str) -> list[str]:
     return [p.strip() for p in parts]
 
 
-def _is_num(s: str) -> bool:
+def is_number(s: str) -> bool:
+    """Whether a text field reads as a number (what :func:`float` accepts), for the readers that tell a header
+    from data."""
     try:
         float(s)
         return True
@@ -100,7 +102,7 @@ def read_raw_text(source: str | Path | _io.TextIOBase, sample_rate: float | None
         if not line.strip() or line.lstrip().startswith("#"):
             continue
         parts = _split(line)
-        nums = [_is_num(p) for p in parts]
+        nums = [is_number(p) for p in parts]
         if rows:
             if len(parts) != width or not all(nums):
                 raise SessionFormatError(f"{name}: line {ln} has {len(parts)} fields "

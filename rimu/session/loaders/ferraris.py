@@ -11,6 +11,7 @@ import numpy as np
 
 from ...errors import SessionFormatError
 from ...geometry import triad3
+from ...io.rawtext import is_number
 from ...units import G0
 from ..model import Segment, Session
 
@@ -75,7 +76,7 @@ def load_ferraris(
             try:
                 rows.append([float(line[c]) for c in cols])
             except (ValueError, IndexError):
-                bad = next((_COLUMNS[k] for k, c in enumerate(cols) if c >= len(line) or not _is_float(line[c])), "?")
+                bad = next((_COLUMNS[k] for k, c in enumerate(cols) if c >= len(line) or not is_number(line[c])), "?")
                 raise SessionFormatError(f"{path}: row {r}, column {bad!r} is missing or not a number") from None
     data = np.array(rows, dtype=float)
     if not np.all(np.isfinite(data)):
@@ -103,13 +104,3 @@ def load_ferraris(
         segments.append(seg)
     return Session(segments, {"gyro": geo, "accel": geo}, sample_rate, None, gravity, "file units",
                    {"raw_units": {"gyro": "deg/s", "accel": "m/s^2"}, "source": str(path)})
-
-
-def _is_float(s: str) -> bool:
-    try:
-        float(s)
-        return True
-    except ValueError:
-        return False
-
-
