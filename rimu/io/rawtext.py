@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import io as _io
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -62,6 +62,25 @@ def _split(line: str) -> list[str]:
     else:
         parts = line.split()
     return [p.strip() for p in parts]
+
+
+def csv_header(reader: Any, need: Sequence[str], empty: str, lacking: Callable[[list[str], list[str]], str]
+               ) -> list[str]:
+    """The header row of a CSV reader, stripped, with the columns ``need`` checked present.
+
+    Raises
+    ------
+    SessionFormatError
+        ``empty`` when there is no row; ``lacking(missing, header)`` when a column of ``need`` is absent.
+    """
+    header = next(reader, None)
+    if header is None:
+        raise SessionFormatError(empty)
+    header = [h.strip() for h in header]
+    missing = [c for c in need if c not in header]
+    if missing:
+        raise SessionFormatError(lacking(missing, header))
+    return header
 
 
 def is_number(s: str) -> bool:
