@@ -22,7 +22,7 @@ import os
 import sys
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from ..errors import OutputPathError
 
@@ -73,49 +73,30 @@ def _number(kind: Callable[[str], Any], text: str) -> Any:
     return v
 
 
-def positive_float(text: str) -> float:
-    """A finite number > 0."""
-    v = _number(float, text)
-    if not v > 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return v
+_N = TypeVar("_N", int, float)
 
 
-def finite_float(text: str) -> float:
-    """A finite number."""
-    return _number(float, text)
+def _validator(kind: Callable[[str], _N], ok: Callable[[_N], bool], rule: str, name: str, doc: str
+               ) -> Callable[[str], _N]:
+    """An argparse ``type=``: ``text`` read as ``kind`` (finite), then ``ok(value)`` or "must be ``rule``"."""
+    def check(text: str) -> _N:
+        v = _number(kind, text)
+        if not ok(v):
+            raise argparse.ArgumentTypeError(f"must be {rule}, got {text}")
+        return v  # type: ignore[no-any-return]
+
+    check.__name__ = check.__qualname__ = name
+    check.__doc__ = doc
+    return check
 
 
-def nonnegative_float(text: str) -> float:
-    """A finite number >= 0."""
-    v = _number(float, text)
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return v
-
-
-def probability(text: str) -> float:
-    """A probability strictly between 0 and 1 (a false-alarm probability, a significance level)."""
-    v = _number(float, text)
-    if not 0 < v < 1:
-        raise argparse.ArgumentTypeError(f"must be a probability strictly between 0 and 1, got {text}")
-    return v
-
-
-def positive_int(text: str) -> int:
-    """An integer >= 1."""
-    v = _number(int, text)
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text}")
-    return v
-
-
-def nonnegative_int(text: str) -> int:
-    """An integer >= 0."""
-    v = _number(int, text)
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text}")
-    return v
+positive_float = _validator(float, lambda v: v > 0, "> 0", "positive_float", "A finite number > 0.")
+finite_float = _validator(float, lambda v: True, "finite", "finite_float", "A finite number.")
+nonnegative_float = _validator(float, lambda v: v >= 0, ">= 0", "nonnegative_float", "A finite number >= 0.")
+probability = _validator(float, lambda v: 0 < v < 1, "a probability strictly between 0 and 1", "probability",
+                         "A probability strictly between 0 and 1 (a false-alarm probability, a significance level).")
+positive_int = _validator(int, lambda v: v >= 1, "an integer >= 1", "positive_int", "An integer >= 1.")
+nonnegative_int = _validator(int, lambda v: v >= 0, "an integer >= 0", "nonnegative_int", "An integer >= 0.")
 
 
 # ---------------------------------------------------------------- deprecated spellings
