@@ -35,6 +35,9 @@ __all__ = [
     "positive_int",
     "nonnegative_int",
     "Deprecated",
+    "add_old_out",
+    "add_procedure_options",
+    "PROCEDURES",
     "add_json_option",
     "add_report_option",
     "add_accept_implausible",
@@ -145,6 +148,33 @@ def add_json_option(p: argparse.ArgumentParser, what: str = "a machine-readable 
 def add_report_option(p: argparse.ArgumentParser, what: str = "plots and reports", default: str | None = None) -> None:
     """``--report DIR``: the folder for human reports (created if needed)."""
     p.add_argument("--report", default=default, metavar="DIR", help=f"folder for {what} (created if needed)")
+
+
+def add_old_out(p: argparse.ArgumentParser, name: str, also: Callable[[argparse.Namespace, str], None] | None = None
+                ) -> None:
+    """``--out DIR`` (old spelling of ``--report DIR --json DIR/<name>.json``), hidden; ``also(ns, DIR)`` sets
+    whatever else the old option meant."""
+    def convert(ns: argparse.Namespace, value: str) -> None:
+        ns.report = value
+        ns.json = str(Path(value) / f"{name}.json")
+        if also is not None:
+            also(ns, value)
+
+    p.add_argument("--out", action=Deprecated, new="--report DIR and --json FILE", convert=convert, metavar="DIR")
+
+
+#: the simulated turntable procedures ``rimu simulate`` and ``rimu design`` know (rimu.sim)
+PROCEDURES = ["cho_park", "cho_park_table1", "cho_park_table2", "oliveira_table1", "zhang"]
+
+
+def add_procedure_options(p: argparse.ArgumentParser, noise: Callable[[str], float] = positive_float) -> None:
+    """``--duration``, ``--sample-rate``, ``--arw``, ``--vrw``: timing and noise of a simulated procedure (the
+    noise densities read by ``noise``)."""
+    p.add_argument("--duration", type=positive_float, default=None,
+                   help="s per static position and rate step (cho_park procedures only; default 60)")
+    p.add_argument("--sample-rate", type=positive_float, default=100.0, help="Hz")
+    p.add_argument("--arw", type=noise, default=3.0, help="gyro angle random walk, deg/sqrt(h)")
+    p.add_argument("--vrw", type=noise, default=200.0, help="accelerometer noise density, micro-g/sqrt(Hz)")
 
 
 def add_accept_implausible(p: argparse.ArgumentParser) -> None:
