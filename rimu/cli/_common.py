@@ -163,13 +163,19 @@ def add_old_out(p: argparse.ArgumentParser, name: str, also: Callable[[argparse.
     p.add_argument("--out", action=Deprecated, new="--report DIR and --json FILE", convert=convert, metavar="DIR")
 
 
-#: the simulated turntable procedures ``rimu simulate`` and ``rimu design`` know (rimu.sim)
+#: the simulated turntable procedures ``rimu simulate`` and ``rimu design`` know: the names of
+#: :data:`rimu.sim.PROCEDURES`, spelled out so that the command line starts without importing the simulator
 PROCEDURES = ["cho_park", "cho_park_table1", "cho_park_table2", "oliveira_table1", "zhang"]
 
 
 def add_procedure_options(p: argparse.ArgumentParser, noise: Callable[[str], float] = positive_float) -> None:
     """``--duration``, ``--sample-rate``, ``--arw``, ``--vrw``: timing and noise of a simulated procedure (the
-    noise densities read by ``noise``)."""
+    noise densities read by ``noise``).
+
+    >>> from rimu.sim import PROCEDURES as simulated
+    >>> PROCEDURES == list(simulated)
+    True
+    """
     p.add_argument("--duration", type=positive_float, default=None,
                    help="s per static position and rate step (cho_park procedures only; default 60)")
     p.add_argument("--sample-rate", type=positive_float, default=100.0, help="Hz")
