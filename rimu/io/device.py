@@ -173,7 +173,4 @@ class BlockSource(Source):
                 if wait > 0 and self.stop_event.wait(wait):
                     break
             self.accounting.received += 1
-            self.accounting.accepted += 1
-            self.accounting.epochs += 1
-            ep.counters["seq"] = k
-            yield ep
+            yield self._accepted(ep, "seq", k)

@@ -510,12 +510,8 @@ class MultiImuCsvSource(Source):
 
     def _epochs(self) -> Iterator[Epoch]:
         block = self.recording.to_block(self.offsets_s)
-        acc = self.accounting
         for k, ep in enumerate(block.epochs()):
             if self.stop_event.is_set():
                 break
-            acc.received += 1
-            acc.accepted += 1
-            acc.epochs += 1
-            ep.counters["index"] = k
-            yield ep
+            self.accounting.received += 1
+            yield self._accepted(ep, "index", k)
