@@ -21,6 +21,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from _timing import median_time
+
 from rimu.calibration import ChoPark, LeastSquares
 from rimu.geometry import triad3
 from rimu.sim import Simulator, cho_park_procedure, rotation, static
@@ -87,12 +89,7 @@ def main() -> None:
     # 1. timing: cone6, Tables 1 + 2, 100 Hz, 60 s per segment
     run = Simulator(seed=1).run(cho_park_procedure(duration=60.0))
     n_samples = sum(s.n_samples for s in run.session.segments)
-    times = []
-    for _ in range(args.repeats):
-        t0 = time.perf_counter()
-        ChoPark().fit(run.session).to_calibration()
-        times.append(time.perf_counter() - t0)
-    t_rimu = statistics.median(times)
+    t_rimu = median_time(lambda: ChoPark().fit(run.session).to_calibration(), args.repeats)
     # equal-size triad data for imucal: nine sections sharing the same number of samples
     g = triad3()
     per = n_samples // 9
@@ -100,18 +97,8 @@ def main() -> None:
     n_fer = sum(s.n_samples for s in fer.session.segments)
     t_imucal = None
     if HAVE_IMUCAL:
-        ti = []
-        for _ in range(args.repeats):
-            t0 = time.perf_counter()
-            imucal_fit(fer.session, 100.0)
-            ti.append(time.perf_counter() - t0)
-        t_imucal = statistics.median(ti)
-    tl = []
-    for _ in range(args.repeats):
-        t0 = time.perf_counter()
-        LeastSquares().fit(fer.session).to_calibration()
-        tl.append(time.perf_counter() - t0)
-    t_lsq = statistics.median(tl)
+        t_imucal = median_time(lambda: imucal_fit(fer.session, 100.0), args.repeats)
+    t_lsq = median_time(lambda: LeastSquares().fit(fer.session).to_calibration(), args.repeats)
     print(f"timing (median of {args.repeats})")
     print(f"  rimu ChoPark, cone6 Tables 1+2 ({n_samples} samples x 12 channels): {t_rimu * 1e3:8.1f} ms")
     if t_imucal is not None:
@@ -170,14 +157,9 @@ def main() -> None:
 
             data = pd.read_csv(folder / "example_ferraris_session.csv", header=0, index_col=0)
             sections = pd.read_json(folder / "example_ferraris_session_list.json").T
-            ti = []
-            for _ in range(args.repeats):
-                t0 = time.perf_counter()
-                regions = ferraris_regions_from_section_list(data, sections)
-                FerrarisCalibration().compute(regions, sampling_rate_hz=102.4, from_acc_unit="m/s^2",
-                                              from_gyr_unit="deg/s")
-                ti.append(time.perf_counter() - t0)
-            real["imucal_ms"] = statistics.median(ti) * 1e3
+            real["imucal_ms"] = median_time(lambda: FerrarisCalibration().compute(
+                ferraris_regions_from_section_list(data, sections), sampling_rate_hz=102.4, from_acc_unit="m/s^2",
+                from_gyr_unit="deg/s"), args.repeats) * 1e3
             real["ratio_rimu_over_imucal"] = real["rimu_lsq_ms"] / real["imucal_ms"]
         print(f"\nreal Ferraris recording ({real['samples']} samples, median of {args.repeats}): rimu LeastSquares "
               f"{real['rimu_lsq_ms']:.2f} ms" + (f", imucal {real['imucal_ms']:.2f} ms, ratio "
