@@ -272,8 +272,8 @@ def run_task(spec: CampaignSpec, task: Sequence[int]) -> dict[str, Any]:
     return out
 
 
-def _run_chunk(spec: CampaignSpec, tasks: list[tuple[int, int, int, int]]) -> list[dict[str, Any]]:
-    return [run_task(spec, t) for t in tasks]
+def _run_chunk(fn: Callable[[Any, Any], dict[str, Any]], spec: Any, tasks: list[Any]) -> list[dict[str, Any]]:
+    return [fn(spec, t) for t in tasks]
 
 
 # ---------------------------------------------------------------------- results
@@ -446,11 +446,23 @@ def run_campaign(spec: CampaignSpec, workers: int | None = None, scheduler: str 
     progress : bool or callable
         Show progress (tqdm if installed, else a counter on stderr), or call ``progress(done, total)``.
     """
-    import os
     import time
 
-    tasks = spec.tasks()
     t0 = time.perf_counter()
+    rows, workers = run_tasks(run_task, spec, spec.tasks(), workers, scheduler, executor, progress, chunks_per_worker)
+    return CampaignResult(spec, rows, time.perf_counter() - t0, workers)
+
+
+def run_tasks(fn: Callable[[Any, Any], dict[str, Any]], spec: Any, tasks: Sequence[Any], workers: int | None = None,
+              scheduler: str | None = None, executor: Executor | None = None,
+              progress: bool | Callable[[int, int], None] = False, chunks_per_worker: int = 4
+              ) -> tuple[list[dict[str, Any]], int]:
+    """``fn(spec, task)`` for every task, in task order whatever the executor, and the number of workers used:
+    the one loop of both campaigns (this module's and :func:`rimu.fdi.scenarios.run_scenarios`). ``fn`` must be
+    a module-level function (pickled to the workers); the options are those of :func:`run_campaign`."""
+    import os
+
+    tasks = list(tasks)
     client = None
     own = None
     if executor is None and scheduler is not None:
@@ -469,13 +481,13 @@ def run_campaign(spec: CampaignSpec, workers: int | None = None, scheduler: str 
     try:
         if executor is None:
             for k, task in enumerate(tasks):
-                rows.append(run_task(spec, task))
+                rows.append(fn(spec, task))
                 report(k + 1)
             workers = 1
         else:
             size = max(1, len(tasks) // (max(workers or 1, 1) * chunks_per_worker))
             chunks = [tasks[i:i + size] for i in range(0, len(tasks), size)]
-            futures = [executor.submit(_run_chunk, spec, c) for c in chunks]
+            futures = [executor.submit(_run_chunk, fn, spec, c) for c in chunks]
             done = 0
             results: list[list[dict[str, Any]]] = []
             for fut in futures:  # in submission order: deterministic
@@ -489,7 +501,7 @@ def run_campaign(spec: CampaignSpec, workers: int | None = None, scheduler: str 
             own.shutdown()
         if client is not None:
             client.close()
-    return CampaignResult(spec, rows, time.perf_counter() - t0, int(workers or 1))
+    return rows, int(workers or 1)
 
 
 def _progress(progress: bool | Callable[[int, int], None], total: int) -> Callable[[int], None]:

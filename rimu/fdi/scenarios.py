@@ -22,6 +22,7 @@ Run it with ``python examples/fault_management_campaign.py`` (the table in ``doc
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -31,7 +32,7 @@ from scipy.stats import chi2, ncx2
 
 from ..fusion import InstrumentPipeline
 from ..fusion.validity import Validity
-from .campaign import check_spec, split_isolations
+from .campaign import check_spec, run_tasks, split_isolations
 from .manager import RedundancyManager
 
 __all__ = ["SCENARIOS", "ScenarioSpec", "run_scenarios", "scenario_table"]
@@ -192,19 +193,38 @@ def _one_run(spec: ScenarioSpec, geometry: str, kind: str, run: int, cal: Any, m
     }
 
 
-def run_scenarios(spec: ScenarioSpec) -> list[dict[str, Any]]:
-    """Every (geometry, scenario, run) of ``spec``, in order; one dict per run."""
+_CACHE: dict[Any, Any] = {}
+
+
+def _setup(spec: ScenarioSpec, geometry: str) -> tuple[Any, RedundancyManager]:
+    """The truth calibration of ``geometry`` and its manager, made once per geometry (in each worker)."""
     from .campaign import simulated_truth  # the campaign module is the one fdi module allowed to use rimu.sim
 
-    rows = []
-    for g_name in spec.geometries:
-        cal = simulated_truth(g_name, "gyro", spec.sample_rate, spec.base_seed)
+    key = (geometry, spec.sample_rate, spec.base_seed, spec.p_fa, spec.confirm, spec.readmit_after)
+    if key not in _CACHE:
+        cal = simulated_truth(geometry, "gyro", spec.sample_rate, spec.base_seed)
         mgr = RedundancyManager(InstrumentPipeline(cal), p_fa=spec.p_fa, confirm=spec.confirm,
                                 readmit_after=spec.readmit_after, sample_rate=spec.sample_rate)
-        for kind in spec.scenarios:
-            for r in range(spec.runs):
-                rows.append(_one_run(spec, g_name, kind, r, cal, mgr))
-    return rows
+        _CACHE.clear()
+        _CACHE[key] = (cal, mgr)
+    return _CACHE[key]
+
+
+def _run_task(spec: ScenarioSpec, task: tuple[str, str, int]) -> dict[str, Any]:
+    geometry, kind, run = task
+    cal, mgr = _setup(spec, geometry)
+    return _one_run(spec, geometry, kind, run, cal, mgr)
+
+
+def run_scenarios(spec: ScenarioSpec, workers: int | None = 0,
+                  progress: bool | Callable[[int, int], None] = False) -> list[dict[str, Any]]:
+    """Every (geometry, scenario, run) of ``spec``, in order; one dict per run.
+
+    ``workers`` and ``progress`` as in :func:`rimu.fdi.campaign.run_campaign` (the same loop): 0, the default,
+    runs in this process; the rows do not depend on it (every run is seeded on its own).
+    """
+    tasks = [(g, kind, r) for g in spec.geometries for kind in spec.scenarios for r in range(spec.runs)]
+    return run_tasks(_run_task, spec, tasks, workers, progress=progress)[0]
 
 
 def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
