@@ -41,7 +41,7 @@ from .glt import GltSnapshot, GltWindow, glt_threshold
 from .kalman import ParityKalman
 from .manager import HealthState, RedundancyManager
 
-__all__ = ["CampaignSpec", "CampaignResult", "run_campaign", "run_task", "clopper_pearson", "make_detector",
+__all__ = ["CampaignSpec", "CampaignResult", "run_campaign", "run_task", "run_tasks", "clopper_pearson", "make_detector",
            "simulated_truth"]
 
 DETECTORS = ("glt", "glt_window", "cusum", "kalman", "baseline")
