@@ -359,7 +359,7 @@ class CampaignResult:
 
     def plot(self, path: str | Path) -> Path | None:
         """Detection probability against size per fault type, with the chi-square theory curve for biases."""
-        from ..plotting import pyplot
+        from ..plotting import pyplot, save_figure
 
         plt = pyplot(optional=True)
         if plt is None:
@@ -392,13 +392,7 @@ class CampaignResult:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="lower right")
         fig.tight_layout()
-        path = Path(path)
-        from ..atomic import atomic_path
-
-        with atomic_path(path) as _tmp:  # whole or not at all
-            fig.savefig(_tmp, dpi=110)
-        plt.close(fig)
-        return path
+        return save_figure(fig, path)
 
 
 def _dof(spec: CampaignSpec) -> int:
