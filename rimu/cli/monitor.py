@@ -211,6 +211,23 @@ def _status(t: float, rate: float, src: Any, pipe: Any, fdi: _Fdi) -> str:
     return " | ".join(parts)
 
 
+def _install_sigint(handler: Any) -> Any:
+    """Install a SIGINT handler (main thread only; elsewhere Ctrl-C keeps raising KeyboardInterrupt)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGINT, handler)
+
+
+def _restore_sigint(old: Any) -> None:
+    import signal
+
+    if old is not None:
+        signal.signal(signal.SIGINT, old)
+
+
 def run(args: argparse.Namespace) -> int:
     from ..fusion import Pipeline
     from ..io.recorded import CsvRecorder
@@ -226,8 +243,22 @@ def run(args: argparse.Namespace) -> int:
     w_status = w0
     n_status = 0
     interrupted = False
+    stop_requested = []
+
+    def _on_sigint(signum: int, frame: Any) -> None:
+        # the first Ctrl-C asks the source to stop (the loop ends at the next epoch or receive timeout, with
+        # every lock released); an exception raised at an arbitrary point could leave a transport's lock held
+        # and hang the shutdown. A second Ctrl-C interrupts at once.
+        if stop_requested:
+            raise KeyboardInterrupt
+        stop_requested.append(True)
+        src.stop()
+
+    old_handler = _install_sigint(_on_sigint)
     try:
         for ep in src:
+            if stop_requested:
+                break
             if t0 is None:
                 t0 = ep.t
             t_last = ep.t
@@ -251,6 +282,8 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         interrupted = True
     finally:
+        _restore_sigint(old_handler)
+        interrupted = interrupted or bool(stop_requested)
         src.close()
         if rec is not None:
             rec.close()

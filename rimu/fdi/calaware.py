@@ -32,6 +32,7 @@ was last given (or the ``inputs`` of :meth:`CalibrationAwareGlt.block`).
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -62,9 +63,11 @@ def stated_covariance(cal: InstrumentCalibration, misalignment_rad: float, scale
         _, off = g.off_axis_basis(i)
         names += [f"{nm}.scale", f"{nm}.{off[0]}", f"{nm}.{off[1]}", f"{nm}.bias"]
         var += [(scale_rel * cal.scale[i]) ** 2, misalignment_rad**2, misalignment_rad**2, bias**2]
-    return InstrumentCalibration(cal.instrument, g, cal.scale.copy(), cal.misalignment.copy(), cal.bias.copy(),
-                                 None if cal.noise_sigma is None else cal.noise_sigma.copy(),
-                                 np.diag(var), names, dict(cal.effects))
+    # everything else (effects, range limits, noise model) is kept: only the covariance is stated
+    return dataclasses.replace(cal, scale=cal.scale.copy(), misalignment=cal.misalignment.copy(),
+                               bias=cal.bias.copy(),
+                               noise_sigma=None if cal.noise_sigma is None else cal.noise_sigma.copy(),
+                               covariance=np.diag(var), param_names=names, effects=dict(cal.effects))
 
 
 class CalibrationCovariance:

@@ -108,3 +108,16 @@ def test_without_covariance_a_clear_error(setting):
 
     with pytest.raises(ParameterNameError, match="stated_covariance"):
         CalibrationCovariance(InstrumentCalibration.nominal("gyro", cone6(), 1.0))
+
+
+def test_stated_covariance_keeps_range_and_noise_model():
+    """Stating a covariance changes the covariance only: the range limits (which make clipped samples count as
+    invalid at runtime) and the noise model travel with the copy."""
+    from rimu.geometry import cone6
+
+    base = InstrumentCalibration.nominal("gyro", cone6(), 0.01)
+    base.range_raw = np.full(6, 8.7)
+    c = stated_covariance(base, 1e-3, 3e-4)
+    np.testing.assert_array_equal(c.range_raw, base.range_raw)
+    assert c.noise is base.noise
+    assert c.covariance.shape == (24, 24) and np.isclose(c.std()["x1.mis_y"], 1e-3)

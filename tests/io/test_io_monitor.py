@@ -59,7 +59,7 @@ def test_monitor_needs_a_calibration_for_real_sources(tmp_path, capsys):
 @pytest.mark.skipif(os.name != "posix", reason="SIGINT delivery to a child process")
 def test_monitor_ctrl_c_prints_a_summary():
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    p = subprocess.Popen([sys.executable, "-m", "rimu.cli", "monitor", "--simulate", "--realtime",
+    p = subprocess.Popen([sys.executable, "-X", "faulthandler", "-m", "rimu.cli", "monitor", "--simulate", "--realtime",
                           "--sim-duration", "30", "--status-interval", "0.2"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
     try:
@@ -71,7 +71,12 @@ def test_monitor_ctrl_c_prints_a_summary():
                 break
         assert line.startswith("t "), p.stderr.read()
         p.send_signal(signal.SIGINT)
-        out, err = p.communicate(timeout=20)
+        try:
+            out, err = p.communicate(timeout=20)
+        except subprocess.TimeoutExpired:               # a hang: show where every thread is (faulthandler)
+            p.send_signal(signal.SIGABRT)
+            out, err = p.communicate(timeout=10)
+            pytest.fail(f"no exit within 20 s of Ctrl-C; threads:\n{err[-6000:]}")
     finally:
         if p.poll() is None:
             p.kill()
