@@ -13,7 +13,6 @@ import numpy as np
 
 from ..atomic import atomic_files, atomic_path
 from ..errors import RimuError, SessionFormatError
-from ..io.rawtext import csv_header
 from ..units import G0
 from .model import Segment, Session
 
@@ -319,6 +318,8 @@ def _build(side: dict, t: np.ndarray, seg_idx: np.ndarray, raw: dict, temp, src:
 
 def read_header(reader: Any, path: Path, need: list[str]) -> list[str]:
     """The header row of a session CSV (stripped), with the columns ``need`` checked present."""
+    from ..io.rawtext import csv_header  # rimu.io only when a CSV is read
+
     return csv_header(reader, need, f"{path} is empty; the first row must be the header {need}",
                       lambda missing, header: f"{path}: header lacks the columns {missing} (header is {header})")
 

@@ -11,7 +11,6 @@ import numpy as np
 
 from ...errors import SessionFormatError
 from ...geometry import triad3
-from ...io.rawtext import is_number
 from ...units import G0
 from ..model import Segment, Session
 
@@ -62,14 +61,12 @@ def load_ferraris(
     for p in (path, spath):
         if not p.exists():
             raise SessionFormatError(f"{p} does not exist; expected the recording CSV and its section list JSON")
+    from ...io.rawtext import csv_header, is_number  # rimu.io only when a recording is read
+
     with path.open(newline="") as fh:
         reader = csv.reader(fh)
-        header = next(reader, None)
-        if header is None:
-            raise SessionFormatError(f"{path} is empty")
-        missing = [c for c in _COLUMNS if c not in header]
-        if missing:
-            raise SessionFormatError(f"{path}: columns {missing} are missing; the header is {header}")
+        header = csv_header(reader, _COLUMNS, f"{path} is empty",
+                            lambda missing, header: f"{path}: columns {missing} are missing; the header is {header}")
         cols = [header.index(c) for c in _COLUMNS]
         rows = []
         for r, line in enumerate(reader, start=2):
