@@ -1,8 +1,16 @@
-"""Calibration benchmark: rimu's Cho & Park cone6 calibration timed beside imucal's Ferraris calibration of a
-triad on data of equal size, in the same run; and the accuracy of rimu and imucal on the same simulated
-Ferraris-style triad data (six static positions, one full turn about each axis).
+"""Calibration benchmark: every rimu estimator (Cho & Park, de Oliveira, Zhang, hand-held, generic least squares)
+timed beside imucal's Ferraris calibration of a triad on data of equal size and channel count, in the same run
+(interleaved); the accuracy of rimu and imucal on the same simulated Ferraris-style triad data (six static
+positions, one full turn about each axis); every estimator tried on imucal's real Ferraris recording (time, or the
+estimator's refusal and why).
 
-    python benchmarks/calibration.py [--repeats 5]
+Equal size: imucal's input is 144000 samples x 6 channels (a gyro and an accelerometer triad, nine Ferraris
+sections). Cho & Park (Tables 1 + 2), Zhang (nine positions and six CW/CCW pairs in the paper's 100 s : 180 s
+proportions), hand-held (30 poses, long holds) and LeastSquares (imucal's own data) get triad sessions of the same
+144000 x 6. de Oliveira needs at least four gyros: a tetrad of gyros with a triad of accelerometers (7 channels) over
+its Table 1 sequences with the same number of sample-channels; its ratio is also given per sample-channel.
+
+    python benchmarks/calibration.py [--repeats 7]
 
 imucal is optional (it is not a rimu dependency): install it to compare (``pip install imucal``); without it
 the script says so and reports rimu alone. Prints a table and a JSON line.
@@ -23,9 +31,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from _timing import median_time
 
-from rimu.calibration import ChoPark, LeastSquares
-from rimu.geometry import triad3
-from rimu.sim import Simulator, cho_park_procedure, rotation, static
+from rimu.calibration import ChoPark, LeastSquares, Oliveira, Zhang
+from rimu.calibration.handheld import HandHeld
+from rimu.errors import RimuError
+from rimu.geometry import tetrad4, triad3
+from rimu.sim import Simulator, cho_park_procedure, oliveira_table1, rotation, static, zhang_scheme
+from rimu.sim.handheld import handheld_run
 from rimu.units import DEG_TO_RAD, G0, MS2_TO_UG, RS_TO_DH
 
 try:  # optional reference
@@ -80,36 +91,67 @@ def errors(truth, sf_a, ax_a, b_a, sf_g, ax_g, b_g) -> dict[str, float]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--accuracy-runs", type=int, default=20)
     ap.add_argument("--memory-factor", type=int, default=16, help="length of the memory test session, x 60 s")
     args = ap.parse_args()
     out: dict = {"benchmark": "calibration", "imucal": HAVE_IMUCAL}
 
-    # 1. timing: cone6, Tables 1 + 2, 100 Hz, 60 s per segment
-    run = Simulator(seed=1).run(cho_park_procedure(duration=60.0))
-    n_samples = sum(s.n_samples for s in run.session.segments)
-    t_rimu = median_time(lambda: ChoPark().fit(run.session).to_calibration(), args.repeats)
-    # equal-size triad data for imucal: nine sections sharing the same number of samples
+    # 1. timing: every estimator beside imucal on data of equal size (144000 samples x 6 channels), interleaved
     g = triad3()
-    per = n_samples // 9
+    n_target = 144000
+    per = n_target // 9
     fer = Simulator({"gyro": g, "accel": g}, latitude_deg=None, seed=2).run(ferraris_procedure(per / 100.0, 360.0 / (per / 100.0)))
-    n_fer = sum(s.n_samples for s in fer.session.segments)
-    t_imucal = None
-    if HAVE_IMUCAL:
-        t_imucal = median_time(lambda: imucal_fit(fer.session, 100.0), args.repeats)
-    t_lsq = median_time(lambda: LeastSquares().fit(fer.session).to_calibration(), args.repeats)
-    print(f"timing (median of {args.repeats})")
-    print(f"  rimu ChoPark, cone6 Tables 1+2 ({n_samples} samples x 12 channels): {t_rimu * 1e3:8.1f} ms")
-    if t_imucal is not None:
-        print(f"  imucal Ferraris, triad ({n_fer} samples x 6 channels):              {t_imucal * 1e3:8.1f} ms  "
-              f"(rimu / imucal = {t_rimu / t_imucal:.2f})")
-    else:
-        print("  imucal is not importable here: install it (pip install imucal) for the reference timing")
-    print(f"  rimu LeastSquares on the same triad data:                            {t_lsq * 1e3:8.1f} ms")
-    out["timing_ms"] = {"rimu_chopark_cone6": t_rimu * 1e3, "imucal_ferraris_triad": None if t_imucal is None else
-                        t_imucal * 1e3, "rimu_lsq_triad": t_lsq * 1e3, "samples_cone6": n_samples,
-                        "samples_triad": n_fer}
+    cp = Simulator({"gyro": g, "accel": g}, seed=1).run(cho_park_procedure(duration=60.0))  # 24 x 60 s
+    zs = 1440.0 / (9 + 12 * 1.8)  # Zhang's 100 s statics : 180 s rotations, scaled to 1440 s
+    zh = Simulator({"gyro": g, "accel": g}, seed=3).run(zhang_scheme(static_duration=round(zs, 2),
+                                                                     rotation_duration=round(1.8 * zs, 2)))
+    hh = handheld_run(n_poses=30, static_s=46.3, seed=1000)
+    # de Oliveira: 7 channels, 16 sequences of two whole turns, 864000 sample-channels in all
+    ol_s = 6 * n_target / 7 / 16 / 100.0
+    ol = Simulator({"gyro": tetrad4(), "accel": g}, latitude_deg=-23.2, seed=4).run(
+        oliveira_table1(rate=2 * 2 * np.pi / ol_s, turns=2))
+    cases = {  # name: (label, session, fit); imucal first
+        "imucal_ferraris": ("imucal Ferraris, triad", fer.session, (lambda: imucal_fit(fer.session, 100.0))
+                            if HAVE_IMUCAL else None),
+        "chopark": ("rimu ChoPark, triad, Tables 1+2", cp.session, lambda: ChoPark().fit(cp.session).to_calibration()),
+        "oliveira": ("rimu Oliveira, gyro tetrad, Table 1", ol.session,
+                     lambda: Oliveira().fit(ol.session).to_calibration()),
+        "zhang": ("rimu Zhang, triad, 9 positions + 6 pairs", zh.session, lambda: Zhang().fit(zh.session).to_calibration()),
+        "handheld": ("rimu HandHeld, triad, 30 poses", hh.session, lambda: HandHeld().fit(hh.session).to_calibration()),
+        "lsq": ("rimu LeastSquares, imucal's triad data", fer.session,
+                lambda: LeastSquares().fit(fer.session).to_calibration()),
+    }
+    size = {k: (sum(x.n_samples for x in c[1].segments), sum(geo.n for geo in c[1].geometries.values()))
+            for k, c in cases.items()}
+    times: dict[str, list[float]] = {k: [] for k, c in cases.items() if c[2] is not None}
+    for k in times:  # one warm-up call each (imports, caches of the session's own)
+        cases[k][2]()
+    for _ in range(args.repeats):  # interleaved: each estimator once per round, so load changes hit all alike
+        for k in times:
+            times[k].append(median_time(cases[k][2], 1))
+    med = {k: statistics.median(v) for k, v in times.items()}
+    t_imucal = med.get("imucal_ferraris")
+    print(f"timing (median of {args.repeats} interleaved rounds; imucal's input: {size['imucal_ferraris'][0]} samples x "
+          f"{size['imucal_ferraris'][1]} channels)")
+    print(f"  {'estimator':42s} {'samples x ch':>15s} {'ms':>9s} {'/ imucal':>9s} {'per sample-ch':>14s}")
+    ratio, ratio_sc = {}, {}
+    for k, (label, _, _) in cases.items():
+        if k not in med:
+            print(f"  {label:42s} imucal is not importable here: install it (pip install imucal)")
+            continue
+        n, c = size[k]
+        line = f"  {label:42s} {f'{n} x {c}':>15s} {med[k] * 1e3:9.2f}"
+        if t_imucal is not None and k != "imucal_ferraris":
+            ratio[k] = med[k] / t_imucal
+            n0, c0 = size["imucal_ferraris"]
+            ratio_sc[k] = (med[k] / (n * c)) / (t_imucal / (n0 * c0))
+            line += f" {ratio[k]:9.2f} {ratio_sc[k]:14.2f}"
+        print(line)
+    out["timing_ms"] = {k: v * 1e3 for k, v in med.items()}
+    out["ratio_to_imucal"] = ratio
+    out["ratio_to_imucal_per_sample_channel"] = ratio_sc
+    out["size_samples_channels"] = size
 
     # 2. accuracy on the same simulated Ferraris-style triad data (20 s statics, 10 s turns)
     acc: dict[str, list] = {"rimu": [], "imucal": []}
@@ -143,27 +185,48 @@ def main() -> None:
         from rimu.session import load_ferraris
 
         sess = load_ferraris(folder)
-        tr = []
-        for _ in range(args.repeats):
-            fresh = load_ferraris(folder)  # a session never fitted before: no cache helps
-            t0 = time.perf_counter()
-            LeastSquares().fit(fresh).to_calibration()
-            tr.append(time.perf_counter() - t0)
-        real = {"rimu_lsq_ms": statistics.median(tr) * 1e3,
-                "samples": sum(x.n_samples for x in sess.segments)}
+        real: dict = {"samples": sum(x.n_samples for x in sess.segments), "estimators": {}}
+        print(f"\nreal Ferraris recording ({real['samples']} samples; median of {args.repeats}; each fit on a freshly "
+              "loaded session, so no cache helps):")
+        for name, est in (("chopark", ChoPark), ("oliveira", Oliveira), ("zhang", Zhang), ("handheld", HandHeld),
+                          ("lsq", LeastSquares)):
+            try:
+                est().fit(load_ferraris(folder)).to_calibration()
+            except RimuError as exc:  # the estimator's own refusal: the data do not identify its model
+                real["estimators"][name] = {"refused": f"{type(exc).__name__}: {exc}"}
+                print(f"  {est.__name__:12s} refused: {type(exc).__name__}: {exc}")
+                continue
+            tr = []
+            for _ in range(args.repeats):
+                fresh = load_ferraris(folder)
+                t0 = time.perf_counter()
+                est().fit(fresh).to_calibration()
+                tr.append(time.perf_counter() - t0)
+            real["estimators"][name] = {"ms": statistics.median(tr) * 1e3}
+        real["rimu_lsq_ms"] = real["estimators"]["lsq"].get("ms")
         if HAVE_IMUCAL:
             import pandas as pd
             from imucal import FerrarisCalibration, ferraris_regions_from_section_list
 
             data = pd.read_csv(folder / "example_ferraris_session.csv", header=0, index_col=0)
             sections = pd.read_json(folder / "example_ferraris_session_list.json").T
-            real["imucal_ms"] = median_time(lambda: FerrarisCalibration().compute(
-                ferraris_regions_from_section_list(data, sections), sampling_rate_hz=102.4, from_acc_unit="m/s^2",
-                from_gyr_unit="deg/s"), args.repeats) * 1e3
+            ti = []
+            for _ in range(args.repeats):
+                t0 = time.perf_counter()
+                regions = ferraris_regions_from_section_list(data, sections)
+                FerrarisCalibration().compute(regions, sampling_rate_hz=102.4, from_acc_unit="m/s^2",
+                                              from_gyr_unit="deg/s")
+                ti.append(time.perf_counter() - t0)
+            real["imucal_ms"] = statistics.median(ti) * 1e3
+            for v in real["estimators"].values():
+                if "ms" in v:
+                    v["ratio_to_imucal"] = v["ms"] / real["imucal_ms"]
             real["ratio_rimu_over_imucal"] = real["rimu_lsq_ms"] / real["imucal_ms"]
-        print(f"\nreal Ferraris recording ({real['samples']} samples, median of {args.repeats}): rimu LeastSquares "
-              f"{real['rimu_lsq_ms']:.2f} ms" + (f", imucal {real['imucal_ms']:.2f} ms, ratio "
-                                                 f"{real['ratio_rimu_over_imucal']:.2f}" if HAVE_IMUCAL else ""))
+            print(f"  {'imucal':12s} {real['imucal_ms']:.2f} ms (from the CSV and section list in memory)")
+        for name, v in real["estimators"].items():
+            if "ms" in v:
+                print(f"  {name:12s} {v['ms']:.2f} ms" + (f" = {v['ratio_to_imucal']:.2f} x imucal"
+                                                          if "ratio_to_imucal" in v else ""))
         out["real_ferraris"] = real
     else:
         print("\nreal Ferraris recording: ../shared/data/imucal_ferraris_session is absent here")

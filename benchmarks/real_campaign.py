@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from rimu.calibration.multi_imu import MultiImuSetup, setup_multi_imu
-from rimu.fdi import Px4GyroSelector, RedundancyManager
+from rimu.fdi import Px4GyroSelector, RedundancyManager, fit_motion_detector
 from rimu.fdi.faults import Injection, inject
 from rimu.fusion import InstrumentPipeline
 from rimu.io.pixhawk_dual import read_pixhawk_dual
@@ -99,6 +99,10 @@ def body_rates(su: MultiImuSetup, block: Any) -> tuple[np.ndarray, np.ndarray]:
 
 
 _MANAGERS: dict[int, RedundancyManager] = {}
+#: the detector of rimu's manager: "glt" (the snapshot GLT under the noise fitted at setup) or "motion" (the
+#: motion-aware GLT, its motion terms fitted on the same fault-free first half: benchmarks/real_campaign_motion.py)
+DETECTOR = "glt"
+MOTION_MARGIN = 10.0
 
 
 def manager(su: MultiImuSetup) -> RedundancyManager:
@@ -107,7 +111,13 @@ def manager(su: MultiImuSetup) -> RedundancyManager:
     if key not in _MANAGERS:
         cal = su.calibration["gyro"]
         pipe = InstrumentPipeline(cal)
-        _MANAGERS[key] = RedundancyManager(pipe, p_fa=P_FA, confirm=CONFIRM)
+        det = None
+        if DETECTOR == "motion":
+            b = su.block
+            first = (b.t >= su.fit_window_s[0]) & (b.t <= su.fit_window_s[1])
+            det = fit_motion_detector(cal, b.raw["gyro"][first], b.valid["gyro"][first],
+                                      1.0 / float(np.median(np.diff(b.t))), margin=MOTION_MARGIN, p_fa=P_FA)
+        _MANAGERS[key] = RedundancyManager(pipe, det, p_fa=P_FA, confirm=CONFIRM)
     mgr = _MANAGERS[key]
     mgr.reset()
     return mgr

@@ -12,9 +12,12 @@ Configurations (typical coefficients, ``rimu.sim.typical``):
 * ``all``: every compensable effect on both instruments, the g-sensitivity <-> size-effect cycle included
   (two extra rounds of both instruments per epoch).
 
-Per-sample cost of ``Pipeline.step`` (one epoch of both instruments) and of ``Pipeline.process`` per sample;
-medians over repeats, ratios to ``base``. Target: ``all`` step within 2x of ``base`` step. Prints a table and
-one JSON line.
+Per-sample cost of ``Pipeline.step`` (one epoch of both instruments) and of ``Pipeline.process`` per sample, for
+the numpy and (where installed) numba backends; medians over repeats, ratios to ``base`` of the same backend and
+to the numpy ``base`` step, and the bare numpy ``G @ y`` of one instrument. Target: ``all`` step within 2x of
+``base`` step. With numba, ``process`` with every effect is also timed against a C kernel of the same arithmetic
+(``benchmarks/_ckernel.py``, ``-O3 -march=native``, on the compiled program's arrays) on blocks of 1e5 and 1e3
+samples (targets: >= 0.7x and >= 0.5x its throughput). Prints a table and one JSON line.
 """
 
 from __future__ import annotations
@@ -27,12 +30,14 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from _ckernel import build
 from _timing import median_time
 
 from rimu.calibration.model import RuntimeInputs
 from rimu.epoch import EpochBlock
-from rimu.fusion import EffectCompensation, Pipeline
+from rimu.fusion import EffectCompensation, Pipeline, numba_available
 from rimu.sim import cho_park_table3
 from rimu.sim.typical import TYPICAL_EFFECTS, with_effects
 from rimu.units import DEG_TO_RAD, G0
@@ -67,40 +72,106 @@ def data(cal, N: int, seed: int = 0) -> EpochBlock:
     return EpochBlock(t, raw, temperature=T)
 
 
+def _time_steps(pipe, epochs, reps):
+    def step_loop():
+        step = pipe.step
+        for e in epochs:
+            step(e)
+    step_loop()
+    return median_time(step_loop, reps) / len(epochs)
+
+
+def _c_reference(ck, cal, block, sizes, reps):
+    """The C kernel of the compiled stage's arithmetic (benchmarks/_ckernel.py) on the numba pipeline's program,
+    and the numba pipeline's ``process`` on the same blocks, s/sample; checked to give the same outputs."""
+    pipe = Pipeline(cal, temperature=True, backend="numba")
+    pipe.process(block)
+    prog = pipe._program
+    order = pipe._order
+    out = {}
+    for N in sizes:
+        sub = EpochBlock(block.t[:N], {k: v[:N] for k, v in block.raw.items()}, temperature=block.temperature[:N])
+        inner = max(1, 20_000 // N)
+        t = sub.t - pipe.t0
+        dT = sub.temperature - pipe._t_ref
+        Ys = [np.ascontiguousarray(sub.raw[k]) for k in order]
+        Os = [np.empty((N, 3 + pipe[k].r)) for k in order]
+        ts = []
+        for _ in range(reps):
+            dt, bad = ck.epoch_block(prog.F, prog.L, prog.W, Ys[0], Ys[-1], t, dT, Os[0], Os[-1], inner)
+            assert bad == -1
+            ts.append(dt)
+        ref = pipe.process(sub)
+        for k, O in zip(order, Os):
+            np.testing.assert_allclose(O[:, :3], ref[k].x, rtol=0, atol=1e-12 * np.abs(ref[k].x).max())
+
+        def run(sub=sub, inner=inner):
+            for _ in range(inner):
+                pipe.process(sub)
+        t_nb = median_time(run, reps) / (inner * N)
+        t_c = float(np.median(ts)) / N
+        out[str(N)] = {"c_us": t_c * 1e6, "numba_us": t_nb * 1e6, "numba_vs_c": t_c / t_nb}
+    return out
+
+
 def main(quick: bool = False) -> dict:
     cfgs = configurations()
     M = 500 if quick else 3000
     N = 20_000 if quick else 200_000
     reps = 3 if quick else 7
-    block = data(cfgs["all"], N)
+    backends = ["numpy"] + (["numba"] if numba_available() else [])
+    block = data(cfgs["all"], max(N, 100_000))
+    head = EpochBlock(block.t[:N], {k: v[:N] for k, v in block.raw.items()}, temperature=block.temperature[:N])
     epochs = list(EpochBlock(block.t[:M], {k: v[:M] for k, v in block.raw.items()},
                              temperature=block.temperature[:M]).epochs())
-    rows = {}
-    for name, cal in cfgs.items():
-        pipe = Pipeline(cal, temperature=True)
+    rows: dict = {b: {} for b in backends}
+    for b in backends:
+        for name, cal in cfgs.items():
+            pipe = Pipeline(cal, temperature=True, backend=b)
+            t_step = _time_steps(pipe, epochs, reps)
+            pipe.process(head)
+            t_block = median_time(lambda pipe=pipe: pipe.process(head), max(3, reps // 2)) / N
+            rows[b][name] = {"step_us": t_step * 1e6, "block_us": t_block * 1e6}
+    # references timed in the same run: bare numpy G @ y (one instrument) per sample
+    g = Pipeline(cfgs["base"], backend="numpy")["gyro"]
+    G = g.table.G[0]
+    ys = [e.raw["gyro"] for e in epochs]
 
-        def step_loop(pipe=pipe):
-            step = pipe.step
-            for e in epochs:
-                step(e)
-
-        def block_run(pipe=pipe):
-            pipe.process(block)
-
-        step_loop()
-        t_step = median_time(step_loop, reps) / M
-        t_block = median_time(block_run, max(3, reps // 2)) / N
-        rows[name] = {"step_us": t_step * 1e6, "block_us": t_block * 1e6}
-    b = rows["base"]
-    for r in rows.values():
-        r["step_ratio"] = r["step_us"] / b["step_us"]
-        r["block_ratio"] = r["block_us"] / b["block_us"]
+    def bare():
+        for y in ys:
+            G @ y
+    bare()
+    t_bare = median_time(bare, reps) / M
+    base_np = rows["numpy"]["base"]
+    for b in backends:
+        base = rows[b]["base"]
+        for r in rows[b].values():
+            r["step_ratio"] = r["step_us"] / base["step_us"]
+            r["block_ratio"] = r["block_us"] / base["block_us"]
+            r["step_ratio_to_numpy_base"] = r["step_us"] / base_np["step_us"]
+            r["step_ratio_to_bare_matvec"] = r["step_us"] / (t_bare * 1e6)
+    ck = build() if "numba" in backends else None
+    cref = None if ck is None else _c_reference(ck, cfgs["all"], block, (100_000, 1_000) if not quick
+                                                else (20_000, 1_000), reps)
     res = {"benchmark": "runtime_effects", "geometry": "cone6 gyro + accel", "step_samples": M, "block_samples": N,
-           "machine": {"cpus": os.cpu_count(), "load_1min": os.getloadavg()[0]},
-           "configurations": rows, "target": {"all_step_ratio_max": 2.0}}
-    print(f"{'configuration':<14}{'step us/epoch':>15}{'ratio':>8}{'block us/sample':>17}{'ratio':>8}")
-    for name, r in rows.items():
-        print(f"{name:<14}{r['step_us']:>15.1f}{r['step_ratio']:>8.2f}{r['block_us']:>17.3f}{r['block_ratio']:>8.1f}")
+           "machine": {"cpus": os.cpu_count(), "load_1min": os.getloadavg()[0]}, "backends": backends,
+           "bare_matvec_us": t_bare * 1e6, "configurations": rows["numpy"], "by_backend": rows,
+           "c_reference_all_effects": cref, "c_compiler": None if ck is None else ck.compiler,
+           "target": {"all_step_ratio_max": 2.0, "numba_block_vs_c_min": {"100000": 0.7, "1000": 0.5}}}
+    print(f"bare numpy G @ y (one instrument): {t_bare * 1e6:.3f} us/sample; ratios to the same backend's base "
+          "(scale/misalignment/bias only) pipeline")
+    print(f"{'backend':<8}{'configuration':<14}{'step us/epoch':>15}{'ratio':>8}{'vs numpy base':>15}"
+          f"{'block us/sample':>17}{'ratio':>8}")
+    for b in backends:
+        for name, r in rows[b].items():
+            print(f"{b:<8}{name:<14}{r['step_us']:>15.2f}{r['step_ratio']:>8.2f}{r['step_ratio_to_numpy_base']:>15.2f}"
+                  f"{r['block_us']:>17.3f}{r['block_ratio']:>8.1f}")
+    print("target: all-effects step <= 2x the base step of the same backend")
+    if cref:
+        print(f"\nall effects, Pipeline.process (numba) vs a C kernel of the same arithmetic ({ck.compiler}), us/sample")
+        for n_, r in cref.items():
+            print(f"{n_:>9} samples  numba {r['numba_us']:.3f}  C {r['c_us']:.3f}  throughput ratio "
+                  f"{r['numba_vs_c']:.2f}")
     print(json.dumps(res))
     return res
 

@@ -30,6 +30,7 @@ __all__ = [
     "NotApplicableError",
     "NotCompensableError",
     "MissingInputError",
+    "BackendUnavailableError",
 ]
 
 
@@ -141,3 +142,7 @@ class MissingInputError(RimuError, ValueError):
 
 class ExportError(RimuError, ValueError):
     """A calibration cannot be exported as flight code (an effect without a C compensation, missing noise, ...)."""
+
+
+class BackendUnavailableError(RimuError, ImportError):
+    """A compiled backend was asked for (``backend="numba"``, ``RIMU_BACKEND=numba``) and is not installed."""

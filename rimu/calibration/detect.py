@@ -113,6 +113,16 @@ def detect_intervals(accel: np.ndarray, sample_rate: float, gyro: np.ndarray | N
     minn = round(min_static_s * sample_rate)
     statics = [(s, e) for s, e, v in runs if v and e - s >= minn]
     dropped = sum(1 for s, e, v in runs if v and e - s < minn)
+    intervals = _alternate(statics, a.shape[0], gyro, sample_rate, min_turn_deg, gyro_scale)
+    return Detection(intervals, var, thr, mask, dropped,
+                     {"window_s": window_s, "factor": factor, "min_static_s": min_static_s,
+                      "min_turn_deg": min_turn_deg})
+
+
+def _alternate(statics: list[tuple[int, int]], n: int, gyro: np.ndarray | None, sample_rate: float,
+               min_turn_deg: float, gyro_scale: float | None) -> list[Interval]:
+    """The recording of ``n`` samples as alternating intervals: the static ones given (start, end), in order,
+    and a motion (rotation or not, :func:`_motion`) in every gap before, between and after them."""
     intervals: list[Interval] = []
     prev = 0
     for s, e in statics:
@@ -120,11 +130,9 @@ def detect_intervals(accel: np.ndarray, sample_rate: float, gyro: np.ndarray | N
             intervals.append(_motion(prev, s, gyro, sample_rate, min_turn_deg, gyro_scale))
         intervals.append(Interval(s, e, "static"))
         prev = e
-    if prev < a.shape[0]:
-        intervals.append(_motion(prev, a.shape[0], gyro, sample_rate, min_turn_deg, gyro_scale))
-    return Detection(intervals, var, thr, mask, dropped,
-                     {"window_s": window_s, "factor": factor, "min_static_s": min_static_s,
-                      "min_turn_deg": min_turn_deg})
+    if prev < n:
+        intervals.append(_motion(prev, n, gyro, sample_rate, min_turn_deg, gyro_scale))
+    return intervals
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int, bool]]:
@@ -293,16 +301,7 @@ def _classify(raw: dict[str, np.ndarray], sample_rate: float, stat: np.ndarray, 
                 statics.append((s2, e2))
             else:
                 dropped += 1
-    gyro = raw.get("gyro")
-    intervals: list[Interval] = []
-    prev = 0
-    for s, e in statics:
-        if s > prev:
-            intervals.append(_motion(prev, s, gyro, sample_rate, min_turn_deg, None))
-        intervals.append(Interval(s, e, "static"))
-        prev = e
-    if prev < N:
-        intervals.append(_motion(prev, N, gyro, sample_rate, min_turn_deg, None))
+    intervals = _alternate(statics, N, raw.get("gyro"), sample_rate, min_turn_deg, None)
     return Detection(intervals, stat, float(factor), mask, dropped,
                      {"window_s": window_s, "factor": factor, "init_still_s": init_still_s,
                       "min_static_s": min_static_s, "min_motion_s": min_motion_s,

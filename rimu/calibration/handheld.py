@@ -182,6 +182,49 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
         np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
 
 
+# component-first ("planar") forms of the three helpers above, for the gyro fit's many-sample products: the same
+# formulas in the same order (bit-identical results), on contiguous component planes (4, ...) instead of the
+# interleaved last axis, without np.stack: about twice as fast on (motions x samples) arrays
+def _qmul_planar(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    out = np.empty((4, *np.broadcast_shapes(pw.shape, qw.shape)))
+    out[0] = pw * qw - px * qx - py * qy - pz * qz
+    out[1] = pw * qx + px * qw + py * qz - pz * qy
+    out[2] = pw * qy - px * qz + py * qw + pz * qx
+    out[3] = pw * qz + px * qy - py * qx + pz * qw
+    return out
+
+
+def _qexp_planar(rotvec: np.ndarray) -> np.ndarray:
+    """quat_exp of rotation vectors given as planes (3, ...) -> (4, ...)."""
+    x, y, z = rotvec
+    th = np.sqrt(x * x + y * y + z * z)
+    half = 0.5 * th
+    big = th > 1e-12
+    k = np.where(big, np.sin(half) / np.where(big, th, 1.0), 0.5 - th**2 / 48.0)
+    out = np.empty((4, *th.shape))
+    out[0] = np.cos(half)
+    out[1:] = rotvec * k
+    return out
+
+
+def _qmat_planar(q: np.ndarray) -> np.ndarray:
+    """quat_to_matrix of quaternion planes (4, ...) -> (..., 3, 3)."""
+    w, x, y, z = q
+    R = np.empty((*w.shape, 3, 3))
+    R[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    R[..., 0, 1] = 2 * (x * y - w * z)
+    R[..., 0, 2] = 2 * (x * z + w * y)
+    R[..., 1, 0] = 2 * (x * y + w * z)
+    R[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    R[..., 1, 2] = 2 * (y * z - w * x)
+    R[..., 2, 0] = 2 * (x * z - w * y)
+    R[..., 2, 1] = 2 * (y * z + w * x)
+    R[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return R
+
+
 def _prefix_product(q: np.ndarray, group: np.ndarray) -> np.ndarray:
     """Cumulative quaternion products within contiguous groups (Hillis-Steele scan, log2(N) vector steps)."""
     out = q.copy()
@@ -735,19 +778,19 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         Gm = _G(W)
         psi_a = -(D["SA_y"] - c * SA_w[:, None]) @ Gm.T  # mean attitude of pose k (end of pose k = reference)
         phi_b = (D["SB_y"] - c * SB_w[:, None]) @ Gm.T  # mean attitude of pose k+1 relative to its start
-        q = quat_exp(((D["YM"] - c) @ Gm.T) * DM[..., None])
-        q[DM == 0] = (1.0, 0.0, 0.0, 0.0)
-        while q.shape[1] > 1:  # pairwise products: the rotation over the motion
-            q = quat_mul(q[:, 0::2], q[:, 1::2])
-        Rm = quat_to_matrix(q[:, 0] / np.linalg.norm(q[:, 0], axis=1, keepdims=True))
+        q = _qexp_planar(np.moveaxis((D["YM"] - c) @ Gm.T, -1, 0) * DM)  # (4, M, L)
+        q[:, DM == 0] = ((1.0,), (0.0,), (0.0,), (0.0,))
+        while q.shape[2] > 1:  # pairwise products: the rotation over the motion
+            q = _qmul_planar(q[:, :, 0::2], q[:, :, 1::2])
+        Rm = _qmat_planar(q[:, :, 0] / np.linalg.norm(q[:, :, 0], axis=0, keepdims=True))
         Ca = rotation_matrix(psi_a)
         Cb = Rm @ rotation_matrix(phi_b)
         return np.einsum("mji,mjk->mik", Cb, Ca)  # Cb^T Ca: pose-k body vector -> pose-(k+1) body
 
-    def parts(theta, dirs):
+    def parts(theta, dirs, R=None):
         W = theta[:3 * n].reshape(n, 3)
         c = theta[3 * n:]
-        R = rotations(W, c)
+        R = rotations(W, c) if R is None else R  # R: the rotations at theta, when already known
         pred = np.einsum("mij,mj->mi", R, dirs[ka])
         rr = np.einsum("mai,mi->ma", T, pred - dirs[kb])
         rs = (ybar - c) / sd
@@ -769,19 +812,22 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         psi_a = -(D["SA_y"] - c * SA_w[:, None]) @ Gm.T
         phi_b = (D["SB_y"] - c * SB_w[:, None]) @ Gm.T
         om = (D["YM"] - c) @ Gm.T
-        q = quat_exp(om * DM[..., None])
-        q[DM == 0] = (1.0, 0.0, 0.0, 0.0)
-        qh = quat_exp(om * DM[..., None] / 2)
+        omp = np.moveaxis(om, -1, 0) * DM  # (3, M, L)
+        q = _qexp_planar(omp)
+        q[:, DM == 0] = ((1.0,), (0.0,), (0.0,), (0.0,))
+        qh = _qexp_planar(omp / 2)
         # suffix products Sigma_t = q_t q_t+1 ... (reverse scan), A_t = qh_t Sigma_t+1
-        r = q[:, ::-1].copy()
+        r = q[:, :, ::-1].copy()
         d = 1
         while d < L:
-            r[:, d:] = quat_mul(r[:, d:], r[:, :-d])
+            r[:, :, d:] = _qmul_planar(r[:, :, d:], r[:, :, :-d])
             d *= 2
-        suf = r[:, ::-1]
-        nxt = np.concatenate([suf[:, 1:], np.broadcast_to([1.0, 0, 0, 0], (M, 1, 4))], axis=1)
-        A = quat_to_matrix(quat_mul(qh, nxt))  # (M, L, 3, 3)
-        Rm = quat_to_matrix(suf[:, 0] / np.linalg.norm(suf[:, 0], axis=1, keepdims=True))
+        suf = r[:, :, ::-1]
+        nxt = np.empty_like(suf)
+        nxt[:, :, :-1] = suf[:, :, 1:]
+        nxt[:, :, -1] = ((1.0,), (0.0,), (0.0,), (0.0,))
+        A = _qmat_planar(_qmul_planar(qh, nxt))  # (M, L, 3, 3)
+        Rm = _qmat_planar(suf[:, :, 0] / np.linalg.norm(suf[:, :, 0], axis=0, keepdims=True))
         Qj = np.einsum("mt,mtj,mtba->mjab", DM, om, A)  # sum dt w_j A^T
         Qc = np.einsum("mt,mtba->mab", DM, A)
         Eb = rotation_matrix(phi_b)
@@ -820,8 +866,8 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
 
     Lw = np.eye(2 * M)  # whitening of the rotation residuals (set after the first pass)
 
-    def resid(theta, dirs=accel_dirs):
-        rr, rs, rp = parts(theta, dirs)
+    def resid(theta, dirs=accel_dirs, R=None):
+        rr, rs, rp = parts(theta, dirs, R)
         rw = np.linalg.solve(Lw, rr.ravel()) if M else rr.ravel()
         return np.concatenate([rw * w_rot, rs.ravel() * w_st, rp.ravel() * w_par])
 
@@ -851,10 +897,10 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         sol = least_squares(resid, theta, jac=jac, x_scale=typ, loss="huber" if robust else "linear",
                             f_scale=3.0, xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=100 * len(theta))
         theta = sol.x
+        R = rotations(theta[:3 * n].reshape(n, 3), theta[3 * n:])  # at theta: for Cr, the weights and the end
         if it == 0:
             # correlated residuals: the gravity direction of pose k enters motions k-1 and k; generalised least
             # squares with the block-tridiagonal covariance of the pose-direction and integrated-gyro noise
-            R = rotations(theta[:3 * n].reshape(n, 3), theta[3 * n:])
             Cr = np.zeros((2 * M, 2 * M))
             for m in range(M):
                 Ta = T[m] @ R[m]
@@ -867,7 +913,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
                         Cr[2 * m2:2 * m2 + 2, 2 * m:2 * m + 2] = X.T
             Lw = np.linalg.cholesky(Cr)
             w_rot = 1.0
-        rr, rs, rp = parts(theta, accel_dirs)
+        rr, rs, rp = parts(theta, accel_dirs, R)
         rw = np.linalg.solve(Lw, rr.ravel())
         dof_rot = max(rw.size - 3 * n, 1)
         # the rotation group has many degrees of freedom: its noise level is estimated; the static means and
@@ -887,16 +933,15 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         # d resid / d accel params through the gravity directions (the rotations do not depend on them)
         h = 1e-7
         Ja = np.empty((J.shape[0], accel_dir_jac.shape[1]))
-        r0 = resid(theta)
+        r0 = resid(theta, accel_dirs, R)
         for j in range(accel_dir_jac.shape[1]):
             d = accel_dirs + h * accel_dir_jac[:, j].reshape(-1, 3)
-            Ja[:, j] = (resid(theta, d) - r0) / h
+            Ja[:, j] = (resid(theta, d, R) - r0) / h
         B = Ninv @ J.T @ Ja
         cov = cov + B @ accel_cov @ B.T
-    rr, rs, rp = parts(theta, accel_dirs)
+    rr, rs, rp = parts(theta, accel_dirs, R)
     W = theta[:3 * n].reshape(n, 3)
     c = theta[3 * n:]
-    R = rotations(W, c)
     ang = np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1, 1))
     rw = np.linalg.solve(Lw, rr.ravel())
     chi2 = {"rotation": float(rw @ rw * w_rot**2), "static": float(np.sum(rs**2) * w_st**2)}
@@ -982,16 +1027,12 @@ class HandHeld:
     def __init__(self, sigma: dict[str, Any] | None = None, mode: str = "joint",
                  instruments: Sequence[str] | None = None, robust: bool = True, pose_weights: str = "noise",
                  accel_model: str = "full") -> None:
-        self.accel_model = accel_model
-        if mode not in ("joint", "subunits"):
-            raise ValueError(f"mode must be 'joint' or 'subunits', got {mode!r}")
-        if pose_weights not in ("noise", "equal"):
-            raise ValueError(f"pose_weights must be 'noise' or 'equal', got {pose_weights!r}")
-        self.pose_weights = pose_weights
-        self.sigma = sigma
-        self.mode = mode
-        self.instruments = instruments
-        self.robust = robust
+        choices = (("mode", mode, ("joint", "subunits")), ("pose_weights", pose_weights, ("noise", "equal")))
+        for name, value, allowed in choices:
+            if value not in allowed:
+                raise ValueError(f"{name} must be {' or '.join(repr(x) for x in allowed)}, got {value!r}")
+        self.sigma, self.mode, self.instruments, self.robust = sigma, mode, instruments, robust
+        self.pose_weights, self.accel_model = pose_weights, accel_model
 
     def _sigma(self, session: Session, inst: str) -> np.ndarray:
         n = session.geometries[inst].n

@@ -10,19 +10,22 @@ their covariance by its Jacobian (checked against finite differences in the test
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import IdentifiabilityError
-from ..session import Session
+from ..session import Segment, Session
 from .effects.scale_misalignment import ScaleMisalignment
 from .model import ErrorModel, ParamSpec, SensorContext, axes_from_w, contexts
 from .result import InstrumentCalibration
 
 __all__ = ["LazyResiduals", "LsqResult", "SensorFit", "central_jacobian", "check_identifiable_gram", "fit_lsq", "physical_from_beta",
-           "rss_from_statistics"]
+           "rss_from_statistics", "sensor_segments"]
+
+#: why a segment is left out of a sensor's fit (``skipped[label]``)
+SKIP_REASON = "the segment lacks inputs the model needs (a known rate, attitude or temperature)"
 
 
 @dataclass
@@ -203,10 +206,12 @@ def on_calibrated_axes(model: ErrorModel) -> bool:
     return "scale_misalignment" in model and any(e.name not in ("bias", "scale_misalignment") for e in model)
 
 
-def first_axes(session: Session, model: ErrorModel, instrument: str, segs: list, sig: np.ndarray | None) -> np.ndarray:
-    """Calibrated axes from a fit of the model's scale/misalignment and bias alone on the nominal axes."""
+def first_axes(session: Session, model: ErrorModel, instrument: str, segs: list, sig: np.ndarray | None,
+               ctxs: list[SensorContext] | None = None) -> np.ndarray:
+    """Calibrated axes from a fit of the model's scale/misalignment and bias alone on the nominal axes
+    (``ctxs``: the nominal contexts, default :func:`contexts` of the session)."""
     base = ErrorModel([e for e in model if e.name in ("scale_misalignment", "bias")])
-    fits, _, _ = _fit_sensors(session, base, instrument, contexts(session, instrument), segs, sig)
+    fits, _, _ = _fit_sensors(session, base, instrument, ctxs or contexts(session, instrument), segs, sig)
     return calibrated_axes(base, fits)
 
 
@@ -229,12 +234,7 @@ def _fit_sensors(session: Session, model: ErrorModel, instrument: str, ctxs: lis
         p_ = len(model.parameter_names(ctx))
         G, h, q, n_obs = np.zeros((p_, p_)), np.zeros(p_), 0.0, 0
         labels = []
-        for seg in segs:
-            X = model.design(seg, ctx)
-            if X is None:
-                skipped[seg.label] = "the segment lacks inputs an effect needs (e.g. a known rate or attitude)"
-                continue
-            y = seg.raw[instrument][:, ctx.index]
+        for seg, X, y in sensor_segments(model, ctx, segs, instrument, skipped):
             G += X.T @ X
             h += X.T @ y
             q += float(y @ y)
@@ -262,6 +262,20 @@ def _fit_sensors(session: Session, model: ErrorModel, instrument: str, ctxs: lis
                               theta, tcov, s, known, n_obs, rss, res))
         used = labels
     return fits, used, skipped
+
+
+def sensor_segments(model: ErrorModel, ctx: SensorContext, segs: Iterable[Segment], instrument: str,
+                    skipped: dict[str, str]) -> Iterator[tuple[Segment, np.ndarray, np.ndarray]]:
+    """The design of one sensor, segment by segment: ``(segment, X, y)`` with ``X`` the model's regressor
+    matrix (n, p) on the segment and ``y`` the sensor's raw output (n,). Segments that lack an input the model
+    needs are left out and recorded in ``skipped`` (label -> reason). Every per-sensor fit (the estimators'
+    sufficient statistics, the diagnosis' stacked design) collects its design here."""
+    for seg in segs:
+        X = model.design(seg, ctx)
+        if X is None:
+            skipped[seg.label] = SKIP_REASON
+            continue
+        yield seg, X, seg.raw[instrument][:, ctx.index]
 
 
 def central_jacobian(f: Callable[[np.ndarray], np.ndarray], p: np.ndarray, h: np.ndarray) -> np.ndarray:

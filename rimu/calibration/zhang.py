@@ -26,8 +26,9 @@ Steps (each names its equations):
 2. gyros, CW/CCW rotation pairs: integrated differences phi (Eq. 16-18), linear least squares for M^G
    (Eq. 19-22), decomposed into ``(K_g T_o^g)^-1``;
 3. gyro biases from the static positions (Eq. 23-25);
-4. nonlinear refinement of both triads (scipy.optimize.least_squares) on the norm residuals of Eq. 7-8 and
-   Eq. 19, weighted by their noise; its Jacobian gives the covariance;
+4. nonlinear refinement of both triads on the norm residuals of Eq. 7-8 and Eq. 19, 23, weighted by their noise:
+   two independent problems (accelerometers; gyros), analytic Jacobians (:func:`norm_problem`), damped Newton
+   steps on the exact cost (:func:`refine_norms`); the Jacobian gives the covariance;
 5. inter-triad misalignment: rotation axes from the gyros (Eq. 41) and from the accelerometers (the null
    vector of ``[s^p(t)^T, -1]``, Eq. 42-47), then ``R_p^o`` by the SVD solution of Wahba's problem
    (Eq. 39-40 generalised to more than two axes, as the paper suggests).
@@ -35,16 +36,16 @@ Steps (each names its equations):
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
 from ..errors import IdentifiabilityError, SessionFormatError
-from ..session import Segment, Session, skew
+from ..session import Segment, Session
 from ..units import EARTH_RATE
 from .estimate import CalibrationResult, _sigma_for, make_sensor_fit
-from .lsq import LsqResult, central_jacobian
+from .lsq import LsqResult
 from .model import ErrorModel, contexts
 from .result import Calibration, InstrumentCalibration
 
@@ -52,6 +53,9 @@ __all__ = [
     "Zhang",
     "accel_rotation_axis",
     "lower_factor",
+    "norm_problem",
+    "norm_residuals",
+    "refine_norms",
     "platform_frame",
     "rotation_pairs",
     "solve_ma",
@@ -158,26 +162,69 @@ def rotation_pairs(segments: Sequence[Segment]) -> list[tuple[Segment, Segment, 
     return out
 
 
+#: np.tril_indices(3): the order of the six entries of a lower-triangular 3x3 matrix in a parameter vector
+_IL = (np.array([0, 1, 1, 2, 2, 2]), np.array([0, 0, 1, 0, 1, 2]))
+
+
+def _sum(y: np.ndarray) -> np.ndarray:
+    """Column sums of samples (N, k) as one matrix-vector product (a strided reduction over N is ~20x slower)."""
+    return np.ones(len(y)) @ y
+
+
+def _mean(y: np.ndarray) -> np.ndarray:
+    return _sum(y) / len(y)
+
+
+def _median_pair(x: np.ndarray) -> np.ndarray:
+    """The middle order statistics of a 1-D array (one value for odd length, two for even), by one partition:
+    ``np.median(g(x)) == g(_median_pair(x)).mean()`` for any increasing g (e.g. sqrt of squared norms)."""
+    n = len(x)
+    k = n // 2
+    if n % 2:
+        return np.partition(x, k)[k:k + 1]
+    return np.partition(x, (k - 1, k))[k - 1:k + 1]
+
+
 def _fs(s: Segment) -> float:
     return (s.n_samples - 1) / s.duration if s.duration > 0 else 1.0
 
 
-def accel_rotation_axis(f: np.ndarray) -> tuple[np.ndarray, float]:
+def accel_rotation_axis(f: np.ndarray | Sequence[np.ndarray]) -> tuple[np.ndarray, float]:
     """Zhang et al. 2010, Eq. 42-47: the rotation axis l^p from specific forces f (N, 3) seen during a rotation
-    about a fixed axis: the null vector of ``[f^T, -1]``. Returns (unit axis, angular variance estimate)."""
-    A = np.column_stack([f, -np.ones(len(f))])
-    sc = np.array([1.0, 1.0, 1.0, float(np.median(np.linalg.norm(f, axis=1)))])
-    _, _, Vt = np.linalg.svd(A * sc, full_matrices=False)
-    v = Vt[-1] * sc
+    about a fixed axis: the null vector of ``[f^T, -1]``. Returns (unit axis, angular variance estimate).
+
+    ``f`` may be given in pieces (a sequence of (N_i, 3) arrays, e.g. the CW and the CCW segment), as if stacked.
+    The null vector is the right singular vector of the smallest singular value of ``[f, -1] D`` (D the column
+    scaling, the median norm on the last column), computed as the eigenvector of the 4x4 Gram matrix
+    ``D [f, -1]^T [f, -1] D`` from the sums ``f^T f``, ``sum f`` and N (one pass over the samples; equal to the
+    singular vector to rounding, checked in the tests: the gap to the other singular values is large).
+    """
+    chunks = [np.asarray(f, float)] if isinstance(f, np.ndarray) else [np.asarray(c, float) for c in f]
+    N = sum(len(c) for c in chunks)
+    sq = [c * c for c in chunks]
+    sc4 = float(np.sqrt(_median_pair(np.concatenate([x @ np.ones(3) for x in sq]))).mean())
+    S = np.diag(sum(np.ones(len(x)) @ x for x in sq))  # f^T f (as 3 + 3 dot products: c.T @ c is slower)
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        S[i, j] = S[j, i] = sum(c[:, i] @ c[:, j] for c in chunks)
+    m = sum(np.ones(len(c)) @ c for c in chunks)  # sum of f
+    sc = np.array([1.0, 1.0, 1.0, sc4])
+    G = np.empty((4, 4))
+    G[:3, :3] = S
+    G[:3, 3] = G[3, :3] = -m * sc4
+    G[3, 3] = N * sc4**2
+    lam, V = np.linalg.eigh(G)
+    v = V[:, 0] * sc
     n = float(np.linalg.norm(v[:3]))
     l = v[:3] / n
-    # first-order spread of the axis from the residual (total least squares)
-    r = (A @ v) / n
-    s2 = float(r @ r) / max(len(f) - 4, 1)
-    F = f - f.mean(axis=0)
+    # first-order spread of the axis from the residual (total least squares): |[f, -1] v|^2 is the smallest
+    # eigenvalue; recomputed from the samples when it is too small against the largest for its rounding
+    rr = float(lam[0]) if lam[0] > 1e-6 * lam[-1] else sum(float(np.sum(np.square(c @ v[:3] - v[3])))
+                                                           for c in chunks)
+    s2 = rr / n**2 / max(N - 4, 1)
+    FtF = S - np.outer(m, m) / N  # F = f - mean(f)
     P = np.eye(3) - np.outer(l, l)
-    info = P @ F.T @ F @ P
-    var = float(s2 * np.trace(np.linalg.pinv(info, rcond=1e-10)) / 2.0)
+    ev = np.linalg.eigvalsh(P @ FtF @ P)  # trace of the pseudo-inverse (singular values below 1e-10 dropped)
+    var = float(s2 * np.sum(1.0 / ev[ev > 1e-10 * np.max(np.abs(ev))]) / 2.0)
     return l, var
 
 
@@ -230,6 +277,124 @@ def zhang_parameters(cal: Calibration) -> dict[str, np.ndarray]:
     }
 
 
+def norm_residuals(q: np.ndarray, groups: Sequence[tuple]) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted norm residuals of one triad and their analytic Jacobian (Zhang et al. 2010, Eq. 7-8 for the
+    accelerometers, Eq. 19 and 23 for the gyros): ``norm_problem(groups)(q)``, see :func:`norm_problem`."""
+    return norm_problem(groups)(q)
+
+
+def norm_problem(groups: Sequence[tuple]) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """The weighted norm residuals of one triad and their analytic Jacobian, as a function of the parameters
+    (Zhang et al. 2010, Eq. 7-8 for the accelerometers, Eq. 19 and 23 for the gyros).
+
+    ``q = [L[tril], b]`` with ``L = K T`` lower triangular (``A = L^-1``, tril order of ``np.tril_indices(3)``)
+    and the raw bias b; ``q`` may also be a stack (B, 9) of parameter vectors, evaluated at once. Each group is
+    ``(Y (K, 3), norm (scalar or K), s2 (3,), f (K,), biased)``: the residual of row k is
+    ``(|A (y_k - b)| - norm_k) / sqrt(sum_i g_ki^2 s2_i f_k)`` with ``g_k = A^T u_k`` the gradient of the norm
+    with respect to the raw data ``y_k`` (``u_k`` the unit vector of ``A (y_k - b)``), i.e. the norm's error in
+    units of its standard deviation from the noise of y_k. For an unbiased group (the integrated CW-minus-CCW
+    outputs phi of Eq. 18-19) b is left out. The weights depend on the parameters and are differentiated too.
+    The function returns (r (..., sum K), J (..., sum K, 9)); J is checked against central differences in the
+    tests.
+    """
+    Y = np.vstack([np.asarray(g[0], float).reshape(-1, 3) for g in groups])
+    K = len(Y)
+    tgt = np.concatenate([np.broadcast_to(np.asarray(g[1], float), (len(g[0]),)) for g in groups])
+    C = np.vstack([np.asarray(g[2], float)[None, :] * np.asarray(g[3], float).reshape(-1, 1) * np.ones((len(g[0]), 1))
+                   for g in groups])  # variance of each datum, (K, 3)
+    mb = np.concatenate([np.full(len(g[0]), 1.0 if g[4] else 0.0) for g in groups])  # rows with the bias
+    il = _IL
+    i0, i1 = il
+    mbk = mb[None, :, None]
+
+    def prob(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        q = np.asarray(q, float)
+        Q = q.reshape(-1, 9)
+        B = len(Q)
+        L = np.zeros((B, 3, 3))
+        L[:, i0, i1] = Q[:, :6]
+        A = np.linalg.inv(L)
+        At = np.swapaxes(A, 1, 2)
+        s = (Y[None] - mbk * Q[:, None, 6:9]) @ At  # (B, K, 3)
+        n = np.sqrt(np.sum(s * s, axis=2))
+        u = s / n[..., None]
+        g = u @ A  # d|s| / dy = A^T u
+        gc = g * C[None]
+        v2 = np.sum(g * gc, axis=2)
+        v = np.sqrt(v2)
+        r = (n - tgt) / v
+        # directions: dL = E_ij gives dA = -A E_ij A, ds = -A[:, i] s_j, dA^T u = -A[j, :] g_i; db_m gives
+        # ds = -A[:, m]. Then dn = u.ds, d(A^T u) = (A^T ds - g dn) / n + dA^T u and dv = d(A^T u).gc / v, with
+        # A^T A[:, i] . gc = w_i (w = gc A^T A) and A[j, :] . gc = z_j (z = gc A^T)
+        w = gc @ (At @ A)
+        z = gc @ At
+        dn = np.empty((B, K, 9))
+        dn[..., :6] = -s[..., i1] * g[..., i0]
+        dn[..., 6:] = -mbk * g
+        dv = np.empty((B, K, 9))
+        dv[..., :6] = (-s[..., i1] * w[..., i0] - v2[..., None] * dn[..., :6]) / n[..., None] - z[..., i1] * g[..., i0]
+        dv[..., 6:] = (-mbk * w - v2[..., None] * dn[..., 6:]) / n[..., None]
+        J = (dn - r[..., None] * dv / v[..., None]) / v[..., None]
+        if q.ndim == 1:
+            return r[0], J[0]
+        return r.reshape(*q.shape[:-1], K), J.reshape(*q.shape[:-1], K, 9)
+
+    return prob
+
+
+def refine_norms(prob: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], q0: np.ndarray, typ: np.ndarray,
+                 max_iter: int = 100) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, bool]:
+    """Minimise ``|r(q)|^2`` for ``prob(q) -> (r, J)`` (:func:`norm_residuals`) by damped Newton steps on the
+    exact cost: analytic gradient ``J^T r``, Hessian by forward differences of that gradient (one stacked call per
+    step), Levenberg-Marquardt damping when the Hessian is not positive definite or a step does not lower the cost.
+
+    Gauss-Newton (``scipy.optimize.least_squares``) leaves out the curvature of the residuals, which is not small
+    here: the weights depend on the parameters and the static gyro norms (the Earth rate, Eq. 23) are of the size
+    of their noise, so it converges only linearly there (hundreds of steps); with the full Hessian a few steps
+    reach the minimum. Converged when the step, in units of ``typ``, is below 1e-12. Returns (q, r(q), J(q), steps,
+    converged).
+    """
+    p = len(q0)
+    h = typ * 1e-7
+    pts = np.vstack([np.zeros(p), np.diag(h)])
+
+    def evaluate(q):
+        r, J = prob(q + pts)
+        grads = np.einsum("bkp,bk->bp", J, r)
+        H = (grads[1:] - grads[0]).T / h
+        return r[0], J[0], grads[0], (H + H.T) / 2
+
+    q = np.asarray(q0, float).copy()
+    r, J, g, H = evaluate(q)
+    cost = float(r @ r)
+    mu = 0.0
+    for it in range(1, max_iter + 1):
+        Hs = H * np.outer(typ, typ)
+        gs = g * typ
+        d0 = float(np.max(np.abs(np.diag(Hs))))
+        if not (np.isfinite(d0) and d0 > 0 and np.all(np.isfinite(Hs))):
+            return q, r, J, it, False
+        while True:
+            if mu > 1e12:
+                return q, r, J, it, False
+            try:
+                C = np.linalg.cholesky(Hs + (mu * d0) * np.eye(p))
+            except np.linalg.LinAlgError:
+                mu = max(10 * mu, 1e-9)
+                continue
+            step = -np.linalg.solve(C.T, np.linalg.solve(C, gs)) * typ
+            if np.max(np.abs(step / typ)) <= 1e-12:
+                return q, r, J, it, True
+            r_n, J_n, g_n, H_n = evaluate(q + step)
+            cost_n = float(r_n @ r_n)
+            if np.isfinite(cost_n) and cost_n <= cost:
+                q, r, J, g, H, cost = q + step, r_n, J_n, g_n, H_n, cost_n
+                mu = 0.0 if mu < 1e-8 else mu / 10
+                break
+            mu = max(10 * mu, 1e-9)
+    return q, r, J, max_iter, False
+
+
 # ---------------------------------------------------------------------- estimator
 class Zhang:
     """Zhang et al. 2010 for a gyro triad and an accelerometer triad (three sensors each, one sub-unit).
@@ -268,8 +433,6 @@ class Zhang:
         self.earth_rate = earth_rate
 
     def fit(self, session: Session) -> CalibrationResult:
-        from scipy.optimize import least_squares
-
         for k in ("gyro", "accel"):
             g = session.geometries.get(k)
             if (g is None and k == "accel") or (g is not None and g.n != 3):
@@ -282,13 +445,13 @@ class Zhang:
             return self._fit_accel_only(session, statics)
         sa = _sigma_for(self.sigma, session, "accel")
         sg = _sigma_for(self.sigma, session, "gyro")
-        ya = np.array([s.raw["accel"].mean(axis=0) for s in statics]).reshape(-1, 3)
-        yg = np.array([s.raw["gyro"].mean(axis=0) for s in statics]).reshape(-1, 3)
+        ya = np.array([_mean(s.raw["accel"]) for s in statics]).reshape(-1, 3)
+        yg = np.array([_mean(s.raw["gyro"]) for s in statics]).reshape(-1, 3)
         Ns = np.array([s.n_samples for s in statics], dtype=float)
         # 1. accelerometers (Eq. 12-14)
         Aa, ba = solve_ma(ya, gg)
         # 2. gyros (Eq. 16-22)
-        phi = np.array([a.raw["gyro"].sum(axis=0) / _fs(a) - b.raw["gyro"].sum(axis=0) / _fs(b)
+        phi = np.array([_sum(a.raw["gyro"]) / _fs(a) - _sum(b.raw["gyro"]) / _fs(b)
                         for a, b, _ in pairs]).reshape(-1, 3)
         ang = np.array([np.linalg.norm(d) for _, _, d in pairs])
         dur_mismatch = [a.label for a, b, _ in pairs if a.n_samples != b.n_samples]
@@ -301,10 +464,39 @@ class Zhang:
         D = np.column_stack([-2 * u, np.ones(len(u))])
         zz, *_ = np.linalg.lstsq(D, self.earth_rate**2 - np.sum(u * u, axis=1), rcond=None)
         bg = np.linalg.solve(Ag, zz[:3])
-        # 4. nonlinear refinement on the norm residuals, weighted by their noise
+        # 4. nonlinear refinement on the norm residuals, weighted by their noise. The accelerometer residuals
+        # (Eq. 7-8) depend only on (A_a, b_a), the gyro residuals (Eq. 19, 23) only on (A_g, b_g): two independent
+        # 9-parameter problems, each with its analytic Jacobian (norm_residuals), the same optimum as the joint one
         Npair = np.array([(a.n_samples, b.n_samples) for a, b, _ in pairs], dtype=float).reshape(-1, 2)
         dts = np.array([1.0 / _fs(a) for a, _, _ in pairs])
-        il = np.tril_indices(3)
+        il = _IL
+        problems = (  # (data, norm, per-sample variance, factor of the data's variance per row, biased)
+            norm_problem([(ya, gg, sa**2, 1.0 / Ns, True)]),
+            norm_problem([(phi, ang, sg**2, dts**2 * Npair.sum(axis=1), False),
+                          (yg, self.earth_rate, sg**2, 1.0 / Ns, True)]),
+        )
+        p0 = np.concatenate([np.linalg.inv(Aa)[il], ba, np.linalg.inv(Ag)[il], bg])
+        p = p0.copy()
+        Js, rs_, typs, steps, stalled = [], [], [], [], []
+        for k, (prob, sig) in enumerate(zip(problems, (sa, sg))):
+            sl = slice(9 * k, 9 * k + 9)
+            rows = np.linalg.norm(np.linalg.inv(Aa if k == 0 else Ag), axis=1)
+            typ = np.concatenate([rows[il[0]], np.maximum(np.abs(p0[sl][6:]), sig)])  # row size; bias or noise
+            typs.append(typ)
+            if self.refine:
+                p[sl], rk, Jk, nit, ok = refine_norms(prob, p0[sl], typ)
+                steps.append(nit)
+                if not ok:
+                    stalled.append(f"{('accelerometer', 'gyro')[k]} norms after {nit} steps")
+            else:
+                rk, Jk = prob(p[sl])
+            rs_.append(rk)
+            Js.append(Jk)
+        r = np.concatenate(rs_)
+        J = np.zeros((len(r), 18))
+        J[:len(rs_[0]), :9] = Js[0]
+        J[len(rs_[0]):, 9:] = Js[1]
+        cov_p = np.linalg.pinv(J.T @ J)
 
         def unpack(p):
             La = np.zeros((3, 3))
@@ -313,64 +505,43 @@ class Zhang:
             Lg[il] = p[9:15]
             return La, p[6:9], Lg, p[15:18]
 
-        def resid(p):
-            La, b_a, Lg, b_g = unpack(p)
-            Aa_ = np.linalg.inv(La)
-            Ag_ = np.linalg.inv(Lg)
-            s = (ya - b_a) @ Aa_.T
-            ns = np.linalg.norm(s, axis=1)
-            ga = (s / ns[:, None]) @ Aa_  # d|s|/dy
-            ra = (ns - gg) / np.sqrt((ga**2 @ sa**2) / Ns)
-            w = phi @ Ag_.T
-            nw = np.linalg.norm(w, axis=1)
-            gw = (w / nw[:, None]) @ Ag_
-            rp = (nw - ang) / np.sqrt((gw**2 @ sg**2) * dts**2 * Npair.sum(axis=1))
-            e = (yg - b_g) @ Ag_.T
-            ne = np.linalg.norm(e, axis=1)
-            ge = (e / ne[:, None]) @ Ag_
-            rs = (ne - self.earth_rate) / np.sqrt((ge**2 @ sg**2) / Ns)
-            return np.concatenate([ra, rp, rs])
-
-        p0 = np.concatenate([np.linalg.inv(Aa)[il], ba, np.linalg.inv(Ag)[il], bg])
-        typ = np.abs(p0) + 1e-12
-        if self.refine:
-            sol = least_squares(resid, p0, x_scale=typ, method="lm", xtol=1e-14, ftol=1e-14, gtol=1e-14)
-            p = sol.x
-        else:
-            p = p0
-        J = central_jacobian(resid, p, typ * 1e-6)
-        r = resid(p)
-        cov_p = np.linalg.pinv(J.T @ J)
         La, ba, Lg, bg = unpack(p)
         Aa, Ag = np.linalg.inv(La), np.linalg.inv(Lg)
         # 5. inter-triad misalignment (Eq. 39-47). The plane s^p . l = kappa of Eq. 42 is a plane in raw space
         # too (s^p = A_a (y - b_a)), with normal n ~ A_a^T l: fit it once in raw space (Eq. 44-47), then
         # l^p = A_a^-T n for any accelerometer parameters, so theta's dependence on them is propagated.
-        n_raw, var_raw, phis = [], [], []
+        n_raw, var_raw = [], []
         for a, b, _ in pairs:
-            f = np.vstack([a.raw["accel"], b.raw["accel"]])
-            n_k, v_k = accel_rotation_axis(f)
+            n_k, v_k = accel_rotation_axis([a.raw["accel"], b.raw["accel"]])
             n_raw.append(n_k)
             var_raw.append(v_k)
-            phis.append(a.raw["gyro"].sum(axis=0) / _fs(a) - b.raw["gyro"].sum(axis=0) / _fs(b))
-        n_raw_a, phis_a = np.array(n_raw), np.array(phis)
+        n_raw_a, phis_a = np.array(n_raw), phi
         if len(pairs) < 2 or np.linalg.matrix_rank(n_raw_a, tol=1e-3) < 2:
             raise IdentifiabilityError("inter-triad misalignment needs rotations about two independent axes that "
                                        "are not vertical (Zhang Eq. 40, 46)", ["theta_x", "theta_y", "theta_z"])
 
         def axes(pp):
-            La_, _, Lg_, _ = unpack(pp)
+            """Unit axes (lo, lp), (..., M, 3), of parameter vectors pp (..., 18)."""
+            pp = np.asarray(pp, float)
+            La_ = np.zeros((*pp.shape[:-1], 3, 3))
+            La_[..., il[0], il[1]] = pp[..., 0:6]
+            Lg_ = np.zeros_like(La_)
+            Lg_[..., il[0], il[1]] = pp[..., 9:15]
             lp_ = n_raw_a @ La_  # A_a^-T n = La^T n (A_a = La^-1), as rows
-            lp_ /= np.linalg.norm(lp_, axis=1)[:, None]
-            lo_ = np.linalg.solve(Lg_, phis_a.T).T  # Eq. 41: A_g phi
-            lo_ /= np.linalg.norm(lo_, axis=1)[:, None]
-            lp_ *= np.sign(np.sum(lp_ * lo_, axis=1))[:, None]
+            lp_ /= np.linalg.norm(lp_, axis=-1)[..., None]
+            lo_ = np.swapaxes(np.linalg.solve(Lg_, phis_a.T), -1, -2)  # Eq. 41: A_g phi
+            lo_ /= np.linalg.norm(lo_, axis=-1)[..., None]
+            lp_ *= np.sign(np.sum(lp_ * lo_, axis=-1))[..., None]
             return lo_, lp_
 
         def theta_of(pp):
+            """theta of a stack of parameter vectors (B, 18): Wahba's solution (wahba) for each at once."""
             lo_, lp_ = axes(pp)
-            R_ = wahba(lo_, lp_, w_a)
-            return np.array([R_[2, 1] - R_[1, 2], R_[0, 2] - R_[2, 0], R_[1, 0] - R_[0, 1]]) / 2.0
+            U, _, Vt = np.linalg.svd(np.swapaxes(lo_ * w_a[:, None], -1, -2) @ lp_)
+            D = np.ones((len(pp), 3))
+            D[:, 2] = np.sign(np.linalg.det(U @ Vt))
+            R_ = (U * D[:, None, :]) @ Vt
+            return np.stack([R_[:, 2, 1] - R_[:, 1, 2], R_[:, 0, 2] - R_[:, 2, 0], R_[:, 1, 0] - R_[:, 0, 1]], -1) / 2.0
 
         lo_a, lp_a = axes(p)
         # angular variance of each accelerometer axis: the raw-space spread mapped by A_a^-T (~ isotropic)
@@ -378,7 +549,14 @@ class Zhang:
                         for v, n in zip(var_raw, n_raw_a)])
         Rpo = wahba(lo_a, lp_a, w_a)
         info = sum(w * (np.eye(3) - np.outer(l, l)) for w, l in zip(w_a, lp_a))
-        Jt = central_jacobian(theta_of, p, typ * 1e-6)
+        # d theta / d p by central differences (theta does not depend on the biases: those columns are zero)
+        Jt = np.zeros((3, 18))
+        cols = np.r_[0:6, 9:15]
+        h = np.concatenate([np.linalg.norm(La, axis=1)[il[0]], np.linalg.norm(Lg, axis=1)[il[0]]]) * 1e-6
+        dP = np.zeros((len(cols), 18))
+        dP[np.arange(len(cols)), cols] = h
+        th = theta_of(np.vstack([p + dP, p - dP]))
+        Jt[:, cols] = ((th[:len(cols)] - th[len(cols):]) / (2 * h[:, None])).T
         cov_th = np.linalg.inv(info) + Jt @ cov_p @ Jt.T
         theta = np.array([Rpo[2, 1] - Rpo[1, 2], Rpo[0, 2] - Rpo[2, 0], Rpo[1, 0] - Rpo[0, 1]]) / 2.0
         # map to rimu's per-sensor raw-domain coefficients in MB = p
@@ -398,18 +576,14 @@ class Zhang:
                 i = ctx.index
                 # d w_i / d params: w_i = L[i, :] R; L[i, j] is parameter offs[0] + index in tril order
                 Jb = np.zeros((4, 18))
-                for k, (ri, ci) in enumerate(zip(*il)):
-                    if ri == i:
-                        Jb[:3, k + offs[0]] = R[ci, :]
+                ks = np.flatnonzero(il[0] == i)  # the tril entries of row i: L[i, il[1][k]]
+                Jb[:3, ks + offs[0]] = R[il[1][ks], :].T
                 Jb[3, (6 if inst == "accel" else 15) + i] = 1.0
                 bc = Jb @ cov_p @ Jb.T
                 if inst == "gyro":
-                    # theta uncertainty: d(L R) = L skew(dth) R -> row i: (L[i] @ skew(dth)) @ R
-                    G = np.zeros((3, 3))
-                    for k in range(3):
-                        e = np.zeros(3)
-                        e[k] = 1.0
-                        G[:, k] = L[i] @ skew(e) @ R
+                    # theta uncertainty: d(L R) = L skew(dth) R -> row i: (L[i] @ skew(dth)) @ R, and
+                    # L[i] @ skew(e_k) = L[i] x e_k
+                    G = (np.cross(L[i], np.eye(3)) @ R).T
                     bc[:3, :3] += G @ cov_th @ G.T
                 bc = (bc + bc.T) / 2
                 beta = np.concatenate([W[i], [b[i]]])
@@ -419,6 +593,9 @@ class Zhang:
         # residuals of the norms per segment, in units of their standard deviation
         notes = [("MB is Zhang's platform frame p: x along the x accelerometer, y in the x-y accelerometer plane; "
                   "x.mis_y, x.mis_z, y.mis_z of the accelerometers are zero by that definition")]
+        if stalled:
+            notes.append("the nonlinear refinement (step 4) stopped before converging: " + "; ".join(stalled)
+                         + "; the estimates are the last accepted step (check the static positions and rotations)")
         if dur_mismatch:
             notes.append(f"CW/CCW segments of unequal length ({dur_mismatch}): the gyro bias does not cancel "
                          "exactly in Eq. 18")
@@ -432,6 +609,9 @@ class Zhang:
         extra = {"inter_triad_rad": theta, "inter_triad_std_rad": np.sqrt(np.diag(cov_th)),
                  "R_p_o": Rpo, "norm_residuals_accel": r[:nA], "refined": bool(self.refine)}
         res = CalibrationResult(self.method, out, session.raw_unit, notes, extra)
+        # the two refinement problems (accelerometers, gyros): start, optimum, scales, Newton steps (for tests)
+        res.refinement = {"problems": problems, "p0": (p0[:9], p0[9:]), "p": (p[:9], p[9:]),  # type: ignore[attr-defined]
+                          "typ": typs, "steps": steps}
         for inst, chi, nobs in (("accel", chi_a, nA), ("gyro", chi_g, nG)):
             for f in res.instruments[inst].sensors:
                 # the norm fit has 9 parameters per triad: chi2 per dof of the triad, shared by its sensors

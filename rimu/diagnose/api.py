@@ -5,12 +5,13 @@
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.stats import chi2 as _chi2
+from scipy.special import chdtrc
 
 from ..calibration.effects._common import output_unit
 from ..calibration.model import EFFECTS, Effect, ErrorModel, effect
@@ -138,10 +139,10 @@ class InstrumentDiagnosis:
         return None
 
     def test(self, name: str) -> CandidateTest:
-        for c in self.tests:
-            if c.name == name:
-                return c
-        raise KeyError(f"{name!r} was not a candidate; candidates: {[c.name for c in self.tests]}")
+        found = next((c for c in self.tests if c.name == name), None)
+        if found is None:
+            raise KeyError(f"{name!r} was not a candidate; candidates: {[c.name for c in self.tests]}")
+        return found
 
     def lines(self) -> list[str]:
         """The diagnosis in plain language."""
@@ -201,7 +202,7 @@ class InstrumentDiagnosis:
         return {
             "instrument": self.instrument, "model": self.model.label, "chi2_dof": self.fit.chi2_dof,
             "bic": self.fit.bic, "nothing_missing": self.nothing_missing, "alpha": self.alpha,
-            "sensors": [s.to_dict() for s in self.stats], "failures": _jsonable(self.failures),
+            "sensors": [s.to_dict() for s in self.stats], "failures": json.loads(json.dumps(self.failures)),  # a plain copy
             "findings": [{"effects": f.effects, "confounded": f.confounded,
                           "secondary_to": self.secondary.get(f.effects[0])} for f in self.findings],
             "candidates": [c.to_dict() for c in self.tests], "skipped_segments": self.fit.skipped,
@@ -276,6 +277,7 @@ def diagnose(
     alpha: float = DEFAULT_ALPHA,
     include_earth_rate: bool = True,
     reference_temperature: float = 25.0,
+    method: str = "fast",
 ) -> Diagnosis:
     """Compare ``model`` with the measurement in ``session`` and find which effect is missing.
 
@@ -296,6 +298,9 @@ def diagnose(
         Whether the gyro input includes the Earth rate; False makes ``earth_rate`` a candidate.
     reference_temperature : float
         T_ref of the temperature effects, degC.
+    method : {"fast", "refit"}
+        How the candidates are tested (:func:`~rimu.diagnose.candidates.score_candidates`): in the small space
+        of one shared design (default), or by the straightforward refit of each (the reference; same numbers).
 
     Instruments whose model cannot be fitted from the session are reported in ``Diagnosis.errors``
     (with the reason) instead of raising, unless none can be fitted.
@@ -322,17 +327,17 @@ def diagnose(
         except IdentifiabilityError as exc:
             errors[k] = str(exc)
             continue
-        out[k] = diagnose_fit(session, fit, candidates, alpha)
+        out[k] = diagnose_fit(session, fit, candidates, alpha, method)
     if not out:
         raise IdentifiabilityError("no instrument could be fitted: " + "; ".join(f"{k}: {v}" for k, v in errors.items()))
     return Diagnosis(session, out, settings, errors)
 
 
 def diagnose_fit(session: Session, fit: ModelFit, candidates: Sequence[str] | None = None,
-                 alpha: float = DEFAULT_ALPHA) -> InstrumentDiagnosis:
+                 alpha: float = DEFAULT_ALPHA, method: str = "fast") -> InstrumentDiagnosis:
     """Diagnose an existing :class:`ModelFit` (residual statistics, candidate tests, confounding)."""
     st = residual_statistics(fit)
-    tests = score_candidates(session, fit, candidate_effects(fit.model, candidates), alpha)
+    tests = score_candidates(session, fit, candidate_effects(fit.model, candidates), alpha, method)
     groups = confounding(fit, tests, alpha)
     secondary: dict[str, str] = {}
     if groups:
@@ -407,7 +412,15 @@ class Comparison:
 def compare(session: Session, before: ModelFit, model: ErrorModel, sigma: Any = None, include_earth_rate: bool = True,
             reference_temperature: float = 25.0) -> Comparison:
     """Refit ``model`` (usually ``before.model + effect``) and compare with ``before``."""
-    after = fit_model(session, model, before.instrument, sigma, include_earth_rate, reference_temperature)
+    base = {"scale_misalignment", "bias"}
+    c0 = before.contexts[0]
+    # the same first fit (scale, misalignment and bias on the nominal axes) as before's: its calibrated axes
+    same_axes = (before.own_axes and "scale_misalignment" in model
+                 and base & {e.name for e in model} == base & {e.name for e in before.model}
+                 and (c0.reference_temperature, c0.include_earth_rate) == (reference_temperature, include_earth_rate))
+    after = fit_model(session, model, before.instrument, sigma, include_earth_rate, reference_temperature,
+                      ctxs=before.contexts if same_axes else None)
+    after.own_axes = after.own_axes or same_axes
     added = [e.name for e in model.effects if e.name not in before.model]
     return Comparison(before.instrument, added, before, after)
 
@@ -472,7 +485,7 @@ def effect_sensors(fit: ModelFit, name: str, alpha: float = DEFAULT_ALPHA) -> li
         th = s.theta[idx]
         C = s.theta_cov[np.ix_(idx, idx)]
         w = float(th @ np.linalg.solve(C, th)) / s.inflation
-        if _chi2.sf(w, len(idx)) <= alpha / len(sens):
+        if chdtrc(len(idx), max(w, 0.0)) <= alpha / len(sens):  # the chi-square survival function
             out.append(s.name)
     return out
 
@@ -512,10 +525,18 @@ def iterate(session: Session, model: Any = None, max_rounds: int = 6, **kwargs: 
         if not comps:
             break
         rounds.append((d, comps))
-        models = {k: (comps[k].after.model if k in comps else m) for k, m in d.models.items()}
-        kw = dict(kwargs)
-        kw.pop("instruments", None)
-        d = diagnose(session, models, instruments=list(models), **kw)
+        if any(applies(session) for applies, _ in SESSION_KINDS):  # a session kind with a diagnosis of its own
+            models = {k: (comps[k].after.model if k in comps else m) for k, m in d.models.items()}
+            kw = dict(kwargs)
+            kw.pop("instruments", None)
+            d = diagnose(session, models, instruments=list(models), **kw)
+            continue
+        # the next round diagnoses the fits at hand (the refits of this round, the unchanged ones), not fits
+        # made again from scratch: the same fits, since the refit used the calibrated axes a new fit would find
+        d = Diagnosis(d.session, {k: diagnose_fit(d.session, comps[k].after if k in comps else idg.fit,
+                                                  d.settings["candidates"], d.settings["alpha"],
+                                                  kwargs.get("method", "fast"))
+                                  for k, idg in d.instruments.items()}, dict(d.settings))
     return Iteration(rounds, d, notes)
 
 
@@ -537,13 +558,3 @@ def _one(m: Any) -> ErrorModel:
     if isinstance(m, Effect):
         return ErrorModel([m])
     return m
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, (np.floating, np.integer)):
-        return x.item()
-    return x

@@ -29,16 +29,17 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 from ..calibration.model import Effect
 from ..session import Session
-from .fitting import ModelFit, candidate_columns
+from .fitting import ModelFit, SensorFit, candidate_design
 
 __all__ = [
     "CandidateTest",
     "SensorTest",
     "canonical_correlation",
+    "candidate_bases",
     "conditional_log10_p",
     "confounding",
     "holm",
@@ -88,6 +89,7 @@ class CandidateTest:
     _W: dict[int, np.ndarray] = field(default_factory=dict, repr=False)
     _gamma: dict[int, np.ndarray] = field(default_factory=dict, repr=False)
     _ws: dict[int, _Workspace] = field(default_factory=dict, repr=False)
+    _coef: dict[int, np.ndarray] = field(default_factory=dict, repr=False)
     _effect: Any = field(default=None, repr=False)
     _session: Any = field(default=None, repr=False)
     _fit: Any = field(default=None, repr=False)
@@ -99,12 +101,13 @@ class CandidateTest:
 
     def basis(self, i: int) -> np.ndarray:
         """Orthonormal basis U (N x k) of the candidate's columns outside the model's span on sensor i
-        (recomputed on demand, for plots)."""
-        s = self._fit.sensors[i]
-        C, _ = candidate_columns(self._session, self._fit, self._effect, i)
-        norms = np.linalg.norm(C, axis=0)
-        Cn = C / np.where(norms == 0, 1.0, norms)
-        return (Cn - s.Q @ (s.Q.T @ Cn)) @ self._W[i]
+        (recomputed on demand, for plots; :func:`candidate_bases` for many candidates at once)."""
+        return candidate_bases([self], i)[self.name]
+
+    def coefficients(self, i: int) -> np.ndarray:
+        """The candidate's coefficients on sensor i in the fit of the model plus the candidate (raw output per
+        unit of each of its columns): what adding it and refitting would estimate."""
+        return self._coef[i]
 
     def explained(self, i: int) -> np.ndarray:
         """The part of sensor i's residual the candidate explains, per sample (raw units)."""
@@ -131,11 +134,48 @@ class CandidateTest:
         }
 
 
+def chi2_logsf(x: float, k: float) -> float:
+    """Natural log of the chi-square(k) survival function, as ``scipy.stats.chi2.logsf`` computes it (log of
+    the upper tail above the median, log1p of the lower below), from :mod:`scipy.special` (whose import is
+    cheap, unlike :mod:`scipy.stats`'s)."""
+    with np.errstate(divide="ignore"):
+        if x > 2.0 * special.gammaincinv(k / 2.0, 0.5):
+            return float(np.log(special.chdtrc(k, x)))
+        return float(np.log1p(-special.chdtr(k, x)))
+
+
+def f_logsf(x: float, d1: float, d2: float) -> float:
+    """Natural log of the F(d1, d2) survival function, as ``scipy.stats.f.logsf`` computes it."""
+    with np.errstate(divide="ignore"):
+        if x > special.fdtri(d1, d2, 0.5):
+            return float(np.log(special.fdtrc(d1, d2, x)))
+        return float(np.log1p(-special.fdtr(d1, d2, x)))
+
+
+def candidate_bases(tests: Sequence[CandidateTest], i: int) -> dict[str, np.ndarray]:
+    """Orthonormal bases U = C_perp W (N x k) of several candidates' columns outside the model's span on sensor
+    i, from one shared design (the columns are built once for all of them). Candidates not tested on sensor i
+    are left out."""
+    tests = [t for t in tests if i in t._W]
+    if not tests:
+        return {}
+    fit, session = tests[0]._fit, tests[0]._session
+    s = fit.sensors[i]
+    B, slices, _ = candidate_design(session, fit, [t._effect for t in tests], i)
+    out = {}
+    for t in tests:
+        C = B[:, slices[t.name]]
+        norms = np.linalg.norm(C, axis=0)
+        Cn = C / np.where(norms == 0, 1.0, norms)
+        out[t.name] = (Cn - s.Q @ (s.Q.T @ Cn)) @ t._W[i]
+    return out
+
+
 def _log10_chi2sf(x: float, k: int) -> float:
     """log10 of the chi-square survival function, with the asymptotic tail where scipy underflows."""
     if x <= 0:
         return 0.0
-    v = float(stats.chi2.logsf(x, k))
+    v = chi2_logsf(x, k)
     if not np.isfinite(v):
         from math import lgamma, log
 
@@ -147,7 +187,7 @@ def _log10_fsf(f: float, d1: int, d2: int) -> float:
     """log10 of the F(d1, d2) survival function (chi-square tail of d1 F where it underflows)."""
     if f <= 0:
         return 0.0
-    v = float(stats.f.logsf(f, d1, d2))
+    v = f_logsf(f, d1, d2)
     if not np.isfinite(v):
         return _log10_chi2sf(f * d1, d1)
     return float(min(0.0, v / _LN10))
@@ -173,13 +213,15 @@ def holm(log10_p: Sequence[float], alpha: float) -> tuple[np.ndarray, np.ndarray
 
 @dataclass
 class _Workspace:
-    """Inner products of one sensor's candidate columns (normalised, N x K stacked) with themselves, with the
-    model's orthonormal basis Q and with the residual: everything the tests need, in the small space."""
+    """Inner products of one sensor's candidate columns (normalised, N x K side by side) with themselves, with
+    the model's orthonormal basis Q and with the residual: everything the tests need, in the small space."""
 
     BtB: np.ndarray
     QtB: np.ndarray
     Btr: np.ndarray
     slices: dict[str, slice]
+    #: the columns' norms (after centring), by which they were normalised
+    norms: np.ndarray
 
     def perp_gram(self, a: str, b: str) -> np.ndarray:
         """``C_a_perp^T C_b_perp`` with ``C_perp = (I - Q Q^T) C``."""
@@ -187,15 +229,43 @@ class _Workspace:
         return self.BtB[sa, sb] - self.QtB[:, sa].T @ self.QtB[:, sb]
 
 
-def _workspace(blocks: dict[str, np.ndarray], Q: np.ndarray, r: np.ndarray) -> _Workspace:
-    B = np.hstack(list(blocks.values()))
-    slices, k = {}, 0
-    for name, c in blocks.items():
-        slices[name] = slice(k, k + c.shape[1])
-        k += c.shape[1]
-    QtB = Q.T @ B
-    Btr = B.T @ r - QtB.T @ (Q.T @ r)  # r is orthogonal to Q up to rounding; remove that rounding
-    return _Workspace(B.T @ B, QtB, Btr, slices)
+def _workspace(B: np.ndarray, slices: dict[str, slice], s: SensorFit) -> _Workspace:
+    """The candidates' columns appended to the model's design by their inner products: the Gram block
+    ``B^T B``, the cross block ``Q^T B`` with the model's orthonormal basis and ``B^T r``, from two products
+    over the samples; every candidate is then tested in the small space through the Schur complement
+    ``B^T B - B^T Q Q^T B`` (:meth:`_Workspace.perp_gram`), never refitted."""
+    G = B.T @ B
+    H = B.T @ np.column_stack([s.Q, s.r])
+    nr = np.sqrt(np.diag(G))
+    d = np.where(nr == 0, 1.0, nr)
+    p = s.Q.shape[1]
+    QtB = H[:, :p].T / d
+    # r is orthogonal to Q up to rounding; remove that rounding
+    Btr = H[:, p] / d - QtB.T @ (s.Q.T @ s.r)
+    return _Workspace(G / np.outer(d, d), QtB, Btr, slices, nr)
+
+
+def _refit_workspace(B: np.ndarray, slices: dict[str, slice], s: SensorFit) -> _Workspace:
+    """The reference (``method="refit"``): the same inner products from columns whose projection on the
+    model's design is removed explicitly, by a least-squares fit of each column on the design."""
+    nr = np.linalg.norm(B, axis=0)
+    Bn = B / np.where(nr == 0, 1.0, nr)
+    Bp = Bn - s.X @ np.linalg.lstsq(s.X, Bn, rcond=None)[0]
+    return _Workspace(Bp.T @ Bp, np.zeros((0, B.shape[1])), Bp.T @ s.r, slices, nr)
+
+
+def _refit(s: SensorFit, Cn: np.ndarray, norms: np.ndarray) -> tuple[float, np.ndarray]:
+    """The straightforward refit of the model plus a candidate's (normalised) columns on one sensor, by least
+    squares on the samples (SVD). Returns the candidate's dRSS = RSS_0 - RSS_1 and its coefficients (raw
+    units per column unit).
+
+    The model's residual is refitted on the whole design ``A = [X C]`` (Frisch-Waugh: the same coefficients
+    of C and the same RSS_1 as refitting y, since X is in A), so that dRSS is the squared norm of the fitted
+    part, ``|A gamma|^2``, not a difference of two sums of N squares (which resolves it only to ~N eps RSS)."""
+    A = np.column_stack([s.X, Cn])
+    gamma = np.linalg.lstsq(A, s.r, rcond=None)[0]
+    fitted = A @ gamma
+    return float(fitted @ fitted), gamma[s.X.shape[1]:] / np.where(norms == 0, 1.0, norms)
 
 
 def _whitener(ws: _Workspace, name: str, n_cols: int) -> tuple[np.ndarray | None, list[int]]:
@@ -213,13 +283,22 @@ def _whitener(ws: _Workspace, name: str, n_cols: int) -> tuple[np.ndarray | None
     return V / sv, []
 
 
-def score_candidates(session: Session, fit: ModelFit, candidates: Sequence[Effect], alpha: float = 0.01) -> list[CandidateTest]:
+def score_candidates(session: Session, fit: ModelFit, candidates: Sequence[Effect], alpha: float = 0.01,
+                     method: str = "fast") -> list[CandidateTest]:
     """Test every candidate effect against the residual of ``fit``. Returns tests ranked by evidence.
+
+    ``method="fast"`` (default): per sensor, one shared design of every candidate's columns
+    (:func:`~rimu.diagnose.fitting.candidate_design`) appended to the model's by its inner products; each
+    candidate's dRSS, coefficients and whitened basis follow in the small space. ``method="refit"``: the
+    straightforward reference, each candidate refitted with the model by least squares on the samples (the
+    same numbers to rounding, many times slower; for tests and the benchmark).
 
     Testable candidates come first, most significant first; ``significant`` is Holm-corrected over the
     testable candidates at level ``alpha``; a sensor is named (``SensorTest.significant``) when its own
     p-value passes Bonferroni over the sensors at ``alpha``.
     """
+    if method not in ("fast", "refit"):
+        raise ValueError(f"method must be 'fast' or 'refit', got {method!r}")
     tests: dict[str, CandidateTest] = {}
     reasons: dict[str, dict[str, list[str]]] = {}
     n_app: dict[str, int] = {}
@@ -245,37 +324,38 @@ def score_candidates(session: Session, fit: ModelFit, candidates: Sequence[Effec
     many = len(active) * len(fit.sensors) > 60  # a bar on a terminal when the tests take a while
     for i, s in enumerate(bar(fit.sensors, total=len(fit.sensors), desc=f"testing {len(active)} candidate effects",
                               unit="sensor", enabled=None if many else False)):
-        blocks: dict[str, np.ndarray] = {}
-        for eff in active:
-            if not eff.applies_to(s.ctx):
-                continue
-            n_app[eff.name] += 1
-            C, why = candidate_columns(session, fit, eff, i)
-            if C is None:
-                reasons[eff.name].setdefault(why, []).append(s.name)
-                continue
-            norms = np.linalg.norm(C, axis=0)
-            if np.all(norms == 0):
-                pn = [p.name for p in eff.parameters(s.ctx)]
-                reasons[eff.name].setdefault(f"the session does not excite {pn} (their columns are zero)", []).append(s.name)
-                continue
-            blocks[eff.name] = C / np.where(norms == 0, 1.0, norms)
-        if not blocks:
+        apps = [e for e in active if e.applies_to(s.ctx)]
+        if not apps:
             continue
-        ws = _workspace(blocks, s.Q, s.r)
-        for name, Cn in blocks.items():
-            ct, eff = tests[name], next(e for e in active if e.name == name)
-            W, dead = _whitener(ws, name, Cn.shape[1])
+        for eff in apps:
+            n_app[eff.name] += 1
+        B, slices, why = candidate_design(session, fit, apps, i)
+        for name, txt in why.items():
+            reasons[name].setdefault(txt, []).append(s.name)
+        if not slices:
+            continue
+        ws = (_workspace if method == "fast" else _refit_workspace)(B, slices, s)
+        for name, sl in slices.items():
+            ct, eff = tests[name], next(e for e in apps if e.name == name)
+            if not np.any(ws.norms[sl] > 0):
+                pn = [p.name for p in eff.parameters(s.ctx)]
+                reasons[name].setdefault(f"the session does not excite {pn} (their columns are zero)", []).append(s.name)
+                continue
+            W, dead = _whitener(ws, name, sl.stop - sl.start)
             if W is None:
                 pn = [p.name for p in eff.parameters(s.ctx)]
                 what = [pn[j] for j in dead] if dead else pn
                 reasons[name].setdefault(f"the session does not excite {what} apart from the model's own parameters "
                                          "(their columns are zero or a combination of the model's)", []).append(s.name)
                 continue
-            g = W.T @ ws.Btr[ws.slices[name]]
-            drss = float(g @ g)
+            g = W.T @ ws.Btr[sl]
             k = W.shape[1]
             rss0 = s.rss
+            if method == "fast":  # dRSS in the small space: |U^T r|^2, U = C_perp W orthonormal
+                drss = float(g @ g)
+                coef = (W @ g) / ws.norms[sl]
+            else:  # the straightforward refit: least squares on the model's design and the candidate's columns
+                drss, coef = _refit(s, B[:, sl] / ws.norms[sl], ws.norms[sl])
             dof1 = max(s.n_obs - s.n_par - k, 1)
             rss1 = max(rss0 - drss, np.finfo(float).tiny)
             f = (drss / k) / (rss1 / dof1) / s.inflation
@@ -284,7 +364,7 @@ def score_candidates(session: Session, fit: ModelFit, candidates: Sequence[Effec
             ct.sensors.append(SensorTest(s.name, k, drss, rss0, dof1, float(f), lp,
                                          float(s.n_obs * np.log(rss1 / rss0) + k * np.log(s.n_obs)),
                                          drss / rss0, 1.0 if drss >= excess else drss / excess))
-            ct._W[i], ct._gamma[i], ct._ws[i] = W, g, ws
+            ct._W[i], ct._gamma[i], ct._ws[i], ct._coef[i] = W, g, ws, coef
     out = list(tests.values())
     for ct in out:
         if not ct.testable:

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..calibration.lsq import physical_from_beta
+from ..calibration.lsq import physical_from_beta, sensor_segments
 from ..calibration.model import Effect, ErrorModel, ParamSpec, SensorContext, axes_from_w, contexts
 from ..errors import IdentifiabilityError
 from ..session import Segment, Session
@@ -29,6 +29,7 @@ __all__ = [
     "SensorFit",
     "cached",
     "candidate_columns",
+    "candidate_design",
     "fit_model",
     "noise_from_differences",
     "noise_inflation",
@@ -37,7 +38,7 @@ __all__ = [
 ]
 
 class _CachedSegment(Segment):
-    """A segment whose attitude history (the costly part of every input) is computed once."""
+    """A segment whose attitude history and inputs (the costly part of every column) are computed once."""
 
     def attitude(self) -> np.ndarray | None:
         c = self.__dict__.get("_att_cache", False)
@@ -56,6 +57,15 @@ class _CachedSegment(Segment):
         key = ("_we_cache", latitude)
         if key not in self.__dict__:
             self.__dict__[key] = Segment.earth_rate(self, latitude)
+        return self.__dict__[key]
+
+    def angular_rate(self, latitude: float | None = None, include_earth: bool = True) -> np.ndarray:
+        # the gyros' input, asked for by every effect of every sensor: held once, read-only (shared)
+        key = ("_w_cache", latitude, include_earth)
+        if key not in self.__dict__:
+            w = Segment.angular_rate(self, latitude, include_earth)
+            w.flags.writeable = False
+            self.__dict__[key] = w
         return self.__dict__[key]
 
 
@@ -85,25 +95,27 @@ def within_segment(r: np.ndarray, seg_index: np.ndarray) -> np.ndarray:
     return r - (np.bincount(seg_index, weights=r) / cnt)[seg_index]
 
 
-def noise_level(r: np.ndarray, seg_index: np.ndarray) -> float:
+def noise_level(r: np.ndarray, seg_index: np.ndarray, within: np.ndarray | None = None) -> float:
     """White-noise level from the residual about its segment means: ``sum (r - mean_seg)^2 / (N - n_seg)``.
 
     Errors that are constant over a segment (most missing effects on static and constant-rate segments) do
-    not enter; coloured noise is counted with its full variance (unlike first differences).
+    not enter; coloured noise is counted with its full variance (unlike first differences). ``within``: the
+    residual's :func:`within_segment` part, when already computed.
     """
-    w = within_segment(r, seg_index)
-    nseg = int(np.unique(seg_index).size)
+    w = within_segment(r, seg_index) if within is None else within
+    nseg = int(np.count_nonzero(np.bincount(seg_index)))
     return float(np.sqrt((w @ w) / max(r.size - nseg, 1)))
 
 
-def noise_inflation(r: np.ndarray, seg_index: np.ndarray, max_lag: int = 50) -> tuple[float, float]:
+def noise_inflation(r: np.ndarray, seg_index: np.ndarray, max_lag: int = 50,
+                    within: np.ndarray | None = None) -> tuple[float, float]:
     """(variance inflation factor, lag-1 autocorrelation) of the within-segment residual.
 
     The factor is the long-run variance over the variance, ``1 + 2 sum_k (1 - k/(L+1)) rho_k`` (Bartlett
     weights, Newey & West 1987), computed only when the lag-1 autocorrelation is significant
     (``rho_1 sqrt(N) > 4``); else 1. Statistics built on averages of many samples are divided by it.
     """
-    w = within_segment(r, seg_index)
+    w = within_segment(r, seg_index) if within is None else within
     rho = autocorrelation(w, seg_index, 1)
     r1 = float(rho[0])
     if r1 * np.sqrt(r.size) <= 4.0:
@@ -220,6 +232,9 @@ class ModelFit:
     segment_labels: list[str]
     skipped: dict[str, str]
     contexts: list[SensorContext]
+    #: the contexts are on the calibrated axes of the model's own first fit (not given by the caller): a refit
+    #: of the model plus further effects would find the same axes
+    own_axes: bool = False
 
     @property
     def chi2_dof(self) -> float:
@@ -263,6 +278,7 @@ def fit_model(
     include_earth_rate: bool = True,
     reference_temperature: float = 25.0,
     ctxs: list[SensorContext] | None = None,
+    _beta_only: bool = False,
 ) -> ModelFit:
     """Least-squares fit of ``model`` to one instrument, keeping what the diagnostics need.
 
@@ -286,14 +302,22 @@ def fit_model(
     if instrument not in session.geometries:
         raise IdentifiabilityError(f"the session has no {instrument} data; instruments: {list(session.geometries)}")
     session = cached(session)
+    own_axes = False
     if ctxs is None:
         ctxs = contexts(session, instrument, reference_temperature, include_earth_rate)
-        if "scale_misalignment" in model:
+        own_axes = "scale_misalignment" in model
+        if own_axes:
             # candidates and effects along an axis are evaluated on the calibrated axes (what each sensor really
             # senses), taken from a first fit of scale, misalignment and bias on the nominal ones
             base = ErrorModel([e for e in model if e.name in ("scale_misalignment", "bias")])
-            first = fit_model(session, base, instrument, sigma, include_earth_rate, reference_temperature, ctxs)
+            # the model is the first fit's own (its design, the input and a constant, does not depend on the
+            # axes): the first fit is the fit, only seen from the calibrated axes
+            only_base = len(base.effects) == len(model.effects)
+            first = fit_model(session, base if not only_base else model, instrument, sigma, include_earth_rate,
+                              reference_temperature, ctxs, _beta_only=not only_base)
             ctxs = contexts(session, instrument, reference_temperature, include_earth_rate, calibrated_axes_of(first))
+            if only_base:
+                return _on_axes(session, first, ctxs)
     sig = _sigma_vector(sigma, len(ctxs))
     skipped: dict[str, str] = {}
     fits: list[SensorFit] = []
@@ -301,13 +325,9 @@ def fit_model(
     for ctx in ctxs:
         Xs, ys, idx, ts, Ts, ss, labels = [], [], [], [], [], [], []
         have_T = True
-        for _k, seg in enumerate(session.segments):
-            X = model.design(seg, ctx)
-            if X is None:
-                skipped[seg.label] = "the segment lacks inputs the model needs (a known rate, attitude or temperature)"
-                continue
+        for seg, X, y in sensor_segments(model, ctx, session.segments, instrument, skipped):
             Xs.append(X)
-            ys.append(seg.raw[instrument][:, ctx.index])
+            ys.append(y)
             idx.append(np.full(seg.n_samples, len(labels)))
             ts.append(seg.t)
             if seg.temperature is None:
@@ -340,10 +360,16 @@ def fit_model(
                 "add segments whose inputs differ in the directions involved", involved)
         Rinv = np.linalg.inv(R)
         beta = (Rinv @ (Q.T @ y)) / norms
+        if _beta_only:  # the first fit on the nominal axes: only beta is read (calibrated_axes_of); no residual
+            none = np.empty(0)
+            fits.append(SensorFit(ctx, names, beta, beta_cov=none, theta=none, theta_cov=none, specs=[], y=y, X=X,
+                                  Q=Q, r=none, seg_index=none, t=none, temperature=None, axis_input=None))
+            continue
         r = y - X @ beta
         seg_index = np.concatenate(idx)
-        s_est = noise_level(r, seg_index)
-        infl, rho1 = noise_inflation(r, seg_index)
+        w = within_segment(r, seg_index)
+        s_est = noise_level(r, seg_index, w)
+        infl, rho1 = noise_inflation(r, seg_index, within=w)
         known = sig is not None
         s = float(sig[ctx.index]) if known else max(s_est, np.finfo(float).tiny)
         # covariance of beta: sigma^2 (X^T X)^-1 = sigma^2 D^-1 R^-1 R^-T D^-1 (D = column norms)
@@ -355,7 +381,24 @@ def fit_model(
                               np.concatenate(ts), np.concatenate(Ts) if have_T and Ts else None,
                               np.concatenate(ss), s, known, infl, rho1))
         labels_used = labels
-    return ModelFit(instrument, model, fits, labels_used, skipped, list(ctxs))
+    return ModelFit(instrument, model, fits, labels_used, skipped, list(ctxs), own_axes)
+
+
+def _on_axes(session: Session, fit: ModelFit, ctxs: list[SensorContext]) -> ModelFit:
+    """The same fit with its sensors' contexts on other axes: the physical parameters and the input along the
+    axis follow the new axis; the design, estimate and residual do not depend on it (models of scale,
+    misalignment and bias only)."""
+    for s in fit.sensors:
+        ctx = ctxs[s.ctx.index]
+        theta, J, specs = physical_from_beta(fit.model, ctx, s.beta)
+        ss = []
+        for lab in fit.segment_labels:
+            seg = session.segment(lab)
+            u = ctx.input(seg)
+            ss.append(np.full(seg.n_samples, np.nan) if u is None else np.asarray(u) @ ctx.axis)
+        s.ctx, s.theta, s.theta_cov, s.specs, s.axis_input = ctx, theta, J @ s.beta_cov @ J.T, specs, np.concatenate(ss)
+    fit.contexts, fit.own_axes = list(ctxs), True
+    return fit
 
 
 def calibrated_axes_of(fit: ModelFit) -> np.ndarray:
@@ -393,28 +436,56 @@ def _skip_note(session: Session, skipped: dict[str, str]) -> str:
     return note
 
 
+def candidate_design(session: Session, fit: ModelFit, effects: Sequence[Effect],
+                     sensor: int) -> tuple[np.ndarray, dict[str, slice], dict[str, str]]:
+    """The shared design of one sensor's candidate effects, built in one pass over the segments the fit used.
+
+    Returns ``(B, slices, reasons)``: the columns of every effect that applies to the sensor and can be built on
+    every segment, side by side in one array B (N, K) (each column centred when the model has a bias, see
+    below), their column slices by effect name, and for the applicable effects left out why. Effects that do
+    not apply to the sensor are in neither.
+    """
+    ctx = fit.contexts[sensor]
+    use = [e for e in effects if e.applies_to(ctx)]
+    widths = [len(e.parameters(ctx)) for e in use]
+    offs = np.concatenate([[0], np.cumsum(widths)]).astype(int)
+    B = np.empty((fit.sensors[sensor].n_obs, int(offs[-1])), order="F")  # filled and reduced column by column
+    missing: dict[str, list[str]] = {e.name: [] for e in use}
+    row = 0
+    for lab in fit.segment_labels:
+        seg = session.segment(lab)
+        n = seg.n_samples
+        for e, a, b in zip(use, offs[:-1], offs[1:]):
+            c = e.columns(seg, ctx)
+            if c is None:
+                missing[e.name].append(lab)
+            else:
+                B[row:row + n, a:b] = np.asarray(c, dtype=float).reshape(n, b - a)
+        row += n
+    reasons: dict[str, str] = {}
+    slices: dict[str, slice] = {}
+    keep: list[int] = []
+    for e, a, b in zip(use, offs[:-1], offs[1:]):
+        miss = missing[e.name]
+        if miss:
+            reasons[e.name] = (f"segments {miss[:4]}{'...' if len(miss) > 4 else ''} lack the inputs it needs"
+                               if len(miss) < len(fit.segment_labels) else "no segment carries the inputs it needs")
+            continue
+        slices[e.name] = slice(len(keep), len(keep) + b - a)
+        keep += range(a, b)
+    if len(keep) < B.shape[1]:
+        B = B[:, keep]
+    if "bias" in fit.model:
+        # a constant shift lies in the model's span (its bias column): removing the mean changes nothing
+        # in the tests but keeps digits (time stamps far from zero, temperatures far from T_ref)
+        B -= B.mean(axis=0)
+    return B, slices, reasons
+
+
 def candidate_columns(session: Session, fit: ModelFit, effect: Effect, sensor: int) -> tuple[np.ndarray | None, str]:
     """Columns of ``effect`` for one sensor over the segments the fit used, or (None, reason)."""
     ctx = fit.contexts[sensor]
     if not effect.applies_to(ctx):
         return None, f"does not apply to {fit.instrument} {ctx.name}"
-    cols = []
-    missing = []
-    for lab in fit.segment_labels:
-        seg = session.segment(lab)
-        c = effect.columns(seg, ctx)
-        if c is None:
-            missing.append(lab)
-            continue
-        cols.append(np.asarray(c, dtype=float).reshape(seg.n_samples, -1))
-    if missing:
-        return None, (f"segments {missing[:4]}{'...' if len(missing) > 4 else ''} lack the inputs it needs"
-                      if len(missing) < len(fit.segment_labels) else "no segment carries the inputs it needs")
-    C = np.vstack(cols)
-    if "bias" in fit.model:
-        # a constant shift lies in the model's span (its bias column): removing the mean changes nothing
-        # in the tests but keeps digits (time stamps far from zero, temperatures far from T_ref)
-        C = C - C.mean(axis=0)
-    return C, ""
-
-
+    B, slices, reasons = candidate_design(session, fit, [effect], sensor)
+    return (B, "") if effect.name in slices else (None, reasons[effect.name])

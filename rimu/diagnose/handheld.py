@@ -34,6 +34,7 @@ from ..calibration.handheld import STATIC_KINDS, HandHeld
 from ..calibration.model import ErrorModel
 from ..session import Segment, Session
 from .api import _one, diagnose, format_p, register_session_kind
+from .candidates import f_logsf
 
 __all__ = ["MOTION_CANDIDATES", "HandHeldResiduals", "MotionTest", "diagnose_handheld", "rank_motion_effects",
            "resolve_attitude", "unknown_attitude"]
@@ -133,8 +134,6 @@ def rank_motion_effects(result: CalibrationResult, alpha: float = 0.01,
     accelerometers, sample by sample) and integrating again; the Jacobian of the fitted parameters is projected
     out and the residual regressed on what is left (nested F-test, Holm-corrected over the candidates).
     """
-    from scipy.stats import f as fdist
-
     fits = getattr(result, "fits", {})
     if not fits.get("gyro"):
         return []
@@ -191,7 +190,7 @@ def rank_motion_effects(result: CalibrationResult, alpha: float = 0.01,
             continue
         drss = float(np.sum((U.T @ r0) ** 2))
         F = (drss / k) / max((rss - drss) / (dof - k), 1e-300)
-        lp = float(fdist.logsf(F, k, dof - k) / np.log(10))
+        lp = f_logsf(F, k, dof - k) / float(np.log(10))
         tests.append(MotionTest(name, MOTION_CANDIDATES[name], k, float(F), lp, drss / max(rss, 1e-300)))
     tests.sort(key=lambda t: t.log10_p)
     m = len(tests)

@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 from .fitting import ModelFit, SensorFit
 from .series import autocorrelation, ljung_box
@@ -105,10 +105,10 @@ def failures(st: list[SensorStats], alpha: float) -> dict:
 
     Thresholds are Bonferroni-corrected two-sided normal quantiles at family-wise level ``alpha``.
     """
-    zs = stats.norm.isf(alpha / (2 * max(len(st), 1)))
+    zs = -special.ndtri(alpha / (2 * max(len(st), 1)))
     bad_sensors = [x.name for x in st if x.chi2_z > zs]
     m = sum(len(x.segments) for x in st)
-    zseg = stats.norm.isf(alpha / (2 * max(m, 1)))
+    zseg = -special.ndtri(alpha / (2 * max(m, 1)))
     bad_segments: dict[str, list[tuple[str, float]]] = {}
     for x in st:
         for g in x.segments:

@@ -5,7 +5,7 @@
   per-sensor health with re-admission (:mod:`rimu.fdi.health`), a validity flag per output, explicit
   :class:`HealthState` and events.
 * Detectors, thresholds from a stated false-alarm probability or ARL0: :class:`GltSnapshot`,
-  :class:`GltWindow` (Daly, Gai & Harrison 1979), :class:`CusumBank`, :class:`ParityKalman` (filterpy),
+  :class:`GltWindow` (Daly, Gai & Harrison 1979), :class:`CusumBank`, :class:`ParityKalman` (steady-state filter; filterpy as its reference),
   :class:`CalibrationAwareGlt`, and the autopilot-style baseline :class:`MeanDisagreement`.
 * :func:`isolability`: what a geometry can detect and isolate, with wrong-isolation bounds.
 * :mod:`rimu.fdi.faults`: fault injection; :mod:`rimu.fdi.campaign`: campaigns; :mod:`rimu.fdi.scenarios`: the
@@ -20,7 +20,7 @@ from .glt import GltDecision, GltSnapshot, GltWindow, glt_snapshot, glt_threshol
 from .health import SensorHealth, SensorState
 from .kalman import ParityKalman
 from .manager import FdiEvent, FdiResult, Health, HealthState, RedundancyManager, ReplayResult
-from .motion import MotionAwareGlt, MotionNoiseModel, fit_motion_terms
+from .motion import MotionAwareGlt, MotionNoiseModel, fit_motion_detector, fit_motion_terms
 from .multiple import FaultSetGlt, SetDecision, set_fault_rates, single_fault_rates
 from .noise import NoiseEstimator
 from .parity import IsolabilityReport, detection_probability, isolability, wrong_isolation_bounds
@@ -44,6 +44,7 @@ __all__ = [
     "CalibrationAwareGlt",
     "MotionAwareGlt",
     "MotionNoiseModel",
+    "fit_motion_detector",
     "fit_motion_terms",
     "CalibrationCovariance",
     "stated_covariance",

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Callable
+from operator import mul
 
 import numpy as np
 from scipy.optimize import brentq
@@ -171,12 +172,41 @@ class CusumBank:
 
     Notes
     -----
-    After an alarm call :meth:`reset` (the manager does, when the active set changes); the open-loop
-    :meth:`block` path restarts every statistic at each alarm (renewal), so its alarm count measures ARL0.
+    Page's recursion ``S_k = max(0, S_{k-1} + x_k)`` is kept in its closed form (Lindley): with the running sum
+    ``C_k = C_{k-1} + x_k`` and its running minimum ``M_k = min(M_{k-1}, C_k)`` (both from 0),
+    ``S_k = C_k - M_k``. Both paths use it: :meth:`update` one sample at a time, :meth:`block` with
+    ``np.cumsum`` and ``np.minimum.accumulate`` (sequential sums and exact minima), so the two give the same
+    bits. A restart (:meth:`reset`) sets ``M = C`` (S = 0); every :data:`REBASE` samples since
+    :meth:`configure` both paths move the origin, ``C <- C - M``, ``M <- 0``, so the sums stay small.
+
+    After an alarm call :meth:`reset` to restart the statistics (the manager reconfigures when the active
+    set changes); the open-loop :meth:`block` path restarts every statistic at each alarm (renewal), so its
+    alarm count measures ARL0.
+
+    Examples
+    --------
+    >>> from rimu.geometry import cone6
+    >>> V = cone6().parity_matrix()
+    >>> rng = np.random.default_rng(0)
+    >>> P = rng.standard_normal((400, 3))
+    >>> P[200:] += V[:, 3]                      # a 1 sigma bias on sensor 3 from sample 200
+    >>> bank = CusumBank(1.0, 1e4)
+    >>> ratio, _, iso = bank.block(P, V, 3)     # statistic / threshold, alarms where > 1
+    >>> bank.configure(V, 3)
+    >>> step = []
+    >>> for p in P:
+    ...     step.append(bank.update(p)[0])
+    ...     if step[-1] > 1.0:
+    ...         bank.reset()                    # the block path restarts after each alarm
+    >>> bool(np.array_equal(step, ratio)), int(np.argmax(ratio > 1)) >= 200, int(iso[np.argmax(ratio > 1)])
+    (True, True, 3)
     """
 
     name = "cusum"
     window = 1
+    #: samples between the moves of the origin of the running sums (both paths, counted from configure); a
+    #: multiple of 16
+    REBASE = 4096
 
     def __init__(self, bias: float | np.ndarray, arl0: float = 1e5, noise: object = None) -> None:
         from .glt import as_noise_settings
@@ -186,8 +216,12 @@ class CusumBank:
             raise ValueError("the design bias must be positive")
         self.arl0 = float(arl0)
         self.noise = as_noise_settings(noise)
-        self._S = np.zeros((2, 0))
         self._dof = 0
+        self._n = 0
+        self._na = 0
+        self._C: list[float] = []
+        self._M: list[float] = []
+        self._count = 0
         self._last = -1
 
     # ---------------------------------------------------------------- design per active set
@@ -219,62 +253,284 @@ class CusumBank:
         C_white = window_covariance(Vz, dof, _white_only(self.noise), M) / M  # type: ignore[arg-type]
         return float(np.sqrt(max(u @ (C - C_white) @ u, 0.0)))
 
+    def _slopes(self, Vz: np.ndarray, dof: int):  # type: ignore[no-untyped-def]
+        """The active sensors' indices, LLR slopes ``W = U delta`` (dof, n_a), ``delta^2 / 2`` (n_a,) and the
+        inverse thresholds of the 2 n_a statistics [S+ of each active sensor, S- of each]."""
+        U, d, thr, act = self.design(Vz, dof)
+        idx = np.flatnonzero(act)
+        W = np.ascontiguousarray(U[:, idx] * d[idx])
+        half = d[idx] * d[idx] / 2
+        inv = 1.0 / thr[idx]
+        return idx, W, half, np.concatenate([inv, inv])
+
     def configure(self, Vz: np.ndarray, dof: int) -> None:
         """Use the parity rows of a new active set; every statistic restarts at zero."""
         self._dof = int(dof)
-        n = Vz.shape[1]
-        self._n = n
-        self._S = [0.0] * (2 * n)  # [S+ of every sensor, S- of every sensor], plain floats (cheap per sample)
+        self._n = Vz.shape[1]
+        self._na = 0
         if dof >= 1:
-            U, d, thr, _ = self.design(Vz, dof)
-            self._W = np.ascontiguousarray(np.concatenate([U * d, -U * d], axis=1))  # LLR slope per statistic
-            self._half = np.concatenate([d * d / 2, d * d / 2]).tolist()
-            inv = np.where(np.isfinite(thr), 1.0 / thr, 0.0)
-            self._inv = np.concatenate([inv, inv]).tolist()
+            idx, W, half, inv = self._slopes(Vz, dof)
+            self._idx = idx.tolist()
+            self._na = len(idx)
+            self._cols = W.T.tolist()                      # per active sensor, its dof slopes (Python floats)
+            self._half = half.tolist() * 2                 # per statistic: delta^2 / 2
+            self._inv = inv.tolist()
+        self._base = [0.0] * self._na
+        self._part = [0.0] * self._na
+        self._C = [0.0] * (2 * self._na)
+        self._M = [0.0] * (2 * self._na)
+        self._count = 0
+        self._last = -1
+
+    def reset(self) -> None:
+        """Restart every statistic at zero in the same active set (``M = C``: S = 0)."""
+        self._M = list(self._C)
 
     def update(self, parity: np.ndarray) -> tuple[float, float]:
         """Advance the bank by one sample; returns (largest statistic / its threshold, 1.0)."""
         if self._dof < 1:
             return 0.0, float("inf")
-        X = (parity[:self._dof] @ self._W).tolist()
-        S, half, inv = self._S, self._half, self._inv
+        na = self._na
+        if not na:
+            return 0.0, 1.0
+        base, part, C, M, half, inv = self._base, self._part, self._C, self._M, self._half, self._inv
+        k = self._count
+        if k == self.REBASE:  # move the origin before the sample (after any reset() of the last one)
+            for i in range(2 * na):
+                M[i] = M[i] - C[i]
+            base[:] = part[:] = [0.0] * na
+            k = 0
+        elif k % _BLK == 0:    # a new block of the running sums: base + partial (as block() adds them)
+            for j in range(na):
+                base[j] = base[j] + part[j]
+                part[j] = 0.0
+        k += 1
+        self._count = k
+        kf = float(k)
+        p = parity.tolist()[:self._dof]
+        A = [0.0] * na
+        for j, w in enumerate(self._cols):
+            part[j] = part[j] + sum(map(mul, p, w))       # same order of operations as block()
+            A[j] = part[j] + base[j]
         best, kb = 0.0, 0
-        for k in range(len(S)):
-            v = S[k] + X[k] - half[k]
-            if v < 0.0:
-                v = 0.0
-            S[k] = v
-            r = v * inv[k]
+        for i in range(2 * na):
+            c = (A[i] if i < na else -A[i - na]) - kf * half[i]
+            C[i] = c
+            m = M[i]
+            if c < m:
+                M[i] = m = c
+            r = (c - m) * inv[i]
             if r > best:
-                best, kb = r, k
-        self._last = kb % self._n
+                best, kb = r, i
+        self._last = self._idx[kb % na]
         return best, 1.0
 
     def isolate(self, parity: np.ndarray) -> tuple[int, np.ndarray]:
-        """The sensor whose statistic crossed (isolable only where ``dof >= 2``)."""
-        R = np.array(self._S) * np.array(self._inv) if self._dof >= 1 else np.zeros(2 * self._n)
-        ratios = np.maximum(R[: self._n], R[self._n:])
+        """The sensor whose statistic crossed (isolable only where ``dof >= 2``), and each sensor's ratio."""
+        ratios = np.zeros(self._n)
+        if self._na:
+            R = (np.array(self._C) - np.array(self._M)) * np.array(self._inv)
+            ratios[self._idx] = np.maximum(R[: self._na], R[self._na:])
         return (self._last if self._dof >= 2 else -1), ratios
 
-    def block(self, P: np.ndarray, Vz: np.ndarray, dof: int) -> tuple[np.ndarray, float, np.ndarray]:
-        """Run the bank over N samples of one set, restarting after each alarm; (stat/thr (N,), 1.0, sensor (N,))."""
-        U, d, thr, _act = self.design(Vz, dof)
-        X = P[:, :dof] @ U
-        N, n = X.shape
+    def block(self, P: np.ndarray, Vz: np.ndarray, dof: int,
+              restart: bool = True) -> tuple[np.ndarray, float, np.ndarray]:
+        """Run the bank over N samples of one set, restarting after each alarm: (statistic / threshold (N,), 1.0,
+        isolated sensor (N,), -1 except at alarms).
+
+        Equal, bit for bit, to :meth:`configure` then :meth:`update` per sample with :meth:`reset` after each
+        alarm (class notes); with ``restart=False``, to :meth:`update` alone (what the manager does while the
+        active set stays the same: nothing restarts at an alarm), and then one vectorised pass whatever the
+        alarms. Vectorised over samples, in chunks of :data:`REBASE` samples, each cut into blocks
+        of 16 laid side by side, (stat, 16, blocks): the 16 steps of the running sums and minima inside the
+        blocks are whole-array operations, the carries between blocks a short sequential scan. After an alarm
+        the next one is searched in time order, over windows that grow from twice the last gap.
+        """
+        P = np.asarray(P, dtype=float)
+        N = len(P)
         out = np.zeros(N)
         iso = np.full(N, -1)
-        S = np.zeros((2, n))
-        inc_p = d * (X - d / 2)
-        inc_m = d * (-X - d / 2)
-        with np.errstate(invalid="ignore"):
-            for t in range(N):
-                S[0] += inc_p[t]
-                S[1] += inc_m[t]
-                np.maximum(S, 0.0, out=S)
-                r = S / thr
-                k = int(np.argmax(r))
-                out[t] = r.flat[k]
-                if out[t] > 1.0:
-                    iso[t] = k % n if dof >= 2 else -1
-                    S[:] = 0.0
+        if dof < 1 or N == 0:
+            return out, 1.0, iso
+        idx, W, half, inv = self._slopes(Vz, dof)
+        na = len(idx)
+        if na == 0:
+            return out, 1.0, iso
+        B, R = _BLK, int(self.REBASE)
+        nbm = -(-min(N, R) // B)                                # blocks of the largest chunk
+        k = np.arange(1.0, nbm * B + 1.0).reshape(nbm, B).T     # samples since the origin, (16, blocks)
+        KH = half[:, None, None] * k                            # k delta^2 / 2
+        inv3 = inv[:, None, None]
+        M0 = np.zeros(2 * na)
+        # buffers of one chunk, reused (fresh large arrays per chunk cost page faults)
+        Abuf, Tbuf = np.empty((na, B, nbm)), np.empty((na, B, nbm))
+        Cbuf, Mbuf = np.empty((2 * na, B, nbm)), np.empty((2 * na, B, nbm))
+        ws: dict = {}
+        for t in range(0, N, R):
+            m = min(N - t, R)
+            nb = -(-m // B)
+            Pc = P[t:t + m, :dof]
+            if nb * B > m:
+                Pc = np.concatenate([Pc, np.zeros((nb * B - m, dof))])
+            Pt = np.ascontiguousarray(Pc.reshape(nb, B, dof).transpose(2, 1, 0))   # (dof, 16, blocks)
+            A, T, C, Mt = Abuf[..., :nb], Tbuf[..., :nb], Cbuf[..., :nb], Mbuf[..., :nb]
+            np.multiply(W[0][:, None, None], Pt[0], out=A)
+            for i in range(1, dof):
+                np.multiply(W[i][:, None, None], Pt[i], out=T)
+                A += T
+            for i in range(1, B):                                # partial sums inside each block, in order
+                np.add(A[:, i - 1], A[:, i], out=A[:, i])
+            base = np.zeros((na, nb))
+            np.cumsum(A[:, -1, :-1], axis=1, out=base[:, 1:])    # the sums of the earlier blocks, in order
+            A += base[:, None, :]
+            np.subtract(A, KH[..., :nb], out=C[:na])             # C+ = A - k delta^2 / 2
+            np.negative(A, out=A)
+            np.subtract(A, KH[..., :nb], out=C[na:])             # C- = -A - k delta^2 / 2
+            Mt[:, 0] = C[:, 0]
+            for i in range(1, B):                                # running minima inside each block
+                np.minimum(Mt[:, i - 1], C[:, i], out=Mt[:, i])
+            carry = np.empty((2 * na, nb))                       # the minimum before each block, from M0
+            carry[:, 0] = M0
+            if nb > 1:
+                np.minimum.accumulate(Mt[:, -1, :-1], axis=1, out=carry[:, 1:])
+                np.minimum(carry[:, 1:], M0[:, None], out=carry[:, 1:])
+            np.minimum(Mt, carry[:, None, :], out=Mt)
+            last = ((m - 1) % B, (m - 1) // B)
+            M_end = Mt[:, last[0], last[1]].copy()
+            S = np.subtract(C, Mt, out=Mt)                       # the minima are not needed past here
+            S *= inv3
+            best = S.max(axis=0).T.ravel()[:m]                   # time order
+            hit = best > 1.0
+            if not restart or not hit.any():
+                out[t:t + m] = best
+                Mi = M_end
+                if hit.any() and dof >= 2:                       # open loop: the sensor at every alarm
+                    al = np.flatnonzero(hit)
+                    iso[t + al] = idx[S[:, al % B, al // B].argmax(axis=0) % na]
+            else:
+                a = int(hit.argmax())
+                out[t:t + a + 1] = best[:a + 1]
+                if dof >= 2:
+                    iso[t + a] = idx[int(S[:, a % B, a // B].argmax()) % na]
+                Ct = C.transpose(0, 2, 1).reshape(2 * na, nb * B)
+                Mi = self._alarms(Ct, a, m, inv, idx, dof, out[t:t + m], iso[t:t + m], ws)
+            M0 = Mi - C[:, last[0], last[1]] if m == R else Mi  # the origin moves (update() does the same)
         return out, 1.0, iso
+
+    @staticmethod
+    def _alarms(Ct: np.ndarray, a: int, m: int, inv: np.ndarray, idx: np.ndarray, dof: int, out: np.ndarray,
+                iso: np.ndarray, ws: dict) -> np.ndarray:
+        """After the alarm at ``a`` of a chunk, the rest of it in time order (``Ct`` (stat, >= m)); fills
+        ``out`` and ``iso``, returns the running minima at the chunk's end.
+
+        A restart at ``a`` sets ``M = C_a``, so the running minimum of a window that starts at the alarm
+        sample is the restarted one: one ``np.minimum.accumulate`` per alarm. Where alarms come within
+        :data:`_DENSE` samples of each other, :func:`_dense_alarms` finds many per call."""
+        na = len(idx)
+        inv = inv[:, None]
+        w = max(32, 2 * (a + 1))
+        Mi: np.ndarray | None = None                             # None: the window starts at the alarm sample
+        s = a
+        gap = a + 1
+        while True:
+            if Mi is None and gap <= _DENSE // 2 and s < m - 1:
+                s, Mi, gap = _dense_alarms(Ct, s, m, inv, idx, dof, out, iso, ws)
+                if s >= m:
+                    return Mi                                    # type: ignore[return-value]
+                if Mi is None:
+                    continue
+            if Mi is None:                                       # window [s, e): s is the alarm, M starts at C_s
+                e = min(m, s + 1 + w)
+                Mw = np.minimum.accumulate(Ct[:, s:e], axis=1)[:, 1:]
+                s += 1
+            else:
+                e = min(m, s + w)
+                Mw = np.minimum.accumulate(Ct[:, s:e], axis=1)
+                np.minimum(Mw, Mi[:, None], out=Mw)
+            if e <= s:
+                return Ct[:, s - 1].copy() if Mi is None else Mi
+            Sw = Ct[:, s:e] - Mw
+            Sw *= inv
+            best = Sw.max(axis=0)
+            k = int((best > 1.0).argmax())
+            if best[k] > 1.0:
+                out[s:s + k + 1] = best[:k + 1]
+                if dof >= 2:
+                    iso[s + k] = idx[int(Sw[:, k].argmax()) % na]
+                s += k
+                Mi = None
+                gap = k + 1
+                w = max(32, 2 * gap)
+            else:
+                out[s:e] = best
+                Mi = Mw[:, -1].copy()
+                s = e
+                w = 2 * w
+            if s >= m:
+                return Mi if Mi is not None else Ct[:, m - 1].copy()
+
+
+#: alarms at most this many samples apart are found together (:func:`_dense_alarms`)
+_DENSE = 8
+
+
+def _dense_alarms(Ct: np.ndarray, a0: int, m: int, inv: np.ndarray, idx: np.ndarray, dof: int, out: np.ndarray,
+                  iso: np.ndarray, ws: dict) -> tuple[int, np.ndarray | None, int]:
+    """Alarms close together, from the alarm (restart) at ``a0``, over a window of up to 512 samples.
+
+    With a restart at a, the statistic j at k is ``(C_jk - min_{a<=i<=k} C_ji) inv_j``, the largest of
+    ``(C_jk - C_ji) inv_j`` over i (the rounding is monotone: the same bits). For the gaps d = k - a up to
+    L = :data:`_DENSE` the whole window gets ``V_d[j, k] = max_{i >= k-d} (C_jk - C_ji) inv_j`` at once; the
+    chain of alarms (a -> the first k in (a, a+L] with ``max_j V_{k-a}[j, k] > 1``) is then a walk over
+    Python floats. Returns (position, M, last gap): the next alarm sample with M None when the chain ran to
+    the window's end; else the sample after L alarm-free samples with their running minimum M (or the
+    chunk's end)."""
+    L = _DENSE
+    na = len(idx)
+    e0 = min(m, a0 + 512)
+    Cw = Ct[:, a0:e0]
+    n = Cw.shape[1]
+    if "V" not in ws:                                           # one buffer per block() call
+        ws["V"] = np.zeros((L + 1, Cw.shape[0], 512))
+    V = ws["V"][..., :n]
+    for d in range(1, L + 1):
+        if d < n:
+            V[d, :, :d] = 0.0                                   # never read (k >= d); kept finite
+            Dd = np.subtract(Cw[:, d:], Cw[:, :-d], out=V[d, :, d:])
+            Dd *= inv
+            np.maximum(Dd, V[d - 1, :, d:], out=Dd)
+    Q = V.max(axis=1)                                           # (L + 1, n): the bank's ratio for each gap
+    hit = Q > 1.0
+    nxt = np.full(n, -1)                                        # the next alarm after a restart at each sample
+    pos = np.arange(n)
+    for d in range(min(L, n - 1), 0, -1):                       # the smallest gap wins
+        h = hit[d, d:]
+        nxt[:n - d][h] = pos[d:][h]
+    nl = nxt.tolist()
+    restarts = [0]
+    a = 0
+    while nl[a] >= 0:                                           # the chain of alarms: pointer chasing
+        a = nl[a]
+        restarts.append(a)
+    quiet_end = a + L if a + L < n else -1                      # L samples after a without an alarm, or the end
+    end = quiet_end if quiet_end >= 0 else n - 1                # the last sample covered here
+    ks = np.arange(1, end + 1)
+    R = np.asarray(restarts)
+    d_k = ks - R[np.searchsorted(R, ks - 1, side="right") - 1]
+    out[a0 + 1:a0 + end + 1] = Q[d_k, ks]
+    if dof >= 2 and len(R) > 1:
+        al = R[1:]
+        d_al = np.diff(R)
+        iso[a0 + al] = idx[np.argmax(V[d_al, :, al], axis=1) % na]
+    if quiet_end >= 0:
+        s = a0 + quiet_end + 1
+        M = Cw[:, a:quiet_end + 1].min(axis=1)
+        return s, M, L + 1
+    last = a0 + restarts[-1]
+    if e0 >= m:                                                 # the chunk ends inside the chain
+        return m, Ct[:, last:m].min(axis=1), 1
+    return last, None, 1
+
+
+#: samples per block of the running sums (both paths: the sum is the earlier blocks' sum plus a partial sum)
+_BLK = 16

@@ -80,6 +80,10 @@ class FdiEvent:
     kind: ``isolated``, ``transient`` (alarm episode shorter than the confirmation), ``detected_not_isolable``,
     ``not_isolable_cleared``, ``invalid_isolated``, ``invalid_transient``, ``readmitted``, ``failed``,
     ``state``.
+
+    ``sample`` counts the manager's samples from its last :meth:`RedundancyManager.reset` (0-based); ``t`` is
+    the sample's time in s: the ``t`` given to ``step``/``run``, else ``sample / sample_rate``; without
+    either it is the sample index (no unit).
     """
 
     sample: int
@@ -134,7 +138,8 @@ class ReplayResult:
     """What :meth:`RedundancyManager.run` returns for N samples.
 
     ``validity`` (N,) holds :class:`Validity` codes, ``sensor_state`` (N, n) :class:`SensorState` codes,
-    ``active`` (N, n) the sensors in each sample's estimate.
+    ``active`` (N, n) the sensors in each sample's estimate. ``t`` (N,) is in s when the manager has a
+    ``sample_rate`` or ``run`` got ``t``; otherwise it holds the sample indices (see :class:`FdiEvent`).
     """
 
     t: np.ndarray
@@ -199,7 +204,8 @@ class RedundancyManager:
         Clean samples before an isolated sensor is re-admitted the first time (doubled at each further
         isolation of that sensor, ``backoff``); None: never automatically.
     sample_rate : float, optional
-        Hz, for event times when :meth:`step` gets no ``t``.
+        Hz, for the times (s) of samples and events when :meth:`step` or :meth:`run` gets no ``t``
+        (``index / sample_rate``); without it and without ``t`` the times are sample indices.
     max_events : int
         Events kept (counts in :attr:`counts` are always complete).
     isolator : FaultSetGlt, "detector" or None

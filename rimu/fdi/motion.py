@@ -43,10 +43,12 @@ from scipy.linalg import cho_factor, solve_triangular
 from scipy.optimize import nnls
 
 from ..calibration.result import InstrumentCalibration
+from ..errors import ShapeError
+from ..fusion import InstrumentPipeline, Validity
 from .calaware import CalibrationCovariance
 from .glt import glt_threshold
 
-__all__ = ["MotionAwareGlt", "MotionNoiseModel", "fit_motion_terms"]
+__all__ = ["MotionAwareGlt", "MotionNoiseModel", "fit_motion_detector", "fit_motion_terms"]
 
 _EYE3 = np.eye(3)
 
@@ -278,7 +280,12 @@ class MotionAwareGlt:
         Ab = self._Ab
         M = Ab.reshape(-1, 3).T @ SiA.reshape(-1, 3)
         b = Ab.reshape(-1, 3).T @ Sir.reshape(-1)
-        Minv_b = np.linalg.solve(M, b)
+        try:
+            Minv_b = np.linalg.solve(M, b)
+        except np.linalg.LinAlgError:
+            # a direction seen by no redundant sensor (e.g. two triads, one axis lost): those sensors carry no
+            # parity and b has no component there; the minimum-norm solution gives the same statistic
+            Minv_b = np.linalg.lstsq(M, b, rcond=None)[0]
         self._last = (B, Sir, SiA, M, Minv_b)
         return float(rb.reshape(-1) @ Sir.reshape(-1) - b @ Minv_b)
 
@@ -297,7 +304,7 @@ class MotionAwareGlt:
         act, p0 = self._act, mdl._p0
         Si_diag = np.linalg.inv(B)[mdl._diag]  # only after an alarm
         Sirt = Sir - SiA @ Minv_b
-        den = Si_diag - np.einsum("jga,ab,jgb->jg", SiA, np.linalg.inv(M), SiA)
+        den = Si_diag - np.einsum("jga,ab,jgb->jg", SiA, np.linalg.pinv(M), SiA)
         ok = act & (den > 1e-300)
         vals = np.where(ok, Sirt**2 / np.where(ok, den, 1.0), 0.0)
         ratios[p0[ok]] = vals[ok]
@@ -445,3 +452,41 @@ def fit_motion_terms(model: MotionNoiseModel, residuals: np.ndarray, G: np.ndarr
     if "accel" in out:
         kw["accel_var"] = out["accel"]
     return model.with_terms(**kw)
+
+
+def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, valid: np.ndarray | None,
+                        sample_rate: float, margin: float = 3.0, p_fa: float = 1e-3,
+                        terms: tuple[str, ...] = _FIT_TERMS[1:], min_samples: int = 50) -> MotionAwareGlt:
+    """A gyro :class:`MotionAwareGlt` whose motion terms are fitted on fault-free raw data of the unit.
+
+    The data go through the runtime pipeline with every sensor active; the samples where every sensor is valid
+    give the residuals ``sigma^2 (parity @ Vz)``, the estimate is the angular rate and its central difference
+    the angular acceleration (:func:`fit_motion_terms`).
+
+    Parameters
+    ----------
+    calibration : InstrumentCalibration
+        Of the gyros (with a noise sigma).
+    raw, valid : ndarray (N, n)
+        Raw outputs and validity flags (None: all valid) of a fault-free span, N samples at ``sample_rate`` Hz.
+    margin : float
+        Factor on the fitted variances (see :func:`fit_motion_terms`).
+
+    Raises
+    ------
+    ShapeError
+        Fewer than ``min_samples`` samples with every sensor valid: a longer fault-free span is needed.
+    """
+    if not sample_rate > 0:
+        raise ValueError(f"sample_rate must be positive (Hz), got {sample_rate}")
+    pipe = InstrumentPipeline(calibration)
+    blk = pipe.process(np.asarray(raw, float), valid)
+    full = np.asarray(blk.validity) == Validity.NOMINAL
+    if int(full.sum()) < min_samples:
+        raise ShapeError(f"only {int(full.sum())} samples with every gyro valid to fit the motion terms; give a "
+                         f"longer fault-free span (at least {min_samples} samples)")
+    res = pipe.table.sigma**2 * (blk.parity @ pipe.table.Vz[0])
+    alpha = np.gradient(blk.x, 1.0 / sample_rate, axis=0)
+    model = fit_motion_terms(MotionNoiseModel(calibration, sigma=pipe.table.sigma), res[full], pipe.table.G[0],
+                             blk.x[full], alpha[full], terms=terms, margin=margin)
+    return MotionAwareGlt(model, p_fa, sample_rate=sample_rate)

@@ -1,5 +1,6 @@
 """Runtime pipeline: compensation, projection to the MB frame, parity vector, isolation (Cho & Park Eq. 20-21)."""
 
+from .backend import BACKENDS, numba_available, resolve_backend
 from .compensation import cho_park_eq20, eq20_matrix
 from .effects import EffectCompensation, compensable_effects
 from .pipeline import BlockResult, InstrumentPipeline, Pipeline, StepResult
@@ -15,6 +16,9 @@ __all__ = [
     "ProjectionTable",
     "ActiveSet",
     "Validity",
+    "BACKENDS",
+    "numba_available",
+    "resolve_backend",
     "mask_bits",
     "bits_mask",
     "cho_park_eq20",

@@ -44,6 +44,7 @@ from ..calibration.model import RuntimeInputs
 from ..calibration.result import Calibration, InstrumentCalibration
 from ..epoch import Epoch, EpochBlock
 from ..errors import MissingInputError, ShapeError
+from .backend import _kernels, resolve_backend
 from .effects import EffectCompensation, _monomials_one
 from .projection import ActiveSet, ProjectionTable, mask_bits
 from .validity import Validity
@@ -52,6 +53,8 @@ __all__ = ["InstrumentPipeline", "Pipeline", "StepResult", "BlockResult"]
 
 _INF_P = np.diag([np.inf] * 3)
 _INF_P.setflags(write=False)
+_NDARRAY = np.ndarray
+_F8 = np.dtype(np.float64)
 
 
 @dataclass
@@ -152,6 +155,9 @@ class InstrumentPipeline:
         with ``|y_i| >= range_raw_i`` is saturated. Default: the calibration's ``range_raw``; None: no limit.
     cache_size : int, optional
         Active sets kept by the projection table besides the full set (default ``max(64, 2 n)``).
+    backend : {"auto", "numpy", "numba"}, optional
+        Implementation of the common path (:mod:`rimu.fusion.backend`); default ``RIMU_BACKEND``, else
+        ``"auto"`` (numba where installed). Same numbers either way.
 
     Examples
     --------
@@ -174,8 +180,14 @@ class InstrumentPipeline:
         max_excluded: int | None = None,
         range_raw: float | np.ndarray | None = None,
         cache_size: int | None = None,
+        backend: str | None = None,
     ) -> None:
         self.calibration = calibration
+        #: ``"numpy"`` or ``"numba"``: the implementation of the common path
+        self.backend = resolve_backend(backend)
+        kern = _kernels() if self.backend == "numba" else None
+        self._kstep = None if kern is None else kern.project_one
+        self._kblock = None if kern is None else kern.project_block
         n = calibration.geometry.n
         #: True when the noise came from ``sigma`` or the calibration's ``noise_sigma``, False when 1.0 was assumed
         self.noise_given = sigma is not None or calibration.noise_sigma is not None
@@ -190,12 +202,14 @@ class InstrumentPipeline:
         if range_raw is None:
             self.range_raw = None
             self._range_min = float("inf")
+            self._range = np.full(n, np.inf)
         else:
             rr = np.broadcast_to(np.asarray(range_raw, dtype=float), (n,)).copy()
             if np.any(~(rr > 0)):
                 raise ShapeError(f"range_raw must be positive (raw output units), got {rr.tolist()}")
             self.range_raw = rr
             self._range_min = float(rr.min())
+            self._range = rr
         self.n = n
         self.r = max(n - 3, 0)
         self.invalid_count = np.zeros(n, dtype=np.int64)
@@ -207,6 +221,7 @@ class InstrumentPipeline:
         self._invalid = np.zeros(n, dtype=bool)
         self._saturated = np.zeros(n, dtype=bool)
         self._dirty = False
+        self._bkey: tuple[Any, int] | None = None
         self.result = StepResult(self._out[:3], _INF_P, self._out[3:], 0, np.ones(n, bool),
                                  self._invalid, True, 0, self._saturated, Validity.NOMINAL)
         self._select(self.table.full_code)
@@ -260,9 +275,24 @@ class InstrumentPipeline:
         res.validity = _validity(s, self.n)
 
     # ------------------------------------------------------------------ per sample
+    def _clean(self) -> None:
+        """Back to the current set after a sample that routed around some sensors."""
+        self._invalid[:] = False
+        self._saturated[:] = False
+        self._point_result(self._set)
+        self._dirty = False
+
     def step(self, y: np.ndarray, valid: np.ndarray | None = None) -> StepResult:
         """Process one raw sample ``y`` (n,). Returns :attr:`result` (reused; copy what you keep)."""
         self.samples += 1
+        k = self._kstep
+        if k is not None:  # compiled: range, R y - off and finiteness in one call
+            if (valid is None or valid.all()) and type(y) is _NDARRAY and y.dtype is _F8 and y.ndim == 1:
+                if k(y, self._Re, self._offe, self._range, self._out):
+                    if self._dirty:
+                        self._clean()
+                    return self.result
+            return self._step_slow(np.asarray(y, dtype=float), valid)
         if valid is None or valid.all():
             try:
                 yl = y.tolist()
@@ -278,10 +308,7 @@ class InstrumentPipeline:
                     s = sum(out.tolist())
                     if s - s == 0.0:  # finite: the common path
                         if self._dirty:
-                            self._invalid[:] = False
-                            self._saturated[:] = False
-                            self._point_result(self._set)
-                            self._dirty = False
+                            self._clean()
                         return self.result
         return self._step_slow(np.asarray(y, dtype=float), valid)
 
@@ -325,16 +352,14 @@ class InstrumentPipeline:
         self.samples += N
         n, r, tab = self.n, self.r, self.table
         out = np.empty((N, 3 + r))
-        cur = self._set
-        in_range = self.range_raw is None or not N or bool(np.all(np.abs(Y) < self.range_raw))
-        if N and in_range and (valid is None or np.all(valid)):
-            if self._fast_block(Y, out):
-                P = {cur.entry: cur.P if cur.observable else _INF_P}
-                return BlockResult(out[:, :3], out[:, 3:], np.broadcast_to(np.int64(cur.entry), (N,)),
-                                   np.broadcast_to(np.int64(cur.dof), (N,)), np.broadcast_to(cur.active, (N, n)),
-                                   np.broadcast_to(False, (N, n)), np.broadcast_to(cur.observable, (N,)), tab,
-                                   np.broadcast_to(False, (N, n)),
-                                   np.broadcast_to(np.int8(_validity(cur, n)), (N,)), P)
+        if self._kblock is not None and N <= self._KERNEL_BLOCK_MAX:
+            if N and (valid is None or np.all(valid)):
+                if self._kblock(np.ascontiguousarray(Y), self._Re, self._offe, self._range, out):
+                    return self._clean_block(out)
+        else:
+            in_range = self.range_raw is None or not N or bool(np.all(np.abs(Y) < self.range_raw))
+            if N and in_range and (valid is None or np.all(valid)) and self._fast_block(Y, out):
+                return self._clean_block(out)
         good = np.isfinite(Y)
         if valid is not None:
             v = np.asarray(valid, dtype=bool)
@@ -376,6 +401,19 @@ class InstrumentPipeline:
         validity[(bad | sat).any(axis=1) & (validity == Validity.NOMINAL)] = Validity.DEGRADED
         return BlockResult(out[:, :3], out[:, 3:], entry, dof, active, bad, obs, tab, sat, validity, Ps)
 
+    def _clean_block(self, out: np.ndarray) -> BlockResult:
+        """The result of a block whose every sample took the common path on the current set (the per-sample
+        arrays are read-only broadcasts of the set's, kept while the set and the block length stay the same)."""
+        N, n, cur = out.shape[0], self.n, self._set
+        if self._bkey is None or self._bkey[0] is not cur or self._bkey[1] != N:
+            self._bviews = (np.broadcast_to(np.int64(cur.entry), (N,)), np.broadcast_to(np.int64(cur.dof), (N,)),
+                            np.broadcast_to(cur.active, (N, n)), np.broadcast_to(False, (N, n)),
+                            np.broadcast_to(cur.observable, (N,)), np.broadcast_to(np.int8(_validity(cur, n)), (N,)))
+            self._bkey = (cur, N)
+        e, d, a, no, o, v = self._bviews
+        return BlockResult(out[:, :3], out[:, 3:], e, d, a, no, o, self.table, no, v,
+                           {cur.entry: cur.P if cur.observable else _INF_P})
+
     # ------------------------------------------------------------------ estimates without side effects
     def estimate(self, Z: np.ndarray) -> np.ndarray:
         """MB estimates (N, 3) of compensated outputs Z (N, n), SI, on the active sensors (non-finite entries
@@ -399,6 +437,10 @@ class InstrumentPipeline:
         return X
 
     _CHUNK = 8192
+    #: longest block the compiled backend projects sample by sample; longer clean blocks take the chunked BLAS
+    #: product below, which is faster there (the kernel does the C arithmetic of benchmarks/_ckernel.py, one
+    #: sample at a time, ~25 ns/sample on cone6; BLAS ~10 ns/sample past ~1000 samples, benchmarks/runtime.py)
+    _KERNEL_BLOCK_MAX = 512
 
     def _fast_block(self, Y: np.ndarray, out: np.ndarray) -> bool:
         """``out = Y @ R.T - off`` in cache-sized chunks; False as soon as a chunk is not finite.
@@ -457,6 +499,11 @@ class Pipeline:
         calibration with temperature effects; None (default) leaves the check to each sample.
     t0 : float, optional
         Time of switch-on (the origin of the drift), s; default the first sample's time.
+    backend : {"auto", "numpy", "numba"}, optional
+        Implementation (:mod:`rimu.fusion.backend`): numba compiles the whole epoch -- every effect's
+        compensation, the fixed point between the instruments and the projections -- into one call per epoch
+        (per block in :meth:`process`); default ``RIMU_BACKEND``, else ``"auto"`` (numba where installed). Same
+        numbers either way; samples off the common path (invalid, saturated, non-finite) take the numpy path.
 
     Raises
     ------
@@ -470,12 +517,14 @@ class Pipeline:
     def __init__(self, calibration: Calibration, sigma: dict[str, Any] | None = None,
                  max_excluded: int | None = None, range_raw: dict[str, Any] | None = None,
                  cache_size: int | None = None, *, temperature: bool | None = None,
-                 t0: float | None = None) -> None:
+                 t0: float | None = None, backend: str | None = None) -> None:
         sigma = sigma or {}
         range_raw = range_raw or {}
         self.calibration = calibration
+        #: ``"numpy"`` or ``"numba"``
+        self.backend = resolve_backend(backend)
         self.instruments = {k: InstrumentPipeline(calibration[k], sigma.get(k), max_excluded, range_raw.get(k),
-                                                  cache_size)
+                                                  cache_size, backend=self.backend)
                             for k in calibration.instruments}
         meta = calibration.metadata or {}
         self._t_ref = float(meta.get("reference_temperature", 25.0))
@@ -506,6 +555,15 @@ class Pipeline:
         self._cyclic = acc_needs_w and gyr_needs_f
         first = ("gyro", "accel") if acc_needs_w and not gyr_needs_f else ("accel", "gyro")
         self._order = [k for k in first if k in self.instruments]
+        #: the compiled compensation stage (numba backend, every effect with a compiled form)
+        self._program = None
+        if (self.backend == "numba" and self.compensation and not self._generic
+                and set(self._order) == set(self.instruments)):
+            kern = _kernels()
+            self._program = kern.Program([(k, self.compensation.get(k), self.instruments[k]) for k in self._order],
+                                         self._cyclic, self.cycle_rounds)
+            self._epoch_step, self._epoch_block = kern.epoch_step, kern.epoch_block
+            self._results = {k: p.result for k, p in self.instruments.items()}  # StepResults are reused
 
     def __getitem__(self, instrument: str) -> InstrumentPipeline:
         return self.instruments[instrument]
@@ -533,7 +591,12 @@ class Pipeline:
         raw, _ = self._compensate_block(block)
         return EpochBlock(block.t, raw, dict(block.valid), block.temperature, dict(block.meta))
 
-    def _compensate_block(self, block: EpochBlock) -> tuple[dict[str, np.ndarray], dict[str, BlockResult]]:
+    def _compensate_block(self, block: EpochBlock, want_raw: bool = True
+                          ) -> tuple[dict[str, np.ndarray], dict[str, BlockResult]]:
+        if self._program is not None:
+            done = self._compensate_block_compiled(block, want_raw)
+            if done is not None:
+                return done
         out = dict(block.raw)
         results: dict[str, BlockResult] = {}
         if not self.compensation:
@@ -565,6 +628,81 @@ class Pipeline:
                 w = np.asarray(res.x)
         return out, results
 
+    def _program_ready(self) -> Any:
+        """The compiled program with the current active sets and rounds."""
+        prog = self._program
+        prog.L[2] = prog.rounds = self.cycle_rounds
+        if prog.changed():
+            prog.refresh()
+        return prog
+
+    def _compensate_block_compiled(self, block: EpochBlock, want_raw: bool
+                                   ) -> tuple[dict[str, np.ndarray], dict[str, BlockResult]] | None:
+        """:meth:`_compensate_block` in one compiled call; None (nothing changed) when a sample is off the common
+        path, for the numpy path to do the whole block."""
+        N = len(block)
+        if not N or any(not np.all(v) for v in block.valid.values()):
+            return None
+        temp = block.temperature
+        self._need_temperature(temp is not None)
+        if self.t0 is None:
+            self.t0 = float(block.t[0])
+        t = block.t - self.t0
+        dT = np.zeros(N) if temp is None else np.asarray(temp, dtype=float) - self._t_ref
+        prog = self._program_ready()
+        order = self._order
+        Ys = [np.ascontiguousarray(block.raw[k], dtype=float) for k in order]
+        if any(Y.ndim != 2 or Y.shape[1] != self.instruments[k].n for k, Y in zip(order, Ys)):
+            return None
+        outs = [np.empty((N, 3 + self.instruments[k].r)) for k in order]
+        raws = [np.empty((N, self.instruments[k].n) if want_raw else (1, 1)) for k in order]
+        row = self._epoch_block(prog.F, prog.L, prog.W, Ys[0], Ys[-1], t, dT, outs[0], outs[-1], raws[0], raws[-1],
+                                want_raw)
+        if row >= 0:
+            return None
+        raw = dict(block.raw)
+        results: dict[str, BlockResult] = {}
+        for j, k in enumerate(order):
+            p = self.instruments[k]
+            p.samples += N
+            results[k] = p._clean_block(outs[j])
+            if want_raw and k in self.compensation:
+                raw[k] = raws[j]
+        return raw, results
+
+    def _step_compiled(self, epoch: Epoch) -> dict[str, StepResult] | None:
+        """:meth:`step` in one compiled call; None (nothing changed) when the epoch is off the common path."""
+        for v in epoch.valid.values():
+            if not v.all():
+                return None
+        T = epoch.temperature
+        if T is None:
+            self._need_temperature(False)
+        if self.t0 is None:
+            self.t0 = float(epoch.t)
+        prog = self._program
+        pipes = prog.pipes
+        if pipes[0]._set is not prog._sets[0] or pipes[-1]._set is not prog._sets[-1] \
+                or prog.rounds != self.cycle_rounds:
+            self._program_ready()
+        raw = epoch.raw
+        y0 = raw[self._order[0]]
+        y1 = raw[self._order[-1]]
+        if type(y0) is not _NDARRAY or type(y1) is not _NDARRAY:
+            return None
+        try:
+            ok = self._epoch_step(prog.F, prog.L, prog.W, y0, y1, float(epoch.t) - self.t0,
+                                  0.0 if T is None else float(T) - self._t_ref, pipes[0]._out, pipes[-1]._out)
+        except Exception:  # an array the kernel cannot type (2-D, object): the numpy path says what is wrong
+            return None
+        if not ok:
+            return None
+        for p in pipes:
+            p.samples += 1
+            if p._dirty:
+                p._clean()
+        return self._results.copy()
+
     def _need_temperature(self, present: bool) -> None:
         if present:
             return
@@ -579,6 +717,10 @@ class Pipeline:
         """One epoch through the compensation stage and every instrument's pipeline."""
         if not self.compensation:
             return {k: p.step(epoch.raw[k], epoch.valid.get(k)) for k, p in self.instruments.items()}
+        if self._program is not None:
+            res_c = self._step_compiled(epoch)
+            if res_c is not None:
+                return res_c
         T = epoch.temperature
         if T is None:
             self._need_temperature(False)
@@ -622,5 +764,5 @@ class Pipeline:
         """N epochs at once; the same numbers as :meth:`step` on each epoch."""
         if not self.compensation:
             return {k: p.process(block.raw[k], block.valid.get(k)) for k, p in self.instruments.items()}
-        _, results = self._compensate_block(block)
+        _, results = self._compensate_block(block, want_raw=False)
         return {k: results[k] for k in self.instruments}

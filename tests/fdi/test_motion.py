@@ -178,3 +178,44 @@ def test_replay_cli_fits_motion_terms_and_still_isolates(tmp_path, capsys):
     rc = main(["replay", str(tmp_path / "t2.npz"), "--calibration", str(tmp_path / "cal.json"),
                "--motion-fit", "0.05"])
     assert rc == 2 and "at least 50 samples" in capsys.readouterr().err  # bad input: exit status 2
+
+
+def test_fit_motion_detector_is_the_recipe_on_raw_data(unit):
+    """``fit_motion_detector`` (raw data in, detector out) gives the model of the step-by-step recipe above:
+    the same fitted terms from the same recording, and a clear error when too little data is fault-free."""
+    from rimu.errors import ShapeError
+    from rimu.fdi import fit_motion_detector
+
+    truth, cal, _, fitted, _ = unit
+    other = truth.output(handheld_motion(300.0, seed=13), np.arange(0, 60, 1 / FS)[:3000], seed=14)
+    det = fit_motion_detector(cal, other, None, FS, margin=1.0)
+    for term in ("scale_rel", "misalignment_rad", "time_offset_s", "rate_var", "accel_var"):
+        np.testing.assert_allclose(getattr(det.model, term), getattr(fitted, term), rtol=1e-9, atol=1e-300)
+    assert det.sample_rate == FS and det.p_fa == 1e-3
+    valid = np.ones(other.shape, bool)
+    valid[10:, 0] = False                       # sensor 0 dead after 10 samples: 10 complete samples only
+    with pytest.raises(ShapeError, match="at least 50"):
+        fit_motion_detector(cal, other, valid, FS)
+
+
+def test_a_direction_without_redundancy_is_the_plain_glt():
+    """Two parallel triads with one x axis lost: the other x sensor has no parity, the motion-aware test's
+    normal matrix is singular along x, and the statistic (no motion terms) is still the plain GLT's (found on the
+    real Pixhawk with a dropout: it raised LinAlgError)."""
+    from rimu.geometry import triads
+
+    g = triads(2)
+    cal = InstrumentCalibration.nominal("gyro", g, 1.0, noise_sigma=0.01)
+    pipe = InstrumentPipeline(cal)
+    pipe.isolate(0)
+    det = MotionAwareGlt(MotionNoiseModel(cal), sample_rate=FS)
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        y = cal.raw_output(rng.standard_normal(3)) + 0.01 * rng.standard_normal(6)
+        r = pipe.step(y)
+        det.configure(pipe.table.Vz[r.entry], r.dof)
+        det.set_input(r.x)
+        stat, thr = det.update(r.parity)
+        plain = glt_snapshot(r.parity, pipe.table.Vz[r.entry], r.dof, 1e-3, r.active)
+        assert r.dof == 2 and np.isclose(stat, plain.statistic, rtol=1e-9) and np.isclose(thr, plain.threshold)
+        assert det.isolate(r.parity)[1][0] == 0.0          # the isolated sensor gets no ratio

@@ -28,7 +28,7 @@ class ScaleCubic(Effect):
 
     def columns(self, segment: Segment, ctx: SensorContext) -> np.ndarray | None:
         s = axis_input(segment, ctx)
-        return None if s is None else (s**3)[:, None]
+        return None if s is None else (s * s * s)[:, None]  # not s**3: numpy's pow is ~100x slower
 
     def runtime_columns(self, inputs: RuntimeInputs, ctxs: Sequence[SensorContext]) -> np.ndarray:
         """``s_i^3``, (N, n, 1): output-side, inverted exactly (Newton on the sensor's own input)."""

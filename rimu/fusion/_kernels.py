@@ -1,0 +1,522 @@
+"""Compiled kernels of the runtime pipeline (numba), the optional ``fast`` backend (``pip install rimu[fast]``).
+
+The same arithmetic as the numpy reference (:mod:`rimu.fusion.pipeline`, :mod:`rimu.fusion.effects`), written as
+loops over the sensors so that one call does a whole sample (or a whole block) without Python in between:
+
+* :func:`project_one`, :func:`project_block`: ``out = R y - off`` on the current active set, with the range and
+  finiteness checks of the fast path (Cho & Park 2005, Eq. 20; de Oliveira Eq. 11 for the parity rows);
+* :func:`epoch_step`, :func:`epoch_block`: the compensation of every further effect (exogenous error = a matrix
+  times the epoch's monomials; output-side effects inverted by Newton per sensor with the cross coupling from the
+  instrument's estimate; the gyro <-> accelerometer fixed point) followed by the projection, for every
+  instrument of the unit, in the pipeline's order.
+
+Every kernel returns whether it could do the whole sample (block) on the common path: every value finite and
+within range, every sensor valid, the active set observable. When it could not, the caller runs the numpy
+reference instead, which routes around what is missing; a kernel never changes the pipeline's state.
+
+The compensation stage of a unit is described by two arrays that :class:`Program` builds once
+(``F``: every coefficient, ``L``: sizes, flags and offsets into F); the active sets' G, R, off are copied into F
+when a set changes (never per sample). Kernels are compiled on first use and cached on disk (``cache=True``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+try:
+    import numba
+except ImportError as exc:  # pragma: no cover - the caller checks availability first
+    raise ImportError("the compiled backend needs numba: pip install rimu[fast]") from exc
+
+__all__ = ["Program", "epoch_block", "epoch_step", "project_block", "project_one"]
+
+#: IEEE arithmetic as numpy's (error_model="numpy": x / 0 is inf or nan, not an exception); no fast-math
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+
+#: index cast: an unsigned index needs no negative-index wraparound check (numba adds one to every signed index
+#: whose sign it cannot prove, which costs half the speed of these loops); every index here is >= 0
+_u = numba.uint64
+
+#: monomials of an epoch (rimu.calibration.model.MONOMIALS): 1, t, dT, dT^2, f, f pairs, w, w pairs
+M = 22
+#: coefficient blocks of the compensation (rows of 5 n x M): exogenous error, k1, k2, k3, k_abs
+B_EXO, B_K1, B_K2, B_K3, B_KA = 0, 1, 2, 3, 4
+
+# layout of L: a header, then one record per instrument slot (in the pipeline's order)
+H_NSLOT, H_CYCLIC, H_ROUNDS, H_ACC, H_GYR, H_WORK, H_SIZE = 0, 1, 2, 3, 4, 5, 8
+S_N, S_M, S_MODE, S_KIND, S_OUT, S_NEEDU, S_STEPS, S_SCALE, S_BIAS, S_RANGE, S_C, S_HX, S_H, S_G, S_R, S_OFF, \
+    S_OBS, S_PRESENT, S_DYN, S_RAWEXO, S_COLS, S_WY, S_WRAW, S_WOUT = range(24)
+S_SIZE = 24
+MODE_NONE, MODE_RAWEXO, MODE_FULL = 0, 1, 2
+KIND_ACC, KIND_GYR = 0, 1
+
+
+# ---------------------------------------------------------------------------------------------- projection
+@_jit
+def project_one(y: Any, R: Any, off: Any, rng: Any, out: Any) -> bool:  # pragma: no cover - compiled
+    """``out = R y - off`` for one sample; False (out unspecified) when a value is non-finite or at its range."""
+    n = R.shape[1]
+    if y.shape[0] != n:
+        return False
+    for i in range(n):
+        if not abs(y[_u(i)]) < rng[_u(i)]:
+            return False
+    s = 0.0
+    for j in range(R.shape[0]):
+        acc = 0.0
+        for i in range(n):
+            acc += R[_u(j), _u(i)] * y[_u(i)]
+        acc -= off[_u(j)]
+        out[_u(j)] = acc
+        s += acc
+    return s - s == 0.0
+
+
+@_jit
+def project_block(Y: Any, R: Any, off: Any, rng: Any, out: Any) -> bool:  # pragma: no cover - compiled
+    """:func:`project_one` on every row of Y (N, n) into out (N, m); False as soon as a row is not clean."""
+    n = R.shape[1]
+    m = R.shape[0]
+    for k in range(Y.shape[0]):
+        for i in range(n):
+            if not abs(Y[_u(k), _u(i)]) < rng[_u(i)]:
+                return False
+        s = 0.0
+        for j in range(m):
+            acc = 0.0
+            for i in range(n):
+                acc += R[_u(j), _u(i)] * Y[_u(k), _u(i)]
+            acc -= off[_u(j)]
+            out[_u(k), _u(j)] = acc
+            s += acc
+        if not s - s == 0.0:
+            return False
+    return True
+
+
+# ---------------------------------------------------------------------------------------------- compensation
+# Everything below works on offsets into the one scratch array W (no views, no allocation per sample):
+# W[0:M] monomials, then f (3), w (3), u (3), then per slot its raw input y, its compensated raw output, its
+# output (x, parity), and one work area (q, z, q', the 5 coefficient blocks: 8 n_max).
+W_MONO, W_F, W_W, W_U = 0, M, M + 3, M + 6
+
+
+@_jit
+def _monomials(t: float, dT: float, have_f: bool, have_w: bool, W: Any) -> None:  # pragma: no cover - compiled
+    """rimu.fusion.effects._monomials_one of (t, dT, f = W[W_F:], w = W[W_W:]) into W[0:M]; absent as zeros."""
+    W[_u(0)] = 1.0
+    W[_u(1)] = t
+    W[_u(2)] = dT
+    W[_u(3)] = dT * dT
+    for b in range(2):
+        j = 4 + 9 * b
+        v = W_F if b == 0 else W_W
+        if have_f if b == 0 else have_w:
+            x, y, z = W[_u(v)], W[_u(v + 1)], W[_u(v + 2)]
+            W[_u(j)], W[_u(j + 1)], W[_u(j + 2)] = x, y, z
+            W[_u(j + 3)], W[_u(j + 4)], W[_u(j + 5)] = x * x, x * y, x * z
+            W[_u(j + 6)], W[_u(j + 7)], W[_u(j + 8)] = y * y, y * z, z * z
+        else:
+            for a in range(9):
+                W[_u(j + a)] = 0.0
+
+
+@_jit
+def _coefs(F: Any, L: Any, base: int, W: Any, k0: int) -> None:  # pragma: no cover - compiled
+    """Coefficients of every present block for every sensor into W[k0:k0 + 5 n]: each row of C times the
+    monomials it uses, in the order of the monomials (EffectCompensation._coefficient_arrays; only the constant
+    where a block does not vary). C is stored (block, monomial, sensor): the sensors' sums run side by side."""
+    n = L[_u(base + S_N)]
+    present = L[_u(base + S_PRESENT)]
+    dyn = L[_u(base + S_DYN)]
+    cols = L[_u(base + S_COLS)]
+    c_base = L[_u(base + S_C)]
+    for blk in range(5):
+        nc = L[_u(cols)]
+        cols += 1
+        if (present >> blk) & 1:
+            c0 = c_base + blk * M * n
+            o = k0 + blk * n
+            for i in range(n):
+                W[_u(o + i)] = F[_u(c0 + i)]
+            if (dyn >> blk) & 1:
+                for a in range(nc):
+                    j = L[_u(cols + a)]
+                    mj = W[_u(j)]
+                    cj = c0 + j * n
+                    for i in range(n):
+                        W[_u(o + i)] += F[_u(cj + i)] * mj
+        cols += nc
+
+
+@_jit
+def _estimate(F: Any, L: Any, base: int, W: Any, q0: int, u0: int) -> bool:  # pragma: no cover - compiled
+    """MB estimate W[u0:u0+3] = G q on the current set (InstrumentPipeline.estimate); False if q is not finite."""
+    n = L[_u(base + S_N)]
+    g0 = L[_u(base + S_G)]
+    s = 0.0
+    for i in range(n):
+        s += W[_u(q0 + i)]
+    if not s - s == 0.0:
+        return False
+    for j in range(3):
+        acc = 0.0
+        for i in range(n):
+            acc += F[_u(g0 + j * n + i)] * W[_u(q0 + i)]
+        W[_u(u0 + j)] = acc
+    return True
+
+
+@_jit
+def _solve(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - compiled
+    """EffectCompensation.solve_one of the slot's input y: the effect-free outputs q into the work area
+    (Newton on each sensor's own input, the cross coupling from the estimate); False if not finite."""
+    n = L[_u(base + S_N)]
+    sc = L[_u(base + S_SCALE)]
+    bi = L[_u(base + S_BIAS)]
+    y0 = L[_u(base + S_WY)]
+    q0 = L[_u(H_WORK)]
+    z0 = q0 + n
+    n0 = z0 + n
+    k0 = n0 + n
+    present = L[_u(base + S_PRESENT)]
+    _coefs(F, L, base, W, k0)
+    for i in range(n):
+        z = W[_u(y0 + i)] * F[_u(sc + i)] - F[_u(bi + i)]
+        if present & 1:
+            z = z - W[_u(k0 + i)]
+        W[_u(z0 + i)] = z
+        W[_u(q0 + i)] = z
+    if not L[_u(base + S_OUT)]:
+        return True
+    needs_u = L[_u(base + S_NEEDU)]
+    hx = L[_u(base + S_HX)]
+    h0 = L[_u(base + S_H)]
+    has1, has2, has3, hasa = (present >> 1) & 1, (present >> 2) & 1, (present >> 3) & 1, (present >> 4) & 1
+    u0 = W_U
+    for _ in range(L[_u(base + S_STEPS)]):
+        if needs_u:
+            if not _estimate(F, L, base, W, q0, u0):
+                return False
+        for i in range(n):
+            s = W[_u(q0 + i)]
+            lin = W[_u(k0 + B_K1 * n + i)] if has1 else 0.0
+            if has3:
+                a = W[_u(k0 + B_K3 * n + i)] * s
+                if has2:
+                    k2 = W[_u(k0 + B_K2 * n + i)]
+                    quad = a + k2
+                    slope2 = 2.0 * k2 + 3.0 * a
+                else:
+                    quad = a
+                    slope2 = 3.0 * a
+            elif has2:
+                k2 = W[_u(k0 + B_K2 * n + i)]
+                quad = k2
+                slope2 = 2.0 * k2
+            else:
+                quad = 0.0
+                slope2 = 0.0
+            c = (lin + quad * s) * s
+            dc = lin + slope2 * s
+            if hasa:
+                ka = W[_u(k0 + B_KA * n + i)]
+                c = c + ka * abs(s)
+                dc = dc + ka * (1.0 if s > 0.0 else (-1.0 if s < 0.0 else 0.0 * s))
+            if needs_u:
+                hu = F[_u(h0 + 3 * i)] * W[_u(u0)] + F[_u(h0 + 3 * i + 1)] * W[_u(u0 + 1)] + F[_u(h0 + 3 * i + 2)] * W[_u(u0 + 2)]
+                xu = F[_u(hx + 3 * i)] * W[_u(u0)] + F[_u(hx + 3 * i + 1)] * W[_u(u0 + 1)] + F[_u(hx + 3 * i + 2)] * W[_u(u0 + 2)]
+                c = c + hu * xu
+            W[_u(n0 + i)] = s - (s + c - W[_u(z0 + i)]) / (1.0 + dc)
+        for i in range(n):
+            W[_u(q0 + i)] = W[_u(n0 + i)]
+    return True
+
+
+@_jit
+def _raw(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - compiled
+    """EffectCompensation.raw_one: the raw outputs of an ideal scale/misalignment/bias sensor into the slot's raw
+    area."""
+    n = L[_u(base + S_N)]
+    mode = L[_u(base + S_MODE)]
+    y0 = L[_u(base + S_WY)]
+    r0 = L[_u(base + S_WRAW)]
+    if mode == MODE_NONE:
+        for i in range(n):
+            W[_u(r0 + i)] = W[_u(y0 + i)]
+        return True
+    if mode == MODE_RAWEXO:  # y - E mono / SF, E stored (monomial, sensor): the sensors' sums side by side
+        e0 = L[_u(base + S_RAWEXO)]
+        cols = L[_u(base + S_COLS)]  # the exogenous block's monomials come first
+        for i in range(n):
+            W[_u(r0 + i)] = F[_u(e0 + i)]
+        for a in range(L[_u(cols)]):
+            j = L[_u(cols + 1 + a)]
+            mj = W[_u(j)]
+            ej = e0 + j * n
+            for i in range(n):
+                W[_u(r0 + i)] += F[_u(ej + i)] * mj
+        for i in range(n):
+            W[_u(r0 + i)] = W[_u(y0 + i)] - W[_u(r0 + i)]
+        return True
+    if not _solve(F, L, base, W):
+        return False
+    sc = L[_u(base + S_SCALE)]
+    bi = L[_u(base + S_BIAS)]
+    q0 = L[_u(H_WORK)]
+    for i in range(n):
+        W[_u(r0 + i)] = (W[_u(q0 + i)] + F[_u(bi + i)]) / F[_u(sc + i)]
+    return True
+
+
+@_jit
+def _project(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - compiled
+    """InstrumentPipeline.step's common path on the compensated raw sample: range, R raw - off, finiteness."""
+    n = L[_u(base + S_N)]
+    m = L[_u(base + S_M)]
+    if not L[_u(base + S_OBS)]:
+        return False
+    rg = L[_u(base + S_RANGE)]
+    x0 = L[_u(base + S_WRAW)]
+    for i in range(n):
+        if not abs(W[_u(x0 + i)]) < F[_u(rg + i)]:
+            return False
+    r0 = L[_u(base + S_R)]
+    o0 = L[_u(base + S_OFF)]
+    w0 = L[_u(base + S_WOUT)]
+    s = 0.0
+    for j in range(m):
+        acc = 0.0
+        for i in range(n):
+            acc += F[_u(r0 + j * n + i)] * W[_u(x0 + i)]
+        acc -= F[_u(o0 + j)]
+        W[_u(w0 + j)] = acc
+        s += acc
+    return s - s == 0.0
+
+
+@_jit
+def _epoch(F: Any, L: Any, W: Any, t: float, dT: float) -> bool:  # pragma: no cover - compiled
+    """Pipeline.step of one epoch whose raw samples are in W: compensation of every instrument (with the fixed
+    point where the gyros need the specific force and the accelerometers the rate), then the projection, in
+    the pipeline's order; outputs into W."""
+    if not (t - t == 0.0 and dT - dT == 0.0):  # the numpy path makes every output invalid
+        return False
+    have_f = False
+    have_w = False
+    if L[_u(H_CYCLIC)]:
+        ba = H_SIZE + S_SIZE * L[_u(H_ACC)]
+        bg = H_SIZE + S_SIZE * L[_u(H_GYR)]
+        q0 = L[_u(H_WORK)]
+        for a in range(3):
+            W[_u(W_W + a)] = 0.0
+        for _ in range(L[_u(H_ROUNDS)]):
+            _monomials(t, dT, False, True, W)
+            if not _solve(F, L, ba, W) or not _estimate(F, L, ba, W, q0, W_F):
+                return False
+            _monomials(t, dT, True, False, W)
+            if not _solve(F, L, bg, W) or not _estimate(F, L, bg, W, q0, W_W):
+                return False
+        have_w = True
+    for s in range(L[_u(H_NSLOT)]):
+        base = H_SIZE + S_SIZE * s
+        if L[_u(base + S_MODE)] != MODE_NONE:
+            _monomials(t, dT, have_f, have_w, W)
+        if not _raw(F, L, base, W):
+            return False
+        if not _project(F, L, base, W):
+            return False
+        w0 = L[_u(base + S_WOUT)]
+        v = W_F if L[_u(base + S_KIND)] == KIND_ACC else W_W
+        W[_u(v)], W[_u(v + 1)], W[_u(v + 2)] = W[_u(w0)], W[_u(w0 + 1)], W[_u(w0 + 2)]
+        if L[_u(base + S_KIND)] == KIND_ACC:
+            have_f = True
+        else:
+            have_w = True
+    return True
+
+
+@_jit
+def epoch_step(F: Any, L: Any, W: Any, y0: Any, y1: Any, t: float, dT: float, out0: Any,
+               out1: Any) -> bool:  # pragma: no cover - compiled
+    """One epoch (Pipeline.step); outputs (x, parity) into out0/out1 (the instrument pipelines' buffers)."""
+    nslot = L[_u(H_NSLOT)]
+    for s in range(nslot):
+        base = H_SIZE + S_SIZE * s
+        y = y0 if s == 0 else y1
+        n = L[_u(base + S_N)]
+        if y.shape[0] != n:
+            return False
+        a = L[_u(base + S_WY)]
+        for i in range(n):
+            W[_u(a + i)] = y[_u(i)]
+    if not _epoch(F, L, W, t, dT):
+        return False
+    for s in range(nslot):
+        base = H_SIZE + S_SIZE * s
+        out = out0 if s == 0 else out1
+        w0 = L[_u(base + S_WOUT)]
+        for j in range(L[_u(base + S_M)]):
+            out[_u(j)] = W[_u(w0 + j)]
+    return True
+
+
+@_jit
+def epoch_block(F: Any, L: Any, W: Any, Y0: Any, Y1: Any, t: Any, dT: Any, O0: Any, O1: Any, R0: Any, R1: Any,
+                want_raw: bool) -> int:  # pragma: no cover - compiled
+    """Every epoch of a block (Pipeline.process); -1 when all were clean, else the first row that was not.
+    Outputs into O0/O1 (N, m); the compensated raw outputs into R0/R1 (N, n) when ``want_raw``."""
+    nslot = L[_u(H_NSLOT)]
+    for k in range(Y0.shape[0]):
+        for s in range(nslot):
+            base = H_SIZE + S_SIZE * s
+            a = L[_u(base + S_WY)]
+            if s == 0:
+                for i in range(L[_u(base + S_N)]):
+                    W[_u(a + i)] = Y0[_u(k), _u(i)]
+            else:
+                for i in range(L[_u(base + S_N)]):
+                    W[_u(a + i)] = Y1[_u(k), _u(i)]
+        if not _epoch(F, L, W, t[k], dT[k]):
+            return k
+        for s in range(nslot):
+            base = H_SIZE + S_SIZE * s
+            w0 = L[_u(base + S_WOUT)]
+            r0 = L[_u(base + S_WRAW)]
+            if s == 0:
+                for j in range(L[_u(base + S_M)]):
+                    O0[_u(k), _u(j)] = W[_u(w0 + j)]
+                if want_raw:
+                    for i in range(L[_u(base + S_N)]):
+                        R0[_u(k), _u(i)] = W[_u(r0 + i)]
+            else:
+                for j in range(L[_u(base + S_M)]):
+                    O1[_u(k), _u(j)] = W[_u(w0 + j)]
+                if want_raw:
+                    for i in range(L[_u(base + S_N)]):
+                        R1[_u(k), _u(i)] = W[_u(r0 + i)]
+    return -1
+
+
+# ---------------------------------------------------------------------------------------------- the program
+class Program:
+    """The compensation stage of a unit as two arrays for :func:`epoch_step` / :func:`epoch_block`.
+
+    Parameters
+    ----------
+    slots : list of (kind, EffectCompensation or None, InstrumentPipeline)
+        Instruments in the pipeline's order (at most two); kind ``"gyro"`` or ``"accel"``.
+    cyclic : bool, rounds : int
+        The gyro <-> accelerometer fixed point and its rounds (``Pipeline.cycle_rounds``).
+    """
+
+    def __init__(self, slots: list[tuple[str, Any, Any]], cyclic: bool, rounds: int) -> None:
+        if not 1 <= len(slots) <= 2:
+            raise ValueError("the compiled stage handles one or two instruments")
+        L = np.zeros(H_SIZE + S_SIZE * len(slots), dtype=np.int64)
+        L[H_NSLOT] = len(slots)
+        L[H_CYCLIC] = int(cyclic)
+        L[H_ROUNDS] = self.rounds = int(rounds)
+        chunks: list[np.ndarray] = []
+        pos = 0
+
+        def put(a: np.ndarray) -> int:
+            nonlocal pos
+            a = np.ascontiguousarray(a, dtype=float).reshape(-1)
+            chunks.append(a)
+            start = pos
+            pos += a.size
+            return start
+
+        self.pipes = []
+        self._sets: list[Any] = []
+        extra: list[int] = []
+        n_max = 1
+        for s, (kind, comp, pipe) in enumerate(slots):
+            b = H_SIZE + S_SIZE * s
+            n = pipe.n
+            n_max = max(n_max, n)
+            L[b + S_N] = n
+            L[b + S_M] = 3 + pipe.r
+            L[b + S_KIND] = KIND_ACC if kind == "accel" else KIND_GYR
+            if kind == "accel":
+                L[H_ACC] = s
+            else:
+                L[H_GYR] = s
+            cal = pipe.calibration
+            L[b + S_SCALE] = put(cal.scale)
+            L[b + S_BIAS] = put(cal.bias)
+            L[b + S_RANGE] = put(pipe._range)
+            L[b + S_G] = put(np.zeros((3, n)))
+            L[b + S_R] = put(np.zeros((3 + pipe.r, n)))
+            L[b + S_OFF] = put(np.zeros(3 + pipe.r))
+            C = np.zeros((5, n, M))
+            present = dyn = 0
+            if comp is None:
+                L[b + S_MODE] = MODE_NONE
+            else:
+                keys = {"exo": B_EXO, 1: B_K1, 2: B_K2, 3: B_K3, "abs": B_KA}
+                for key, blk in keys.items():
+                    if key in comp._const:
+                        C[blk, :, 0] = comp._const[key]
+                        present |= 1 << blk
+                for j, key in enumerate(comp._dyn_keys):
+                    blk = keys[key]
+                    C[blk] = comp._dyn[j * n:(j + 1) * n]
+                    present |= 1 << blk
+                    dyn |= 1 << blk
+                if comp._raw_exo is not None:
+                    L[b + S_MODE] = MODE_RAWEXO
+                    L[b + S_RAWEXO] = put(comp._raw_exo.T)  # (monomial, sensor)
+                else:
+                    L[b + S_MODE] = MODE_FULL
+                L[b + S_OUT] = int(bool(comp.output_side))
+                L[b + S_NEEDU] = int(comp._Hx is not None)
+                L[b + S_STEPS] = comp.newton_steps
+                L[b + S_HX] = put(comp._Hx if comp._Hx is not None else np.zeros((n, 3)))
+                L[b + S_H] = put(comp._H)
+            L[b + S_C] = put(C.transpose(0, 2, 1))  # (block, monomial, sensor)
+            L[b + S_PRESENT] = present
+            L[b + S_DYN] = dyn
+            L[b + S_COLS] = len(L) + len(extra)
+            for blk in range(5):  # per block: how many monomials it varies with, and which
+                used = [j for j in range(1, M) if np.any(C[blk, :, j])]
+                extra += [len(used), *used]
+            self.pipes.append(pipe)
+            self._sets.append(None)
+        self.F = np.concatenate(chunks) if chunks else np.zeros(0)
+        self.L = np.concatenate([L, np.array(extra, dtype=np.int64)])
+        self.n_max = n_max
+        wpos = M + 9
+        for s in range(len(slots)):  # the slot's raw input, compensated raw output and output in W
+            b = H_SIZE + S_SIZE * s
+            n, m = self.L[b + S_N], self.L[b + S_M]
+            self.L[b + S_WY], self.L[b + S_WRAW], self.L[b + S_WOUT] = wpos, wpos + n, wpos + 2 * n
+            wpos += 2 * n + m
+        self.L[H_WORK] = wpos
+        self.W = np.zeros(wpos + 8 * n_max)
+        self.refresh()
+
+    def refresh(self) -> None:
+        """Copy the current active set of every instrument into F (when it changed)."""
+        F, L = self.F, self.L
+        for s, pipe in enumerate(self.pipes):
+            st = pipe._set
+            if st is self._sets[s]:
+                continue
+            b = H_SIZE + S_SIZE * s
+            n, m = pipe.n, 3 + pipe.r
+            F[L[b + S_G]:L[b + S_G] + 3 * n] = st.G.reshape(-1)
+            F[L[b + S_R]:L[b + S_R] + m * n] = st.R.reshape(-1)
+            F[L[b + S_OFF]:L[b + S_OFF] + m] = st.off
+            L[b + S_OBS] = int(st.observable)
+            self._sets[s] = st
+
+    def changed(self) -> bool:
+        """Whether some instrument's active set changed since the last :meth:`refresh`."""
+        for s, pipe in enumerate(self.pipes):
+            if pipe._set is not self._sets[s]:
+                return True
+        return False

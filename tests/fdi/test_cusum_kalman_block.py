@@ -1,0 +1,197 @@
+"""The vectorised block paths of the CUSUM bank and the Kalman detector against their per-sample paths (equal to
+1e-12, alarms on the same samples) and against independent references (Page's recursion written out, filterpy)."""
+
+import numpy as np
+import pytest
+from scipy.stats import norm
+
+from rimu.fdi import CusumBank, ParityKalman
+from rimu.fdi.cusum import markov_arl
+from rimu.geometry import cone6, dodecahedron6
+
+V6 = cone6().parity_matrix()
+
+
+def faulted_parity(N: int, V: np.ndarray, seed: int) -> np.ndarray:
+    """Unit-noise parity with a sequence of faults: a 1 sigma bias, a 3 sigma bias on another sensor, a ramp,
+    a sign-alternating fault and a 30 sigma step (an alarm every sample)."""
+    rng = np.random.default_rng(seed)
+    P = rng.standard_normal((N, V.shape[0]))
+    q = N // 8
+    P[q:2 * q] += 1.0 * V[:, 1]
+    P[3 * q:4 * q] += 3.0 * V[:, 4]
+    P[5 * q:6 * q] += np.linspace(0, 4, q)[:, None] * V[:, 0]
+    P[6 * q:7 * q] += 2.0 * np.where(np.arange(q) % 50 < 25, 1, -1)[:, None] * V[:, 2]
+    P[7 * q:7 * q + 300] += 30.0 * V[:, 5]
+    return P
+
+
+def cusum_steps(bank: CusumBank, P: np.ndarray, V: np.ndarray, dof: int) -> tuple[np.ndarray, np.ndarray]:
+    """update() per sample with reset() after each alarm (the block path's renewal); (ratio, isolated at alarms)."""
+    bank.configure(V, dof)
+    out, iso = np.zeros(len(P)), np.full(len(P), -1)
+    for k, p in enumerate(P):
+        out[k] = bank.update(p)[0]
+        if out[k] > 1.0:
+            iso[k] = bank.isolate(p)[0]
+            bank.reset()
+    return out, iso
+
+
+def page_reference(P: np.ndarray, V: np.ndarray, dof: int, bias: float, arl0: float) -> tuple[np.ndarray, np.ndarray]:
+    """Page's CUSUM as the textbook writes it, S = max(0, S + delta (X - delta / 2)), restart after each alarm."""
+    U, d, thr, act = CusumBank(bias, arl0).design(V, dof)
+    X = P[:, :dof] @ U
+    S = np.zeros((2, V.shape[1]))
+    out, iso = np.zeros(len(P)), np.full(len(P), -1)
+    for k in range(len(P)):
+        S[0] = np.maximum(S[0] + d * (X[k] - d / 2), 0.0)
+        S[1] = np.maximum(S[1] + d * (-X[k] - d / 2), 0.0)
+        r = np.where(act, S / np.where(act, thr, 1.0), 0.0)
+        out[k] = r.max()
+        if out[k] > 1.0:
+            iso[k] = int(np.argmax(r)) % V.shape[1] if dof >= 2 else -1
+            S[:] = 0.0
+    return out, iso
+
+
+@pytest.mark.parametrize("rebase", [4096, 208])
+def test_cusum_block_equals_steps_with_faults(rebase):
+    """30 000 samples with five kinds of fault, several hundred alarms, across many origin moves (REBASE)."""
+    P = faulted_parity(30_000, V6, 11)
+    bank = CusumBank(1.0, 1e4)
+    bank.REBASE = rebase
+    blk, thr, iso_b = bank.block(P, V6, 3)
+    step, iso_s = cusum_steps(bank, P, V6, 3)
+    assert thr == 1.0
+    np.testing.assert_allclose(blk, step, rtol=0, atol=1e-12)
+    assert np.array_equal(blk, step)           # the same operations in the same order: the same bits
+    alarms = np.flatnonzero(blk > 1.0)
+    assert np.array_equal(alarms, np.flatnonzero(step > 1.0)) and len(alarms) > 300
+    assert np.array_equal(iso_b, iso_s)
+    assert np.any(np.diff(alarms) == 1)        # consecutive alarms (the 30 sigma step)
+    assert np.any(alarms % rebase == rebase - 1) or rebase > 300  # an alarm on the last sample of a chunk
+
+
+def test_cusum_block_without_restart_equals_update_alone():
+    """restart=False: the manager's semantics within one active set (no reset at alarms), bit for bit."""
+    P = faulted_parity(20_000, V6, 17)
+    bank = CusumBank(1.0, 1e4)
+    bank.REBASE = 1024
+    blk, _, iso = bank.block(P, V6, 3, restart=False)
+    bank.configure(V6, 3)
+    step = np.zeros(len(P))
+    iso_s = np.full(len(P), -1)
+    for k, p in enumerate(P):
+        step[k] = bank.update(p)[0]
+        if step[k] > 1.0:
+            iso_s[k] = bank.isolate(p)[0]
+    assert np.array_equal(blk, step) and np.array_equal(iso, iso_s)
+    assert (blk > 1.0).sum() > (bank.block(P, V6, 3)[0] > 1.0).sum() > 100   # no renewal: longer alarm runs
+
+
+def test_cusum_block_equals_page_recursion():
+    """The closed form against Page's recursion written independently: same alarms, same isolations, values
+    to rounding (the recursion adds in another order)."""
+    P = faulted_parity(16_000, V6, 12)
+    blk, _, iso = CusumBank(1.0, 1e4).block(P, V6, 3)
+    ref, iso_ref = page_reference(P, V6, 3, 1.0, 1e4)
+    np.testing.assert_allclose(blk, ref, rtol=1e-9, atol=1e-9)
+    assert np.array_equal(blk > 1.0, ref > 1.0)
+    assert np.array_equal(iso, iso_ref)
+
+
+@pytest.mark.parametrize("dof, drop", [(3, None), (2, 4), (1, (2, 5))])
+def test_cusum_block_equals_steps_reduced_sets(dof, drop):
+    """Active sets with isolated sensors (zero parity columns) and one parity dimension (alarms, no isolation)."""
+    from rimu.fusion import ProjectionTable
+
+    H = dodecahedron6().H
+    keep = np.ones(6, bool)
+    if drop is not None:
+        keep[list(np.atleast_1d(drop))] = False
+    tab = ProjectionTable(H, 1.0)
+    Vz = tab.Vz[tab.entry_for(keep)] if drop is not None else tab.Vz[0]
+    assert int(np.linalg.matrix_rank(Vz)) == dof
+    P = faulted_parity(12_000, Vz, 13)
+    P[:, dof:] = 0.0
+    bank = CusumBank(1.0, 1e3)
+    blk, _, iso_b = bank.block(P, Vz, dof)
+    step, iso_s = cusum_steps(bank, P, Vz, dof)
+    assert np.array_equal(blk, step) and np.array_equal(iso_b, iso_s)
+    assert np.any(blk > 1.0)
+    if drop is not None:
+        assert not np.isin(iso_b, np.flatnonzero(~keep)).any()   # an isolated sensor is never named
+    if dof < 2:
+        assert np.all(iso_b == -1)
+    ref, iso_ref = page_reference(P, Vz, dof, 1.0, 1e3)
+    assert np.array_equal(blk > 1.0, ref > 1.0) and np.array_equal(iso_b, iso_ref)
+
+
+def test_cusum_block_run_length_matches_brook_evans():
+    """Mean samples between alarms of one member (one active sensor's bank of 2, in one parity dimension)
+    against the Markov-chain ARL of its own threshold (Brook & Evans 1972): the renewal block path counts it."""
+    rng = np.random.default_rng(14)
+    V = np.array([[1.0]])
+    bank = CusumBank(1.0, 200.0)
+    _U, d, thr, _ = bank.design(V, 1)
+    P = rng.standard_normal((400_000, 1))
+    s, _, _ = bank.block(P, V, 1)
+    k = d[0] / 2
+    arl_member = markov_arl(thr[0] / d[0], lambda x: norm.cdf(x + k), states=400)
+    # two one-sided members, nearly independent rare events: the bank's rate is twice one member's
+    measured = len(P) / (s > 1.0).sum()
+    assert measured == pytest.approx(arl_member / 2, rel=0.08)
+
+
+def test_block_paths_empty_and_no_parity():
+    bank = CusumBank(1.0, 1e4)
+    s, _, iso = bank.block(np.zeros((0, 3)), V6, 3)
+    assert s.shape == (0,) and iso.shape == (0,)
+    s, _, iso = bank.block(np.ones((5, 3)), V6, 0)
+    assert np.all(s == 0) and np.all(iso == -1)
+    for test in ("estimate", "innovation"):
+        s, _, iso = ParityKalman(20, 1e-3, test=test).block(np.zeros((0, 3)), V6, 3)
+        assert s.shape == (0,) and iso.shape == (0,)
+
+
+@pytest.mark.parametrize("test", ["estimate", "innovation"])
+def test_kalman_block_equals_steps_and_filterpy(test):
+    P = faulted_parity(30_000, V6, 15)
+    kf = ParityKalman(20, 1e-3, test=test)
+    assert kf.engine == "steady"
+    blk, thr, iso = kf.block(P, V6, 3)
+    kf.configure(V6, 3)
+    step = np.array([kf.update(p)[0] for p in P])
+    np.testing.assert_allclose(blk, step, rtol=1e-12, atol=1e-12 * thr)
+    assert np.array_equal(blk > thr, step > thr) and (blk > thr).sum() > 100
+    alarms = np.flatnonzero(blk > thr)[::97]
+    kf.configure(V6, 3)
+    for k in range(len(P)):                     # isolation at alarm samples: the block's choice is the step's
+        kf.update(P[k])
+        if k in set(alarms.tolist()):
+            assert kf.isolate(P[k])[0] == iso[k]
+        if k > alarms[-1]:
+            break
+    ref = ParityKalman(20, 1e-3, test=test, engine="filterpy")
+    ref.configure(V6, 3)
+    fp = np.array([ref.update(p)[0] for p in P[:6000]])
+    np.testing.assert_allclose(fp, step[:6000], rtol=1e-11, atol=1e-12 * thr)
+
+
+def test_kalman_block_with_noise_model_equals_steps():
+    from rimu.fdi.whitening import NoiseSettings
+    from rimu.noise import InstrumentNoise
+
+    sig = 0.01
+    m = InstrumentNoise.from_terms("gyro", cone6().names, 100.0, white=sig / 10.0, bias_instability=sig / 20)
+    from rimu.noise.parity import normalised_parity_matrix
+
+    Vz = normalised_parity_matrix(cone6().H, np.full(6, sig))
+    P = faulted_parity(8000, Vz, 16)
+    kf = ParityKalman(20, 1e-3, noise=NoiseSettings(m, horizon_s=300.0))
+    blk, thr, _ = kf.block(P, Vz, 3)
+    kf.configure(Vz, 3)
+    step = np.array([kf.update(p)[0] for p in P])
+    np.testing.assert_allclose(blk, step, rtol=1e-12, atol=1e-12 * thr)
+    assert np.array_equal(blk > thr, step > thr)
