@@ -26,26 +26,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _timing import median_time as timeit
 
 from rimu.epoch import EpochBlock
+from rimu.io import fuzz
 from rimu.io.accounting import Accounting
 from rimu.io.can import CanFrameProcessor, CanReplaySource, items_to_block
 from rimu.io.device import CanDevice, SerialDevice
-from rimu.io.fuzz import (
-    CAN_ACTIONS,
-    SERIAL_ACTIONS,
-    check_can,
-    check_serial,
-    draw_actions,
-    layout_stream,
-    mutate_can,
-    mutate_serial,
-)
 from rimu.io.layout import load_layout
 from rimu.io.serial import CobsDecoder, SerialDecoder
 
 
 def bench_can(layout, n_frames, repeat):
     K = len(load_layout(layout).messages)
-    block, msgs, _exp, K = layout_stream(layout, n_frames // K)
+    block, msgs, _exp, K = fuzz.layout_stream(layout, n_frames // K)
     N = len(msgs)
     db = load_layout(layout).to_cantools()
     proc = CanFrameProcessor(layout, Accounting())
@@ -147,37 +138,25 @@ def bench_serial(n_bytes, repeat):
                        temperature=np.full(n, 20.0))
     frames = SerialDevice().frames(block)
     clean = b"".join(frames)
-    damaged, _ = mutate_serial(frames, draw_actions(rng, n, SERIAL_ACTIONS), rng)
+    damaged, _ = fuzz.mutate_serial(frames, fuzz.draw_actions(rng, n, fuzz.SERIAL_ACTIONS), rng)
 
-    def run(data):
+    def run(data, block=False, decoder=SerialDecoder):
+        """Decode ``data`` in 64 KiB chunks, epoch by epoch or (``block``) into blocks."""
         def f():
-            dec = SerialDecoder()
+            dec = decoder()
+            feed, flush = (dec.feed_block, dec.flush_block) if block else (dec.feed, dec.flush)
             for i in range(0, len(data), 65536):
-                dec.feed(data[i:i + 65536])
-            dec.flush()
+                feed(data[i:i + 65536])
+            flush()
         return f
 
-    def run_block(data):
-        def f():
-            dec = SerialDecoder()
-            for i in range(0, len(data), 65536):
-                dec.feed_block(data[i:i + 65536])
-            dec.flush_block()
-        return f
-
-    t_block = timeit(run_block(clean), repeat)
-    t_block_dam = timeit(run_block(damaged), repeat)
+    t_block = timeit(run(clean, block=True), repeat)
+    t_block_dam = timeit(run(damaged, block=True), repeat)
     t_clean = timeit(run(clean), repeat)
     t_dam = timeit(run(damaged), repeat)
     cobs = b"".join(SerialDevice(framing="cobs").frames(block))
 
-    def run_cobs():
-        dec = CobsDecoder()
-        for i in range(0, len(cobs), 65536):
-            dec.feed(cobs[i:i + 65536])
-        dec.flush()
-
-    t_cobs = timeit(run_cobs, repeat)
+    t_cobs = timeit(run(cobs, decoder=CobsDecoder), repeat)
     return {"bytes": len(clean), "frame_bytes": len(frames[0]), "clean_MBps": len(clean) / t_clean / 1e6,
             "clean_frames_per_s": n / t_clean, "damaged_MBps": len(damaged) / t_dam / 1e6,
             "cobs_MBps": len(cobs) / t_cobs / 1e6, "cobs_frames_per_s": n / t_cobs,
@@ -187,38 +166,28 @@ def bench_serial(n_bytes, repeat):
 
 def fuzz_can(layout, n_frames, seed=2024):
     K = len(load_layout(layout).messages)
-    _block, msgs, exp, K = layout_stream(layout, n_frames // K, seed=1)
+    _block, msgs, exp, K = fuzz.layout_stream(layout, n_frames // K, seed=1)
     rng = np.random.default_rng(seed)
-    bad, oracle = mutate_can(msgs, K, draw_actions(rng, len(msgs), CAN_ACTIONS), rng)
+    bad, oracle = fuzz.mutate_can(msgs, K, fuzz.draw_actions(rng, len(msgs), fuzz.CAN_ACTIONS), rng)
     p = CanFrameProcessor(layout, Accounting())
-    eps = []
     t0 = time.perf_counter()
-    for i in range(0, len(bad), 4096):
-        eps += p.process(bad[i:i + 4096])
-        p.acc.check()
-    eps += p.flush()
+    eps = fuzz.process_chunks(p, bad, 4096)
     dt = time.perf_counter() - t0
-    rep = check_can(eps, p.acc, oracle, exp, layout)
+    rep = fuzz.check_can(eps, p.acc, oracle, exp, layout)
     return {"layout": layout, "mutated_frames_in": rep["frames"], "accepted": rep["accepted"],
             "rejected": dict(p.acc.rejected), "epochs": rep["epochs"], "intact_recovered": len(oracle.intact),
             "oracle_check": "pass", "s": dt}
 
 
 def fuzz_serial(n_bytes, seed=99):
-    rng = np.random.default_rng(3)
     n = n_bytes // 74
-    block = EpochBlock(np.arange(n) / 200.0, {"gyro": rng.normal(0, 100, (n, 6)), "accel": rng.normal(0, 1e4, (n, 6))},
-                       {"gyro": rng.random((n, 6)) > 0.05, "accel": np.ones((n, 6), bool)}, np.full(n, 21.0))
+    block = fuzz.random_block(n, seed=3)
     rng = np.random.default_rng(seed)
-    data, oracle = mutate_serial(SerialDevice().frames(block), draw_actions(rng, n, SERIAL_ACTIONS), rng)
+    data, oracle = fuzz.mutate_serial(SerialDevice().frames(block), fuzz.draw_actions(rng, n, fuzz.SERIAL_ACTIONS), rng)
     cuts = np.unique(np.concatenate([[0, len(data)], rng.integers(0, len(data), len(data) // 500)])).tolist()
     dec = SerialDecoder()
-    eps = []
-    for a, b in zip(cuts[:-1], cuts[1:]):
-        eps += dec.feed(data[a:b])
-        dec.accounting.check()
-    eps += dec.flush()
-    rep = check_serial(eps, dec.accounting, oracle, block)
+    eps = fuzz.decode_pieces(dec, fuzz.pieces(data, cuts))
+    rep = fuzz.check_serial(eps, dec.accounting, oracle, block)
     return {"mutated_bytes_in": rep["bytes"], "accepted_bytes": rep["accepted"],
             "rejected": dict(dec.accounting.rejected), "epochs": rep["epochs"], "intact_frames": len(oracle.intact),
             "oracle_check": "pass"}

@@ -60,23 +60,18 @@ def bench_cal(rows: int, cols: int, duration: float) -> dict:
     z = lay.to_body(rec.gyro)
 
     def naive():
+        """The reference: every triad against the mean of all (scale-misalignment and bias), one lstsq each."""
         w = z.mean(axis=1)
         X = np.zeros((len(w), 3, 12))
         for i in range(3):
             X[:, i, 3 * i:3 * i + 3] = w
             X[:, i, 9 + i] = 1.0
         A = X.reshape(-1, 12)
-        return [np.linalg.lstsq(A, (z[:, j] - w).ravel(), rcond=None) for j in range(lay.k)]
+        return A, w, [np.linalg.lstsq(A, (z[:, j] - w).ravel(), rcond=None)[0] for j in range(lay.k)]
 
     t_naive = median_time(naive, 3)
-    w = z.mean(axis=1)
-    X = np.zeros((len(w), 3, 12))
-    for i in range(3):
-        X[:, i, 3 * i:3 * i + 3] = w
-        X[:, i, 9 + i] = 1.0
-    A = X.reshape(-1, 12)
-    res = np.array([(z[:, j] - w).ravel() - A @ np.linalg.lstsq(A, (z[:, j] - w).ravel(), rcond=None)[0]
-                    for j in range(lay.k)])
+    A, w, sols = naive()
+    res = np.array([(z[:, j] - w).ravel() - A @ sol for j, sol in enumerate(sols)])
     naive_rms = float(np.sqrt(np.mean(res**2)) * RAD_TO_DEG)
     t_pos = median_time(lambda: fit_positions(lay, rec.t, rec.accel, fit, rec.gyro), 1)
     return {"triads": lay.k, "samples": len(rec.t), "fit_s": t_fit, "naive_lstsq_s": t_naive,

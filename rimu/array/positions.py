@@ -165,10 +165,7 @@ def _check_identifiable(Kt, z, D, c, r, sigma, G, gain, t=None) -> None:
     """Predicted standard deviations at the start (gain = I, nominal positions): refuse what the motion cannot give."""
     k = D.shape[0]
     wj = 1 / sigma**2
-    M = np.einsum("k,kai,kaj->ij", wj, D, D)
-    Kr = np.einsum("nab,kb->nka", Kt, r)
-    rhs = np.einsum("k,kai,nka->ni", wj, D, z - c[None] - np.einsum("kab,nkb->nka", D, Kr))
-    s = np.linalg.solve(M, rhs.T).T
+    Kr, s, _e = _specific_force(z, Kt, D, c, r, wj)
     dv = None if t is None else derivative(t, s[:, None] + Kr)
     p = 15 if dv is None else 16
     KKT = _kkt(Kt, D, r, s, sigma, G, dv)
@@ -204,12 +201,19 @@ def _shifted(t, z0, tau) -> np.ndarray:
     return np.stack([time_shift(t, z0[:, j], -tau[j]) for j in range(z0.shape[1])], axis=1)
 
 
-def _cost(z, Kt, D, c, r, wj) -> float:
+def _specific_force(z, Kt, D, c, r, wj) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``K r_j`` (n, k, 3), the specific force ``s`` at the reference point (n, 3) by weighted least squares given
+    the triads' parameters (the nuisance eliminated per sample, module docstring), and the residuals (n, k, 3)."""
     Kr = np.einsum("nab,kb->nka", Kt, r)
     M = np.einsum("k,kai,kaj->ij", wj, D, D)
     rhs = np.einsum("k,kai,nka->ni", wj, D, z - c[None] - np.einsum("kab,nkb->nka", D, Kr))
     s = np.linalg.solve(M, rhs.T).T
     e = z - np.einsum("kab,nkb->nka", D, s[:, None] + Kr) - c[None]
+    return Kr, s, e
+
+
+def _cost(z, Kt, D, c, r, wj) -> float:
+    e = _specific_force(z, Kt, D, c, r, wj)[2]
     return float(np.einsum("k,nka,nka->", wj, e, e))
 
 
@@ -324,12 +328,7 @@ def fit_positions(
     for it in range(1, max_iter + 1):  # noqa: B007 - the count is reported
         z = _shifted(t, z0, tau_a) if offsets else z0
         zf = z[sl]
-        Kr = np.einsum("nab,kb->nka", Kt_f, r)
-        # s per sample by weighted LS given the parameters
-        M = np.einsum("k,kai,kaj->ij", wj, D, D)
-        rhs = np.einsum("k,kai,nka->ni", wj, D, zf - c[None] - np.einsum("kab,nkb->nka", D, Kr))
-        s = np.linalg.solve(M, rhs.T).T
-        e = zf - np.einsum("kab,nkb->nka", D, s[:, None] + Kr) - c[None]
+        Kr, s, e = _specific_force(zf, Kt_f, D, c, r, wj)   # s per sample by weighted LS given the parameters
         dv = derivative(t[sl], s[:, None] + Kr) if offsets else None
         KKT = _kkt(Kt_f, D, r, s, 1 / np.sqrt(wj), G, dv)
         Xw = _jac(Kt_f, D, r, s, dv) * wj[None, :, None, None]
@@ -360,11 +359,7 @@ def fit_positions(
         Kt, t, n = Kt_f, t[sl], z.shape[0]
         moving = moving[sl]
     # covariance: the constrained inverse Fisher information with the noise from the residual
-    Kr = np.einsum("nab,kb->nka", Kt, r)
-    M = np.einsum("k,kai,kaj->ij", wj, D, D)
-    rhs = np.einsum("k,kai,nka->ni", wj, D, z - c[None] - np.einsum("kab,nkb->nka", D, Kr))
-    s = np.linalg.solve(M, rhs.T).T
-    e = z - np.einsum("kab,nkb->nka", D, s[:, None] + Kr) - c[None]
+    Kr, s, e = _specific_force(z, Kt, D, c, r, wj)
     # residual of triad j has variance ~ sigma_j^2 - (its share in s); same fixed point as for the gyros
     sigma = _sigma_from_residual_var(np.einsum("nka,nka->k", e, e) / (3 * n - p))
     KKT = _kkt(Kt, D, r, s, sigma, G, derivative(t, s[:, None] + Kr) if offsets else None)

@@ -82,7 +82,7 @@ class ArrayReport:
 
     def plot(self, path: "str | Path") -> Path:
         """Bar chart per triad and step (PNG). Needs the ``plots`` extra (matplotlib)."""
-        from ..plotting import pyplot
+        from ..plotting import pyplot, save_figure
 
         plt = pyplot()
 
@@ -103,10 +103,7 @@ class ArrayReport:
         if self.limiting_term:
             fig.suptitle(f"gyro agreement now limited by: {self.limiting_term}", fontsize=9)
         fig.subplots_adjust(left=0.1, right=0.98, top=0.93, bottom=0.12, hspace=0.45)
-        path = Path(path)
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        return path
+        return save_figure(fig, path)
 
 
 def array_report(

@@ -22,7 +22,7 @@ import os
 import sys
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from ..errors import OutputPathError
 
@@ -35,6 +35,9 @@ __all__ = [
     "positive_int",
     "nonnegative_int",
     "Deprecated",
+    "add_old_out",
+    "add_procedure_options",
+    "PROCEDURES",
     "add_json_option",
     "add_report_option",
     "add_accept_implausible",
@@ -73,49 +76,30 @@ def _number(kind: Callable[[str], Any], text: str) -> Any:
     return v
 
 
-def positive_float(text: str) -> float:
-    """A finite number > 0."""
-    v = _number(float, text)
-    if not v > 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return v
+_N = TypeVar("_N", int, float)
 
 
-def finite_float(text: str) -> float:
-    """A finite number."""
-    return _number(float, text)
+def _validator(kind: Callable[[str], _N], ok: Callable[[_N], bool], rule: str, name: str, doc: str
+               ) -> Callable[[str], _N]:
+    """An argparse ``type=``: ``text`` read as ``kind`` (finite), then ``ok(value)`` or "must be ``rule``"."""
+    def check(text: str) -> _N:
+        v = _number(kind, text)
+        if not ok(v):
+            raise argparse.ArgumentTypeError(f"must be {rule}, got {text}")
+        return v  # type: ignore[no-any-return]
+
+    check.__name__ = check.__qualname__ = name
+    check.__doc__ = doc
+    return check
 
 
-def nonnegative_float(text: str) -> float:
-    """A finite number >= 0."""
-    v = _number(float, text)
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return v
-
-
-def probability(text: str) -> float:
-    """A probability strictly between 0 and 1 (a false-alarm probability, a significance level)."""
-    v = _number(float, text)
-    if not 0 < v < 1:
-        raise argparse.ArgumentTypeError(f"must be a probability strictly between 0 and 1, got {text}")
-    return v
-
-
-def positive_int(text: str) -> int:
-    """An integer >= 1."""
-    v = _number(int, text)
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text}")
-    return v
-
-
-def nonnegative_int(text: str) -> int:
-    """An integer >= 0."""
-    v = _number(int, text)
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text}")
-    return v
+positive_float = _validator(float, lambda v: v > 0, "> 0", "positive_float", "A finite number > 0.")
+finite_float = _validator(float, lambda v: True, "finite", "finite_float", "A finite number.")
+nonnegative_float = _validator(float, lambda v: v >= 0, ">= 0", "nonnegative_float", "A finite number >= 0.")
+probability = _validator(float, lambda v: 0 < v < 1, "a probability strictly between 0 and 1", "probability",
+                         "A probability strictly between 0 and 1 (a false-alarm probability, a significance level).")
+positive_int = _validator(int, lambda v: v >= 1, "an integer >= 1", "positive_int", "An integer >= 1.")
+nonnegative_int = _validator(int, lambda v: v >= 0, "an integer >= 0", "nonnegative_int", "An integer >= 0.")
 
 
 # ---------------------------------------------------------------- deprecated spellings
@@ -164,6 +148,39 @@ def add_json_option(p: argparse.ArgumentParser, what: str = "a machine-readable 
 def add_report_option(p: argparse.ArgumentParser, what: str = "plots and reports", default: str | None = None) -> None:
     """``--report DIR``: the folder for human reports (created if needed)."""
     p.add_argument("--report", default=default, metavar="DIR", help=f"folder for {what} (created if needed)")
+
+
+def add_old_out(p: argparse.ArgumentParser, name: str, also: Callable[[argparse.Namespace, str], None] | None = None
+                ) -> None:
+    """``--out DIR`` (old spelling of ``--report DIR --json DIR/<name>.json``), hidden; ``also(ns, DIR)`` sets
+    whatever else the old option meant."""
+    def convert(ns: argparse.Namespace, value: str) -> None:
+        ns.report = value
+        ns.json = str(Path(value) / f"{name}.json")
+        if also is not None:
+            also(ns, value)
+
+    p.add_argument("--out", action=Deprecated, new="--report DIR and --json FILE", convert=convert, metavar="DIR")
+
+
+#: the simulated turntable procedures ``rimu simulate`` and ``rimu design`` know: the names of
+#: :data:`rimu.sim.PROCEDURES`, spelled out so that the command line starts without importing the simulator
+PROCEDURES = ["cho_park", "cho_park_table1", "cho_park_table2", "oliveira_table1", "zhang"]
+
+
+def add_procedure_options(p: argparse.ArgumentParser, noise: Callable[[str], float] = positive_float) -> None:
+    """``--duration``, ``--sample-rate``, ``--arw``, ``--vrw``: timing and noise of a simulated procedure (the
+    noise densities read by ``noise``).
+
+    >>> from rimu.sim import PROCEDURES as simulated
+    >>> PROCEDURES == list(simulated)
+    True
+    """
+    p.add_argument("--duration", type=positive_float, default=None,
+                   help="s per static position and rate step (cho_park procedures only; default 60)")
+    p.add_argument("--sample-rate", type=positive_float, default=100.0, help="Hz")
+    p.add_argument("--arw", type=noise, default=3.0, help="gyro angle random walk, deg/sqrt(h)")
+    p.add_argument("--vrw", type=noise, default=200.0, help="accelerometer noise density, micro-g/sqrt(Hz)")
 
 
 def add_accept_implausible(p: argparse.ArgumentParser) -> None:

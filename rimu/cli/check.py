@@ -22,9 +22,9 @@ from typing import Any
 import numpy as np
 
 from ._common import (
-    Deprecated,
     add_accept_implausible,
     add_json_option,
+    add_old_out,
     add_report_option,
     positive_float,
     probability,
@@ -42,15 +42,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--noise", type=positive_float, default=None, help="per-sample noise (SI) if the calibration has none")
     add_report_option(p, "the plots (check-<instrument>.png)")
     add_json_option(p, "the figures of every check")
-    p.add_argument("--out", action=Deprecated, new="--report DIR and --json FILE", convert=_old_out, metavar="DIR")
+    add_old_out(p, "check")
     add_accept_implausible(p)
     p.set_defaults(func=run)
-
-
-def _old_out(ns: argparse.Namespace, value: str) -> None:
-    """``--out DIR`` (old): the plots and DIR/check.json."""
-    ns.report = value
-    ns.json = str(Path(value) / "check.json")
 
 
 def read_session(path: str | Path, checks: str = "strict") -> tuple[Any, Any]:

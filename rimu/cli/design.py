@@ -8,20 +8,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import Deprecated, add_json_option, add_report_option, positive_float, positive_int
+from ._common import PROCEDURES, Deprecated, add_json_option, add_procedure_options, add_report_option, positive_int
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("design", help="predict calibration uncertainties of a procedure; D-optimal test design",
                        description=__doc__)
     p.add_argument("--geometry", default="cone6", help="geometry preset (cone6, tetrad4, triad3, ...)")
-    p.add_argument("--procedure", default="cho_park",
-                   choices=["cho_park", "cho_park_table1", "cho_park_table2", "oliveira_table1", "zhang"])
-    p.add_argument("--duration", type=positive_float, default=None,
-                   help="s per position / rate step (cho_park procedures only; default 60)")
-    p.add_argument("--sample-rate", type=positive_float, default=100.0, help="Hz")
-    p.add_argument("--arw", type=positive_float, default=3.0, help="gyro angle random walk, deg/sqrt(h)")
-    p.add_argument("--vrw", type=positive_float, default=200.0, help="accelerometer noise density, micro-g/sqrt(Hz)")
+    p.add_argument("--procedure", default="cho_park", choices=PROCEDURES)
+    add_procedure_options(p)
     p.add_argument("--greedy", type=positive_int, default=10, help="number of static positions to select (rate pairs: 7)")
     add_report_option(p, "Cho & Park's Fig. 3 for this geometry (fig3.png)")
     add_json_option(p, "the predicted standard deviations (SI) and the design figures")

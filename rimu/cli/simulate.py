@@ -5,23 +5,18 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import finite_float, nonnegative_float, positive_float
+from ._common import PROCEDURES, add_procedure_options, finite_float, nonnegative_float
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="simulate a turntable procedure and write the raw data",
                        description="Simulate a redundant IMU on a turntable (Cho & Park Table 1/2, de Oliveira "
                                    "Table 1, Zhang's scheme) and write the samples and what the rig knows.")
-    p.add_argument("--procedure", default="cho_park",
-                   choices=["cho_park", "cho_park_table1", "cho_park_table2", "oliveira_table1", "zhang"])
+    p.add_argument("--procedure", default="cho_park", choices=PROCEDURES)
     p.add_argument("--geometry", default=None, help="geometry preset for gyros and accelerometers "
                    "(default: cone6; tetrad4 gyros + triad3 accelerometers for oliveira_table1; triad3 for zhang)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--duration", type=positive_float, default=None,
-                   help="s per static position and rate step (cho_park procedures only; default 60)")
-    p.add_argument("--sample-rate", type=positive_float, default=100.0, help="Hz")
-    p.add_argument("--arw", type=nonnegative_float, default=3.0, help="gyro angle random walk, deg/sqrt(h)")
-    p.add_argument("--vrw", type=nonnegative_float, default=200.0, help="accelerometer noise density, micro-g/sqrt(Hz)")
+    add_procedure_options(p, nonnegative_float)
     p.add_argument("--latitude", type=finite_float, default=36.37, help="deg, in [-90, 90]")
     p.add_argument("-o", "--output", default="session.npz",
                    help="output file: .npz, or .csv (a .json sidecar is written beside it); see docs/session-format.md")

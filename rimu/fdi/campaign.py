@@ -41,7 +41,7 @@ from .glt import GltSnapshot, GltWindow, glt_threshold
 from .kalman import ParityKalman
 from .manager import HealthState, RedundancyManager
 
-__all__ = ["CampaignSpec", "CampaignResult", "run_campaign", "run_task", "clopper_pearson", "make_detector",
+__all__ = ["CampaignSpec", "CampaignResult", "run_campaign", "run_task", "run_tasks", "clopper_pearson", "make_detector",
            "simulated_truth"]
 
 DETECTORS = ("glt", "glt_window", "cusum", "kalman", "baseline")
@@ -119,13 +119,9 @@ class CampaignSpec:
     base_seed: int = 0
 
     def __post_init__(self) -> None:
-        unknown = [f for f in self.faults if f not in FAULTS]
-        if unknown:
-            raise ValueError(f"unknown fault types {unknown}; known: {sorted(FAULTS)}")
+        check_spec("fault types", self.faults, sorted(FAULTS), "fault_start", self.fault_start, self.duration)
         if self.detector not in DETECTORS:
             raise ValueError(f"unknown detector {self.detector!r}; known: {DETECTORS}")
-        if not 0 < self.fault_start < self.duration:
-            raise ValueError("fault_start must lie inside the run")
 
     def tasks(self) -> list[tuple[int, int, int, int]]:
         """(fault index, sensor, size index, repetition) for every task, in a fixed order."""
@@ -135,6 +131,24 @@ class CampaignSpec:
         sensors = self.sensors if self.sensors is not None else list(range(n))
         return [(f, s, z, r) for f in range(len(self.faults)) for s in sensors
                 for z in range(len(self.sizes)) for r in range(self.repetitions)]
+
+
+def check_spec(what: str, names: Sequence[str], known: Sequence[str], start_name: str, start: float,
+               duration: float) -> None:
+    """ValueError for names outside ``known`` or a fault onset outside the run (both campaigns' specs)."""
+    unknown = [f for f in names if f not in known]
+    if unknown:
+        raise ValueError(f"unknown {what} {unknown}; known: {list(known)}")
+    if not 0 < start < duration:
+        raise ValueError(f"{start_name} must lie inside the run")
+
+
+def split_isolations(events: Sequence[Any], onset: float, at: Callable[[Any], float] = lambda e: e.t
+                     ) -> tuple[list[Any], list[Any]]:
+    """The isolations among a manager's events (``isolated`` and ``invalid_isolated``), before and after the
+    fault's onset (``at(event)``: its time by default)."""
+    isol = [e for e in events if e.kind in ("isolated", "invalid_isolated")]
+    return [e for e in isol if at(e) < onset], [e for e in isol if at(e) >= onset]
 
 
 # ---------------------------------------------------------------------- one task (runs in a worker)
@@ -243,9 +257,7 @@ def run_task(spec: CampaignSpec, task: Sequence[int]) -> dict[str, Any]:
                                 sample_rate=spec.sample_rate)
         rr = mgr.run(Y, V, t)
         name = cal.geometry.names[sensor]
-        isol = [e for e in rr.events if e.kind in ("isolated", "invalid_isolated")]
-        before = [e for e in isol if e.t < spec.fault_start]
-        after = [e for e in isol if e.t >= spec.fault_start]
+        before, after = split_isolations(rr.events, spec.fault_start)
         out["false_isolations"] = len(before)
         out["isolated"] = after[0].sensor if after else None
         out["isolation_correct"] = bool(after and after[0].sensor == name)
@@ -260,8 +272,8 @@ def run_task(spec: CampaignSpec, task: Sequence[int]) -> dict[str, Any]:
     return out
 
 
-def _run_chunk(spec: CampaignSpec, tasks: list[tuple[int, int, int, int]]) -> list[dict[str, Any]]:
-    return [run_task(spec, t) for t in tasks]
+def _run_chunk(fn: Callable[[Any, Any], dict[str, Any]], spec: Any, tasks: list[Any]) -> list[dict[str, Any]]:
+    return [fn(spec, t) for t in tasks]
 
 
 # ---------------------------------------------------------------------- results
@@ -347,7 +359,7 @@ class CampaignResult:
 
     def plot(self, path: str | Path) -> Path | None:
         """Detection probability against size per fault type, with the chi-square theory curve for biases."""
-        from ..plotting import pyplot
+        from ..plotting import pyplot, save_figure
 
         plt = pyplot(optional=True)
         if plt is None:
@@ -380,13 +392,7 @@ class CampaignResult:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="lower right")
         fig.tight_layout()
-        path = Path(path)
-        from ..atomic import atomic_path
-
-        with atomic_path(path) as _tmp:  # whole or not at all
-            fig.savefig(_tmp, dpi=110)
-        plt.close(fig)
-        return path
+        return save_figure(fig, path)
 
 
 def _dof(spec: CampaignSpec) -> int:
@@ -434,11 +440,23 @@ def run_campaign(spec: CampaignSpec, workers: int | None = None, scheduler: str 
     progress : bool or callable
         Show progress (tqdm if installed, else a counter on stderr), or call ``progress(done, total)``.
     """
-    import os
     import time
 
-    tasks = spec.tasks()
     t0 = time.perf_counter()
+    rows, workers = run_tasks(run_task, spec, spec.tasks(), workers, scheduler, executor, progress, chunks_per_worker)
+    return CampaignResult(spec, rows, time.perf_counter() - t0, workers)
+
+
+def run_tasks(fn: Callable[[Any, Any], dict[str, Any]], spec: Any, tasks: Sequence[Any], workers: int | None = None,
+              scheduler: str | None = None, executor: Executor | None = None,
+              progress: bool | Callable[[int, int], None] = False, chunks_per_worker: int = 4
+              ) -> tuple[list[dict[str, Any]], int]:
+    """``fn(spec, task)`` for every task, in task order whatever the executor, and the number of workers used:
+    the one loop of both campaigns (this module's and :func:`rimu.fdi.scenarios.run_scenarios`). ``fn`` must be
+    a module-level function (pickled to the workers); the options are those of :func:`run_campaign`."""
+    import os
+
+    tasks = list(tasks)
     client = None
     own = None
     if executor is None and scheduler is not None:
@@ -457,13 +475,13 @@ def run_campaign(spec: CampaignSpec, workers: int | None = None, scheduler: str 
     try:
         if executor is None:
             for k, task in enumerate(tasks):
-                rows.append(run_task(spec, task))
+                rows.append(fn(spec, task))
                 report(k + 1)
             workers = 1
         else:
             size = max(1, len(tasks) // (max(workers or 1, 1) * chunks_per_worker))
             chunks = [tasks[i:i + size] for i in range(0, len(tasks), size)]
-            futures = [executor.submit(_run_chunk, spec, c) for c in chunks]
+            futures = [executor.submit(_run_chunk, fn, spec, c) for c in chunks]
             done = 0
             results: list[list[dict[str, Any]]] = []
             for fut in futures:  # in submission order: deterministic
@@ -477,7 +495,7 @@ def run_campaign(spec: CampaignSpec, workers: int | None = None, scheduler: str 
             own.shutdown()
         if client is not None:
             client.close()
-    return CampaignResult(spec, rows, time.perf_counter() - t0, int(workers or 1))
+    return rows, int(workers or 1)
 
 
 def _progress(progress: bool | Callable[[int, int], None], total: int) -> Callable[[int], None]:

@@ -20,9 +20,10 @@ uncertainty propagated through w, :mod:`rimu.fdi.calaware`), and the equivalent 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 from scipy.stats import chi2
@@ -33,7 +34,93 @@ from ..session import Session
 from ..units import RAD_TO_ARCSEC, RAD_TO_DEG
 from .calaware import CalibrationCovariance
 
-__all__ = ["PairQuality", "QualityReport", "parity_quality"]
+__all__ = ["PairQuality", "QualityReport", "parity_quality", "ParityCheckReport"]
+
+#: the mark of a row whose statistic exceeds its threshold, in both parity checks' summaries
+_FLAG = "  <-- error shows here"
+
+
+@dataclass
+class ParityCheckReport:
+    """What the parity checks of a calibration share (the rate pairs here, the segments at rest in
+    :mod:`rimu.fdi.static_quality`): the verdict, the frame of the summary and of the dictionary.
+
+    A subclass is a dataclass that adds its list of rows (each with ``bad`` and ``to_dict()``, named by ``rows=``
+    in its class statement), ``p_fa``, ``uses_calibration_covariance`` and ``notes``.
+    """
+
+    instrument: str
+    _rows: ClassVar[str] = ""
+    if TYPE_CHECKING:
+        p_fa: float
+        uses_calibration_covariance: bool
+        notes: list[str]
+
+    def __init_subclass__(cls, rows: str = "", **kw: Any) -> None:
+        super().__init_subclass__(**kw)
+        if rows:
+            cls._rows = rows
+
+    def rows(self) -> list[Any]:
+        """The pairs or segments checked."""
+        return list(getattr(self, self._rows))
+
+    @property
+    def good(self) -> bool:
+        return not any(r.bad for r in self.rows())
+
+    @property
+    def verdict(self) -> str:
+        return "good" if self.good else "bad"
+
+    def _summary(self, head: list[str], rows: list[str], where: str) -> str:
+        """``head``, one line a row (flagged when bad), the verdict with ``where`` the error shows when bad, and
+        the notes."""
+        lines = head + [line + (_FLAG if r.bad else "") for r, line in zip(self.rows(), rows)]
+        lines.append(f"verdict: {self.verdict.upper()}" + ("" if self.good else f"; {where}"))
+        lines += [f"note: {n}" for n in self.notes]
+        return "\n".join(lines)
+
+    def _to_dict(self, key: str, **first: Any) -> dict[str, Any]:
+        return {"instrument": self.instrument, **first, "verdict": self.verdict, "p_fa": self.p_fa,
+                "uses_calibration_covariance": self.uses_calibration_covariance,
+                key: [r.to_dict() for r in self.rows()], "notes": self.notes}
+
+    def _plot(self, path: str | Path, labels: list[str], ylabel: str, title: str,
+              draw: Callable[[Any, np.ndarray, list[str]], None]) -> Path | None:
+        """A bar chart with one group a row (``draw(ax, positions, colours)``, red where the row is bad), or None
+        without matplotlib."""
+        from ..plotting import pyplot, save_figure
+
+        plt = pyplot(optional=True)
+        if plt is None:
+            return None
+        fig, ax = plt.subplots(figsize=(8, 4))
+        k = np.arange(len(labels))
+        draw(ax, k, ["r" if r.bad else "g" for r in self.rows()])
+        ax.set_xticks(k)
+        ax.set_xticklabels(labels, rotation=45, fontsize=7)
+        ax.set_ylabel(ylabel)
+        ax.set_title(title)
+        fig.tight_layout()
+        return save_figure(fig, path)
+
+
+def vector_text(v: np.ndarray) -> str:
+    """``(+0.58, -0.58, +0.58)``: a direction as the parity checks' summaries print it."""
+    return "(" + ", ".join(f"{c:+.2f}" for c in v) + ")"
+
+
+def covariance_model(calibration: InstrumentCalibration) -> tuple[CalibrationCovariance | None, list[str]]:
+    """The calibration's stated covariance as propagated by :class:`CalibrationCovariance` (None without one)
+    and the notes a parity check reports about it."""
+    if calibration.covariance is not None and calibration.param_names:
+        covm = CalibrationCovariance(calibration)
+        if covm.ignored:
+            return covm, [f"parameters not propagated: {', '.join(covm.ignored[:6])}"
+                          + (" ..." if len(covm.ignored) > 6 else "")]
+        return covm, []
+    return None, ["no calibration covariance: the tolerance is the noise of the means only"]
 
 
 @dataclass
@@ -67,22 +154,24 @@ class PairQuality:
 
 
 @dataclass
-class QualityReport:
-    """Per-pair quality indices and the overall verdict."""
+class QualityReport(ParityCheckReport, rows="pairs"):
+    """Per-pair quality indices and the overall verdict.
 
-    instrument: str
+    Attributes
+    ----------
+    instrument : str
+    pairs : list of PairQuality
+        One a +w / -w pair of the session.
+    p_fa : float
+        False-alarm probability of the whole check.
+    uses_calibration_covariance : bool
+    notes : list of str
+    """
+
     pairs: list[PairQuality]
     p_fa: float
     uses_calibration_covariance: bool
     notes: list[str] = field(default_factory=list)
-
-    @property
-    def good(self) -> bool:
-        return not any(p.bad for p in self.pairs)
-
-    @property
-    def verdict(self) -> str:
-        return "good" if self.good else "bad"
 
     def worst(self) -> PairQuality:
         """The pair where the error shows most: the largest equivalent misalignment among the failing pairs
@@ -96,52 +185,29 @@ class QualityReport:
         return [p.direction for p in self.pairs if p.bad]
 
     def summary(self) -> str:
-        lines = [f"parity calibration check ({self.instrument}): de Oliveira et al. 2012, Eq. 21-25",
-                 f"{'pair':>10} {'rate direction (MB)':>24} | {'|v g_w|/|w|':>12} {'|v_c g_w|/|w|':>14} | "
-                 f"{'chi2':>9} {'limit':>7}"]
-        for p in self.pairs:
-            d = ", ".join(f"{c:+.2f}" for c in p.direction)
-            flag = "  <-- error shows here" if p.bad else ""
-            lines.append(f"{p.labels[0] + '/' + p.labels[1]:>10} {('(' + d + ')'):>24} | {p.nominal_arcsec:10.1f}\" "
-                         f"{p.misalignment_arcsec:12.1f}\" | {p.statistic:9.1f} {p.threshold:7.1f}{flag}")
+        head = [f"parity calibration check ({self.instrument}): de Oliveira et al. 2012, Eq. 21-25",
+                f"{'pair':>10} {'rate direction (MB)':>24} | {'|v g_w|/|w|':>12} {'|v_c g_w|/|w|':>14} | "
+                f"{'chi2':>9} {'limit':>7}"]
+        rows = [f"{p.labels[0] + '/' + p.labels[1]:>10} {vector_text(p.direction):>24} | {p.nominal_arcsec:10.1f}\" "
+                f"{p.misalignment_arcsec:12.1f}\" | {p.statistic:9.1f} {p.threshold:7.1f}" for p in self.pairs]
         w = self.worst()
-        lines.append(f"verdict: {self.verdict.upper()}"
-                     + ("" if self.good else f"; largest misfit for rates along MB ({', '.join(f'{c:+.2f}' for c in w.direction)})"
-                        f" [{w.labels[0]}/{w.labels[1]}], about {w.misalignment_arcsec:.0f} arcsec"))
-        lines += [f"note: {n}" for n in self.notes]
-        return "\n".join(lines)
+        return self._summary(head, rows, f"largest misfit for rates along MB {vector_text(w.direction)}"
+                             f" [{w.labels[0]}/{w.labels[1]}], about {w.misalignment_arcsec:.0f} arcsec")
 
     def to_dict(self) -> dict[str, Any]:
-        return {"instrument": self.instrument, "verdict": self.verdict, "p_fa": self.p_fa,
-                "uses_calibration_covariance": self.uses_calibration_covariance,
-                "pairs": [p.to_dict() for p in self.pairs], "notes": self.notes}
+        return self._to_dict("pairs")
 
     def plot(self, path: str | Path) -> Path | None:
         """Bar chart of the equivalent misalignment per pair, nominal and calibrated parity (their Fig. 5)."""
-        from ..plotting import pyplot
+        def draw(ax: Any, k: np.ndarray, colours: list[str]) -> None:
+            ax.bar(k - 0.2, [p.nominal_arcsec for p in self.pairs], 0.4, label="nominal parity v (Eq. 23)")
+            ax.bar(k + 0.2, [p.misalignment_arcsec for p in self.pairs], 0.4, color=colours,
+                   label="calibrated parity v_c (Eq. 22)")
+            ax.set_yscale("symlog", linthresh=10)
+            ax.legend(fontsize=8)
 
-        plt = pyplot(optional=True)
-        if plt is None:
-            return None
-        fig, ax = plt.subplots(figsize=(8, 4))
-        k = np.arange(len(self.pairs))
-        ax.bar(k - 0.2, [p.nominal_arcsec for p in self.pairs], 0.4, label="nominal parity v (Eq. 23)")
-        ax.bar(k + 0.2, [p.misalignment_arcsec for p in self.pairs], 0.4,
-               color=["r" if p.bad else "g" for p in self.pairs], label="calibrated parity v_c (Eq. 22)")
-        ax.set_xticks(k)
-        ax.set_xticklabels([f"{p.labels[0]}/{p.labels[1]}" for p in self.pairs], rotation=45, fontsize=7)
-        ax.set_ylabel("|parity of g_w| / |w|, arcsec")
-        ax.set_yscale("symlog", linthresh=10)
-        ax.set_title(f"parity calibration check: {self.verdict}")
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        path = Path(path)
-        from ..atomic import atomic_path
-
-        with atomic_path(path) as _tmp:  # whole or not at all
-            fig.savefig(_tmp, dpi=110)
-        plt.close(fig)
-        return path
+        return self._plot(path, [f"{p.labels[0]}/{p.labels[1]}" for p in self.pairs], "|parity of g_w| / |w|, arcsec",
+                          f"parity calibration check: {self.verdict}", draw)
 
 
 def parity_quality(session: Session, calibration: InstrumentCalibration, p_fa: float = 1e-3) -> QualityReport:
@@ -161,15 +227,7 @@ def parity_quality(session: Session, calibration: InstrumentCalibration, p_fa: f
     pp = pair_parity(session, cal)              # Eq. 21-25 (rimu.calibration.parity_check)
     vc = pp.v_c
     r = vc.shape[0]
-    covm = None
-    notes = []
-    if cal.covariance is not None and cal.param_names:
-        covm = CalibrationCovariance(cal)
-        if covm.ignored:
-            notes.append(f"parameters not propagated: {', '.join(covm.ignored[:6])}"
-                         + (" ..." if len(covm.ignored) > 6 else ""))
-    else:
-        notes.append("no calibration covariance: the tolerance is the noise of the means only")
+    covm, notes = covariance_model(cal)
     thr = float(chi2.isf(p_fa / len(pp.labels), r))
     out = []
     for k, labels in enumerate(pp.labels):

@@ -22,6 +22,7 @@ Run it with ``python examples/fault_management_campaign.py`` (the table in ``doc
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -31,6 +32,7 @@ from scipy.stats import chi2, ncx2
 
 from ..fusion import InstrumentPipeline
 from ..fusion.validity import Validity
+from .campaign import check_spec, run_tasks, split_isolations
 from .manager import RedundancyManager
 
 __all__ = ["SCENARIOS", "ScenarioSpec", "run_scenarios", "scenario_table"]
@@ -43,27 +45,38 @@ class ScenarioSpec:
     """Settings of the fault-management campaign (sizes in sigma of the sensor noise)."""
 
     geometries: list[str] = field(default_factory=lambda: ["cone6", "tetrad4", "dodecahedron6"])
+    """Preset geometries, one gyro unit each."""
     scenarios: list[str] = field(default_factory=lambda: list(SCENARIOS))
+    """Names from :data:`SCENARIOS`."""
     runs: int = 10
+    """Seeded runs per (geometry, scenario)."""
     duration: float = 30.0
+    """Length of a run, s."""
     onset: float = 10.0
+    """Time of the fault's onset, s (inside the run)."""
     sample_rate: float = 100.0
+    """Hz."""
     rate_dps: float = 30.0
+    """Amplitude of the swinging manoeuvre rates, deg/s."""
     single_sigma: float = 10.0
+    """Step of the ``single`` fault, sigma."""
     double_sigma: tuple[float, float] = (8.0, 20.0)
+    """Range of the two steps of ``double``, sigma."""
     intermittent_sigma: float = 15.0
+    """Step of each ``intermittent`` burst, sigma."""
     ramp_sigma_per_s: float = 0.5
+    """Slope of ``ramp``, sigma/s."""
     p_fa: float = 1e-3
+    """False-alarm probability per sample of the manager's detection test."""
     confirm: int = 3
+    """Alarms in a row before the manager isolates."""
     readmit_after: int = 100
+    """Clean samples before an isolated sensor is re-admitted."""
     base_seed: int = 14
+    """Seed of the whole campaign (each run's seed derives from it)."""
 
     def __post_init__(self) -> None:
-        bad = [s for s in self.scenarios if s not in SCENARIOS]
-        if bad:
-            raise ValueError(f"unknown scenarios {bad}; known: {list(SCENARIOS)}")
-        if not 0 < self.onset < self.duration:
-            raise ValueError("onset must lie inside the run")
+        check_spec("scenarios", self.scenarios, SCENARIOS, "onset", self.onset, self.duration)
 
 
 def _lambda_md(dof: int, p_fa: float, p_md: float = 1e-6) -> float:
@@ -147,9 +160,7 @@ def _one_run(spec: ScenarioSpec, geometry: str, kind: str, run: int, cal: Any, m
     biased = int(np.sum((bias > 3.0) & (lam > lam_md)))
     undetectable = bias[(bias > 3.0) & (lam <= lam_md)]
     ev = res.events
-    iso_ev = [e for e in ev if e.kind in ("isolated", "invalid_isolated")]
-    before = [e for e in iso_ev if e.sample < k0]
-    after = [e for e in iso_ev if e.sample >= k0]
+    before, after = split_isolations(ev, k0, lambda e: e.sample)
     fset = {names[j] for j in faulty}
     alarms_before = int(np.count_nonzero(res.alarm[:k0] & ~np.concatenate([[False], res.alarm[:k0 - 1]])))
     if kind == "dropout":
@@ -182,19 +193,38 @@ def _one_run(spec: ScenarioSpec, geometry: str, kind: str, run: int, cal: Any, m
     }
 
 
-def run_scenarios(spec: ScenarioSpec) -> list[dict[str, Any]]:
-    """Every (geometry, scenario, run) of ``spec``, in order; one dict per run."""
+_CACHE: dict[Any, Any] = {}
+
+
+def _setup(spec: ScenarioSpec, geometry: str) -> tuple[Any, RedundancyManager]:
+    """The truth calibration of ``geometry`` and its manager, made once per geometry (in each worker)."""
     from .campaign import simulated_truth  # the campaign module is the one fdi module allowed to use rimu.sim
 
-    rows = []
-    for g_name in spec.geometries:
-        cal = simulated_truth(g_name, "gyro", spec.sample_rate, spec.base_seed)
+    key = (geometry, spec.sample_rate, spec.base_seed, spec.p_fa, spec.confirm, spec.readmit_after)
+    if key not in _CACHE:
+        cal = simulated_truth(geometry, "gyro", spec.sample_rate, spec.base_seed)
         mgr = RedundancyManager(InstrumentPipeline(cal), p_fa=spec.p_fa, confirm=spec.confirm,
                                 readmit_after=spec.readmit_after, sample_rate=spec.sample_rate)
-        for kind in spec.scenarios:
-            for r in range(spec.runs):
-                rows.append(_one_run(spec, g_name, kind, r, cal, mgr))
-    return rows
+        _CACHE.clear()
+        _CACHE[key] = (cal, mgr)
+    return _CACHE[key]
+
+
+def _run_task(spec: ScenarioSpec, task: tuple[str, str, int]) -> dict[str, Any]:
+    geometry, kind, run = task
+    cal, mgr = _setup(spec, geometry)
+    return _one_run(spec, geometry, kind, run, cal, mgr)
+
+
+def run_scenarios(spec: ScenarioSpec, workers: int | None = 0,
+                  progress: bool | Callable[[int, int], None] = False) -> list[dict[str, Any]]:
+    """Every (geometry, scenario, run) of ``spec``, in order; one dict per run.
+
+    ``workers`` and ``progress`` as in :func:`rimu.fdi.campaign.run_campaign` (the same loop): 0, the default,
+    runs in this process; the rows do not depend on it (every run is seeded on its own).
+    """
+    tasks = [(g, kind, r) for g in spec.geometries for kind in spec.scenarios for r in range(spec.runs)]
+    return run_tasks(_run_task, spec, tasks, workers, progress=progress)[0]
 
 
 def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:

@@ -29,7 +29,7 @@ from ..errors import SessionFormatError
 from ..geometry import null_space_rows
 from ..session import Session
 from ..units import MS2_TO_UG
-from .calaware import CalibrationCovariance
+from .quality import ParityCheckReport, covariance_model, vector_text
 
 __all__ = ["SegmentQuality", "StaticQualityReport", "static_parity_quality"]
 
@@ -56,68 +56,37 @@ class SegmentQuality:
 
 
 @dataclass
-class StaticQualityReport:
-    """Per-segment statistics and the verdict."""
+class StaticQualityReport(ParityCheckReport, rows="segments"):
+    """Per-segment statistics and the verdict (attributes as :class:`rimu.fdi.quality.QualityReport`, with
+    ``segments``, one a segment at rest, in place of its pairs)."""
 
-    instrument: str
     segments: list[SegmentQuality]
     p_fa: float
     uses_calibration_covariance: bool
     notes: list[str] = field(default_factory=list)
 
-    @property
-    def good(self) -> bool:
-        return not any(s.bad for s in self.segments)
-
-    @property
-    def verdict(self) -> str:
-        return "good" if self.good else "bad"
-
     def summary(self) -> str:
-        lines = [f"parity calibration check at rest ({self.instrument}): v_c (SF y - B), chi2({self.dof}) per segment",
-                 f"{'segment':>10} {'f (MB), g':>24} | {'|v_c z|, ug':>12} | {'chi2':>9} {'limit':>7}"]
-        for s in self.segments:
-            f = ", ".join(f"{c / 9.80665:+.2f}" for c in s.specific_force_mb)
-            flag = "  <-- error shows here" if s.bad else ""
-            lines.append(f"{s.label:>10} {('(' + f + ')'):>24} | {s.misfit_ug:12.1f} | {s.statistic:9.1f} "
-                         f"{s.threshold:7.1f}{flag}")
+        head = [f"parity calibration check at rest ({self.instrument}): v_c (SF y - B), chi2({self.dof}) per segment",
+                f"{'segment':>10} {'f (MB), g':>24} | {'|v_c z|, ug':>12} | {'chi2':>9} {'limit':>7}"]
+        rows = [f"{s.label:>10} {vector_text(s.specific_force_mb / 9.80665):>24} | {s.misfit_ug:12.1f} | "
+                f"{s.statistic:9.1f} {s.threshold:7.1f}" for s in self.segments]
         w = max(self.segments, key=lambda s: s.statistic)
-        lines.append(f"verdict: {self.verdict.upper()}" + ("" if self.good else
-                     f"; largest misfit in segment {w.label!r}, about {w.misfit_ug:.0f} micro-g"))
-        lines += [f"note: {n}" for n in self.notes]
-        return "\n".join(lines)
+        return self._summary(head, rows, f"largest misfit in segment {w.label!r}, about {w.misfit_ug:.0f} micro-g")
 
     @property
     def dof(self) -> int:
         return int(self.segments[0].parity.shape[0]) if self.segments else 0
 
     def to_dict(self) -> dict[str, Any]:
-        return {"instrument": self.instrument, "kind": "static", "verdict": self.verdict, "p_fa": self.p_fa,
-                "uses_calibration_covariance": self.uses_calibration_covariance,
-                "segments": [s.to_dict() for s in self.segments], "notes": self.notes}
+        return self._to_dict("segments", kind="static")
 
     def plot(self, path: str | Path) -> Path | None:
         """Bar chart of the misfit per segment (red: above its threshold)."""
-        from ..plotting import pyplot
+        def draw(ax: Any, k: np.ndarray, colours: list[str]) -> None:
+            ax.bar(k, [s.misfit_ug for s in self.segments], color=colours)
 
-        plt = pyplot(optional=True)
-        if plt is None:
-            return None
-        from ..atomic import atomic_path
-
-        fig, ax = plt.subplots(figsize=(8, 4))
-        k = np.arange(len(self.segments))
-        ax.bar(k, [s.misfit_ug for s in self.segments], color=["r" if s.bad else "g" for s in self.segments])
-        ax.set_xticks(k)
-        ax.set_xticklabels([s.label for s in self.segments], rotation=45, fontsize=7)
-        ax.set_ylabel("|v_c (SF y - B)|, micro-g")
-        ax.set_title(f"{self.instrument} parity check at rest: {self.verdict}")
-        fig.tight_layout()
-        path = Path(path)
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=110)
-        plt.close(fig)
-        return path
+        return self._plot(path, [s.label for s in self.segments], "|v_c (SF y - B)|, micro-g",
+                          f"{self.instrument} parity check at rest: {self.verdict}", draw)
 
 
 def static_parity_quality(session: Session, calibration: InstrumentCalibration, p_fa: float = 1e-3) -> StaticQualityReport:
@@ -142,14 +111,7 @@ def static_parity_quality(session: Session, calibration: InstrumentCalibration, 
     A = cal.axes_mb()
     vc = null_space_rows(A)
     Ap = np.linalg.pinv(A)
-    covm, notes = None, []
-    if cal.covariance is not None and cal.param_names:
-        covm = CalibrationCovariance(cal)
-        if covm.ignored:
-            notes.append(f"parameters not propagated: {', '.join(covm.ignored[:6])}"
-                         + (" ..." if len(covm.ignored) > 6 else ""))
-    else:
-        notes.append("no calibration covariance: the tolerance is the noise of the means only")
+    covm, notes = covariance_model(cal)
     r = vc.shape[0]
     thr = float(chi2.isf(p_fa / len(segs), r))
     out = []

@@ -41,6 +41,13 @@ class Source(ABC):
     def _epochs(self) -> Iterator[Epoch]:
         """Yield epochs until the data end or :attr:`stop_event` is set."""
 
+    def _accepted(self, ep: Epoch, counter: str, value: int) -> Epoch:
+        """``ep`` counted as accepted (one epoch), with ``ep.counters[counter] = value``."""
+        self.accounting.accepted += 1
+        self.accounting.epochs += 1
+        ep.counters[counter] = value
+        return ep
+
     # ------------------------------------------------------------------ styles of use
     def __iter__(self) -> Iterator[Epoch]:
         return self._epochs()

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -27,6 +27,32 @@ FaultHook = Callable[[EpochBlock], EpochBlock]
 
 def _prepare(block: EpochBlock, fault: FaultHook | None) -> EpochBlock:
     return fault(block) if fault is not None else block
+
+
+def _paced(items: Sequence[Any], times: Sequence[float], put: Callable[[Any], int], realtime: bool, speed: float,
+           stop: threading.Event | None) -> int:
+    """Hand every item to ``put`` (which returns what it counts), item k at ``times[k] / speed`` s after the
+    start when ``realtime``, until ``stop`` is set; the total count."""
+    w0 = time.monotonic()
+    n = 0
+    for item, tk in zip(items, times):
+        if stop is not None and stop.is_set():
+            break
+        if realtime:
+            wait = tk / speed - (time.monotonic() - w0)
+            if wait > 0:
+                time.sleep(wait)
+        n += put(item)
+    return n
+
+
+def _start(send: Callable[..., int], *args: Any) -> threading.Thread:
+    """``send(*args, stop)`` in a daemon thread; ``thread.stop`` is the Event that ends it early."""
+    stop = threading.Event()
+    th = threading.Thread(target=send, args=(*args, stop), daemon=True)
+    th.stop = stop  # type: ignore[attr-defined]
+    th.start()
+    return th
 
 
 class CanDevice:
@@ -73,26 +99,16 @@ class CanDevice:
              stop: threading.Event | None = None) -> int:
         """Send every frame on ``bus``; returns the number sent."""
         msgs = self.frames(block, 0.0)
-        w0 = time.monotonic()
-        n = 0
-        for m in msgs:
-            if stop is not None and stop.is_set():
-                break
-            if realtime:
-                wait = m.timestamp / speed - (time.monotonic() - w0)
-                if wait > 0:
-                    time.sleep(wait)
+
+        def put(m: Any) -> int:
             bus.send(m)
-            n += 1
-        return n
+            return 1
+
+        return _paced(msgs, [m.timestamp for m in msgs], put, realtime, speed, stop)
 
     def start(self, bus: Any, block: EpochBlock, realtime: bool = False, speed: float = 1.0) -> threading.Thread:
         """:meth:`send` in a daemon thread (``thread.stop`` is an Event that ends it early)."""
-        stop = threading.Event()
-        th = threading.Thread(target=self.send, args=(bus, block, realtime, speed, stop), daemon=True)
-        th.stop = stop  # type: ignore[attr-defined]
-        th.start()
-        return th
+        return _start(self.send, bus, block, realtime, speed)
 
 
 class SerialDevice:
@@ -119,28 +135,20 @@ class SerialDevice:
         """Write frame by frame to a pyserial port (or any object with ``write``); returns bytes written."""
         frames = self.frames(block)
         t = np.asarray(block.t, dtype=float)
-        w0 = time.monotonic()
-        n = 0
-        for k, f in enumerate(frames):
-            if stop is not None and stop.is_set():
-                break
-            if realtime:
-                wait = (t[k] - t[0]) / speed - (time.monotonic() - w0)
-                if wait > 0:
-                    time.sleep(wait)
+
+        def put(f: bytes) -> int:
             port.write(f)
-            n += len(f)
+            return len(f)
+
+        n = _paced(frames, t - t[0] if len(t) else t, put, realtime, speed, stop)
         flush = getattr(port, "flush", None)
         if flush is not None:
             flush()
         return n
 
     def start(self, port: Any, block: EpochBlock, realtime: bool = False, speed: float = 1.0) -> threading.Thread:
-        stop = threading.Event()
-        th = threading.Thread(target=self.write, args=(port, block, realtime, speed, stop), daemon=True)
-        th.stop = stop  # type: ignore[attr-defined]
-        th.start()
-        return th
+        """:meth:`write` in a daemon thread (``thread.stop`` is an Event that ends it early)."""
+        return _start(self.write, port, block, realtime, speed)
 
 
 class BlockSource(Source):
@@ -165,7 +173,4 @@ class BlockSource(Source):
                 if wait > 0 and self.stop_event.wait(wait):
                     break
             self.accounting.received += 1
-            self.accounting.accepted += 1
-            self.accounting.epochs += 1
-            ep.counters["seq"] = k
-            yield ep
+            yield self._accepted(ep, "seq", k)

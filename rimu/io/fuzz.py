@@ -10,7 +10,7 @@ test a new layout the same way.
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -21,7 +21,7 @@ from .accounting import Accounting
 from .layout import CanCodec, load_layout
 
 __all__ = ["layout_stream", "CAN_ACTIONS", "SERIAL_ACTIONS", "CanOracle", "SerialOracle", "draw_actions", "mutate_can",
-           "check_can", "mutate_serial", "check_serial"]
+           "check_can", "mutate_serial", "check_serial", "random_block", "pieces", "decode_pieces", "process_chunks"]
 
 #: action -> probability in the seeded runs
 CAN_ACTIONS = {"keep": 0.76, "drop": 0.04, "dup": 0.04, "flip": 0.05, "truncate": 0.03, "bad_id": 0.03,
@@ -230,3 +230,38 @@ def layout_stream(layout: str, n: int, seed: int = 0) -> tuple[EpochBlock, list[
     block = EpochBlock(np.arange(n) / 100.0, raw, temperature=np.full(n, 20.0))
     dev = CanDevice(layout)
     return block, dev.frames(block), dev.expected(block), len(lay.messages)
+
+
+def random_block(n: int, seed: int = 0) -> EpochBlock:
+    """``n`` samples at 200 Hz of six gyros and six accelerometers with random raw values (gyros 5 % invalid),
+    21 degC: the block the serial fuzz runs encode."""
+    rng = np.random.default_rng(seed)
+    return EpochBlock(np.arange(n) / 200.0, {"gyro": rng.normal(0, 100, (n, 6)), "accel": rng.normal(0, 1e4, (n, 6))},
+                      {"gyro": rng.random((n, 6)) > 0.05, "accel": np.ones((n, 6), bool)}, np.full(n, 21.0))
+
+
+def pieces(data: bytes, cuts: Sequence[int]) -> Iterable[bytes]:
+    """``data`` between consecutive ``cuts`` (sorted, from 0 to ``len(data)``)."""
+    return (data[a:b] for a, b in zip(cuts[:-1], cuts[1:]))
+
+
+def decode_pieces(decoder: Any, chunks: Iterable[Any]) -> list:
+    """The epochs of a serial decoder fed ``chunks`` one by one, then flushed; the accounting identity is checked
+    after every chunk (:meth:`Accounting.check` raises when it breaks)."""
+    eps: list = []
+    for c in chunks:
+        eps += decoder.feed(c)
+        decoder.accounting.check()
+    eps += decoder.flush()
+    return eps
+
+
+def process_chunks(processor: Any, messages: Sequence[Any], chunk: int) -> list:
+    """The epochs of a CAN frame processor given ``messages`` ``chunk`` at a time, then flushed; the accounting
+    identity is checked after every chunk."""
+    eps: list = []
+    for i in range(0, len(messages), chunk):
+        eps += processor.process(messages[i:i + chunk])
+        processor.acc.check()
+    eps += processor.flush()
+    return eps

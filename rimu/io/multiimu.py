@@ -50,6 +50,7 @@ from ..epoch import Epoch, EpochBlock
 from ..errors import SessionFormatError, ShapeError, TransportError
 from ..units import DEG_TO_RAD, G0, MG_TO_MS2
 from .base import Source
+from .rawtext import csv_header
 
 __all__ = [
     "UNIT_FACTORS",
@@ -334,13 +335,9 @@ def _read_table(path: Path, columns: list[str], skip_rows: int, delimiter: str) 
         for _ in range(skip_rows):
             fh.readline()
         rd = csv.reader(fh, delimiter=delimiter)
-        header = next(rd, None)
-        if header is None:
-            raise SessionFormatError(f"{path}: no header line after {skip_rows} skipped line(s)")
-        header = [h.strip() for h in header]
-        missing = [c for c in columns if c not in header]
-        if missing:
-            raise SessionFormatError(f"{path}: columns {missing} are not in the header {header}; fix the mapping")
+        header = csv_header(rd, columns, f"{path}: no header line after {skip_rows} skipped line(s)",
+                            lambda missing, header: f"{path}: columns {missing} are not in the header {header}; "
+                            "fix the mapping")
         idx = [header.index(c) for c in columns]
         need = max(idx) + 1
         rows = []
@@ -513,12 +510,8 @@ class MultiImuCsvSource(Source):
 
     def _epochs(self) -> Iterator[Epoch]:
         block = self.recording.to_block(self.offsets_s)
-        acc = self.accounting
         for k, ep in enumerate(block.epochs()):
             if self.stop_event.is_set():
                 break
-            acc.received += 1
-            acc.accepted += 1
-            acc.epochs += 1
-            ep.counters["index"] = k
-            yield ep
+            self.accounting.received += 1
+            yield self._accepted(ep, "index", k)

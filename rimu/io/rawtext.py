@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import io as _io
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -64,7 +64,28 @@ def _split(line: str) -> list[str]:
     return [p.strip() for p in parts]
 
 
-def _is_num(s: str) -> bool:
+def csv_header(reader: Any, need: Sequence[str], empty: str, lacking: Callable[[list[str], list[str]], str]
+               ) -> list[str]:
+    """The header row of a CSV reader, stripped, with the columns ``need`` checked present.
+
+    Raises
+    ------
+    SessionFormatError
+        ``empty`` when there is no row; ``lacking(missing, header)`` when a column of ``need`` is absent.
+    """
+    header = next(reader, None)
+    if header is None:
+        raise SessionFormatError(empty)
+    header = [h.strip() for h in header]
+    missing = [c for c in need if c not in header]
+    if missing:
+        raise SessionFormatError(lacking(missing, header))
+    return header
+
+
+def is_number(s: str) -> bool:
+    """Whether a text field reads as a number (what :func:`float` accepts), for the readers that tell a header
+    from data."""
     try:
         float(s)
         return True
@@ -100,7 +121,7 @@ def read_raw_text(source: str | Path | _io.TextIOBase, sample_rate: float | None
         if not line.strip() or line.lstrip().startswith("#"):
             continue
         parts = _split(line)
-        nums = [_is_num(p) for p in parts]
+        nums = [is_number(p) for p in parts]
         if rows:
             if len(parts) != width or not all(nums):
                 raise SessionFormatError(f"{name}: line {ln} has {len(parts)} fields "

@@ -90,16 +90,23 @@ def write_csv(path: str | os.PathLike[str], block: EpochBlock) -> Path:
     return Path(path)
 
 
-class CsvSource(Source):
-    """Epochs from a CSV recording (see the module docstring)."""
+class _FileSource(Source):
+    """A source reading one file, which must exist."""
 
-    unit = "row"
+    what = "file"
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
         super().__init__()
         self.path = Path(path)
         if not self.path.exists():
-            raise TransportError(f"no CSV recording at {self.path}")
+            raise TransportError(f"no {self.what} at {self.path}")
+
+
+class CsvSource(_FileSource):
+    """Epochs from a CSV recording (see the module docstring)."""
+
+    unit = "row"
+    what = "CSV recording"
 
     def _epochs(self) -> Iterator[Epoch]:
         acc = self.accounting
@@ -128,10 +135,7 @@ class CsvSource(Source):
                 if ep is None:
                     acc.reject("malformed", 1, ",".join(row).encode(), None, line=lineno)
                     continue
-                acc.accepted += 1
-                acc.epochs += 1
-                ep.counters["row"] = lineno
-                yield ep
+                yield self._accepted(ep, "row", lineno)
 
     @staticmethod
     def _row(row: list[str], width: int, cols: dict[str, list[int]]) -> Epoch | None:
@@ -154,17 +158,12 @@ class CsvSource(Source):
         return Epoch(t, raw, valid, temp)
 
 
-class NpzSource(Source):
+class NpzSource(_FileSource):
     """Epochs from an NPZ file with ``t`` and ``raw_<instrument>`` arrays (``rimu simulate`` writes these);
     optional ``valid_<instrument>`` and ``temperature``."""
 
     unit = "epoch"
-
-    def __init__(self, path: str | os.PathLike[str]) -> None:
-        super().__init__()
-        self.path = Path(path)
-        if not self.path.exists():
-            raise TransportError(f"no NPZ file at {self.path}")
+    what = "NPZ file"
 
     def _epochs(self) -> Iterator[Epoch]:
         import tokenize
@@ -207,10 +206,7 @@ class NpzSource(Source):
             if bad:
                 acc.reject("malformed", 1, None)
                 continue
-            acc.accepted += 1
-            acc.epochs += 1
-            ep.counters["index"] = k
-            yield ep
+            yield self._accepted(ep, "index", k)
 
     @staticmethod
     def meta(path: str | os.PathLike[str]) -> dict[str, Any]:

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from ..plotting import pyplot
+from ..plotting import pyplot, save_figure
 from ..units import MS2_TO_UG, RS_TO_DH
 from .model import FIELD_UNITS, FLICKER_AVAR, TERMS, InstrumentNoise
 
@@ -67,11 +67,8 @@ def plot_instrument(model: InstrumentNoise, path: str | Path) -> Path:
                  fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7, ncol=1, loc="lower left")
-    path = Path(path)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def plot_parity(parity: dict[str, Any], path: str | Path) -> Path:
@@ -99,8 +96,5 @@ def plot_parity(parity: dict[str, Any], path: str | Path) -> Path:
                  fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
-    path = Path(path)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)

@@ -318,14 +318,10 @@ def _build(side: dict, t: np.ndarray, seg_idx: np.ndarray, raw: dict, temp, src:
 
 def read_header(reader: Any, path: Path, need: list[str]) -> list[str]:
     """The header row of a session CSV (stripped), with the columns ``need`` checked present."""
-    header = next(reader, None)
-    if header is None:
-        raise SessionFormatError(f"{path} is empty; the first row must be the header {need}")
-    header = [h.strip() for h in header]
-    missing = [c for c in need if c not in header]
-    if missing:
-        raise SessionFormatError(f"{path}: header lacks the columns {missing} (header is {header})")
-    return header
+    from ..io.rawtext import csv_header  # rimu.io only when a CSV is read
+
+    return csv_header(reader, need, f"{path} is empty; the first row must be the header {need}",
+                      lambda missing, header: f"{path}: header lacks the columns {missing} (header is {header})")
 
 
 def npz_layout(side: dict, present: Any, path: Path) -> tuple[dict, list[str]]:

@@ -80,6 +80,7 @@ class SimRun:
     truth_segments: list[Segment] = field(repr=False, default_factory=list)
 
 
+@dataclass(eq=False, repr=False)
 class Simulator:
     """Settings of a simulated unit and rig; :meth:`run` makes the data.
 
@@ -125,51 +126,32 @@ class Simulator:
     seed : int or None
     """
 
-    def __init__(
-        self,
-        geometries: dict[str, Geometry] | None = None,
-        truth: Calibration | None = None,
-        arw_deg_sqrt_h: float = 3.0,
-        vrw_ug_sqrt_hz: float = 200.0,
-        gyro_bias_rw_deg_h_sqrt_h: float = 0.0,
-        accel_bias_rw_ug_sqrt_h: float = 0.0,
-        gyro_bias_instability_deg_h: float = 0.0,
-        accel_bias_instability_ug: float = 0.0,
-        flicker_band_s: tuple[float, float] | None = None,
-        sample_rate: float = 100.0,
-        latitude_deg: float | None = 36.37,
-        gravity: float = G0,
-        table_angle_error_arcsec: float = 0.0,
-        table_rate_error_ppm: float = 0.0,
-        mount_error_rad: Sequence[float] | None = None,
-        lever_arm_m: Any = None,
-        perturbation_ug: float = 0.0,
-        temperature: float | Callable[[np.ndarray], np.ndarray] = 25.0,
-        effects: dict[str, list[TruthEffect]] | None = None,
-        quantize: bool = False,
-        seed: int | None = 0,
-    ) -> None:
-        self.geometries = dict(geometries) if geometries is not None else {"gyro": cone6(), "accel": cone6()}
-        self.truth = truth
-        self.arw_deg_sqrt_h = arw_deg_sqrt_h
-        self.vrw_ug_sqrt_hz = vrw_ug_sqrt_hz
-        self.gyro_bias_rw_deg_h_sqrt_h = gyro_bias_rw_deg_h_sqrt_h
-        self.accel_bias_rw_ug_sqrt_h = accel_bias_rw_ug_sqrt_h
-        self.gyro_bias_instability_deg_h = gyro_bias_instability_deg_h
-        self.accel_bias_instability_ug = accel_bias_instability_ug
-        self.flicker_band_s = None if flicker_band_s is None else tuple(flicker_band_s)
-        self.sample_rate = sample_rate
-        self.latitude_deg = latitude_deg
-        self.gravity = gravity
-        self.table_angle_error_arcsec = table_angle_error_arcsec
-        self.table_rate_error_ppm = table_rate_error_ppm
-        self.mount_error_rad = mount_error_rad
-        self.lever_arm_m = lever_arm_m
-        self.perturbation_ug = perturbation_ug
-        self.temperature = temperature
-        self.effects = effects or {}
-        self.quantize = quantize
-        self.seed = seed
+    geometries: dict[str, Geometry] | None = None
+    truth: Calibration | None = None
+    arw_deg_sqrt_h: float = 3.0
+    vrw_ug_sqrt_hz: float = 200.0
+    gyro_bias_rw_deg_h_sqrt_h: float = 0.0
+    accel_bias_rw_ug_sqrt_h: float = 0.0
+    gyro_bias_instability_deg_h: float = 0.0
+    accel_bias_instability_ug: float = 0.0
+    flicker_band_s: tuple[float, float] | None = None
+    sample_rate: float = 100.0
+    latitude_deg: float | None = 36.37
+    gravity: float = G0
+    table_angle_error_arcsec: float = 0.0
+    table_rate_error_ppm: float = 0.0
+    mount_error_rad: Sequence[float] | None = None
+    lever_arm_m: Any = None
+    perturbation_ug: float = 0.0
+    temperature: float | Callable[[np.ndarray], np.ndarray] = 25.0
+    effects: dict[str, list[TruthEffect]] | None = None
+    quantize: bool = False
+    seed: int | None = 0
+
+    def __post_init__(self) -> None:
+        self.geometries = dict(self.geometries) if self.geometries is not None else {"gyro": cone6(), "accel": cone6()}
+        self.flicker_band_s = None if self.flicker_band_s is None else tuple(self.flicker_band_s)
+        self.effects = self.effects or {}
 
     # ------------------------------------------------------------------ helpers
     def noise_sigma(self, instrument: str) -> float:

@@ -8,22 +8,11 @@ Both recordings are from multicopters: rotor vibration is not rigid-body motion,
 from __future__ import annotations
 
 import lzma
-from pathlib import Path
 
 import numpy as np
-import pytest
 
 from rimu.array import ArrayLayout, array_report
-
-ROOT = Path(__file__).resolve().parents[2]
-
-
-def shared_data(name: str) -> Path:
-    """A folder of ../shared/data next to the repository, or skip."""
-    for base in (ROOT / ".." / "shared" / "data", Path("/work/shared/data")):
-        if (base / name).exists():
-            return (base / name).resolve()
-    pytest.skip(f"shared data {name!r} is not available on this machine")
+from tests.conftest import shared_data
 
 
 def _xsens(run: str):

@@ -4,23 +4,17 @@ simulate commands end to end."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
-import pytest
 
 from rimu.calibration.detect import detect_intervals, plot_detection, session_from_detection
 from rimu.cli import main
 from rimu.geometry import triad3
+from tests.conftest import shared_data
 
 
 def _ferraris():
-    here = Path(__file__).resolve()
-    for c in (here.parents[2] / ".." / "shared" / "data" / "imucal_ferraris_session",
-              Path("/work/shared/data/imucal_ferraris_session")):
-        if (c / "example_ferraris_session.csv").exists():
-            return c
-    pytest.skip("the imucal Ferraris recording is not available")
+    return shared_data("imucal_ferraris_session", "example_ferraris_session.csv")
 
 
 def test_detection_finds_the_labelled_sections_of_real_data(tmp_path):

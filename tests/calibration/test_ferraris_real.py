@@ -11,6 +11,7 @@ import pytest
 from rimu.calibration import LeastSquares
 from rimu.session import load_ferraris
 from rimu.units import DEG_TO_RAD, G0
+from tests.conftest import shared_data
 
 # imucal 2.x FerrarisCalibration (grav=9.81, expected_angle=-360) on the same file; reproduced by
 # benchmarks/imucal_reference.py. Model: raw = K R true + b (K diagonal, R unit rows).
@@ -26,12 +27,7 @@ IMUCAL_GRAV = 9.81
 
 
 def _folder() -> Path:
-    here = Path(__file__).resolve()
-    for c in (here.parents[2] / ".." / "shared" / "data" / "imucal_ferraris_session",
-              Path("/work/shared/data/imucal_ferraris_session")):
-        if (c / "example_ferraris_session.csv").exists():
-            return c
-    pytest.skip("the imucal Ferraris recording is not available (../shared/data/imucal_ferraris_session)")
+    return shared_data("imucal_ferraris_session", "example_ferraris_session.csv")
 
 
 @pytest.fixture(scope="module")

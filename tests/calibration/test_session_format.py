@@ -35,25 +35,26 @@ def test_round_trip(tmp_path, session, suffix):
     assert back.geometries["gyro"] == session.geometries["gyro"]
 
 
+def _with_cell(lines, row, col, value):
+    """The CSV text of ``lines`` with cell (row, col) replaced by ``value``."""
+    bad = lines[:]
+    cols = bad[row].split(",")
+    cols[col] = value
+    bad[row] = ",".join(cols)
+    return "\n".join(bad) + "\n"
+
+
 def test_csv_errors_name_row_and_column(tmp_path, session):
     p = save_session(session, tmp_path / "s.csv")
     lines = p.read_text().splitlines()
-    bad = lines[:]
-    cols = bad[5].split(",")
-    cols[4] = "abc"
-    bad[5] = ",".join(cols)
-    p.write_text("\n".join(bad) + "\n")
+    p.write_text(_with_cell(lines, 5, 4, "abc"))
     with pytest.raises(SessionFormatError, match=r"row 6, column 'gyro_z1'"):
         load_session(p)
     hdr = lines[0].replace("accel_y2,", "")
     p.write_text("\n".join([hdr] + [",".join(r.split(",")[:13] + r.split(",")[14:]) for r in lines[1:]]) + "\n")
     with pytest.raises(SessionFormatError, match="accel_y2"):
         load_session(p)
-    bad = lines[:]
-    cols = bad[3].split(",")
-    cols[1] = "P99"
-    bad[3] = ",".join(cols)
-    p.write_text("\n".join(bad) + "\n")
+    p.write_text(_with_cell(lines, 3, 1, "P99"))
     with pytest.raises(SessionFormatError, match=r"row 4, column 'segment'"):
         load_session(p)
     p.write_text("\n".join(lines) + "\n")

@@ -47,6 +47,15 @@ def setting():
     return g, sig, full, k2, gs
 
 
+def _drawn_axis(g, est, d, i):
+    """Sensor i's unit misalignment row with the drawn off-axis parameter errors ``d`` added, per draw."""
+    nm, names = g.names[i], est.param_names
+    E, off = g.off_axis_basis(i)
+    m = (est.misalignment[i] + d[:, [names.index(f"{nm}.{off[0]}")]] * E[0]
+         + d[:, [names.index(f"{nm}.{off[1]}")]] * E[1])
+    return m / np.linalg.norm(m, axis=1)[:, None]
+
+
 def _truth(g, est, k2, gs, sig, rng, N, f):
     """Raw outputs of true units drawn from the stated covariance, one draw per sample, at 200 deg/s."""
     names = est.param_names
@@ -56,10 +65,7 @@ def _truth(g, est, k2, gs, sig, rng, N, f):
     s = u @ g.H.T
     Y = np.empty((N, 6))
     for i, nm in enumerate(g.names):
-        E, off = g.off_axis_basis(i)
-        m = (est.misalignment[i] + d[:, [names.index(f"{nm}.{off[0]}")]] * E[0]
-             + d[:, [names.index(f"{nm}.{off[1]}")]] * E[1])
-        m /= np.linalg.norm(m, axis=1)[:, None]
+        m = _drawn_axis(g, est, d, i)
         k2_true = k2[i] + d[:, names.index(f"{nm}.k2")]
         gs_true = gs[i] + d[:, [names.index(f"{nm}.gsens_{a}") for a in "xyz"]]
         z = (np.einsum("nj,nj->n", m @ g.subunit_of(i).mat_sb_mb, u) + est.bias[i] + d[:, names.index(f"{nm}.bias")]
@@ -105,10 +111,7 @@ def test_effect_covariance_matches_monte_carlo_and_needs_its_inputs(setting):
     u = np.array([1.0, -2.0, 2.0]) / 3 * 200 * DEG_TO_RAD
     Y = np.empty((N, 6))
     for i, nm in enumerate(g.names):
-        E, off = g.off_axis_basis(i)
-        m = (est.misalignment[i] + d[:, [names.index(f"{nm}.{off[0]}")]] * E[0]
-             + d[:, [names.index(f"{nm}.{off[1]}")]] * E[1])
-        m /= np.linalg.norm(m, axis=1)[:, None]
+        m = _drawn_axis(g, est, d, i)
         z = ((m @ g.subunit_of(i).mat_sb_mb) @ u + est.bias[i] + d[:, names.index(f"{nm}.bias")]
              + (k2[i] + d[:, names.index(f"{nm}.k2")]) * (g.H[i] @ u) ** 2
              + (gs[i] + d[:, [names.index(f"{nm}.gsens_{a}") for a in "xyz"]]) @ f + sig * rng.standard_normal(N))

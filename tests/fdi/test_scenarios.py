@@ -80,3 +80,9 @@ def test_cusum_wrong_isolation_rate_next_to_the_set_glt():
     assert wrong["cusum"] >= 1 and wrong["set_glt"] == 0, wrong
     lo, hi = clopper_pearson(wrong["cusum"], 30, 0.99)
     assert lo <= 0.07 <= hi
+
+
+def test_the_campaign_gives_the_same_rows_on_a_process_pool():
+    """run_scenarios shares run_campaign's loop: two worker processes give the rows of one process, in order."""
+    spec = ScenarioSpec(geometries=["tetrad4"], scenarios=["single", "stuck"], runs=2, duration=6.0, onset=2.0)
+    assert run_scenarios(spec, workers=2) == run_scenarios(spec)

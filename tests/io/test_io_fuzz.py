@@ -16,7 +16,6 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from rimu.epoch import EpochBlock
 from rimu.io.accounting import Accounting
 from rimu.io.can import CanFrameProcessor
 from rimu.io.device import SerialDevice
@@ -25,10 +24,14 @@ from rimu.io.fuzz import (
     SERIAL_ACTIONS,
     check_can,
     check_serial,
+    decode_pieces,
     draw_actions,
     layout_stream,
     mutate_can,
     mutate_serial,
+    pieces,
+    process_chunks,
+    random_block,
 )
 from rimu.io.serial import SerialDecoder
 
@@ -39,12 +42,7 @@ FULL = os.environ.get("RIMU_FULL_FUZZ") == "1"
 
 def _run_can(msgs, layout, chunk):
     proc = CanFrameProcessor(layout, Accounting())
-    eps = []
-    for i in range(0, len(msgs), chunk):
-        eps += proc.process(msgs[i:i + chunk])
-        proc.acc.check()
-    eps += proc.flush()
-    return eps, proc.acc
+    return process_chunks(proc, msgs, chunk), proc.acc
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -86,27 +84,16 @@ def test_arbitrary_can_frames_never_raise(frames, layout):
             assert np.all(np.isfinite(y)) and not np.any(y[~ep.valid[k]])
 
 
-def _serial_block(n, seed=0):
-    rng = np.random.default_rng(seed)
-    return EpochBlock(np.arange(n) / 200.0, {"gyro": rng.normal(0, 100, (n, 6)), "accel": rng.normal(0, 1e4, (n, 6))},
-                      {"gyro": rng.random((n, 6)) > 0.05, "accel": np.ones((n, 6), bool)}, np.full(n, 21.0))
-
-
 def _run_serial(stream, chunks):
     dec = SerialDecoder()
-    eps = []
-    for a, b in zip(chunks[:-1], chunks[1:]):
-        eps += dec.feed(stream[a:b])
-        dec.accounting.check()
-    eps += dec.flush()
-    return eps, dec.accounting
+    return decode_pieces(dec, pieces(stream, chunks)), dec.accounting
 
 
 @settings(max_examples=60, deadline=None)
 @given(st.lists(st.sampled_from(list(SERIAL_ACTIONS)), min_size=20, max_size=20), st.integers(0, 2**32 - 1),
        st.lists(st.integers(0, 2000), max_size=10))
 def test_serial_mutations_hypothesis(actions, seed, cuts):
-    block = _serial_block(20)
+    block = random_block(20)
     stream, oracle = mutate_serial(SerialDevice().frames(block), actions, np.random.default_rng(seed))
     bounds = sorted({0, len(stream), *[c for c in cuts if c < len(stream)]})
     eps, acc = _run_serial(stream, bounds)
@@ -123,9 +110,9 @@ def test_arbitrary_bytes_never_raise(data, cuts):
 
 def test_serial_seeded_long_run():
     n_bytes = 1_000_000
-    frame_len = len(SerialDevice().frames(_serial_block(1))[0])
+    frame_len = len(SerialDevice().frames(random_block(1))[0])
     n = n_bytes // frame_len
-    block = _serial_block(n, seed=3)
+    block = random_block(n, seed=3)
     rng = np.random.default_rng(99)
     stream, oracle = mutate_serial(SerialDevice().frames(block), draw_actions(rng, n, SERIAL_ACTIONS), rng)
     cuts = np.unique(np.concatenate([[0, len(stream)], rng.integers(0, len(stream), len(stream) // 500)]))

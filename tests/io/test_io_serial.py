@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from rimu.epoch import EpochBlock
 from rimu.io.device import SerialDevice
-from rimu.io.fuzz import SERIAL_ACTIONS, check_serial, draw_actions, mutate_serial
+from rimu.io.fuzz import SERIAL_ACTIONS, check_serial, decode_pieces, draw_actions, mutate_serial, pieces
 from rimu.io.serial import (
     SYNC,
     CobsDecoder,
@@ -34,13 +34,9 @@ def _block(n=20, seed=0):
     return EpochBlock(t, raw, valid, np.full(n, 24.5))
 
 
-def _decode_all(chunks):
-    dec = SerialDecoder()
-    eps = []
-    for c in chunks:
-        eps += dec.feed(c)
-        dec.accounting.check()
-    eps += dec.flush()
+def _decode_all(chunks, decoder=SerialDecoder):
+    dec = decoder()
+    eps = decode_pieces(dec, chunks)
     dec.accounting.check()
     return eps, dec.accounting
 
@@ -266,17 +262,6 @@ def test_cobs_roundtrip(data):
     assert cobs_decode(enc) == data
 
 
-def _decode_cobs(chunks):
-    dec = CobsDecoder()
-    eps = []
-    for c in chunks:
-        eps += dec.feed(c)
-        dec.accounting.check()
-    eps += dec.flush()
-    dec.accounting.check()
-    return eps, dec.accounting
-
-
 def test_cobs_every_cut_position_decodes_the_same():
     block = _block(10)
     parts = []
@@ -284,10 +269,10 @@ def test_cobs_every_cut_position_decodes_the_same():
         parts.append(b"\x13\x37\x00" if k % 3 == 1 else b"")   # delimited noise before some frames
         parts.append(f)
     stream = b"".join(parts) + b"\x05\x01"                       # an unfinished frame at the end
-    ref, acc_ref = _decode_cobs([stream])
+    ref, acc_ref = _decode_all([stream], CobsDecoder)
     assert len(ref) == 10 and acc_ref.rejected == {"cobs": 3 * 3, "truncated": 2}
     for k in range(len(stream) + 1):
-        eps, acc = _decode_cobs([stream[:k], stream[k:]])
+        eps, acc = _decode_all([stream[:k], stream[k:]], CobsDecoder)
         assert _key(eps) == _key(ref) and acc.as_dict() == acc_ref.as_dict()
 
 
@@ -298,11 +283,7 @@ def test_cobs_seeded_fuzz():
     stream, oracle = mutate_serial(frames, draw_actions(rng, len(frames), SERIAL_ACTIONS), rng, framing="cobs")
     cuts = np.unique(np.concatenate([[0, len(stream)], rng.integers(0, len(stream), 300)])).tolist()
     dec = CobsDecoder()
-    eps = []
-    for a, b in zip(cuts[:-1], cuts[1:]):
-        eps += dec.feed(stream[a:b])
-        dec.accounting.check()
-    eps += dec.flush()
+    eps = decode_pieces(dec, pieces(stream, cuts))
     check_serial(eps, dec.accounting, oracle, block)
     assert 0.7 * len(frames) < len(eps) < len(frames)
 
@@ -315,14 +296,14 @@ def test_cobs_mutations_hypothesis(actions, seed, cuts):
     stream, oracle = mutate_serial(SerialDevice(framing="cobs").frames(block), actions,
                                    np.random.default_rng(seed), framing="cobs")
     bounds = sorted({0, len(stream), *[c for c in cuts if c < len(stream)]})
-    eps, acc = _decode_cobs([stream[a:b] for a, b in zip(bounds[:-1], bounds[1:])])
+    eps, acc = _decode_all(pieces(stream, bounds), CobsDecoder)
     check_serial(eps, acc, oracle, block)
 
 
 @settings(max_examples=80, deadline=None)
 @given(st.binary(max_size=800))
 def test_cobs_arbitrary_bytes_never_raise(data):
-    _eps, acc = _decode_cobs([data[: len(data) // 2], data[len(data) // 2:]])
+    _eps, acc = _decode_all([data[: len(data) // 2], data[len(data) // 2:]], CobsDecoder)
     assert acc.pending == 0
 
 

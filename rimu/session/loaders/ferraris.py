@@ -61,21 +61,19 @@ def load_ferraris(
     for p in (path, spath):
         if not p.exists():
             raise SessionFormatError(f"{p} does not exist; expected the recording CSV and its section list JSON")
+    from ...io.rawtext import csv_header, is_number  # rimu.io only when a recording is read
+
     with path.open(newline="") as fh:
         reader = csv.reader(fh)
-        header = next(reader, None)
-        if header is None:
-            raise SessionFormatError(f"{path} is empty")
-        missing = [c for c in _COLUMNS if c not in header]
-        if missing:
-            raise SessionFormatError(f"{path}: columns {missing} are missing; the header is {header}")
+        header = csv_header(reader, _COLUMNS, f"{path} is empty",
+                            lambda missing, header: f"{path}: columns {missing} are missing; the header is {header}")
         cols = [header.index(c) for c in _COLUMNS]
         rows = []
         for r, line in enumerate(reader, start=2):
             try:
                 rows.append([float(line[c]) for c in cols])
             except (ValueError, IndexError):
-                bad = next((_COLUMNS[k] for k, c in enumerate(cols) if c >= len(line) or not _is_float(line[c])), "?")
+                bad = next((_COLUMNS[k] for k, c in enumerate(cols) if c >= len(line) or not is_number(line[c])), "?")
                 raise SessionFormatError(f"{path}: row {r}, column {bad!r} is missing or not a number") from None
     data = np.array(rows, dtype=float)
     if not np.all(np.isfinite(data)):
@@ -103,13 +101,3 @@ def load_ferraris(
         segments.append(seg)
     return Session(segments, {"gyro": geo, "accel": geo}, sample_rate, None, gravity, "file units",
                    {"raw_units": {"gyro": "deg/s", "accel": "m/s^2"}, "source": str(path)})
-
-
-def _is_float(s: str) -> bool:
-    try:
-        float(s)
-        return True
-    except ValueError:
-        return False
-
-
