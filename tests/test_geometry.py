@@ -97,8 +97,9 @@ def geometries(draw):
     vals = draw(st.lists(st.floats(-1, 1, allow_nan=False), min_size=3 * n, max_size=3 * n))
     H = np.array(vals).reshape(n, 3)
     norms = np.linalg.norm(H, axis=1)
-    if np.any(norms < 0.2):
-        H = H + np.eye(3)[np.arange(n) % 3]
+    short = norms < 0.2
+    if np.any(short):  # replace only the short rows (adding to every row could cancel one, e.g. (-1, 0, 0))
+        H[short] = np.eye(3)[np.arange(n)[short] % 3]
         norms = np.linalg.norm(H, axis=1)
     H = H / norms[:, None]
     s = np.linalg.svd(H, compute_uv=False)
