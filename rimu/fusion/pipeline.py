@@ -615,10 +615,7 @@ class Pipeline:
         results: dict[str, BlockResult] = {}
         if not self.compensation:
             return out, results
-        temp = block.temperature
-        self._need_temperature(temp is not None)
-        if self.t0 is None:
-            self.t0 = float(block.t[0])
+        temp = self._origin(block.temperature, float(block.t[0]) if len(block) else None)
         t = block.t - self.t0
 
         ests, clipped = {}, {}
@@ -670,10 +667,7 @@ class Pipeline:
             ip = self.instruments[k]
             if ip.range_raw is not None and not np.all(np.abs(block.raw[k]) < ip._range):
                 return None
-        temp = block.temperature
-        self._need_temperature(temp is not None)
-        if self.t0 is None:
-            self.t0 = float(block.t[0])
+        temp = self._origin(block.temperature, float(block.t[0]) if len(block) else None)
         t = block.t - self.t0
         dT = np.zeros(N) if temp is None else np.asarray(temp, dtype=float) - self._t_ref
         prog = self._program_ready()
@@ -702,11 +696,7 @@ class Pipeline:
         for v in epoch.valid.values():
             if not v.all():
                 return None
-        T = epoch.temperature
-        if T is None:
-            self._need_temperature(False)
-        if self.t0 is None:
-            self.t0 = float(epoch.t)
+        T = self._origin(epoch.temperature, float(epoch.t))
         prog = self._program
         pipes = prog.pipes
         if pipes[0]._set is not prog._sets[0] or pipes[-1]._set is not prog._sets[-1] \
@@ -734,6 +724,15 @@ class Pipeline:
                 p._clean()
         return self._results.copy()
 
+    def _origin(self, temperature: Any, t_first: float | None) -> Any:
+        """Check that a temperature comes when the effects need one, and set the time origin (the start of
+        drift) at the first sample seen; returns the temperature."""
+        if temperature is None:
+            self._need_temperature(False)
+        if self.t0 is None and t_first is not None:
+            self.t0 = t_first
+        return temperature
+
     def _need_temperature(self, present: bool) -> None:
         if present:
             return
@@ -752,11 +751,7 @@ class Pipeline:
             res_c = self._step_compiled(epoch)
             if res_c is not None:
                 return res_c
-        T = epoch.temperature
-        if T is None:
-            self._need_temperature(False)
-        if self.t0 is None:
-            self.t0 = float(epoch.t)
+        T = self._origin(epoch.temperature, float(epoch.t))
         t = float(epoch.t) - self.t0
         dT = 0.0 if T is None else float(T) - self._t_ref
         generic = self._generic
