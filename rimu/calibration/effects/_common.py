@@ -9,9 +9,9 @@ import numpy as np
 
 from ...session import Segment
 from ...units import DEG_TO_RAD, G0, MS2_TO_UG, PPM, RS_TO_DH
-from ..model import RuntimeInputs, SensorContext
+from ..model import Effect, ParamSpec, RuntimeForm, RuntimeInputs, SensorContext, monomial
 
-__all__ = ["axis_input", "geometry_cache", "input_unit", "output_unit", "per_input_power", "runtime_temperature_offset",
+__all__ = ["TemperatureBias", "axis_input", "geometry_cache", "input_unit", "output_unit", "per_input_power", "runtime_temperature_offset",
            "temperature_offset"]
 
 
@@ -76,3 +76,32 @@ def geometry_cache(key: str, ctxs: Sequence[SensorContext], make: Callable[[], A
 def runtime_temperature_offset(inputs: RuntimeInputs, ctxs: Sequence[SensorContext]) -> np.ndarray:
     """``T - T_ref`` as (N, 1, 1), K (one reference temperature per instrument)."""
     return inputs.temperature_offset(ctxs[0])[:, None, None]
+
+
+class TemperatureBias(Effect):
+    """A bias proportional to ``(T - T_ref)^power`` (power 1 or 2): the shared body of the bias temperature
+    effects; a subclass sets ``name``, ``power`` and its texts."""
+
+    power = 1
+    runtime_needs = ("temperature",)
+    needs = "temperature"
+
+    def parameters(self, ctx: SensorContext) -> list[ParamSpec]:
+        si, rep, f = output_unit(ctx)
+        per = "/K" if self.power == 1 else f"/K^{self.power}"
+        return [ParamSpec(f"bias_tc{self.power}", f"{si}{per}", f"{rep}{per}", f)]
+
+    def columns(self, segment: Segment, ctx: SensorContext) -> np.ndarray | None:
+        dT = temperature_offset(segment, ctx)
+        return None if dT is None else (dT if self.power == 1 else dT**self.power)[:, None]
+
+    def runtime_columns(self, inputs: RuntimeInputs, ctxs: Sequence[SensorContext]) -> np.ndarray:
+        """``(T - T_ref)^power`` for every sensor, (N, n, 1)."""
+        dT = runtime_temperature_offset(inputs, ctxs)
+        v = dT if self.power == 1 else dT * dT
+        return np.broadcast_to(v, (v.shape[0], len(ctxs), 1))
+
+    def runtime_form(self, ctxs: Sequence[SensorContext]) -> RuntimeForm:
+        form = RuntimeForm.zeros("exogenous", len(ctxs), 1)
+        form.F[:, 0, monomial("dT" if self.power == 1 else "dT2")] = 1.0
+        return form
