@@ -299,7 +299,7 @@ static rimu_real rimu_thr_set(const rimu_fdi_unit *u, int dof, int k, long sampl
 static void rimu_fit_set(const rimu_fdi_unit *u, const rimu_real *w, const unsigned char *use, const rimu_real *z,
                          rimu_fit *f)
 {
-    rimu_real N00 = 0, N01 = 0, N02 = 0, N11 = 0, N12 = 0, N22 = 0, h0 = 0, h1 = 0, h2 = 0, scale = 0, det, id;
+    rimu_real N00 = 0, N01 = 0, N02 = 0, N11 = 0, N12 = 0, N22 = 0, h0 = 0, h1 = 0, h2 = 0, scale = 0, det;
     rimu_real P00, P01, P02, P11, P12, P22;
     int i, m = 0, n = u->n;
     for (i = 0; i < n; ++i) {
@@ -330,17 +330,11 @@ static void rimu_fit_set(const rimu_fdi_unit *u, const rimu_real *w, const unsig
     }
     f->observable = 1;
     f->dof = m - 3;
-    id = 1 / det;
-    P11 = (N00 * N22 - N02 * N02) * id;
-    P12 = (N01 * N02 - N00 * N12) * id;
-    P22 = (N00 * N11 - N01 * N01) * id;
-    P00 *= id; P01 *= id; P02 *= id;
-    f->P[0] = P00; f->P[1] = P01; f->P[2] = P02;
-    f->P[3] = P01; f->P[4] = P11; f->P[5] = P12;
-    f->P[6] = P02; f->P[7] = P12; f->P[8] = P22;
-    f->x[0] = P00 * h0 + P01 * h1 + P02 * h2;
-    f->x[1] = P01 * h0 + P11 * h1 + P12 * h2;
-    f->x[2] = P02 * h0 + P12 * h1 + P22 * h2;
+    {
+        const rimu_real Nv[6] = {N00, N01, N02, N11, N12, N22}, cv[3] = {P00, P01, P02}, hv[3] = {h0, h1, h2};
+        rimu_inverse3(Nv, cv, det, hv, f->P, f->x);
+    }
+    P00 = f->P[0]; P01 = f->P[1]; P02 = f->P[2]; P11 = f->P[4]; P12 = f->P[5]; P22 = f->P[8];
     for (i = 0; i < n; ++i) {
         const rimu_real *a = u->ax + 3 * i;
         rimu_real *pa = f->Pa + 3 * i;
