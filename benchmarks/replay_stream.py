@@ -37,25 +37,14 @@ if mode == "stream":
     summary = json.load(open(out + "/summary.json"))
 elif mode == "memory":
     from rimu.calibration import Calibration
-    from rimu.fdi import RedundancyManager
     from rimu.fdi.campaign import CampaignSpec, make_detector
-    from rimu.fusion import Pipeline
-    from rimu.fusion.validation import segment_errors, session_block
+    from rimu.fdi.validate import validate
     from rimu.session import load_session
     session = load_session(data)
-    block, index = session_block(session)
-    c = Calibration.load(cal, geometries=session.geometries)
-    unit = Pipeline(c, temperature=block.temperature is not None)
-    block = unit.compensate(block)
-    summary = {}
-    for k in c.instruments:
-        pipe = unit[k]
-        mgr = RedundancyManager(pipe, make_detector(CampaignSpec(), pipe.table.sigma), p_fa=1e-3, confirm=3,
-                                readmit_after=None)
-        r = mgr.run(block.raw[k], block.valid.get(k), block.t)
-        e = segment_errors(session, k, np.asarray(r.x), index)
-        summary[k] = {"alarms": int(np.count_nonzero(r.alarm)), "segment_error_rms": e.segment_error_rms,
-                      "sample_error_rms": e.sample_error_rms}
+    v = validate(session, Calibration.load(cal, geometries=session.geometries), p_fa=1e-3, confirm=3,
+                 readmit_after=None, detector=lambda pipe: make_detector(CampaignSpec(), pipe.table.sigma))
+    summary = {k: {"alarms": r.alarms, "segment_error_rms": r.errors.segment_error_rms,
+                   "sample_error_rms": r.errors.sample_error_rms} for k, r in v.items()}
 else:
     summary = {}
 dt = time.perf_counter() - t0

@@ -9,6 +9,7 @@ is a false one.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -31,16 +32,23 @@ class InstrumentValidation:
     alarms: int
     isolations: int
     replay: ReplayResult
+    #: the manager's set state after the last sample
+    final_state: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         return {**self.errors.to_dict(), "alarms": self.alarms, "isolations": self.isolations}
 
 
-def validate(session: Session, calibration: Calibration, p_fa: float = 1e-3, confirm: int = 5
-             ) -> dict[str, InstrumentValidation]:
+def validate(session: Session, calibration: Calibration, p_fa: float = 1e-3, confirm: int = 5,
+             injections: Sequence[Any] = (), seed: int = 0, readmit_after: int | None = 100,
+             detector: Callable[[Any], Any] | None = None) -> dict[str, InstrumentValidation]:
     """Replay ``session`` with ``calibration`` through the pipeline and the FDI (snapshot GLT at ``p_fa`` per
     sample, ``confirm`` consecutive alarms to isolate); per instrument the runtime errors, the samples that
-    alarmed and the isolations.
+    alarmed and the isolations. The whole session is held in memory: this is also the reference that the
+    streaming ``rimu replay`` is checked against.
+
+    ``injections`` (:class:`rimu.fdi.faults.Injection`, drawn with ``seed``) are injected into the raw data
+    first; ``detector(instrument_pipeline)`` makes each manager's detector (default: the manager's own).
 
     Examples
     --------
@@ -51,14 +59,20 @@ def validate(session: Session, calibration: Calibration, p_fa: float = 1e-3, con
     (0, True)
     """
     block, index = session_block(session)
+    if injections:
+        from .faults import inject
+
+        block = inject(block, list(injections), calibration, seed=seed)
     pipe = Pipeline(calibration, temperature=block.temperature is not None)
     comp = pipe.compensate(block)
     out: dict[str, InstrumentValidation] = {}
     for k in pipe.instruments:
         if k not in comp.raw:
             continue
-        res = RedundancyManager(pipe[k], p_fa=p_fa, confirm=confirm).run(comp.raw[k], comp.valid.get(k), comp.t)
+        mgr = RedundancyManager(pipe[k], None if detector is None else detector(pipe[k]), p_fa=p_fa,
+                                confirm=confirm, readmit_after=readmit_after)
+        res = mgr.run(comp.raw[k], comp.valid.get(k), comp.t)
         err = segment_errors(session, k, np.asarray(res.x), index)
         n_iso = sum(1 for e in res.events if e.kind in ("isolated", "invalid_isolated"))
-        out[k] = InstrumentValidation(err, int(np.count_nonzero(res.alarm)), n_iso, res)
+        out[k] = InstrumentValidation(err, int(np.count_nonzero(res.alarm)), n_iso, res, mgr.state.value)
     return out

@@ -26,34 +26,21 @@ def files(tmp_path_factory):
 
 
 def in_memory(data, cal_path, specs):  # type: ignore[no-untyped-def]
-    """Today's reference: the whole session in memory, faults injected, effects compensated, one manager run per
-    instrument, segment errors from rimu.fusion.validation."""
+    """The reference: the whole session in memory, faults injected, effects compensated, one manager run per
+    instrument, segment errors (rimu.fdi.validate, with the replay's detector and settings)."""
     from rimu.calibration import Calibration
-    from rimu.fdi import RedundancyManager
     from rimu.fdi.campaign import CampaignSpec, make_detector
-    from rimu.fdi.faults import inject, parse_injection
-    from rimu.fusion import Pipeline
-    from rimu.fusion.validation import segment_errors, session_block
+    from rimu.fdi.faults import parse_injection
+    from rimu.fdi.validate import validate
     from rimu.session import load_session
 
     session = load_session(data)
-    block, index = session_block(session)
-    cal = Calibration.load(cal_path)
-    if specs:
-        block = inject(block, [parse_injection(s) for s in specs], cal, seed=0)
-    unit = Pipeline(cal, temperature=block.temperature is not None)
-    block = unit.compensate(block)
-    out = {}
-    for k in cal.instruments:
-        pipe = unit[k]
-        mgr = RedundancyManager(pipe, make_detector(CampaignSpec(), pipe.table.sigma), p_fa=1e-3, confirm=3,
-                                readmit_after=None)
-        r = mgr.run(block.raw[k], block.valid.get(k), block.t)
-        err = segment_errors(session, k, np.asarray(r.x), index)
-        out[k] = (r, {"alarms": int(np.count_nonzero(r.alarm)),
-                      "isolations": sum(1 for e in r.events if e.kind in ("isolated", "invalid_isolated")),
-                      "final_state": mgr.state.value, **err.to_dict(), "samples": len(block)})
-    return out
+    v = validate(session, Calibration.load(cal_path), p_fa=1e-3, confirm=3,
+                 injections=[parse_injection(s) for s in specs], seed=0, readmit_after=None,
+                 detector=lambda pipe: make_detector(CampaignSpec(), pipe.table.sigma))
+    n = sum(s.n_samples for s in session.segments)
+    return {k: (r.replay, {"alarms": r.alarms, "isolations": r.isolations, "final_state": r.final_state,
+                           **r.errors.to_dict(), "samples": n}) for k, r in v.items()}
 
 
 def test_a_replay_in_many_chunks_gives_the_in_memory_figures(files, tmp_path, monkeypatch, capsys):
