@@ -131,23 +131,30 @@ def _header(cal: Calibration, real: str, fdi: FdiSettings) -> str:
 
 
 _STEP = r"""
-/* P = N^-1 for the symmetric 3 x 3 normal matrix N = (N00 N01 N02 N11 N12 N22), given the first row of its
- * cofactors (c0 c1 c2) and det = N00 c0 + N01 c1 + N02 c2 (checked by the caller), and x = P h: the closed form
- * shared by the projection and the FDI step. */
-static void rimu_inverse3(const rimu_real *N, const rimu_real *c, rimu_real det, const rimu_real *h, rimu_real *P,
-                          rimu_real *x)
+/* P = N^-1 for the symmetric 3 x 3 normal matrix N = (N00 N01 N02 N11 N12 N22) of m sensors and x = P h, by
+ * cofactors: the projection and the FDI step share it. Returns 0 (P, x untouched) when the axes do not span 3-D:
+ * fewer than 3 sensors, or det(N) negligible against scale^3 (unit axes: scale = trace(N)). */
+static int rimu_inverse3(const rimu_real *N, rimu_real scale, int m, const rimu_real *h, rimu_real *P, rimu_real *x)
 {
-    rimu_real id = 1 / det;
-    rimu_real P00 = c[0] * id, P01 = c[1] * id, P02 = c[2] * id;
-    rimu_real P11 = (N[0] * N[5] - N[2] * N[2]) * id;
-    rimu_real P12 = (N[1] * N[2] - N[0] * N[4]) * id;
-    rimu_real P22 = (N[0] * N[3] - N[1] * N[1]) * id;
+    rimu_real P00 = N[3] * N[5] - N[4] * N[4];
+    rimu_real P01 = N[2] * N[4] - N[1] * N[5];
+    rimu_real P02 = N[1] * N[4] - N[2] * N[3];
+    rimu_real det = N[0] * P00 + N[1] * P01 + N[2] * P02;
+    rimu_real id, P11, P12, P22;
+    if (m < 3 || !(det > RIMU_RANK_TOL * scale * scale * scale))
+        return 0;
+    id = 1 / det;
+    P11 = (N[0] * N[5] - N[2] * N[2]) * id;
+    P12 = (N[1] * N[2] - N[0] * N[4]) * id;
+    P22 = (N[0] * N[3] - N[1] * N[1]) * id;
+    P00 *= id; P01 *= id; P02 *= id;
     P[0] = P00; P[1] = P01; P[2] = P02;
     P[3] = P01; P[4] = P11; P[5] = P12;
     P[6] = P02; P[7] = P12; P[8] = P22;
     x[0] = P00 * h[0] + P01 * h[1] + P02 * h[2];
     x[1] = P01 * h[0] + P11 * h[1] + P12 * h[2];
     x[2] = P02 * h[0] + P12 * h[1] + P22 * h[2];
+    return 1;
 }
 
 static void rimu_solve(int n, const rimu_real *sf, const rimu_real *b, const rimu_real *ax, const rimu_real *w,
@@ -156,7 +163,7 @@ static void rimu_solve(int n, const rimu_real *sf, const rimu_real *b, const rim
     rimu_real z[RIMU_NMAX];
     unsigned char use[RIMU_NMAX];
     rimu_real N00 = 0, N01 = 0, N02 = 0, N11 = 0, N12 = 0, N22 = 0, h0 = 0, h1 = 0, h2 = 0;
-    rimu_real scale = 0, det, P00, P01, P02, P11, P12, P22;
+    rimu_real scale = 0, P00, P01, P02, P11, P12, P22;
     int i, m = 0;
     for (i = 0; i < n; ++i) {
         const rimu_real *a = ax + 3 * i;
@@ -178,20 +185,14 @@ static void rimu_solve(int n, const rimu_real *sf, const rimu_real *b, const rim
     out->chi2 = 0;
     out->used = m;
     out->dof = m > 3 ? m - 3 : 0;
-    P00 = N11 * N22 - N12 * N12;
-    P01 = N02 * N12 - N01 * N22;
-    P02 = N01 * N12 - N02 * N11;
-    det = N00 * P00 + N01 * P01 + N02 * P02;
-    /* the used axes span 3-D when det(N) is not negligible against scale^3 (unit axes: scale = trace(N)) */
-    if (m < 3 || !(det > RIMU_RANK_TOL * scale * scale * scale)) {
-        out->observable = 0;
-        return;
+    {
+        const rimu_real Nv[6] = {N00, N01, N02, N11, N12, N22}, hv[3] = {h0, h1, h2};
+        if (!rimu_inverse3(Nv, scale, m, hv, out->P, out->x)) {
+            out->observable = 0;
+            return;
+        }
     }
     out->observable = 1;
-    {
-        const rimu_real Nv[6] = {N00, N01, N02, N11, N12, N22}, cv[3] = {P00, P01, P02}, hv[3] = {h0, h1, h2};
-        rimu_inverse3(Nv, cv, det, hv, out->P, out->x);
-    }
     P00 = out->P[0]; P01 = out->P[1]; P02 = out->P[2]; P11 = out->P[4]; P12 = out->P[5]; P22 = out->P[8];
     for (i = 0; i < n; ++i) {
         const rimu_real *a = ax + 3 * i;

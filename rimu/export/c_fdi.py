@@ -299,7 +299,7 @@ static rimu_real rimu_thr_set(const rimu_fdi_unit *u, int dof, int k, long sampl
 static void rimu_fit_set(const rimu_fdi_unit *u, const rimu_real *w, const unsigned char *use, const rimu_real *z,
                          rimu_fit *f)
 {
-    rimu_real N00 = 0, N01 = 0, N02 = 0, N11 = 0, N12 = 0, N22 = 0, h0 = 0, h1 = 0, h2 = 0, scale = 0, det;
+    rimu_real N00 = 0, N01 = 0, N02 = 0, N11 = 0, N12 = 0, N22 = 0, h0 = 0, h1 = 0, h2 = 0, scale = 0;
     rimu_real P00, P01, P02, P11, P12, P22;
     int i, m = 0, n = u->n;
     for (i = 0; i < n; ++i) {
@@ -320,20 +320,15 @@ static void rimu_fit_set(const rimu_fdi_unit *u, const rimu_real *w, const unsig
     f->chi2 = 0;
     f->used = m;
     f->dof = 0;
-    P00 = N11 * N22 - N12 * N12;
-    P01 = N02 * N12 - N01 * N22;
-    P02 = N01 * N12 - N02 * N11;
-    det = N00 * P00 + N01 * P01 + N02 * P02;
-    if (m < 3 || !(det > RIMU_RANK_TOL * scale * scale * scale)) {
-        f->observable = 0;
-        return;
+    {
+        const rimu_real Nv[6] = {N00, N01, N02, N11, N12, N22}, hv[3] = {h0, h1, h2};
+        if (!rimu_inverse3(Nv, scale, m, hv, f->P, f->x)) {
+            f->observable = 0;
+            return;
+        }
     }
     f->observable = 1;
     f->dof = m - 3;
-    {
-        const rimu_real Nv[6] = {N00, N01, N02, N11, N12, N22}, cv[3] = {P00, P01, P02}, hv[3] = {h0, h1, h2};
-        rimu_inverse3(Nv, cv, det, hv, f->P, f->x);
-    }
     P00 = f->P[0]; P01 = f->P[1]; P02 = f->P[2]; P11 = f->P[4]; P12 = f->P[5]; P22 = f->P[8];
     for (i = 0; i < n; ++i) {
         const rimu_real *a = u->ax + 3 * i;
