@@ -18,6 +18,7 @@ from scipy.stats import norm
 
 from rimu.fdi import CusumBank, GltSnapshot, GltWindow, ParityKalman, RedundancyManager, markov_arl, siegmund_arl
 from rimu.fdi.campaign import CampaignSpec, clopper_pearson, run_campaign
+from rimu.fdi.cusum import bias_delays
 from rimu.fusion import InstrumentPipeline
 from rimu.geometry import cone6
 from rimu.sim import cho_park_table3
@@ -170,15 +171,7 @@ def design_figures() -> dict:
     # CUSUM delay: ARL0 1e5, 1 sigma bias on each sensor in turn from sample 100
     bank = CusumBank(1.0, 1e5)
     _U, d, thr, _ = bank.design(V6, 3)
-    delays = []
-    for r in range(1200):
-        j = r % 6
-        P = rng.standard_normal((400, 3))
-        P[100:] += V6[:, j]
-        s, _, _ = bank.block(P, V6, 3)
-        hits = np.flatnonzero(s[100:] > 1.0)
-        delays.append(hits[0] + 1 if hits.size else 301)
-    delays_a = np.array(delays, float)
+    delays_a = np.nan_to_num(bias_delays(bank, V6, 3, 1200, rng), nan=301.0)   # 301: none within the run
     info = d[0] ** 2 / 2                                      # Kullback-Leibler information per sample
     k = d[0] / 2
     h = thr[0] / d[0]                                         # the member's threshold in units of X

@@ -19,6 +19,7 @@ from rimu.fdi import (
     siegmund_arl,
 )
 from rimu.fdi.campaign import clopper_pearson
+from rimu.fdi.cusum import bias_delays
 from rimu.geometry import cone6, dodecahedron6
 
 V6 = cone6().parity_matrix()
@@ -57,15 +58,8 @@ def test_cusum_delay_matches_lorden_at_arl0_1e5():
     """Mean delay for a 1 sigma bias within 15 % of ln(ARL0) / I, I = b^2 |v_j|^2 / 2."""
     bank = CusumBank(1.0, 1e5)
     rng = np.random.default_rng(2)
-    delays = []
-    for r in range(240):
-        j = r % 6
-        P = rng.standard_normal((300, 3))
-        P[100:] += V6[:, j]
-        s, _, _iso = bank.block(P, V6, 3)
-        hits = np.flatnonzero((s > 1) & (np.arange(300) >= 100))
-        assert hits.size
-        delays.append(hits[0] - 100 + 1)
+    delays = bias_delays(bank, V6, 3, 240, rng, length=300)
+    assert np.isfinite(delays).all()
     info = 1.0**2 * (V6[:, 0] @ V6[:, 0]) / 2
     lorden = math.log(1e5) / info
     assert abs(np.mean(delays) / lorden - 1) < 0.15
