@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 import time
 
 import numpy as np
@@ -33,6 +34,12 @@ def test_demo_end_to_end(tmp_path, capsys):
         assert np.all(np.abs(ratio - 1) < 0.15), (k, ratio)
     assert (tmp_path / "demo" / "demo.png").stat().st_size > 10_000
     assert (tmp_path / "demo" / "calibration.json").exists()
+    # the flight code: exported, built and equal to the Python runtime on every sample (where a compiler is)
+    fc = rep["flight_code"]
+    if shutil.which("cc") or shutil.which("gcc") or shutil.which("clang"):
+        assert fc["built"] and fc["decisions_equal"] and fc["max_rel_diff"] < 1e-12 and fc["samples"] == 3000
+    else:
+        assert fc == {"built": False}
     assert elapsed < 60
     assert "isolated" in capsys.readouterr().out
 
