@@ -549,25 +549,21 @@ def _first_seconds(blocks, t_stop: float):  # type: ignore[no-untyped-def]
 def _motion_detector(cal, block, seconds: float, margin: float, p_fa: float, fs: float):  # type: ignore[no-untyped-def]
     """Motion-aware GLT with the motion terms fitted on the first ``seconds`` of the gyro data (every sensor valid)."""
     from ..errors import ShapeError
-    from ..fdi.motion import MotionAwareGlt, MotionNoiseModel, fit_motion_terms
-    from ..fusion import InstrumentPipeline, Validity
+    from ..fdi.motion import fit_motion_detector
 
     sel = block.t < block.t[0] + seconds
-    pipe = InstrumentPipeline(cal)
-    blk = pipe.process(block.raw["gyro"][sel], None if block.valid.get("gyro") is None else block.valid["gyro"][sel])
-    full = np.asarray(blk.validity) == Validity.NOMINAL
-    if full.sum() < 50:
-        raise ShapeError(f"--motion-fit {seconds:g}: only {int(full.sum())} samples with every gyro valid in that "
-                         "span; give a longer fault-free span (at least 50 samples)")
-    res = pipe.table.sigma**2 * (blk.parity @ pipe.table.Vz[0])
-    alpha = np.gradient(blk.x, 1.0 / fs, axis=0)
-    model = fit_motion_terms(MotionNoiseModel(cal, sigma=pipe.table.sigma), res[full], pipe.table.G[0], blk.x[full],
-                             alpha[full], margin=margin)
-    print(f"  gyro: motion terms fitted on {int(full.sum())} samples (first {seconds:g} s, margin {margin:g}): "
+    try:
+        det = fit_motion_detector(cal, block.raw["gyro"][sel],
+                                  None if block.valid.get("gyro") is None else block.valid["gyro"][sel], fs,
+                                  margin=margin, p_fa=p_fa)
+    except ShapeError as exc:
+        raise ShapeError(f"--motion-fit {seconds:g}: {exc}") from None
+    model = det.model
+    print(f"  gyro: motion terms fitted on {det.fit_samples} samples (first {seconds:g} s, margin {margin:g}): "
           f"scale {1e2 * float(np.median(model.scale_rel)):.2f} %, misalignment "
           f"{1e3 * float(np.median(model.misalignment_rad)):.2f} mrad, time offset "
           f"{1e3 * float(np.median(model.time_offset_s)):.2f} ms (medians)")
-    return MotionAwareGlt(model, p_fa, sample_rate=fs)
+    return det
 
 
 def _plot(path: Path, results: dict) -> Path | None:

@@ -226,6 +226,8 @@ class MotionAwareGlt:
         self._rate: np.ndarray | None = None
         self._dgyro: np.ndarray | None = None
         self._thr_cache: dict[int, float] = {}
+        #: samples the motion terms were fitted on (set by :func:`fit_motion_detector`; 0: stated, not fitted)
+        self.fit_samples = 0
 
     def configure(self, Vz: np.ndarray, dof: int) -> None:
         mdl = self.model
@@ -472,6 +474,10 @@ def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, val
     margin : float
         Factor on the fitted variances (see :func:`fit_motion_terms`).
 
+    Returns
+    -------
+    MotionAwareGlt, with ``fit_samples``: the number of samples (every sensor valid) the terms were fitted on.
+
     Raises
     ------
     ShapeError
@@ -489,4 +495,6 @@ def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, val
     alpha = np.gradient(blk.x, 1.0 / sample_rate, axis=0)
     model = fit_motion_terms(MotionNoiseModel(calibration, sigma=pipe.table.sigma), res[full], pipe.table.G[0],
                              blk.x[full], alpha[full], terms=terms, margin=margin)
-    return MotionAwareGlt(model, p_fa, sample_rate=sample_rate)
+    det = MotionAwareGlt(model, p_fa, sample_rate=sample_rate)
+    det.fit_samples = int(full.sum())
+    return det
