@@ -21,27 +21,27 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--real", choices=("double", "float"), default="double",
                    help="floating-point type of the generated code (float for FPUs without double)")
     p.add_argument("--build", action="store_true", help="also build rimu_filter with the system C compiler")
-    g = p.add_argument_group("fault management (baked into the code; defaults: rimu.fdi.RedundancyManager's)")
-    g.add_argument("--p-fa", type=probability, default=1e-3,
+    g = p.add_argument_group("fault management (baked into the code; an option not given keeps rimu.export.FdiSettings' default, which is rimu.fdi.RedundancyManager's)")
+    g.add_argument("--p-fa", type=probability, default=None,
                    help="per-sample false-alarm probability of the detection test (and of the re-admission test)")
-    g.add_argument("--confirm", type=positive_int, default=3,
+    g.add_argument("--confirm", type=positive_int, default=None,
                    help="consecutive alarms naming the same sensor set before it is isolated")
-    g.add_argument("--invalid-persist", type=positive_int, default=10,
+    g.add_argument("--invalid-persist", type=positive_int, default=None,
                    help="consecutive invalid samples before a sensor is isolated")
-    g.add_argument("--readmit-after", type=positive_int, default=100,
+    g.add_argument("--readmit-after", type=positive_int, default=None,
                    help="clean samples before an isolated sensor is re-admitted (doubled at each further isolation)")
     g.add_argument("--no-readmit", action="store_true", help="never re-admit an isolated sensor automatically")
-    g.add_argument("--fail-after", type=positive_int, default=4,
+    g.add_argument("--fail-after", type=positive_int, default=None,
                    help="isolations of one sensor after which it is FAILED (not re-admitted)")
-    g.add_argument("--backoff", type=positive_float, default=2.0,
+    g.add_argument("--backoff", type=positive_float, default=None,
                    help="factor on the clean period at each further isolation of a sensor (>= 1)")
-    g.add_argument("--clear-after", type=positive_int, default=50,
+    g.add_argument("--clear-after", type=positive_int, default=None,
                    help="alarm-free samples after which a 'not isolable' fault report is withdrawn")
     g.add_argument("--episode-gap", type=positive_int, default=None,
                    help="alarm-free samples that end an alarm episode (default max(confirm, 5))")
-    g.add_argument("--set-alpha", type=probability, default=1e-4,
+    g.add_argument("--set-alpha", type=probability, default=None,
                    help="level of the consistency test of a sensor set (the isolation test)")
-    g.add_argument("--max-set-size", type=int, choices=(1, 2), default=2,
+    g.add_argument("--max-set-size", type=int, choices=(1, 2), default=None,
                    help="largest number of sensors one isolation names")
     p.set_defaults(func=run, output_is_dir=True)  # -o names a folder (rimu.cli._common.check_outputs)
 
@@ -51,16 +51,20 @@ def run(args: argparse.Namespace) -> int:
     from ..errors import OptionError
     from ..export import FdiSettings, export_c
 
-    if args.backoff < 1:
+    if args.backoff is not None and args.backoff < 1:
         raise OptionError(f"--backoff {args.backoff:g}: must be at least 1 (the clean period never shrinks)")
-    fdi = FdiSettings(p_fa=args.p_fa, confirm=args.confirm, invalid_persist=args.invalid_persist,
-                      readmit_after=None if args.no_readmit else args.readmit_after, fail_after=args.fail_after,
-                      backoff=args.backoff, clear_after=args.clear_after, episode_gap=args.episode_gap,
-                      alpha=args.set_alpha, max_size=args.max_set_size)
+    given = {"p_fa": args.p_fa, "confirm": args.confirm, "invalid_persist": args.invalid_persist,
+             "readmit_after": args.readmit_after, "fail_after": args.fail_after, "backoff": args.backoff,
+             "clear_after": args.clear_after, "episode_gap": args.episode_gap, "alpha": args.set_alpha,
+             "max_size": args.max_set_size}
+    kw = {k: v for k, v in given.items() if v is not None}   # the others keep FdiSettings' defaults
+    if args.no_readmit:
+        kw["readmit_after"] = None
+    fdi = FdiSettings(**kw)
     cal = Calibration.load(args.calibration)
     files = export_c(cal, args.output, real=args.real, fdi=fdi)
     msg = f"wrote {', '.join(f.name for f in files)} to {Path(args.output)} ({args.real}; fault management " \
-          f"p_fa {args.p_fa:g}, confirm {args.confirm})"
+          f"p_fa {fdi.p_fa:g}, confirm {fdi.confirm})"
     if args.build:
         cc = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
         if cc is None:
