@@ -415,12 +415,17 @@ class InstrumentPipeline:
                            {cur.entry: cur.P if cur.observable else _INF_P})
 
     # ------------------------------------------------------------------ estimates without side effects
-    def usable(self, Y: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
-        """Mask (N, n) of the raw samples Y (N, n) that are measurements: finite, flagged valid, and inside the
-        range (``|y| < range_raw``)."""
-        Y = np.asarray(Y, dtype=float)
+    def clipped(self, Y: np.ndarray) -> np.ndarray:
+        """Mask of the raw samples Y (..., n) at the range limit, ``|y| >= range_raw`` (False for NaN)."""
         with np.errstate(invalid="ignore"):
-            ok = np.isfinite(Y) & (np.abs(Y) < self._range)
+            return np.abs(np.asarray(Y, dtype=float)) >= self._range
+
+    def usable(self, Y: np.ndarray, valid: np.ndarray | None = None, clipped: np.ndarray | None = None
+               ) -> np.ndarray:
+        """Mask (N, n) of the raw samples Y (N, n) that are measurements: finite, flagged valid, and inside the
+        range (not :meth:`clipped`, which may be passed when already computed)."""
+        Y = np.asarray(Y, dtype=float)
+        ok = np.isfinite(Y) & ~(self.clipped(Y) if clipped is None else clipped)
         if valid is not None:
             ok &= np.asarray(valid, dtype=bool)
         return ok
@@ -621,10 +626,9 @@ class Pipeline:
         ests, clipped = {}, {}
         for k in self.compensation:
             ip = self.instruments[k]
-            use = ip.usable(block.raw[k], block.valid.get(k))
+            clipped[k] = ip.clipped(block.raw[k])
+            use = ip.usable(block.raw[k], block.valid.get(k), clipped[k])
             ests[k] = ip.estimate if use.all() else (lambda q, ip=ip, use=use: ip.estimate(q, use))
-            with np.errstate(invalid="ignore"):
-                clipped[k] = np.abs(block.raw[k]) >= ip._range
 
         def solve(k: str, f: np.ndarray | None, w: np.ndarray | None) -> np.ndarray:
             inputs = RuntimeInputs(t=t, temperature=temp, specific_force=f, angular_rate=w)
@@ -665,7 +669,7 @@ class Pipeline:
             return None
         for k in self._order:  # a clipped raw value is judged before compensation: the numpy path routes it
             ip = self.instruments[k]
-            if ip.range_raw is not None and not np.all(np.abs(block.raw[k]) < ip._range):
+            if ip.range_raw is not None and ip.clipped(block.raw[k]).any():
                 return None
         temp = self._origin(block.temperature, float(block.t[0]) if len(block) else None)
         t = block.t - self.t0
@@ -709,7 +713,7 @@ class Pipeline:
             return None
         for k in self._order:  # a clipped raw value is judged before compensation: the numpy path routes it
             ip = self.instruments[k]
-            if ip.range_raw is not None and not np.all(np.abs(raw[k]) < ip._range):
+            if ip.range_raw is not None and ip.clipped(raw[k]).any():
                 return None
         try:
             ok = self._epoch_step(prog.F, prog.L, prog.W, y0, y1, float(epoch.t) - self.t0,
@@ -757,11 +761,13 @@ class Pipeline:
         generic = self._generic
         comps = self.compensation
 
-        ests = {}
+        ests, clips = {}, {}
         for k in comps:
             ip = self.instruments[k]
-            use = ip.usable(np.asarray(epoch.raw[k], dtype=float)[None],
-                            None if epoch.valid.get(k) is None else np.asarray(epoch.valid[k])[None])
+            y0 = np.asarray(epoch.raw[k], dtype=float)
+            clips[k] = ip.clipped(y0)
+            use = ip.usable(y0[None], None if epoch.valid.get(k) is None else np.asarray(epoch.valid[k])[None],
+                            clips[k][None])
             ests[k] = self._estimators[k] if use.all() else (lambda q, ip=ip, use=use: ip.estimate(q[None], use)[0])
 
         def solve_q(k: str, f: list[float] | None, w: list[float] | None, raw: bool = False) -> np.ndarray:
@@ -785,12 +791,8 @@ class Pipeline:
         for k in self._order:
             comp = comps.get(k)
             y = epoch.raw[k] if comp is None else solve_q(k, f, w, raw=True)
-            if comp is not None:
-                y0 = np.asarray(epoch.raw[k], dtype=float)
-                with np.errstate(invalid="ignore"):
-                    clip = np.abs(y0) >= self.instruments[k]._range
-                if clip.any():  # a clipped output stays clipped: the projection routes around it
-                    y = np.where(clip, y0, y)
+            if comp is not None and clips[k].any():  # a clipped output stays clipped: the projection routes it
+                y = np.where(clips[k], np.asarray(epoch.raw[k], dtype=float), y)
             r = self.instruments[k].step(y, epoch.valid.get(k))
             res[k] = r
             if k == "accel":
