@@ -223,18 +223,16 @@ def _flight_code(cal, t, Y, runs, out: Path, args: argparse.Namespace) -> dict: 
     the CSV filter with the system C compiler, feed it the manoeuvre's raw samples and compare its estimates
     and decisions with the Python managers' on every sample. Skipped, with a line saying why, without a
     compiler."""
-    import shutil
     import subprocess
 
-    from ..export import Estimates, FdiSettings, export_c, read_estimates
+    from ..export import Estimates, FdiSettings, build_filter, export_c, read_estimates
 
-    cc = next((c for c in ("cc", "gcc", "clang") if shutil.which(c)), None)
-    if cc is None or shutil.which("make") is None:
-        print("\n  flight code: no C compiler (or make) here; `rimu export-c CAL -o DIR --build` needs one")
-        return {"built": False}
     d = out / "flight_code"
     export_c(cal, d, fdi=FdiSettings(p_fa=args.p_fa, confirm=args.confirm))
-    build = subprocess.run(["make", "-s", f"CC={cc}"], cwd=d, capture_output=True, text=True)
+    cc, build = build_filter(d)
+    if cc is None:
+        print("\n  flight code: no C compiler (or make) here; `rimu export-c CAL -o DIR --build` needs one")
+        return {"built": False}
     if build.returncode != 0:
         print(f"\n  flight code: the build failed ({build.stderr.strip().splitlines()[-1:]})")
         return {"built": False, "error": build.stderr[-2000:]}

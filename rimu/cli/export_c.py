@@ -4,8 +4,6 @@ management (the redundancy manager's decisions, configured here and baked into t
 from __future__ import annotations
 
 import argparse
-import shutil
-import subprocess
 from pathlib import Path
 
 from ._common import positive_float, positive_int, probability
@@ -49,7 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..calibration.result import Calibration
     from ..errors import OptionError
-    from ..export import FdiSettings, export_c
+    from ..export import FdiSettings, build_filter, export_c
 
     if args.backoff is not None and args.backoff < 1:
         raise OptionError(f"--backoff {args.backoff:g}: must be at least 1 (the clean period never shrinks)")
@@ -66,11 +64,11 @@ def run(args: argparse.Namespace) -> int:
     msg = f"wrote {', '.join(f.name for f in files)} to {Path(args.output)} ({args.real}; fault management " \
           f"p_fa {fdi.p_fa:g}, confirm {fdi.confirm})"
     if args.build:
-        cc = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
+        cc, res = build_filter(args.output)
         if cc is None:
-            print(f"{msg}; not built: no C compiler found (install gcc or clang, then run make in {args.output})")
+            print(f"{msg}; not built: no C compiler or make found (install gcc or clang and make, then run make in "
+                  f"{args.output})")
             return 1
-        res = subprocess.run(["make", "-s", f"CC={cc}"], cwd=args.output, capture_output=True, text=True)
         if res.returncode != 0:
             print(res.stderr.strip())
             print(f"{msg}; the build failed (above)")

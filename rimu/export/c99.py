@@ -37,6 +37,7 @@ from __future__ import annotations
 import os
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -45,7 +46,7 @@ from ..errors import ExportError
 from . import c_effects
 from .c_fdi import _FDI_SOURCE, FdiSettings, detection_variance, fdi_defines, fdi_header, fdi_tables
 
-__all__ = ["REALS", "export_c"]
+__all__ = ["REALS", "build_filter", "export_c"]
 
 REALS = ("double", "float")
 _PREFIX = {"gyro": "RIMU_GYRO", "accel": "RIMU_ACCEL"}
@@ -458,3 +459,16 @@ def export_c(calibration: Calibration, directory: str | os.PathLike[str], real: 
         os.replace(tmp, d / name)
         out.append(d / name)
     return out
+
+
+def build_filter(directory: str | os.PathLike[str]) -> tuple[str | None, Any]:
+    """Build ``rimu_filter`` in an exported ``directory`` with the system C compiler (``cc``, ``gcc`` or
+    ``clang``) and ``make``. Returns ``(compiler, completed make process)``, or ``(None, None)`` when no compiler
+    or no ``make`` is installed."""
+    import shutil
+    import subprocess
+
+    cc = next((c for c in ("cc", "gcc", "clang") if shutil.which(c)), None)
+    if cc is None or shutil.which("make") is None:
+        return None, None
+    return cc, subprocess.run(["make", "-s", f"CC={cc}"], cwd=Path(directory), capture_output=True, text=True)
