@@ -26,7 +26,7 @@ from .accounting import Accounting, SideLog
 from .assembly import EpochAssembler
 from .base import ReconnectPolicy, Source
 from .canlog import KIND_DATA, KIND_ERROR, NATIVE_LOG_SUFFIXES, LogFrames, iter_candump
-from .layout import STATUS_OK, STATUS_REASONS, CanCodec, DecodedFrames, Layout, load_layout
+from .layout import STATUS_OK, STATUS_REASONS, CanCodec, Layout, load_layout
 
 __all__ = ["CanFrameProcessor", "EpochChunk", "items_to_block", "CanSource", "CanReplaySource", "ReconnectPolicy", "decode_log"]
 
@@ -36,11 +36,6 @@ CAN_ERR_BUSOFF = 0x040
 
 _IS_ERROR = operator.attrgetter("is_error_frame")
 _IS_REMOTE = operator.attrgetter("is_remote_frame")
-
-
-def _slice(dec: DecodedFrames, start: int) -> DecodedFrames:
-    return DecodedFrames(dec.status[start:], dec.message[start:], dec.counter[start:], dec.values[start:],
-                         dec.flags_ok[start:])
 
 
 @dataclass
@@ -175,12 +170,13 @@ class CanFrameProcessor:
 
     def _process_arrays(self, ids: np.ndarray, data: np.ndarray, dlc: np.ndarray, ext: np.ndarray,
                         ts: np.ndarray) -> list[Epoch | EpochChunk]:
-        """Decode and assemble N data frames given as arrays (already counted as received)."""
+        """Decode and assemble N data frames given as arrays (already counted as received): runs of clean samples
+        in layout order straight into :class:`EpochChunk` arrays (:meth:`_fast`), the other frames one by one
+        through the assembler (decoded a window at a time)."""
         acc = self.acc
         side = acc.side_log is not None
         add = self.assembler.add
         out: list = []
-        dec = self.codec.decode(ids, data, dlc, ext)
         K = self.codec.n_messages
         n = len(ids)
         status = msgi = cnt = vals = flags = tsl = None
@@ -189,18 +185,17 @@ class CanFrameProcessor:
         retry_at = 0
         while pos < n:
             if pos >= retry_at and not self.assembler.open:
-                E = self._clean_prefix(_slice(dec, pos))
-                if E >= 4:
-                    w = slice(pos, pos + E * K)
-                    out.extend(self._fast(data[w], dlc[w], _slice(dec, pos), ts[w], E))
-                    pos += E * K
+                used = self._fast(ids, data, dlc, ext, ts, pos, out)
+                if used:
+                    pos += used
                     continue
                 retry_at = pos + 16 * K   # damaged stretch: frame by frame for a while before trying again
-            if vals is None or pos - base >= len(vals):
-                # Python lists for the per-frame path, a window at a time, made when needed
-                base, w = pos, pos + 64 * K
-                status, msgi, cnt = dec.status[pos:w].tolist(), dec.message[pos:w].tolist(), dec.counter[pos:w].tolist()
-                vals, flags = dec.values[pos:w].tolist(), dec.flags_ok[pos:w].tolist()
+            if vals is None or not base <= pos < base + len(vals):
+                # decoded a window at a time, as Python lists for the per-frame path
+                base, w = pos, min(n, pos + 64 * K)
+                dec = self.codec.decode(ids[pos:w], data[pos:w], dlc[pos:w], ext[pos:w])
+                status, msgi, cnt = dec.status.tolist(), dec.message.tolist(), dec.counter.tolist()
+                vals, flags = dec.values.tolist(), dec.flags_ok.tolist()
                 tsl = ts[pos:w].tolist()
             j = pos - base
             st = status[j]
@@ -212,71 +207,63 @@ class CanFrameProcessor:
             pos += 1
         return out
 
-    def _clean_prefix(self, dec: DecodedFrames) -> int:
-        """Number of whole samples at the start of a decoded batch that are clean: every frame valid, in
-        layout order, one counter per sample, counters consecutive."""
-        K = self.codec.n_messages
-        M = self.assembler.M
-        E = len(dec.status) // K
-        if E == 0 or not M:
-            return 0
-        st = dec.status[:E * K].reshape(E, K)
-        mi = dec.message[:E * K].reshape(E, K)
-        cnt = dec.counter[:E * K].reshape(E, K)
-        good = (st[:, 0] == STATUS_OK) & (mi[:, 0] == 0)
-        for k in range(1, K):  # column by column: a reduction along a short axis is slow in numpy
-            good &= (st[:, k] == STATUS_OK) & (mi[:, k] == k) & (cnt[:, k] == cnt[:, 0])
-        step = np.ones(E, bool)
-        step[1:] = np.diff(cnt[:, 0]) % M == 1
-        bad = np.flatnonzero(~(good & step))
-        return int(E if not len(bad) else bad[0])
-
-    def _fast(self, data: np.ndarray, dlc: np.ndarray, dec: DecodedFrames, ts: np.ndarray, E: int) -> list:
-        """Vectorised assembly of ``E`` clean samples (see :meth:`_clean_prefix`) continuing the stream: one
-        :class:`EpochChunk`, with the same epochs, counts and assembler state as the per-frame path. Where that
-        cannot be proven (a time gap, a jump from the last epoch, a sample spread beyond the time window) the
-        frames go through the per-frame path instead."""
+    def _fast(self, ids: np.ndarray, data: np.ndarray, dlc: np.ndarray, ext: np.ndarray, ts: np.ndarray, pos: int,
+              out: list) -> int:
+        """Vectorised assembly of the clean samples from frame ``pos`` on (every frame valid, in layout order, one
+        counter per sample, counters consecutive, continuing the stream), decoded straight into epoch vectors
+        (:meth:`~rimu.io.layout.CanCodec.decode_slots`): one :class:`EpochChunk` appended to ``out``, with the
+        same epochs, counts and assembler state as the per-frame path. Returns the frames used: 0 where fewer than
+        4 such samples follow, or where that cannot be proven (a jump from the last epoch, a time gap): those
+        frames go through the per-frame path."""
         a = self.assembler
         c = self.codec
         K = c.n_messages
-        N = E * K
-        cnt = dec.counter[:N].reshape(E, K)
+        E = (len(ids) - pos) // K
+        if E < 4 or not a.M or not c._slots_unique or (ids[pos:pos + K] != c.layout_ids).any():
+            return 0
+        hi = pos + E * K
+        off = ids[pos:hi] != np.tile(c.layout_ids, E)
+        off |= ext[pos:hi] != np.tile(c.layout_ext, E)
+        if off.any():
+            E = int(np.argmax(off)) // K
+            if E < 4:
+                return 0
+            hi = pos + E * K
+        status, cnt, vals, valid = c.decode_slots(data[pos:hi], dlc[pos:hi], E)
+        # clean: every frame valid, one counter per sample, counters consecutive
+        bad = (status != STATUS_OK).reshape(-1)
+        bad |= (cnt != cnt[:, :1]).reshape(-1)
+        cut = int(np.argmax(bad)) // K if bad.any() else E
         c0 = cnt[:, 0]
-        ts = ts[:N].reshape(E, K)
+        step = np.diff(c0[:cut]) % a.M != 1
+        if step.any():
+            cut = int(np.argmax(step)) + 1
+        tss = ts[pos:pos + cut * K].reshape(cut, K)
         per = a.period
-        ok = True
-        if per and E > 1 and (np.diff(ts[:, 0]) > (a.M // 2) * per).any():
-            ok = False
-        if a.timeout is not None and (ts.max(axis=1) - ts[:, 0] > a.timeout).any():
-            ok = False
+        if per and cut > 1:      # a time step longer than the counter can tell: the per-frame path restarts there
+            gap = np.diff(tss[:, 0]) > (a.M // 2) * per
+            if gap.any():
+                cut = int(np.argmax(gap)) + 1
+        if a.timeout is not None:   # a sample spread beyond the time window: closed incomplete per frame
+            late = np.zeros(cut, dtype=bool)
+            for k in range(1, K):
+                late |= tss[:cut, k] - tss[:cut, 0] > a.timeout
+            if late.any():
+                cut = int(np.argmax(late))
+        E = cut
+        if E < 4:
+            return 0
         if a.newest is not None:
             if int(c0[0]) != (a.newest + 1) % a.M or a.last_emitted != a.newest:
-                ok = False
-            if per and ts[0, 0] - a.newest_ts > (a.M // 2) * per:
-                ok = False
+                return 0
+            if per and tss[0, 0] - a.newest_ts > (a.M // 2) * per:
+                return 0
             seq0 = a.newest + 1
         else:
             if a.last_emitted is not None:
-                ok = False
+                return 0
             seq0 = a._seq_base + int(c0[0])
-        if not ok:
-            out: list = []
-            vl, fl, ml, cl = (dec.values[:N].tolist(), dec.flags_ok[:N].tolist(), dec.message[:N].tolist(),
-                              dec.counter[:N].tolist())
-            tl = ts.reshape(-1).tolist()
-            side = self.acc.side_log is not None
-            for i in range(N):
-                out.extend(a.add(ml[i], cl[i], tl[i], vl[i], fl[i], bytes(data[i, :dlc[i]]) if side else None))
-            return out
-        vals = np.zeros((E, c.n_slots))
-        valid = np.ones((E, c.n_sensors), dtype=bool)
-        V = dec.values[:N].reshape(E, K, -1)
-        F = dec.flags_ok[:N].reshape(E, K, -1)
-        for m in range(K):
-            sl = c.slots[m]
-            vals[:, sl] = V[:, m, :len(sl)]
-            for j, fm in enumerate(c.flag_sensors[m]):
-                valid[:, fm] &= F[:, m, j][:, None]
+        vals, valid, tss, c0 = vals[:E], valid[:E], tss[:E], c0[:E]
         # time, as EpochAssembler._emit does it
         if c.message_has_time.any():
             raw_t = vals[:, c.time_slot]
@@ -287,17 +274,17 @@ class CanFrameProcessor:
             a._t_wraps = int(wraps[-1]) if mod else 0
             a._last_raw_t = float(raw_t[-1])
         else:
-            t = ts[:, 0].copy()
+            t = tss[:, 0].copy()
         if not valid.all():
             vals[:, :c.n_sensors][~valid] = 0.0
         seq = np.arange(seq0, seq0 + E)
-        chunk = EpochChunk(
+        out.append(EpochChunk(
             t, {k: vals[:, o:o + n] for k, o, n in a._inst}, {k: valid[:, o:o + n] for k, o, n in a._inst},
             vals[:, c.temp_slot].copy() if c.message_has_temp.any() else None, c0.copy(), seq, np.full(E, K),
-            {name: vals[:, c.n_sensors + 2 + j].astype(np.int64) for j, name in enumerate(c.other_names)})
+            {name: vals[:, c.n_sensors + 2 + j].astype(np.int64) for j, name in enumerate(c.other_names)}))
         last = seq0 + E - 1
         a.newest = a.last_emitted = last
-        a.newest_ts = float(ts[-1].max())
+        a.newest_ts = float(tss[-1].max())
         keep_n = max(a.M // 2, 4)
         for s_ in range(max(seq0, last - keep_n + 1), last + 1):
             a.recent[s_] = a._full
@@ -305,9 +292,9 @@ class CanFrameProcessor:
             a.recent.popitem(last=False)
         a._last_t, a._last_t_seq = float(t[-1]), last
         a._far = 0
-        self.acc.accepted += N
+        self.acc.accepted += E * K
         self.acc.epochs += E
-        return [chunk]
+        return E * K
 
     def expire(self, now: float) -> list[Epoch]:
         return self.assembler.expire(now)

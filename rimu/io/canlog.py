@@ -104,28 +104,25 @@ def _shape(line: bytes) -> tuple | None:
             m.start(5), n_data, m.start(6) + 1 if m[6] else -1)
 
 
-def _pair_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Two ASCII characters read as one little-endian uint16 -> their value: hex byte (0-255) and decimal pair
-    (0-99); one character -> its hex or decimal digit. 256 where a character is not a digit of the base."""
+def _hex_tables() -> tuple[np.ndarray, np.ndarray]:
+    """Two ASCII characters read as one little-endian uint16 -> their hexadecimal byte (0-255), and one character
+    -> its hex digit; 256 where a character is not a hex digit."""
     hexv = np.full(256, 256, np.int32)
-    decv = np.full(256, 256, np.int32)
     for c in b"0123456789":
-        hexv[c] = decv[c] = c - 48
+        hexv[c] = c - 48
     for c in b"abcdef":
         hexv[c] = hexv[c - 32] = c - 87
     lo, hi = np.meshgrid(np.arange(256), np.arange(256), indexing="xy")   # uint16 = lo | hi << 8: lo first
     hx = np.where((hexv[lo] < 16) & (hexv[hi] < 16), hexv[lo] * 16 + hexv[hi], 256)
-    dc = np.where((decv[lo] < 10) & (decv[hi] < 10), decv[lo] * 10 + decv[hi], 256)
-    return (hx.reshape(-1).astype(np.uint16), dc.reshape(-1).astype(np.uint16), hexv.astype(np.uint16),
-            decv.astype(np.uint16))
+    return hx.reshape(-1).astype(np.uint16), hexv.astype(np.uint16)
 
 
-_HEX2, _DEC2, _HEX1, _DEC1 = _pair_tables()
+_HEX2, _HEX1 = _hex_tables()
 
 
 class _Lines:
     """n lines of one length as strided views: rows ``origin + k * stride`` of the contiguous uint8 ``base``
-    (the text itself when the lines are evenly spaced, else a copy of them)."""
+    (the text itself when the lines are evenly spaced, else a copy of them with 8 spare bytes a row)."""
 
     def __init__(self, base: np.ndarray, origin: int, stride: int, n: int) -> None:
         self.base, self.origin, self.stride, self.n = base, origin, stride, n
@@ -137,79 +134,173 @@ class _Lines:
         """(n, k) uint16: the characters off, off + 1 | off + 2, off + 3 | ... of every line, little-endian."""
         return np.ndarray((self.n, k), "<u2", self.base, self.origin + off, (self.stride, 2))
 
+    def col16(self, off: int) -> np.ndarray:
+        return np.ndarray((self.n,), "<u2", self.base, self.origin + off, (self.stride,))
 
-def _number(lines: _Lines, off: int, n: int, base: int, bad: np.ndarray) -> np.ndarray:
-    """The unsigned number written in ``n`` digits at column ``off`` of every line (base 10 or 16), two digits per
-    table look-up on a uint16 view; ``bad`` gets True where a character is not a digit. int64."""
-    one, two = (_HEX1, _HEX2) if base == 16 else (_DEC1, _DEC2)
+    def word(self, off: int) -> np.ndarray:
+        """(n,) uint64: characters off .. off + 7 of every line, the first in the lowest byte (unaligned view)."""
+        return np.ndarray((self.n,), "<u8", self.base, self.origin + off, (self.stride,))
+
+
+def _bytes_of(c: int) -> np.uint64:
+    return np.uint64(c * 0x0101010101010101)
+
+
+_HIGH, _ZEROS = _bytes_of(0x80), _bytes_of(0x30)
+_M16, _M32, _M64 = np.uint64(0x00FF00FF00FF00FF), np.uint64(0x0000FFFF0000FFFF), np.uint64(0xFFFFFFFF)
+
+
+def _fill_mask(k: int) -> np.uint64:
+    """The bytes k..7 of a word (where a field of k characters has none)."""
+    return np.uint64(((1 << 64) - 1) ^ ((1 << (8 * k)) - 1))
+
+
+def _field_word(lines: _Lines, off: int, k: int, first_high: bool) -> np.ndarray:
+    """The k (1..8) characters at column ``off`` of every line in one word: in bytes 0..k-1 with '0' above them
+    (``first_high`` False), or in bytes 8-k..7 with '0' below them (``first_high``: a decimal number whose leading
+    zeros are then the missing digits). Loads never reach before a line or beyond the end of the text: a
+    field of fewer than 8 characters is read from its end backwards when it sits after column 8, else forwards
+    (a timestamp, followed by at least 8 characters)."""
+    if k == 8:
+        return lines.word(off) | np.uint64(0)        # a contiguous copy
+    if off + k >= 8:
+        w = lines.word(off + k - 8)                  # the field in the high bytes, what precedes it below
+        if first_high:
+            return (w & _fill_mask(8 - k)) | (_ZEROS & ~_fill_mask(8 - k))
+        return (w >> np.uint64(8 * (8 - k))) | (_ZEROS & _fill_mask(k))
+    w = lines.word(off)                              # the field in the low bytes, what follows it above
+    if first_high:
+        return (w << np.uint64(8 * (8 - k))) | (_ZEROS & ~_fill_mask(8 - k))
+    return (w & ~_fill_mask(k)) | (_ZEROS & _fill_mask(k))
+
+
+def _decimal8(w: np.ndarray, bad: np.ndarray) -> np.ndarray:
+    """The number written by the 8 ASCII decimal digits of every word (the first in the lowest byte: the most
+    significant), in a few word-wide operations; ``bad`` |= some byte is no digit."""
+    # a byte c < 0x80 is a digit when c + 0x50 carries into bit 7 (c >= 0x30) and c + 0x46 does not (c <= 0x39);
+    # a byte >= 0x80 is caught by w & _HIGH (its carry may spoil the test of the next byte: the line is bad anyway)
+    bad |= (((w + _bytes_of(0x46)) | ~(w + _bytes_of(0x50)) | w) & _HIGH) != 0
+    v = w - _ZEROS
+    v = (v * np.uint64(10) + (v >> np.uint64(8))) & _M16
+    v = (v * np.uint64(100) + (v >> np.uint64(16))) & _M32
+    v = (v * np.uint64(10000) + (v >> np.uint64(32))) & _M64
+    return v
+
+
+def _decimal(lines: _Lines, off: int, n: int, bad: np.ndarray) -> np.ndarray:
+    """The unsigned number written in ``n`` (1..16) decimal digits at column ``off`` of every line; int64."""
+    if n <= 8:
+        return _decimal8(_field_word(lines, off, n, True), bad).view(np.int64)
+    hi = _decimal8(_field_word(lines, off, n - 8, True), bad)
+    return (hi * np.uint64(10 ** 8) + _decimal8(lines.word(off + n - 8) | np.uint64(0), bad)).view(np.int64)
+
+
+def _hex_number(lines: _Lines, off: int, n: int, bad: np.ndarray) -> np.ndarray:
+    """The unsigned number written in ``n`` hexadecimal digits at column ``off`` of every line, two digits per table
+    look-up on a uint16 view; int64. (On these short fields a look-up beats word-wide arithmetic in numpy.)"""
     v = np.zeros(lines.n, np.int64)
     if n % 2:
-        d = one[lines.col(off)]
+        d = _HEX1[lines.col(off)]
         bad |= d > 255
         v += d
         off, n = off + 1, n - 1
-    if n:
-        d = two[lines.pairs(off, n // 2)]
-        if d.max() > 255:   # some character is no digit (rare): find the lines, column by column
-            for j in range(n // 2):
-                bad |= d[:, j] > 255
-        v = v * (base * base) ** (n // 2) + (d @ (float(base * base) ** np.arange(n // 2 - 1, -1, -1))).astype(np.int64)
+    for j in range(n // 2):
+        d = _HEX2[lines.col16(off + 2 * j)]
+        bad |= d > 255
+        v <<= 8
+        v |= d
     return v
 
 
 def _shaped(buf: np.ndarray, starts: np.ndarray, shape: tuple) -> tuple[np.ndarray, tuple]:
-    """The lines (starts of candidate lines of the shape's length) that have the shape, and their fields: every
-    two characters of a field converted by one table look-up."""
+    """The lines (starts of candidate lines of the shape's length) that have the shape, and their fields: the
+    digits of each field read eight at a time as one 64-bit word and converted with word-wide operations."""
     L, seps, chan, o_int, n_int, n_frac, o_id, n_id, o_data, n_data, o_flag = shape
     n = len(starts)
     step = int(starts[1] - starts[0]) if n > 1 else L
-    if n > 1 and step >= L and int(starts[-1] - starts[0]) == step * (n - 1) and (n < 3 or (np.diff(starts) == step).all()):
+    if (n > 1 and step > L and int(starts[-1] - starts[0]) == step * (n - 1)
+            and (n < 3 or (np.diff(starts) == step).all())):
         lines = _Lines(buf, int(starts[0]), step, n)        # evenly spaced (a run of one shape): views, no copy
     else:
-        lines = _Lines(np.ascontiguousarray(np.lib.stride_tricks.sliding_window_view(buf, L)[starts]), 0, L, n)
+        copy = np.zeros((n, L + 8), np.uint8)
+        copy[:, :L] = np.lib.stride_tricks.sliding_window_view(buf, L)[starts]
+        lines = _Lines(copy.reshape(-1), 0, L + 8, n)
     ok = lines.col(seps[0][0]) == seps[0][1]
     for off, byte in seps[1:]:   # column by column: a reduction along a short axis is slow in numpy
         ok &= lines.col(off) == byte
-    for c in chan:
-        ok &= lines.col(c) != 32
+    for c in chan:               # printable, no space (python-can splits the line at any white space)
+        ch = lines.col(c)
+        ok &= (ch > 32) & (ch < 127)
     if o_flag >= 0:
         f = lines.col(o_flag) | 32
         ok &= (f == ord("r")) | (f == ord("t"))
     bad = np.zeros(n, bool)
-    whole = _number(lines, o_int, n_int, 10, bad)
-    frac = _number(lines, o_int + n_int + 1, n_frac, 10, bad)
-    can_id = _number(lines, o_id, n_id, 16, bad)
+    whole = _decimal(lines, o_int, n_int, bad)
+    frac = _decimal(lines, o_int + n_int + 1, n_frac, bad)
+    can_id = _hex_number(lines, o_id, n_id, bad)
+    nb = n_data // 2
     data = np.zeros((n, 8), np.uint8)
-    if n_data:
-        d = _HEX2[lines.pairs(o_data, n_data // 2)]
-        if d.max() > 255:
-            for j in range(n_data // 2):
+    if nb:
+        d = _HEX2[lines.pairs(o_data, nb)]
+        if d.max() > 255:   # some character is no hex digit (rare): find the lines, column by column
+            for j in range(nb):
                 bad |= d[:, j] > 255
-        data[:, :n_data // 2] = d
+        data[:, :nb] = d
     ok &= ~bad
     ts = (whole * 10 ** n_frac + frac) / 10.0 ** n_frac   # an exact numerator below 1e15, one rounded division
     if not ok.all():
         ts, can_id, data = ts[ok], can_id[ok], data[ok]
-    return ok, (ts, can_id, n_id > 3, n_data // 2, data)
+    return ok, (ts, can_id, n_id > 3, nb, data)
 
 
-def parse_candump(text: bytes | memoryview, first_line: int = 1) -> LogFrames:
+def _line_starts(buf: np.ndarray) -> np.ndarray | None:
+    """Where the lines of ``buf`` (ending with a newline) start, found as runs of lines of one length: the
+    newline ending each line of a run sits at a fixed stride, checked with one strided comparison. None when the
+    text has too many runs (lines of many lengths): then every byte has to be searched. A run may hide a line
+    break inside one of its lines; every character of a line the vectorised pass takes is checked (none is a
+    line break), and :func:`parse_candump` looks for one in the other lines."""
+    size = len(buf)
+    parts = []
+    pos = 0
+    while pos < size:
+        if len(parts) >= 32:
+            return None
+        head = np.flatnonzero(buf[pos:pos + 512] == 10)
+        if not len(head):
+            return None
+        S = int(head[0]) + 1                          # the first line's length with its newline
+        m = (size - pos) // S
+        eq = buf[pos + S - 1: pos + m * S: S] == 10
+        k = m if eq.all() else int(np.argmin(eq))
+        parts.append(np.arange(pos, pos + k * S, S, dtype=np.int64))
+        pos += k * S
+    return np.concatenate(parts) if len(parts) > 1 else parts[0]
+
+
+def parse_candump(text: bytes | memoryview, first_line: int = 1, runs: bool = True) -> LogFrames:
     """The frames of candump ``-L`` text (whole lines; see the module docstring). ``first_line`` numbers the
     first line of ``text``.
 
     The lines are grouped by shape (length and the places of their separators: a log has a handful, as the
     timestamp gains digits and messages differ in length); a group's digits sit at fixed offsets and are
-    converted with one gather and one product per field."""
+    converted field by field for all its lines at once. The lines themselves are found as runs of equally long
+    lines (``runs``, one strided comparison per run) where the text allows, else by a search of every byte."""
     if not text:
         return _empty()
     if bytes(text[-1:]) != b"\n":
         text = bytes(text) + b"\n"
     buf = np.frombuffer(text, dtype=np.uint8)
-    nl = np.flatnonzero(buf == 10)
-    starts = np.empty(len(nl), np.int64)
-    starts[0] = 0
-    starts[1:] = nl[:-1] + 1
-    ends = nl.astype(np.int64)
+    starts = _line_starts(buf) if runs else None
+    if starts is None:
+        nl = np.flatnonzero(buf == 10)
+        starts = np.empty(len(nl), np.int64)
+        starts[0] = 0
+        starts[1:] = nl[:-1] + 1
+        ends = nl.astype(np.int64)
+    else:
+        ends = np.empty(len(starts), np.int64)
+        ends[:-1] = starts[1:] - 1
+        ends[-1] = len(buf) - 1
     cr = np.flatnonzero(buf[np.maximum(ends - 1, 0)] == 13)
     if len(cr):
         ends[cr[ends[cr] > starts[cr]]] -= 1
@@ -237,7 +328,10 @@ def parse_candump(text: bytes | memoryview, first_line: int = 1) -> LogFrames:
     slow_rows: list[int] = []
     got: list[tuple] = []
     for i in sorted(slow):
-        line = bytes(text[starts[i]:ends[i]]).decode("utf-8", "replace")
+        raw = bytes(text[starts[i]:ends[i]])
+        if runs and b"\n" in raw:     # a run hid a line break inside this line: find the lines byte by byte
+            return parse_candump(text, first_line, runs=False)
+        line = raw.decode("utf-8", "replace")
         if not line.strip():
             continue                                  # whitespace only: not a frame
         f = _parse_line(line)

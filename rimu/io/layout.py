@@ -330,6 +330,76 @@ def load_layout(layout: str | os.PathLike[str] | dict | Layout) -> Layout:
     return Layout.from_dict(d, str(p))
 
 
+def linear_checksum(m: Message) -> tuple[np.ndarray, int] | None:
+    """A message's checksum check as a sum over its bytes: ``(T, c)`` with (8, 256) uint8 tables ``T`` such that
+    a frame of the right length passes its check exactly when ``T[0][b0] ^ ... ^ T[7][b7] ^ c == 0`` (``b`` its
+    data bytes, zero-padded). CRC-8 (table-driven, ``c <- tab[c ^ b]``) and XOR are linear over GF(2): a byte
+    ``b`` entering ``k`` steps before the end contributes ``tab^k(b)``, the initial value and the data id a
+    constant, the checksum byte itself ``b``. None for a non-linear checksum (``sum8``) or none.
+
+    >>> m = load_layout("cone6_rimu").messages[1]
+    >>> T, c = linear_checksum(m)
+    >>> from .checksum import crc8
+    >>> body = bytes([1, 2, 3, 4, 5, 6, 7])
+    >>> data = body + bytes([crc8(m.data_id_bytes() + body)])
+    >>> int(np.bitwise_xor.reduce([T[p][data[p]] for p in range(8)]) ^ c)
+    0
+    """
+    if m.checksum is None or m.checksum["algorithm"] not in ("xor8", "crc8_sae_j1850", "crc8_autosar"):
+        return None
+    alg = m.checksum["algorithm"]
+    tab, init, xorout = CHECKSUMS[alg]
+    cb = m.checksum["byte"]
+    did = m.data_id_bytes()
+    body = [j for j in range(m.length) if j != cb]
+    T = np.zeros((8, 256), np.uint8)
+    ident = np.arange(256, dtype=np.uint8)
+    T[cb] = ident
+    if alg == "xor8":
+        c = 0
+        for b in did:
+            c ^= b
+        for p in body:
+            T[p] = ident
+        return T, c ^ xorout
+    n = len(did) + len(body)
+    powers = [ident]                          # powers[k] = tab applied k times
+    for _ in range(n):
+        powers.append(tab[powers[-1]])
+    c = int(powers[n][init]) ^ xorout
+    for k, b in enumerate(did):
+        c ^= int(powers[n - k][b])
+    for i, p in enumerate(body):
+        T[p] = powers[n - len(did) - i]
+    return T, c
+
+
+class _Extraction:
+    """Many signals of the messages of a layout extracted at once from a (E, K) array of 64-bit words (one
+    column per message): every signal a column of one (E, S) result, shifts, masks and signs broadcast."""
+
+    def __init__(self, entries: list[tuple[int, Signal]]) -> None:
+        self.n = len(entries)
+        self.msg = np.array([mi for mi, _ in entries], dtype=np.intp)
+        self.shift = np.array([s.lsb_shift for _, s in entries], dtype=np.uint64)
+        self.mask = np.array([(1 << s.length) - 1 for _, s in entries], dtype=np.uint64)
+        self.sbit = np.array([(1 << (s.length - 1)) if s.signed else 0 for _, s in entries], dtype=np.uint64)
+        self.any_shift = bool(self.shift.any())
+        self.any_signed = bool(self.sbit.any())
+
+    def raw(self, words: np.ndarray) -> np.ndarray:
+        """(E, S) int64 raw values (sign-extended where signed) of (E, K) uint64 words."""
+        w = words[:, self.msg]
+        if self.any_shift:
+            w >>= self.shift
+        w &= self.mask
+        if self.any_signed:
+            s = w & self.sbit
+            s <<= np.uint64(1)
+            w -= s          # raw - 2**length where the sign bit is set (modulo 2**64: two's complement)
+        return w.view(np.int64)
+
+
 @dataclass
 class DecodedFrames:
     """Result of :meth:`CanCodec.decode` for N frames.
@@ -425,6 +495,11 @@ class CanCodec:
         self.time_modulus = None if ts is None else float((1 << ts.length) * ts.scale) if not ts.signed else None
         self.sensor_names = [f"{k}[{i}]" for k in offs for i in range(layout.instruments[k])]
         self.message_index = {m.name: i for i, m in enumerate(layout.messages)}
+        self._lengths = np.array([m.length for m in layout.messages], dtype=np.int64)
+        #: identifiers and extended flags of the messages, in layout order
+        self.layout_ids = np.array([m.id for m in layout.messages], dtype=np.int64)
+        self.layout_ext = np.array([m.extended for m in layout.messages], dtype=bool)
+        self._vector_plan()
         # scalar plans for decoding frames one at a time (live buses): pure Python integer arithmetic
         def plan(sg: Signal) -> tuple:
             return (sg.byte_order == "little_endian", sg.lsb_shift, (1 << sg.length) - 1,
@@ -439,6 +514,95 @@ class CanCodec:
             self._plans[(m.id, m.extended)] = (mi, m.length, ck, plan(m.counter) if m.counter else None,
                                                [plan(sg) for sg in self.value_signals[mi]],
                                                [(plan(sg), sg.ok_mask) for sg in self.flag_signals[mi]])
+
+    def _vector_plan(self) -> None:
+        """What :meth:`_decode_regular` does, worked out once: the signals of all messages in a few
+        :class:`_Extraction` groups (one per byte order: values, then counters, then flags) and the checksums as
+        pair tables (:func:`linear_checksum`) shared by the messages whose checks differ only by a constant."""
+        msgs = self.layout.messages
+        V, F = self.max_values, self.max_flags
+        i64 = np.iinfo(np.int64)
+        self._rest: list[tuple[int, str, int, Signal]] = []   # signals decoded one by one (unsigned 64-bit)
+        self._groups: list[tuple] = []
+        for little in (True, False):
+            ent: list[tuple[int, Signal]] = []
+            vdst: list[int] = []
+            scale: list[float] = []
+            offset: list[float] = []
+            cdst: list[int] = []
+            fdst: list[int] = []
+            okm: list[int] = []
+
+            def mine(sg: Signal, little: bool = little) -> bool:
+                return (sg.byte_order == "little_endian") == little
+
+            for mi in range(len(msgs)):
+                for j, sg in enumerate(self.value_signals[mi]):
+                    if not mine(sg):
+                        continue
+                    if sg.length == 64 and not sg.signed:
+                        self._rest.append((mi, "value", j, sg))
+                        continue
+                    ent.append((mi, sg))
+                    vdst.append(mi * V + j)
+                    scale.append(sg.scale)
+                    offset.append(sg.offset)
+            nv = len(ent)
+            for mi, m in enumerate(msgs):
+                c = m.counter
+                if c is None or not mine(c):
+                    continue
+                if c.length == 64 and not c.signed:
+                    self._rest.append((mi, "counter", 0, c))
+                    continue
+                ent.append((mi, c))
+                cdst.append(mi)
+            nc = len(ent) - nv
+            for mi in range(len(msgs)):
+                for j, sg in enumerate(self.flag_signals[mi]):
+                    if not mine(sg):
+                        continue
+                    if (sg.length == 64 and not sg.signed) or not i64.min <= int(sg.ok_mask) <= i64.max:
+                        self._rest.append((mi, "flag", j, sg))
+                        continue
+                    ent.append((mi, sg))
+                    fdst.append(mi * F + j)
+                    okm.append(int(sg.ok_mask))
+            if not ent:
+                continue
+            sc, of = np.array(scale, dtype=float), np.array(offset, dtype=float)
+            self._groups.append((little, _Extraction(ent), nv, nc, np.array(vdst, dtype=np.intp), sc, of,
+                                 bool((sc != 1.0).any() or (of != 0.0).any()), np.array(cdst, dtype=np.intp),
+                                 np.array(fdst, dtype=np.intp), np.array(okm, dtype=np.int64)))
+        # straight into epoch slots (decode_slots): where each value goes, which sensors each flag covers
+        self._slot_of = np.full(len(msgs) * V, -1, dtype=np.intp)
+        for mi, sl in enumerate(self.slots):
+            self._slot_of[mi * V: mi * V + len(sl)] = sl
+        used = self._slot_of[self._slot_of >= 0]
+        self._slots_unique = len(np.unique(used)) == len(used)
+        self._flag_cover = np.zeros((len(msgs) * F, self.n_sensors), dtype=bool)
+        for mi, fm in enumerate(self.flag_sensors):
+            self._flag_cover[mi * F: mi * F + len(fm)] = fm
+        # checksums: messages with equal tables share them (pair tables: two bytes, one look-up)
+        by_tables: dict[bytes, tuple[np.ndarray, list[int], list[int]]] = {}
+        self._ck_other: list[int] = []          # non-linear checksums (sum8): checked message by message
+        for mi, m in enumerate(msgs):
+            if m.checksum is None:
+                continue
+            lin = linear_checksum(m)
+            if lin is None:
+                self._ck_other.append(mi)
+                continue
+            T, c = lin
+            key = T.tobytes()
+            if key not in by_tables:
+                by_tables[key] = (T, [], [])
+            by_tables[key][1].append(mi)
+            by_tables[key][2].append(c)
+        self._ck_groups = []
+        for T, mis, cs in by_tables.values():
+            pairs = np.stack([(T[2 * q + 1][:, None] ^ T[2 * q][None, :]).reshape(-1) for q in range(4)])
+            self._ck_groups.append((np.array(mis, dtype=np.intp), pairs, np.array(cs, dtype=np.uint8)))
 
     # ------------------------------------------------------------------ helpers
     @staticmethod
@@ -527,50 +691,123 @@ class CanCodec:
                                for f in ("status", "message", "counter", "values", "flags_ok")))
 
     def _decode_regular(self, data: np.ndarray, dlc: np.ndarray, E: int) -> DecodedFrames:
-        """E samples of K frames in layout order: message m is every K-th frame from m (strided views)."""
+        """E samples of K frames in layout order: the (E, K) words of every message at once, each signal a column
+        of one array per byte order (:meth:`_vector_plan`), checksums by pair tables over all frames."""
         K = self.n_messages
         N = E * K
-        status = np.empty((E, K), dtype=np.int8)
+        V, F = self.max_values, self.max_flags
+        status = np.where(dlc.reshape(E, K) == self._lengths, STATUS_OK, STATUS_BAD_LENGTH).astype(np.int8)
+        bad = self._checksum_regular(data, E)
+        if bad is not None:
+            status[bad & (status == STATUS_OK)] = STATUS_CHECKSUM
         counter = np.zeros((E, K), dtype=np.int64)
-        values = np.zeros((E, K, self.max_values))
-        flags_ok = np.ones((E, K, self.max_flags), dtype=bool)
+        values = np.zeros((E, K * V))
+        flags_ok = np.ones((E, K * F), dtype=bool)
         wle = data.view("<u8").reshape(E, K)
-        wbe = data.view(">u8").reshape(E, K)
-        d3 = data.reshape(E, K, 8)
-        dl = dlc.reshape(E, K)
-        for mi, m in enumerate(self.layout.messages):
-            st = np.where(dl[:, mi] == m.length, STATUS_OK, STATUS_BAD_LENGTH).astype(np.int8)
-            if m.checksum is not None:
-                cb = m.checksum["byte"]
-                tab, init, xorout = CHECKSUMS[m.checksum["algorithm"]]
-                cols = [d3[:, mi, j] for j in range(m.length) if j != cb]
-                did = m.data_id_bytes()
-                if tab is None:
-                    crc = crc8_columns(np.column_stack(cols), m.checksum["algorithm"])
-                    if did:
-                        crc = crc8_columns(np.column_stack([np.full(E, b, np.uint8) for b in did] + cols),
-                                           m.checksum["algorithm"])
+        wbe = None
+        for little, ext, nv, nc, vdst, scale, offset, scaled, cdst, fdst, okm in self._groups:
+            if not little and wbe is None:
+                wbe = wle.byteswap()
+            r = ext.raw(wle if little else wbe)
+            if nv:
+                v = r[:, :nv].astype(float)
+                if scaled:
+                    v *= scale
+                    v += offset
+                values[:, vdst] = v
+            if nc:
+                counter[:, cdst] = r[:, nv:nv + nc]
+            if len(fdst):
+                flags_ok[:, fdst] = (r[:, nv + nc:] & okm) == 0
+        if self._rest:
+            wbe = wle.byteswap() if wbe is None else wbe
+            for mi, kind, j, sg in self._rest:
+                raw = self._extract(wle[:, mi], wbe[:, mi], sg)
+                if kind == "value":
+                    values[:, mi * V + j] = raw * sg.scale + sg.offset
+                elif kind == "counter":
+                    counter[:, mi] = raw
                 else:
-                    c = np.uint8(init)
-                    for b in did:
-                        c = tab[c ^ np.uint8(b)]
-                    c = np.full(E, c, dtype=np.uint8)
-                    for col in cols:
-                        c = tab[c ^ col]
-                    crc = c ^ np.uint8(xorout)
-                st[(st == STATUS_OK) & (crc != d3[:, mi, cb])] = STATUS_CHECKSUM
-            status[:, mi] = st
-            lw, bw = wle[:, mi], wbe[:, mi]
-            c_ = m.counter
-            if c_ is not None:
-                counter[:, mi] = self._extract(lw, bw, c_)
-            for j, sg in enumerate(self.value_signals[mi]):
-                values[:, mi, j] = self._extract(lw, bw, sg) * sg.scale + sg.offset
-            for j, sg in enumerate(self.flag_signals[mi]):
-                flags_ok[:, mi, j] = (self._extract(lw, bw, sg).astype(np.int64) & int(sg.ok_mask)) == 0
+                    flags_ok[:, mi * F + j] = (raw.astype(np.int64) & int(sg.ok_mask)) == 0
         msg = np.tile(np.arange(K, dtype=np.int64), E)
-        return DecodedFrames(status.reshape(N), msg, counter.reshape(N), values.reshape(N, self.max_values),
-                             flags_ok.reshape(N, self.max_flags))
+        return DecodedFrames(status.reshape(N), msg, counter.reshape(N), values.reshape(N, V), flags_ok.reshape(N, F))
+
+    def decode_slots(self, data: np.ndarray, dlc: np.ndarray, E: int) -> tuple[np.ndarray, np.ndarray,
+                                                                           np.ndarray, np.ndarray]:
+        """E samples of K frames in layout order decoded straight into epoch vectors (what the assembler makes
+        of clean samples): ``(status (E, K), counter (E, K), slots (E, n_slots), sensor_ok (E, n_sensors))``;
+        ``sensor_ok`` is False where a flag of the sample says a sensor is not valid. Values and flags equal those
+        of :meth:`decode` (the same extraction; layouts where two signals share a slot are not taken:
+        ``_slots_unique``)."""
+        K = self.n_messages
+        V, F = self.max_values, self.max_flags
+        status = np.where(dlc.reshape(E, K) == self._lengths, STATUS_OK, STATUS_BAD_LENGTH).astype(np.int8)
+        bad = self._checksum_regular(data, E)
+        if bad is not None:
+            status[bad & (status == STATUS_OK)] = STATUS_CHECKSUM
+        counter = np.zeros((E, K), dtype=np.int64)
+        slots = np.zeros((E, self.n_slots))
+        flags_ok = np.ones((E, K * F), dtype=bool) if F else None
+        wle = data.view("<u8").reshape(E, K)
+        wbe = None
+        for little, ext, nv, nc, vdst, scale, offset, scaled, cdst, fdst, okm in self._groups:
+            if not little and wbe is None:
+                wbe = wle.byteswap()
+            r = ext.raw(wle if little else wbe)
+            if nv:
+                v = r[:, :nv].astype(float)
+                if scaled:
+                    v *= scale
+                    v += offset
+                slots[:, self._slot_of[vdst]] = v
+            if nc:
+                counter[:, cdst] = r[:, nv:nv + nc]
+            if len(fdst):
+                flags_ok[:, fdst] = (r[:, nv + nc:] & okm) == 0
+        if self._rest:
+            wbe = wle.byteswap() if wbe is None else wbe
+            for mi, kind, j, sg in self._rest:
+                raw = self._extract(wle[:, mi], wbe[:, mi], sg)
+                if kind == "value":
+                    slots[:, self._slot_of[mi * V + j]] = raw * sg.scale + sg.offset
+                elif kind == "counter":
+                    counter[:, mi] = raw
+                else:
+                    flags_ok[:, mi * F + j] = (raw.astype(np.int64) & int(sg.ok_mask)) == 0
+        if flags_ok is None or flags_ok.all():
+            sensor_ok = np.ones((E, self.n_sensors), dtype=bool)
+        else:
+            sensor_ok = ~((~flags_ok) @ self._flag_cover)
+        return status, counter, slots, sensor_ok
+
+    def _checksum_regular(self, data: np.ndarray, E: int) -> np.ndarray | None:
+        """(E, K) bool: frames whose checksum fails (frames in layout order), None if no message has one."""
+        K = self.n_messages
+        if not self._ck_groups and not self._ck_other:
+            return None
+        bad = np.zeros((E, K), dtype=bool)
+        u = data.view("<u2").reshape(E, K, 4)
+        for mis, pairs, consts in self._ck_groups:
+            uu = u if len(mis) == K else u[:, mis]
+            r = pairs[0][uu[:, :, 0]]
+            for q in range(1, 4):
+                r ^= pairs[q][uu[:, :, q]]
+            r ^= consts
+            if len(mis) == K:
+                bad = r != 0
+            else:
+                bad[:, mis] = r != 0
+        d3 = data.reshape(E, K, 8)
+        for mi in self._ck_other:
+            m = self.layout.messages[mi]
+            cb = m.checksum["byte"]
+            cols = [j for j in range(m.length) if j != cb]
+            did = m.data_id_bytes()
+            d = d3[:, mi, cols]
+            if did:
+                d = np.concatenate([np.broadcast_to(np.frombuffer(did, np.uint8), (E, len(did))), d], axis=1)
+            bad[:, mi] = crc8_columns(d, m.checksum["algorithm"]) != d3[:, mi, cb]
+        return bad
 
     def _decode_general(self, ids: np.ndarray, data: np.ndarray, dlc: np.ndarray,
                         extended: np.ndarray | None = None) -> DecodedFrames:
