@@ -112,7 +112,12 @@ class CanFrameProcessor:
         acc.received += len(messages)
         if not messages:
             return []
-        if any(map(_IS_ERROR, messages)) or any(map(_IS_REMOTE, messages)):
+        packed = None
+        if len(messages) >= 16:    # batches: one read of every message; live buses: frame by frame below
+            packed = self.codec.pack_frames(messages)
+            if not packed[5]:
+                return self._process_arrays(*packed[:5])
+        if packed is not None or any(map(_IS_ERROR, messages)) or any(map(_IS_REMOTE, messages)):
             keep = []
             for m in messages:
                 if m.is_error_frame:

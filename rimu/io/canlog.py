@@ -95,8 +95,8 @@ def _shape(line: bytes) -> tuple | None:
     if m is None:
         return None
     n_int, n_frac, n_data = len(m[1]), len(m[2]), len(m[5])
-    if n_int + n_frac > 15 or n_data % 2 or n_data > 16:
-        return None
+    if n_int + n_frac > 15 or n_data % 2 or n_data > 16 or not all(33 <= c < 127 for c in m[3]):
+        return None   # (a channel of printable characters: python-can splits a line at any white space)
     seps = [(0, 40), (m.end(1), 46), (m.end(2), 41), (m.end(2) + 1, 32), (m.end(3), 32), (m.end(4), 35)]
     if m[6]:
         seps.append((m.start(6), 32))
@@ -129,10 +129,6 @@ class _Lines:
 
     def col(self, off: int) -> np.ndarray:
         return np.ndarray((self.n,), np.uint8, self.base, self.origin + off, (self.stride,))
-
-    def pairs(self, off: int, k: int) -> np.ndarray:
-        """(n, k) uint16: the characters off, off + 1 | off + 2, off + 3 | ... of every line, little-endian."""
-        return np.ndarray((self.n, k), "<u2", self.base, self.origin + off, (self.stride, 2))
 
     def col16(self, off: int) -> np.ndarray:
         return np.ndarray((self.n,), "<u2", self.base, self.origin + off, (self.stride,))
@@ -213,9 +209,11 @@ def _hex_number(lines: _Lines, off: int, n: int, bad: np.ndarray) -> np.ndarray:
 
 
 def _shaped(buf: np.ndarray, starts: np.ndarray, shape: tuple) -> tuple[np.ndarray, tuple]:
-    """The lines (starts of candidate lines of the shape's length) that have the shape, and their fields: the
-    digits of each field read eight at a time as one 64-bit word and converted with word-wide operations."""
-    L, seps, chan, o_int, n_int, n_frac, o_id, n_id, o_data, n_data, o_flag = shape
+    """The lines (starts of candidate lines of the shape's length) that have the shape, and their fields, each
+    converted for all lines at once: timestamps eight digits at a time as one 64-bit word (word-wide arithmetic),
+    hexadecimal fields two digits at a time by table look-up, channel and separators compared eight characters
+    at a time with the first line's."""
+    L = shape[0]
     n = len(starts)
     step = int(starts[1] - starts[0]) if n > 1 else L
     if (n > 1 and step > L and int(starts[-1] - starts[0]) == step * (n - 1)
@@ -225,12 +223,27 @@ def _shaped(buf: np.ndarray, starts: np.ndarray, shape: tuple) -> tuple[np.ndarr
         copy = np.zeros((n, L + 8), np.uint8)
         copy[:, :L] = np.lib.stride_tricks.sliding_window_view(buf, L)[starts]
         lines = _Lines(copy.reshape(-1), 0, L + 8, n)
+    return _fields(lines, shape)
+
+
+def _fields(lines: _Lines, shape: tuple, cr: bool = False) -> tuple[np.ndarray, tuple]:
+    """:func:`_shaped` of lines already located (``cr``: each must be followed by a carriage return)."""
+    L, seps, _chan, o_int, n_int, n_frac, o_id, n_id, o_data, n_data, o_flag = shape
+    n = lines.n
     ok = lines.col(seps[0][0]) == seps[0][1]
+    if cr:
+        ok &= lines.col(L) == 13
+    close = o_int + n_int + 1 + n_frac              # ") channel " up to the identifier
+    for p in sorted({*range(close, o_id - 8, 8), o_id - 8}):
+        # eight characters at a time: the channel and separators as in the first line (checked by _shape);
+        # loads end before the identifier's end (never beyond the text)
+        lo, hi = max(p, close), min(p + 8, o_id)
+        mask = np.uint64(((1 << (8 * (hi - lo))) - 1) << (8 * (lo - p)))
+        w = lines.word(p) & mask
+        ok &= w == w[0]
     for off, byte in seps[1:]:   # column by column: a reduction along a short axis is slow in numpy
-        ok &= lines.col(off) == byte
-    for c in chan:               # printable, no space (python-can splits the line at any white space)
-        ch = lines.col(c)
-        ok &= (ch > 32) & (ch < 127)
+        if not close <= off < o_id:
+            ok &= lines.col(off) == byte
     if o_flag >= 0:
         f = lines.col(o_flag) | 32
         ok &= (f == ord("r")) | (f == ord("t"))
@@ -241,11 +254,10 @@ def _shaped(buf: np.ndarray, starts: np.ndarray, shape: tuple) -> tuple[np.ndarr
     nb = n_data // 2
     data = np.zeros((n, 8), np.uint8)
     if nb:
-        d = _HEX2[lines.pairs(o_data, nb)]
-        if d.max() > 255:   # some character is no hex digit (rare): find the lines, column by column
-            for j in range(nb):
-                bad |= d[:, j] > 255
-        data[:, :nb] = d
+        for j in range(nb):
+            d = _HEX2[lines.col16(o_data + 2 * j)]
+            bad |= d > 255
+            data[:, j] = d
     ok &= ~bad
     ts = (whole * 10 ** n_frac + frac) / 10.0 ** n_frac   # an exact numerator below 1e15, one rounded division
     if not ok.all():
@@ -253,14 +265,16 @@ def _shaped(buf: np.ndarray, starts: np.ndarray, shape: tuple) -> tuple[np.ndarr
     return ok, (ts, can_id, n_id > 3, nb, data)
 
 
-def _line_starts(buf: np.ndarray) -> np.ndarray | None:
+def _line_starts(buf: np.ndarray) -> tuple[np.ndarray, list[tuple[int, int, int]]] | None:
     """Where the lines of ``buf`` (ending with a newline) start, found as runs of lines of one length: the
     newline ending each line of a run sits at a fixed stride, checked with one strided comparison. None when the
     text has too many runs (lines of many lengths): then every byte has to be searched. A run may hide a line
     break inside one of its lines; every character of a line the vectorised pass takes is checked (none is a
-    line break), and :func:`parse_candump` looks for one in the other lines."""
+    line break), and :func:`parse_candump` looks for one in the other lines. Also the runs: (first line, lines,
+    stride)."""
     size = len(buf)
     parts = []
+    runs = []
     pos = 0
     while pos < size:
         if len(parts) >= 32:
@@ -272,9 +286,10 @@ def _line_starts(buf: np.ndarray) -> np.ndarray | None:
         m = (size - pos) // S
         eq = buf[pos + S - 1: pos + m * S: S] == 10
         k = m if eq.all() else int(np.argmin(eq))
+        runs.append((sum(len(p) for p in parts), k, S))
         parts.append(np.arange(pos, pos + k * S, S, dtype=np.int64))
         pos += k * S
-    return np.concatenate(parts) if len(parts) > 1 else parts[0]
+    return (np.concatenate(parts) if len(parts) > 1 else parts[0]), runs
 
 
 def parse_candump(text: bytes | memoryview, first_line: int = 1, runs: bool = True) -> LogFrames:
@@ -290,14 +305,15 @@ def parse_candump(text: bytes | memoryview, first_line: int = 1, runs: bool = Tr
     if bytes(text[-1:]) != b"\n":
         text = bytes(text) + b"\n"
     buf = np.frombuffer(text, dtype=np.uint8)
-    starts = _line_starts(buf) if runs else None
-    if starts is None:
+    found = _line_starts(buf) if runs else None
+    if found is None:
         nl = np.flatnonzero(buf == 10)
         starts = np.empty(len(nl), np.int64)
         starts[0] = 0
         starts[1:] = nl[:-1] + 1
         ends = nl.astype(np.int64)
     else:
+        starts, run_list = found
         ends = np.empty(len(starts), np.int64)
         ends[:-1] = starts[1:] - 1
         ends[-1] = len(buf) - 1
@@ -305,8 +321,23 @@ def parse_candump(text: bytes | memoryview, first_line: int = 1, runs: bool = Tr
     if len(cr):
         ends[cr[ends[cr] > starts[cr]]] -= 1
     length = ends - starts
-    rem = np.flatnonzero(length > 0)                 # empty lines are not frames
     groups: list[tuple[np.ndarray, tuple]] = []
+    if found is not None:      # long runs of equally long lines: each its own group if its first line has a shape
+        taken = np.zeros(len(starts), bool)
+        for i0, k, S in run_list:
+            L = int(length[i0])
+            if k < 64 or L == 0 or L < S - 2:
+                continue
+            shape = _shape(bytes(text[starts[i0]:ends[i0]]))
+            if shape is None:
+                continue
+            ok, fields = _fields(_Lines(buf, int(starts[i0]), S, k), shape, cr=L == S - 2)
+            rows = i0 + np.flatnonzero(ok)
+            groups.append((rows, fields))
+            taken[rows] = True
+        rem = np.flatnonzero((length > 0) & ~taken)
+    else:
+        rem = np.flatnonzero(length > 0)             # empty lines are not frames
     slow: list[int] = []
     rounds = 0
     while len(rem) and rounds < 64:

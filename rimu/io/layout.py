@@ -613,15 +613,32 @@ class CanCodec:
     @staticmethod
     def pack_all(messages: list) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Identifiers, (N, 8) data, DLC, extended flags and timestamps of python-can messages, in one pass."""
+        return CanCodec.pack_frames(messages)[:5]
+
+    @staticmethod
+    def pack_frames(messages: list) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool]:
+        """:meth:`pack_all` and whether any message is an error or remote frame, reading each message once (the
+        attribute reads of python-can messages, scattered in memory, cost more than everything done with the
+        arrays: one loop over them, then arrays)."""
         n = len(messages)
-        datas = [m.data for m in messages]
+        ids: list[int] = []
+        datas: list = []
+        tss: list[float] = []
+        exts: list[bool] = []
+        add_id, add_data, add_t, add_ext = ids.append, datas.append, tss.append, exts.append
+        special = False
+        for m in messages:
+            add_id(m.arbitration_id)
+            add_data(m.data)
+            add_t(m.timestamp)
+            add_ext(m.is_extended_id)
+            if m.is_error_frame or m.is_remote_frame:
+                special = True
         dlc = np.fromiter(map(len, datas), dtype=np.int64, count=n)
         parts = datas if n and dlc.min() == 8 == dlc.max() else [bytes(d[:8]).ljust(8, b"\0") for d in datas]
         data = np.frombuffer(b"".join(parts), dtype=np.uint8).reshape(n, 8) if n else np.zeros((0, 8), np.uint8)
-        ids = np.fromiter([m.arbitration_id for m in messages], dtype=np.int64, count=n)
-        ext = np.fromiter([m.is_extended_id for m in messages], dtype=bool, count=n)
-        ts = np.fromiter([m.timestamp for m in messages], dtype=float, count=n)
-        return ids, data, dlc, ext, ts
+        return (np.fromiter(ids, dtype=np.int64, count=n), data, dlc, np.fromiter(exts, dtype=bool, count=n),
+                np.fromiter(tss, dtype=float, count=n), special)
 
     @staticmethod
     def _extract(words_le: np.ndarray, words_be: np.ndarray, s: Signal) -> np.ndarray:
