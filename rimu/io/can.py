@@ -227,10 +227,10 @@ class CanFrameProcessor:
         if E < 4 or not a.M or not c._slots_unique or (ids[pos:pos + K] != c.layout_ids).any():
             return 0
         hi = pos + E * K
-        off = ids[pos:hi] != np.tile(c.layout_ids, E)
-        off |= ext[pos:hi] != np.tile(c.layout_ext, E)
+        off = ids[pos:hi].reshape(E, K) != c.layout_ids
+        off |= ext[pos:hi].reshape(E, K) != c.layout_ext
         if off.any():
-            E = int(np.argmax(off)) // K
+            E = int(np.argmax(off.reshape(-1))) // K
             if E < 4:
                 return 0
             hi = pos + E * K
@@ -250,11 +250,9 @@ class CanFrameProcessor:
             if gap.any():
                 cut = int(np.argmax(gap)) + 1
         if a.timeout is not None:   # a sample spread beyond the time window: closed incomplete per frame
-            late = np.zeros(cut, dtype=bool)
-            for k in range(1, K):
-                late |= tss[:cut, k] - tss[:cut, 0] > a.timeout
+            late = (tss - tss[:, :1] > a.timeout).reshape(-1)
             if late.any():
-                cut = int(np.argmax(late))
+                cut = int(np.argmax(late)) // K
         E = cut
         if E < 4:
             return 0

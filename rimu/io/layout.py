@@ -524,6 +524,7 @@ class CanCodec:
         i64 = np.iinfo(np.int64)
         self._rest: list[tuple[int, str, int, Signal]] = []   # signals decoded one by one (unsigned 64-bit)
         self._groups: list[tuple] = []
+        aligned: dict[str, list[tuple[int, int, Signal]]] = {}
         for little in (True, False):
             ent: list[tuple[int, Signal]] = []
             vdst: list[int] = []
@@ -539,6 +540,13 @@ class CanCodec:
             for mi in range(len(msgs)):
                 for j, sg in enumerate(self.value_signals[mi]):
                     if not mine(sg):
+                        continue
+                    if sg.length in (8, 16, 32) and sg.lsb_shift % sg.length == 0:
+                        # a whole aligned integer: read through a view of the data as that type
+                        size = sg.length // 8
+                        col = (sg.lsb_shift if little else 64 - sg.lsb_shift - sg.length) // sg.length
+                        dt = ("<" if little else ">") + ("i" if sg.signed else "u") + str(size)
+                        aligned.setdefault(dt, []).append((mi * (8 // size) + col, mi * V + j, sg))
                         continue
                     if sg.length == 64 and not sg.signed:
                         self._rest.append((mi, "value", j, sg))
@@ -578,6 +586,13 @@ class CanCodec:
         self._slot_of = np.full(len(msgs) * V, -1, dtype=np.intp)
         for mi, sl in enumerate(self.slots):
             self._slot_of[mi * V: mi * V + len(sl)] = sl
+        self._aligned = []
+        for dt, items in aligned.items():
+            sc = np.array([sg.scale for _, _, sg in items], dtype=float)
+            of = np.array([sg.offset for _, _, sg in items], dtype=float)
+            vd = np.array([d for _, d, _ in items], dtype=np.intp)
+            self._aligned.append((np.dtype(dt), np.array([c for c, _, _ in items], dtype=np.intp), vd,
+                                  self._slot_of[vd], sc, of, bool((sc != 1.0).any()), bool((of != 0.0).any())))
         used = self._slot_of[self._slot_of >= 0]
         self._slots_unique = len(np.unique(used)) == len(used)
         self._flag_cover = np.zeros((len(msgs) * F, self.n_sensors), dtype=bool)
@@ -720,6 +735,8 @@ class CanCodec:
         counter = np.zeros((E, K), dtype=np.int64)
         values = np.zeros((E, K * V))
         flags_ok = np.ones((E, K * F), dtype=bool)
+        for v, vdst, _ in self._aligned_values(data, E):
+            values[:, vdst] = v
         wle = data.view("<u8").reshape(E, K)
         wbe = None
         for little, ext, nv, nc, vdst, scale, offset, scaled, cdst, fdst, okm in self._groups:
@@ -765,6 +782,8 @@ class CanCodec:
         counter = np.zeros((E, K), dtype=np.int64)
         slots = np.zeros((E, self.n_slots))
         flags_ok = np.ones((E, K * F), dtype=bool) if F else None
+        for v, _, sdst in self._aligned_values(data, E):
+            slots[:, sdst] = v
         wle = data.view("<u8").reshape(E, K)
         wbe = None
         for little, ext, nv, nc, vdst, scale, offset, scaled, cdst, fdst, okm in self._groups:
@@ -796,6 +815,19 @@ class CanCodec:
         else:
             sensor_ok = ~((~flags_ok) @ self._flag_cover)
         return status, counter, slots, sensor_ok
+
+    def _aligned_values(self, data: np.ndarray, E: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Values of the whole aligned 8/16/32-bit signals of E samples in layout order, read through views of
+        the data as those integer types: ``(values (E, s), places in DecodedFrames.values, epoch slots)`` per
+        type (the same numbers as the word-wide extraction: the integer, times scale, plus offset)."""
+        out = []
+        for dt, cols, vdst, sdst, scale, offset, scaled, offs in self._aligned:
+            raw = data.view(dt).reshape(E, -1)[:, cols]
+            v = raw * scale if scaled else raw.astype(float)
+            if offs:
+                v += offset
+            out.append((v, vdst, sdst))
+        return out
 
     def _checksum_regular(self, data: np.ndarray, E: int) -> np.ndarray | None:
         """(E, K) bool: frames whose checksum fails (frames in layout order), None if no message has one."""
