@@ -24,7 +24,8 @@ mistaken for short ones.
 
 Epoch time: the layout's ``time`` signal if the frame carrying it arrived (unwrapped past its modulus),
 otherwise the previous epoch's time plus the sequence step times the period (event ``time_extrapolated``;
-not across a restart), otherwise the receive time of the epoch's first frame.
+not across a restart), otherwise (and always for a layout without a ``time`` signal) the receive time of the
+epoch's first frame.
 """
 
 from __future__ import annotations
@@ -233,7 +234,7 @@ class EpochAssembler:
                 self._t_wraps += 1
             self._last_raw_t = raw_t
             t = raw_t + self._t_wraps * (c.time_modulus or 0.0)
-        elif self._last_t is not None and self.period:
+        elif self._time_msgs and self._last_t is not None and self.period:   # the time frame is missing
             t = self._last_t + (seq - self._last_t_seq) * self.period
             acc.event("time_extrapolated")
         else:
