@@ -72,6 +72,10 @@ def bench_can(layout, n_frames, repeat):
         for m in msgs:
             dec(m.arbitration_id, m.data)
 
+    def read_floor():           # the least any Message path does: read id, data and time of every Message
+        for m in msgs:
+            m.arbitration_id, m.data, m.timestamp  # noqa: B018
+
     # the same frames as a candump .log: rimu reads its text (rimu.io.canlog, no python-can message per frame)
     import can
 
@@ -103,8 +107,11 @@ def bench_can(layout, n_frames, repeat):
     rows = []
     for _ in range(repeat):
         rows.append((timeit(rimu_decode, 1), timeit(rimu_replay, 1), timeit(rimu_epochs, 1), timeit(cantools_decode, 1),
-                     timeit(rimu_log_decode, 1), timeit(rimu_log_replay, 1), timeit(logreader_cantools, 1)))
-    t_dec, t_rep, t_eps, t_ct, t_ld, t_lr, t_lrc = (statistics.median(c) for c in zip(*rows))
+                     timeit(rimu_log_decode, 1), timeit(rimu_log_replay, 1), timeit(logreader_cantools, 1),
+                     timeit(read_floor, 1)))
+    t_dec, t_rep, t_eps, t_ct, t_ld, t_lr, t_lrc, t_floor = (statistics.median(c) for c in zip(*rows))
+    r_floor = statistics.median(r[3] / r[7] for r in rows)          # the most any Message path could reach
+    dec_floor = statistics.median(r[0] / r[7] for r in rows)        # rimu's Message decode in units of the floor
     r_dec = statistics.median(r[3] / r[0] for r in rows)
     r_rep = statistics.median(r[3] / r[1] for r in rows)
     r_eps = statistics.median(r[3] / r[2] for r in rows)
@@ -127,6 +134,8 @@ def bench_can(layout, n_frames, repeat):
             "rimu_decode_fps": N / t_dec, "rimu_replay_fps": N / t_rep, "rimu_epochs_fps": N / t_eps,
             "rimu_per_frame_fps": len(sub) / t_pf,
             "cantools_fps": N / t_ct, "ratio_decode": r_dec, "ratio_replay": r_rep,
+            "read_floor_fps": N / t_floor, "ratio_read_floor": r_floor, "decode_over_read_floor": dec_floor,
+            "replay_over_read_floor": statistics.median(r[1] / r[7] for r in rows),
             "ratio_epochs": r_eps, "ratio_per_frame": (len(sub) / t_pf) / (N / t_ct),
             "logreader_blf_fps": N / t_read, "replay_source_blf_fps": N / t_src}
 
@@ -225,6 +234,12 @@ def main() -> None:
         print(f"{r['layout']:15s} {r['frames']:7d} {r['rimu_log_decode_fps']:8.0f} {r['rimu_log_replay_fps']:8.0f} "
               f"{r['cantools_fps']:8.0f} {r['logreader_cantools_fps']:8.0f} {r['ratio_log_decode']:6.1f} "
               f"{r['ratio_log_replay']:6.1f} {r['ratio_log_vs_logreader_cantools']:7.1f}")
+    print("\nthe python-can Message path's floor: reading arbitration_id, data and timestamp of every Message (a Python")
+    print("  loop, nothing else); x floor = what cantools would be over it; decode, replay = rimu's times in floors")
+    print(f"{'layout':15s} {'floor':>8s} {'x floor':>7s} {'decode':>7s} {'replay':>7s}")
+    for r in out["can"]:
+        print(f"{r['layout']:15s} {r['read_floor_fps']:8.0f} {r['ratio_read_floor']:7.1f} "
+              f"{r['decode_over_read_floor']:7.1f} {r['replay_over_read_floor']:7.1f}")
     s = out["serial"]
     print(f"\nserial decoding: {s['clean_MBps']:.1f} MB/s clean ({s['clean_frames_per_s']:.0f} frames/s of "
           f"{s['frame_bytes']} bytes), {s['damaged_MBps']:.1f} MB/s with ~20% of frames damaged; "

@@ -183,6 +183,7 @@ class CanFrameProcessor:
         add = self.assembler.add
         out: list = []
         K = self.codec.n_messages
+        first_id = int(self.codec.layout_ids[0])
         n = len(ids)
         status = msgi = cnt = vals = flags = tsl = None
         base = 0
@@ -194,7 +195,13 @@ class CanFrameProcessor:
                 if used:
                     pos += used
                     continue
-                retry_at = pos + 16 * K   # damaged stretch: frame by frame for a while before trying again
+                if n - pos >= 4 * K and ids[pos] != first_id:
+                    # not at the start of a sample (a batch cut part-way through one): frame by frame up to the
+                    # next frame that may start one
+                    nxt = np.flatnonzero(ids[pos + 1:pos + 1 + 16 * K] == first_id)
+                    retry_at = pos + 1 + int(nxt[0]) if len(nxt) else pos + 16 * K
+                else:
+                    retry_at = pos + 16 * K   # damaged stretch: frame by frame for a while before trying again
             if vals is None or not base <= pos < base + len(vals):
                 # decoded a window at a time, as Python lists for the per-frame path
                 base, w = pos, min(n, pos + 64 * K)
