@@ -525,6 +525,7 @@ class CanCodec:
         self._rest: list[tuple[int, str, int, Signal]] = []   # signals decoded one by one (unsigned 64-bit)
         self._groups: list[tuple] = []
         aligned: dict[str, list[tuple[int, int, Signal]]] = {}
+        aligned_cnt: dict[str, list[tuple[int, int]]] = {}
         for little in (True, False):
             ent: list[tuple[int, Signal]] = []
             vdst: list[int] = []
@@ -560,6 +561,12 @@ class CanCodec:
                 c = m.counter
                 if c is None or not mine(c):
                     continue
+                if c.length in (8, 16, 32) and c.lsb_shift % c.length == 0:
+                    size = c.length // 8
+                    col = (c.lsb_shift if little else 64 - c.lsb_shift - c.length) // c.length
+                    dt = ("<" if little else ">") + ("i" if c.signed else "u") + str(size)
+                    aligned_cnt.setdefault(dt, []).append((mi * (8 // size) + col, mi))
+                    continue
                 if c.length == 64 and not c.signed:
                     self._rest.append((mi, "counter", 0, c))
                     continue
@@ -586,6 +593,8 @@ class CanCodec:
         self._slot_of = np.full(len(msgs) * V, -1, dtype=np.intp)
         for mi, sl in enumerate(self.slots):
             self._slot_of[mi * V: mi * V + len(sl)] = sl
+        self._aligned_counters = [(np.dtype(dt), np.array([c for c, _ in it], dtype=np.intp),
+                                   np.array([m for _, m in it], dtype=np.intp)) for dt, it in aligned_cnt.items()]
         self._aligned = []
         for dt, items in aligned.items():
             sc = np.array([sg.scale for _, _, sg in items], dtype=float)
@@ -735,6 +744,8 @@ class CanCodec:
         counter = np.zeros((E, K), dtype=np.int64)
         values = np.zeros((E, K * V))
         flags_ok = np.ones((E, K * F), dtype=bool)
+        for dt, cols, cdst in self._aligned_counters:
+            counter[:, cdst] = data.view(dt).reshape(E, -1)[:, cols]
         for v, vdst, _ in self._aligned_values(data, E):
             values[:, vdst] = v
         wle = data.view("<u8").reshape(E, K)
@@ -782,6 +793,8 @@ class CanCodec:
         counter = np.zeros((E, K), dtype=np.int64)
         slots = np.zeros((E, self.n_slots))
         flags_ok = np.ones((E, K * F), dtype=bool) if F else None
+        for dt, cols, cdst in self._aligned_counters:
+            counter[:, cdst] = data.view(dt).reshape(E, -1)[:, cols]
         for v, _, sdst in self._aligned_values(data, E):
             slots[:, sdst] = v
         wle = data.view("<u8").reshape(E, K)
