@@ -189,11 +189,14 @@ class CanFrameProcessor:
         base = 0
         pos = 0
         retry_at = 0
+        one = self.codec.decode_one
+        few = 4 * K
         while pos < n:
             if pos >= retry_at and not self.assembler.open:
                 used = self._fast(ids, data, dlc, ext, ts, pos, out)
                 if used:
                     pos += used
+                    few = 4 * K
                     continue
                 if n - pos >= 4 * K and ids[pos] != first_id:
                     # not at the start of a sample (a batch cut part-way through one): frame by frame up to the
@@ -203,6 +206,19 @@ class CanFrameProcessor:
                 else:
                     retry_at = pos + 16 * K   # damaged stretch: frame by frame for a while before trying again
             if vals is None or not base <= pos < base + len(vals):
+                if few > 0 and dlc[pos] <= 8:
+                    # a few frames (at the edges of batches and clean runs): decoded one by one in pure Python,
+                    # cheaper there than a window of numpy (decode_one equals decode, tested)
+                    few -= 1
+                    d = bytes(data[pos, :dlc[pos]])
+                    st, mi, c_, v_, f_ = one(int(ids[pos]), bool(ext[pos]), d)
+                    t_ = float(ts[pos])
+                    if st != STATUS_OK:
+                        acc.reject(STATUS_REASONS[st], 1, d if side else None, t_, id=int(ids[pos]))
+                    else:
+                        out.extend(add(mi, c_, t_, v_, f_, d if side else None))
+                    pos += 1
+                    continue
                 # decoded a window at a time, as Python lists for the per-frame path
                 base, w = pos, min(n, pos + 64 * K)
                 dec = self.codec.decode(ids[pos:w], data[pos:w], dlc[pos:w], ext[pos:w])
