@@ -158,8 +158,8 @@ class CanFrameProcessor:
             acc.reject("malformed_line", 1, text.encode() if side else None, None, line=ln)
         if not len(frames):
             return []
-        odd = np.flatnonzero(frames.kind != KIND_DATA)
-        if len(odd):
+        if frames.kind.any():
+            odd = np.flatnonzero(frames.kind != KIND_DATA)
             for i in odd.tolist():
                 ident, t = int(frames.ids[i]), float(frames.ts[i])
                 if frames.kind[i] == KIND_ERROR:
@@ -251,7 +251,8 @@ class CanFrameProcessor:
             return 0
         hi = pos + E * K
         off = ids[pos:hi].reshape(E, K) != c.layout_ids
-        off |= ext[pos:hi].reshape(E, K) != c.layout_ext
+        if c.layout_ext.any() or ext[pos:hi].any():
+            off |= ext[pos:hi].reshape(E, K) != c.layout_ext
         if off.any():
             E = int(np.argmax(off.reshape(-1))) // K
             if E < 4:

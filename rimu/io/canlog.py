@@ -151,23 +151,17 @@ def _fill_mask(k: int) -> np.uint64:
     return np.uint64(((1 << 64) - 1) ^ ((1 << (8 * k)) - 1))
 
 
-def _field_word(lines: _Lines, off: int, k: int, first_high: bool) -> np.ndarray:
-    """The k (1..8) characters at column ``off`` of every line in one word: in bytes 0..k-1 with '0' above them
-    (``first_high`` False), or in bytes 8-k..7 with '0' below them (``first_high``: a decimal number whose leading
-    zeros are then the missing digits). Loads never reach before a line or beyond the end of the text: a
-    field of fewer than 8 characters is read from its end backwards when it sits after column 8, else forwards
-    (a timestamp, followed by at least 8 characters)."""
+def _digits_word(lines: _Lines, off: int, k: int) -> np.ndarray:
+    """The k (1..8) digits at column ``off`` of every line in one word, in bytes 8-k..7 with '0' below them (the
+    leading zeros of the number). Loads never reach before a line or beyond the end of the text: a field of
+    fewer than 8 characters is read from its end backwards when it sits after column 8, else forwards (a
+    timestamp, followed by at least 8 characters)."""
     if k == 8:
         return lines.word(off) | np.uint64(0)        # a contiguous copy
+    low = _ZEROS & ~_fill_mask(8 - k)                # '0' in bytes 0..7-k
     if off + k >= 8:
-        w = lines.word(off + k - 8)                  # the field in the high bytes, what precedes it below
-        if first_high:
-            return (w & _fill_mask(8 - k)) | (_ZEROS & ~_fill_mask(8 - k))
-        return (w >> np.uint64(8 * (8 - k))) | (_ZEROS & _fill_mask(k))
-    w = lines.word(off)                              # the field in the low bytes, what follows it above
-    if first_high:
-        return (w << np.uint64(8 * (8 - k))) | (_ZEROS & ~_fill_mask(8 - k))
-    return (w & ~_fill_mask(k)) | (_ZEROS & _fill_mask(k))
+        return (lines.word(off + k - 8) & _fill_mask(8 - k)) | low    # the field in the high bytes
+    return (lines.word(off) << np.uint64(8 * (8 - k))) | low          # the field in the low bytes, shifted up
 
 
 def _decimal8(w: np.ndarray, bad: np.ndarray) -> np.ndarray:
@@ -225,8 +219,8 @@ def _hex_word(src: np.ndarray, bad: np.ndarray, out: np.ndarray | None = None) -
 def _decimal(lines: _Lines, off: int, n: int, bad: np.ndarray) -> np.ndarray:
     """The unsigned number written in ``n`` (1..16) decimal digits at column ``off`` of every line; int64."""
     if n <= 8:
-        return _decimal8(_field_word(lines, off, n, True), bad).view(np.int64)
-    hi = _decimal8(_field_word(lines, off, n - 8, True), bad)
+        return _decimal8(_digits_word(lines, off, n), bad).view(np.int64)
+    hi = _decimal8(_digits_word(lines, off, n - 8), bad)
     return (hi * np.uint64(10 ** 8) + _decimal8(lines.word(off + n - 8) | np.uint64(0), bad)).view(np.int64)
 
 
@@ -418,8 +412,12 @@ def parse_candump(text: bytes | memoryview, first_line: int = 1, runs: bool = Tr
             got.append(f)
     if len(groups) == 1 and not got:     # one shape (most chunks of a long log): its arrays as they are
         rows, (ts, cid, ext, dlc, data) = groups[0]
-        kind = np.where(cid & CAN_ERR_FLAG, KIND_ERROR, KIND_DATA).astype(np.int8)
-        return LogFrames(ts, cid & 0x1FFFFFFF, np.full(len(rows), ext), np.full(len(rows), dlc, np.int64), data, kind,
+        if ext:                          # (3 hex digits never reach the error flag)
+            kind = np.where(cid & CAN_ERR_FLAG, KIND_ERROR, KIND_DATA).astype(np.int8)
+            cid = cid & 0x1FFFFFFF
+        else:
+            kind = np.zeros(len(rows), np.int8)
+        return LogFrames(ts, cid, np.full(len(rows), ext), np.full(len(rows), dlc, np.int64), data, kind,
                          rows + first_line, bad, len(starts))
     # every frame in line order: each group scattered to its rows' places among the frames
     n_fast = sum(len(g[0]) for g in groups)

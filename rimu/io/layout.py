@@ -42,7 +42,7 @@ from ..epoch import INSTRUMENTS
 from ..errors import FrameError, ShapeError
 from .checksum import CHECKSUMS, crc8_columns
 
-__all__ = ["Signal", "Message", "Layout", "CanCodec", "DecodedFrames", "load_layout", "LAYOUT_FORMAT",
+__all__ = ["Signal", "Message", "Layout", "CanCodec", "DecodedFrames", "load_layout", "linear_checksum", "LAYOUT_FORMAT",
            "STATUS_OK", "STATUS_UNKNOWN_ID", "STATUS_BAD_LENGTH", "STATUS_CHECKSUM", "STATUS_REASONS"]
 
 LAYOUT_FORMAT = "rimu.can_layout"
