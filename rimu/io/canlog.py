@@ -229,12 +229,12 @@ def _hex_number(lines: _Lines, off: int, n: int, bad: np.ndarray) -> np.ndarray:
     look-up on a uint16 view; int64. (On these short fields a look-up beats word-wide arithmetic in numpy.)"""
     v = np.zeros(lines.n, np.int64)
     if n % 2:
-        d = _HEX1[lines.col(off)]
+        d = np.take(_HEX1, lines.col(off))
         bad |= d > 255
         v += d
         off, n = off + 1, n - 1
     for j in range(n // 2):
-        d = _HEX2[lines.col16(off + 2 * j)]
+        d = np.take(_HEX2, lines.col16(off + 2 * j))
         bad |= d > 255
         v <<= 8
         v |= d
@@ -294,7 +294,7 @@ def _fields(lines: _Lines, shape: tuple, cr: bool = False) -> tuple[np.ndarray, 
         words |= high
     else:
         for j in range(nb):
-            d = _HEX2[lines.col16(o_data + 2 * j)]
+            d = np.take(_HEX2, lines.col16(o_data + 2 * j))
             bad |= d > 255
             data[:, j] = d
     ok &= ~bad
