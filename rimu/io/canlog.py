@@ -165,16 +165,26 @@ def _digits_word(lines: _Lines, off: int, k: int) -> np.ndarray:
 
 
 def _decimal8(w: np.ndarray, bad: np.ndarray) -> np.ndarray:
-    """The number written by the 8 ASCII decimal digits of every word (the first in the lowest byte: the most
-    significant), in a few word-wide operations; ``bad`` |= some byte is no digit."""
+    """The number written by the 8 ASCII decimal digits of every word of ``w`` (the first in the lowest byte: the
+    most significant), in a few word-wide operations done in place (``w`` is overwritten and returned); ``bad``
+    |= some byte is no digit."""
+    u = np.uint64
     # a byte c < 0x80 is a digit when c + 0x50 carries into bit 7 (c >= 0x30) and c + 0x46 does not (c <= 0x39);
     # a byte >= 0x80 is caught by w & _HIGH (its carry may spoil the test of the next byte: the line is bad anyway)
-    bad |= (((w + _bytes_of(0x46)) | ~(w + _bytes_of(0x50)) | w) & _HIGH) != 0
-    v = w - _ZEROS
-    v = (v * np.uint64(10) + (v >> np.uint64(8))) & _M16
-    v = (v * np.uint64(100) + (v >> np.uint64(16))) & _M32
-    v = (v * np.uint64(10000) + (v >> np.uint64(32))) & _M64
-    return v
+    t1 = w + _bytes_of(0x46)
+    t2 = w + _bytes_of(0x50)
+    np.invert(t2, out=t2)
+    t1 |= t2
+    t1 |= w
+    t1 &= _HIGH
+    bad |= t1 != 0
+    w -= _ZEROS                                      # digit values, one per byte
+    for shift, mul, mask in ((8, 10, _M16), (16, 100, _M32), (32, 10000, _M64)):
+        np.right_shift(w, u(shift), out=t1)          # pairs of bytes, then of 16-bit and 32-bit lanes
+        w *= u(mul)
+        w += t1
+        w &= mask
+    return w
 
 
 def _hex_word(src: np.ndarray, bad: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
@@ -221,7 +231,9 @@ def _decimal(lines: _Lines, off: int, n: int, bad: np.ndarray) -> np.ndarray:
     if n <= 8:
         return _decimal8(_digits_word(lines, off, n), bad).view(np.int64)
     hi = _decimal8(_digits_word(lines, off, n - 8), bad)
-    return (hi * np.uint64(10 ** 8) + _decimal8(lines.word(off + n - 8) | np.uint64(0), bad)).view(np.int64)
+    hi *= np.uint64(10 ** 8)
+    hi += _decimal8(lines.word(off + n - 8) | np.uint64(0), bad)
+    return hi.view(np.int64)
 
 
 def _hex_number(lines: _Lines, off: int, n: int, bad: np.ndarray) -> np.ndarray:
