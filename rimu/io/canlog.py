@@ -510,23 +510,30 @@ def _parse_line(line: str) -> tuple | None:
 
 
 def iter_candump(path: str | os.PathLike[str], chunk_bytes: int = 1 << 22) -> Iterator[LogFrames]:
-    """The frames of a candump log file, a chunk of whole lines at a time (constant memory)."""
+    """The frames of a candump log file, a chunk of whole lines at a time (constant memory: one buffer, read
+    into and reused; the part line at its end moved to its start for the next chunk; a line longer than the
+    buffer grows it). The frames of a chunk own their arrays (nothing refers to the buffer)."""
     line = 1
-    rest = b""
-    with open(path, "rb") as fh:
+    buf = bytearray(max(int(chunk_bytes), 1))
+    filled = 0
+    with open(path, "rb", buffering=0) as fh:
         while True:
-            block = fh.read(chunk_bytes)
-            if not block:
+            if filled == len(buf):                    # no line break in the whole buffer: a longer one
+                buf = buf + bytes(len(buf))
+            with memoryview(buf) as view:
+                n = fh.readinto(view[filled:])
+            if not n:
                 break
-            if rest:
-                block = rest + block
-            cut = block.rfind(b"\n") + 1
+            end = filled + n
+            cut = buf.rfind(b"\n", 0, end) + 1
             if cut == 0:
-                rest = block
+                filled = end
                 continue
-            rest = block[cut:]
-            fr = parse_candump(memoryview(block)[:cut], line)   # the lines without a copy of them
+            with memoryview(buf) as view:
+                fr = parse_candump(view[:cut], line)  # the lines without a copy of them
             line += fr.n_lines
             yield fr
-    if rest:
-        yield parse_candump(rest, line)
+            buf[:end - cut] = buf[cut:end]            # the part line, to the start
+            filled = end - cut
+    if filled:
+        yield parse_candump(bytes(buf[:filled]), line)

@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 
 from rimu.io.accounting import Accounting
 from rimu.io.can import CanFrameProcessor
-from rimu.io.canlog import parse_candump
+from rimu.io.canlog import iter_candump, parse_candump
 from rimu.io.checksum import crc8_columns
 from rimu.io.fuzz import CAN_ACTIONS, draw_actions, mutate_can
 from rimu.io.layout import STATUS_OK, CanCodec, Layout, linear_checksum, load_layout
@@ -252,3 +252,22 @@ def test_layouts_build():
     assert c._ck_other == [2] and len(c._ck_groups) == 2          # sum8 one by one; crc8 and xor8 by tables
     assert {dt.str for dt, *_ in c._aligned} == {">i2", "|i1", "|u1"}     # G0; G2, TEMP; MODE
     assert CanCodec(Layout.from_dict(WIDE64))._rest
+
+
+def test_a_log_read_in_any_chunks_gives_the_same_frames(tmp_path):
+    """iter_candump reads into one reused buffer: chunks smaller than a line (the buffer grows), a few lines, or
+    the whole file give the same frames, line numbers and malformed lines as the whole text at once."""
+    rng = np.random.default_rng(9)
+    lines = _log_text(rng, 300)
+    lines[17] = "not a frame"
+    lines[200] = ""
+    lines[-1] = lines[-1][:-2] + "#"                     # a damaged last line without a line break
+    text = "\n".join(lines).encode()
+    path = tmp_path / "a.log"
+    path.write_bytes(text)
+    whole = parse_candump(text)
+    for chunk in (7, 50, 1000, 1 << 20):
+        parts = list(iter_candump(path, chunk))
+        for f in ("ts", "ids", "ext", "dlc", "data", "kind", "line"):
+            np.testing.assert_array_equal(np.concatenate([getattr(p, f) for p in parts]), getattr(whole, f))
+        assert [m for p in parts for m in p.malformed] == whole.malformed == [(18, "not a frame"), (300, lines[-1])]
