@@ -792,7 +792,7 @@ class CanCodec:
             status[bad & (status == STATUS_OK)] = STATUS_CHECKSUM
         counter = np.zeros((E, K), dtype=np.int64)
         slots = np.zeros((E, self.n_slots))
-        flags_ok = np.ones((E, K * F), dtype=bool) if F else None
+        sensor_bad = None          # (E, n_sensors): a flag of the sample says the sensor is not valid
         for dt, cols, cdst in self._aligned_counters:
             counter[:, cdst] = np.take(data.view(dt).reshape(E, -1), cols, axis=1)
         for v, _, sdst in self._aligned_values(data, E):
@@ -812,7 +812,10 @@ class CanCodec:
             if nc:
                 counter[:, cdst] = r[:, nv:nv + nc]
             if len(fdst):
-                flags_ok[:, fdst] = (r[:, nv + nc:] & okm) == 0
+                fb = (r[:, nv + nc:] & okm) != 0
+                if fb.any():
+                    b = fb @ self._flag_cover[fdst]
+                    sensor_bad = b if sensor_bad is None else sensor_bad | b
         if self._rest:
             wbe = wle.byteswap() if wbe is None else wbe
             for mi, kind, j, sg in self._rest:
@@ -822,12 +825,12 @@ class CanCodec:
                 elif kind == "counter":
                     counter[:, mi] = raw
                 else:
-                    flags_ok[:, mi * F + j] = (raw.astype(np.int64) & int(sg.ok_mask)) == 0
-        if flags_ok is None or flags_ok.all():
-            sensor_ok = np.ones((E, self.n_sensors), dtype=bool)
-        else:
-            sensor_ok = ~((~flags_ok) @ self._flag_cover)
-        return status, counter, slots, sensor_ok
+                    fb = (raw.astype(np.int64) & int(sg.ok_mask)) != 0
+                    b = fb[:, None] & self._flag_cover[mi * F + j]
+                    sensor_bad = b if sensor_bad is None else sensor_bad | b
+        if sensor_bad is None:
+            return status, counter, slots, np.ones((E, self.n_sensors), dtype=bool)
+        return status, counter, slots, ~sensor_bad
 
     def _aligned_values(self, data: np.ndarray, E: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """Values of the whole aligned 8/16/32-bit signals of E samples in layout order, read through views of
