@@ -40,6 +40,7 @@ import numpy as np
 from scipy.stats import chi2, norm
 
 from ..errors import ExportError
+from ..fdi.health import READMIT_AFTER
 
 __all__ = ["FdiSettings"]
 
@@ -60,7 +61,7 @@ class FdiSettings:
     p_fa: float = 1e-3
     confirm: int = 3
     invalid_persist: int = 10
-    readmit_after: int | None = 100
+    readmit_after: int | None = READMIT_AFTER
     fail_after: int = 4
     backoff: float = 2.0
     clear_after: int = 50

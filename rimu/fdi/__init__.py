@@ -19,7 +19,7 @@ from .cusum import CusumBank, cusum_threshold, markov_arl, siegmund_arl
 from .glt import GltDecision, GltSnapshot, GltWindow, glt_snapshot, glt_threshold
 from .health import SensorHealth, SensorState
 from .kalman import ParityKalman
-from .manager import FdiEvent, FdiResult, Health, HealthState, RedundancyManager, ReplayResult
+from .manager import FdiEvent, FdiResult, Health, HealthState, RedundancyManager, ReplayResult, unisolated_alarm_runs
 from .motion import MotionAwareGlt, MotionNoiseModel, fit_motion_detector, fit_motion_terms
 from .multiple import FaultSetGlt, SetDecision, set_fault_rates, single_fault_rates
 from .noise import NoiseEstimator
@@ -54,6 +54,7 @@ __all__ = [
     "Health",
     "FdiEvent",
     "ReplayResult",
+    "unisolated_alarm_runs",
     "FdiResult",
     "SensorState",
     "SensorHealth",

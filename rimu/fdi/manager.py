@@ -40,13 +40,13 @@ from ..fusion import InstrumentPipeline, StepResult
 from ..fusion.projection import bits_mask, mask_bits
 from ..fusion.validity import Validity
 from .glt import GltSnapshot, glt_threshold, isolate_argmax
-from .health import SensorHealth, SensorState
+from .health import READMIT_AFTER, SensorHealth, SensorState
 from .kalman import ParityKalman
 from .multiple import FaultSetGlt, SetDecision
 from .parity import column_correlations
 
 __all__ = ["Detector", "FdiEvent", "FdiResult", "Health", "HealthState", "RedundancyManager", "ReplayResult",
-           "SensorState", "Validity"]
+           "SensorState", "Validity", "unisolated_alarm_runs"]
 
 
 class Detector(Protocol):
@@ -174,6 +174,33 @@ class ReplayResult:
         return int(np.count_nonzero(out[1:] != out[:-1]) + (1 if len(out) and out[0] else 0))
 
 
+def unisolated_alarm_runs(result: ReplayResult, confirm: int = 3) -> list[float]:
+    """Times at which a run of ``confirm`` consecutive alarms completes without an isolation at that sample.
+
+    One entry per run of alarms (a run of 7 alarms with ``confirm=3`` counts once, at its 3rd sample); a run
+    that completes at a sample where the manager logged an ``isolated`` or ``invalid_isolated`` event is left
+    out. These are the faults the manager saw with confirmation but did not isolate: the detections of a unit
+    that cannot isolate (two parallel triads), or the confirmed false alarms of a fault-free recording.
+    Times as in ``result.t`` (s, or sample indices; see :class:`ReplayResult`).
+
+    >>> r = ReplayResult(np.arange(12.0), np.zeros((12, 3)), np.zeros(12), np.ones(12),
+    ...                  np.array([1, 1, 1, 1, 0, 1, 1, 0, 1, 1, 1, 0], bool), np.zeros(12, np.int8),
+    ...                  np.zeros(12, np.int8), [FdiEvent(10, 10.0, "isolated", "x1", "")], ["x1"])
+    >>> unisolated_alarm_runs(r)
+    [2.0]
+    """
+    if confirm < 1:
+        raise ValueError(f"confirm must be at least 1 sample, got {confirm}")
+    iso_t = {float(e.t) for e in result.events if e.kind in ("isolated", "invalid_isolated")}
+    a = np.asarray(result.alarm, dtype=bool)
+    # run length at each sample: samples since the last non-alarm sample, where alarmed
+    idx = np.arange(len(a))
+    last_quiet = np.maximum.accumulate(np.where(a, -1, idx))
+    run = np.where(a, idx - last_quiet, 0)
+    t = np.asarray(result.t, dtype=float)
+    return [float(x) for x in t[run == confirm] if float(x) not in iso_t]
+
+
 def _evidence_detector(det: Any) -> bool:
     """Detectors whose alarms come from the parity vector's size (the set GLT can then name the set)."""
     return isinstance(det, (GltSnapshot, ParityKalman))
@@ -202,7 +229,8 @@ class RedundancyManager:
         Consecutive invalid samples of one sensor before it is isolated.
     readmit_after : int or None
         Clean samples before an isolated sensor is re-admitted the first time (doubled at each further
-        isolation of that sensor, ``backoff``); None: never automatically.
+        isolation of that sensor, ``backoff``); None: never automatically. Default
+        :data:`rimu.fdi.health.READMIT_AFTER` (100), the default of every entry point.
     sample_rate : float, optional
         Hz, for the times (s) of samples and events when :meth:`step` or :meth:`run` gets no ``t``
         (``index / sample_rate``); without it and without ``t`` the times are sample indices.
@@ -238,7 +266,7 @@ class RedundancyManager:
     """
 
     def __init__(self, pipeline: InstrumentPipeline, detector: Detector | None = None, *, p_fa: float = 1e-3,
-                 confirm: int = 3, invalid_persist: int = 10, readmit_after: int | None = 100,
+                 confirm: int = 3, invalid_persist: int = 10, readmit_after: int | None = READMIT_AFTER,
                  sample_rate: float | None = None, max_events: int = 10000,
                  isolator: FaultSetGlt | str | None = None, fail_after: int = 4, backoff: float = 2.0,
                  clear_after: int = 50, episode_gap: int | None = None) -> None:
