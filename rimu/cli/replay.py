@@ -377,7 +377,7 @@ def run(args: argparse.Namespace) -> int:
     from ..epoch import EpochBlock
     from ..errors import CalibrationFileError, OptionError, RimuError, SessionFormatError
     from ..export.estimates import Estimates, estimate_columns, write_estimates
-    from ..fdi import RedundancyManager
+    from ..fdi import RedundancyManager, UnitManager
     from ..fdi.campaign import CampaignSpec, make_detector
     from ..fdi.faults import inject, parse_injection
     from ..fusion import Pipeline
@@ -446,12 +446,13 @@ def run(args: argparse.Namespace) -> int:
         print("  compensated effects: " + "; ".join(
             f"{k}: {', '.join(t.effect.name for t in c.terms)}" for k, c in unit.compensation.items()))
 
-    def blocks(pipe):  # type: ignore[no-untyped-def]
-        """pass 2 (and the motion fit): the file again, chunk by chunk, faults injected, effects compensated"""
+    def blocks(pipe=None):  # type: ignore[no-untyped-def]
+        """pass 2 (and the motion fit): the file again, chunk by chunk, faults injected (and, given a pipeline,
+        effects compensated: the motion fit's fault-free start)"""
         for blk in iter_blocks(path, chunk):
             if injections:
                 blk = inject(blk, injections, cal, seed=args.seed)
-            yield pipe.compensate(blk)
+            yield blk if pipe is None else pipe.compensate(blk)
 
     managers = {}
     for k in insts:
@@ -479,12 +480,13 @@ def run(args: argparse.Namespace) -> int:
 
             est = stack.enter_context(stack.enter_context(atomic_path(args.estimates)).open("w"))
             est.write(",".join(estimate_columns(insts)) + "\n")
-        for blk in bar(blocks(unit), total=n_chunks, desc="replay", unit="chunk", enabled=None if n_chunks > 1 else False):
-            results = {}
+        # the managers closed loop with the compensation of further effects (rimu.fdi.UnitManager: the decisions
+        # of the exported C filter, sample by sample)
+        um = UnitManager(unit, {k: managers[k][0] for k in insts})
+        for blk in bar(blocks(), total=n_chunks, desc="replay", unit="chunk", enabled=None if n_chunks > 1 else False):
+            results = um.run(blk)
             for k in insts:
-                mgr = managers[k][0]
-                r = mgr.run(blk.raw[k], blk.valid.get(k), blk.t)
-                results[k] = r
+                r = results[k]
                 alarms[k] += int(np.count_nonzero(r.alarm))
                 events[k] += r.events
                 finite[k] = finite[k] and bool(np.isfinite(r.x).all())
