@@ -321,6 +321,9 @@ class RedundancyManager:
         """One manager per instrument of a :class:`rimu.fusion.Pipeline` (same settings for each; a detector
         object cannot be shared, so pass ``detector_factory=lambda instrument_pipeline: ...`` instead).
 
+        Each manager decides on what it is given (``SF y - B``): where the calibration holds further effects, run
+        them through :class:`rimu.fdi.UnitManager`, which compensates every effect with the managers in the loop.
+
         >>> from rimu.calibration import Calibration, InstrumentCalibration
         >>> from rimu.fusion import Pipeline
         >>> from rimu.geometry import cone6
