@@ -400,6 +400,26 @@ class _Extraction:
         return w.view(np.int64)
 
 
+class _ByteFields:
+    """Unsigned fields of 1..7 bits within one data byte (status nibbles, short counters) of the messages of a
+    layout, extracted at once from the (E, 8 K) data bytes: one uint8 column per field (narrower than words)."""
+
+    def __init__(self, entries: list[tuple[int, Signal]]) -> None:
+        self.n = len(entries)
+        # byte k of a little-endian word is data byte k; of a big-endian one, data byte 7 - k
+        self.col = np.array([8 * mi + (s.lsb_shift // 8 if s.byte_order == "little_endian" else 7 - s.lsb_shift // 8)
+                             for mi, s in entries], dtype=np.intp)
+        self.shift = np.array([s.lsb_shift % 8 for _, s in entries], dtype=np.uint8)
+        self.mask = np.array([(1 << s.length) - 1 for _, s in entries], dtype=np.uint8)
+
+    def raw(self, data: np.ndarray, E: int) -> np.ndarray:
+        """(E, S) uint8 raw values of E samples of K frames in layout order ((E K, 8) uint8 data)."""
+        b = np.take(data.reshape(E, -1), self.col, axis=1)
+        b >>= self.shift
+        b &= self.mask
+        return b
+
+
 @dataclass
 class DecodedFrames:
     """Result of :meth:`CanCodec.decode` for N frames.
@@ -526,7 +546,10 @@ class CanCodec:
         self._groups: list[tuple] = []
         aligned: dict[str, list[tuple[int, int, Signal]]] = {}
         aligned_cnt: dict[str, list[tuple[int, int]]] = {}
-        for little in (True, False):
+        def in_a_byte(sg: Signal) -> bool:      # an unsigned field of 1..7 bits within one data byte
+            return not sg.signed and sg.length < 8 and sg.lsb_shift % 8 + sg.length <= 8
+
+        for little in ("bytes", True, False):
             ent: list[tuple[int, Signal]] = []
             vdst: list[int] = []
             scale: list[float] = []
@@ -535,8 +558,10 @@ class CanCodec:
             fdst: list[int] = []
             okm: list[int] = []
 
-            def mine(sg: Signal, little: bool = little) -> bool:
-                return (sg.byte_order == "little_endian") == little
+            def mine(sg: Signal, little: bool | str = little) -> bool:
+                if little == "bytes":
+                    return in_a_byte(sg)
+                return not in_a_byte(sg) and (sg.byte_order == "little_endian") == little
 
             for mi in range(len(msgs)):
                 for j, sg in enumerate(self.value_signals[mi]):
@@ -586,7 +611,7 @@ class CanCodec:
             if not ent:
                 continue
             sc, of = np.array(scale, dtype=float), np.array(offset, dtype=float)
-            self._groups.append((little, _Extraction(ent), nv, nc, np.array(vdst, dtype=np.intp), sc, of,
+            self._groups.append((little, (_ByteFields if little == "bytes" else _Extraction)(ent), nv, nc, np.array(vdst, dtype=np.intp), sc, of,
                                  bool((sc != 1.0).any() or (of != 0.0).any()), np.array(cdst, dtype=np.intp),
                                  np.array(fdst, dtype=np.intp), np.array(okm, dtype=np.int64)))
         # straight into epoch slots (decode_slots): where each value goes, which sensors each flag covers
@@ -751,9 +776,12 @@ class CanCodec:
         wle = data.view("<u8").reshape(E, K)
         wbe = None
         for little, ext, nv, nc, vdst, scale, offset, scaled, cdst, fdst, okm in self._groups:
-            if not little and wbe is None:
-                wbe = wle.byteswap()
-            r = ext.raw(wle if little else wbe)
+            if little == "bytes":
+                r = ext.raw(data, E)
+            else:
+                if not little and wbe is None:
+                    wbe = wle.byteswap()
+                r = ext.raw(wle if little else wbe)
             if nv:
                 v = r[:, :nv].astype(float)
                 if scaled:
@@ -800,9 +828,12 @@ class CanCodec:
         wle = data.view("<u8").reshape(E, K)
         wbe = None
         for little, ext, nv, nc, vdst, scale, offset, scaled, cdst, fdst, okm in self._groups:
-            if not little and wbe is None:
-                wbe = wle.byteswap()
-            r = ext.raw(wle if little else wbe)
+            if little == "bytes":
+                r = ext.raw(data, E)
+            else:
+                if not little and wbe is None:
+                    wbe = wle.byteswap()
+                r = ext.raw(wle if little else wbe)
             if nv:
                 v = r[:, :nv].astype(float)
                 if scaled:

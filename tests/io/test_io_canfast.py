@@ -251,6 +251,8 @@ def test_layouts_build():
     c = CanCodec(Layout.from_dict(MIXED))
     assert c._ck_other == [2] and len(c._ck_groups) == 2          # sum8 one by one; crc8 and xor8 by tables
     assert {dt.str for dt, *_ in c._aligned} == {">i2", "|i1", "|u1"}     # G0; G2, TEMP; MODE
+    kinds = {g[0]: g[1].n for g in c._groups}       # fields within a byte (CNT_A big-endian), words per byte order
+    assert kinds == {"bytes": 5, True: 5, False: 2}    # 4 counters, STAT | FLAG_B, A0, A1, EXTRA, HW | G1, TIME
     assert CanCodec(Layout.from_dict(WIDE64))._rest
 
 
