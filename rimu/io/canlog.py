@@ -357,38 +357,45 @@ def parse_candump(text: bytes | memoryview, first_line: int = 1, runs: bool = Tr
         text = bytes(text) + b"\n"
     buf = np.frombuffer(text, dtype=np.uint8)
     found = _line_starts(buf) if runs else None
+    groups: list[tuple[np.ndarray, tuple]] = []
+    every_line_taken = False
+    if found is not None:      # long runs of equally long lines: each its own group if its first line has a shape
+        starts, run_list = found
+        every_line_taken = True
+        for i0, k, S in run_list:
+            p0 = int(starts[i0])
+            L = S - 1 - int(S > 1 and buf[p0 + S - 2] == 13)       # without a carriage return
+            shape = _shape(bytes(text[p0:p0 + L])) if k >= 64 and L > 0 else None
+            if shape is None:
+                every_line_taken = False
+                continue
+            ok, fields = _fields(_Lines(buf, p0, S, k), shape, cr=L == S - 2)
+            if ok.all():
+                groups.append((np.arange(i0, i0 + k), fields))
+            else:
+                groups.append((i0 + np.flatnonzero(ok), fields))
+                every_line_taken = False
     if found is None:
         nl = np.flatnonzero(buf == 10)
         starts = np.empty(len(nl), np.int64)
         starts[0] = 0
         starts[1:] = nl[:-1] + 1
         ends = nl.astype(np.int64)
-    else:
-        starts, run_list = found
+    elif not every_line_taken:
         ends = np.empty(len(starts), np.int64)
         ends[:-1] = starts[1:] - 1
         ends[-1] = len(buf) - 1
-    cr = np.flatnonzero(buf[np.maximum(ends - 1, 0)] == 13)
-    if len(cr):
-        ends[cr[ends[cr] > starts[cr]]] -= 1
-    length = ends - starts
-    groups: list[tuple[np.ndarray, tuple]] = []
-    if found is not None:      # long runs of equally long lines: each its own group if its first line has a shape
-        taken = np.zeros(len(starts), bool)
-        for i0, k, S in run_list:
-            L = int(length[i0])
-            if k < 64 or L == 0 or L < S - 2:
-                continue
-            shape = _shape(bytes(text[starts[i0]:ends[i0]]))
-            if shape is None:
-                continue
-            ok, fields = _fields(_Lines(buf, int(starts[i0]), S, k), shape, cr=L == S - 2)
-            rows = i0 + np.flatnonzero(ok)
-            groups.append((rows, fields))
-            taken[rows] = True
-        rem = np.flatnonzero((length > 0) & ~taken)
+    if every_line_taken:
+        rem = np.zeros(0, np.int64)
     else:
-        rem = np.flatnonzero(length > 0)             # empty lines are not frames
+        cr = np.flatnonzero(buf[np.maximum(ends - 1, 0)] == 13)
+        if len(cr):
+            ends[cr[ends[cr] > starts[cr]]] -= 1
+        length = ends - starts
+        keep = length > 0                            # empty lines are not frames
+        for rows, _ in groups:
+            keep[rows] = False
+        rem = np.flatnonzero(keep)
     slow: list[int] = []
     rounds = 0
     while len(rem) and rounds < 64:
