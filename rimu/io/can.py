@@ -247,7 +247,7 @@ class CanFrameProcessor:
         c = self.codec
         K = c.n_messages
         E = (len(ids) - pos) // K
-        if E < 4 or not a.M or not c._slots_unique or (ids[pos:pos + K] != c.layout_ids).any():
+        if E < 4 or not a.M or (ids[pos:pos + K] != c.layout_ids).any():
             return 0
         hi = pos + E * K
         off = ids[pos:hi].reshape(E, K) != c.layout_ids

@@ -627,8 +627,15 @@ class CanCodec:
             vd = np.array([d for _, d, _ in items], dtype=np.intp)
             self._aligned.append((np.dtype(dt), np.array([c for c, _, _ in items], dtype=np.intp), vd,
                                   self._slot_of[vd], sc, of, bool((sc != 1.0).any()), bool((of != 0.0).any())))
-        used = self._slot_of[self._slot_of >= 0]
-        self._slots_unique = len(np.unique(used)) == len(used)
+        # a slot written by several signals (a temperature in two frames): the last in layout order wins, as in
+        # the assembler; the others are not written at all
+        self._last_writer = np.zeros(len(msgs) * V, dtype=bool)
+        seen: set[int] = set()
+        for f in range(len(msgs) * V - 1, -1, -1):
+            if self._slot_of[f] >= 0 and int(self._slot_of[f]) not in seen:
+                seen.add(int(self._slot_of[f]))
+                self._last_writer[f] = True
+        self._groups = [(*g, self._last_writer[g[4]]) for g in self._groups]
         self._flag_cover = np.zeros((len(msgs) * F, self.n_sensors), dtype=bool)
         for mi, fm in enumerate(self.flag_sensors):
             self._flag_cover[mi * F: mi * F + len(fm)] = fm
@@ -775,7 +782,7 @@ class CanCodec:
             values[:, vdst] = v
         wle = data.view("<u8").reshape(E, K)
         wbe = None
-        for little, ext, nv, nc, vdst, scale, offset, scaled, cdst, fdst, okm in self._groups:
+        for little, ext, nv, nc, vdst, scale, offset, scaled, cdst, fdst, okm, _ in self._groups:
             if little == "bytes":
                 r = ext.raw(data, E)
             else:
@@ -810,8 +817,8 @@ class CanCodec:
         """E samples of K frames in layout order decoded straight into epoch vectors (what the assembler makes
         of clean samples): ``(status (E, K), counter (E, K), slots (E, n_slots), sensor_ok (E, n_sensors))``;
         ``sensor_ok`` is False where a flag of the sample says a sensor is not valid. Values and flags equal those
-        of :meth:`decode` (the same extraction; layouts where two signals share a slot are not taken:
-        ``_slots_unique``)."""
+        of :meth:`decode` (the same extraction; where two signals share a slot, a temperature sent in two frames,
+        the last in layout order is kept, as the assembler does)."""
         K = self.n_messages
         V, F = self.max_values, self.max_flags
         status = np.where(dlc.reshape(E, K) == self._lengths, STATUS_OK, STATUS_BAD_LENGTH).astype(np.int8)
@@ -823,11 +830,15 @@ class CanCodec:
         sensor_bad = None          # (E, n_sensors): a flag of the sample says the sensor is not valid
         for dt, cols, cdst in self._aligned_counters:
             counter[:, cdst] = np.take(data.view(dt).reshape(E, -1), cols, axis=1)
-        for v, _, sdst in self._aligned_values(data, E):
-            slots[:, sdst] = v
+        for v, vdst, sdst in self._aligned_values(data, E):
+            last = self._last_writer[vdst]
+            if last.all():
+                slots[:, sdst] = v
+            else:
+                slots[:, sdst[last]] = v[:, last]
         wle = data.view("<u8").reshape(E, K)
         wbe = None
-        for little, ext, nv, nc, vdst, scale, offset, scaled, cdst, fdst, okm in self._groups:
+        for little, ext, nv, nc, vdst, scale, offset, scaled, cdst, fdst, okm, last in self._groups:
             if little == "bytes":
                 r = ext.raw(data, E)
             else:
@@ -839,7 +850,10 @@ class CanCodec:
                 if scaled:
                     v *= scale
                     v += offset
-                slots[:, self._slot_of[vdst]] = v
+                if last.all():
+                    slots[:, self._slot_of[vdst]] = v
+                else:
+                    slots[:, self._slot_of[vdst[last]]] = v[:, last]
             if nc:
                 counter[:, cdst] = r[:, nv:nv + nc]
             if len(fdst):
@@ -852,7 +866,8 @@ class CanCodec:
             for mi, kind, j, sg in self._rest:
                 raw = self._extract(wle[:, mi], wbe[:, mi], sg)
                 if kind == "value":
-                    slots[:, self._slot_of[mi * V + j]] = raw * sg.scale + sg.offset
+                    if self._last_writer[mi * V + j]:
+                        slots[:, self._slot_of[mi * V + j]] = raw * sg.scale + sg.offset
                 elif kind == "counter":
                     counter[:, mi] = raw
                 else:

@@ -9,7 +9,8 @@
 
 Besides the shipped layouts, a layout made to reach every branch: big-endian signals (aligned and not), signed
 odd lengths, 4-, 7-, 12-, 24- and 32-bit fields, CRC-8/AUTOSAR with a two-byte data id, XOR and SUM checksums,
-a checksum-less 3-byte frame, an extended identifier, a signed status flag covering two sensors, other signals;
+a checksum-less 3-byte frame, an extended identifier, a signed status flag covering two sensors, other signals,
+a temperature sent in two frames (the last one counts);
 and a one-frame layout with an unsigned 64-bit sample (decoded one signal at a time).
 """
 
@@ -51,7 +52,7 @@ MIXED = {
                      _sig("A0", "sample", 24, 16, scale=0.001, offset=-30.0, instrument="accel", index=0),
                      _sig("TEMP", "temperature", 40, 8, signed=True, scale=0.5)]},
         {"name": "C", "id": "0x300", "length": 8, "checksum": {"algorithm": "sum8", "byte": 7},
-         "signals": [_sig("CNT_C", "counter", 0, 4),
+         "signals": [_sig("CNT_C", "counter", 0, 4), _sig("TEMP2", "temperature", 4, 4, scale=4.0, offset=-10.0),
                      _sig("A1", "sample", 8, 32, signed=True, scale=1e-4, instrument="accel", index=1),
                      _sig("MODE", "other", 40, 8), _sig("EXTRA", "other", 48, 7, signed=True)]},
         {"name": "D", "id": "0x301", "length": 3,
@@ -252,7 +253,8 @@ def test_layouts_build():
     assert c._ck_other == [2] and len(c._ck_groups) == 2          # sum8 one by one; crc8 and xor8 by tables
     assert {dt.str for dt, *_ in c._aligned} == {">i2", "|i1", "|u1"}     # G0; G2, TEMP; MODE
     kinds = {g[0]: g[1].n for g in c._groups}       # fields within a byte (CNT_A big-endian), words per byte order
-    assert kinds == {"bytes": 5, True: 5, False: 2}    # 4 counters, STAT | FLAG_B, A0, A1, EXTRA, HW | G1, TIME
+    assert kinds == {"bytes": 6, True: 5, False: 2}    # 4 counters, TEMP2, STAT | FLAG_B, A0, A1, EXTRA, HW | G1, TIME
+    assert c._last_writer.sum() == c._last_writer.size - (c._slot_of < 0).sum() - 1      # TEMP (B) gives way to TEMP2
     assert CanCodec(Layout.from_dict(WIDE64))._rest
 
 
