@@ -275,3 +275,16 @@ def test_a_log_read_in_any_chunks_gives_the_same_frames(tmp_path):
         for f in ("ts", "ids", "ext", "dlc", "data", "kind", "line"):
             np.testing.assert_array_equal(np.concatenate([getattr(p, f) for p in parts]), getattr(whole, f))
         assert [m for p in parts for m in p.malformed] == whole.malformed == [(18, "not a frame"), (300, lines[-1])]
+
+
+def test_a_layout_without_time_signal_stamps_epochs_with_receive_time():
+    """mm7 has no time signal: every epoch (also one with a missing frame) gets the receive time of its first
+    frame, frame by frame as in batches, and nothing is counted as extrapolated."""
+    rng = np.random.default_rng(11)
+    _, msgs = _clean_messages("mm7_automotive", 40, rng)
+    del msgs[31]                                               # sample 10 loses its second frame
+    for batch in (1, 1000):
+        p = CanFrameProcessor("mm7_automotive", Accounting())
+        eps = [e for i in range(0, len(msgs), batch) for e in p.process(msgs[i:i + batch])] + p.flush()
+        assert [e.t for e in eps] == [1000.0 + k * 0.01 for k in range(40)]
+        assert "time_extrapolated" not in p.acc.events and p.acc.events["missing_frame"] == 1
