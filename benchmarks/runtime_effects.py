@@ -96,19 +96,20 @@ def _c_reference(ck, cal, block, sizes, reps):
         dT = sub.temperature - pipe._t_ref
         Ys = [np.ascontiguousarray(sub.raw[k]) for k in order]
         Os = [np.empty((N, 3 + pipe[k].r)) for k in order]
-        ts = []
-        for _ in range(reps):
-            dt, bad = ck.epoch_block(prog.F, prog.L, prog.W, Ys[0], Ys[-1], t, dT, Os[0], Os[-1], inner)
-            assert bad == -1
-            ts.append(dt)
         ref = pipe.process(sub)
+        _, bad = ck.epoch_block(prog.F, prog.L, prog.W, Ys[0], Ys[-1], t, dT, Os[0], Os[-1], 1)
+        assert bad == -1
         for k, O in zip(order, Os):
             np.testing.assert_allclose(O[:, :3], ref[k].x, rtol=0, atol=1e-12 * np.abs(ref[k].x).max())
 
         def run(sub=sub, inner=inner):
             for _ in range(inner):
                 pipe.process(sub)
-        t_nb = median_time(run, reps) / (inner * N)
+        ts, tn = [], []
+        for _ in range(reps):  # alternated, so that a change of the machine's load falls on both
+            ts.append(ck.epoch_block(prog.F, prog.L, prog.W, Ys[0], Ys[-1], t, dT, Os[0], Os[-1], inner)[0])
+            tn.append(median_time(run, 1))
+        t_nb = float(np.median(tn)) / (inner * N)
         t_c = float(np.median(ts)) / N
         out[str(N)] = {"c_us": t_c * 1e6, "numba_us": t_nb * 1e6, "numba_vs_c": t_c / t_nb}
     return out
@@ -152,7 +153,7 @@ def main(quick: bool = False) -> dict:
             r["step_ratio_to_bare_matvec"] = r["step_us"] / (t_bare * 1e6)
     ck = build() if "numba" in backends else None
     cref = None if ck is None else _c_reference(ck, cfgs["all"], block, (100_000, 1_000) if not quick
-                                                else (20_000, 1_000), reps)
+                                                else (20_000, 1_000), 3 * reps)
     res = {"benchmark": "runtime_effects", "geometry": "cone6 gyro + accel", "step_samples": M, "block_samples": N,
            "machine": {"cpus": os.cpu_count(), "load_1min": os.getloadavg()[0]}, "backends": backends,
            "bare_matvec_us": t_bare * 1e6, "configurations": rows["numpy"], "by_backend": rows,
