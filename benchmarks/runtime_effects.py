@@ -72,13 +72,24 @@ def data(cal, N: int, seed: int = 0) -> EpochBlock:
     return EpochBlock(t, raw, temperature=T)
 
 
-def _time_steps(pipe, epochs, reps):
-    def step_loop():
+def _time_configurations(pipes, epochs, head, reps):
+    """Per-sample ``step`` and ``process`` times of every configuration's pipeline, s; the configurations are
+    timed in turn within each repeat, so that a change of the machine's load falls on all of them."""
+    def step_loop(pipe):
         step = pipe.step
         for e in epochs:
             step(e)
-    step_loop()
-    return median_time(step_loop, reps) / len(epochs)
+    for pipe in pipes.values():
+        step_loop(pipe)
+        pipe.process(head)
+    steps: dict = {name: [] for name in pipes}
+    blocks: dict = {name: [] for name in pipes}
+    for r in range(reps):
+        for name, pipe in pipes.items():
+            steps[name].append(median_time(lambda pipe=pipe: step_loop(pipe), 1) / len(epochs))
+            if r < max(3, reps // 2):
+                blocks[name].append(median_time(lambda pipe=pipe: pipe.process(head), 1) / len(head))
+    return {name: (float(np.median(steps[name])), float(np.median(blocks[name]))) for name in pipes}
 
 
 def _c_reference(ck, cal, block, sizes, reps):
@@ -127,11 +138,8 @@ def main(quick: bool = False) -> dict:
                              temperature=block.temperature[:M]).epochs())
     rows: dict = {b: {} for b in backends}
     for b in backends:
-        for name, cal in cfgs.items():
-            pipe = Pipeline(cal, temperature=True, backend=b)
-            t_step = _time_steps(pipe, epochs, reps)
-            pipe.process(head)
-            t_block = median_time(lambda pipe=pipe: pipe.process(head), max(3, reps // 2)) / N
+        pipes = {name: Pipeline(cal, temperature=True, backend=b) for name, cal in cfgs.items()}
+        for name, (t_step, t_block) in _time_configurations(pipes, epochs, head, reps).items():
             rows[b][name] = {"step_us": t_step * 1e6, "block_us": t_block * 1e6}
     # references timed in the same run: bare numpy G @ y (one instrument) per sample
     g = Pipeline(cfgs["base"], backend="numpy")["gyro"]
