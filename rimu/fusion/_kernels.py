@@ -37,9 +37,10 @@ __all__ = ["Program", "epoch_block", "epoch_step", "project_block", "project_one
 #: increfs and decrefs its array arguments with atomic instructions, which cost more than the per-sample
 #: arithmetic of a small unit (about 0.15 us of every sample of the all-effects epoch on cone6)
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-#: the helpers of the compensation are inlined into the two kernels that use them (numba IR inlining: LLVM does
-#: not inline them, and a call passes every array as a struct of seven words); :func:`_epoch` calls
-#: :func:`_solve` from one place, so that its code, the longest, appears once per kernel
+#: the helpers of the compensation are inlined into :func:`_epoch` (numba IR inlining: LLVM does not inline them,
+#: and a call passes every array as a struct of seven words); :func:`_epoch` calls :func:`_solve` from one place,
+#: so that its code, the longest, appears once; :func:`_epoch` itself stays one function that both epoch kernels
+#: call (one call per epoch; inlining it into both doubled the compile time for no measurable gain)
 _inline = numba.njit(cache=True, nogil=True, error_model="numpy", _nrt=False, inline="always")
 
 #: index cast: an unsigned index needs no negative-index wraparound check (numba adds one to every signed index
@@ -301,7 +302,7 @@ def _project(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - c
     return s - s == 0.0
 
 
-@_inline
+@_jit
 def _epoch(F: Any, L: Any, W: Any, t: float, dT: float) -> bool:  # pragma: no cover - compiled
     """Pipeline.step of one epoch whose raw samples are in W: compensation of every instrument (with the fixed
     point where the gyros need the specific force and the accelerometers the rate), then the projection, in
