@@ -4,7 +4,7 @@
 The C functions do the arithmetic of ``rimu/fusion/_kernels.py`` operation by operation, in the same order, on the
 same arrays (the compiled program's F, L, W: the same effects, Newton steps and fixed-point rounds), so that a
 ratio to them measures the implementation, not a different computation. The C code keeps the plain shape of one
-function per step (the compiler inlines them); the numba code differs only in how it is arranged for numba (its
+static function per step (gcc inlines the small ones); the numba code differs only in how it is arranged for numba (its
 epoch is one loop over the fixed-point rounds and the instruments, so that the inlined Newton solve appears once). They are
 built at run time with the system compiler, ``-O3 -march=native`` (no fast-math: IEEE arithmetic, as numba's);
 ``build()`` returns None where no compiler is found (the benchmark then reports no C reference).
