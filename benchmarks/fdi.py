@@ -19,7 +19,7 @@ from scipy.stats import norm
 from rimu.fdi import CusumBank, GltSnapshot, GltWindow, ParityKalman, RedundancyManager, markov_arl, siegmund_arl
 from rimu.fdi.campaign import CampaignSpec, clopper_pearson, run_campaign
 from rimu.fdi.cusum import bias_delays
-from rimu.fusion import InstrumentPipeline
+from rimu.fusion import InstrumentPipeline, numba_available
 from rimu.geometry import cone6
 from rimu.sim import cho_park_table3
 from rimu.units import DS_TO_RS
@@ -123,9 +123,14 @@ def block_paths(N: int, repeats: int) -> dict:
     faulty[N // 2:] += 1.0 * V6[:, 2]                     # 1 sigma bias in the second half: CUSUM alarms ~ every 40
     large = quiet.copy()
     large[N // 2:] += 10.0 * V6[:, 2]                     # 10 sigma: an alarm every second sample
-    dets = {"GLT snapshot (reference)": GltSnapshot(1e-3), "CUSUM bank, ARL0 1e5": CusumBank(1.0, 1e5),
-            "CUSUM, no restart at alarms": _NoRestart(CusumBank(1.0, 1e5)),
-            "Kalman, estimate test": ParityKalman(20.0, 1e-3), "Kalman, innovation test": ParityKalman(20.0, 1e-3, test="innovation")}
+    dets = {"GLT snapshot (reference)": GltSnapshot(1e-3),
+            "CUSUM bank, ARL0 1e5, numpy": CusumBank(1.0, 1e5, backend="numpy"),
+            "CUSUM, no restart, numpy": _NoRestart(CusumBank(1.0, 1e5, backend="numpy"))}
+    if numba_available():
+        dets["CUSUM bank, ARL0 1e5, numba"] = CusumBank(1.0, 1e5, backend="numba")
+        dets["CUSUM, no restart, numba"] = _NoRestart(CusumBank(1.0, 1e5, backend="numba"))
+    dets["Kalman, estimate test"] = ParityKalman(20.0, 1e-3)
+    dets["Kalman, innovation test"] = ParityKalman(20.0, 1e-3, test="innovation")
     ref = "GLT snapshot (reference)"
     res: dict = {}
     print(f"\nblock paths, {N} samples of cone6 parity (dof 3); ns per sample, median of {repeats}; ratio to the GLT")
@@ -142,7 +147,7 @@ def block_paths(N: int, repeats: int) -> dict:
                 times[k].append(time.perf_counter() - t0)
         res[label] = {k: {"ns_per_sample": float(np.median(v)) / N * 1e9,
                           "ratio_to_glt": float(np.median(np.array(v) / np.array(times[ref])))} for k, v in times.items()}
-        res[label]["CUSUM bank, ARL0 1e5"]["alarms"] = int((dets["CUSUM bank, ARL0 1e5"].block(P, V6, 3)[0] > 1).sum())
+        res[label]["CUSUM bank, ARL0 1e5, numpy"]["alarms"] = int((dets["CUSUM bank, ARL0 1e5, numpy"].block(P, V6, 3)[0] > 1).sum())
     # the per-sample path of the CUSUM bank over the same samples (update() in a loop), on a tenth of the block
     bank = CusumBank(1.0, 1e5)
     n_step = max(N // 10, 1000)

@@ -1,0 +1,118 @@
+"""Compiled kernel of the CUSUM bank's block path (numba), the optional ``fast`` backend (``pip install rimu[fast]``,
+:mod:`rimu.fusion.backend`).
+
+:func:`cusum_block` runs :meth:`rimu.fdi.cusum.CusumBank.block` sample by sample in one call: the same
+floating-point operations in the same order as the numpy path (running sums in blocks of 16 -- the earlier blocks'
+sum plus a partial sum --, ``C+ = A - k delta^2 / 2``, ``C- = -A - k delta^2 / 2``, exact running minima, the
+origin moved every ``rebase`` samples), so the two give the same bits; a restart after an alarm (``M = C``) costs
+nothing more than any other sample, however many alarms come. Compiled on first use and cached on disk.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+try:
+    import numba
+except ImportError as exc:  # pragma: no cover - the caller checks availability first
+    raise ImportError("the compiled backend needs numba: pip install rimu[fast]") from exc
+
+__all__ = ["cusum_block"]
+
+#: IEEE arithmetic as numpy's (no fast-math, no contraction into fused multiply-adds: the same bits)
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+
+#: index cast: an unsigned index needs no negative-index wraparound check (as in rimu.fusion._kernels)
+_u = numba.uint64
+
+
+@_jit
+def cusum_block(P: Any, W: Any, half: Any, inv: Any, idx: Any, isolable: bool, rebase: int, blk: int,
+                restart: bool, out: Any, iso: Any) -> bool:  # pragma: no cover - compiled
+    """The CUSUM bank over the rows of ``P`` (N, >= dof); ``W`` (dof, n_a) the LLR slopes, ``half`` (n_a,)
+    ``delta^2 / 2``, ``inv`` (2 n_a,) the inverse thresholds [S+ of each active sensor, S- of each].
+
+    Fills ``out`` (N,) with the largest statistic / threshold and ``iso`` (N,) with the sensor of that statistic
+    (``idx`` (n_a,): the active sensors) where it exceeds 1 (an alarm) and ``isolable``, else -1; with
+    ``restart`` every statistic restarts after an alarm.
+    Returns False (outputs unspecified past that point) at the first non-finite running sum."""
+    N = P.shape[0]
+    dof, na = W.shape[0], W.shape[1]
+    ns = 2 * na
+    part = np.zeros(na)
+    base = np.zeros(na)
+    Acc = np.zeros(na)
+    C = np.zeros(ns)
+    M = np.zeros(ns)
+    k = 0                                              # samples since the origin
+    pos = 0                                            # k % blk
+    b = 0                                              # k // blk
+    for t in range(N):
+        if k == rebase:                                # move the origin before the sample
+            for i in range(ns):
+                M[i] = M[i] - C[i]
+            k = pos = b = 0
+        if pos == 0:                                   # a new block: base = the earlier blocks' sum (cumsum)
+            if b == 0:
+                for j in range(na):
+                    base[j] = 0.0
+            elif b == 1:
+                for j in range(na):
+                    base[j] = part[j]
+            else:
+                for j in range(na):
+                    base[j] = base[j] + part[j]
+            for j in range(na):
+                a = W[0, j] * P[t, 0]
+                for i in range(1, dof):
+                    a = a + W[_u(i), j] * P[t, _u(i)]
+                part[j] = a
+                Acc[j] = a + base[j]
+        else:
+            for j in range(na):
+                a = W[0, j] * P[t, 0]
+                for i in range(1, dof):
+                    a = a + W[_u(i), j] * P[t, _u(i)]
+                a = part[j] + a
+                part[j] = a
+                Acc[j] = a + base[j]
+        k += 1
+        pos += 1
+        if pos == blk:
+            pos = 0
+            b += 1
+        kf = float(k)
+        best = -1.0
+        kb = 0
+        fin = 0.0
+        for j in range(na):                            # S+ of each active sensor, then S- (argmax order)
+            c = Acc[j] - half[j] * kf
+            fin += c
+            C[j] = c
+            m = min(M[j], c)
+            M[j] = m
+            r = (c - m) * inv[j]
+            kb = j if r > best else kb
+            best = max(best, r)
+        for j in range(na):
+            i = na + j
+            c = -Acc[j] - half[j] * kf
+            C[i] = c
+            m = min(M[i], c)
+            M[i] = m
+            r = (c - m) * inv[i]
+            kb = i if r > best else kb
+            best = max(best, r)
+        if not np.isfinite(fin):                       # NaN or inf in a sum (a finite overflow of fin: rare, raised too)
+            return False
+        out[t] = best
+        if best > 1.0:
+            iso[t] = idx[kb if kb < na else kb - na] if isolable else -1
+            if restart:
+                for i in range(ns):
+                    M[i] = C[i]
+        else:
+            iso[t] = -1
+    return True
