@@ -379,7 +379,8 @@ class CusumBank:
                 raise _non_finite()
             return out, 1.0, iso
         out, iso = np.zeros(N), np.full(N, -1)
-        self._numpy_block(P, dof, idx, W, half, inv, restart, out, iso)
+        with np.errstate(invalid="ignore", over="ignore"):   # checked once, on the output
+            self._numpy_block(P, dof, idx, W, half, inv, restart, out, iso)
         if not np.isfinite(out).all():          # a non-finite sample spreads to every later running sum
             raise _non_finite()
         return out, 1.0, iso
