@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 from scipy.signal import lfilter
 
+from ..errors import NonFiniteError, ShapeError
 from .glt import as_noise_settings, block_isolate, glt_threshold, isolate_argmax
 from .whitening import cached_whitener
 
@@ -191,28 +192,55 @@ class ParityKalman:
     def block(self, P: np.ndarray, Vz: np.ndarray, dof: int) -> tuple[np.ndarray, float, np.ndarray]:
         """The same filter over N samples from a fresh start (steady gain, vectorised): (statistic, threshold,
         isolated). Like :meth:`configure` then :meth:`update` per sample: the statistic is a filter state, so
-        an alarm restarts nothing (the manager restarts the filter when the active set changes)."""
+        an alarm restarts nothing (the manager restarts the filter when the active set changes). The statistics
+        are those of :meth:`update` bit for bit (``nu_k = p_k - beta_{k-1}``, ``beta`` in lfilter's order, the
+        squares summed in component order), except with a noise model (the whitening is a matrix product, to
+        rounding).
+
+        Raises
+        ------
+        ShapeError
+            ``P`` is not (N, >= dof).
+        NonFiniteError
+            ``P`` holds NaN or inf in its first ``dof`` columns.
+        """
         K = self.K
         thr = glt_threshold(self.p_fa, dof) if dof >= 1 else float("inf")
         if dof < 1:
             return np.zeros(len(P)), thr, np.full(len(P), -1)
-        Z = np.asarray(P, dtype=float)[:, :dof]
-        B = lfilter([K], [1.0, -(1.0 - K)], Z, axis=0)   # beta_k = (1 - K) beta_{k-1} + K p_k
-        if self.test == "innovation":
-            nu = np.empty_like(B)
-            nu[:1] = Z[:1]
-            np.subtract(Z[1:], B[:-1], out=nu[1:])
-            return _sum_squares(nu) * ((2.0 - K) / 2.0), thr, block_isolate(nu, Vz[:dof])
-        L = self.whitening(Vz, dof)
-        if L is not None:
-            B = B @ L.T
-            return _sum_squares(B), thr, block_isolate(B, L @ Vz[:dof])
-        return _sum_squares(B) * ((2 - K) / K), thr, block_isolate(B, Vz[:dof])
+        P = np.asarray(P, dtype=float)
+        if P.ndim != 2 or P.shape[1] < dof:
+            raise ShapeError(f"the parity block must be (N, >= dof = {dof}), got shape {P.shape}")
+        # time along the contiguous axis: lfilter, the differences and the sums of squares run over rows of
+        # N samples (the isolation takes the transposed view, as BLAS does without a copy)
+        ZT = P[:, :dof].T
+        with np.errstate(invalid="ignore", over="ignore"):     # checked once, on the statistic
+            BT = lfilter([K], [1.0, -(1.0 - K)], ZT, axis=1)   # beta_k = (1 - K) beta_{k-1} + K p_k
+            if self.test == "innovation":
+                nuT = np.empty_like(BT)
+                nuT[:, :1] = ZT[:, :1]
+                np.subtract(ZT[:, 1:], BT[:, :-1], out=nuT[:, 1:])  # nu_k = p_k - beta_{k-1}, as update()
+                stat = _row_sum_squares(nuT)
+                stat *= (2.0 - K) / 2.0
+                X, V = nuT.T, Vz[:dof]
+            else:
+                L = self.whitening(Vz, dof)
+                if L is not None:
+                    X, V = BT.T @ L.T, L @ Vz[:dof]
+                    stat = _row_sum_squares(np.ascontiguousarray(X.T))
+                else:
+                    stat = _row_sum_squares(BT)
+                    stat *= (2 - K) / K
+                    X, V = BT.T, Vz[:dof]
+        if not np.isfinite(stat).all():                        # a filter state carries it to every later sample
+            raise NonFiniteError("the parity block holds a non-finite value (NaN or inf); the Kalman filter would "
+                                 "carry it to every later sample: leave invalid samples out of the block (or set "
+                                 "their parity to 0, as the campaign does) before calling block()")
+        return stat, thr, block_isolate(X, V)
 
 
-def _sum_squares(X: np.ndarray) -> np.ndarray:
-    """Row sums of squares of X (N, d), summed in column order (the order of the per-sample path)."""
-    T = np.ascontiguousarray(X.T)                    # contiguous columns: some 4x faster than strided ones
+def _row_sum_squares(T: np.ndarray) -> np.ndarray:
+    """Column sums of squares of T (d, N), summed in row order (the order of the per-sample path)."""
     s = T[0] * T[0]
     for i in range(1, T.shape[0]):
         s += T[i] * T[i]

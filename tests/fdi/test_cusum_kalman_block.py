@@ -237,6 +237,7 @@ def test_kalman_block_equals_steps_and_filterpy(test):
     kf.configure(V6, 3)
     step = np.array([kf.update(p)[0] for p in P])
     np.testing.assert_allclose(blk, step, rtol=1e-12, atol=1e-12 * thr)
+    assert np.array_equal(blk, step)            # the same operations in the same order: the same bits
     assert np.array_equal(blk > thr, step > thr) and (blk > thr).sum() > 100
     alarms = np.flatnonzero(blk > thr)[::97]
     kf.configure(V6, 3)
@@ -250,6 +251,19 @@ def test_kalman_block_equals_steps_and_filterpy(test):
     ref.configure(V6, 3)
     fp = np.array([ref.update(p)[0] for p in P[:6000]])
     np.testing.assert_allclose(fp, step[:6000], rtol=1e-11, atol=1e-12 * thr)
+
+
+@pytest.mark.parametrize("test", ["estimate", "innovation"])
+def test_kalman_block_non_finite_and_shape_are_named(test):
+    P = faulted_parity(4000, V6, 18)
+    kf = ParityKalman(20, 1e-3, test=test)
+    for where, value in ((0, np.nan), (1234, np.inf), (3999, -np.inf)):
+        Q = P.copy()
+        Q[where, 2] = value
+        with pytest.raises(NonFiniteError, match="non-finite.*leave invalid samples out"):
+            kf.block(Q, V6, 3)
+    with pytest.raises(ShapeError, match=r"\(N, >= dof = 3\)"):
+        kf.block(P[:, :2], V6, 3)
 
 
 def test_kalman_block_with_noise_model_equals_steps():
