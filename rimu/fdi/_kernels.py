@@ -86,10 +86,10 @@ def cusum_block(P: Any, W: Any, half: Any, inv: Any, idx: Any, isolable: bool, r
         kf = float(k)
         best = -1.0
         kb = 0
-        fin = 0.0
+        fin = 0.0                                      # NaN when a running sum is NaN or inf (inf * 0), else 0
         for j in range(na):                            # S+ of each active sensor, then S- (argmax order)
+            fin += Acc[j] * 0.0
             c = Acc[j] - half[j] * kf
-            fin += c
             C[j] = c
             m = min(M[j], c)
             M[j] = m
@@ -105,7 +105,7 @@ def cusum_block(P: Any, W: Any, half: Any, inv: Any, idx: Any, isolable: bool, r
             r = (c - m) * inv[i]
             kb = i if r > best else kb
             best = max(best, r)
-        if not np.isfinite(fin):                       # NaN or inf in a sum (a finite overflow of fin: rare, raised too)
+        if fin != 0.0:
             return False
         out[t] = best
         if best > 1.0:

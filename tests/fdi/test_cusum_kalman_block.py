@@ -158,6 +158,8 @@ def test_cusum_block_dense_alarms_and_split_calls(backend):
     assert np.all(whole[500:900] > 1.0) and np.all(iso[500:900] == 5)      # dense: every sample restarts
     episode = alarms[(alarms > 1500) & (alarms < 2600)]
     assert 3 < np.median(np.diff(episode)) < 30 and np.mean(iso[episode] == 2) > 0.95
+    wide = np.asfortranarray(np.hstack([P, rng.standard_normal((len(P), 2))]))
+    assert np.array_equal(bank.block(wide, V6, 3)[0], whole)                # any layout, extra columns unread
     for m in (700, 701, 1997, 2016, 2017):                                   # inside the episodes
         head, _, iso_h = bank.block(P[:m], V6, 3)
         assert np.array_equal(head, whole[:m]) and np.array_equal(iso_h, iso[:m])
