@@ -16,16 +16,17 @@ import numpy as np
 
 try:
     import numba
-except ImportError as exc:  # pragma: no cover - the caller checks availability first
-    raise ImportError("the compiled backend needs numba: pip install rimu[fast]") from exc
+except ImportError:  # pragma: no cover - the numpy install: CusumBank calls here only with numba
+    numba = None
 
 __all__ = ["cusum_block"]
 
-#: IEEE arithmetic as numpy's (no fast-math, no contraction into fused multiply-adds: the same bits)
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+#: IEEE arithmetic as numpy's (no fast-math, no contraction into fused multiply-adds: the same bits); without
+#: numba the module still imports (doctest collection), its function is then plain (slow) Python
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy") if numba is not None else (lambda f: f)
 
 #: index cast: an unsigned index needs no negative-index wraparound check (as in rimu.fusion._kernels)
-_u = numba.uint64
+_u = numba.uint64 if numba is not None else int
 
 
 @_jit
