@@ -1,11 +1,13 @@
-"""Compiled kernel of the CUSUM bank's block path (numba), the optional ``fast`` backend (``pip install rimu[fast]``,
+"""Compiled kernels of the FDI block paths (numba), the optional ``fast`` backend (``pip install rimu[fast]``,
 :mod:`rimu.fusion.backend`).
 
 :func:`cusum_block` runs :meth:`rimu.fdi.cusum.CusumBank.block` sample by sample in one call: the same
 floating-point operations in the same order as the numpy path (running sums in blocks of 16 -- the earlier blocks'
 sum plus a partial sum --, ``C+ = A - k delta^2 / 2``, ``C- = -A - k delta^2 / 2``, exact running minima, the
 origin moved every ``rebase`` samples), so the two give the same bits; a restart after an alarm (``M = C``) costs
-nothing more than any other sample, however many alarms come. Compiled on first use and cached on disk.
+nothing more than any other sample, however many alarms come. :func:`kalman_block` runs the steady Kalman filter of
+:class:`rimu.fdi.kalman.ParityKalman` and its test statistic in one pass, in the order of ``update()``. Compiled on
+first use and cached on disk.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ try:
 except ImportError:  # pragma: no cover - the numpy install: CusumBank calls here only with numba
     numba = None
 
-__all__ = ["cusum_block"]
+__all__ = ["cusum_block", "kalman_block"]
 
 #: IEEE arithmetic as numpy's (no fast-math, no contraction into fused multiply-adds: the same bits); without
 #: numba the module still imports (doctest collection), its function is then plain (slow) Python
@@ -116,4 +118,33 @@ def cusum_block(P: Any, W: Any, half: Any, inv: Any, idx: Any, isolable: bool, r
                     M[i] = C[i]
         else:
             iso[t] = -1
+    return True
+
+
+@_jit
+def kalman_block(P: Any, dof: int, K: float, innovation: bool, scale: float, out: Any,
+                 X: Any) -> bool:  # pragma: no cover - compiled
+    """The steady Kalman filter of :class:`rimu.fdi.kalman.ParityKalman` over the rows of ``P`` (N, >= dof), from
+    zero: ``beta_k = (1 - K) beta_{k-1} + K p_k`` (lfilter's order), the innovations ``nu_k = p_k - beta_{k-1}``.
+
+    Fills ``X`` (dof, N) with the innovations (``innovation``) or the estimates, and ``out`` (N,) with
+    ``scale`` times the sum of their squares in component order (the order of ``update()``). Returns False at
+    the first non-finite value."""
+    N = P.shape[0]
+    a = 1.0 - K
+    beta = np.zeros(dof)
+    for t in range(N):
+        s = 0.0
+        for i in range(dof):
+            z = P[t, _u(i)]
+            b = beta[_u(i)]
+            nb = a * b + K * z
+            beta[_u(i)] = nb
+            v = z - b if innovation else nb
+            X[_u(i), t] = v
+            s = v * v if i == 0 else s + v * v
+        s = s * scale
+        if not np.isfinite(s):
+            return False
+        out[t] = s
     return True

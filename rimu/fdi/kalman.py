@@ -40,6 +40,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from ..errors import NonFiniteError, ShapeError
+from ..fusion.backend import resolve_backend
 from .glt import as_noise_settings, block_isolate, glt_threshold, isolate_argmax
 from .whitening import cached_whitener
 
@@ -73,13 +74,17 @@ class ParityKalman:
     noise : NoiseSettings or noise model, optional
         The sensors' noise model: the estimate test whitens with the covariance of the exponential average
         under it (module docstring).
+    backend : {"auto", "numpy", "numba"}, optional
+        Implementation of :meth:`block` (:mod:`rimu.fusion.backend`; default ``RIMU_BACKEND``, else ``auto``):
+        numba runs the filter and its statistic in one compiled pass (:func:`rimu.fdi._kernels.kalman_block`),
+        numpy with ``scipy.signal.lfilter``; the same bits (the whitened estimate test always takes numpy).
     """
 
     name = "kalman"
     window = 1
 
     def __init__(self, tau: float = 20.0, p_fa: float = 1e-3, engine: str = "steady",
-                 test: str = "estimate", noise: object = None) -> None:
+                 test: str = "estimate", noise: object = None, backend: str | None = None) -> None:
         if engine not in ("filterpy", "steady"):
             raise ValueError(f"engine must be 'filterpy' or 'steady', got {engine!r}")
         if test not in ("estimate", "innovation"):
@@ -94,6 +99,7 @@ class ParityKalman:
         self.K = steady_gain(self.q)
         self.p_fa = p_fa
         self.noise = as_noise_settings(noise)
+        self.backend = resolve_backend(backend)
         self._L: np.ndarray | None = None
         self._dof = 0
         self.kf: Any = None  # filterpy.kalman.KalmanFilter with engine="filterpy"
@@ -211,32 +217,48 @@ class ParityKalman:
         P = np.asarray(P, dtype=float)
         if P.ndim != 2 or P.shape[1] < dof:
             raise ShapeError(f"the parity block must be (N, >= dof = {dof}), got shape {P.shape}")
+        L = self.whitening(Vz, dof) if self.test == "estimate" else None
+        if self.backend == "numba" and L is None:
+            from ._kernels import kalman_block
+
+            stat, XT = np.empty(len(P)), np.empty((dof, len(P)))       # the numpy path's layout: the same isolation
+            scale = (2.0 - K) / 2.0 if self.test == "innovation" else (2 - K) / K
+            if not kalman_block(P, dof, K, self.test == "innovation", scale, stat, XT):
+                raise _non_finite()
+            return stat, thr, block_isolate(XT.T, Vz[:dof])
         # time along the contiguous axis: lfilter, the differences and the sums of squares run over rows of
         # N samples (the isolation takes the transposed view, as BLAS does without a copy)
         ZT = P[:, :dof].T
         with np.errstate(invalid="ignore", over="ignore"):     # checked once, on the statistic
             BT = lfilter([K], [1.0, -(1.0 - K)], ZT, axis=1)   # beta_k = (1 - K) beta_{k-1} + K p_k
-            if self.test == "innovation":
-                nuT = np.empty_like(BT)
-                nuT[:, :1] = ZT[:, :1]
-                np.subtract(ZT[:, 1:], BT[:, :-1], out=nuT[:, 1:])  # nu_k = p_k - beta_{k-1}, as update()
-                stat = _row_sum_squares(nuT)
+            if self.test == "innovation":                       # nu_k = p_k - beta_{k-1}, as update(), into BT:
+                for e in range(BT.shape[1], 1, -_CHUNK):          # backwards, each chunk reads beta before it is
+                    s = max(e - _CHUNK, 1)                        # overwritten (no fresh N-sample array: page
+                    np.subtract(ZT[:, s:e], BT[:, s - 1:e - 1], out=BT[:, s:e])   # faults cost more than the pass)
+                BT[:, :1] = ZT[:, :1]
+                stat = _row_sum_squares(BT)
                 stat *= (2.0 - K) / 2.0
-                X, V = nuT.T, Vz[:dof]
+                X, V = BT.T, Vz[:dof]
+            elif L is not None:
+                X, V = BT.T @ L.T, L @ Vz[:dof]
+                stat = _row_sum_squares(np.ascontiguousarray(X.T))
             else:
-                L = self.whitening(Vz, dof)
-                if L is not None:
-                    X, V = BT.T @ L.T, L @ Vz[:dof]
-                    stat = _row_sum_squares(np.ascontiguousarray(X.T))
-                else:
-                    stat = _row_sum_squares(BT)
-                    stat *= (2 - K) / K
-                    X, V = BT.T, Vz[:dof]
+                stat = _row_sum_squares(BT)
+                stat *= (2 - K) / K
+                X, V = BT.T, Vz[:dof]
         if not np.isfinite(stat).all():                        # a filter state carries it to every later sample
-            raise NonFiniteError("the parity block holds a non-finite value (NaN or inf); the Kalman filter would "
-                                 "carry it to every later sample: leave invalid samples out of the block (or set "
-                                 "their parity to 0, as the campaign does) before calling block()")
+            raise _non_finite()
         return stat, thr, block_isolate(X, V)
+
+
+def _non_finite() -> NonFiniteError:
+    return NonFiniteError("the parity block holds a non-finite value (NaN or inf); the Kalman filter would carry it "
+                          "to every later sample: leave invalid samples out of the block (or set their parity to 0, "
+                          "as the campaign does) before calling block()")
+
+
+#: samples per step of the in-place innovations (numpy copies an overlapping input: a small copy per chunk)
+_CHUNK = 4096
 
 
 def _row_sum_squares(T: np.ndarray) -> np.ndarray:

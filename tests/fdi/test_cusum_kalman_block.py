@@ -1,6 +1,6 @@
 """The vectorised block paths of the CUSUM bank and the Kalman detector against their per-sample paths (equal to
 1e-12, alarms on the same samples) and against independent references (Page's recursion written out, filterpy).
-The CUSUM bank's block path for each backend (numpy, and numba where installed): the same bits as update()."""
+The block paths of both detectors for each backend (numpy, and numba where installed): the same bits as update()."""
 
 import numpy as np
 import pytest
@@ -189,16 +189,19 @@ def test_cusum_block_non_finite_is_named(backend, where, value):
         bank.block(P[:, :2], V6, 3)
 
 
-def test_cusum_backend_choice(monkeypatch):
+def test_block_backend_choice(monkeypatch):
     """``backend=`` as the runtime's (rimu.fusion.backend): numba asked for and missing is named, auto falls
     back to numpy, RIMU_BACKEND decides without an argument."""
     monkeypatch.setenv("RIMU_BACKEND", "numpy")
-    assert CusumBank(1.0).backend == "numpy"
+    assert CusumBank(1.0).backend == ParityKalman(20).backend == "numpy"
     monkeypatch.setattr(backend_mod, "_KERNELS", [None])
     monkeypatch.delenv("RIMU_BACKEND")
     assert CusumBank(1.0, backend="auto").backend == "numpy"
     with pytest.raises(BackendUnavailableError, match=r"pip install rimu\[fast\]"):
         CusumBank(1.0, backend="numba")
+    assert ParityKalman(20, backend="auto").backend == "numpy"
+    with pytest.raises(BackendUnavailableError, match=r"pip install rimu\[fast\]"):
+        ParityKalman(20, backend="numba")
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -230,11 +233,12 @@ def test_block_paths_empty_and_no_parity(backend):
         assert s.shape == (0,) and iso.shape == (0,)
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("test", ["estimate", "innovation"])
-def test_kalman_block_equals_steps_and_filterpy(test):
+def test_kalman_block_equals_steps_and_filterpy(test, backend):
     P = faulted_parity(30_000, V6, 15)
-    kf = ParityKalman(20, 1e-3, test=test)
-    assert kf.engine == "steady"
+    kf = ParityKalman(20, 1e-3, test=test, backend=backend)
+    assert kf.engine == "steady" and kf.backend == backend
     blk, thr, iso = kf.block(P, V6, 3)
     kf.configure(V6, 3)
     step = np.array([kf.update(p)[0] for p in P])
@@ -255,10 +259,11 @@ def test_kalman_block_equals_steps_and_filterpy(test):
     np.testing.assert_allclose(fp, step[:6000], rtol=1e-11, atol=1e-12 * thr)
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("test", ["estimate", "innovation"])
-def test_kalman_block_non_finite_and_shape_are_named(test):
+def test_kalman_block_non_finite_and_shape_are_named(test, backend):
     P = faulted_parity(4000, V6, 18)
-    kf = ParityKalman(20, 1e-3, test=test)
+    kf = ParityKalman(20, 1e-3, test=test, backend=backend)
     for where, value in ((0, np.nan), (1234, np.inf), (3999, -np.inf)):
         Q = P.copy()
         Q[where, 2] = value
