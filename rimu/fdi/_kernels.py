@@ -122,17 +122,21 @@ def cusum_block(P: Any, W: Any, half: Any, inv: Any, idx: Any, isolable: bool, r
 
 
 @_jit
-def kalman_block(P: Any, dof: int, K: float, innovation: bool, scale: float, out: Any,
-                 X: Any) -> bool:  # pragma: no cover - compiled
+def kalman_block(P: Any, dof: int, K: float, innovation: bool, scale: float, V: Any, n2: Any, out: Any,
+                 iso: Any) -> bool:  # pragma: no cover - compiled
     """The steady Kalman filter of :class:`rimu.fdi.kalman.ParityKalman` over the rows of ``P`` (N, >= dof), from
     zero: ``beta_k = (1 - K) beta_{k-1} + K p_k`` (lfilter's order), the innovations ``nu_k = p_k - beta_{k-1}``.
 
-    Fills ``X`` (dof, N) with the innovations (``innovation``) or the estimates, and ``out`` (N,) with
-    ``scale`` times the sum of their squares in component order (the order of ``update()``). Returns False at
-    the first non-finite value."""
+    Fills ``out`` (N,) with ``scale`` times the sum of squares of the innovations (``innovation``) or of the
+    estimates, in component order (the order of ``update()``), and ``iso`` (N,) with the sensor j whose column
+    ``V[:, j]`` (dof, n) best explains that vector, ``argmax_j (x . v_j)^2 / n2_j`` over the columns with
+    ``n2_j > 1e-12`` (:func:`rimu.fdi.glt.block_isolate`; -1 where ``dof < 2``). Returns False at the first
+    non-finite statistic."""
     N = P.shape[0]
+    n = V.shape[1]
     a = 1.0 - K
     beta = np.zeros(dof)
+    x = np.zeros(dof)
     for t in range(N):
         s = 0.0
         for i in range(dof):
@@ -141,10 +145,27 @@ def kalman_block(P: Any, dof: int, K: float, innovation: bool, scale: float, out
             nb = a * b + K * z
             beta[_u(i)] = nb
             v = z - b if innovation else nb
-            X[_u(i), t] = v
+            x[_u(i)] = v
             s = v * v if i == 0 else s + v * v
         s = s * scale
         if not np.isfinite(s):
             return False
         out[t] = s
+        if dof < 2:
+            iso[t] = -1
+            continue
+        best = -np.inf
+        jb = 0
+        for j in range(n):
+            if n2[_u(j)] > 1e-12:
+                d = x[0] * V[0, _u(j)]
+                for i in range(1, dof):
+                    d = d + x[_u(i)] * V[_u(i), _u(j)]
+                r = d * d / n2[_u(j)]
+            else:
+                r = -1.0
+            if r > best:
+                best = r
+                jb = j
+        iso[t] = jb
     return True

@@ -76,8 +76,10 @@ class ParityKalman:
         under it (module docstring).
     backend : {"auto", "numpy", "numba"}, optional
         Implementation of :meth:`block` (:mod:`rimu.fusion.backend`; default ``RIMU_BACKEND``, else ``auto``):
-        numba runs the filter and its statistic in one compiled pass (:func:`rimu.fdi._kernels.kalman_block`),
-        numpy with ``scipy.signal.lfilter``; the same bits (the whitened estimate test always takes numpy).
+        numba runs the filter, its statistic and the isolation in one compiled pass
+        (:func:`rimu.fdi._kernels.kalman_block`), numpy with ``scipy.signal.lfilter`` and
+        :func:`rimu.fdi.glt.block_isolate`; the same statistics bit for bit, the same isolations (the whitened
+        estimate test always takes numpy).
     """
 
     name = "kalman"
@@ -221,11 +223,13 @@ class ParityKalman:
         if self.backend == "numba" and L is None:
             from ._kernels import kalman_block
 
-            stat, XT = np.empty(len(P)), np.empty((dof, len(P)))       # the numpy path's layout: the same isolation
+            V = np.ascontiguousarray(Vz[:dof], dtype=float)
+            stat, iso = np.empty(len(P)), np.empty(len(P), dtype=np.int64)
             scale = (2.0 - K) / 2.0 if self.test == "innovation" else (2 - K) / K
-            if not kalman_block(P, dof, K, self.test == "innovation", scale, stat, XT):
+            if not kalman_block(P, dof, K, self.test == "innovation", scale, V, np.einsum("ij,ij->j", V, V), stat,
+                                iso):
                 raise _non_finite()
-            return stat, thr, block_isolate(XT.T, Vz[:dof])
+            return stat, thr, iso
         # time along the contiguous axis: lfilter, the differences and the sums of squares run over rows of
         # N samples (the isolation takes the transposed view, as BLAS does without a copy)
         ZT = P[:, :dof].T

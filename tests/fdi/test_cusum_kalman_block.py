@@ -273,6 +273,28 @@ def test_kalman_block_non_finite_and_shape_are_named(test, backend):
         kf.block(P[:, :2], V6, 3)
 
 
+@pytest.mark.skipif(not backend_mod.numba_available(), reason="numba not installed")
+@pytest.mark.parametrize("test", ["estimate", "innovation"])
+@pytest.mark.parametrize("dof, drop", [(3, None), (2, (2, 5)), (1, (2, 5))])
+def test_kalman_numba_equals_numpy_everywhere(test, dof, drop):
+    """The compiled filter, statistic and isolation against the numpy path (lfilter, block_isolate): the same
+    statistics and the same isolated sensor on every sample, alarm or not, also with isolated sensors."""
+    from rimu.fusion import ProjectionTable
+
+    tab = ProjectionTable(dodecahedron6().H, 1.0)
+    keep = np.ones(6, bool)
+    if drop is not None:
+        keep[list(drop)] = False
+    Vz = tab.Vz[tab.entry_for(keep)]
+    P = faulted_parity(12_000, Vz, 19)
+    a = ParityKalman(20, 1e-3, test=test, backend="numpy").block(P, Vz, dof)
+    b = ParityKalman(20, 1e-3, test=test, backend="numba").block(P, Vz, dof)
+    assert np.array_equal(a[0], b[0]) and a[1] == b[1] and np.array_equal(a[2], b[2])
+    assert (a[0] > a[1]).sum() > 10 and (np.all(a[2] == -1) if dof < 2 else len(np.unique(a[2])) >= 3)
+    if drop is not None and dof >= 2:
+        assert not np.isin(b[2], list(drop)).any()
+
+
 def test_kalman_block_with_noise_model_equals_steps():
     from rimu.fdi.whitening import NoiseSettings
     from rimu.noise import InstrumentNoise
