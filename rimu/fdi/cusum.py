@@ -504,7 +504,7 @@ class CusumBank:
 
 
 #: alarms at most this many samples apart are found together (:func:`_dense_alarms`)
-_DENSE = 8
+_DENSE = 4
 
 
 def _dense_alarms(Ct: np.ndarray, a0: int, m: int, inv: np.ndarray, idx: np.ndarray, dof: int, out: np.ndarray,
