@@ -1,6 +1,7 @@
 """FDI benchmarks: per-sample cost of detection + isolation beside the bare compensation step; the block
-(vectorised) paths of the GLT, the CUSUM bank and the Kalman detector side by side on the same blocks (the GLT is
-the reference, timed in the same run, interleaved); the detectors' design figures measured next to their theory
+(vectorised) paths of the GLT, the CUSUM bank and the Kalman detector side by side on the same blocks, the CUSUM and
+Kalman ones for the numpy backend and, where numba is installed, the compiled one (the GLT is the reference, timed in
+the same run, interleaved); the detectors' design figures measured next to their theory
 (CUSUM detection delay and in-control run length, false-alarm rates); campaign throughput with 1 and 2 workers.
 Prints tables and one JSON line (medians of repeated runs).
 
