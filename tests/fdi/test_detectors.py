@@ -158,3 +158,23 @@ def test_noise_estimator_refuses_what_parity_cannot_separate():
     est.add(np.random.default_rng(0).standard_normal((100, 3)))
     with pytest.raises(IdentifiabilityError):
         est.sigma()
+
+
+def test_block_isolate_is_isolate_argmax_row_by_row():
+    """The block isolation (sensors along rows, a running maximum) picks, on every row, the sensor
+    ``isolate_argmax`` picks for that row alone: on a row of zeros the first column of non-zero norm, never a
+    column of zero norm; -1 with one parity dimension. (Columns equal to the last bit are not a case: the block
+    product may round them apart.)"""
+    from rimu.fdi.glt import block_isolate, isolate_argmax
+
+    rng = np.random.default_rng(3)
+    for n, d, zero in ((6, 3, None), (9, 6, 4), (24, 21, 0), (6, 1, None)):
+        V = np.linalg.qr(rng.standard_normal((n, n)))[0][:, :d].T.copy()
+        if zero is not None:
+            V[:, zero] = 0.0
+        P = rng.standard_normal((2000, d))
+        P[:5] = 0.0                              # every ratio zero: the first usable column
+        want = [isolate_argmax(p, V)[0] for p in P]
+        got = block_isolate(P, V)
+        assert np.array_equal(got, want), (n, d)
+        assert (d < 2) == bool(np.all(got == -1))
