@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import IdentifiabilityError, SessionFormatError
-from ..session import Segment, Session
+from ..session import Segment, Session, SessionStatistics
 from ..units import EARTH_RATE
 from .estimate import CalibrationResult, _sigma_for, make_sensor_fit
 from .lsq import LsqResult
@@ -443,15 +443,16 @@ class Zhang:
         pairs = rotation_pairs(session.segments)
         if "gyro" not in session.geometries or not pairs:
             return self._fit_accel_only(session, statics)
-        sa = _sigma_for(self.sigma, session, "accel")
-        sg = _sigma_for(self.sigma, session, "gyro")
-        ya = np.array([_mean(s.raw["accel"]) for s in statics]).reshape(-1, 3)
-        yg = np.array([_mean(s.raw["gyro"]) for s in statics]).reshape(-1, 3)
+        stats = SessionStatistics(session)  # each segment's sums once: noise level, means, integrals
+        sa = _sigma_for(self.sigma, session, "accel", stats)
+        sg = _sigma_for(self.sigma, session, "gyro", stats)
+        ya = np.array([stats.mean(s, "accel") for s in statics]).reshape(-1, 3)
+        yg = np.array([stats.mean(s, "gyro") for s in statics]).reshape(-1, 3)
         Ns = np.array([s.n_samples for s in statics], dtype=float)
         # 1. accelerometers (Eq. 12-14)
         Aa, ba = solve_ma(ya, gg)
         # 2. gyros (Eq. 16-22)
-        phi = np.array([_sum(a.raw["gyro"]) / _fs(a) - _sum(b.raw["gyro"]) / _fs(b)
+        phi = np.array([stats.sums(a, "gyro").total / _fs(a) - stats.sums(b, "gyro").total / _fs(b)
                         for a, b, _ in pairs]).reshape(-1, 3)
         ang = np.array([np.linalg.norm(d) for _, _, d in pairs])
         dur_mismatch = [a.label for a, b, _ in pairs if a.n_samples != b.n_samples]

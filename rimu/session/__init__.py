@@ -2,12 +2,14 @@
 
 ``rimu.session.model`` holds the data model (:class:`Segment`, :class:`Session`), ``rimu.session.native``
 rimu's own CSV/NPZ format, ``rimu.session.stream`` reads such a file in chunks of
-constant memory, and ``rimu.session.loaders`` one module per third-party recording format.
+constant memory, ``rimu.session.stats`` the per-segment sufficient statistics a calibration reads
+the samples for, and ``rimu.session.loaders`` one module per third-party recording format.
 """
 
 from .loaders import FERRARIS_SECTIONS, load_ferraris
 from .model import SEGMENT_KINDS, Segment, Session, earth_rate_ln, rotation_matrix, skew
 from .native import SESSION_FORMAT, SESSION_FORMAT_VERSION, load_session, save_session, session_sidecar
+from .stats import RotationMoments, SegmentSums, SessionStatistics, column_sums
 from .stream import iter_blocks
 
 __all__ = [
@@ -15,8 +17,12 @@ __all__ = [
     "SEGMENT_KINDS",
     "SESSION_FORMAT",
     "SESSION_FORMAT_VERSION",
+    "RotationMoments",
     "Segment",
+    "SegmentSums",
     "Session",
+    "SessionStatistics",
+    "column_sums",
     "earth_rate_ln",
     "iter_blocks",
     "load_ferraris",
