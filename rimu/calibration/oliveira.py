@@ -32,7 +32,7 @@ import numpy as np
 from ..errors import IdentifiabilityError
 from ..session import Session, SessionStatistics, column_sums, earth_rate_ln
 from ..units import RS_TO_DH
-from .cho_park import _named_rank_check, gyro_rows, rate_pairs
+from .cho_park import _named_rank_check, _subunit_rows, gyro_rows, rate_pairs
 from .estimate import CalibrationResult, _sigma_for, make_sensor_fit, segment_residuals
 from .lsq import LsqResult
 from .model import ErrorModel, contexts
@@ -112,10 +112,10 @@ class Oliveira:
             raise IdentifiabilityError(f"the session has no {inst} data")
         pairs, unpaired = rate_pairs(session.segments)
         seqs = [s for p in pairs for s in p]
-        for ctx in contexts(session, inst):
-            C = ctx.geometry.subunit_of(ctx.index).mat_sb_mb
-            _named_rank_check(gyro_rows(pairs, C), ctx, inst,
-                              "+/- rate pairs about three independent axes (de Oliveira Eq. 18)", False)
+        for ctx, R, full in _subunit_rows(contexts(session, inst), lambda C: gyro_rows(pairs, C)):
+            if not full:  # one SVD per sub-unit; the named check for the sensor that fails
+                _named_rank_check(R, ctx, inst, "+/- rate pairs about three independent axes (de Oliveira Eq. 18)",
+                                  False)
         stats = SessionStatistics(session)  # each sequence's sums and rotation moments once
         sig = _sigma_for(self.sigma, session, inst, stats)
         means = {}

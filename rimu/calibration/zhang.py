@@ -189,24 +189,26 @@ def _fs(s: Segment) -> float:
     return (s.n_samples - 1) / s.duration if s.duration > 0 else 1.0
 
 
-def accel_rotation_axis(f: np.ndarray | Sequence[np.ndarray]) -> tuple[np.ndarray, float]:
+def accel_rotation_axis(f: np.ndarray | Sequence[np.ndarray],
+                        sums: Sequence[tuple[np.ndarray, np.ndarray]] | None = None) -> tuple[np.ndarray, float]:
     """Zhang et al. 2010, Eq. 42-47: the rotation axis l^p from specific forces f (N, 3) seen during a rotation
     about a fixed axis: the null vector of ``[f^T, -1]``. Returns (unit axis, angular variance estimate).
 
     ``f`` may be given in pieces (a sequence of (N_i, 3) arrays, e.g. the CW and the CCW segment), as if stacked.
     The null vector is the right singular vector of the smallest singular value of ``[f, -1] D`` (D the column
-    scaling, the median norm on the last column), computed as the eigenvector of the 4x4 Gram matrix
-    ``D [f, -1]^T [f, -1] D`` from the sums ``f^T f``, ``sum f`` and N (one pass over the samples; equal to the
-    singular vector to rounding, checked in the tests: the gap to the other singular values is large).
+    scaling, the median norm of f on the last column), computed as the eigenvector of the 4x4 Gram matrix
+    ``D [f, -1]^T [f, -1] D`` from the sums ``f^T f``, ``sum f`` and N (equal to the singular vector to rounding,
+    checked in the tests: the gap to the other singular values is large).
+    ``sums``: the ``(f^T f, sum f)`` of each piece when already known (a fit's
+    :class:`~rimu.session.SessionStatistics`), so the samples are not read again.
     """
     chunks = [np.asarray(f, float)] if isinstance(f, np.ndarray) else [np.asarray(c, float) for c in f]
     N = sum(len(c) for c in chunks)
-    sq = [c * c for c in chunks]
-    sc4 = float(np.sqrt(_median_pair(np.concatenate([x @ np.ones(3) for x in sq]))).mean())
-    S = np.diag(sum(np.ones(len(x)) @ x for x in sq))  # f^T f (as 3 + 3 dot products: c.T @ c is slower)
-    for i, j in ((0, 1), (0, 2), (1, 2)):
-        S[i, j] = S[j, i] = sum(c[:, i] @ c[:, j] for c in chunks)
-    m = sum(np.ones(len(c)) @ c for c in chunks)  # sum of f
+    if sums is None:
+        sums = [(_gram3(c), _sum(c)) for c in chunks]
+    S = sum(g for g, _ in sums)  # f^T f
+    m = sum(t for _, t in sums)  # sum of f
+    sc4 = float(np.sqrt(_median_pair(np.concatenate([np.square(c) @ np.ones(3) for c in chunks]))).mean())
     sc = np.array([1.0, 1.0, 1.0, sc4])
     G = np.empty((4, 4))
     G[:3, :3] = S
@@ -226,6 +228,15 @@ def accel_rotation_axis(f: np.ndarray | Sequence[np.ndarray]) -> tuple[np.ndarra
     ev = np.linalg.eigvalsh(P @ FtF @ P)  # trace of the pseudo-inverse (singular values below 1e-10 dropped)
     var = float(s2 * np.sum(1.0 / ev[ev > 1e-10 * np.max(np.abs(ev))]) / 2.0)
     return l, var
+
+
+def _gram3(c: np.ndarray) -> np.ndarray:
+    """``c^T c`` of samples (N, 3): squares by one matrix-vector product, the three cross sums by dot products
+    (``c.T @ c`` is slower for three columns)."""
+    S = np.diag(_sum(c * c))
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        S[i, j] = S[j, i] = c[:, i] @ c[:, j]
+    return S
 
 
 def wahba(lo: np.ndarray, lp: np.ndarray, w: np.ndarray | None = None) -> np.ndarray:
@@ -513,7 +524,9 @@ class Zhang:
         # l^p = A_a^-T n for any accelerometer parameters, so theta's dependence on them is propagated.
         n_raw, var_raw = [], []
         for a, b, _ in pairs:
-            n_k, v_k = accel_rotation_axis([a.raw["accel"], b.raw["accel"]])
+            sa_, sb_ = stats.sums(a, "accel"), stats.sums(b, "accel")
+            n_k, v_k = accel_rotation_axis([a.raw["accel"], b.raw["accel"]],
+                                           [(sa_.gram, sa_.total), (sb_.gram, sb_.total)])
             n_raw.append(n_k)
             var_raw.append(v_k)
         n_raw_a, phis_a = np.array(n_raw), phi

@@ -75,6 +75,7 @@ class SegmentSums:
     total: np.ndarray
     _y: np.ndarray
     _sumsq: np.ndarray | None = None
+    _gram: np.ndarray | None = None
     _diff: tuple[np.ndarray, int] | None = None
 
     @property
@@ -89,6 +90,23 @@ class SegmentSums:
             sq = np.square(self._y)
             self._sumsq = _ones(self.n) @ sq
         return self._sumsq
+
+    @property
+    def gram(self) -> np.ndarray:
+        """``Y^T Y`` (k, k): the sums of squares on the diagonal (:attr:`sumsq`), the sums of products of two
+        columns off it (one dot product each for a few columns; one matrix product for many)."""
+        if self._gram is None:
+            y = self._y
+            k = y.shape[1]
+            if k > 4:
+                G = y.T @ y
+            else:
+                G = np.diag(self.sumsq)
+                for i in range(k):
+                    for j in range(i + 1, k):
+                        G[i, j] = G[j, i] = y[:, i] @ y[:, j]
+            self._gram = G
+        return self._gram
 
     @property
     def diff(self) -> tuple[np.ndarray, int]:
