@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import IdentifiabilityError, SessionFormatError
-from ..session import Segment, Session, SessionStatistics
+from ..session import Segment, Session, SessionStatistics, skew
 from ..units import EARTH_RATE
 from .estimate import CalibrationResult, _sigma_for, make_sensor_fit
 from .lsq import LsqResult
@@ -175,16 +175,6 @@ def _mean(y: np.ndarray) -> np.ndarray:
     return _sum(y) / len(y)
 
 
-def _median_pair(x: np.ndarray) -> np.ndarray:
-    """The middle order statistics of a 1-D array (one value for odd length, two for even), by one partition:
-    ``np.median(g(x)) == g(_median_pair(x)).mean()`` for any increasing g (e.g. sqrt of squared norms)."""
-    n = len(x)
-    k = n // 2
-    if n % 2:
-        return np.partition(x, k)[k:k + 1]
-    return np.partition(x, (k - 1, k))[k - 1:k + 1]
-
-
 def _fs(s: Segment) -> float:
     return (s.n_samples - 1) / s.duration if s.duration > 0 else 1.0
 
@@ -196,7 +186,7 @@ def accel_rotation_axis(f: np.ndarray | Sequence[np.ndarray],
 
     ``f`` may be given in pieces (a sequence of (N_i, 3) arrays, e.g. the CW and the CCW segment), as if stacked.
     The null vector is the right singular vector of the smallest singular value of ``[f, -1] D`` (D the column
-    scaling, the median norm of f on the last column), computed as the eigenvector of the 4x4 Gram matrix
+    scaling, the rms norm of f on the last column), computed as the eigenvector of the 4x4 Gram matrix
     ``D [f, -1]^T [f, -1] D`` from the sums ``f^T f``, ``sum f`` and N (equal to the singular vector to rounding,
     checked in the tests: the gap to the other singular values is large).
     ``sums``: the ``(f^T f, sum f)`` of each piece when already known (a fit's
@@ -208,7 +198,7 @@ def accel_rotation_axis(f: np.ndarray | Sequence[np.ndarray],
         sums = [(_gram3(c), _sum(c)) for c in chunks]
     S = sum(g for g, _ in sums)  # f^T f
     m = sum(t for _, t in sums)  # sum of f
-    sc4 = float(np.sqrt(_median_pair(np.concatenate([np.square(c) @ np.ones(3) for c in chunks]))).mean())
+    sc4 = float(np.sqrt(np.trace(S) / N))
     sc = np.array([1.0, 1.0, 1.0, sc4])
     G = np.empty((4, 4))
     G[:3, :3] = S
@@ -596,8 +586,8 @@ class Zhang:
                 bc = Jb @ cov_p @ Jb.T
                 if inst == "gyro":
                     # theta uncertainty: d(L R) = L skew(dth) R -> row i: (L[i] @ skew(dth)) @ R, and
-                    # L[i] @ skew(e_k) = L[i] x e_k
-                    G = (np.cross(L[i], np.eye(3)) @ R).T
+                    # L[i] @ skew(e_k) = L[i] x e_k, the rows of -skew(L[i])
+                    G = (-skew(L[i]) @ R).T
                     bc[:3, :3] += G @ cov_th @ G.T
                 bc = (bc + bc.T) / 2
                 beta = np.concatenate([W[i], [b[i]]])
