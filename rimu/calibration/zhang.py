@@ -147,7 +147,7 @@ def rotation_pairs(segments: Sequence[Segment]) -> list[tuple[Segment, Segment, 
             return s.table_rate() * s.n_samples / _fs(s)
         return None
 
-    rot = [(s, angle(s)) for s in segments if angle(s) is not None]
+    rot = [(s, a) for s, a in ((s, angle(s)) for s in segments) if a is not None]
     used: set[int] = set()
     out = []
     for a, (sa, va) in enumerate(rot):

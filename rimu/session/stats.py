@@ -27,7 +27,7 @@ mutable, and nothing here could tell that they changed).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -59,7 +59,7 @@ def column_sums(y: np.ndarray) -> np.ndarray:
     return _ones(y.shape[0]) @ y
 
 
-@dataclass
+@dataclass(eq=False)
 class SegmentSums:
     """Sufficient statistics of one instrument's raw samples on one segment (float64, raw units).
 
@@ -73,10 +73,10 @@ class SegmentSums:
 
     n: int
     total: np.ndarray
-    _y: np.ndarray
-    _sumsq: np.ndarray | None = None
-    _gram: np.ndarray | None = None
-    _diff: tuple[np.ndarray, int] | None = None
+    _y: np.ndarray = field(repr=False)
+    _sumsq: np.ndarray | None = field(default=None, repr=False)
+    _gram: np.ndarray | None = field(default=None, repr=False)
+    _diff: tuple[np.ndarray, int] | None = field(default=None, repr=False)
 
     @property
     def mean(self) -> np.ndarray:
@@ -125,7 +125,7 @@ class SegmentSums:
         return self._diff
 
 
-@dataclass
+@dataclass(eq=False)
 class RotationMoments:
     """Moments of the basis ``B = [1, cos(theta), sin(theta)]`` of a segment turning at a constant rate with a
     known attitude (see the module docstring).
