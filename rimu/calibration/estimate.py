@@ -348,11 +348,12 @@ class LeastSquares:
                 if not labels:
                     raise IdentifiabilityError(f"{inst}: no segment carries the inputs the model {model.label} needs",
                                                model.parameter_names(ctx))
-                try:
-                    check_identifiable_gram(G, n_obs, names, inst)
-                except IdentifiabilityError as exc:
-                    raise IdentifiabilityError(str(exc), _physical_names(model, ctx, exc.parameters)) from None
-                Ginv = np.linalg.inv(G)
+                if not base or ctx is ctxs[0]:  # the base model's G is every sensor's: checked and inverted once
+                    try:
+                        check_identifiable_gram(G, n_obs, names, inst)
+                    except IdentifiabilityError as exc:
+                        raise IdentifiabilityError(str(exc), _physical_names(model, ctx, exc.parameters)) from None
+                    Ginv = np.linalg.inv(G)
                 beta = Ginv @ h
                 rss = rss_from_statistics(q, h, G, beta)
                 res = LazyResiduals({lab: _bind(mk, beta) for lab, mk in makers.items()})
