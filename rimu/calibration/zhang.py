@@ -329,13 +329,15 @@ def norm_problem(groups: Sequence[tuple]) -> Callable[[np.ndarray], tuple[np.nda
         # A^T A[:, i] . gc = w_i (w = gc A^T A) and A[j, :] . gc = z_j (z = gc A^T)
         w = gc @ (At @ A)
         z = gc @ At
+        ms, g0 = -s[..., i1], g[..., i0]
+        nn, vv, v2n = n[..., None], v[..., None], v2[..., None]
         dn = np.empty((B, K, 9))
-        dn[..., :6] = -s[..., i1] * g[..., i0]
+        dn[..., :6] = ms * g0
         dn[..., 6:] = -mbk * g
         dv = np.empty((B, K, 9))
-        dv[..., :6] = (-s[..., i1] * w[..., i0] - v2[..., None] * dn[..., :6]) / n[..., None] - z[..., i1] * g[..., i0]
-        dv[..., 6:] = (-mbk * w - v2[..., None] * dn[..., 6:]) / n[..., None]
-        J = (dn - r[..., None] * dv / v[..., None]) / v[..., None]
+        dv[..., :6] = (ms * w[..., i0] - v2n * dn[..., :6]) / nn - z[..., i1] * g0
+        dv[..., 6:] = (-mbk * w - v2n * dn[..., 6:]) / nn
+        J = (dn - r[..., None] * dv / vv) / vv
         if q.ndim == 1:
             return r[0], J[0]
         return r.reshape(*q.shape[:-1], K), J.reshape(*q.shape[:-1], K, 9)
