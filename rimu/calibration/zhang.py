@@ -57,6 +57,7 @@ __all__ = [
     "norm_residuals",
     "refine_norms",
     "platform_frame",
+    "rotation_axes",
     "rotation_pairs",
     "solve_ma",
     "solve_mg",
@@ -190,33 +191,46 @@ def accel_rotation_axis(f: np.ndarray | Sequence[np.ndarray],
     ``D [f, -1]^T [f, -1] D`` from the sums ``f^T f``, ``sum f`` and N (equal to the singular vector to rounding,
     checked in the tests: the gap to the other singular values is large).
     ``sums``: the ``(f^T f, sum f)`` of each piece when already known (a fit's
-    :class:`~rimu.session.SessionStatistics`), so the samples are not read again.
+    :class:`~rimu.session.SessionStatistics`), so the samples are not read again. :func:`rotation_axes` does
+    several rotations at once.
     """
     chunks = [np.asarray(f, float)] if isinstance(f, np.ndarray) else [np.asarray(c, float) for c in f]
-    N = sum(len(c) for c in chunks)
     if sums is None:
         sums = [(_gram3(c), _sum(c)) for c in chunks]
-    S = sum(g for g, _ in sums)  # f^T f
-    m = sum(t for _, t in sums)  # sum of f
-    sc4 = float(np.sqrt(np.trace(S) / N))
-    sc = np.array([1.0, 1.0, 1.0, sc4])
-    G = np.empty((4, 4))
-    G[:3, :3] = S
-    G[:3, 3] = G[3, :3] = -m * sc4
-    G[3, 3] = N * sc4**2
+    l, var = rotation_axes([chunks], [sums])
+    return l[0], float(var[0])
+
+
+def rotation_axes(chunks: Sequence[Sequence[np.ndarray]],
+                  sums: Sequence[Sequence[tuple[np.ndarray, np.ndarray]]]) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`accel_rotation_axis` of several rotations at once (one batched eigen-decomposition each step):
+    ``chunks[k]`` the sample pieces of rotation k, ``sums[k]`` their ``(f^T f, sum f)``. Returns the unit axes
+    (K, 3) and their angular variances (K,)."""
+    K = len(chunks)
+    N = np.array([sum(len(c) for c in ch) for ch in chunks], dtype=float)
+    S = np.array([sum(g for g, _ in sm) for sm in sums]).reshape(K, 3, 3)  # f^T f
+    m = np.array([sum(t for _, t in sm) for sm in sums]).reshape(K, 3)  # sum of f
+    sc4 = np.sqrt(np.trace(S, axis1=1, axis2=2) / N)
+    G = np.empty((K, 4, 4))
+    G[:, :3, :3] = S
+    G[:, :3, 3] = G[:, 3, :3] = -m * sc4[:, None]
+    G[:, 3, 3] = N * sc4**2
     lam, V = np.linalg.eigh(G)
-    v = V[:, 0] * sc
-    n = float(np.linalg.norm(v[:3]))
-    l = v[:3] / n
+    v = V[:, :, 0].copy()
+    v[:, 3] *= sc4
+    n = np.sqrt(np.sum(v[:, :3] ** 2, axis=1))
+    l = v[:, :3] / n[:, None]
     # first-order spread of the axis from the residual (total least squares): |[f, -1] v|^2 is the smallest
     # eigenvalue; recomputed from the samples when it is too small against the largest for its rounding
-    rr = float(lam[0]) if lam[0] > 1e-6 * lam[-1] else sum(float(np.sum(np.square(c @ v[:3] - v[3])))
-                                                           for c in chunks)
-    s2 = rr / n**2 / max(N - 4, 1)
-    FtF = S - np.outer(m, m) / N  # F = f - mean(f)
-    P = np.eye(3) - np.outer(l, l)
+    rr = lam[:, 0].copy()
+    for k in np.flatnonzero(~(lam[:, 0] > 1e-6 * lam[:, -1])):
+        rr[k] = sum(float(np.sum(np.square(c @ v[k, :3] - v[k, 3]))) for c in chunks[k])
+    s2 = rr / n**2 / np.maximum(N - 4, 1)
+    FtF = S - m[:, :, None] * m[:, None, :] / N[:, None, None]  # F = f - mean(f)
+    P = np.eye(3) - l[:, :, None] * l[:, None, :]
     ev = np.linalg.eigvalsh(P @ FtF @ P)  # trace of the pseudo-inverse (singular values below 1e-10 dropped)
-    var = float(s2 * np.sum(1.0 / ev[ev > 1e-10 * np.max(np.abs(ev))]) / 2.0)
+    keep = ev > 1e-10 * np.max(np.abs(ev), axis=1)[:, None]
+    var = s2 * np.sum(np.where(keep, 1.0 / np.where(keep, ev, 1.0), 0.0), axis=1) / 2.0
     return l, var
 
 
@@ -514,14 +528,10 @@ class Zhang:
         # 5. inter-triad misalignment (Eq. 39-47). The plane s^p . l = kappa of Eq. 42 is a plane in raw space
         # too (s^p = A_a (y - b_a)), with normal n ~ A_a^T l: fit it once in raw space (Eq. 44-47), then
         # l^p = A_a^-T n for any accelerometer parameters, so theta's dependence on them is propagated.
-        n_raw, var_raw = [], []
-        for a, b, _ in pairs:
-            sa_, sb_ = stats.sums(a, "accel"), stats.sums(b, "accel")
-            n_k, v_k = accel_rotation_axis([a.raw["accel"], b.raw["accel"]],
-                                           [(sa_.gram, sa_.total), (sb_.gram, sb_.total)])
-            n_raw.append(n_k)
-            var_raw.append(v_k)
-        n_raw_a, phis_a = np.array(n_raw), phi
+        n_raw_a, var_raw = rotation_axes(
+            [[a.raw["accel"], b.raw["accel"]] for a, b, _ in pairs],
+            [[(stats.sums(x, "accel").gram, stats.sums(x, "accel").total) for x in (a, b)] for a, b, _ in pairs])
+        phis_a = phi
         if len(pairs) < 2 or np.linalg.matrix_rank(n_raw_a, tol=1e-3) < 2:
             raise IdentifiabilityError("inter-triad misalignment needs rotations about two independent axes that "
                                        "are not vertical (Zhang Eq. 40, 46)", ["theta_x", "theta_y", "theta_z"])
@@ -551,7 +561,8 @@ class Zhang:
 
         lo_a, lp_a = axes(p)
         # angular variance of each accelerometer axis: the raw-space spread mapped by A_a^-T (~ isotropic)
-        w_a = np.array([1.0 / max(v * float(np.linalg.norm(La, 2)) ** 2 / float(np.linalg.norm(n @ La)) ** 2, 1e-30)
+        la2 = float(np.linalg.norm(La, 2)) ** 2
+        w_a = np.array([1.0 / max(v * la2 / float(np.linalg.norm(n @ La)) ** 2, 1e-30)
                         for v, n in zip(var_raw, n_raw_a)])
         Rpo = wahba(lo_a, lp_a, w_a)
         info = sum(w * (np.eye(3) - np.outer(l, l)) for w, l in zip(w_a, lp_a))
