@@ -331,11 +331,11 @@ def norm_problem(groups: Sequence[tuple]) -> Callable[[np.ndarray], tuple[np.nda
         A = np.linalg.inv(L)
         At = np.swapaxes(A, 1, 2)
         s = (Y[None] - mbk * Q[:, None, 6:9]) @ At  # (B, K, 3)
-        n = np.sqrt(np.sum(s * s, axis=2))
+        n = np.sqrt((s * s).sum(axis=2))
         u = s / n[..., None]
         g = u @ A  # d|s| / dy = A^T u
         gc = g * C[None]
-        v2 = np.sum(g * gc, axis=2)
+        v2 = (g * gc).sum(axis=2)
         v = np.sqrt(v2)
         r = (n - tgt) / v
         # directions: dL = E_ij gives dA = -A E_ij A, ds = -A[:, i] s_j, dA^T u = -A[j, :] g_i; db_m gives
