@@ -493,12 +493,13 @@ class Zhang:
             norm_problem([(phi, ang, sg**2, dts**2 * Npair.sum(axis=1), False),
                           (yg, self.earth_rate, sg**2, 1.0 / Ns, True)]),
         )
-        p0 = np.concatenate([np.linalg.inv(Aa)[il], ba, np.linalg.inv(Ag)[il], bg])
+        La0, Lg0 = np.linalg.inv(Aa), np.linalg.inv(Ag)
+        p0 = np.concatenate([La0[il], ba, Lg0[il], bg])
         p = p0.copy()
         Js, rs_, typs, steps, stalled = [], [], [], [], []
         for k, (prob, sig) in enumerate(zip(problems, (sa, sg))):
             sl = slice(9 * k, 9 * k + 9)
-            rows = np.linalg.norm(np.linalg.inv(Aa if k == 0 else Ag), axis=1)
+            rows = np.linalg.norm(La0 if k == 0 else Lg0, axis=1)
             typ = np.concatenate([rows[il[0]], np.maximum(np.abs(p0[sl][6:]), sig)])  # row size; bias or noise
             typs.append(typ)
             if self.refine:
