@@ -8,7 +8,15 @@ the samples for, and ``rimu.session.loaders`` one module per third-party recordi
 
 from .loaders import FERRARIS_SECTIONS, load_ferraris
 from .model import SEGMENT_KINDS, Segment, Session, earth_rate_ln, rotation_matrix, skew
-from .native import SESSION_FORMAT, SESSION_FORMAT_VERSION, load_session, save_session, session_sidecar
+from .native import (
+    SESSION_FORMAT,
+    SESSION_FORMAT_VERSION,
+    load_session,
+    save_session,
+    session_from_sidecar,
+    session_sidecar,
+    sidecar_geometries,
+)
 from .stats import RotationMoments, SegmentSums, SessionStatistics, column_sums
 from .stream import iter_blocks
 
@@ -29,6 +37,8 @@ __all__ = [
     "load_session",
     "rotation_matrix",
     "save_session",
+    "session_from_sidecar",
     "session_sidecar",
+    "sidecar_geometries",
     "skew",
 ]
