@@ -10,7 +10,10 @@ proportions), hand-held (30 poses, long holds) and LeastSquares (imucal's own da
 144000 x 6. de Oliveira needs at least four gyros: a tetrad of gyros with a triad of accelerometers (7 channels) over
 its Table 1 sequences with the same number of sample-channels; its ratio is also given per sample-channel.
 
-    python benchmarks/calibration.py [--repeats 7]
+Every fit reads its session afresh: an estimator's per-segment statistics (rimu.session.stats) live for one
+``fit``, so no round is helped by an earlier one (the warm-up call only imports).
+
+    python benchmarks/calibration.py [--repeats 15]
 
 imucal is optional (it is not a rimu dependency): install it to compare (``pip install imucal``); without it
 the script says so and reports rimu alone. Prints a table and a JSON line.
@@ -91,7 +94,7 @@ def errors(truth, sf_a, ax_a, b_a, sf_g, ax_g, b_g) -> dict[str, float]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--repeats", type=int, default=15)
     ap.add_argument("--accuracy-runs", type=int, default=20)
     ap.add_argument("--memory-factor", type=int, default=16, help="length of the memory test session, x 60 s")
     args = ap.parse_args()
@@ -125,7 +128,7 @@ def main() -> None:
     size = {k: (sum(x.n_samples for x in c[1].segments), sum(geo.n for geo in c[1].geometries.values()))
             for k, c in cases.items()}
     times: dict[str, list[float]] = {k: [] for k, c in cases.items() if c[2] is not None}
-    for k in times:  # one warm-up call each (imports, caches of the session's own)
+    for k in times:  # one warm-up call each (imports; no statistics outlive a fit)
         cases[k][2]()
     for _ in range(args.repeats):  # interleaved: each estimator once per round, so load changes hit all alike
         for k in times:

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import IdentifiabilityError
-from ..session import Segment, Session, earth_rate_ln
+from ..session import Segment, Session, SessionStatistics, earth_rate_ln
 from .estimate import CalibrationResult, _sigma_for, make_sensor_fit, segment_residuals
 from .lsq import LsqResult
 from .model import ErrorModel, SensorContext, contexts
@@ -124,14 +124,15 @@ class ChoPark:
         procedure cannot identify them."""
         insts = list(self.instruments or session.instruments)
         self.check(session, insts)
+        stats = SessionStatistics(session)  # each segment's sums once, shared by the noise level and the means
         notes: list[str] = []
         out: dict[str, LsqResult] = {}
         for inst in insts:
-            sig = _sigma_for(self.sigma, session, inst)
+            sig = _sigma_for(self.sigma, session, inst, stats)
             if inst == "accel":
-                out[inst] = self._fit_accel(session, sig)
+                out[inst] = self._fit_accel(session, sig, stats)
             else:
-                out[inst], note = self._fit_gyro(session, sig)
+                out[inst], note = self._fit_gyro(session, sig, stats)
                 notes.append(note)
         return CalibrationResult(self.method, out, session.raw_unit, notes)
 
@@ -139,50 +140,59 @@ class ChoPark:
     def check(self, session: Session, instruments: Sequence[str] | None = None) -> None:
         """Raise IdentifiabilityError naming the parameters the session's segments cannot identify."""
         for inst in instruments or session.instruments:
-            for ctx in contexts(session, inst):
-                C = ctx.geometry.subunit_of(ctx.index).mat_sb_mb
+            if inst == "accel":
+                rows = _subunit_rows(contexts(session, inst),
+                                     lambda C: accel_rows(session.segments, C, session.gravity)[0])
+            else:
+                pairs, _ = rate_pairs(session.segments)
+                rows = _subunit_rows(contexts(session, inst), lambda C, p=pairs: gyro_rows(p, C))
+            for ctx, M, full in rows:
+                if full:  # full column rank (the same for every sub-unit: C_j is orthonormal)
+                    continue
                 if inst == "accel":
-                    S, _ = accel_rows(session.segments, C, session.gravity)
-                    _named_rank_check(S, ctx, inst, "at least four static positions with known attitude whose "
+                    _named_rank_check(M, ctx, inst, "at least four static positions with known attitude whose "
                                       "specific forces are not coplanar (Cho & Park Eq. 7)", True)
                 else:
-                    pairs, _ = rate_pairs(session.segments)
-                    R = gyro_rows(pairs, C)
-                    _named_rank_check(R, ctx, inst, "+/- rate pairs about three independent axes (Cho & Park Eq. 13)",
+                    _named_rank_check(M, ctx, inst, "+/- rate pairs about three independent axes (Cho & Park Eq. 13)",
                                       False)
-                    if not any(s.kind == "static" for s in session.segments):
-                        raise IdentifiabilityError(
-                            f"gyro: no static position for the biases (Cho & Park Eq. 17); cannot estimate "
-                            f"{[f'{c.name}.bias' for c in contexts(session, inst)]}",
-                            [f"{c.name}.bias" for c in contexts(session, inst)])
+            if inst != "accel" and not any(s.kind == "static" for s in session.segments):
+                raise IdentifiabilityError(
+                    f"gyro: no static position for the biases (Cho & Park Eq. 17); cannot estimate "
+                    f"{[f'{c.name}.bias' for c in contexts(session, inst)]}",
+                    [f"{c.name}.bias" for c in contexts(session, inst)])
 
     # ------------------------------------------------------------------ accelerometers
-    def _fit_accel(self, session: Session, sig: np.ndarray) -> LsqResult:
+    def _fit_accel(self, session: Session, sig: np.ndarray, stats: SessionStatistics) -> LsqResult:
         model = ErrorModel.base()
         fits = []
         used: list[Segment] = []
         cache: dict = {}
-        means = {s.label: s.raw["accel"].mean(axis=0) for s in session.segments if s.kind == "static"}
+        by_su: dict[int, tuple] = {}
         for ctx in contexts(session, "accel"):
-            C = ctx.geometry.subunit_of(ctx.index).mat_sb_mb
-            S, used = accel_rows(session.segments, C, session.gravity)  # Eq. 6, 8
-            Y = np.array([means[s.label][ctx.index] for s in used])  # Eq. 9
-            W = np.array([s.n_samples for s in used], dtype=float)
+            su = ctx.geometry.subunit_of(ctx.index)
+            if id(su) not in by_su:  # the rows, weights and means of a sub-unit serve all its sensors
+                C = su.mat_sb_mb
+                S, used = accel_rows(session.segments, C, session.gravity)  # Eq. 6, 8
+                W = np.array([s.n_samples for s in used], dtype=float)
+                A = np.linalg.inv(S.T @ (W[:, None] * S))
+                T = np.zeros((4, 4))
+                T[:3, :3] = C.T  # w (MB) = C^T (m/SF)
+                T[3, 3] = 1.0
+                Ybar = np.array([stats.mean(s, "accel") for s in used]).reshape(len(used), -1)  # Eq. 9, all sensors
+                by_su[id(su)] = (S, used, W, A, T, Ybar, A @ S.T @ (W[:, None] * Ybar))
+            S, used, W, A, T, Ybar, X = by_su[id(su)]
+            Y = Ybar[:, ctx.index]  # Eq. 9
             s2 = float(sig[ctx.index]) ** 2
-            A = np.linalg.inv(S.T @ (W[:, None] * S))
-            x = A @ S.T @ (W * Y)  # Eq. 7 (weighted by samples per position)
+            x = X[:, ctx.index]  # Eq. 7 (weighted by samples per position)
             cov_x = s2 * A
             chi2 = float(np.sum(W * (Y - S @ x) ** 2)) / s2
-            T = np.zeros((4, 4))
-            T[:3, :3] = C.T  # w (MB) = C^T (m/SF)
-            T[3, 3] = 1.0
             beta, bcov = T @ x, T @ cov_x @ T.T
             res = segment_residuals(model, ctx, session.segments, beta, "accel", cache)
             fits.append(make_sensor_fit(model, ctx, beta, bcov, np.sqrt(s2), self.sigma is not None, len(Y), chi2, res))
         return LsqResult("accel", model, fits, [s.label for s in used], {})
 
     # ------------------------------------------------------------------ gyros
-    def _fit_gyro(self, session: Session, sig: np.ndarray) -> tuple[LsqResult, str]:
+    def _fit_gyro(self, session: Session, sig: np.ndarray, stats: SessionStatistics) -> tuple[LsqResult, str]:
         model = ErrorModel.base()
         pairs, unpaired = rate_pairs(session.segments)
         statics = [s for s in session.segments if s.kind in ("static", "static_unknown")]
@@ -194,24 +204,31 @@ class ChoPark:
             if self.earth_rate and s.mat_ln_mb is not None and session.latitude is not None:
                 we[k] = s.mat_ln_mb.T @ earth_rate_ln(session.latitude)
                 earth_used += 1
-        means = {s.label: s.raw["gyro"].mean(axis=0) for s in session.segments}
+        # the pair differences (Eq. 15) and static means (Eq. 16-17) of every sensor at once
+        Yg_all = np.array([stats.mean(a, "gyro") - stats.mean(b, "gyro") for a, b in pairs]).reshape(len(pairs), -1)
+        ybar_all = np.array([stats.mean(s, "gyro") for s in statics]).reshape(len(statics), -1)
+        V = np.array([1.0 / a.n_samples + 1.0 / b.n_samples for a, b in pairs])
+        N = np.array([s.n_samples for s in statics], dtype=float)
+        wbar = (N @ we) / N.sum()
+        by_su: dict[int, tuple] = {}
         for ctx in contexts(session, "gyro"):
-            C = ctx.geometry.subunit_of(ctx.index).mat_sb_mb
+            su = ctx.geometry.subunit_of(ctx.index)
+            C = su.mat_sb_mb
             i = ctx.index
             s2 = float(sig[i]) ** 2
-            R = gyro_rows(pairs, C)  # Eq. 12, 14
-            Yg = np.array([means[a.label][i] - means[b.label][i] for a, b in pairs])  # Eq. 15
-            V = np.array([1.0 / a.n_samples + 1.0 / b.n_samples for a, b in pairs])
-            A = np.linalg.inv(R.T @ (R / V[:, None]))
-            m_sf = A @ R.T @ (Yg / V)  # Eq. 13 (weighted by the variance of each difference)
+            if id(su) not in by_su:
+                R = gyro_rows(pairs, C)  # Eq. 12, 14
+                A = np.linalg.inv(R.T @ (R / V[:, None]))
+                by_su[id(su)] = (R, A, A @ R.T @ (Yg_all / V[:, None]))
+            R, A, MS = by_su[id(su)]
+            Yg = Yg_all[:, i]
+            m_sf = MS[:, i]  # Eq. 13 (weighted by the variance of each difference)
             cov_m = s2 * A
             chi2 = float(np.sum((Yg - R @ m_sf) ** 2 / V)) / s2
             w = C.T @ m_sf
             cov_w = C.T @ cov_m @ C
             # Eq. 16-17: bias from the static positions, Earth rate subtracted where known
-            N = np.array([s.n_samples for s in statics], dtype=float)
-            ybar = np.array([means[s.label][i] for s in statics])
-            wbar = (N @ we) / N.sum()
+            ybar = ybar_all[:, i]
             c = float((N @ ybar) / N.sum() - w @ wbar)
             var_c = s2 / N.sum() + wbar @ cov_w @ wbar
             chi2 += float(np.sum(N * (ybar - w @ we.T - c) ** 2)) / s2
@@ -235,6 +252,25 @@ class ChoPark:
             note += f"; rate segments without a -w partner, not used: {unpaired}"
         used = [s.label for p in pairs for s in p] + [s.label for s in statics]
         return LsqResult("gyro", model, fits, used, {x: "no -w partner" for x in unpaired}), note
+
+
+def _subunit_rows(ctxs: Sequence[SensorContext], rows_of: Any) -> list[tuple[SensorContext, np.ndarray, bool]]:
+    """``(ctx, M, full)`` per sensor: the rows ``M = rows_of(C_j)`` of its sub-unit and whether they have full
+    column rank by the criterion of :func:`_named_rank_check` (one SVD per sub-unit, not per sensor)."""
+    by_su: dict[int, tuple[np.ndarray, bool]] = {}
+    out = []
+    for ctx in ctxs:
+        su = ctx.geometry.subunit_of(ctx.index)
+        hit = by_su.get(id(su))
+        if hit is None:
+            M = rows_of(su.mat_sb_mb)
+            full = M.shape[0] >= M.shape[1]
+            if full:
+                sv = np.linalg.svd(M, compute_uv=False)
+                full = bool(sv[-1] > 1e-9 * max(sv[0], 1e-300))
+            hit = by_su[id(su)] = (M, full)
+        out.append((ctx, hit[0], hit[1]))
+    return out
 
 
 def _named_rank_check(M: np.ndarray, ctx: SensorContext, inst: str, what: str, with_bias: bool) -> None:

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import IdentifiabilityError
-from ..session import Segment, Session
+from ..session import Segment, Session, SessionStatistics
 from .lsq import (
     LazyResiduals,
     LsqResult,
@@ -44,25 +44,24 @@ __all__ = [
 ]
 
 
-def estimate_noise_sigma(session: Session, instrument: str) -> np.ndarray:
+def estimate_noise_sigma(session: Session, instrument: str, stats: SessionStatistics | None = None) -> np.ndarray:
     """Per-sample white-noise standard deviation of each sensor's raw output (raw units).
 
     Pooled first-difference estimate ``var(y[k+1] - y[k]) / 2`` over the static segments (all segments if
-    there is none): insensitive to the (slow) signal, exact for white noise.
+    there is none): insensitive to the (slow) signal, exact for white noise. ``stats``: the fit's
+    :class:`~rimu.session.SessionStatistics` (whose first-difference sums are then shared), default a new one.
     """
+    stats = stats or SessionStatistics(session)
     segs = [s for s in session.segments if s.kind in ("static", "static_unknown")] or list(session.segments)
     n = session.geometries[instrument].n
     acc = np.zeros(n)
     cnt = 0
     for s in segs:
-        y = s.raw[instrument]
-        if y.shape[0] < 3:
-            continue
-        d = np.diff(y, axis=0)
-        m = d.shape[0]
         # sum of squared deviations of the differences from their mean (y[-1] - y[0]) / m, in one pass
-        acc += np.einsum("ij,ij->j", d, d) - (y[-1] - y[0]) ** 2 / m
-        cnt += m - 1
+        ss, dof = stats.sums(s, instrument).diff
+        if dof:
+            acc += ss
+            cnt += dof
     if cnt == 0:
         raise IdentifiabilityError(f"{instrument}: no segment has enough samples to estimate the noise level")
     sig = np.sqrt(acc / cnt / 2.0)
@@ -114,6 +113,44 @@ def _known_input(ctx: SensorContext, seg: Segment) -> np.ndarray | None:
         if seg.specific_force_mb is None and seg.mat_ln_mb is not None:
             return np.broadcast_to(seg.mat_ln_mb.T @ np.array([0.0, 0.0, ctx.gravity]), (seg.n_samples, 3))
     return ctx.input(seg)
+
+
+def _input_form(ctx: SensorContext, seg: Segment) -> tuple[str | None, Any]:
+    """How the known input ``ctx.input(seg)`` of the base model varies over a segment, without evaluating it per
+    sample: ``("constant", u (3,))``; ``("basis", P (3, 3))`` with ``u = [1, cos(theta), sin(theta)] P`` on a
+    segment turning at a constant rate with known attitude (:class:`~rimu.session.RotationMoments`);
+    ``("samples", u (N, 3))`` for an input given sample by sample; ``(None, None)`` when it is not known."""
+    w = seg.table_rate()
+    turning = bool(np.any(w))
+    if ctx.instrument == "gyro":
+        if seg.kind not in ("rate", "static"):
+            return None, None
+        earth = seg.mat_ln_mb is not None and ctx.latitude is not None and (ctx.include_earth_rate or not turning)
+        if not earth:
+            return "constant", np.asarray(w, dtype=float)
+        from ..session import earth_rate_ln
+
+        x = seg.mat_ln_mb.T @ earth_rate_ln(ctx.latitude)
+        if not turning:
+            return "constant", x
+        P = _basis_coefficients(w, x)
+        P[0] += w
+        return "basis", P
+    if seg.specific_force_mb is not None:
+        f = seg.specific_force_mb
+        return ("constant", f) if f.ndim == 1 else ("samples", seg.specific_force(ctx.gravity))
+    if seg.mat_ln_mb is None:
+        return None, None
+    x = seg.mat_ln_mb.T @ np.array([0.0, 0.0, ctx.gravity])
+    return ("basis", _basis_coefficients(w, x)) if turning else ("constant", x)
+
+
+def _basis_coefficients(w: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Rows ``a, b, c`` of an LN-fixed vector ``x = C0^T v`` seen in MB while turning at ``w``:
+    ``a + b cos(theta) + c sin(theta)`` (:meth:`rimu.session.RotationMoments.coefficients`)."""
+    k = w / np.linalg.norm(w)
+    a = k * float(k @ x)
+    return np.vstack([a, x - a, -np.cross(k, x)])
 
 
 def make_sensor_fit(model: ErrorModel, ctx: SensorContext, beta: np.ndarray, beta_cov: np.ndarray, sigma: float,
@@ -289,15 +326,16 @@ class LeastSquares:
         base_only = all(e.name in ("bias", "scale_misalignment") for e in model.effects)
         out: dict[str, LsqResult] = {}
         notes: list[str] = []
+        sstats = SessionStatistics(session)  # each segment's sums and rotation moments once for every instrument
         for inst in insts:
-            sig = _sigma_for(self.sigma, session, inst)
+            sig = _sigma_for(self.sigma, session, inst, sstats)
             skipped: dict[str, str] = {}
             base = [e.name for e in model.effects] == ["scale_misalignment", "bias"]
             # effects along an axis act on the calibrated axis: fit them there
             axes = first_axes(session, model, inst, segs, sig) if on_calibrated_axes(model) else None
             ctxs = contexts(session, inst, axes=axes)
             if base:
-                stats = self._base_statistics(session, segs, inst, ctxs[0], skipped)
+                stats = self._base_statistics(session, segs, inst, ctxs[0], skipped, sstats, tuple(insts))
             fits = []
             for ctx in ctxs:
                 names = model.parameter_names(ctx)
@@ -310,11 +348,12 @@ class LeastSquares:
                 if not labels:
                     raise IdentifiabilityError(f"{inst}: no segment carries the inputs the model {model.label} needs",
                                                model.parameter_names(ctx))
-                try:
-                    check_identifiable_gram(G, n_obs, names, inst)
-                except IdentifiabilityError as exc:
-                    raise IdentifiabilityError(str(exc), _physical_names(model, ctx, exc.parameters)) from None
-                Ginv = np.linalg.inv(G)
+                if not base or ctx is ctxs[0]:  # the base model's G is every sensor's: checked and inverted once
+                    try:
+                        check_identifiable_gram(G, n_obs, names, inst)
+                    except IdentifiabilityError as exc:
+                        raise IdentifiabilityError(str(exc), _physical_names(model, ctx, exc.parameters)) from None
+                    Ginv = np.linalg.inv(G)
                 beta = Ginv @ h
                 rss = rss_from_statistics(q, h, G, beta)
                 res = LazyResiduals({lab: _bind(mk, beta) for lab, mk in makers.items()})
@@ -331,21 +370,27 @@ class LeastSquares:
 
     @staticmethod
     def _base_statistics(session: Session, segs: list[Segment], inst: str, ctx0: SensorContext,
-                         skipped: dict[str, str]) -> tuple:
+                         skipped: dict[str, str], sstats: SessionStatistics | None = None,
+                         instruments: tuple[str, ...] = ()) -> tuple:
         """Sufficient statistics of the base model for every sensor of ``inst`` at once: the known input u of a
         segment is the same for all of them, so ``X = [u, 1]`` and ``X^T X`` are shared, ``X^T Y`` is one
-        product for all sensors; a static segment's constant input costs nothing per sample."""
+        product for all sensors. Every term comes from the segment's sums (:class:`~rimu.session.SessionStatistics`):
+        a static segment's constant input from its column sums; a segment turning at a constant rate with known
+        attitude, whose input is ``B P`` in the basis ``B = [1, cos(theta), sin(theta)]`` of its angle, from
+        ``B^T B`` and ``B^T Y`` (``X^T X = Q^T (B^T B) Q``, ``X^T Y = Q^T (B^T Y)``, ``Q = [P, e_1]``); only an input
+        given sample by sample (``specific_force_mb`` of shape (N, 3)) is built per sample."""
+        sstats = sstats or SessionStatistics(session)
         G = np.zeros((4, 4))
         H = np.zeros((4, session.geometries[inst].n))
         q = np.zeros(session.geometries[inst].n)
         n_obs, labels, parts = 0, [], []
         for seg in segs:
-            Y = seg.raw[inst]
-            u = _known_input(ctx0, seg)
-            if u is None:
+            st = sstats.sums(seg, inst)
+            kind, u = _input_form(ctx0, seg)
+            if kind is None:
                 if seg.kind == "angle" and inst == "gyro" and seg.n_samples > 1:
                     x = _angle_row(seg, ErrorModel.base(), ctx0)[0]
-                    yv = Y.sum(axis=0) / np.sqrt(seg.n_samples)
+                    yv = st.total / np.sqrt(seg.n_samples)
                     G += np.outer(x, x)
                     H += np.outer(x, yv)
                     q += yv**2
@@ -356,15 +401,22 @@ class LeastSquares:
                     skipped[seg.label] = "the segment lacks inputs an effect needs (known rate, attitude or angle)"
                 continue
             N = seg.n_samples
-            if u.strides[0] == 0:  # one input for every sample (a static position)
-                x = np.append(u[0], 1.0)
+            if kind == "constant":  # one input for every sample (a static position)
+                x = np.append(u, 1.0)
                 G += N * np.outer(x, x)
-                H += np.outer(x, Y.sum(axis=0))
+                H += np.outer(x, st.total)
+            elif kind == "basis":  # u = B P on a turning segment: from the moments of its angle
+                rm = sstats.rotation(seg)
+                Q = np.zeros((3, 4))
+                Q[:, :3] = u
+                Q[0, 3] = 1.0
+                G += Q.T @ rm.gram @ Q
+                H += Q.T @ sstats.basis_products(seg, tuple(dict.fromkeys((inst, *instruments))))[inst]
             else:
                 X = np.column_stack([u, np.ones(N)])
                 G += X.T @ X
-                H += X.T @ Y
-            q += np.einsum("ij,ij->j", Y, Y)
+                H += X.T @ seg.raw[inst]
+            q += st.sumsq
             n_obs += N
             labels.append(seg.label)
             parts.append((seg.label, seg, None))
@@ -454,8 +506,9 @@ def _angle_row(seg: Segment, model: ErrorModel, ctx: SensorContext) -> np.ndarra
     return np.array(row)[None, :] / (dt * np.sqrt(seg.n_samples))
 
 
-def _sigma_for(sigma: dict[str, Any] | None, session: Session, inst: str) -> np.ndarray:
+def _sigma_for(sigma: dict[str, Any] | None, session: Session, inst: str,
+               stats: SessionStatistics | None = None) -> np.ndarray:
     n = session.geometries[inst].n
     if sigma is not None and inst in sigma and sigma[inst] is not None:
         return np.broadcast_to(np.asarray(sigma[inst], dtype=float), (n,)).copy()
-    return estimate_noise_sigma(session, inst)
+    return estimate_noise_sigma(session, inst, stats)

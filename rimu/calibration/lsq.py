@@ -10,6 +10,7 @@ their covariance by its Jacobian (checked against finite differences in the test
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -123,9 +124,10 @@ def physical_from_beta(model: ErrorModel, ctx: SensorContext, beta: np.ndarray) 
     theta = beta * SF with SF = 1/|w|. Without a scale block, theta = beta (raw units).
     """
     effs = model.effects_for(ctx)
-    sizes = [len(e.parameters(ctx)) for e in effs]
-    offs = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
-    p = int(offs[-1])
+    offs = [0]
+    for e in effs:
+        offs.append(offs[-1] + len(e.parameters(ctx)))
+    p = offs[-1]
     theta = np.zeros(p)
     J = np.zeros((p, p))
     specs: list[ParamSpec] = []
@@ -135,10 +137,8 @@ def physical_from_beta(model: ErrorModel, ctx: SensorContext, beta: np.ndarray) 
             w_slice = slice(a, b)
     if w_slice is not None:
         w = beta[w_slice]
-        nw = float(np.linalg.norm(w))
+        nw = math.sqrt(float(w @ w))
         if not nw > 0:
-            from ..errors import IdentifiabilityError
-
             raise IdentifiabilityError("a sensor's output does not respond to its input (zero scale-misalignment "
                                        "vector): a dead sensor or an unconnected channel; remove it from the geometry")
         sf = 1.0 / nw

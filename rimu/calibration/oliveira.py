@@ -30,9 +30,9 @@ from typing import Any
 import numpy as np
 
 from ..errors import IdentifiabilityError
-from ..session import Session
+from ..session import Session, SessionStatistics, column_sums, earth_rate_ln
 from ..units import RS_TO_DH
-from .cho_park import _named_rank_check, gyro_rows, rate_pairs
+from .cho_park import _named_rank_check, _subunit_rows, gyro_rows, rate_pairs
 from .estimate import CalibrationResult, _sigma_for, make_sensor_fit, segment_residuals
 from .lsq import LsqResult
 from .model import ErrorModel, contexts
@@ -61,13 +61,14 @@ def denoise(y: np.ndarray, wavelet: str = "db4", level: int = 8) -> np.ndarray:
     return out.reshape(y.shape)
 
 
-def parity_check(session: Session, result: CalibrationResult, instrument: str = "gyro") -> dict[str, Any]:
+def parity_check(session: Session, result: CalibrationResult, instrument: str = "gyro",
+                 stats: SessionStatistics | None = None) -> dict[str, Any]:
     """de Oliveira et al. 2012, Eq. 22-25 on the estimator's own result: the nominal (``v``, Eq. 24) and
     calibrated (``v_c``, Eq. 25) parity vectors applied to the scale-corrected half differences of every +/-
     pair, with the standard deviation expected from noise alone (SI). A plain-dict view of
-    :func:`rimu.calibration.parity_check.pair_parity`; the chi-square verdict is
+    :func:`rimu.calibration.parity_check.pair_parity` (``stats``: the fit's segment sums); the chi-square verdict is
     :func:`rimu.fdi.quality.parity_quality`."""
-    pp = pair_parity(session, result.instruments[instrument].to_calibration())
+    pp = pair_parity(session, result.instruments[instrument].to_calibration(), stats)
     return {"v": pp.v, "v_c": pp.v_c, "nominal": pp.nominal, "corrected": pp.corrected,
             "noise_std": pp.noise_std, "pairs": pp.labels}
 
@@ -111,23 +112,27 @@ class Oliveira:
             raise IdentifiabilityError(f"the session has no {inst} data")
         pairs, unpaired = rate_pairs(session.segments)
         seqs = [s for p in pairs for s in p]
-        for ctx in contexts(session, inst):
-            C = ctx.geometry.subunit_of(ctx.index).mat_sb_mb
-            _named_rank_check(gyro_rows(pairs, C), ctx, inst,
-                              "+/- rate pairs about three independent axes (de Oliveira Eq. 18)", False)
-        sig = _sigma_for(self.sigma, session, inst)
+        for ctx, R, full in _subunit_rows(contexts(session, inst), lambda C: gyro_rows(pairs, C)):
+            if not full:  # one SVD per sub-unit; the named check for the sensor that fails
+                _named_rank_check(R, ctx, inst, "+/- rate pairs about three independent axes (de Oliveira Eq. 18)",
+                                  False)
+        stats = SessionStatistics(session)  # each sequence's sums and rotation moments once
+        sig = _sigma_for(self.sigma, session, inst, stats)
         means = {}
         for s in seqs:
-            y = s.raw[inst]
-            means[s.label] = (denoise(y) if self.wavelet else y).mean(axis=0)
+            means[s.label] = column_sums(denoise(s.raw[inst])) / s.n_samples if self.wavelet else stats.mean(s, inst)
         N = np.array([s.n_samples for s in seqs], dtype=float)
         rates = np.array([s.table_rate() for s in seqs])
         we = np.zeros((len(seqs), 3))
         earth_known = 0
-        for k, s in enumerate(seqs):
-            e = s.earth_rate(session.latitude)
-            if e is not None:
-                we[k] = e.mean(axis=0)
+        if session.latitude is not None:
+            e_ln = earth_rate_ln(session.latitude)
+            for k, s in enumerate(seqs):
+                if s.mat_ln_mb is None:
+                    continue
+                rm = stats.rotation(s)  # the mean Earth rate in MB over the turn, from the moments of its angle
+                x = s.mat_ln_mb.T @ e_ln
+                we[k] = x if rm is None else rm.mean_vector(x)
                 earth_known += 1
         left = (N @ we) / N.sum()
         model = ErrorModel.base()
@@ -173,5 +178,5 @@ class Oliveira:
             notes.append(f"{inst}: rate sequences without a -w partner, not used: {unpaired}")
         out = {inst: LsqResult(inst, model, fits, [s.label for s in seqs], {x: "no -w partner" for x in unpaired})}
         result = CalibrationResult(self.method, out, session.raw_unit, notes)
-        result.extra["parity"] = parity_check(session, result, inst)
+        result.extra["parity"] = parity_check(session, result, inst, stats)
         return result

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..errors import SessionFormatError
 from ..geometry import null_space_rows
-from ..session import Session
+from ..session import Session, SessionStatistics
 from .result import InstrumentCalibration
 
 __all__ = ["PairParity", "opposite_rate_pairs", "pair_parity"]
@@ -88,8 +88,11 @@ class PairParity:
         return np.sqrt(self.var_g_w @ (self.v_c**2).T)
 
 
-def pair_parity(session: Session, calibration: InstrumentCalibration) -> PairParity:
+def pair_parity(session: Session, calibration: InstrumentCalibration,
+                stats: SessionStatistics | None = None) -> PairParity:
     """de Oliveira et al. 2012, Eq. 21-25 on every +w / -w pair of ``session`` (see the module docstring).
+    ``stats``: a :class:`~rimu.session.SessionStatistics` of the session whose segment means to use (an
+    estimator's own), default a new one.
 
     Raises
     ------
@@ -113,11 +116,12 @@ def pair_parity(session: Session, calibration: InstrumentCalibration) -> PairPar
         if vc[k] @ v[k] < 0:
             vc[k] = -vc[k]
     sig2 = cal.noise_sigma**2
+    stats = stats or SessionStatistics(session)
     labels, rates, nom, cor, bpar, var = [], [], [], [], [], []
     for a, b in pairs:
         sa, sb = session.segments[a], session.segments[b]
         ya, yb = sa.raw[inst], sb.raw[inst]
-        ma, mb = ya.mean(axis=0), yb.mean(axis=0)
+        ma, mb = stats.mean(sa, inst), stats.mean(sb, inst)
         g_w = 0.5 * cal.scale * (ma - mb)             # Eq. 22-23: commanded rate only
         g_b = 0.5 * cal.scale * (ma + mb) - cal.bias  # Eq. 21: bias (and Earth rate) with the rate removed
         labels.append((sa.label, sb.label))

@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import IdentifiabilityError, SessionFormatError
-from ..session import Segment, Session
+from ..session import Segment, Session, SessionStatistics, skew
 from ..units import EARTH_RATE
 from .estimate import CalibrationResult, _sigma_for, make_sensor_fit
 from .lsq import LsqResult
@@ -57,6 +57,7 @@ __all__ = [
     "norm_residuals",
     "refine_norms",
     "platform_frame",
+    "rotation_axes",
     "rotation_pairs",
     "solve_ma",
     "solve_mg",
@@ -147,7 +148,7 @@ def rotation_pairs(segments: Sequence[Segment]) -> list[tuple[Segment, Segment, 
             return s.table_rate() * s.n_samples / _fs(s)
         return None
 
-    rot = [(s, angle(s)) for s in segments if angle(s) is not None]
+    rot = [(s, a) for s, a in ((s, angle(s)) for s in segments) if a is not None]
     used: set[int] = set()
     out = []
     for a, (sa, va) in enumerate(rot):
@@ -175,57 +176,71 @@ def _mean(y: np.ndarray) -> np.ndarray:
     return _sum(y) / len(y)
 
 
-def _median_pair(x: np.ndarray) -> np.ndarray:
-    """The middle order statistics of a 1-D array (one value for odd length, two for even), by one partition:
-    ``np.median(g(x)) == g(_median_pair(x)).mean()`` for any increasing g (e.g. sqrt of squared norms)."""
-    n = len(x)
-    k = n // 2
-    if n % 2:
-        return np.partition(x, k)[k:k + 1]
-    return np.partition(x, (k - 1, k))[k - 1:k + 1]
-
-
 def _fs(s: Segment) -> float:
     return (s.n_samples - 1) / s.duration if s.duration > 0 else 1.0
 
 
-def accel_rotation_axis(f: np.ndarray | Sequence[np.ndarray]) -> tuple[np.ndarray, float]:
+def accel_rotation_axis(f: np.ndarray | Sequence[np.ndarray],
+                        sums: Sequence[tuple[np.ndarray, np.ndarray]] | None = None) -> tuple[np.ndarray, float]:
     """Zhang et al. 2010, Eq. 42-47: the rotation axis l^p from specific forces f (N, 3) seen during a rotation
     about a fixed axis: the null vector of ``[f^T, -1]``. Returns (unit axis, angular variance estimate).
 
     ``f`` may be given in pieces (a sequence of (N_i, 3) arrays, e.g. the CW and the CCW segment), as if stacked.
     The null vector is the right singular vector of the smallest singular value of ``[f, -1] D`` (D the column
-    scaling, the median norm on the last column), computed as the eigenvector of the 4x4 Gram matrix
-    ``D [f, -1]^T [f, -1] D`` from the sums ``f^T f``, ``sum f`` and N (one pass over the samples; equal to the
-    singular vector to rounding, checked in the tests: the gap to the other singular values is large).
+    scaling, the rms norm of f on the last column), computed as the eigenvector of the 4x4 Gram matrix
+    ``D [f, -1]^T [f, -1] D`` from the sums ``f^T f``, ``sum f`` and N (equal to the singular vector to rounding,
+    checked in the tests: the gap to the other singular values is large).
+    ``sums``: the ``(f^T f, sum f)`` of each piece when already known (a fit's
+    :class:`~rimu.session.SessionStatistics`), so the samples are not read again. :func:`rotation_axes` does
+    several rotations at once.
     """
     chunks = [np.asarray(f, float)] if isinstance(f, np.ndarray) else [np.asarray(c, float) for c in f]
-    N = sum(len(c) for c in chunks)
-    sq = [c * c for c in chunks]
-    sc4 = float(np.sqrt(_median_pair(np.concatenate([x @ np.ones(3) for x in sq]))).mean())
-    S = np.diag(sum(np.ones(len(x)) @ x for x in sq))  # f^T f (as 3 + 3 dot products: c.T @ c is slower)
-    for i, j in ((0, 1), (0, 2), (1, 2)):
-        S[i, j] = S[j, i] = sum(c[:, i] @ c[:, j] for c in chunks)
-    m = sum(np.ones(len(c)) @ c for c in chunks)  # sum of f
-    sc = np.array([1.0, 1.0, 1.0, sc4])
-    G = np.empty((4, 4))
-    G[:3, :3] = S
-    G[:3, 3] = G[3, :3] = -m * sc4
-    G[3, 3] = N * sc4**2
+    if sums is None:
+        sums = [(_gram3(c), _sum(c)) for c in chunks]
+    l, var = rotation_axes([chunks], [sums])
+    return l[0], float(var[0])
+
+
+def rotation_axes(chunks: Sequence[Sequence[np.ndarray]],
+                  sums: Sequence[Sequence[tuple[np.ndarray, np.ndarray]]]) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`accel_rotation_axis` of several rotations at once (one batched eigen-decomposition each step):
+    ``chunks[k]`` the sample pieces of rotation k, ``sums[k]`` their ``(f^T f, sum f)``. Returns the unit axes
+    (K, 3) and their angular variances (K,)."""
+    K = len(chunks)
+    N = np.array([sum(len(c) for c in ch) for ch in chunks], dtype=float)
+    S = np.array([sum(g for g, _ in sm) for sm in sums]).reshape(K, 3, 3)  # f^T f
+    m = np.array([sum(t for _, t in sm) for sm in sums]).reshape(K, 3)  # sum of f
+    sc4 = np.sqrt(np.trace(S, axis1=1, axis2=2) / N)
+    G = np.empty((K, 4, 4))
+    G[:, :3, :3] = S
+    G[:, :3, 3] = G[:, 3, :3] = -m * sc4[:, None]
+    G[:, 3, 3] = N * sc4**2
     lam, V = np.linalg.eigh(G)
-    v = V[:, 0] * sc
-    n = float(np.linalg.norm(v[:3]))
-    l = v[:3] / n
+    v = V[:, :, 0].copy()
+    v[:, 3] *= sc4
+    n = np.sqrt(np.sum(v[:, :3] ** 2, axis=1))
+    l = v[:, :3] / n[:, None]
     # first-order spread of the axis from the residual (total least squares): |[f, -1] v|^2 is the smallest
     # eigenvalue; recomputed from the samples when it is too small against the largest for its rounding
-    rr = float(lam[0]) if lam[0] > 1e-6 * lam[-1] else sum(float(np.sum(np.square(c @ v[:3] - v[3])))
-                                                           for c in chunks)
-    s2 = rr / n**2 / max(N - 4, 1)
-    FtF = S - np.outer(m, m) / N  # F = f - mean(f)
-    P = np.eye(3) - np.outer(l, l)
+    rr = lam[:, 0].copy()
+    for k in np.flatnonzero(~(lam[:, 0] > 1e-6 * lam[:, -1])):
+        rr[k] = sum(float(np.sum(np.square(c @ v[k, :3] - v[k, 3]))) for c in chunks[k])
+    s2 = rr / n**2 / np.maximum(N - 4, 1)
+    FtF = S - m[:, :, None] * m[:, None, :] / N[:, None, None]  # F = f - mean(f)
+    P = np.eye(3) - l[:, :, None] * l[:, None, :]
     ev = np.linalg.eigvalsh(P @ FtF @ P)  # trace of the pseudo-inverse (singular values below 1e-10 dropped)
-    var = float(s2 * np.sum(1.0 / ev[ev > 1e-10 * np.max(np.abs(ev))]) / 2.0)
+    keep = ev > 1e-10 * np.max(np.abs(ev), axis=1)[:, None]
+    var = s2 * np.sum(np.where(keep, 1.0 / np.where(keep, ev, 1.0), 0.0), axis=1) / 2.0
     return l, var
+
+
+def _gram3(c: np.ndarray) -> np.ndarray:
+    """``c^T c`` of samples (N, 3): squares by one matrix-vector product, the three cross sums by dot products
+    (``c.T @ c`` is slower for three columns)."""
+    S = np.diag(_sum(c * c))
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        S[i, j] = S[j, i] = c[:, i] @ c[:, j]
+    return S
 
 
 def wahba(lo: np.ndarray, lp: np.ndarray, w: np.ndarray | None = None) -> np.ndarray:
@@ -316,11 +331,11 @@ def norm_problem(groups: Sequence[tuple]) -> Callable[[np.ndarray], tuple[np.nda
         A = np.linalg.inv(L)
         At = np.swapaxes(A, 1, 2)
         s = (Y[None] - mbk * Q[:, None, 6:9]) @ At  # (B, K, 3)
-        n = np.sqrt(np.sum(s * s, axis=2))
+        n = np.sqrt((s * s).sum(axis=2))
         u = s / n[..., None]
         g = u @ A  # d|s| / dy = A^T u
         gc = g * C[None]
-        v2 = np.sum(g * gc, axis=2)
+        v2 = (g * gc).sum(axis=2)
         v = np.sqrt(v2)
         r = (n - tgt) / v
         # directions: dL = E_ij gives dA = -A E_ij A, ds = -A[:, i] s_j, dA^T u = -A[j, :] g_i; db_m gives
@@ -328,13 +343,15 @@ def norm_problem(groups: Sequence[tuple]) -> Callable[[np.ndarray], tuple[np.nda
         # A^T A[:, i] . gc = w_i (w = gc A^T A) and A[j, :] . gc = z_j (z = gc A^T)
         w = gc @ (At @ A)
         z = gc @ At
+        ms, g0 = -s[..., i1], g[..., i0]
+        nn, vv, v2n = n[..., None], v[..., None], v2[..., None]
         dn = np.empty((B, K, 9))
-        dn[..., :6] = -s[..., i1] * g[..., i0]
+        dn[..., :6] = ms * g0
         dn[..., 6:] = -mbk * g
         dv = np.empty((B, K, 9))
-        dv[..., :6] = (-s[..., i1] * w[..., i0] - v2[..., None] * dn[..., :6]) / n[..., None] - z[..., i1] * g[..., i0]
-        dv[..., 6:] = (-mbk * w - v2[..., None] * dn[..., 6:]) / n[..., None]
-        J = (dn - r[..., None] * dv / v[..., None]) / v[..., None]
+        dv[..., :6] = (ms * w[..., i0] - v2n * dn[..., :6]) / nn - z[..., i1] * g0
+        dv[..., 6:] = (-mbk * w - v2n * dn[..., 6:]) / nn
+        J = (dn - r[..., None] * dv / vv) / vv
         if q.ndim == 1:
             return r[0], J[0]
         return r.reshape(*q.shape[:-1], K), J.reshape(*q.shape[:-1], K, 9)
@@ -443,15 +460,16 @@ class Zhang:
         pairs = rotation_pairs(session.segments)
         if "gyro" not in session.geometries or not pairs:
             return self._fit_accel_only(session, statics)
-        sa = _sigma_for(self.sigma, session, "accel")
-        sg = _sigma_for(self.sigma, session, "gyro")
-        ya = np.array([_mean(s.raw["accel"]) for s in statics]).reshape(-1, 3)
-        yg = np.array([_mean(s.raw["gyro"]) for s in statics]).reshape(-1, 3)
+        stats = SessionStatistics(session)  # each segment's sums once: noise level, means, integrals
+        sa = _sigma_for(self.sigma, session, "accel", stats)
+        sg = _sigma_for(self.sigma, session, "gyro", stats)
+        ya = np.array([stats.mean(s, "accel") for s in statics]).reshape(-1, 3)
+        yg = np.array([stats.mean(s, "gyro") for s in statics]).reshape(-1, 3)
         Ns = np.array([s.n_samples for s in statics], dtype=float)
         # 1. accelerometers (Eq. 12-14)
         Aa, ba = solve_ma(ya, gg)
         # 2. gyros (Eq. 16-22)
-        phi = np.array([_sum(a.raw["gyro"]) / _fs(a) - _sum(b.raw["gyro"]) / _fs(b)
+        phi = np.array([stats.sums(a, "gyro").total / _fs(a) - stats.sums(b, "gyro").total / _fs(b)
                         for a, b, _ in pairs]).reshape(-1, 3)
         ang = np.array([np.linalg.norm(d) for _, _, d in pairs])
         dur_mismatch = [a.label for a, b, _ in pairs if a.n_samples != b.n_samples]
@@ -475,12 +493,13 @@ class Zhang:
             norm_problem([(phi, ang, sg**2, dts**2 * Npair.sum(axis=1), False),
                           (yg, self.earth_rate, sg**2, 1.0 / Ns, True)]),
         )
-        p0 = np.concatenate([np.linalg.inv(Aa)[il], ba, np.linalg.inv(Ag)[il], bg])
+        La0, Lg0 = np.linalg.inv(Aa), np.linalg.inv(Ag)
+        p0 = np.concatenate([La0[il], ba, Lg0[il], bg])
         p = p0.copy()
         Js, rs_, typs, steps, stalled = [], [], [], [], []
         for k, (prob, sig) in enumerate(zip(problems, (sa, sg))):
             sl = slice(9 * k, 9 * k + 9)
-            rows = np.linalg.norm(np.linalg.inv(Aa if k == 0 else Ag), axis=1)
+            rows = np.linalg.norm(La0 if k == 0 else Lg0, axis=1)
             typ = np.concatenate([rows[il[0]], np.maximum(np.abs(p0[sl][6:]), sig)])  # row size; bias or noise
             typs.append(typ)
             if self.refine:
@@ -510,12 +529,10 @@ class Zhang:
         # 5. inter-triad misalignment (Eq. 39-47). The plane s^p . l = kappa of Eq. 42 is a plane in raw space
         # too (s^p = A_a (y - b_a)), with normal n ~ A_a^T l: fit it once in raw space (Eq. 44-47), then
         # l^p = A_a^-T n for any accelerometer parameters, so theta's dependence on them is propagated.
-        n_raw, var_raw = [], []
-        for a, b, _ in pairs:
-            n_k, v_k = accel_rotation_axis([a.raw["accel"], b.raw["accel"]])
-            n_raw.append(n_k)
-            var_raw.append(v_k)
-        n_raw_a, phis_a = np.array(n_raw), phi
+        n_raw_a, var_raw = rotation_axes(
+            [[a.raw["accel"], b.raw["accel"]] for a, b, _ in pairs],
+            [[(stats.sums(x, "accel").gram, stats.sums(x, "accel").total) for x in (a, b)] for a, b, _ in pairs])
+        phis_a = phi
         if len(pairs) < 2 or np.linalg.matrix_rank(n_raw_a, tol=1e-3) < 2:
             raise IdentifiabilityError("inter-triad misalignment needs rotations about two independent axes that "
                                        "are not vertical (Zhang Eq. 40, 46)", ["theta_x", "theta_y", "theta_z"])
@@ -545,7 +562,8 @@ class Zhang:
 
         lo_a, lp_a = axes(p)
         # angular variance of each accelerometer axis: the raw-space spread mapped by A_a^-T (~ isotropic)
-        w_a = np.array([1.0 / max(v * float(np.linalg.norm(La, 2)) ** 2 / float(np.linalg.norm(n @ La)) ** 2, 1e-30)
+        la2 = float(np.linalg.norm(La, 2)) ** 2
+        w_a = np.array([1.0 / max(v * la2 / float(np.linalg.norm(n @ La)) ** 2, 1e-30)
                         for v, n in zip(var_raw, n_raw_a)])
         Rpo = wahba(lo_a, lp_a, w_a)
         info = sum(w * (np.eye(3) - np.outer(l, l)) for w, l in zip(w_a, lp_a))
@@ -582,8 +600,8 @@ class Zhang:
                 bc = Jb @ cov_p @ Jb.T
                 if inst == "gyro":
                     # theta uncertainty: d(L R) = L skew(dth) R -> row i: (L[i] @ skew(dth)) @ R, and
-                    # L[i] @ skew(e_k) = L[i] x e_k
-                    G = (np.cross(L[i], np.eye(3)) @ R).T
+                    # L[i] @ skew(e_k) = L[i] x e_k, the rows of -skew(L[i])
+                    G = (-skew(L[i]) @ R).T
                     bc[:3, :3] += G @ cov_th @ G.T
                 bc = (bc + bc.T) / 2
                 beta = np.concatenate([W[i], [b[i]]])

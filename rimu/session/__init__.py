@@ -2,7 +2,8 @@
 
 ``rimu.session.model`` holds the data model (:class:`Segment`, :class:`Session`), ``rimu.session.native``
 rimu's own CSV/NPZ format, ``rimu.session.stream`` reads such a file in chunks of
-constant memory, and ``rimu.session.loaders`` one module per third-party recording format.
+constant memory, ``rimu.session.stats`` the per-segment sufficient statistics a calibration reads
+the samples for, and ``rimu.session.loaders`` one module per third-party recording format.
 """
 
 from .loaders import FERRARIS_SECTIONS, load_ferraris
@@ -16,6 +17,7 @@ from .native import (
     session_sidecar,
     sidecar_geometries,
 )
+from .stats import RotationMoments, SegmentSums, SessionStatistics, column_sums
 from .stream import iter_blocks
 
 __all__ = [
@@ -23,8 +25,12 @@ __all__ = [
     "SEGMENT_KINDS",
     "SESSION_FORMAT",
     "SESSION_FORMAT_VERSION",
+    "RotationMoments",
     "Segment",
+    "SegmentSums",
     "Session",
+    "SessionStatistics",
+    "column_sums",
     "earth_rate_ln",
     "iter_blocks",
     "load_ferraris",

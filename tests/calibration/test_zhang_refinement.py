@@ -101,9 +101,10 @@ def test_decoupled_problems_have_the_joint_optimum(fitted):
 
 
 def _svd_axis(f):
-    """The null vector of [f, -1] by SVD (the implementation the Gram-matrix form replaced)."""
+    """The null vector of [f, -1] by SVD (the implementation the Gram-matrix form replaced), with the same column
+    scaling D (the rms norm of f on the last column)."""
     A = np.column_stack([f, -np.ones(len(f))])
-    sc = np.array([1.0, 1.0, 1.0, float(np.median(np.linalg.norm(f, axis=1)))])
+    sc = np.array([1.0, 1.0, 1.0, float(np.sqrt(np.mean(np.sum(f * f, axis=1))))])
     _, _, Vt = np.linalg.svd(A * sc, full_matrices=False)
     v = Vt[-1] * sc
     n = float(np.linalg.norm(v[:3]))
