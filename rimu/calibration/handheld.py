@@ -387,6 +387,64 @@ def _specific_forces(Wp: np.ndarray, c: np.ndarray, ybar: np.ndarray, sd: np.nda
     return f, info, e
 
 
+def _accel_problem(theta: np.ndarray, free: np.ndarray, fixed: np.ndarray, ybar: np.ndarray, sd: np.ndarray,
+                   gravity: float, tau2: float, jac: bool = True):
+    """Residuals of the accelerometer fit (:func:`fit_accel`, step 2) and their analytic Jacobian.
+
+    Per pose k: ``f_k = (W^T S_k W)^-1 W^T S_k (ybar_k - c)`` (S_k = diag(1 / sd_k^2)), the norm residual
+    ``(|f_k| - g) / sqrt(u_k^T info_k^-1 u_k + tau^2)`` and, for skewed sets, the whitened parity
+    ``(ybar_k - c - W f_k) / sd_k``. Returns (r, J, df) with df = d f / d theta (K, 3, p) (None without ``jac``).
+    With info = W^T S W and rho = ybar - c - W f: ``d f / d c_i = -info^-1 W_i s_i``,
+    ``d f / d W_ia = info^-1 s_i (e_a rho_i - W_i f_a)``; ``d s2 = 2 (info^-1 u) . du - (info^-1 u)^T d info
+    (info^-1 u)``, ``du = (I - u u^T) df / |f|``.
+    """
+    n = free.shape[0]
+    Wp, c = _unpack(theta, free, fixed, n)
+    f, info, e = _specific_forces(Wp, c, ybar, sd)
+    Sinv = np.linalg.inv(info)  # (K, 3, 3)
+    nf = np.sqrt(np.einsum("ka,ka->k", f, f))
+    u = f / nf[:, None]
+    Su = np.einsum("kab,kb->ka", Sinv, u)
+    s2n = np.einsum("ka,ka->k", u, Su)
+    den = np.sqrt(s2n + tau2)
+    d = nf - gravity
+    r = d / den
+    if n > 3:
+        r = np.concatenate([r, e.ravel()])
+    if not jac:
+        return r, None, None
+    K = len(ybar)
+    w = 1.0 / sd**2  # (K, n)
+    rho = e * sd  # (K, n) unwhitened residual
+    nfree = int(free.sum())
+    p = nfree + n
+    # d f / d W (K, 3, n, 3) and d f / d c (K, 3, n)
+    SW = np.einsum("kab,ib->kai", Sinv, Wp) * w[:, None, :]  # info^-1 W_i s_i  (K, 3, n)
+    dfW = (Sinv[:, :, None, :] * (w * rho)[:, None, :, None]
+           - SW[:, :, :, None] * f[:, None, None, :])  # (K, 3(out), n, 3(a))
+    df = np.empty((K, 3, p))
+    df[:, :, :nfree] = dfW.reshape(K, 3, 3 * n)[:, :, free.ravel()]
+    df[:, :, nfree:] = -SW
+    du = (df - u[:, :, None] * np.einsum("ka,kap->kp", u, df)[:, None, :]) / nf[:, None, None]
+    dnf = np.einsum("ka,kap->kp", u, df)
+    ds2 = 2.0 * np.einsum("ka,kap->kp", Su, du)
+    # - (Su)^T d info (Su), d info / d W_ia = s_i (e_a W_i^T + W_i e_a^T)
+    dinfo = 2.0 * w[:, :, None] * Su[:, None, :] * (Su @ Wp.T)[:, :, None]  # (K, n, 3(a))
+    ds2[:, :nfree] -= dinfo.reshape(K, 3 * n)[:, free.ravel()]
+    J_norm = dnf / den[:, None] - 0.5 * (d / den**3)[:, None] * ds2
+    if n <= 3:
+        return r, J_norm, df
+    # parity: e_ki = (ybar_ki - c_i - W_i . f_k) / sd_ki
+    de = -np.einsum("ia,kap->kip", Wp, df)
+    dW_direct = np.zeros((K, n, n, 3))
+    idx = np.arange(n)
+    dW_direct[:, idx, idx, :] = -f[:, None, :]
+    de[:, :, :nfree] += dW_direct.reshape(K, n, 3 * n)[:, :, free.ravel()]
+    de[:, :, nfree:] -= np.eye(n)[None]
+    de /= sd[:, :, None]
+    return r, np.vstack([J_norm, de.reshape(K * n, p)]), df
+
+
 def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, names: Sequence[str],
               members: Sequence[int] | None = None, robust: bool = False, model: str = "full",
               quick: bool = False) -> AccelFit:
@@ -484,12 +542,11 @@ def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, n
         u = f / nf[:, None]
         return nf - gravity, np.einsum("ka,kab,kb->k", u, np.linalg.inv(info), u), e
 
-    def resid(theta):
-        d, s2n, e = norm_parts(theta)
-        r = d / np.sqrt(s2n + tau2[0])
-        return np.concatenate([r, e.ravel()]) if n > 3 else r
+    def fun(theta):
+        return _accel_problem(theta, free, fixed, ybar, sd, gravity, tau2[0])[:2]
 
-    # 2. nonlinear refinement of the full model on all poses. A pose held by hand is disturbed by more than the
+    # 2. nonlinear refinement of the full model on all poses (Gauss-Newton / Levenberg-Marquardt on the analytic
+    # Jacobian of _accel_problem). A pose held by hand is disturbed by more than the
     # white noise (a pose-to-pose variance tau^2 that does not fall with the pose's length): when the norm
     # residuals exceed the white-noise prediction, tau^2 is the additive variance that brings their chi-square
     # to its degrees of freedom, and the fit is repeated with it (variance components; otherwise a long still
@@ -497,10 +554,7 @@ def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, n
     tau2 = [0.0]
     theta = theta0
     for _ in range(1 if quick else 3):
-        sol = least_squares(resid, theta, x_scale=typ, method="trf", loss="huber" if robust else "linear",
-                            f_scale=3.0, xtol=1e-10 if quick else 1e-13, ftol=1e-10 if quick else 1e-13,
-                            gtol=1e-10 if quick else 1e-13, max_nfev=200 * len(theta0))
-        theta = sol.x
+        theta = _gauss_newton(fun, theta, typ, robust, xtol=1e-8 if quick else 1e-12, max_iter=200)[0]
         if quick:
             break
         dof_n = K - len(theta) + (K * (n - 3) if n > 3 else 0)
@@ -516,9 +570,8 @@ def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, n
         d_, s2_, e_ = norm_parts(theta)
         return AccelFit(members, tri, Wp @ P, c, np.zeros((len(theta), len(theta))), theta, free, P,
                         np.zeros((K, 3)), d_, np.sqrt(s2_), 0.0, K - len(theta), 1.0, None, [], ybar, sd, 0.0)
-    # 3. covariance from the Jacobian (central differences) and the residual noise
-    J = central_jacobian(resid, theta, typ * 1e-6)
-    r = resid(theta)
+    # 3. covariance from the (analytic) Jacobian and the residual noise
+    r, J = fun(theta)
     nobs = K + (K * (n - 3) if n > 3 else 0)
     dof = nobs - len(theta)
     _check_jacobian(J, typ, _theta_names(free, names, P_names=("x", "y", "z")), "accel")
@@ -688,9 +741,127 @@ class GyroFit:
         return float(np.degrees(np.sqrt(np.mean(np.sum(self.rotation_residual**2, axis=1)))))
 
 
+def _rodrigues(v: np.ndarray) -> np.ndarray:
+    """Rotation matrices (M, 3, 3) of rotation vectors (M, 3) (Rodrigues' formula, series near zero)."""
+    x, y, z = v.T
+    th2 = x * x + y * y + z * z
+    if float(th2.max(initial=0.0)) < 1e-8:  # every angle below 1e-4 rad: the series to th^4 is exact in double
+        a = 1.0 - th2 / 6.0 + th2 * th2 / 120.0
+        b = 0.5 - th2 / 24.0 + th2 * th2 / 720.0
+    else:
+        th = np.sqrt(th2)
+        big = th > 1e-4
+        ths = np.where(big, th, 1.0)
+        a = np.where(big, np.sin(ths) / ths, 1.0 - th2 / 6.0 + th2 * th2 / 120.0)
+        b = np.where(big, (1.0 - np.cos(ths)) / (ths * ths), 0.5 - th2 / 24.0 + th2 * th2 / 720.0)
+    R = np.empty((len(v), 3, 3))
+    bx, by, bz = b * x, b * y, b * z
+    ax, ay, az = a * x, a * y, a * z
+    R[:, 0, 0] = 1.0 - b * (y * y + z * z)
+    R[:, 1, 1] = 1.0 - b * (x * x + z * z)
+    R[:, 2, 2] = 1.0 - b * (x * x + y * y)
+    R[:, 0, 1] = bx * y - az
+    R[:, 1, 0] = bx * y + az
+    R[:, 0, 2] = bx * z + ay
+    R[:, 2, 0] = bx * z - ay
+    R[:, 1, 2] = by * z - ax
+    R[:, 2, 1] = by * z + ax
+    return R
+
+
+def _cross_cols(v: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """``v x X`` for every column of X: v (M, 3), X (M, 3, p) -> (M, 3, p) (``skew(v) @ X``)."""
+    out = np.empty_like(X)
+    out[:, 0] = v[:, 1, None] * X[:, 2] - v[:, 2, None] * X[:, 1]
+    out[:, 1] = v[:, 2, None] * X[:, 0] - v[:, 0, None] * X[:, 2]
+    out[:, 2] = v[:, 0, None] * X[:, 1] - v[:, 1, None] * X[:, 0]
+    return out
+
+
+def _scan_planar(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exclusive prefix products along the last axis (length a power of two) of quaternion planes (4, M, L),
+    and the total product (4, M): a work-efficient (Blelloch) up- and down-sweep, 2 L products in all."""
+    levels = [q]
+    while levels[-1].shape[-1] > 1:
+        a = levels[-1]
+        levels.append(_qmul_planar(a[..., 0::2], a[..., 1::2]))
+    total = levels[-1][..., 0]
+    ex = np.zeros_like(levels[-1])
+    ex[0] = 1.0
+    for a in levels[-2::-1]:
+        nxt = np.empty_like(a)
+        nxt[..., 0::2] = ex
+        nxt[..., 1::2] = _qmul_planar(ex, a[..., 0::2])
+        ex = nxt
+    return ex, total
+
+
+def _huber_weights(r: np.ndarray, robust: bool, f_scale: float) -> np.ndarray:
+    """IRLS weights of scipy's ``loss="huber"`` (rho'(z), z = (r / f_scale)^2): 1 inside, f_scale / |r| beyond."""
+    if not robust:
+        return np.ones_like(r)
+    a = np.abs(r)
+    return np.where(a <= f_scale, 1.0, f_scale / np.maximum(a, 1e-300))
+
+
+def _huber_cost(r: np.ndarray, robust: bool, f_scale: float) -> float:
+    """scipy's ``0.5 * sum(f_scale^2 rho((r / f_scale)^2))`` for the Huber (or the linear) loss."""
+    if not robust:
+        return 0.5 * float(r @ r)
+    z = (r / f_scale) ** 2
+    return 0.5 * f_scale**2 * float(np.sum(np.where(z <= 1.0, z, 2.0 * np.sqrt(z) - 1.0)))
+
+
+def _gauss_newton(fun, theta: np.ndarray, typ: np.ndarray, robust: bool, f_scale: float = 3.0,
+                  xtol: float = 1e-10, max_iter: int = 100, reach=None, radius: float = np.inf):
+    """Minimise the (Huber-)robust least-squares cost of ``fun(theta) -> (r, J)`` by Levenberg-Marquardt steps on
+    iteratively reweighted residuals (the stationary point of scipy's ``least_squares(loss="huber")``): a step
+    that does not lower the cost is retried with ten times the damping, an accepted one divides it by ten. Stops
+    when the step is below ``xtol`` in units of ``typ`` (or the damping found no lower cost).
+
+    ``reach(theta)`` (optional) measures how far theta is from where ``fun`` is valid (a model about a point); a
+    step beyond ``radius`` is shortened to it and, if it lowers the cost, ends the solve there. Returns
+    (theta, r, J, whether the solve stopped at the radius)."""
+    r, J = fun(theta)
+    cost = _huber_cost(r, robust, f_scale)
+    lam = 0.0
+    for _ in range(max_iter):
+        w = _huber_weights(r, robust, f_scale)
+        Js = J * typ
+        A = Js.T @ (Js * w[:, None])
+        g = Js.T @ (w * r)
+        dA = np.diag(A).copy()
+        while True:
+            try:
+                step = -np.linalg.solve(A + lam * np.diag(dA), g)
+            except np.linalg.LinAlgError:
+                step = -np.linalg.lstsq(A + lam * np.diag(dA), g, rcond=None)[0]
+            small = float(np.max(np.abs(step))) <= xtol
+            th_new = theta + step * typ
+            edge = False
+            if reach is not None:
+                far, here = reach(th_new), reach(theta)
+                if far > radius:  # the reach is convex along the step: shorten it to the radius
+                    th_new = theta + step * typ * max(radius - here, 0.0) / max(far - here, 1e-300)
+                    edge = True
+            r_new, J_new = fun(th_new)
+            c_new = _huber_cost(r_new, robust, f_scale)
+            if c_new <= cost * (1 + 1e-10) or small:
+                lam = lam / 10.0 if lam > 1e-6 else 0.0
+                break
+            lam = max(lam * 10.0, 1e-4)
+            if lam > 1e8:
+                return theta, r, J, False
+        theta, r, J, cost = th_new, r_new, J_new, c_new
+        if small or edge:
+            return theta, r, J, edge
+    return theta, r, J, False
+
+
 def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], accel_dirs: np.ndarray,
              accel_dir_jac: np.ndarray | None, accel_cov: np.ndarray | None, idx: Sequence[int], sigma: np.ndarray,
-             H: np.ndarray, robust: bool = True, dir_cov: np.ndarray | None = None) -> GyroFit:
+             H: np.ndarray, robust: bool = True, dir_cov: np.ndarray | None = None,
+             preintegrate: bool = True) -> GyroFit:
     """Gyros from the rotations between poses (module docstring; Tedaldi et al. 2014, Eq. 14-18).
 
     Parameters
@@ -703,9 +874,14 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     idx : the gyro columns calibrated together; sigma their per-sample raw noise; H their nominal axes.
     dir_cov : ndarray (K, 3, 3), optional
         Covariance of each pose's gravity direction (from the accelerometer noise); default isotropic 1e-8.
+    preintegrate : bool
+        ``True`` (default): each motion's samples are integrated once at the current parameters, keeping the
+        rotation and its Jacobian (pre-integration, as in Forster et al. 2017); the fit then iterates on these
+        per-motion quantities, ``R(theta) = R(theta_l) Exp(J_l (theta - theta_l))``, and integrates again only
+        while the correction turns some motion by more than 1e-4 rad (the model's error is second order in it).
+        ``False``: the reference, every sample integrated again at every evaluation of a trust-region solver
+        (``scipy.optimize.least_squares``); both reach the same optimum (tested).
     """
-    from scipy.optimize import least_squares
-
     statics = _statics(session)
     inst = "gyro"
     n = len(idx)
@@ -754,13 +930,14 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         DM[m, :len(mot_dt[m])] = mot_dt[m]
 
     def sums(ys_: list[np.ndarray]) -> dict[str, np.ndarray]:
-        """The data sums the residual needs, from the raw samples of every window (linear in them)."""
-        out = {"SA_y": np.zeros((M, n)), "SB_y": np.zeros((M, n)), "YM": np.zeros((M, L, n)),
+        """The data sums the residual needs, from the raw samples of every window (linear in them): the
+        dt-weighted motion samples as planes (n, M, L), the weighted pose sums and the window integrals."""
+        out = {"SA_y": np.zeros((M, n)), "SB_y": np.zeros((M, n)), "YD": np.zeros((n, M, L)),
                "Yint": np.zeros((M, n))}
         for m, (y, (wa, wb, dt, na, nb)) in enumerate(zip(ys_, parts_idx)):
             out["SA_y"][m] = wa @ y[:na]
             out["SB_y"][m] = wb @ y[len(y) - nb:]
-            out["YM"][m, :len(y) - na - nb] = y[na:len(y) - nb]
+            out["YD"][:, m, :len(y) - na - nb] = (y[na:len(y) - nb] * dt[na:len(y) - nb, None]).T
             out["Yint"][m] = dt @ y
         return out
 
@@ -774,23 +951,56 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         wi = 1.0 / sigma**2
         return np.linalg.solve(W.T @ (W * wi[:, None]), W.T * wi)
 
-    def rotations(W, c):
+    def integrate(theta, jac=True):
+        """The rotation of every motion (M, 3, 3), exact (a quaternion per sample, combined pairwise), and with
+        ``jac`` its right Jacobian (M, 3, p): d R = R [Dth dtheta]x (first order in each sample's rotation).
+
+        The Jacobian of the product of the sample rotations q_t with respect to the rate of sample t is the
+        rotation from the middle of sample t to the end, A_t = C_mid,t^T R (C_mid,t: attitude at the middle of
+        sample t relative to the start of the motion, from the exclusive prefix products), so that
+        ``Dth = -sum_t dt R^T C_mid,t [omega_t, 1] (x) G`` needs one prefix scan and four weighted sums."""
+        W = theta[:3 * n].reshape(n, 3)
+        c = theta[3 * n:]
+        Gm = _G(W)
+        omp = (Gm @ D["YD"].reshape(n, -1)).reshape(3, M, L) - (Gm @ c)[:, None, None] * DM  # rad per sample
+        q = _qexp_planar(omp)
+        if not jac:
+            while q.shape[2] > 1:  # pairwise products: the rotation over the motion
+                q = _qmul_planar(q[:, :, 0::2], q[:, :, 1::2])
+            return _qmat_planar(q[:, :, 0] / np.linalg.norm(q[:, :, 0], axis=0, keepdims=True)), None
+        ex, total = _scan_planar(q)
+        mid = _qmul_planar(ex, q)
+        mid += ex  # (P_t-1 q_t + P_t-1) / |.| = P_t-1 q_t^(1/2): the attitude at the middle of sample t
+        mid /= np.sqrt(np.maximum(2.0 * (1.0 + q[0]), 1e-300))
+        Cm = _qmat_planar(mid)  # (M, L, 3, 3)
+        wts = np.concatenate([omp, DM[None]], axis=0)  # (4, M, L)
+        S = np.einsum("kml,mlab->mkab", wts, Cm)  # sum_t w C_mid
+        Rm = _qmat_planar(total / np.linalg.norm(total, axis=0, keepdims=True))
+        Q = np.einsum("mba,mkbc->mkac", Rm, S)  # R^T sum_t w C_mid: [Qj (3), Qc]
+        Dth = np.empty((M, 3, 4 * n))
+        Dth[:, :, :3 * n] = -np.einsum("mjab,bi->maij", Q[:, :3], Gm).reshape(M, 3, 3 * n)
+        Dth[:, :, 3 * n:] = -Q[:, 3] @ Gm
+        return Rm, Dth
+
+    def pose_rotations(theta):
+        W = theta[:3 * n].reshape(n, 3)
+        c = theta[3 * n:]
         Gm = _G(W)
         psi_a = -(D["SA_y"] - c * SA_w[:, None]) @ Gm.T  # mean attitude of pose k (end of pose k = reference)
         phi_b = (D["SB_y"] - c * SB_w[:, None]) @ Gm.T  # mean attitude of pose k+1 relative to its start
-        q = _qexp_planar(np.moveaxis((D["YM"] - c) @ Gm.T, -1, 0) * DM)  # (4, M, L)
-        q[:, DM == 0] = ((1.0,), (0.0,), (0.0,), (0.0,))
-        while q.shape[2] > 1:  # pairwise products: the rotation over the motion
-            q = _qmul_planar(q[:, :, 0::2], q[:, :, 1::2])
-        Rm = _qmat_planar(q[:, :, 0] / np.linalg.norm(q[:, :, 0], axis=0, keepdims=True))
-        Ca = rotation_matrix(psi_a)
-        Cb = Rm @ rotation_matrix(phi_b)
-        return np.einsum("mji,mjk->mik", Cb, Ca)  # Cb^T Ca: pose-k body vector -> pose-(k+1) body
+        return Gm, psi_a, phi_b
+
+    def rotations(theta, pre=None):
+        """Cb^T Ca (pose-k body vector -> pose-(k+1) body) at theta; the motion rotations exact, or from the
+        pre-integration ``pre = (theta_l, R_l, Dth_l)``."""
+        _, psi_a, phi_b = pose_rotations(theta)
+        Rm = integrate(theta, jac=False)[0] if pre is None else pre[1] @ _rodrigues(pre[2] @ (theta - pre[0]))
+        Cb = Rm @ _rodrigues(phi_b)
+        return np.einsum("mji,mjk->mik", Cb, _rodrigues(psi_a))
 
     def parts(theta, dirs, R=None):
-        W = theta[:3 * n].reshape(n, 3)
         c = theta[3 * n:]
-        R = rotations(W, c) if R is None else R  # R: the rotations at theta, when already known
+        R = rotations(theta) if R is None else R  # R: the rotations at theta, when already known
         pred = np.einsum("mij,mj->mi", R, dirs[ka])
         rr = np.einsum("mai,mi->ma", T, pred - dirs[kb])
         rs = (ybar - c) / sd
@@ -804,54 +1014,34 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         z = D["Yint"] - c * Tw[:, None]
         return (z - z @ _G(W).T @ W.T) / sig_int
 
-    def rot_jac(theta, dirs):
-        """d rr / d theta (M, 2, p), first order in the small pose rotations (module docstring)."""
-        W = theta[:3 * n].reshape(n, 3)
-        c = theta[3 * n:]
-        Gm = _G(W)
-        psi_a = -(D["SA_y"] - c * SA_w[:, None]) @ Gm.T
-        phi_b = (D["SB_y"] - c * SB_w[:, None]) @ Gm.T
-        om = (D["YM"] - c) @ Gm.T
-        omp = np.moveaxis(om, -1, 0) * DM  # (3, M, L)
-        q = _qexp_planar(omp)
-        q[:, DM == 0] = ((1.0,), (0.0,), (0.0,), (0.0,))
-        qh = _qexp_planar(omp / 2)
-        # suffix products Sigma_t = q_t q_t+1 ... (reverse scan), A_t = qh_t Sigma_t+1
-        r = q[:, :, ::-1].copy()
-        d = 1
-        while d < L:
-            r[:, :, d:] = _qmul_planar(r[:, :, d:], r[:, :, :-d])
-            d *= 2
-        suf = r[:, :, ::-1]
-        nxt = np.empty_like(suf)
-        nxt[:, :, :-1] = suf[:, :, 1:]
-        nxt[:, :, -1] = ((1.0,), (0.0,), (0.0,), (0.0,))
-        A = _qmat_planar(_qmul_planar(qh, nxt))  # (M, L, 3, 3)
-        Rm = _qmat_planar(suf[:, :, 0] / np.linalg.norm(suf[:, :, 0], axis=0, keepdims=True))
-        Qj = np.einsum("mt,mtj,mtba->mjab", DM, om, A)  # sum dt w_j A^T
-        Qc = np.einsum("mt,mtba->mab", DM, A)
-        Eb = rotation_matrix(phi_b)
-        Ca = rotation_matrix(psi_a)
+    def rot_parts(theta, pre, dirs):
+        """Rotation residuals (M, 2) and d rr / d theta (M, 2, p) with the motion rotations of the pre-integration
+        ``pre = (theta_l, R_l, Dth_l)``; first order in the small pose rotations (module docstring)."""
+        Gm, psi_a, phi_b = pose_rotations(theta)
+        th_l, R_l, Dth = pre
+        Rm = R_l @ _rodrigues(Dth @ (theta - th_l))
+        Eb = _rodrigues(phi_b)
+        Ca = _rodrigues(psi_a)
         Cb = Rm @ Eb
-        v = np.einsum("mij,mj->mi", Ca, dirs[ka])
-        pred = np.einsum("mji,mj->mi", Cb, v)
+        v = (Ca @ dirs[ka][:, :, None])[:, :, 0]
+        CbT = Cb.transpose(0, 2, 1)
+        pred = (CbT @ v[:, :, None])[:, :, 0]
         p = 4 * n
-        Dth = np.zeros((M, 3, p))
-        Dpsi = np.zeros((M, 3, p))
-        Dphi = np.zeros((M, 3, p))
-        for i in range(n):
-            gi = Gm[:, i]
-            for j in range(3):
-                Dth[:, :, 3 * i + j] = -Qj[:, j] @ gi
-                Dpsi[:, :, 3 * i + j] = -np.outer(psi_a[:, j], gi)
-                Dphi[:, :, 3 * i + j] = -np.outer(phi_b[:, j], gi)
-            Dth[:, :, 3 * n + i] = -Qc @ gi
-            Dpsi[:, :, 3 * n + i] = SA_w[:, None] * gi
-            Dphi[:, :, 3 * n + i] = -SB_w[:, None] * gi
-        Dbeta = np.einsum("mji,mjp->mip", Eb, Dth) + Dphi
-        dpred = (np.einsum("mij,mjp->mip", skew(pred), Dbeta)
-                 - np.einsum("mji,mjk,mkp->mip", Cb, skew(v), Dpsi))
-        return np.einsum("mai,mip->map", T, dpred)
+        Dpsi = np.empty((M, 3, p))
+        Dphi = np.empty((M, 3, p))
+        Dpsi[:, :, :3 * n] = (-Gm[None, :, :, None] * psi_a[:, None, None, :]).reshape(M, 3, 3 * n)
+        Dphi[:, :, :3 * n] = (-Gm[None, :, :, None] * phi_b[:, None, None, :]).reshape(M, 3, 3 * n)
+        Dpsi[:, :, 3 * n:] = SA_w[:, None, None] * Gm
+        Dphi[:, :, 3 * n:] = -SB_w[:, None, None] * Gm
+        Dbeta = Eb.transpose(0, 2, 1) @ Dth + Dphi
+        dpred = _cross_cols(pred, Dbeta) - CbT @ _cross_cols(v, Dpsi)
+        rr = (T @ (pred - dirs[kb])[:, :, None])[:, :, 0]
+        return rr, T @ dpred
+
+    def rot_jac(theta, dirs):
+        """d rr / d theta (M, 2, p) at theta, the motions integrated there."""
+        Rm, Dth = integrate(theta)
+        return rot_parts(theta, (theta, Rm, Dth), dirs)[1]
 
     # initial: W from the nominal axes and the accelerometers' scale ratio is not known; use the statics for c
     # and a first motion-based guess of one common scale from the integrated angles
@@ -865,6 +1055,10 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     w_par = 1.0
 
     Lw = np.eye(2 * M)  # whitening of the rotation residuals (set after the first pass)
+    Lwi = Lw
+    Js_static = np.zeros((ybar.size, 4 * n))
+    for i in range(n):
+        Js_static[i::n, 3 * n + i] = -1.0 / sd[:, i]
 
     def resid(theta, dirs=accel_dirs, R=None):
         rr, rs, rp = parts(theta, dirs, R)
@@ -880,38 +1074,67 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         finally:
             D.update(saved)
 
-    def jac(theta, dirs=accel_dirs):
-        Jr = np.linalg.solve(Lw, rot_jac(theta, dirs).reshape(2 * M, -1)) * w_rot
-        Js_ = np.zeros((ybar.size, 4 * n))
-        for i in range(n):
-            Js_[i::n, 3 * n + i] = -w_st / sd[:, i]
-        out = [Jr, Js_]
+    def other_jac(theta):
+        out = [Js_static * w_st]
         if n > 3:
             out.append(central_jacobian(lambda th: parity(th).ravel(), theta, typ * 1e-6) * w_par)
-        return np.vstack(out)
+        return out
+
+    def jac(theta, dirs=accel_dirs):
+        Jr = np.linalg.solve(Lw, rot_jac(theta, dirs).reshape(2 * M, -1)) * w_rot
+        return np.vstack([Jr, *other_jac(theta)])
+
+    def model_fun(pre):
+        """(r, J) with the motion rotations from the pre-integration ``pre``."""
+        def f(theta):
+            rr, Jr = rot_parts(theta, pre, accel_dirs)
+            rs = (ybar - theta[3 * n:]) / sd
+            r = np.concatenate([(Lwi @ rr.ravel()) * w_rot, rs.ravel() * w_st, parity(theta).ravel() * w_par])
+            J = np.vstack([(Lwi @ Jr.reshape(2 * M, -1)) * w_rot, *other_jac(theta)])
+            return r, J
+        return f
 
     gain = np.diag(np.linalg.inv(H.T @ (H / sigma[:, None] ** 2)))  # per-sample rate variance / s0^2 (nominal)
     q_m = float(np.mean(gain)) / s0**2 * (np.array([d @ d for d in mot_dt]) + q_ab)
     theta = theta0
+    pre = None
+    by_pose = {int(a): m for m, a in enumerate(ka)}
     for it in range(2):
-        sol = least_squares(resid, theta, jac=jac, x_scale=typ, loss="huber" if robust else "linear",
-                            f_scale=3.0, xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=100 * len(theta))
-        theta = sol.x
-        R = rotations(theta[:3 * n].reshape(n, 3), theta[3 * n:])  # at theta: for Cr, the weights and the end
+        if preintegrate:
+            for _ in range(20):  # integrate at theta, iterate on the motions' rotations and Jacobians
+                if pre is None:
+                    pre = (theta, *integrate(theta))
+                def reach(th, pre=pre):  # the largest change of a motion's rotation the model predicts, rad
+                    return float(np.max(np.abs(pre[2] @ (th - pre[0]))))
+
+                theta, _, _, edge = _gauss_newton(model_fun(pre), theta, typ, robust, xtol=1e-8, reach=reach,
+                                                 radius=0.3)
+                if not edge and reach(theta) <= 1e-4:
+                    break
+                pre = None
+            R = rotations(theta, pre)
+        else:
+            from scipy.optimize import least_squares
+
+            sol = least_squares(resid, theta, jac=jac, x_scale=typ, loss="huber" if robust else "linear",
+                                f_scale=3.0, xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=100 * len(theta))
+            theta = sol.x
+            R = rotations(theta)  # at theta: for Cr, the weights and the end
         if it == 0:
             # correlated residuals: the gravity direction of pose k enters motions k-1 and k; generalised least
             # squares with the block-tridiagonal covariance of the pose-direction and integrated-gyro noise
             Cr = np.zeros((2 * M, 2 * M))
+            TR = np.einsum("mai,mij->maj", T, R)
             for m in range(M):
-                Ta = T[m] @ R[m]
-                Cr[2 * m:2 * m + 2, 2 * m:2 * m + 2] = (Ta @ dir_cov[ka[m]] @ Ta.T + T[m] @ dir_cov[kb[m]] @ T[m].T
-                                                        + q_m[m] * np.eye(2))
-                for m2 in range(M):
-                    if ka[m2] == kb[m]:
-                        X = -T[m] @ dir_cov[kb[m]] @ (T[m2] @ R[m2]).T
-                        Cr[2 * m:2 * m + 2, 2 * m2:2 * m2 + 2] = X
-                        Cr[2 * m2:2 * m2 + 2, 2 * m:2 * m + 2] = X.T
+                Cr[2 * m:2 * m + 2, 2 * m:2 * m + 2] = (TR[m] @ dir_cov[ka[m]] @ TR[m].T
+                                                        + T[m] @ dir_cov[kb[m]] @ T[m].T + q_m[m] * np.eye(2))
+                m2 = by_pose.get(int(kb[m]))
+                if m2 is not None:
+                    X = -T[m] @ dir_cov[kb[m]] @ TR[m2].T
+                    Cr[2 * m:2 * m + 2, 2 * m2:2 * m2 + 2] = X
+                    Cr[2 * m2:2 * m2 + 2, 2 * m:2 * m + 2] = X.T
             Lw = np.linalg.cholesky(Cr)
+            Lwi = np.linalg.inv(Lw)
             w_rot = 1.0
         rr, rs, rp = parts(theta, accel_dirs, R)
         rw = np.linalg.solve(Lw, rr.ravel())
@@ -921,7 +1144,10 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         w_rot = 1.0 / np.sqrt(max(float(rw @ rw) / dof_rot, 1e-6)) if it == 1 else w_rot
         w_st = 1.0 / max(_robust_rms(rs), 1.0)
         w_par = 1.0 / max(_robust_rms(rp), 1.0) if rp.size else 1.0
-    J = jac(theta)
+    if preintegrate:
+        J = model_fun(pre)(theta)[1]
+    else:
+        J = jac(theta)
     names = [f"{i}.w_{a}" for i in range(n) for a in "xyz"] + [f"{i}.bias" for i in range(n)]
     _check_jacobian(J, typ, names, "gyro")
     Js = J * typ
@@ -930,13 +1156,14 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     weak = _check_spread(Ninv / np.outer(size, size), names, "gyro")
     cov = Ninv
     if accel_dir_jac is not None and accel_cov is not None:
-        # d resid / d accel params through the gravity directions (the rotations do not depend on them)
-        h = 1e-7
-        Ja = np.empty((J.shape[0], accel_dir_jac.shape[1]))
-        r0 = resid(theta, accel_dirs, R)
-        for j in range(accel_dir_jac.shape[1]):
-            d = accel_dirs + h * accel_dir_jac[:, j].reshape(-1, 3)
-            Ja[:, j] = (resid(theta, d, R) - r0) / h
+        # d resid / d accel params through the gravity directions (the rotations do not depend on them; the
+        # rotation residual T_m (R_m u_ka - u_kb) is linear in the directions)
+        K = accel_dirs.shape[0]
+        Jd = np.zeros((M, 2, K, 3))
+        Jd[np.arange(M), :, ka, :] = np.einsum("mai,mij->maj", T, R)
+        Jd[np.arange(M), :, kb, :] -= T
+        Ja = np.zeros((J.shape[0], accel_dir_jac.shape[1]))
+        Ja[:2 * M] = np.linalg.solve(Lw, Jd.reshape(2 * M, 3 * K) @ accel_dir_jac) * w_rot
         B = Ninv @ J.T @ Ja
         cov = cov + B @ accel_cov @ B.T
     rr, rs, rp = parts(theta, accel_dirs, R)
@@ -1179,17 +1406,14 @@ def _dirs_with_jacobian(af: AccelFit, statics: list[Segment], session: Session, 
     n = len(grp)
     fixed = np.zeros((n, 3))
 
-    def dirs(theta):
-        Wp, c = _unpack(theta, af.free, fixed, n)
-        f, _, _ = _specific_forces(Wp, c, ybar, sd)
-        f = f @ af.P
-        return (f / np.linalg.norm(f, axis=1)[:, None]).ravel()
-
-    typ = np.maximum(np.abs(af.theta), 1e-12)
-    J = central_jacobian(dirs, af.theta, typ * 1e-6)
-    u = dirs(af.theta).reshape(-1, 3)
     Wp, c = _unpack(af.theta, af.free, fixed, n)
     f, info, _ = _specific_forces(Wp, c, ybar, sd)
+    df = _accel_problem(af.theta, af.free, fixed, ybar, sd, session.gravity, af.tau2)[2]  # (K, 3, p)
+    nf = np.linalg.norm(f, axis=1)
+    up = f / nf[:, None]
+    Pu = (np.eye(3) - up[:, :, None] * up[:, None, :]) / nf[:, None, None]
+    J = (af.P.T @ (Pu @ df)).reshape(-1, df.shape[2])  # d (P^T f / |f|) / d theta
+    u = up @ af.P
     Cf = af.P.T @ np.linalg.inv(info) @ af.P * af.scale2 / (np.linalg.norm(f, axis=1) ** 2)[:, None, None]
     Pu = np.eye(3) - np.einsum("ki,kj->kij", u, u)
     return u, J, af.cov, Pu @ Cf @ Pu
