@@ -69,7 +69,7 @@ import numpy as np
 
 from ..errors import IdentifiabilityError, SessionFormatError
 from ..geometry import Geometry
-from ..session import Segment, Session, rotation_matrix, skew
+from ..session import Segment, Session
 from .estimate import CalibrationResult, estimate_noise_sigma, make_sensor_fit
 from .lsq import LsqResult, central_jacobian
 from .model import ErrorModel, SensorContext
@@ -288,27 +288,104 @@ def _mb_nominal(g: Geometry) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------- pose data
-def white_noise_sigma_hf(session: Session, instrument: str, order: int = 3) -> np.ndarray:
+@dataclass
+class _RawStats:
+    """One instrument's samples of every segment, back to back as rows (n, N) minus a reference sample (so sums of
+    products keep their precision), with the per-segment sums and peaks: one pass over the data that the noise
+    level, the clip levels, the pose means and the gyro fit's sums all read, instead of one pass each (each a
+    strided reduction over the (N, n) sample arrays)."""
+
+    X: np.ndarray  # (n, N) raw - ref
+    ref: np.ndarray  # (n,)
+    starts: np.ndarray  # (S,) first column of each segment in X
+    counts: np.ndarray  # (S,)
+    sums: np.ndarray  # (S, n) sum of the raw samples of each segment
+    peak: np.ndarray  # (S, n) largest |raw| of each segment
+    t: np.ndarray  # (N,) sample times
+
+    def means(self, seg_index: Sequence[int], idx: Sequence[int] | slice = slice(None)) -> np.ndarray:
+        j = np.asarray(seg_index, dtype=int)
+        return (self.sums[j] / self.counts[j, None])[:, idx]
+
+
+def _raw_stats(session: Session, instrument: str) -> _RawStats:
+    segs = session.segments
+    counts = np.array([s.n_samples for s in segs], dtype=int)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(int)
+    n = session.geometries[instrument].n
+    ref = np.asarray(segs[0].raw[instrument][0], dtype=float).copy() if counts[0] else np.zeros(n)
+    X = np.empty((n, int(counts.sum())))
+    for s, a, k in zip(segs, starts, counts):
+        np.subtract(s.raw[instrument].T, ref[:, None], out=X[:, a:a + k])
+    ok = counts > 0
+    sums = np.zeros((len(segs), n))
+    hi = np.full((len(segs), n), -np.inf)
+    lo = np.full((len(segs), n), np.inf)
+    if np.any(ok):
+        st = starts[ok]
+        sums[ok] = np.add.reduceat(X, st, axis=1).T
+        hi[ok] = np.maximum.reduceat(X, st, axis=1).T
+        lo[ok] = np.minimum.reduceat(X, st, axis=1).T
+    sums += counts[:, None] * ref
+    peak = np.where(ok[:, None], np.maximum(np.abs(hi + ref), np.abs(lo + ref)), 0.0)
+    t = np.concatenate([s.t for s in segs]) if segs else np.zeros(0)
+    return _RawStats(X, ref, starts, counts, sums, peak, t)
+
+
+def _diff_power(rs: _RawStats, eligible: np.ndarray, order: int) -> tuple[np.ndarray, int]:
+    """Sum over the eligible segments of the squared differences of order ``order`` (per sensor), and their count:
+    ``sum_t (sum_k a_k x_t+k)^2 = sum_kl a_k a_l sum_t x_t+k x_t+l`` from the lagged products of the whole record
+    (one dot product per lag and sensor), less the differences that are not inside one eligible segment (across a
+    boundary, or in a motion), which are formed explicitly."""
+    from math import comb
+
+    X = rs.X
+    n, N = X.shape
+    if N <= order:
+        return np.zeros(n), 0
+    a = np.array([(-1.0) ** (order - k) * comb(order, k) for k in range(order + 1)])
+    m = N - order  # windows t = 0 .. m-1 over the whole record
+    lag = [np.array([X[i, :N - d] @ X[i, d:] for i in range(n)]) for d in range(order + 1)]
+    total = np.zeros(n)
+    for k in range(order + 1):
+        for l in range(order + 1):
+            d = abs(l - k)
+            lo = min(k, l)
+            # sum_{t=0}^{m-1} x_{t+lo} x_{t+lo+d} = lag_d minus the products before lo and after m-1+lo
+            head = np.einsum("ij,ij->i", X[:, :lo], X[:, d:d + lo])
+            tail = np.einsum("ij,ij->i", X[:, m + lo:N - d], X[:, m + lo + d:N])
+            total += a[k] * a[l] * (lag[d] - head - tail)
+    valid = np.zeros(m, bool)
+    cnt = 0
+    for j in np.flatnonzero(eligible):
+        s, c = rs.starts[j], rs.counts[j]
+        valid[s:s + c - order] = True
+        cnt += c - order
+    bad = np.flatnonzero(~valid)
+    if bad.size:
+        e = X[:, bad[:, None] + np.arange(order + 1)] @ a  # (n, B)
+        total -= np.einsum("ij,ij->i", e, e)
+    return np.maximum(total, 0.0), cnt
+
+
+def white_noise_sigma_hf(session: Session, instrument: str, order: int = 3,
+                         _stats: _RawStats | None = None) -> np.ndarray:
     """Per-sample white-noise standard deviation (raw) from differences of order ``order`` within the poses.
 
     A hand-held pose is not still: tremor (8-12 Hz) and sway are real motion that the sensors measure and the
     calibration integrates, not noise. Differences of order k multiply white noise variance by C(2k, k) and
     attenuate a 10 Hz tremor sampled at 100 Hz by (2 sin(pi f / fs))^(2k) (0.06 for k = 3), so third
-    differences see the white noise and hardly the hand.
+    differences see the white noise and hardly the hand. (Computed from lagged products in one pass, see
+    :func:`_diff_power`; equal to the differences formed sample by sample, tested to 1e-9.)
     """
     from math import comb
 
-    segs = _statics(session) or list(session.segments)
-    n = session.geometries[instrument].n
-    acc = np.zeros(n)
-    cnt = 0
-    for sg in segs:
-        y = sg.raw[instrument]
-        if y.shape[0] <= order + 2:
-            continue
-        d = np.diff(y, n=order, axis=0)
-        acc += np.sum(d**2, axis=0)
-        cnt += d.shape[0]
+    rs = _raw_stats(session, instrument) if _stats is None else _stats
+    kinds = np.array([s.kind in STATIC_KINDS for s in session.segments], dtype=bool)
+    if not np.any(kinds):
+        kinds[:] = True
+    eligible = kinds & (rs.counts > order + 2)
+    acc, cnt = _diff_power(rs, eligible, order)
     if cnt == 0:
         return estimate_noise_sigma(session, instrument)
     sig = np.sqrt(acc / cnt / comb(2 * order, order))
@@ -319,9 +396,15 @@ def _statics(session: Session) -> list[Segment]:
     return [s for s in session.segments if s.kind in STATIC_KINDS]
 
 
-def _pose_stats(segs: Sequence[Segment], inst: str, idx: Sequence[int], sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _static_index(session: Session) -> list[int]:
+    return [j for j, s in enumerate(session.segments) if s.kind in STATIC_KINDS]
+
+
+def _pose_stats(segs: Sequence[Segment], inst: str, idx: Sequence[int], sigma: np.ndarray,
+                ybar: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Mean raw output of each pose (K, n) and its standard deviation from the per-sample noise (K, n)."""
-    ybar = np.array([s.raw[inst][:, idx].mean(axis=0) for s in segs])
+    if ybar is None:
+        ybar = np.array([s.raw[inst][:, idx].mean(axis=0) for s in segs])
     N = np.array([s.n_samples for s in segs], dtype=float)
     return ybar, sigma[None, :] / np.sqrt(N)[:, None]
 
@@ -469,8 +552,6 @@ def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, n
         One refinement without the pose-variance component, no covariance (zero) and no identifiability checks:
         for scoring many candidate detections.
     """
-    from scipy.optimize import least_squares
-
     ybar = np.asarray(ybar, float)
     K, n = ybar.shape
     members = list(range(n)) if members is None else list(members)
@@ -597,11 +678,12 @@ def _distinct_directions(ybar: np.ndarray, deg: float = 5.0) -> int:
     """Number of distinct directions among the pose means (centred roughly), clusters closer than ``deg``."""
     y = ybar - 0.5 * (ybar.max(axis=0) + ybar.min(axis=0))
     u = y / np.maximum(np.linalg.norm(y, axis=1, keepdims=True), 1e-300)
-    reps: list[np.ndarray] = []
+    C = (u @ u.T).tolist()
     c = np.cos(np.radians(deg))
-    for v in u:
-        if not any(float(v @ r) > c for r in reps):
-            reps.append(v)
+    reps: list[int] = []
+    for i, row in enumerate(C):
+        if not any(row[r] > c for r in reps):
+            reps.append(i)
     return len(reps)
 
 
@@ -620,17 +702,20 @@ def _axis_ellipsoid_fit(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _extra_variance(d: np.ndarray, s2: np.ndarray, rest: float, dof: int) -> float:
     """The additive pose variance tau^2 >= 0 with ``sum d_k^2 / (s2_k + tau^2) + rest = dof`` (0 when the white
-    noise explains the residuals already). Bisection; the sum falls monotonically with tau^2."""
-    if float(np.sum(d**2 / s2)) + rest <= dof:
+    noise explains the residuals already). Newton's method from tau^2 = 0: the sum falls with tau^2 and is convex
+    in it, so the iterates rise monotonically to the root without overshooting."""
+    d2 = d**2
+    if float(np.sum(d2 / s2)) + rest <= dof:
         return 0.0
-    lo, hi = 0.0, float(np.max(d**2)) * len(d) + float(np.max(s2))
+    tau = 0.0
     for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        if float(np.sum(d**2 / (s2 + mid))) + rest > dof:
-            lo = mid
-        else:
-            hi = mid
-    return hi
+        q = d2 / (s2 + tau)
+        g = float(np.sum(q)) + rest - dof
+        step = g / float(np.sum(q / (s2 + tau)))
+        tau += step
+        if step <= 1e-15 * tau:
+            break
+    return tau
 
 
 def _theta_names(free: np.ndarray, names: Sequence[str], P_names=("x", "y", "z")) -> list[str]:
@@ -710,6 +795,20 @@ def pose_windows(session: Session) -> list[tuple[int, int, list[Segment]]]:
     return out
 
 
+class _LazyDict(dict):
+    """A dict whose listed keys are computed on first access (``makers[key]()``), then kept."""
+
+    def __init__(self, makers: dict[str, Any]) -> None:
+        super().__init__()
+        self._makers = makers
+
+    def __missing__(self, key: str) -> Any:
+        if key not in self._makers:
+            raise KeyError(key)
+        value = self[key] = self._makers[key]()
+        return value
+
+
 @dataclass
 class GyroFit:
     """Result of :func:`fit_gyro`."""
@@ -755,7 +854,7 @@ def _rodrigues(v: np.ndarray) -> np.ndarray:
         a = np.where(big, np.sin(ths) / ths, 1.0 - th2 / 6.0 + th2 * th2 / 120.0)
         b = np.where(big, (1.0 - np.cos(ths)) / (ths * ths), 0.5 - th2 / 24.0 + th2 * th2 / 720.0)
     R = np.empty((len(v), 3, 3))
-    bx, by, bz = b * x, b * y, b * z
+    bx, by = b * x, b * y
     ax, ay, az = a * x, a * y, a * z
     R[:, 0, 0] = 1.0 - b * (y * y + z * z)
     R[:, 1, 1] = 1.0 - b * (x * x + z * z)
@@ -767,6 +866,21 @@ def _rodrigues(v: np.ndarray) -> np.ndarray:
     R[:, 1, 2] = by * z - ax
     R[:, 2, 1] = by * z + ax
     return R
+
+
+def _right_jacobian(x: np.ndarray) -> np.ndarray:
+    """Right Jacobians (M, 3, 3) of the rotation exponential at x (M, 3): ``Exp(x + dx) = Exp(x) Exp(Jr dx)``,
+    ``Jr = I - (1 - cos t) / t^2 [x]x + (t - sin t) / t^3 [x]x^2``."""
+    t2 = np.einsum("mi,mi->m", x, x)
+    t = np.sqrt(t2)
+    big = t > 1e-4
+    ts = np.where(big, t, 1.0)
+    a = np.where(big, (1.0 - np.cos(ts)) / ts**2, 0.5 - t2 / 24.0)
+    b = np.where(big, (ts - np.sin(ts)) / ts**3, 1.0 / 6.0 - t2 / 120.0)
+    K = np.zeros((len(x), 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -x[:, 2], x[:, 1], -x[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = x[:, 2], -x[:, 1], x[:, 0]
+    return np.eye(3) - a[:, None, None] * K + b[:, None, None] * (K @ K)
 
 
 def _cross_cols(v: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -825,10 +939,15 @@ def _gauss_newton(fun, theta: np.ndarray, typ: np.ndarray, robust: bool, f_scale
     r, J = fun(theta)
     cost = _huber_cost(r, robust, f_scale)
     lam = 0.0
+    near = False
     for _ in range(max_iter):
         w = _huber_weights(r, robust, f_scale)
         Js = J * typ
-        A = Js.T @ (Js * w[:, None])
+        # curvature: the reweighted one (rho') while far, the Gauss-Newton model of the robust cost itself once the
+        # steps are small (scipy's scaling: rho' + 2 rho'' z, for the Huber loss 0 beyond f_scale): the
+        # stationary point is the same, reached at the rate of Gauss-Newton rather than of reweighting
+        hw = np.where(w < 1.0, 1e-6, 1.0) if (robust and near) else w
+        A = Js.T @ (Js * hw[:, None])
         g = Js.T @ (w * r)
         dA = np.diag(A).copy()
         while True:
@@ -846,13 +965,14 @@ def _gauss_newton(fun, theta: np.ndarray, typ: np.ndarray, robust: bool, f_scale
                     edge = True
             r_new, J_new = fun(th_new)
             c_new = _huber_cost(r_new, robust, f_scale)
-            if c_new <= cost * (1 + 1e-10) or small:
+            if c_new <= cost * (1 + 1e-9) or small:  # (rounding of the cost; a Jacobian first order in the poses)
                 lam = lam / 10.0 if lam > 1e-6 else 0.0
                 break
             lam = max(lam * 10.0, 1e-4)
             if lam > 1e8:
                 return theta, r, J, False
         theta, r, J, cost = th_new, r_new, J_new, c_new
+        near = lam == 0.0 and float(np.max(np.abs(step))) < 1e-3
         if small or edge:
             return theta, r, J, edge
     return theta, r, J, False
@@ -861,7 +981,7 @@ def _gauss_newton(fun, theta: np.ndarray, typ: np.ndarray, robust: bool, f_scale
 def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], accel_dirs: np.ndarray,
              accel_dir_jac: np.ndarray | None, accel_cov: np.ndarray | None, idx: Sequence[int], sigma: np.ndarray,
              H: np.ndarray, robust: bool = True, dir_cov: np.ndarray | None = None,
-             preintegrate: bool = True) -> GyroFit:
+             preintegrate: bool = True, _stats: _RawStats | None = None, _ybar: np.ndarray | None = None) -> GyroFit:
     """Gyros from the rotations between poses (module docstring; Tedaldi et al. 2014, Eq. 14-18).
 
     Parameters
@@ -889,26 +1009,31 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         raise IdentifiabilityError("gyro: no motion between two consecutive static poses; record the rotations "
                                    "between poses (do not cut them out) to calibrate the gyros",
                                    ["scale", "misalignment"])
-    ybar, sd = _pose_stats(statics, inst, idx, sigma)
+    ybar, sd = _pose_stats(statics, inst, idx, sigma, _ybar)
     if dir_cov is None:
         dir_cov = np.broadcast_to(np.eye(3) * 1e-8, (len(statics), 3, 3))
     # samples of every window, back to back, grouped
     M = len(windows)
     ka = np.array([w[0] for w in windows])
     kb = np.array([w[1] for w in windows])
+    rs = _raw_stats(session, inst) if _stats is None else _stats
+    rows = slice(None) if list(idx) == list(range(rs.X.shape[0])) else list(idx)
+    ref = rs.ref[rows]
+    seg_pos = {id(s): j for j, s in enumerate(session.segments)}
     # per window: the pose-k samples (first order: tremor and sway are small rotations), the motion samples
     # (exact rotations, padded to a common power-of-two length with identity steps) and the pose-(k+1) samples
     L = 1
-    ys: list[np.ndarray] = []
-    acc_ys: list[np.ndarray | None] = []
+    cols: list[tuple[int, int]] = []
     parts_idx: list[tuple[np.ndarray, np.ndarray, np.ndarray, int, int]] = []
     mot_dt = []
     SA_w, SB_w = np.zeros(M), np.zeros(M)
     Tw, Tw2 = np.zeros(M), np.zeros(M)
     q_ab_list: list[float] = []
     for m, (_, _, chain) in enumerate(windows):
-        t = np.concatenate([s.t for s in chain])
-        y = np.vstack([s.raw[inst][:, idx] for s in chain])
+        j0, j1 = seg_pos[id(chain[0])], seg_pos[id(chain[-1])]
+        c0, c1 = int(rs.starts[j0]), int(rs.starts[j1] + rs.counts[j1])
+        cols.append((c0, c1))
+        t = rs.t[c0:c1]
         dt = np.diff(t, append=t[-1] + (t[-1] - t[-2] if len(t) > 1 else 1.0 / session.sample_rate))
         na, nb = chain[0].n_samples, chain[-1].n_samples
         # attitude at sample i of pose k relative to the end of the pose: -sum_{tau >= i} w dt; its mean
@@ -920,8 +1045,6 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         mot_dt.append(dt[na:len(t) - nb])
         L = max(L, len(t) - na - nb)
         Tw[m], Tw2[m] = dt.sum(), dt @ dt
-        ys.append(y)
-        acc_ys.append(np.vstack([s.raw["accel"] for s in chain]) if "accel" in chain[0].raw else None)
         parts_idx.append((wa, wb, dt, na, nb))
     L = 1 << int(np.ceil(np.log2(max(L, 1))))
     q_ab = np.array(q_ab_list)
@@ -929,20 +1052,40 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     for m in range(M):
         DM[m, :len(mot_dt[m])] = mot_dt[m]
 
-    def sums(ys_: list[np.ndarray]) -> dict[str, np.ndarray]:
+    def window_samples(name: str) -> list:
+        """The raw samples (N_m, n) of every window (gyro: the fitted columns; or the accelerometers'), built
+        only when asked for (diagnosis)."""
+        if name == "gyro":
+            return [(rs.X[rows, c0:c1] + ref[:, None]).T for c0, c1 in cols]
+        if "accel" not in session.geometries:
+            return [None] * M
+        return [np.vstack([s.raw["accel"] for s in w[2]]) for w in windows]
+
+    def sums(ys_: list[np.ndarray] | None = None) -> dict[str, np.ndarray]:
         """The data sums the residual needs, from the raw samples of every window (linear in them): the
-        dt-weighted motion samples as planes (n, M, L), the weighted pose sums and the window integrals."""
+        dt-weighted motion samples as planes (n, M, L), the weighted pose sums and the window integrals. Without
+        ``ys_``, from the one pass over the session (rows minus a reference sample; the reference added back)."""
         out = {"SA_y": np.zeros((M, n)), "SB_y": np.zeros((M, n)), "YD": np.zeros((n, M, L)),
                "Yint": np.zeros((M, n))}
-        for m, (y, (wa, wb, dt, na, nb)) in enumerate(zip(ys_, parts_idx)):
-            out["SA_y"][m] = wa @ y[:na]
-            out["SB_y"][m] = wb @ y[len(y) - nb:]
-            out["YD"][:, m, :len(y) - na - nb] = (y[na:len(y) - nb] * dt[na:len(y) - nb, None]).T
-            out["Yint"][m] = dt @ y
+        for m, (wa, wb, dt, na, nb) in enumerate(parts_idx):
+            nm = len(dt) - na - nb
+            if ys_ is None:
+                c0, c1 = cols[m]
+                X = rs.X[rows, c0:c1]
+                out["SA_y"][m] = X[:, :na] @ wa + ref * SA_w[m]
+                out["SB_y"][m] = X[:, na + nm:] @ wb + ref * SB_w[m]
+                out["YD"][:, m, :nm] = (X[:, na:na + nm] + ref[:, None]) * dt[na:na + nm]
+                out["Yint"][m] = X @ dt + ref * Tw[m]
+            else:
+                y = ys_[m]
+                out["SA_y"][m] = wa @ y[:na]
+                out["SB_y"][m] = wb @ y[len(y) - nb:]
+                out["YD"][:, m, :nm] = (y[na:len(y) - nb] * dt[na:len(y) - nb, None]).T
+                out["Yint"][m] = dt @ y
         return out
 
-    D = sums(ys)
-    T = np.array([_tangent(accel_dirs[k]) for k in kb])  # (M, 2, 3) tangent basis at each measured end direction
+    D = sums()
+    T = _tangent(accel_dirs[kb])  # (M, 2, 3) tangent basis at each measured end direction
     sig_int = sigma[None, :] * np.sqrt(Tw2)[:, None]
 
     def _G(W):
@@ -974,7 +1117,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         mid /= np.sqrt(np.maximum(2.0 * (1.0 + q[0]), 1e-300))
         Cm = _qmat_planar(mid)  # (M, L, 3, 3)
         wts = np.concatenate([omp, DM[None]], axis=0)  # (4, M, L)
-        S = np.einsum("kml,mlab->mkab", wts, Cm)  # sum_t w C_mid
+        S = (wts.transpose(1, 0, 2) @ Cm.reshape(M, L, 9)).reshape(M, 4, 3, 3)  # sum_t w C_mid
         Rm = _qmat_planar(total / np.linalg.norm(total, axis=0, keepdims=True))
         Q = np.einsum("mba,mkbc->mkac", Rm, S)  # R^T sum_t w C_mid: [Qj (3), Qc]
         Dth = np.empty((M, 3, 4 * n))
@@ -1019,9 +1162,10 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         ``pre = (theta_l, R_l, Dth_l)``; first order in the small pose rotations (module docstring)."""
         Gm, psi_a, phi_b = pose_rotations(theta)
         th_l, R_l, Dth = pre
-        Rm = R_l @ _rodrigues(Dth @ (theta - th_l))
-        Eb = _rodrigues(phi_b)
-        Ca = _rodrigues(psi_a)
+        x = Dth @ (theta - th_l)
+        Rx, Eb, Ca = np.split(_rodrigues(np.concatenate([x, phi_b, psi_a])), 3)
+        Rm = R_l @ Rx
+        Dth = _right_jacobian(x) @ Dth  # d Exp(x) = Exp(x) [Jr(x) dx]x
         Cb = Rm @ Eb
         v = (Ca @ dirs[ka][:, :, None])[:, :, 0]
         CbT = Cb.transpose(0, 2, 1)
@@ -1054,6 +1198,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     w_st = 1.0
     w_par = 1.0
 
+    problem = _LazyDict({"ys": lambda: window_samples("gyro"), "accel_ys": lambda: window_samples("accel")})
     Lw = np.eye(2 * M)  # whitening of the rotation residuals (set after the first pass)
     Lwi = Lw
     Js_static = np.zeros((ybar.size, 4 * n))
@@ -1068,7 +1213,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     def rot_resid_shift(theta, deltas):
         """The weighted rotation residuals with the raw gyro samples of every window shifted by ``deltas``."""
         saved = dict(D)
-        D.update(sums([y + d for y, d in zip(ys, deltas)]))
+        D.update(sums([y + d for y, d in zip(problem["ys"], deltas)]))
         try:
             return resid(theta)[:2 * M]
         finally:
@@ -1109,7 +1254,9 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
 
                 theta, _, _, edge = _gauss_newton(model_fun(pre), theta, typ, robust, xtol=1e-8, reach=reach,
                                                  radius=0.3)
-                if not edge and reach(theta) <= 1e-4:
+                # done when the model's correction turns no motion by more than 1 mrad: its error, second order
+                # in that, is below 1e-6 rad (the motions' residual scatter is ~1e-3 rad)
+                if not edge and reach(theta) <= 1e-3:
                     break
                 pre = None
             R = rotations(theta, pre)
@@ -1166,19 +1313,20 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         Ja[:2 * M] = np.linalg.solve(Lw, Jd.reshape(2 * M, 3 * K) @ accel_dir_jac) * w_rot
         B = Ninv @ J.T @ Ja
         cov = cov + B @ accel_cov @ B.T
-    rr, rs, rp = parts(theta, accel_dirs, R)
+    rr, rs_, rp = parts(theta, accel_dirs, R)
     W = theta[:3 * n].reshape(n, 3)
     c = theta[3 * n:]
+    problem.update({"resid": resid, "jac": jac, "typ": typ, "dt": [p[2] for p in parts_idx], "n_rot": 2 * M,
+                    "rot_resid_shift": rot_resid_shift})
     ang = np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1, 1))
     rw = np.linalg.solve(Lw, rr.ravel())
-    chi2 = {"rotation": float(rw @ rw * w_rot**2), "static": float(np.sum(rs**2) * w_st**2)}
+    chi2 = {"rotation": float(rw @ rw * w_rot**2), "static": float(np.sum(rs_**2) * w_st**2)}
     if rp.size:
         chi2["parity"] = float(np.sum(rp**2) * w_par**2)
     scale = {"rotation_rad": 1.0 / w_rot, "static_sigma": 1.0 / w_st}
-    return GyroFit(list(idx), W, c, cov, theta, list(zip(ka.tolist(), kb.tolist())), rr, ang, rs * sd,
+    return GyroFit(list(idx), W, c, cov, theta, list(zip(ka.tolist(), kb.tolist())), rr, ang, rs_ * sd,
                    chi2, J.shape[0] - len(theta), scale, weak,
-                   {"resid": resid, "jac": jac, "typ": typ, "ys": ys, "accel_ys": acc_ys, "dt": [p[2] for p in parts_idx],
-                    "n_rot": 2 * M, "rot_resid_shift": rot_resid_shift})
+                   problem)
 
 
 def _robust_rms(r: np.ndarray) -> float:
@@ -1189,11 +1337,15 @@ def _robust_rms(r: np.ndarray) -> float:
 
 
 def _tangent(u: np.ndarray) -> np.ndarray:
-    u = u / np.linalg.norm(u)
-    a = np.eye(3)[int(np.argmin(np.abs(u)))]
+    """Orthonormal tangent bases (M, 2, 3) at directions u (M, 3) (or (2, 3) at one direction (3,))."""
+    one = u.ndim == 1
+    u = np.atleast_2d(u)
+    u = u / np.linalg.norm(u, axis=1, keepdims=True)
+    a = np.eye(3)[np.argmin(np.abs(u), axis=1)]
     e1 = np.cross(u, a)
-    e1 /= np.linalg.norm(e1)
-    return np.vstack([e1, np.cross(u, e1)])
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    out = np.stack([e1, np.cross(u, e1)], axis=1)
+    return out[0] if one else out
 
 
 def _initial_gyro_scale(Yint, Tw, c0, H, dirs, ka, kb) -> float:
@@ -1209,18 +1361,17 @@ def _initial_gyro_scale(Yint, Tw, c0, H, dirs, ka, kb) -> float:
     return float(np.median(np.linalg.norm(u[ok], axis=1) / ang[ok]))
 
 
-def clip_levels(session: Session, instrument: str) -> np.ndarray:
+def clip_levels(session: Session, instrument: str, _stats: _RawStats | None = None) -> np.ndarray:
     """Per sensor, the raw level at which the output clips, or inf: the largest |raw| of the session when it is
     reached at least twice and is a power of two or one less (an ADC's full scale, e.g. 32767 / 32768)."""
-    n = session.geometries[instrument].n
-    m = np.zeros(n)
-    for s in session.segments:
-        m = np.maximum(m, np.max(np.abs(s.raw[instrument]), axis=0))
+    rs = _raw_stats(session, instrument) if _stats is None else _stats
+    n = rs.X.shape[0]
+    m = rs.peak.max(axis=0) if len(rs.peak) else np.zeros(n)
     out = np.full(n, np.inf)
     for i in range(n):
         v = round(m[i])
         if v >= 128 and abs(m[i] - v) < 1e-9 and ((v & (v - 1)) == 0 or ((v + 1) & v) == 0):
-            cnt = sum(int(np.sum(np.abs(s.raw[instrument][:, i]) >= m[i])) for s in session.segments)
+            cnt = int(np.sum(np.abs(rs.X[i] + rs.ref[i]) >= m[i]))
             if cnt >= 2:
                 out[i] = m[i]
     return out
@@ -1261,11 +1412,11 @@ class HandHeld:
         self.sigma, self.mode, self.instruments, self.robust = sigma, mode, instruments, robust
         self.pose_weights, self.accel_model = pose_weights, accel_model
 
-    def _sigma(self, session: Session, inst: str) -> np.ndarray:
+    def _sigma(self, session: Session, inst: str, stats: _RawStats | None = None) -> np.ndarray:
         n = session.geometries[inst].n
         if self.sigma and inst in self.sigma:
             return np.broadcast_to(np.asarray(self.sigma[inst], float), (n,)).copy()
-        return white_noise_sigma_hf(session, inst)
+        return white_noise_sigma_hf(session, inst, _stats=stats)
 
     def _groups(self, g: Geometry) -> list[list[int]]:
         if self.mode == "joint":
@@ -1286,11 +1437,15 @@ class HandHeld:
                                      "'static'); run 'rimu detect' on the raw recording first")
         windows = pose_windows(session)
         clipped: list[str] = []
+        # one pass over each instrument's samples: noise level, clip levels, pose means and the gyro fit's sums
+        raw = {k: _raw_stats(session, k) for k in ("accel", "gyro") if k in session.geometries}
+        st_idx = _static_index(session)
+        seg_pos = {id(s): j for j, s in enumerate(session.segments)}
         if "gyro" in session.geometries and windows:
-            lim = clip_levels(session, "gyro")
+            lim = clip_levels(session, "gyro", _stats=raw["gyro"])
             keep = []
             for w in windows:
-                if any(np.any(np.abs(s.raw["gyro"]) >= lim) for s in w[2]):
+                if any(np.any(raw["gyro"].peak[seg_pos[id(s)]] >= lim) for s in w[2]):
                     clipped.append(f"{w[2][0].label}->{w[2][-1].label}")
                 else:
                     keep.append(w)
@@ -1300,7 +1455,7 @@ class HandHeld:
         else:
             want = ["accel"] + (["gyro"] if "gyro" in session.geometries and windows else [])
         ga = session.geometries["accel"]
-        sa = self._sigma(session, "accel")
+        sa = self._sigma(session, "accel", raw["accel"])
         model = ErrorModel.base()
         out: dict[str, LsqResult] = {}
         extra: dict[str, Any] = {}
@@ -1311,7 +1466,7 @@ class HandHeld:
         acc_sensors: dict[int, Any] = {}
         labels = [s.label for s in statics]
         for grp in self._groups(ga):
-            ybar, sd = _pose_stats(statics, "accel", grp, sa[grp])
+            ybar, sd = _pose_stats(statics, "accel", grp, sa[grp], raw["accel"].means(st_idx, grp))
             if self.pose_weights == "equal":
                 sd = np.broadcast_to(np.median(sd, axis=0), sd.shape).copy()
             af = fit_accel(ybar, sd, ga.H[grp], session.gravity, [ga.names[i] for i in grp], grp, robust=False,
@@ -1342,7 +1497,7 @@ class HandHeld:
             if "gyro" not in session.geometries:
                 raise SessionFormatError("the session has no gyro data")
             gg = session.geometries["gyro"]
-            sg = self._sigma(session, "gyro")
+            sg = self._sigma(session, "gyro", raw["gyro"])
             gyro_sensors: dict[int, Any] = {}
             ggroups = self._groups(gg) if self.mode == "subunits" else [list(range(gg.n))]
             rot_res, angles = [], []
@@ -1351,7 +1506,7 @@ class HandHeld:
                 dirs, djac, acov, dcov = _dirs_with_jacobian(af, statics, session, sa)
                 try:
                     gf = fit_gyro(session, windows, dirs, djac, acov, grp, sg[grp], gg.H[grp], robust=self.robust,
-                                  dir_cov=dcov)
+                                  dir_cov=dcov, _stats=raw["gyro"], _ybar=raw["gyro"].means(st_idx, grp))
                 except IdentifiabilityError as exc:
                     if self.instruments is not None:  # asked for explicitly: the caller hears why not
                         raise
