@@ -1096,12 +1096,15 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
 
     def integrate(theta, jac=True):
         """The rotation of every motion (M, 3, 3), exact (a quaternion per sample, combined pairwise), and with
-        ``jac`` its right Jacobian (M, 3, p): d R = R [Dth dtheta]x (first order in each sample's rotation).
+        ``jac`` the pre-integration at theta: ``(theta, R, DG, Qc, G, c)`` for :func:`model_x`.
 
-        The Jacobian of the product of the sample rotations q_t with respect to the rate of sample t is the
-        rotation from the middle of sample t to the end, A_t = C_mid,t^T R (C_mid,t: attitude at the middle of
-        sample t relative to the start of the motion, from the exclusive prefix products), so that
-        ``Dth = -sum_t dt R^T C_mid,t [omega_t, 1] (x) G`` needs one prefix scan and four weighted sums."""
+        To first order in the change of every sample's rate, ``R' = R Exp(sum_t dt A_t^T (omega'_t - omega_t))``
+        with A_t the rotation from the middle of sample t to the end, ``A_t = C_mid,t^T R`` (C_mid,t: attitude at
+        the middle of sample t relative to the start, from the exclusive prefix products). The rate is linear in
+        G and c, ``omega_t = G (y_t - c)``, so the sum needs only the sums ``Q_i = R^T sum_t dt (y_ti - c_i)
+        C_mid,t`` (one per sensor) and ``Qc = R^T sum_t dt C_mid,t``: one prefix scan and n + 1 weighted sums,
+        after which any G, c near these is O(motions) work (Forster et al. 2017's pre-integration, here for the
+        gyro scale, misalignment and bias)."""
         W = theta[:3 * n].reshape(n, 3)
         c = theta[3 * n:]
         Gm = _G(W)
@@ -1110,20 +1113,38 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         if not jac:
             while q.shape[2] > 1:  # pairwise products: the rotation over the motion
                 q = _qmul_planar(q[:, :, 0::2], q[:, :, 1::2])
-            return _qmat_planar(q[:, :, 0] / np.linalg.norm(q[:, :, 0], axis=0, keepdims=True)), None
+            return _qmat_planar(q[:, :, 0] / np.linalg.norm(q[:, :, 0], axis=0, keepdims=True))
         ex, total = _scan_planar(q)
         mid = _qmul_planar(ex, q)
         mid += ex  # (P_t-1 q_t + P_t-1) / |.| = P_t-1 q_t^(1/2): the attitude at the middle of sample t
         mid /= np.sqrt(np.maximum(2.0 * (1.0 + q[0]), 1e-300))
         Cm = _qmat_planar(mid)  # (M, L, 3, 3)
-        wts = np.concatenate([omp, DM[None]], axis=0)  # (4, M, L)
-        S = (wts.transpose(1, 0, 2) @ Cm.reshape(M, L, 9)).reshape(M, 4, 3, 3)  # sum_t w C_mid
+        wts = np.concatenate([D["YD"] - c[:, None, None] * DM, DM[None]], axis=0)  # (n + 1, M, L)
+        S = (wts.transpose(1, 0, 2) @ Cm.reshape(M, L, 9)).reshape(M, n + 1, 3, 3)  # sum_t w C_mid
         Rm = _qmat_planar(total / np.linalg.norm(total, axis=0, keepdims=True))
-        Q = np.einsum("mba,mkbc->mkac", Rm, S)  # R^T sum_t w C_mid: [Qj (3), Qc]
-        Dth = np.empty((M, 3, 4 * n))
-        Dth[:, :, :3 * n] = -np.einsum("mjab,bi->maij", Q[:, :3], Gm).reshape(M, 3, 3 * n)
-        Dth[:, :, 3 * n:] = -Q[:, 3] @ Gm
-        return Rm, Dth
+        Q = np.einsum("mba,mkbc->mkac", Rm, S)  # R^T sum_t w C_mid
+        DG = Q[:, :n].transpose(0, 2, 3, 1).reshape(M, 3, 3 * n)  # d x / d vec(G), vec(G)[a n + i] = G[a, i]
+        return (theta.copy(), Rm, DG, Q[:, n], Gm, c.copy())
+
+    def model_x(theta, pre, jac=False):
+        """The rotation vector x with ``R(theta) = R_l Exp(x)`` of the pre-integration ``pre`` (first order in the
+        change of the sample rates, exact in their linear dependence on G), and with ``jac`` d x / d theta."""
+        _, _, DG, Qc, G_l, c_l = pre
+        W = theta[:3 * n].reshape(n, 3)
+        c = theta[3 * n:]
+        Gm = _G(W)
+        v = Gm @ (c - c_l)
+        x = DG @ (Gm - G_l).ravel() - Qc @ v
+        if not jac:
+            return x
+        dx = np.empty((M, 3, 4 * n))
+        # d G / d W_ij = -G e_i e_j^T G (the least-squares G of skewed sets: the same, to first order)
+        X = DG.reshape(M, 3, 3, n) @ Gm.T  # (M, 3, 3a, 3j)
+        QG = Qc @ Gm  # (M, 3, n)
+        dxW = -(Gm.T @ X) + QG[:, :, :, None] * v[None, None, None, :]
+        dx[:, :, :3 * n] = dxW.reshape(M, 3, 3 * n)
+        dx[:, :, 3 * n:] = -QG
+        return x, dx
 
     def pose_rotations(theta):
         W = theta[:3 * n].reshape(n, 3)
@@ -1137,7 +1158,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         """Cb^T Ca (pose-k body vector -> pose-(k+1) body) at theta; the motion rotations exact, or from the
         pre-integration ``pre = (theta_l, R_l, Dth_l)``."""
         _, psi_a, phi_b = pose_rotations(theta)
-        Rm = integrate(theta, jac=False)[0] if pre is None else pre[1] @ _rodrigues(pre[2] @ (theta - pre[0]))
+        Rm = integrate(theta, jac=False) if pre is None else pre[1] @ _rodrigues(model_x(theta, pre))
         Cb = Rm @ _rodrigues(phi_b)
         return np.einsum("mji,mjk->mik", Cb, _rodrigues(psi_a))
 
@@ -1161,10 +1182,9 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         """Rotation residuals (M, 2) and d rr / d theta (M, 2, p) with the motion rotations of the pre-integration
         ``pre = (theta_l, R_l, Dth_l)``; first order in the small pose rotations (module docstring)."""
         Gm, psi_a, phi_b = pose_rotations(theta)
-        th_l, R_l, Dth = pre
-        x = Dth @ (theta - th_l)
+        x, Dth = model_x(theta, pre, jac=True)
         Rx, Eb, Ca = np.split(_rodrigues(np.concatenate([x, phi_b, psi_a])), 3)
-        Rm = R_l @ Rx
+        Rm = pre[1] @ Rx
         Dth = _right_jacobian(x) @ Dth  # d Exp(x) = Exp(x) [Jr(x) dx]x
         Cb = Rm @ Eb
         v = (Ca @ dirs[ka][:, :, None])[:, :, 0]
@@ -1184,8 +1204,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
 
     def rot_jac(theta, dirs):
         """d rr / d theta (M, 2, p) at theta, the motions integrated there."""
-        Rm, Dth = integrate(theta)
-        return rot_parts(theta, (theta, Rm, Dth), dirs)[1]
+        return rot_parts(theta, integrate(theta), dirs)[1]
 
     # initial: W from the nominal axes and the accelerometers' scale ratio is not known; use the statics for c
     # and a first motion-based guess of one common scale from the integrated angles
@@ -1248,15 +1267,16 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         if preintegrate:
             for _ in range(20):  # integrate at theta, iterate on the motions' rotations and Jacobians
                 if pre is None:
-                    pre = (theta, *integrate(theta))
+                    pre = integrate(theta)
+
                 def reach(th, pre=pre):  # the largest change of a motion's rotation the model predicts, rad
-                    return float(np.max(np.abs(pre[2] @ (th - pre[0]))))
+                    return float(np.max(np.abs(model_x(th, pre))))
 
                 theta, _, _, edge = _gauss_newton(model_fun(pre), theta, typ, robust, xtol=1e-8, reach=reach,
-                                                 radius=0.3)
+                                                 radius=1.0)
                 # done when the model's correction turns no motion by more than 1 mrad: its error, second order
                 # in that, is below 1e-6 rad (the motions' residual scatter is ~1e-3 rad)
-                if not edge and reach(theta) <= 1e-3:
+                if not edge and reach(theta) <= 3e-4:
                     break
                 pre = None
             R = rotations(theta, pre)
