@@ -707,6 +707,9 @@ def _extra_variance(d: np.ndarray, s2: np.ndarray, rest: float, dof: int) -> flo
     d2 = d**2
     if float(np.sum(d2 / s2)) + rest <= dof:
         return 0.0
+    hi = float(np.max(d2)) * len(d) + float(np.max(s2))
+    if float(np.sum(d2 / (s2 + hi))) + rest > dof:  # no root below this bound (the parity alone exceeds dof)
+        return hi
     tau = 0.0
     for _ in range(200):
         q = d2 / (s2 + tau)
@@ -1016,9 +1019,9 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     M = len(windows)
     ka = np.array([w[0] for w in windows])
     kb = np.array([w[1] for w in windows])
-    rs = _raw_stats(session, inst) if _stats is None else _stats
-    rows = slice(None) if list(idx) == list(range(rs.X.shape[0])) else list(idx)
-    ref = rs.ref[rows]
+    rst = _raw_stats(session, inst) if _stats is None else _stats
+    rows = slice(None) if list(idx) == list(range(rst.X.shape[0])) else list(idx)
+    ref = rst.ref[rows]
     seg_pos = {id(s): j for j, s in enumerate(session.segments)}
     # per window: the pose-k samples (first order: tremor and sway are small rotations), the motion samples
     # (exact rotations, padded to a common power-of-two length with identity steps) and the pose-(k+1) samples
@@ -1029,21 +1032,25 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     SA_w, SB_w = np.zeros(M), np.zeros(M)
     Tw, Tw2 = np.zeros(M), np.zeros(M)
     q_ab_list: list[float] = []
+    dt_all = np.diff(rst.t, append=rst.t[-1])  # (the last entry of every window is set below)
+    ramp = np.arange(int(rst.counts.max()) + 1, dtype=float)
     for m, (_, _, chain) in enumerate(windows):
         j0, j1 = seg_pos[id(chain[0])], seg_pos[id(chain[-1])]
-        c0, c1 = int(rs.starts[j0]), int(rs.starts[j1] + rs.counts[j1])
+        c0, c1 = int(rst.starts[j0]), int(rst.starts[j1] + rst.counts[j1])
         cols.append((c0, c1))
-        t = rs.t[c0:c1]
-        dt = np.diff(t, append=t[-1] + (t[-1] - t[-2] if len(t) > 1 else 1.0 / session.sample_rate))
-        na, nb = chain[0].n_samples, chain[-1].n_samples
+        # dt[i] = t[i+1] - t[i] within the window, the last sample's the one before it
+        dt = dt_all[c0:c1].copy() if c1 - c0 > 1 else np.array([1.0 / session.sample_rate])
+        if c1 - c0 > 1:
+            dt[-1] = dt_all[c1 - 2]
+        na, nb = int(rst.counts[j0]), int(rst.counts[j1])
         # attitude at sample i of pose k relative to the end of the pose: -sum_{tau >= i} w dt; its mean
-        wa = dt[:na] * (np.arange(na) + 1) / na
+        wa = dt[:na] * ramp[1:na + 1] / na
         # attitude at sample j of pose k+1 relative to its start: sum_{tau < j} w dt; its mean
-        wb = dt[len(t) - nb:] * (nb - 1 - np.arange(nb)) / nb
+        wb = dt[c1 - c0 - nb:] * ramp[nb - 1::-1] / nb
         SA_w[m], SB_w[m] = wa.sum(), wb.sum()
         q_ab_list.append(float(wa @ wa + wb @ wb))
-        mot_dt.append(dt[na:len(t) - nb])
-        L = max(L, len(t) - na - nb)
+        mot_dt.append(dt[na:c1 - c0 - nb])
+        L = max(L, c1 - c0 - na - nb)
         Tw[m], Tw2[m] = dt.sum(), dt @ dt
         parts_idx.append((wa, wb, dt, na, nb))
     L = 1 << int(np.ceil(np.log2(max(L, 1))))
@@ -1056,7 +1063,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         """The raw samples (N_m, n) of every window (gyro: the fitted columns; or the accelerometers'), built
         only when asked for (diagnosis)."""
         if name == "gyro":
-            return [(rs.X[rows, c0:c1] + ref[:, None]).T for c0, c1 in cols]
+            return [np.vstack([s.raw[inst][:, idx] for s in w[2]]) for w in windows]
         if "accel" not in session.geometries:
             return [None] * M
         return [np.vstack([s.raw["accel"] for s in w[2]]) for w in windows]
@@ -1069,13 +1076,16 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
                "Yint": np.zeros((M, n))}
         for m, (wa, wb, dt, na, nb) in enumerate(parts_idx):
             nm = len(dt) - na - nb
-            if ys_ is None:
+            if ys_ is None:  # each sample read once: the pose sums and their part of the integral together
                 c0, c1 = cols[m]
-                X = rs.X[rows, c0:c1]
-                out["SA_y"][m] = X[:, :na] @ wa + ref * SA_w[m]
-                out["SB_y"][m] = X[:, na + nm:] @ wb + ref * SB_w[m]
-                out["YD"][:, m, :nm] = (X[:, na:na + nm] + ref[:, None]) * dt[na:na + nm]
-                out["Yint"][m] = X @ dt + ref * Tw[m]
+                X = rst.X[rows, c0:c1]
+                a2 = X[:, :na] @ np.column_stack([wa, dt[:na]])
+                b2 = X[:, na + nm:] @ np.column_stack([wb, dt[na + nm:]])
+                xm = X[:, na:na + nm] * dt[na:na + nm]
+                out["SA_y"][m] = a2[:, 0] + ref * SA_w[m]
+                out["SB_y"][m] = b2[:, 0] + ref * SB_w[m]
+                out["YD"][:, m, :nm] = xm + ref[:, None] * dt[na:na + nm]
+                out["Yint"][m] = a2[:, 1] + b2[:, 1] + xm.sum(axis=1) + ref * Tw[m]
             else:
                 y = ys_[m]
                 out["SA_y"][m] = wa @ y[:na]
@@ -1126,13 +1136,12 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         DG = Q[:, :n].transpose(0, 2, 3, 1).reshape(M, 3, 3 * n)  # d x / d vec(G), vec(G)[a n + i] = G[a, i]
         return (theta.copy(), Rm, DG, Q[:, n], Gm, c.copy())
 
-    def model_x(theta, pre, jac=False):
+    def model_x(theta, pre, jac=False, Gm=None):
         """The rotation vector x with ``R(theta) = R_l Exp(x)`` of the pre-integration ``pre`` (first order in the
         change of the sample rates, exact in their linear dependence on G), and with ``jac`` d x / d theta."""
         _, _, DG, Qc, G_l, c_l = pre
-        W = theta[:3 * n].reshape(n, 3)
         c = theta[3 * n:]
-        Gm = _G(W)
+        Gm = _G(theta[:3 * n].reshape(n, 3)) if Gm is None else Gm
         v = Gm @ (c - c_l)
         x = DG @ (Gm - G_l).ravel() - Qc @ v
         if not jac:
@@ -1180,9 +1189,9 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
 
     def rot_parts(theta, pre, dirs):
         """Rotation residuals (M, 2) and d rr / d theta (M, 2, p) with the motion rotations of the pre-integration
-        ``pre = (theta_l, R_l, Dth_l)``; first order in the small pose rotations (module docstring)."""
+        ``pre`` (:func:`integrate`); first order in the small pose rotations (module docstring)."""
         Gm, psi_a, phi_b = pose_rotations(theta)
-        x, Dth = model_x(theta, pre, jac=True)
+        x, Dth = model_x(theta, pre, jac=True, Gm=Gm)
         Rx, Eb, Ca = np.split(_rodrigues(np.concatenate([x, phi_b, psi_a])), 3)
         Rm = pre[1] @ Rx
         Dth = _right_jacobian(x) @ Dth  # d Exp(x) = Exp(x) [Jr(x) dx]x
@@ -1290,16 +1299,19 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         if it == 0:
             # correlated residuals: the gravity direction of pose k enters motions k-1 and k; generalised least
             # squares with the block-tridiagonal covariance of the pose-direction and integrated-gyro noise
-            Cr = np.zeros((2 * M, 2 * M))
-            TR = np.einsum("mai,mij->maj", T, R)
-            for m in range(M):
-                Cr[2 * m:2 * m + 2, 2 * m:2 * m + 2] = (TR[m] @ dir_cov[ka[m]] @ TR[m].T
-                                                        + T[m] @ dir_cov[kb[m]] @ T[m].T + q_m[m] * np.eye(2))
-                m2 = by_pose.get(int(kb[m]))
-                if m2 is not None:
-                    X = -T[m] @ dir_cov[kb[m]] @ TR[m2].T
-                    Cr[2 * m:2 * m + 2, 2 * m2:2 * m2 + 2] = X
-                    Cr[2 * m2:2 * m2 + 2, 2 * m:2 * m + 2] = X.T
+            Cr4 = np.zeros((M, M, 2, 2))  # (m, m2) blocks
+            TR = T @ R
+            TRt, Tt = TR.transpose(0, 2, 1), T.transpose(0, 2, 1)
+            ar = np.arange(M)
+            Cr4[ar, ar] = TR @ dir_cov[ka] @ TRt + T @ dir_cov[kb] @ Tt + q_m[:, None, None] * np.eye(2)
+            nxt = np.array([by_pose.get(int(k), -1) for k in kb])
+            m1 = np.flatnonzero(nxt >= 0)
+            if m1.size:
+                m2 = nxt[m1]
+                X = -T[m1] @ dir_cov[kb[m1]] @ TRt[m2]
+                Cr4[m1, m2] = X
+                Cr4[m2, m1] = X.transpose(0, 2, 1)
+            Cr = Cr4.transpose(0, 2, 1, 3).reshape(2 * M, 2 * M)
             Lw = np.linalg.cholesky(Cr)
             Lwi = np.linalg.inv(Lw)
             w_rot = 1.0
@@ -1337,7 +1349,8 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     W = theta[:3 * n].reshape(n, 3)
     c = theta[3 * n:]
     problem.update({"resid": resid, "jac": jac, "typ": typ, "dt": [p[2] for p in parts_idx], "n_rot": 2 * M,
-                    "rot_resid_shift": rot_resid_shift})
+                    "rot_resid_shift": rot_resid_shift, "integrate": integrate, "model_x": model_x,
+                    "model_fun": model_fun})
     ang = np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1, 1))
     rw = np.linalg.solve(Lw, rr.ravel())
     chi2 = {"rotation": float(rw @ rw * w_rot**2), "static": float(np.sum(rs_**2) * w_st**2)}
@@ -1464,8 +1477,9 @@ class HandHeld:
         if "gyro" in session.geometries and windows:
             lim = clip_levels(session, "gyro", _stats=raw["gyro"])
             keep = []
+            hit = np.any(raw["gyro"].peak >= lim, axis=1).tolist()  # per segment
             for w in windows:
-                if any(np.any(raw["gyro"].peak[seg_pos[id(s)]] >= lim) for s in w[2]):
+                if any(hit[seg_pos[id(s)]] for s in w[2]):
                     clipped.append(f"{w[2][0].label}->{w[2][-1].label}")
                 else:
                     keep.append(w)
