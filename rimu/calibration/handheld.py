@@ -1032,7 +1032,8 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     SA_w, SB_w = np.zeros(M), np.zeros(M)
     Tw, Tw2 = np.zeros(M), np.zeros(M)
     q_ab_list: list[float] = []
-    dt_all = np.diff(rst.t, append=rst.t[-1])  # (the last entry of every window is set below)
+    dt_all = np.zeros(len(rst.t))  # t[i+1] - t[i] (the last entry of every window is set below)
+    np.subtract(rst.t[1:], rst.t[:-1], out=dt_all[:-1])
     ramp = np.arange(int(rst.counts.max()) + 1, dtype=float)
     for m, (_, _, chain) in enumerate(windows):
         j0, j1 = seg_pos[id(chain[0])], seg_pos[id(chain[-1])]
@@ -1079,13 +1080,12 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
             if ys_ is None:  # each sample read once: the pose sums and their part of the integral together
                 c0, c1 = cols[m]
                 X = rst.X[rows, c0:c1]
-                a2 = X[:, :na] @ np.column_stack([wa, dt[:na]])
-                b2 = X[:, na + nm:] @ np.column_stack([wb, dt[na + nm:]])
+                Xa, Xb = X[:, :na], X[:, na + nm:]
                 xm = X[:, na:na + nm] * dt[na:na + nm]
-                out["SA_y"][m] = a2[:, 0] + ref * SA_w[m]
-                out["SB_y"][m] = b2[:, 0] + ref * SB_w[m]
+                out["SA_y"][m] = Xa @ wa + ref * SA_w[m]
+                out["SB_y"][m] = Xb @ wb + ref * SB_w[m]
                 out["YD"][:, m, :nm] = xm + ref[:, None] * dt[na:na + nm]
-                out["Yint"][m] = a2[:, 1] + b2[:, 1] + xm.sum(axis=1) + ref * Tw[m]
+                out["Yint"][m] = Xa @ dt[:na] + Xb @ dt[na + nm:] + xm.sum(axis=1) + ref * Tw[m]
             else:
                 y = ys_[m]
                 out["SA_y"][m] = wa @ y[:na]

@@ -84,7 +84,7 @@ def test_preintegration_model_jacobian_and_second_order_error():
             float(np.max(np.abs(pr["model_x"](th, pre))))
 
     e1, x1 = model_error(5 * d)
-    e2, x2 = model_error(2.5 * d)
+    e2, _ = model_error(2.5 * d)
     assert 1e-2 < x1 < 0.2 and e1 < x1**2
     assert 0.15 < e2 / e1 < 0.35  # second order
 
@@ -106,8 +106,8 @@ def test_accel_analytic_jacobian_matches_central_differences(geo):
     th = af.theta * (1 + 1e-3 * np.random.default_rng(0).normal(size=af.theta.size))
     typ = np.abs(th)
     for tau2 in (0.0, 1e-6):
-        r, J, df = _accel_problem(th, af.free, fixed, af.ybar, af.sd, s.gravity, tau2)
-        Jn = central_jacobian(lambda t: _accel_problem(t, af.free, fixed, af.ybar, af.sd, s.gravity, tau2,
+        _, J, df = _accel_problem(th, af.free, fixed, af.ybar, af.sd, s.gravity, tau2)
+        Jn = central_jacobian(lambda t, tau2=tau2: _accel_problem(t, af.free, fixed, af.ybar, af.sd, s.gravity, tau2,
                                                        jac=False)[0], th, typ * 1e-4)
         assert np.max(np.abs(J - Jn).max(axis=0) / np.abs(Jn).max(axis=0)) < 1e-6
     from rimu.calibration.handheld import _specific_forces, _unpack
