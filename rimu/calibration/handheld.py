@@ -43,6 +43,12 @@ Gyros (:func:`fit_gyro`)
     scatter of each residual group (two passes) with a Huber loss against outliers (a bumped pose), and the
     covariance includes the accelerometer parameters' uncertainty (through the gravity directions).
 
+    Pre-integration (Forster et al. 2017): the motion samples are integrated once at the current parameters,
+    keeping each motion's rotation and the weighted sums of its mid-sample attitudes that give the rotation for
+    any nearby G, c to first order in the rate change (linear in G and c); the fit iterates on these O(motions)
+    quantities and integrates again only while a correction turns a motion by more than 3e-4 rad
+    (``fit_gyro(..., preintegrate=False)``: the reference that integrates every sample at every evaluation).
+
 Redundant units: ``mode="joint"`` calibrates all sensors of an instrument together (skewed sets through the
 least-squares estimate of the specific force and angular rate); ``mode="subunits"`` calibrates each sub-unit
 triad on its own (each in its own gauge frame).
