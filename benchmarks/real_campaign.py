@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from rimu.calibration.multi_imu import MultiImuSetup, setup_multi_imu
-from rimu.fdi import Px4GyroSelector, RedundancyManager, fit_motion_detector
+from rimu.fdi import Px4GyroSelector, RedundancyManager, fit_motion_detector, unisolated_alarm_runs
 from rimu.fdi.faults import Injection, inject
 from rimu.fusion import InstrumentPipeline
 from rimu.io.pixhawk_dual import read_pixhawk_dual
@@ -123,16 +123,6 @@ def manager(su: MultiImuSetup) -> RedundancyManager:
     return mgr
 
 
-def confirmed_alarms(alarm: np.ndarray, t: np.ndarray, confirm: int = CONFIRM) -> list[float]:
-    """Times at which a run of ``confirm`` consecutive alarms completes (one per run)."""
-    out, run = [], 0
-    for a, tt in zip(alarm, t):
-        run = run + 1 if a else 0
-        if run == confirm:
-            out.append(float(tt))
-    return out
-
-
 def run_rimu(su: MultiImuSetup, block: Any) -> tuple[list[tuple[float, str, str]], float]:
     """Events (t, kind, sensor) of a freshly reset manager over the averaged block; seconds per sample.
 
@@ -144,8 +134,7 @@ def run_rimu(su: MultiImuSetup, block: Any) -> tuple[list[tuple[float, str, str]
     res = mgr.run(block.raw["gyro"], block.valid["gyro"], block.t)
     dt = (time.perf_counter() - t0) / len(block)
     ev = [(e.t, e.kind, e.sensor or "") for e in res.events if e.kind in ("isolated", "invalid_isolated")]
-    iso_t = {e[0] for e in ev}
-    ev += [(tt, "detected", "") for tt in confirmed_alarms(res.alarm, block.t) if tt not in iso_t]
+    ev += [(tt, "detected", "") for tt in unisolated_alarm_runs(res, CONFIRM)]
     return sorted(ev), dt
 
 

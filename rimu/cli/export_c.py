@@ -27,7 +27,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--invalid-persist", type=positive_int, default=None,
                    help="consecutive invalid samples before a sensor is isolated")
     g.add_argument("--readmit-after", type=positive_int, default=None,
-                   help="clean samples before an isolated sensor is re-admitted (doubled at each further isolation)")
+                   help="clean samples before an isolated sensor is re-admitted (doubled at each further isolation; "
+                        "default rimu.fdi.health.READMIT_AFTER, as the manager and rimu replay)")
     g.add_argument("--no-readmit", action="store_true", help="never re-admit an isolated sensor automatically")
     g.add_argument("--fail-after", type=positive_int, default=None,
                    help="isolations of one sensor after which it is FAILED (not re-admitted)")
@@ -44,10 +45,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run, output_is_dir=True)  # -o names a folder (rimu.cli._common.check_outputs)
 
 
-def run(args: argparse.Namespace) -> int:
-    from ..calibration.result import Calibration
+def fdi_settings(args: argparse.Namespace):  # type: ignore[no-untyped-def]
+    """The :class:`rimu.export.FdiSettings` of the options (an option not given keeps FdiSettings' default)."""
     from ..errors import OptionError
-    from ..export import FdiSettings, build_filter, export_c
+    from ..export import FdiSettings
 
     if args.backoff is not None and args.backoff < 1:
         raise OptionError(f"--backoff {args.backoff:g}: must be at least 1 (the clean period never shrinks)")
@@ -58,7 +59,14 @@ def run(args: argparse.Namespace) -> int:
     kw = {k: v for k, v in given.items() if v is not None}   # the others keep FdiSettings' defaults
     if args.no_readmit:
         kw["readmit_after"] = None
-    fdi = FdiSettings(**kw)
+    return FdiSettings(**kw)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..calibration.result import Calibration
+    from ..export import build_filter, export_c
+
+    fdi = fdi_settings(args)
     cal = Calibration.load(args.calibration)
     files = export_c(cal, args.output, real=args.real, fdi=fdi)
     msg = f"wrote {', '.join(f.name for f in files)} to {Path(args.output)} ({args.real}; fault management " \

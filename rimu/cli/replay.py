@@ -60,7 +60,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--p-fa", type=probability, default=1e-3, help="per-sample false-alarm probability")
     p.add_argument("--arl0", type=positive_float, default=1e5, help="mean samples between false alarms (cusum, baseline)")
     p.add_argument("--confirm", type=positive_int, default=3, help="consecutive alarms before isolation")
-    p.add_argument("--readmit-after", type=positive_int, default=None, help="clean samples before re-admission")
+    p.add_argument("--readmit-after", type=positive_int, default=None,
+                   help="clean samples before an isolated sensor is re-admitted (doubled at each further isolation; "
+                        "default rimu.fdi.health.READMIT_AFTER, as the manager and rimu export-c)")
+    p.add_argument("--no-readmit", action="store_true", help="never re-admit an isolated sensor automatically")
     p.add_argument("--noise", type=positive_float, default=None, help="per-sample noise (SI) if the calibration has none")
     p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of random fault types")
     p.add_argument("--motion-fit", type=positive_float, default=None, metavar="SECONDS",
@@ -238,20 +241,20 @@ class _Scan:
     def _reduced(self, side: dict, stats: list[_SegmentStats]):  # type: ignore[no-untyped-def]
         """The session with four samples per segment (see :meth:`_SegmentStats.rows`); its segments carry the
         known inputs, their first sample time and the sidecar's validation."""
-        from ..session.native import _build, _geometries
+        from ..session import session_from_sidecar, sidecar_geometries
 
-        geoms = _geometries(side, str(self.path))
+        geoms = sidecar_geometries(side, str(self.path))
         t, idx, raw = [], [], {k: [] for k in geoms}
         for i, st in enumerate(stats):
             if st.n == 0:
-                continue  # _build names the segment without samples
+                continue  # session_from_sidecar names the segment without samples
             for k in geoms:
                 tk, rk = (np.full(1, st.t0), st.first[k][None]) if st.n < 4 else st.rows(k)
                 raw[k].append(rk)
             t.append(tk)
             idx.append(np.full(len(tk), i))
         temp = np.zeros(sum(len(x) for x in t)) if self.has_temp else None
-        return _build(side, np.concatenate(t), np.concatenate(idx), {k: np.vstack(v) for k, v in raw.items()},
+        return session_from_sidecar(side, np.concatenate(t), np.concatenate(idx), {k: np.vstack(v) for k, v in raw.items()},
                       temp, str(self.path))
 
     def _check(self, within: _Median, mode: str) -> None:
@@ -357,6 +360,16 @@ class _Errors:
                                 [self.session.segments[i].label for i in order], E)
 
 
+def readmit_after(args: argparse.Namespace) -> int | None:
+    """Clean samples before re-admission: ``--readmit-after``, else the default of every entry point
+    (:data:`rimu.fdi.health.READMIT_AFTER`); None with ``--no-readmit``."""
+    from ..fdi.health import READMIT_AFTER
+
+    if args.no_readmit:
+        return None
+    return READMIT_AFTER if args.readmit_after is None else int(args.readmit_after)
+
+
 def run(args: argparse.Namespace) -> int:
     import contextlib
 
@@ -364,7 +377,7 @@ def run(args: argparse.Namespace) -> int:
     from ..epoch import EpochBlock
     from ..errors import CalibrationFileError, OptionError, RimuError, SessionFormatError
     from ..export.estimates import Estimates, estimate_columns, write_estimates
-    from ..fdi import RedundancyManager
+    from ..fdi import RedundancyManager, UnitManager
     from ..fdi.campaign import CampaignSpec, make_detector
     from ..fdi.faults import inject, parse_injection
     from ..fusion import Pipeline
@@ -433,12 +446,13 @@ def run(args: argparse.Namespace) -> int:
         print("  compensated effects: " + "; ".join(
             f"{k}: {', '.join(t.effect.name for t in c.terms)}" for k, c in unit.compensation.items()))
 
-    def blocks(pipe):  # type: ignore[no-untyped-def]
-        """pass 2 (and the motion fit): the file again, chunk by chunk, faults injected, effects compensated"""
+    def blocks(pipe=None):  # type: ignore[no-untyped-def]
+        """pass 2 (and the motion fit): the file again, chunk by chunk, faults injected (and, given a pipeline,
+        effects compensated: the motion fit's fault-free start)"""
         for blk in iter_blocks(path, chunk):
             if injections:
                 blk = inject(blk, injections, cal, seed=args.seed)
-            yield pipe.compensate(blk)
+            yield blk if pipe is None else pipe.compensate(blk)
 
     managers = {}
     for k in insts:
@@ -451,7 +465,7 @@ def run(args: argparse.Namespace) -> int:
                                    args.motion_fit, args.motion_margin, args.p_fa, fs)
         managers[k] = (RedundancyManager(pipe, det, p_fa=args.p_fa,
                                          confirm=1 if args.detector == "cusum" else args.confirm,
-                                         readmit_after=args.readmit_after, sample_rate=fs), det)
+                                         readmit_after=readmit_after(args), sample_rate=fs), det)
     alarms = dict.fromkeys(insts, 0)
     events: dict[str, list] = {k: [] for k in insts}
     finite = dict.fromkeys(insts, True)
@@ -466,12 +480,13 @@ def run(args: argparse.Namespace) -> int:
 
             est = stack.enter_context(stack.enter_context(atomic_path(args.estimates)).open("w"))
             est.write(",".join(estimate_columns(insts)) + "\n")
-        for blk in bar(blocks(unit), total=n_chunks, desc="replay", unit="chunk", enabled=None if n_chunks > 1 else False):
-            results = {}
+        # the managers closed loop with the compensation of further effects (rimu.fdi.UnitManager: the decisions
+        # of the exported C filter, sample by sample)
+        um = UnitManager(unit, {k: managers[k][0] for k in insts})
+        for blk in bar(blocks(), total=n_chunks, desc="replay", unit="chunk", enabled=None if n_chunks > 1 else False):
+            results = um.run(blk)
             for k in insts:
-                mgr = managers[k][0]
-                r = mgr.run(blk.raw[k], blk.valid.get(k), blk.t)
-                results[k] = r
+                r = results[k]
                 alarms[k] += int(np.count_nonzero(r.alarm))
                 events[k] += r.events
                 finite[k] = finite[k] and bool(np.isfinite(r.x).all())

@@ -162,13 +162,21 @@ def candidate_bases(tests: Sequence[CandidateTest], i: int) -> dict[str, np.ndar
     fit, session = tests[0]._fit, tests[0]._session
     s = fit.sensors[i]
     B, slices, _ = candidate_design(session, fit, [t._effect for t in tests], i)
-    out = {}
-    for t in tests:
-        C = B[:, slices[t.name]]
-        norms = np.linalg.norm(C, axis=0)
-        Cn = C / np.where(norms == 0, 1.0, norms)
-        out[t.name] = (Cn - s.Q @ (s.Q.T @ Cn)) @ t._W[i]
-    return out
+    # every column normalised and projected out of the model's span at once, in one contiguous N x K block
+    # (per candidate, the strided column slices sent the products off BLAS: 20 ms a candidate on 144000 rows)
+    B = np.ascontiguousarray(B)
+    norms = np.linalg.norm(B, axis=0)
+    B /= np.where(norms == 0, 1.0, norms)
+    Q = np.ascontiguousarray(s.Q)
+    B -= Q @ (Q.T @ B)
+    # and every candidate's W in one block-diagonal matrix: one product instead of a strided one per candidate
+    widths = [t._W[i].shape[1] for t in tests]
+    W = np.zeros((B.shape[1], sum(widths)))
+    ends = np.cumsum(widths)
+    for t, e, w in zip(tests, ends, widths):
+        W[slices[t.name], e - w:e] = t._W[i]
+    U = B @ W
+    return {t.name: U[:, e - w:e] for t, e, w in zip(tests, ends, widths)}
 
 
 def _log10_chi2sf(x: float, k: int) -> float:

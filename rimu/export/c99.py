@@ -236,7 +236,7 @@ def _source(cal: Calibration, real: str, fdi: FdiSettings) -> str:
                          c_effects.plan(cal).public_step(k))
     out.append(c_effects.source(cal, real))
     out.append(c_effects.unit_step(cal, "rimu_fdi_step", FDI_PARAMS, "{k}_m->iso",
-                                   "rimu_{k}_fdi_step({k}_m, {y}, {k}_valid, {k}_out);", "{k}_out->x"))
+                                   "rimu_{k}_fdi_step({k}_m, {y}, {k}_valid, {k}_out);", "{k}_out->x", clip=True))
     return "\n".join(out)
 
 

@@ -21,9 +21,11 @@ where the accelerometers' size effect needs the angular rate and the gyros need 
 first; where both need the other, ``Pipeline.cycle_rounds`` rounds of accelerometers-then-gyros with estimates
 (the fixed point of ``Pipeline._preliminary_rate``) give the angular rate the size effect uses.
 
-One difference, deliberate: inside the compensation the C estimate of u and of the preliminary rounds uses the
-sensors the projection uses (not isolated, valid flag set, finite), where the Python runtime uses every finite,
-non-isolated output; they agree wherever invalid samples are non-finite (as the C filter makes them).
+Inside the compensation the C estimate of u and of the preliminary rounds uses the sensors that are not isolated,
+flagged valid and finite, as the Python runtime (:meth:`rimu.fusion.InstrumentPipeline.usable`). In the fault
+managers' epoch (``rimu_fdi_step``) a raw output at its range limit is, as in Python, also left out of those
+estimates and handed on as it came (the step routes it around as saturated); the statistics-only ``rimu_step``
+does not judge the range (its per-instrument step has no saturation test).
 """
 
 from __future__ import annotations
@@ -436,19 +438,33 @@ def source(cal: Calibration, real: str) -> str:
     return "\n".join(parts)
 
 
-def unit_step(cal: Calibration, name: str, params: str, iso: str, call: str, x: str) -> str:
+def unit_step(cal: Calibration, name: str, params: str, iso: str, call: str, x: str, clip: bool = False) -> str:
     """A C function ``void name(rimu_real t, rimu_real temperature, <params per instrument>)`` that runs one
     epoch of the unit through the compensation and a per-instrument step, in the order and rounds of
     :meth:`rimu.fusion.Pipeline.step`. Templates (``{k}``: the instrument): ``params`` its parameters (with
     ``{k}_y`` the raw outputs and ``{k}_valid`` the flags), ``iso`` its isolated flags (unsigned char[n]),
-    ``call`` its step on raw outputs ``{y}``, ``x`` its estimate of the epoch (rimu_real[3]) after the step."""
+    ``call`` its step on raw outputs ``{y}``, ``x`` its estimate of the epoch (rimu_real[3]) after the step.
+
+    ``clip``: a raw output at its range limit (``|y| >= <k>_range``, an instrument with ``range_raw``) is judged
+    before the compensation, as the Python runtime does: it stays out of the compensation's estimates and is
+    handed to the step as it came (the step then routes it around as saturated), not compensated into the range.
+    """
     p = plan(cal)
     args = ", ".join(params.format(k=k) for k in p.instruments)
     b = [f"void {name}(rimu_real t, rimu_real temperature, {args})", "{"]
+    ranged = [k for k in p.comps if clip and getattr(cal[k], "range_raw", None) is not None]
+    vname = {k: (f"{k}_use" if k in ranged else f"{k}_valid") for k in p.instruments}
     if p.comps:
         b += ["    rimu_real f[3] = {0, 0, 0}, w[3] = {0, 0, 0}, m[RIMU_NMONO], yr[RIMU_NMAX], dT;"]
         if p.cyclic:
             b += ["    rimu_real zero[3] = {0, 0, 0}, fp[3];", "    int r;"]
+        if ranged:
+            b += ["    int i;"]
+            b += [f"    unsigned char {k}_use[RIMU_{k.upper()}_N];" for k in ranged]
+            for k in ranged:
+                b += [f"    for (i = 0; i < RIMU_{k.upper()}_N; ++i)  /* usable: flagged valid and inside the range */",
+                      f"        {k}_use[i] = (unsigned char)(({k}_valid == 0 || {k}_valid[i]) "
+                      f"&& !(fabs({k}_y[i]) >= {k}_range[i]));"]
         b += [f"    dT = {'temperature - RIMU_REFERENCE_TEMPERATURE' if p.needs_temperature else '0'};"]
         if not p.needs_time:
             b += ["    t = 0;  /* no drift term: the time is not read */"]
@@ -456,8 +472,8 @@ def unit_step(cal: Calibration, name: str, params: str, iso: str, call: str, x: 
             b += ["    (void)temperature;"]
         if p.cyclic:
             # Pipeline._preliminary_rate: accelerometers with zero rate, gyros with their force, then rounds
-            q = {k: f"{k}_q({iso.format(k=k)}, {k}_valid, {k}_y, m, yr);" for k in p.comps}
-            est = {k: f"rimu_wls(RIMU_{k.upper()}_N, {k}_axes, {k}_w, {k}_G, {iso.format(k=k)}, {k}_valid, yr, "
+            q = {k: f"{k}_q({iso.format(k=k)}, {vname[k]}, {k}_y, m, yr);" for k in p.comps}
+            est = {k: f"rimu_wls(RIMU_{k.upper()}_N, {k}_axes, {k}_w, {k}_G, {iso.format(k=k)}, {vname[k]}, yr, "
                    for k in p.comps}
             b += ["    /* the gyro <-> accelerometer fixed point (Pipeline._preliminary_rate) */",
                   "    rimu_monomials(t, dT, zero, zero, m);",
@@ -477,8 +493,11 @@ def unit_step(cal: Calibration, name: str, params: str, iso: str, call: str, x: 
         for k in p.order:
             if k in p.comps:
                 b += ["    rimu_monomials(t, dT, f, w, m);",
-                      f"    {k}_raw({iso.format(k=k)}, {k}_valid, {k}_y, m, yr);",
-                      "    " + call.format(k=k, y="yr")]
+                      f"    {k}_raw({iso.format(k=k)}, {vname[k]}, {k}_y, m, yr);"]
+                if k in ranged:
+                    b += [f"    for (i = 0; i < RIMU_{k.upper()}_N; ++i)  /* a clipped output stays clipped */",
+                          f"        if (fabs({k}_y[i]) >= {k}_range[i]) yr[i] = {k}_y[i];"]
+                b += ["    " + call.format(k=k, y="yr")]
             else:
                 b += ["    " + call.format(k=k, y=f"{k}_y")]
             if k != p.order[-1]:  # the estimate of the epoch feeds the next instrument

@@ -40,6 +40,7 @@ import numpy as np
 from scipy.stats import chi2, norm
 
 from ..errors import ExportError
+from ..fdi.health import READMIT_AFTER
 
 __all__ = ["FdiSettings"]
 
@@ -60,7 +61,7 @@ class FdiSettings:
     p_fa: float = 1e-3
     confirm: int = 3
     invalid_persist: int = 10
-    readmit_after: int | None = 100
+    readmit_after: int | None = READMIT_AFTER
     fail_after: int = 4
     backoff: float = 2.0
     clear_after: int = 50
@@ -111,6 +112,16 @@ class FdiSettings:
         from ..fusion import InstrumentPipeline
 
         return RedundancyManager(InstrumentPipeline(inst), **self.manager_kwargs())
+
+    def unit_manager(self, cal: Any, **pipeline_kwargs: Any) -> Any:
+        """The Python :class:`rimu.fdi.UnitManager` of a whole calibration with these settings: what the generated
+        ``rimu_fdi_step`` does per epoch, every further effect compensated with the managers in the loop
+        (``pipeline_kwargs`` go to :class:`rimu.fusion.Pipeline`)."""
+        from ..fdi import RedundancyManager, UnitManager
+        from ..fusion import Pipeline
+
+        pipe = Pipeline(cal, **pipeline_kwargs)
+        return UnitManager(pipe, {k: RedundancyManager(pipe[k], **self.manager_kwargs()) for k in pipe.instruments})
 
     # ---------------------------------------------------------------- tables
     def required(self) -> list[int]:
@@ -694,6 +705,7 @@ static void rimu_fdi_run(const rimu_fdi_unit *u, rimu_fdi *m, const rimu_real *y
 {
     int i, n = u->n, changed = 0, alarm, nex = 0, code_full = 1, state;
     unsigned char inv[RIMU_NMAX] = {0}, use[RIMU_NMAX] = {0}, excl[RIMU_NMAX] = {0}, notiso[RIMU_NMAX] = {0};
+    unsigned char use_y[RIMU_NMAX] = {0};
     rimu_real z[RIMU_NMAX] = {0}, stat = 0, thr = -1;
     rimu_fit f, g;
     const rimu_fit *o;
@@ -703,7 +715,8 @@ static void rimu_fdi_run(const rimu_fdi_unit *u, rimu_fdi *m, const rimu_real *y
         int good = (valid == 0 || valid[i]) && isfinite(y[i]);
         int sat = good && u->range && fabs(y[i]) >= u->range[i];
         inv[i] = (unsigned char)!good;
-        use[i] = (unsigned char)(good && !sat && !m->iso[i]);
+        use_y[i] = (unsigned char)(good && !sat);
+        use[i] = (unsigned char)(use_y[i] && !m->iso[i]);
         z[i] = use[i] ? u->sf[i] * y[i] - u->b[i] : 0;
         excl[i] = 0;
         notiso[i] = (unsigned char)!m->iso[i];
@@ -792,7 +805,7 @@ static void rimu_fdi_run(const rimu_fdi_unit *u, rimu_fdi *m, const rimu_real *y
             const rimu_real *P = o->P;
             rimu_real r, v;
             if (!m->iso[i] || m->sensor[i] == RIMU_FAILED) continue;
-            if (!((valid == 0 || valid[i]) && isfinite(y[i]))) {
+            if (!use_y[i]) {  /* no measurement (invalid, non-finite, clipped): the clean period restarts */
                 rimu_unclean(m, i);
                 continue;
             }

@@ -26,7 +26,14 @@ from enum import IntEnum
 import numpy as np
 from scipy.stats import chi2
 
-__all__ = ["SensorHealth", "SensorState"]
+__all__ = ["READMIT_AFTER", "SensorHealth", "SensorState"]
+
+#: Clean samples before an isolated sensor is re-admitted the first time (doubled at each further isolation of
+#: it): the one default of :class:`SensorHealth`, :class:`rimu.fdi.RedundancyManager`,
+#: :class:`rimu.export.FdiSettings`, ``rimu replay --readmit-after`` and ``rimu export-c --readmit-after``.
+#: 100 samples is 1 s at 100 Hz: long enough for the mean and energy tests over the clean period to see a bias
+#: of ``sqrt(chi2_1 / 100)`` ~ 0.33 sigma, short enough to bring back a sensor whose fault was a transient.
+READMIT_AFTER = 100
 
 
 class SensorState(IntEnum):
@@ -72,7 +79,7 @@ class SensorHealth:
     (True, 'FAILED')
     """
 
-    def __init__(self, n: int, readmit_after: int | None = 100, backoff: float = 2.0, fail_after: int = 4,
+    def __init__(self, n: int, readmit_after: int | None = READMIT_AFTER, backoff: float = 2.0, fail_after: int = 4,
                  mean_threshold: float = 10.83, sample_threshold: float = 23.93) -> None:
         if readmit_after is not None and readmit_after < 1:
             raise ValueError(f"readmit_after must be at least 1 sample (or None), got {readmit_after}")

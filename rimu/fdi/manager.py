@@ -40,13 +40,13 @@ from ..fusion import InstrumentPipeline, StepResult
 from ..fusion.projection import bits_mask, mask_bits
 from ..fusion.validity import Validity
 from .glt import GltSnapshot, glt_threshold, isolate_argmax
-from .health import SensorHealth, SensorState
+from .health import READMIT_AFTER, SensorHealth, SensorState
 from .kalman import ParityKalman
 from .multiple import FaultSetGlt, SetDecision
 from .parity import column_correlations
 
 __all__ = ["Detector", "FdiEvent", "FdiResult", "Health", "HealthState", "RedundancyManager", "ReplayResult",
-           "SensorState", "Validity"]
+           "SensorState", "Validity", "unisolated_alarm_runs"]
 
 
 class Detector(Protocol):
@@ -174,6 +174,33 @@ class ReplayResult:
         return int(np.count_nonzero(out[1:] != out[:-1]) + (1 if len(out) and out[0] else 0))
 
 
+def unisolated_alarm_runs(result: ReplayResult, confirm: int = 3) -> list[float]:
+    """Times at which a run of ``confirm`` consecutive alarms completes without an isolation at that sample.
+
+    One entry per run of alarms (a run of 7 alarms with ``confirm=3`` counts once, at its 3rd sample); a run
+    that completes at a sample where the manager logged an ``isolated`` or ``invalid_isolated`` event is left
+    out. These are the faults the manager saw with confirmation but did not isolate: the detections of a unit
+    that cannot isolate (two parallel triads), or the confirmed false alarms of a fault-free recording.
+    Times as in ``result.t`` (s, or sample indices; see :class:`ReplayResult`).
+
+    >>> r = ReplayResult(np.arange(12.0), np.zeros((12, 3)), np.zeros(12), np.ones(12),
+    ...                  np.array([1, 1, 1, 1, 0, 1, 1, 0, 1, 1, 1, 0], bool), np.zeros(12, np.int8),
+    ...                  np.zeros(12, np.int8), [FdiEvent(10, 10.0, "isolated", "x1", "")], ["x1"])
+    >>> unisolated_alarm_runs(r)
+    [2.0]
+    """
+    if confirm < 1:
+        raise ValueError(f"confirm must be at least 1 sample, got {confirm}")
+    iso_t = {float(e.t) for e in result.events if e.kind in ("isolated", "invalid_isolated")}
+    a = np.asarray(result.alarm, dtype=bool)
+    # run length at each sample: samples since the last non-alarm sample, where alarmed
+    idx = np.arange(len(a))
+    last_quiet = np.maximum.accumulate(np.where(a, -1, idx))
+    run = np.where(a, idx - last_quiet, 0)
+    t = np.asarray(result.t, dtype=float)
+    return [float(x) for x in t[run == confirm] if float(x) not in iso_t]
+
+
 def _evidence_detector(det: Any) -> bool:
     """Detectors whose alarms come from the parity vector's size (the set GLT can then name the set)."""
     return isinstance(det, (GltSnapshot, ParityKalman))
@@ -202,7 +229,8 @@ class RedundancyManager:
         Consecutive invalid samples of one sensor before it is isolated.
     readmit_after : int or None
         Clean samples before an isolated sensor is re-admitted the first time (doubled at each further
-        isolation of that sensor, ``backoff``); None: never automatically.
+        isolation of that sensor, ``backoff``); None: never automatically. Default
+        :data:`rimu.fdi.health.READMIT_AFTER` (100), the default of every entry point.
     sample_rate : float, optional
         Hz, for the times (s) of samples and events when :meth:`step` or :meth:`run` gets no ``t``
         (``index / sample_rate``); without it and without ``t`` the times are sample indices.
@@ -238,7 +266,7 @@ class RedundancyManager:
     """
 
     def __init__(self, pipeline: InstrumentPipeline, detector: Detector | None = None, *, p_fa: float = 1e-3,
-                 confirm: int = 3, invalid_persist: int = 10, readmit_after: int | None = 100,
+                 confirm: int = 3, invalid_persist: int = 10, readmit_after: int | None = READMIT_AFTER,
                  sample_rate: float | None = None, max_events: int = 10000,
                  isolator: FaultSetGlt | str | None = None, fail_after: int = 4, backoff: float = 2.0,
                  clear_after: int = 50, episode_gap: int | None = None) -> None:
@@ -292,6 +320,9 @@ class RedundancyManager:
     def for_unit(cls, pipeline: Any, **kwargs: Any) -> dict[str, RedundancyManager]:
         """One manager per instrument of a :class:`rimu.fusion.Pipeline` (same settings for each; a detector
         object cannot be shared, so pass ``detector_factory=lambda instrument_pipeline: ...`` instead).
+
+        Each manager decides on what it is given (``SF y - B``): where the calibration holds further effects, run
+        them through :class:`rimu.fdi.UnitManager`, which compensates every effect with the managers in the loop.
 
         >>> from rimu.calibration import Calibration, InstrumentCalibration
         >>> from rimu.fusion import Pipeline
@@ -431,8 +462,7 @@ class RedundancyManager:
         :attr:`health` holds the state, alarm and statistic after this sample.
         """
         pipe = self.pipeline
-        if pipe._isolated.tobytes() != self._iso_bytes:  # someone changed the pipeline: the manager's set rules
-            pipe.set_isolated(self._iso)
+        self.sync_pipeline()
         r = pipe.step(y, valid)
         self.samples += 1
         h = self.health
@@ -484,6 +514,14 @@ class RedundancyManager:
                 and not self._not_isolable and not self._ep_alarms:
             self._readmission(np.asarray(y, dtype=float), valid, res, t)
         return res
+
+    def sync_pipeline(self) -> None:
+        """Give the pipeline the manager's isolation set (done at the start of every :meth:`step`; a compensation
+        stage that estimates on the pipeline's sensors before the step, :class:`rimu.fdi.UnitManager`, calls it
+        first). The set changes only here: a decision of a sample takes effect at the next one."""
+        pipe = self.pipeline
+        if pipe._isolated.tobytes() != self._iso_bytes:  # someone changed the pipeline: the manager's set rules
+            pipe.set_isolated(self._iso)
 
     def _output(self, r: StepResult, exclude: tuple[int, ...]) -> FdiResult:
         """Fill the result: the pipeline's sample, or the same sample without ``exclude`` (x, P, parity together)."""
@@ -708,14 +746,23 @@ class RedundancyManager:
         return changed
 
     def _readmission(self, y: np.ndarray, valid: np.ndarray | None, res: FdiResult, t: float) -> None:
+        """The re-admission test of each isolated sensor on this sample: its compensated output against the
+        estimate of the others, ``(z_j - a_j x) / sqrt(sigma_j^2 + a_j P a_j)``.
+
+        ``z_j = SF_j y_j - b_j`` is the compensated output the pipeline would use: ``y`` is what the pipeline
+        got, which, where the calibration holds further effects (temperature, drift, g-sensitivity, ...), is the
+        compensation stage's output (an ideal SF/M/B sensor's raw value; :meth:`rimu.fusion.Pipeline.step_through`,
+        :class:`rimu.fdi.UnitManager`), never the device's raw value. A sample that is no measurement (non-finite,
+        flagged invalid, or clipped at the range limit: :meth:`rimu.fusion.InstrumentPipeline.usable`) restarts
+        the sensor's clean period."""
         sig = self.pipeline.table.sigma
         sh = self.sensors
         back = []
+        usable = self.pipeline.usable(y[None], None if valid is None else np.asarray(valid)[None])[0]
         for j in np.flatnonzero(self._iso):
             if sh.state[j] == SensorState.FAILED:
                 continue
-            ok = np.isfinite(y[j]) and (valid is None or bool(valid[j]))
-            if not ok:
+            if not usable[j]:
                 sh.unclean(int(j))
                 continue
             a = self._axes[j]
@@ -745,40 +792,49 @@ class RedundancyManager:
         if t is None:
             base = self.samples
             t = (base + np.arange(N)) / (self.sample_rate or 1.0)
-        n = self.n
-        out = {"x": np.zeros((N, 3)), "stat": np.zeros(N), "thr": np.zeros(N), "alarm": np.zeros(N, bool),
-               "state": np.zeros(N, np.int8), "n_act": np.zeros(N, np.int8), "validity": np.zeros(N, np.int8),
-               "sensor": np.zeros((N, n), np.int8), "active": np.zeros((N, n), bool), "P": np.zeros((N, 3))}
-        first = len(self.events)
+        t = np.asarray(t, float)
+        out = _Collector(self, N)
         with np.errstate(invalid="ignore", over="ignore"):  # non-finite raw values are routed around, not warned
-            self._run_loop(Y, valid, np.asarray(t, float), out)
-        return ReplayResult(np.asarray(t, float), out["x"], out["stat"], out["thr"], out["alarm"], out["state"],
-                            out["n_act"], self.events[first:], self.names, out["validity"], out["sensor"],
-                            out["active"], out["P"])
+            for k in range(N):
+                out.add(k, self.step(Y[k], None if valid is None else valid[k], float(t[k])))
+        return out.result(t)
 
-    def _run_loop(self, Y: np.ndarray, valid: np.ndarray | None, t: np.ndarray, o: dict[str, np.ndarray]) -> None:
-        x, stat, thr, alarm, state = o["x"], o["stat"], o["thr"], o["alarm"], o["state"]
-        validity, sensor = o["validity"], o["sensor"]
-        entry = np.full(len(Y), -1, dtype=np.int64)
-        obs = np.zeros(len(Y), bool)
-        codes = STATE_CODES
-        sh = self.sensors
-        seen: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # entry -> (active, diag P), while the set is cached
-        for k in range(len(Y)):
-            r = self.step(Y[k], None if valid is None else valid[k], float(t[k]))
-            x[k] = r.x
-            stat[k], thr[k], alarm[k] = r.statistic, r.threshold, r.alarm
-            state[k] = codes[r.state]
-            validity[k] = r.validity
-            e = r.entry
-            entry[k] = e
-            obs[k] = r.observable
-            sensor[k] = sh.state
-            if e not in seen:
-                seen[e] = (np.asarray(r.active, bool).copy(), np.diagonal(r.P).copy())
-        for e, (act, pd) in seen.items():
-            rows = (entry == e) & obs
-            o["active"][rows] = act
-            o["P"][rows] = pd
-        o["P"][~obs] = np.inf
-        o["n_act"][:] = o["active"].sum(axis=1)
+
+class _Collector:
+    """The per-sample outputs of one manager over N samples, gathered into a :class:`ReplayResult` (the active
+    set and covariance diagonal are filled per set at the end, not copied per sample)."""
+
+    def __init__(self, mgr: RedundancyManager, N: int) -> None:
+        n = mgr.n
+        self.mgr = mgr
+        self.first = len(mgr.events)
+        self.x, self.stat, self.thr = np.zeros((N, 3)), np.zeros(N), np.zeros(N)
+        self.alarm, self.state = np.zeros(N, bool), np.zeros(N, np.int8)
+        self.validity, self.sensor = np.zeros(N, np.int8), np.zeros((N, n), np.int8)
+        self.entry = np.full(N, -1, dtype=np.int64)
+        self.obs = np.zeros(N, bool)
+        self.seen: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # entry -> (active, diag P), while the set is cached
+
+    def add(self, k: int, r: FdiResult) -> None:
+        self.x[k] = r.x
+        self.stat[k], self.thr[k], self.alarm[k] = r.statistic, r.threshold, r.alarm
+        self.state[k] = STATE_CODES[r.state]
+        self.validity[k] = r.validity
+        e = r.entry
+        self.entry[k] = e
+        self.obs[k] = r.observable
+        self.sensor[k] = self.mgr.sensors.state
+        if e not in self.seen:
+            self.seen[e] = (np.asarray(r.active, bool).copy(), np.diagonal(r.P).copy())
+
+    def result(self, t: np.ndarray) -> ReplayResult:
+        N, mgr = len(self.entry), self.mgr
+        active, P = np.zeros((N, mgr.n), bool), np.zeros((N, 3))
+        for e, (act, pd) in self.seen.items():
+            rows = (self.entry == e) & self.obs
+            active[rows] = act
+            P[rows] = pd
+        P[~self.obs] = np.inf
+        return ReplayResult(t, self.x, self.stat, self.thr, self.alarm, self.state,
+                            active.sum(axis=1).astype(np.int8), mgr.events[self.first:], mgr.names, self.validity,
+                            self.sensor, active, P)

@@ -33,6 +33,7 @@ from scipy.stats import chi2, ncx2
 from ..fusion import InstrumentPipeline
 from ..fusion.validity import Validity
 from .campaign import check_spec, run_tasks, split_isolations
+from .health import READMIT_AFTER
 from .manager import RedundancyManager
 
 __all__ = ["SCENARIOS", "ScenarioSpec", "run_scenarios", "scenario_table"]
@@ -70,7 +71,7 @@ class ScenarioSpec:
     """False-alarm probability per sample of the manager's detection test."""
     confirm: int = 3
     """Alarms in a row before the manager isolates."""
-    readmit_after: int = 100
+    readmit_after: int = READMIT_AFTER
     """Clean samples before an isolated sensor is re-admitted."""
     base_seed: int = 14
     """Seed of the whole campaign (each run's seed derives from it)."""

@@ -19,7 +19,9 @@ from ..calibration.result import Calibration
 from ..fusion import Pipeline
 from ..fusion.validation import InstrumentErrors, segment_errors, session_block
 from ..session import Session
+from .health import READMIT_AFTER
 from .manager import RedundancyManager, ReplayResult
+from .unit import UnitManager
 
 __all__ = ["InstrumentValidation", "validate"]
 
@@ -40,11 +42,12 @@ class InstrumentValidation:
 
 
 def validate(session: Session, calibration: Calibration, p_fa: float = 1e-3, confirm: int = 5,
-             injections: Sequence[Any] = (), seed: int = 0, readmit_after: int | None = 100,
+             injections: Sequence[Any] = (), seed: int = 0, readmit_after: int | None = READMIT_AFTER,
              detector: Callable[[Any], Any] | None = None) -> dict[str, InstrumentValidation]:
     """Replay ``session`` with ``calibration`` through the pipeline and the FDI (snapshot GLT at ``p_fa`` per
-    sample, ``confirm`` consecutive alarms to isolate); per instrument the runtime errors, the samples that
-    alarmed and the isolations. The whole session is held in memory: this is also the reference that the
+    sample, ``confirm`` consecutive alarms to isolate; further effects compensated with the managers in the loop,
+    :class:`rimu.fdi.UnitManager`); per instrument the runtime errors, the samples that alarmed and the
+    isolations. The whole session is held in memory: this is also the reference that the
     streaming ``rimu replay`` is checked against.
 
     ``injections`` (:class:`rimu.fdi.faults.Injection`, drawn with ``seed``) are injected into the raw data
@@ -63,15 +66,16 @@ def validate(session: Session, calibration: Calibration, p_fa: float = 1e-3, con
         from .faults import inject
 
         block = inject(block, list(injections), calibration, seed=seed)
-    pipe = Pipeline(calibration, temperature=block.temperature is not None)
-    comp = pipe.compensate(block)
+    insts = [k for k in calibration.instruments if k in block.raw]
+    sub = Calibration({k: calibration[k] for k in insts}, calibration.raw_unit, calibration.method,
+                      calibration.created, dict(calibration.metadata))
+    pipe = Pipeline(sub, temperature=block.temperature is not None)
+    um = UnitManager(pipe, {k: RedundancyManager(pipe[k], None if detector is None else detector(pipe[k]), p_fa=p_fa,
+                                                 confirm=confirm, readmit_after=readmit_after) for k in insts})
+    results = um.run(block)  # closed loop with the compensation of further effects (rimu.fdi.unit)
     out: dict[str, InstrumentValidation] = {}
-    for k in pipe.instruments:
-        if k not in comp.raw:
-            continue
-        mgr = RedundancyManager(pipe[k], None if detector is None else detector(pipe[k]), p_fa=p_fa,
-                                confirm=confirm, readmit_after=readmit_after)
-        res = mgr.run(comp.raw[k], comp.valid.get(k), comp.t)
+    for k in insts:
+        mgr, res = um.managers[k], results[k]
         err = segment_errors(session, k, np.asarray(res.x), index)
         n_iso = sum(1 for e in res.events if e.kind in ("isolated", "invalid_isolated"))
         out[k] = InstrumentValidation(err, int(np.count_nonzero(res.alarm)), n_iso, res, mgr.state.value)

@@ -755,6 +755,26 @@ class Pipeline:
             res_c = self._step_compiled(epoch)
             if res_c is not None:
                 return res_c
+        return self._step_numpy(epoch, lambda k, y, valid: self.instruments[k].step(y, valid))
+
+    def step_through(self, epoch: Epoch, step: Any) -> dict[str, Any]:
+        """One epoch through the compensation stage, each instrument's step done by ``step``.
+
+        ``step(instrument, y, valid)`` gets the instrument's raw outputs with every further effect removed
+        (an ideal SF/M/B unit's raw data; a clipped output stays as it came), in the pipeline's order, and
+        returns a result whose ``x`` (3,) is the instrument's estimate of the epoch: that estimate is the input
+        of the next instrument's effects (the specific force of the gyros' g-sensitivity, the rate of the
+        accelerometers' size effect). The estimates inside the compensation use the non-isolated, usable
+        sensors of each instrument pipeline. :meth:`step` is ``step_through`` with the instrument pipelines'
+        own steps; :class:`rimu.fdi.UnitManager` passes its redundancy managers' steps, so that the
+        compensation, the isolation set and the estimate feeding the other instrument are those of the
+        managers (as the exported C's ``rimu_fdi_step``). Returns ``{instrument: step's result}``.
+        """
+        if not self.compensation:
+            return {k: step(k, epoch.raw[k], epoch.valid.get(k)) for k in self.instruments}
+        return self._step_numpy(epoch, step)
+
+    def _step_numpy(self, epoch: Epoch, step: Any) -> dict[str, Any]:
         T = self._origin(epoch.temperature, float(epoch.t))
         t = float(epoch.t) - self.t0
         dT = 0.0 if T is None else float(T) - self._t_ref
@@ -787,13 +807,13 @@ class Pipeline:
         if self._cyclic:
             w = self._preliminary_rate(lambda k, f_, w_: np.asarray(ests[k](solve_q(k, f_, w_))).tolist(),
                                        [0.0, 0.0, 0.0])
-        res: dict[str, StepResult] = {}
+        res: dict[str, Any] = {}
         for k in self._order:
             comp = comps.get(k)
             y = epoch.raw[k] if comp is None else solve_q(k, f, w, raw=True)
             if comp is not None and clips[k].any():  # a clipped output stays clipped: the projection routes it
                 y = np.where(clips[k], np.asarray(epoch.raw[k], dtype=float), y)
-            r = self.instruments[k].step(y, epoch.valid.get(k))
+            r = step(k, y, epoch.valid.get(k))
             res[k] = r
             if k == "accel":
                 f = r.x.tolist()

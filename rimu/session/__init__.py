@@ -7,7 +7,15 @@ constant memory, and ``rimu.session.loaders`` one module per third-party recordi
 
 from .loaders import FERRARIS_SECTIONS, load_ferraris
 from .model import SEGMENT_KINDS, Segment, Session, earth_rate_ln, rotation_matrix, skew
-from .native import SESSION_FORMAT, SESSION_FORMAT_VERSION, load_session, save_session, session_sidecar
+from .native import (
+    SESSION_FORMAT,
+    SESSION_FORMAT_VERSION,
+    load_session,
+    save_session,
+    session_from_sidecar,
+    session_sidecar,
+    sidecar_geometries,
+)
 from .stream import iter_blocks
 
 __all__ = [
@@ -23,6 +31,8 @@ __all__ = [
     "load_session",
     "rotation_matrix",
     "save_session",
+    "session_from_sidecar",
     "session_sidecar",
+    "sidecar_geometries",
     "skew",
 ]

@@ -16,7 +16,8 @@ from ..errors import RimuError, SessionFormatError
 from ..units import G0
 from .model import Segment, Session
 
-__all__ = ["SESSION_FORMAT", "SESSION_FORMAT_VERSION", "load_session", "save_session", "session_sidecar"]
+__all__ = ["SESSION_FORMAT", "SESSION_FORMAT_VERSION", "load_session", "save_session", "session_from_sidecar",
+           "session_sidecar", "sidecar_geometries"]
 
 log = logging.getLogger(__name__)
 
@@ -250,7 +251,15 @@ def _check_sidecar(side: object, src: str) -> None:
             raise SessionFormatError(f"{src}: segments[{k}] needs 'label' and 'kind'")
 
 
-def _geometries(side: dict, src: str) -> dict:
+def sidecar_geometries(side: dict, src: str = "sidecar") -> dict:
+    """The geometry of each instrument a session sidecar names (a preset name or a geometry dict).
+
+    ``src`` names the file in error messages. Raises :class:`rimu.errors.SessionFormatError` for a geometry it
+    cannot build.
+
+    >>> sorted(sidecar_geometries({"geometries": {"gyro": "cone6"}})["gyro"].names)
+    ['x1', 'x2', 'y1', 'y2', 'z1', 'z2']
+    """
     from ..errors import GeometryError
     from ..geometry import Geometry, preset
 
@@ -285,8 +294,15 @@ def _segment_from_sidecar(d: dict, t: np.ndarray, raw: dict, temp, gravity: floa
         raise SessionFormatError(f"{src}: segments[{k}]: {exc}") from exc
 
 
-def _build(side: dict, t: np.ndarray, seg_idx: np.ndarray, raw: dict, temp, src: str) -> Session:
-    geoms = _geometries(side, src)
+def session_from_sidecar(side: dict, t: np.ndarray, seg_idx: np.ndarray, raw: dict, temp: np.ndarray | None = None,
+                         src: str = "sidecar") -> Session:
+    """A :class:`Session` from a sidecar (:func:`session_sidecar`) and its samples: times ``t`` (N,), s, the
+    index of each sample's segment in the sidecar's ``segments`` (N,), ``raw`` per instrument (N, n) in raw
+    units and the temperature (N,) degC or None. Every sidecar field is checked (gravity, latitude, raw units,
+    segment inputs), as :func:`load_session` does; a segment without samples is a
+    :class:`rimu.errors.SessionFormatError` naming it. ``src`` names the file in error messages.
+    """
+    geoms = sidecar_geometries(side, src)
     gravity = side.get("gravity_m_s2") or G0
     if not isinstance(gravity, (int, float)) or not 9.0 < gravity < 10.5:
         raise SessionFormatError(f"{src}: gravity_m_s2 must be the local gravity in m/s^2 (about 9.78 to 9.83), got "
@@ -327,7 +343,7 @@ def read_header(reader: Any, path: Path, need: list[str]) -> list[str]:
 def npz_layout(side: dict, present: Any, path: Path) -> tuple[dict, list[str]]:
     """The geometries of an NPZ session's sidecar and the arrays it must hold, checked against those ``present``."""
     _check_sidecar(side, str(path))
-    geoms = _geometries(side, str(path))
+    geoms = sidecar_geometries(side, str(path))
     need = ["t", "segment"] + [f"raw_{k}" for k in geoms]
     missing = [c for c in need if c not in present]
     if missing:
@@ -338,7 +354,7 @@ def npz_layout(side: dict, present: Any, path: Path) -> tuple[dict, list[str]]:
 def _load_csv(path: Path, side: dict, src: Path) -> Session:
     if not path.exists():
         raise SessionFormatError(f"{src}: its data file {path} does not exist")
-    geoms = _geometries(side, str(src))
+    geoms = sidecar_geometries(side, str(src))
     need = ["t", "segment"] + _columns(geoms)
     with path.open(newline="") as fh:
         reader = csv.reader(fh)
@@ -391,7 +407,7 @@ def _load_csv(path: Path, side: dict, src: Path) -> Session:
             raw[k] = data[:, c0:c0 + geoms[k].n]
             c0 += geoms[k].n
     temp = data[:, c0] if "temperature" in header else None
-    return _build(side, t, seg_idx, raw, temp, str(src))
+    return session_from_sidecar(side, t, seg_idx, raw, temp, str(src))
 
 
 def _load_npz(path: Path) -> Session:
@@ -468,4 +484,4 @@ def _load_npz(path: Path) -> Session:
         temp = np.asarray(z["temperature"], dtype=float)
         if temp.shape != (N,) or not np.all(np.isfinite(temp)):
             raise SessionFormatError(f"{path}: 'temperature' must hold N={N} finite values, got shape {temp.shape}")
-    return _build(side, t, seg_idx, raw, temp, str(path))
+    return session_from_sidecar(side, t, seg_idx, raw, temp, str(path))

@@ -30,7 +30,7 @@ import numpy as np
 
 from ..epoch import EpochBlock
 from ..errors import SessionFormatError
-from .native import _check_sidecar, _columns, _geometries, _read_sidecar, npz_layout, read_header
+from .native import _check_sidecar, _columns, _read_sidecar, npz_layout, read_header, sidecar_geometries
 
 __all__ = ["iter_blocks"]
 
@@ -82,7 +82,7 @@ def _meta(side: dict, seg: np.ndarray) -> dict:
 
 def _iter_csv(path: Path, side: dict, src: Path, chunk: int) -> Iterator[EpochBlock]:
     _check_sidecar(side, str(src))
-    geoms = _geometries(side, str(src))
+    geoms = sidecar_geometries(side, str(src))
     need = ["t", "segment"] + _columns(geoms)
     if not path.exists():
         raise SessionFormatError(f"{src}: its data file {path} does not exist")

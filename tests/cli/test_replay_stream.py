@@ -36,7 +36,7 @@ def in_memory(data, cal_path, specs):  # type: ignore[no-untyped-def]
 
     session = load_session(data)
     v = validate(session, Calibration.load(cal_path), p_fa=1e-3, confirm=3,
-                 injections=[parse_injection(s) for s in specs], seed=0, readmit_after=None,
+                 injections=[parse_injection(s) for s in specs], seed=0,
                  detector=lambda pipe: make_detector(CampaignSpec(), pipe.table.sigma))
     n = sum(s.n_samples for s in session.segments)
     return {k: (r.replay, {"alarms": r.alarms, "isolations": r.isolations, "final_state": r.final_state,

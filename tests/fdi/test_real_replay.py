@@ -68,21 +68,13 @@ def test_full_replay_without_isolation(kind, run):
     assert not problems, "; ".join(problems)
 
 
-def _confirmed_runs(alarm: np.ndarray, confirm: int = 3) -> int:
-    run = n = 0
-    for a in alarm:
-        run = run + 1 if a else 0
-        n += run == confirm
-    return n
-
-
 def test_motion_aware_thresholds_stop_the_flight_alarms():
     """Held out: the motion terms are fitted (margin 10) on the first half of each fault-free recording and the
     second half is replayed. Under the test's model a run of 3 consecutive alarms has probability about
     p_fa^3 = 1e-9 per sample, so none is expected in these few thousand samples; the plain GLT raises such runs
     in flight (the disagreement between triads grows with the motion), the motion-aware GLT must raise none,
     and neither isolates anything."""
-    from rimu.fdi import fit_motion_detector
+    from rimu.fdi import fit_motion_detector, unisolated_alarm_runs
 
     plain_runs = motion_runs = 0
     n_total = 0
@@ -104,9 +96,9 @@ def test_motion_aware_thresholds_stop_the_flight_alarms():
             res = mgr.run(b.raw["gyro"][~first], b.valid["gyro"][~first], b.t[~first])
             assert not [e for e in res.events if e.kind in ("isolated", "invalid_isolated")], (kind, run, d)
             if d is None:
-                plain_runs += _confirmed_runs(res.alarm)
+                plain_runs += len(unisolated_alarm_runs(res))
             else:
-                motion_runs += _confirmed_runs(res.alarm)
+                motion_runs += len(unisolated_alarm_runs(res))
         n_total += int((~first).sum())
     if n_total == 0:
         pytest.skip("no shared multi-IMU recording here")
