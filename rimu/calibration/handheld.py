@@ -1200,7 +1200,8 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         x, Dth = model_x(theta, pre, jac=True, Gm=Gm)
         Rx, Eb, Ca = np.split(_rodrigues(np.concatenate([x, phi_b, psi_a])), 3)
         Rm = pre[1] @ Rx
-        Dth = _right_jacobian(x) @ Dth  # d Exp(x) = Exp(x) [Jr(x) dx]x
+        if float(np.max(np.abs(x))) > 1e-3:  # d Exp(x) = Exp(x) [Jr(x) dx]x; Jr = I to 5e-4 below 1 mrad
+            Dth = _right_jacobian(x) @ Dth
         Cb = Rm @ Eb
         v = (Ca @ dirs[ka][:, :, None])[:, :, 0]
         CbT = Cb.transpose(0, 2, 1)
