@@ -1,6 +1,7 @@
 """FDI benchmarks: per-sample cost of detection + isolation beside the bare compensation step; the block
-(vectorised) paths of the GLT, the CUSUM bank and the Kalman detector side by side on the same blocks (the GLT is
-the reference, timed in the same run, interleaved); the detectors' design figures measured next to their theory
+(vectorised) paths of the GLT, the CUSUM bank and the Kalman detector side by side on the same blocks, the CUSUM and
+Kalman ones for the numpy backend and, where numba is installed, the compiled one (the GLT is the reference, timed in
+the same run, interleaved); the detectors' design figures measured next to their theory
 (CUSUM detection delay and in-control run length, false-alarm rates); campaign throughput with 1 and 2 workers.
 Prints tables and one JSON line (medians of repeated runs).
 
@@ -19,7 +20,7 @@ from scipy.stats import norm
 from rimu.fdi import CusumBank, GltSnapshot, GltWindow, ParityKalman, RedundancyManager, markov_arl, siegmund_arl
 from rimu.fdi.campaign import CampaignSpec, clopper_pearson, run_campaign
 from rimu.fdi.cusum import bias_delays
-from rimu.fusion import InstrumentPipeline
+from rimu.fusion import InstrumentPipeline, numba_available
 from rimu.geometry import cone6
 from rimu.sim import cho_park_table3
 from rimu.units import DS_TO_RS
@@ -123,13 +124,19 @@ def block_paths(N: int, repeats: int) -> dict:
     faulty[N // 2:] += 1.0 * V6[:, 2]                     # 1 sigma bias in the second half: CUSUM alarms ~ every 40
     large = quiet.copy()
     large[N // 2:] += 10.0 * V6[:, 2]                     # 10 sigma: an alarm every second sample
-    dets = {"GLT snapshot (reference)": GltSnapshot(1e-3), "CUSUM bank, ARL0 1e5": CusumBank(1.0, 1e5),
-            "CUSUM, no restart at alarms": _NoRestart(CusumBank(1.0, 1e5)),
-            "Kalman, estimate test": ParityKalman(20.0, 1e-3), "Kalman, innovation test": ParityKalman(20.0, 1e-3, test="innovation")}
+    dets = {"GLT snapshot (reference)": GltSnapshot(1e-3),
+            "CUSUM bank, ARL0 1e5, numpy": CusumBank(1.0, 1e5, backend="numpy"),
+            "CUSUM, no restart, numpy": _NoRestart(CusumBank(1.0, 1e5, backend="numpy"))}
+    if numba_available():
+        dets["CUSUM bank, ARL0 1e5, numba"] = CusumBank(1.0, 1e5, backend="numba")
+        dets["CUSUM, no restart, numba"] = _NoRestart(CusumBank(1.0, 1e5, backend="numba"))
+    for be in ("numpy", "numba") if numba_available() else ("numpy",):
+        dets[f"Kalman, estimate test, {be}"] = ParityKalman(20.0, 1e-3, backend=be)
+        dets[f"Kalman, innovation test, {be}"] = ParityKalman(20.0, 1e-3, test="innovation", backend=be)
     ref = "GLT snapshot (reference)"
     res: dict = {}
     print(f"\nblock paths, {N} samples of cone6 parity (dof 3); ns per sample, median of {repeats}; ratio to the GLT")
-    print(f"{'detector':<30} {'in control':>11} {'ratio':>6} {'1 sigma bias, 2nd half':>23} {'ratio':>6} "
+    print(f"{'detector':<32} {'in control':>11} {'ratio':>6} {'1 sigma bias, 2nd half':>23} {'ratio':>6} "
           f"{'10 sigma, 2nd half':>19} {'ratio':>6}")
     for label, P in (("in_control", quiet), ("bias_1sigma_second_half", faulty), ("bias_10sigma_second_half", large)):
         times: dict[str, list[float]] = {k: [] for k in dets}
@@ -142,7 +149,7 @@ def block_paths(N: int, repeats: int) -> dict:
                 times[k].append(time.perf_counter() - t0)
         res[label] = {k: {"ns_per_sample": float(np.median(v)) / N * 1e9,
                           "ratio_to_glt": float(np.median(np.array(v) / np.array(times[ref])))} for k, v in times.items()}
-        res[label]["CUSUM bank, ARL0 1e5"]["alarms"] = int((dets["CUSUM bank, ARL0 1e5"].block(P, V6, 3)[0] > 1).sum())
+        res[label]["CUSUM bank, ARL0 1e5, numpy"]["alarms"] = int((dets["CUSUM bank, ARL0 1e5, numpy"].block(P, V6, 3)[0] > 1).sum())
     # the per-sample path of the CUSUM bank over the same samples (update() in a loop), on a tenth of the block
     bank = CusumBank(1.0, 1e5)
     n_step = max(N // 10, 1000)
@@ -156,9 +163,9 @@ def block_paths(N: int, repeats: int) -> dict:
     res["cusum_update_loop_ns_per_sample"] = float(np.median(ts)) / n_step * 1e9
     for k in dets:
         a, b, c = res["in_control"][k], res["bias_1sigma_second_half"][k], res["bias_10sigma_second_half"][k]
-        print(f"{k:<30} {a['ns_per_sample']:11.1f} {a['ratio_to_glt']:6.2f} {b['ns_per_sample']:23.1f} {b['ratio_to_glt']:6.2f} "
+        print(f"{k:<32} {a['ns_per_sample']:11.1f} {a['ratio_to_glt']:6.2f} {b['ns_per_sample']:23.1f} {b['ratio_to_glt']:6.2f} "
               f"{c['ns_per_sample']:19.1f} {c['ratio_to_glt']:6.2f}")
-    print(f"{'CUSUM update() loop':<30} {res['cusum_update_loop_ns_per_sample']:11.1f} "
+    print(f"{'CUSUM update() loop':<32} {res['cusum_update_loop_ns_per_sample']:11.1f} "
           f"{res['cusum_update_loop_ns_per_sample'] / res['in_control'][ref]['ns_per_sample']:6.2f}")
     return res
 

@@ -45,6 +45,8 @@ import numpy as np
 from scipy.optimize import brentq
 from scipy.stats import norm  # noqa: F401  (used by the doctests)
 
+from ..errors import NonFiniteError, ShapeError
+from ..fusion.backend import resolve_backend
 from .whitening import window_covariance
 
 __all__ = ["siegmund_arl", "cusum_threshold", "cusum_threshold_mixture", "markov_arl", "CusumBank", "bias_delays"]
@@ -169,6 +171,10 @@ class CusumBank:
         In-control average run length of the whole bank, samples.
     noise : NoiseSettings or noise model, optional
         The sensors' noise model: each statistic is designed on its effective sigma (module docstring).
+    backend : {"auto", "numpy", "numba"}, optional
+        Implementation of :meth:`block` (:mod:`rimu.fusion.backend`; default ``RIMU_BACKEND``, else ``auto``:
+        numba where it is installed). Both give the same bits; the compiled kernel
+        (:func:`rimu.fdi._kernels.cusum_block`) costs the same however many alarms restart the bank.
 
     Notes
     -----
@@ -208,7 +214,8 @@ class CusumBank:
     #: multiple of 16
     REBASE = 4096
 
-    def __init__(self, bias: float | np.ndarray, arl0: float = 1e5, noise: object = None) -> None:
+    def __init__(self, bias: float | np.ndarray, arl0: float = 1e5, noise: object = None,
+                 backend: str | None = None) -> None:
         from .glt import as_noise_settings
 
         self.bias = np.asarray(bias, dtype=float)
@@ -216,6 +223,7 @@ class CusumBank:
             raise ValueError("the design bias must be positive")
         self.arl0 = float(arl0)
         self.noise = as_noise_settings(noise)
+        self.backend = resolve_backend(backend)
         self._dof = 0
         self._n = 0
         self._na = 0
@@ -340,22 +348,48 @@ class CusumBank:
 
         Equal, bit for bit, to :meth:`configure` then :meth:`update` per sample with :meth:`reset` after each
         alarm (class notes); with ``restart=False``, to :meth:`update` alone (what the manager does while the
-        active set stays the same: nothing restarts at an alarm), and then one vectorised pass whatever the
-        alarms. Vectorised over samples, in chunks of :data:`REBASE` samples, each cut into blocks
-        of 16 laid side by side, (stat, 16, blocks): the 16 steps of the running sums and minima inside the
-        blocks are whole-array operations, the carries between blocks a short sequential scan. After an alarm
-        the next one is searched in time order, over windows that grow from twice the last gap.
+        active set stays the same: nothing restarts at an alarm). The numba backend runs
+        :func:`rimu.fdi._kernels.cusum_block`: one compiled pass, whatever the alarms. The numpy backend is
+        vectorised over samples, in chunks of :data:`REBASE` samples, each cut into blocks of 16 laid side by
+        side, (stat, 16, blocks): the 16 steps of the running sums and minima inside the blocks are whole-array
+        operations, the carries between blocks a short sequential scan; with ``restart=False`` that is one pass
+        whatever the alarms; with restarts the next alarm after each one is searched in time order, over
+        windows that grow from twice the last gap.
+
+        Raises
+        ------
+        ShapeError
+            ``P`` is not (N, >= dof).
+        NonFiniteError
+            ``P`` holds NaN or inf in its first ``dof`` columns (a running sum would carry it on).
         """
         P = np.asarray(P, dtype=float)
+        if P.ndim != 2 or P.shape[1] < max(dof, 0):
+            raise ShapeError(f"the parity block must be (N, >= dof = {dof}), got shape {P.shape}")
         N = len(P)
-        out = np.zeros(N)
-        iso = np.full(N, -1)
-        if dof < 1 or N == 0:
+        if dof >= 1 and N:
+            idx, W, half, inv = self._slopes(Vz, dof)
+        if dof < 1 or N == 0 or len(idx) == 0:
+            return np.zeros(N), 1.0, np.full(N, -1)
+        if self.backend == "numba":
+            from ._kernels import cusum_block
+
+            out, iso = np.empty(N), np.empty(N, dtype=np.int64)
+            if not cusum_block(P, W, half, inv, idx, dof >= 2, int(self.REBASE), _BLK, bool(restart), out, iso):
+                raise _non_finite()
             return out, 1.0, iso
-        idx, W, half, inv = self._slopes(Vz, dof)
+        out, iso = np.zeros(N), np.full(N, -1)
+        with np.errstate(invalid="ignore", over="ignore"):   # checked once, on the output
+            self._numpy_block(P, dof, idx, W, half, inv, restart, out, iso)
+        if not np.isfinite(out).all():          # a non-finite sample spreads to every later running sum
+            raise _non_finite()
+        return out, 1.0, iso
+
+    def _numpy_block(self, P: np.ndarray, dof: int, idx: np.ndarray, W: np.ndarray, half: np.ndarray,
+                     inv: np.ndarray, restart: bool, out: np.ndarray, iso: np.ndarray) -> None:
+        """The numpy path of :meth:`block` (fills ``out`` and ``iso``)."""
+        N = len(P)
         na = len(idx)
-        if na == 0:
-            return out, 1.0, iso
         B, R = _BLK, int(self.REBASE)
         nbm = -(-min(N, R) // B)                                # blocks of the largest chunk
         k = np.arange(1.0, nbm * B + 1.0).reshape(nbm, B).T     # samples since the origin, (16, blocks)
@@ -415,7 +449,6 @@ class CusumBank:
                 Ct = C.transpose(0, 2, 1).reshape(2 * na, nb * B)
                 Mi = self._alarms(Ct, a, m, inv, idx, dof, out[t:t + m], iso[t:t + m], ws)
             M0 = Mi - C[:, last[0], last[1]] if m == R else Mi  # the origin moves (update() does the same)
-        return out, 1.0, iso
 
     @staticmethod
     def _alarms(Ct: np.ndarray, a: int, m: int, inv: np.ndarray, idx: np.ndarray, dof: int, out: np.ndarray,
@@ -471,7 +504,7 @@ class CusumBank:
 
 
 #: alarms at most this many samples apart are found together (:func:`_dense_alarms`)
-_DENSE = 8
+_DENSE = 4
 
 
 def _dense_alarms(Ct: np.ndarray, a0: int, m: int, inv: np.ndarray, idx: np.ndarray, dof: int, out: np.ndarray,
@@ -530,6 +563,12 @@ def _dense_alarms(Ct: np.ndarray, a0: int, m: int, inv: np.ndarray, idx: np.ndar
     if e0 >= m:                                                 # the chunk ends inside the chain
         return m, Ct[:, last:m].min(axis=1), 1
     return last, None, 1
+
+
+def _non_finite() -> NonFiniteError:
+    return NonFiniteError("the parity block holds a non-finite value (NaN or inf); the CUSUM's running sums would "
+                          "carry it to every later sample: leave invalid samples out of the block (or set their "
+                          "parity to 0, as the campaign does) before calling block()")
 
 
 #: samples per block of the running sums (both paths: the sum is the earlier blocks' sum plus a partial sum)

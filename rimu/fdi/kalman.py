@@ -39,6 +39,8 @@ from typing import Any
 import numpy as np
 from scipy.signal import lfilter
 
+from ..errors import NonFiniteError, ShapeError
+from ..fusion.backend import resolve_backend
 from .glt import as_noise_settings, block_isolate, glt_threshold, isolate_argmax
 from .whitening import cached_whitener
 
@@ -72,13 +74,19 @@ class ParityKalman:
     noise : NoiseSettings or noise model, optional
         The sensors' noise model: the estimate test whitens with the covariance of the exponential average
         under it (module docstring).
+    backend : {"auto", "numpy", "numba"}, optional
+        Implementation of :meth:`block` (:mod:`rimu.fusion.backend`; default ``RIMU_BACKEND``, else ``auto``):
+        numba runs the filter, its statistic and the isolation in one compiled pass
+        (:func:`rimu.fdi._kernels.kalman_block`), numpy with ``scipy.signal.lfilter`` and
+        :func:`rimu.fdi.glt.block_isolate`; the same statistics bit for bit, the same isolations (the whitened
+        estimate test always takes numpy).
     """
 
     name = "kalman"
     window = 1
 
     def __init__(self, tau: float = 20.0, p_fa: float = 1e-3, engine: str = "steady",
-                 test: str = "estimate", noise: object = None) -> None:
+                 test: str = "estimate", noise: object = None, backend: str | None = None) -> None:
         if engine not in ("filterpy", "steady"):
             raise ValueError(f"engine must be 'filterpy' or 'steady', got {engine!r}")
         if test not in ("estimate", "innovation"):
@@ -93,6 +101,7 @@ class ParityKalman:
         self.K = steady_gain(self.q)
         self.p_fa = p_fa
         self.noise = as_noise_settings(noise)
+        self.backend = resolve_backend(backend)
         self._L: np.ndarray | None = None
         self._dof = 0
         self.kf: Any = None  # filterpy.kalman.KalmanFilter with engine="filterpy"
@@ -191,28 +200,73 @@ class ParityKalman:
     def block(self, P: np.ndarray, Vz: np.ndarray, dof: int) -> tuple[np.ndarray, float, np.ndarray]:
         """The same filter over N samples from a fresh start (steady gain, vectorised): (statistic, threshold,
         isolated). Like :meth:`configure` then :meth:`update` per sample: the statistic is a filter state, so
-        an alarm restarts nothing (the manager restarts the filter when the active set changes)."""
+        an alarm restarts nothing (the manager restarts the filter when the active set changes). The statistics
+        are those of :meth:`update` bit for bit (``nu_k = p_k - beta_{k-1}``, ``beta`` in lfilter's order, the
+        squares summed in component order), except with a noise model (the whitening is a matrix product, to
+        rounding).
+
+        Raises
+        ------
+        ShapeError
+            ``P`` is not (N, >= dof).
+        NonFiniteError
+            ``P`` holds NaN or inf in its first ``dof`` columns.
+        """
         K = self.K
         thr = glt_threshold(self.p_fa, dof) if dof >= 1 else float("inf")
         if dof < 1:
             return np.zeros(len(P)), thr, np.full(len(P), -1)
-        Z = np.asarray(P, dtype=float)[:, :dof]
-        B = lfilter([K], [1.0, -(1.0 - K)], Z, axis=0)   # beta_k = (1 - K) beta_{k-1} + K p_k
-        if self.test == "innovation":
-            nu = np.empty_like(B)
-            nu[:1] = Z[:1]
-            np.subtract(Z[1:], B[:-1], out=nu[1:])
-            return _sum_squares(nu) * ((2.0 - K) / 2.0), thr, block_isolate(nu, Vz[:dof])
-        L = self.whitening(Vz, dof)
-        if L is not None:
-            B = B @ L.T
-            return _sum_squares(B), thr, block_isolate(B, L @ Vz[:dof])
-        return _sum_squares(B) * ((2 - K) / K), thr, block_isolate(B, Vz[:dof])
+        P = np.asarray(P, dtype=float)
+        if P.ndim != 2 or P.shape[1] < dof:
+            raise ShapeError(f"the parity block must be (N, >= dof = {dof}), got shape {P.shape}")
+        L = self.whitening(Vz, dof) if self.test == "estimate" else None
+        if self.backend == "numba" and L is None:
+            from ._kernels import kalman_block
+
+            V = np.ascontiguousarray(Vz[:dof], dtype=float)
+            stat, iso = np.empty(len(P)), np.empty(len(P), dtype=np.int64)
+            scale = (2.0 - K) / 2.0 if self.test == "innovation" else (2 - K) / K
+            if not kalman_block(P, dof, K, self.test == "innovation", scale, V, np.einsum("ij,ij->j", V, V), stat,
+                                iso):
+                raise _non_finite()
+            return stat, thr, iso
+        # time along the contiguous axis: lfilter, the differences and the sums of squares run over rows of
+        # N samples (the isolation takes the transposed view, as BLAS does without a copy)
+        ZT = P[:, :dof].T
+        with np.errstate(invalid="ignore", over="ignore"):     # checked once, on the statistic
+            BT = lfilter([K], [1.0, -(1.0 - K)], ZT, axis=1)   # beta_k = (1 - K) beta_{k-1} + K p_k
+            if self.test == "innovation":                       # nu_k = p_k - beta_{k-1}, as update(), into BT:
+                for e in range(BT.shape[1], 1, -_CHUNK):          # backwards, each chunk reads beta before it is
+                    s = max(e - _CHUNK, 1)                        # overwritten (no fresh N-sample array: page
+                    np.subtract(ZT[:, s:e], BT[:, s - 1:e - 1], out=BT[:, s:e])   # faults cost more than the pass)
+                BT[:, :1] = ZT[:, :1]
+                stat = _row_sum_squares(BT)
+                stat *= (2.0 - K) / 2.0
+                X, V = BT.T, Vz[:dof]
+            elif L is not None:
+                X, V = BT.T @ L.T, L @ Vz[:dof]
+                stat = _row_sum_squares(np.ascontiguousarray(X.T))
+            else:
+                stat = _row_sum_squares(BT)
+                stat *= (2 - K) / K
+                X, V = BT.T, Vz[:dof]
+        if not np.isfinite(stat).all():                        # a filter state carries it to every later sample
+            raise _non_finite()
+        return stat, thr, block_isolate(X, V)
 
 
-def _sum_squares(X: np.ndarray) -> np.ndarray:
-    """Row sums of squares of X (N, d), summed in column order (the order of the per-sample path)."""
-    T = np.ascontiguousarray(X.T)                    # contiguous columns: some 4x faster than strided ones
+def _non_finite() -> NonFiniteError:
+    return NonFiniteError("the parity block holds a non-finite value (NaN or inf); the Kalman filter would carry it "
+                          "to every later sample: leave invalid samples out of the block (or set their parity to 0, "
+                          "as the campaign does) before calling block()")
+
+
+#: samples per step of the in-place innovations (numpy copies an overlapping input: a small copy per chunk)
+_CHUNK = 4096
+
+
+def _row_sum_squares(T: np.ndarray) -> np.ndarray:
+    """Column sums of squares of T (d, N), summed in row order (the order of the per-sample path)."""
     s = T[0] * T[0]
     for i in range(1, T.shape[0]):
         s += T[i] * T[i]

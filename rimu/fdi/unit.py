@@ -92,21 +92,79 @@ class UnitManager:
         mgrs = self.managers
         return self.pipeline.step_through(epoch, lambda k, y, valid: mgrs[k].step(y, valid, t))
 
-    def run(self, block: EpochBlock) -> dict[str, ReplayResult]:
+    def run(self, block: EpochBlock, chunk: int = 4096) -> dict[str, ReplayResult]:
         """N epochs one by one (closed loop); continues from the current state, as
-        :meth:`RedundancyManager.run`. Returns one :class:`ReplayResult` per instrument."""
+        :meth:`RedundancyManager.run`. Returns one :class:`ReplayResult` per instrument.
+
+        The compensation is computed for a run of epochs at once (the block path, compiled where it can be)
+        with the managers' isolation sets of the run's start, and each manager steps on it epoch by epoch. That
+        is the closed loop exactly as long as nothing the loop feeds back changes: the run stops after an epoch
+        where a manager's isolation set changed (the next epoch's compensation must use the new set), and the
+        instruments after the first are redone closed loop on an epoch where the first one's manager estimate
+        differs from the compensation's (an alarm episode leaving suspects out), since their effects take the
+        manager's estimate. ``chunk`` bounds a run's length (memory)."""
         N = len(block)
         t = np.asarray(block.t, dtype=float)
         if not self.pipeline.compensation:  # nothing couples the instruments: each manager runs on its own
             return {k: m.run(block.raw[k], block.valid.get(k), t) for k, m in self.managers.items()}
-        out = {k: _Collector(m, N) for k, m in self.managers.items()}
-        raw = {k: np.asarray(block.raw[k], dtype=float) for k in self.managers}
-        valid = {k: np.asarray(block.valid[k], dtype=bool) for k in self.managers if k in block.valid}
+        if chunk < 1:
+            raise ValueError(f"chunk must be >= 1 epochs, got {chunk}")
+        pipe = self.pipeline
+        order = pipe._order
+        mgrs = self.managers
+        out = {k: _Collector(m, N) for k, m in mgrs.items()}
+        raw = {k: np.asarray(block.raw[k], dtype=float) for k in mgrs}
+        valid = {k: np.asarray(block.valid[k], dtype=bool) for k in mgrs if k in block.valid}
         T = block.temperature
+
+        def epoch(i: int) -> Epoch:
+            return Epoch(float(t[i]), {k: y[i] for k, y in raw.items()}, {k: v[i] for k, v in valid.items()},
+                         None if T is None else float(T[i]))
+
+        i = 0
         with np.errstate(invalid="ignore", over="ignore"):  # non-finite raw values are routed around, not warned
-            for i in range(N):
-                ep = Epoch(float(t[i]), {k: y[i] for k, y in raw.items()}, {k: v[i] for k, v in valid.items()},
-                           None if T is None else float(T[i]))
-                for k, r in self.step(ep).items():
-                    out[k].add(i, r)
+            while i < N:
+                for m in mgrs.values():
+                    m.sync_pipeline()
+                j1 = min(N, i + chunk)
+                sub = EpochBlock(t[i:j1], {k: y[i:j1] for k, y in raw.items()},
+                                 {k: v[i:j1] for k, v in valid.items()}, None if T is None else T[i:j1])
+                ycomp, xcomp = self._open_loop(sub)
+                j = 0
+                while j < j1 - i:
+                    g = i + j
+                    before = [m._iso_bytes for m in mgrs.values()]
+                    done: dict[str, FdiResult] = {}
+                    for n_k, k in enumerate(order):
+                        v = valid.get(k)
+                        r = mgrs[k].step(ycomp[k][j], None if v is None else v[g], float(t[g]))
+                        done[k] = r
+                        if n_k + 1 < len(order) and k in xcomp and not np.array_equal(r.x, xcomp[k][j]):
+                            # the next instrument's effects take this estimate: that epoch, closed loop
+                            def rest(kk: str, y: np.ndarray, vv: Any, done: dict = done, tg: float = float(t[g])):
+                                return done[kk] if kk in done else mgrs[kk].step(y, vv, tg)
+
+                            done = dict(pipe.step_through(epoch(g), rest))
+                            break
+                    for k in order:
+                        out[k].add(g, done[k])
+                    j += 1
+                    if [m._iso_bytes for m in mgrs.values()] != before:
+                        break  # the next epoch's compensation uses the new sets
+                i += j
         return {k: c.result(t) for k, c in out.items()}
+
+    def _open_loop(self, sub: EpochBlock) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+        """The compensated raw outputs of ``sub`` with the current isolation sets and each instrument's estimate
+        (what fed the next instrument's effects); the instrument pipelines' counters are left as they were (the
+        managers' steps count the samples). Clipped and invalid outputs are left out of the compensation's
+        estimates and a clipped one is handed on as it came, in the block path as epoch by epoch."""
+        pipe = self.pipeline
+        saved = {k: (p.samples, p.invalid_count.copy(), p.saturated_count.copy()) for k, p in pipe.instruments.items()}
+        try:
+            ycomp, res = pipe._compensate_block(sub)
+        finally:
+            for k, (s, inv, sat) in saved.items():
+                p = pipe.instruments[k]
+                p.samples, p.invalid_count, p.saturated_count = s, inv, sat
+        return ycomp, {k: np.asarray(r.x) for k, r in res.items()}

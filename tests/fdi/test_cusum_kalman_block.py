@@ -1,15 +1,22 @@
 """The vectorised block paths of the CUSUM bank and the Kalman detector against their per-sample paths (equal to
-1e-12, alarms on the same samples) and against independent references (Page's recursion written out, filterpy)."""
+1e-12, alarms on the same samples) and against independent references (Page's recursion written out, filterpy).
+The block paths of both detectors for each backend (numpy, and numba where installed): the same bits as update()."""
 
 import numpy as np
 import pytest
 from scipy.stats import norm
 
+import rimu.fusion.backend as backend_mod
+from rimu.errors import BackendUnavailableError, NonFiniteError, ShapeError
 from rimu.fdi import CusumBank, ParityKalman
 from rimu.fdi.cusum import markov_arl
 from rimu.geometry import cone6, dodecahedron6
 
 V6 = cone6().parity_matrix()
+
+#: the CUSUM bank's block backends: numpy (the reference) always, numba where it is installed
+BACKENDS = ["numpy", pytest.param("numba", marks=pytest.mark.skipif(not backend_mod.numba_available(),
+                                                                     reason="numba not installed"))]
 
 
 def faulted_parity(N: int, V: np.ndarray, seed: int) -> np.ndarray:
@@ -55,11 +62,13 @@ def page_reference(P: np.ndarray, V: np.ndarray, dof: int, bias: float, arl0: fl
     return out, iso
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("rebase", [4096, 208])
-def test_cusum_block_equals_steps_with_faults(rebase):
+def test_cusum_block_equals_steps_with_faults(rebase, backend):
     """30 000 samples with five kinds of fault, several hundred alarms, across many origin moves (REBASE)."""
     P = faulted_parity(30_000, V6, 11)
-    bank = CusumBank(1.0, 1e4)
+    bank = CusumBank(1.0, 1e4, backend=backend)
+    assert bank.backend == backend
     bank.REBASE = rebase
     blk, thr, iso_b = bank.block(P, V6, 3)
     step, iso_s = cusum_steps(bank, P, V6, 3)
@@ -73,10 +82,11 @@ def test_cusum_block_equals_steps_with_faults(rebase):
     assert np.any(alarms % rebase == rebase - 1) or rebase > 300  # an alarm on the last sample of a chunk
 
 
-def test_cusum_block_without_restart_equals_update_alone():
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_cusum_block_without_restart_equals_update_alone(backend):
     """restart=False: the manager's semantics within one active set (no reset at alarms), bit for bit."""
     P = faulted_parity(20_000, V6, 17)
-    bank = CusumBank(1.0, 1e4)
+    bank = CusumBank(1.0, 1e4, backend=backend)
     bank.REBASE = 1024
     blk, _, iso = bank.block(P, V6, 3, restart=False)
     bank.configure(V6, 3)
@@ -90,19 +100,21 @@ def test_cusum_block_without_restart_equals_update_alone():
     assert (blk > 1.0).sum() > (bank.block(P, V6, 3)[0] > 1.0).sum() > 100   # no renewal: longer alarm runs
 
 
-def test_cusum_block_equals_page_recursion():
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_cusum_block_equals_page_recursion(backend):
     """The closed form against Page's recursion written independently: same alarms, same isolations, values
     to rounding (the recursion adds in another order)."""
     P = faulted_parity(16_000, V6, 12)
-    blk, _, iso = CusumBank(1.0, 1e4).block(P, V6, 3)
+    blk, _, iso = CusumBank(1.0, 1e4, backend=backend).block(P, V6, 3)
     ref, iso_ref = page_reference(P, V6, 3, 1.0, 1e4)
     np.testing.assert_allclose(blk, ref, rtol=1e-9, atol=1e-9)
     assert np.array_equal(blk > 1.0, ref > 1.0)
     assert np.array_equal(iso, iso_ref)
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("dof, drop", [(3, None), (2, 4), (1, (2, 5))])
-def test_cusum_block_equals_steps_reduced_sets(dof, drop):
+def test_cusum_block_equals_steps_reduced_sets(dof, drop, backend):
     """Active sets with isolated sensors (zero parity columns) and one parity dimension (alarms, no isolation)."""
     from rimu.fusion import ProjectionTable
 
@@ -115,7 +127,7 @@ def test_cusum_block_equals_steps_reduced_sets(dof, drop):
     assert int(np.linalg.matrix_rank(Vz)) == dof
     P = faulted_parity(12_000, Vz, 13)
     P[:, dof:] = 0.0
-    bank = CusumBank(1.0, 1e3)
+    bank = CusumBank(1.0, 1e3, backend=backend)
     blk, _, iso_b = bank.block(P, Vz, dof)
     step, iso_s = cusum_steps(bank, P, Vz, dof)
     assert np.array_equal(blk, step) and np.array_equal(iso_b, iso_s)
@@ -128,12 +140,77 @@ def test_cusum_block_equals_steps_reduced_sets(dof, drop):
     assert np.array_equal(blk > 1.0, ref > 1.0) and np.array_equal(iso_b, iso_ref)
 
 
-def test_cusum_block_run_length_matches_brook_evans():
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_cusum_block_dense_alarms_and_split_calls(backend):
+    """An alarm on every sample (30 sigma) and one every ~10 (3 sigma) across origin moves every 100 samples;
+    the block is causal (a block cut inside an alarm episode is the prefix of the whole one, bit for bit) and
+    the rest, in a call of its own, is a fresh configure() + update() with restarts."""
+    rng = np.random.default_rng(21)
+    P = rng.standard_normal((3000, 3))
+    P[500:900] += 30.0 * V6[:, 5]
+    P[1500:2600] += 3.0 * V6[:, 2]
+    bank = CusumBank(1.0, 1e4, backend=backend)
+    bank.REBASE = 96
+    whole, _, iso = bank.block(P, V6, 3)
+    step, iso_s = cusum_steps(bank, P, V6, 3)
+    assert np.array_equal(whole, step) and np.array_equal(iso, iso_s)
+    alarms = np.flatnonzero(whole > 1.0)
+    assert np.all(whole[500:900] > 1.0) and np.all(iso[500:900] == 5)      # dense: every sample restarts
+    episode = alarms[(alarms > 1500) & (alarms < 2600)]
+    assert 3 < np.median(np.diff(episode)) < 30 and np.mean(iso[episode] == 2) > 0.95
+    wide = np.asfortranarray(np.hstack([P, rng.standard_normal((len(P), 2))]))
+    assert np.array_equal(bank.block(wide, V6, 3)[0], whole)                # any layout, extra columns unread
+    for m in (700, 701, 1997, 2016, 2017):                                   # inside the episodes
+        head, _, iso_h = bank.block(P[:m], V6, 3)
+        assert np.array_equal(head, whole[:m]) and np.array_equal(iso_h, iso[:m])
+        tail, _, iso_t = bank.block(P[m:], V6, 3)
+        ref, iso_r = cusum_steps(bank, P[m:], V6, 3)
+        assert np.array_equal(tail, ref) and np.array_equal(iso_t, iso_r)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("where, value", [(10, np.nan), (700, np.nan), (2999, np.inf), (1800, -np.inf)])
+def test_cusum_block_non_finite_is_named(backend, where, value):
+    """A NaN or inf in the parity (in control, inside alarm episodes, last sample) raises NonFiniteError,
+    never a NaN statistic; a block of the wrong shape raises ShapeError."""
+    rng = np.random.default_rng(22)
+    P = rng.standard_normal((3000, 3))
+    P[500:900] += 30.0 * V6[:, 5]
+    P[1500:2600] += 3.0 * V6[:, 2]
+    P[where, 1] = value
+    bank = CusumBank(1.0, 1e4, backend=backend)
+    bank.REBASE = 96
+    for restart in (True, False):
+        with pytest.raises(NonFiniteError, match="non-finite.*leave invalid samples out"):
+            bank.block(P, V6, 3, restart=restart)
+    P[where, 1] = 0.0                           # as the campaign leaves an invalid sample out
+    assert np.isfinite(bank.block(P, V6, 3)[0]).all()
+    with pytest.raises(ShapeError, match=r"\(N, >= dof = 3\)"):
+        bank.block(P[:, :2], V6, 3)
+
+
+def test_block_backend_choice(monkeypatch):
+    """``backend=`` as the runtime's (rimu.fusion.backend): numba asked for and missing is named, auto falls
+    back to numpy, RIMU_BACKEND decides without an argument."""
+    monkeypatch.setenv("RIMU_BACKEND", "numpy")
+    assert CusumBank(1.0).backend == ParityKalman(20).backend == "numpy"
+    monkeypatch.setattr(backend_mod, "_KERNELS", [None])
+    monkeypatch.delenv("RIMU_BACKEND")
+    assert CusumBank(1.0, backend="auto").backend == "numpy"
+    with pytest.raises(BackendUnavailableError, match=r"pip install rimu\[fast\]"):
+        CusumBank(1.0, backend="numba")
+    assert ParityKalman(20, backend="auto").backend == "numpy"
+    with pytest.raises(BackendUnavailableError, match=r"pip install rimu\[fast\]"):
+        ParityKalman(20, backend="numba")
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_cusum_block_run_length_matches_brook_evans(backend):
     """Mean samples between alarms of one member (one active sensor's bank of 2, in one parity dimension)
     against the Markov-chain ARL of its own threshold (Brook & Evans 1972): the renewal block path counts it."""
     rng = np.random.default_rng(14)
     V = np.array([[1.0]])
-    bank = CusumBank(1.0, 200.0)
+    bank = CusumBank(1.0, 200.0, backend=backend)
     _U, d, thr, _ = bank.design(V, 1)
     P = rng.standard_normal((400_000, 1))
     s, _, _ = bank.block(P, V, 1)
@@ -144,8 +221,9 @@ def test_cusum_block_run_length_matches_brook_evans():
     assert measured == pytest.approx(arl_member / 2, rel=0.08)
 
 
-def test_block_paths_empty_and_no_parity():
-    bank = CusumBank(1.0, 1e4)
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_block_paths_empty_and_no_parity(backend):
+    bank = CusumBank(1.0, 1e4, backend=backend)
     s, _, iso = bank.block(np.zeros((0, 3)), V6, 3)
     assert s.shape == (0,) and iso.shape == (0,)
     s, _, iso = bank.block(np.ones((5, 3)), V6, 0)
@@ -155,15 +233,17 @@ def test_block_paths_empty_and_no_parity():
         assert s.shape == (0,) and iso.shape == (0,)
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("test", ["estimate", "innovation"])
-def test_kalman_block_equals_steps_and_filterpy(test):
+def test_kalman_block_equals_steps_and_filterpy(test, backend):
     P = faulted_parity(30_000, V6, 15)
-    kf = ParityKalman(20, 1e-3, test=test)
-    assert kf.engine == "steady"
+    kf = ParityKalman(20, 1e-3, test=test, backend=backend)
+    assert kf.engine == "steady" and kf.backend == backend
     blk, thr, iso = kf.block(P, V6, 3)
     kf.configure(V6, 3)
     step = np.array([kf.update(p)[0] for p in P])
     np.testing.assert_allclose(blk, step, rtol=1e-12, atol=1e-12 * thr)
+    assert np.array_equal(blk, step)            # the same operations in the same order: the same bits
     assert np.array_equal(blk > thr, step > thr) and (blk > thr).sum() > 100
     alarms = np.flatnonzero(blk > thr)[::97]
     kf.configure(V6, 3)
@@ -177,6 +257,42 @@ def test_kalman_block_equals_steps_and_filterpy(test):
     ref.configure(V6, 3)
     fp = np.array([ref.update(p)[0] for p in P[:6000]])
     np.testing.assert_allclose(fp, step[:6000], rtol=1e-11, atol=1e-12 * thr)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("test", ["estimate", "innovation"])
+def test_kalman_block_non_finite_and_shape_are_named(test, backend):
+    P = faulted_parity(4000, V6, 18)
+    kf = ParityKalman(20, 1e-3, test=test, backend=backend)
+    for where, value in ((0, np.nan), (1234, np.inf), (3999, -np.inf)):
+        Q = P.copy()
+        Q[where, 2] = value
+        with pytest.raises(NonFiniteError, match="non-finite.*leave invalid samples out"):
+            kf.block(Q, V6, 3)
+    with pytest.raises(ShapeError, match=r"\(N, >= dof = 3\)"):
+        kf.block(P[:, :2], V6, 3)
+
+
+@pytest.mark.skipif(not backend_mod.numba_available(), reason="numba not installed")
+@pytest.mark.parametrize("test", ["estimate", "innovation"])
+@pytest.mark.parametrize("dof, drop", [(3, None), (2, (2, 5)), (1, (2, 5))])
+def test_kalman_numba_equals_numpy_everywhere(test, dof, drop):
+    """The compiled filter, statistic and isolation against the numpy path (lfilter, block_isolate): the same
+    statistics and the same isolated sensor on every sample, alarm or not, also with isolated sensors."""
+    from rimu.fusion import ProjectionTable
+
+    tab = ProjectionTable(dodecahedron6().H, 1.0)
+    keep = np.ones(6, bool)
+    if drop is not None:
+        keep[list(drop)] = False
+    Vz = tab.Vz[tab.entry_for(keep)]
+    P = faulted_parity(12_000, Vz, 19)
+    a = ParityKalman(20, 1e-3, test=test, backend="numpy").block(P, Vz, dof)
+    b = ParityKalman(20, 1e-3, test=test, backend="numba").block(P, Vz, dof)
+    assert np.array_equal(a[0], b[0]) and a[1] == b[1] and np.array_equal(a[2], b[2])
+    assert (a[0] > a[1]).sum() > 10 and (np.all(a[2] == -1) if dof < 2 else len(np.unique(a[2])) >= 3)
+    if drop is not None and dof >= 2:
+        assert not np.isin(b[2], list(drop)).any()
 
 
 def test_kalman_block_with_noise_model_equals_steps():

@@ -154,3 +154,67 @@ def test_managers_must_be_built_on_the_pipelines_own_instruments():
         UnitManager(pipe, {"gyro": RedundancyManager(InstrumentPipeline(cal["gyro"]))})
     with pytest.raises(TypeError, match="settings"):
         UnitManager(pipe, {"gyro": RedundancyManager(pipe["gyro"])}, confirm=2)
+
+
+def test_run_in_blocks_is_the_closed_loop_epoch_by_epoch():
+    """``UnitManager.run`` compensates runs of epochs at once with the sets of the run's start, stops a run where
+    a set changes and redoes an epoch closed loop where a manager's estimate is not the compensation's (an alarm
+    episode): its decisions must be those of :meth:`UnitManager.step` on every epoch,
+    and its estimates within rounding, on a unit whose gyros take the accelerometers' estimate (g-sensitivity,
+    the gyro <-> accelerometer cycle) through isolations, re-admissions, alarm episodes, clipped and invalid
+    samples, whatever the length of a run."""
+    from rimu.sim.typical import with_effects
+
+    rng = np.random.default_rng(12)
+    cals = {}
+    for k, sig in (("gyro", 0.002), ("accel", 0.02)):
+        c = InstrumentCalibration.nominal(k, cone6(), scale=1.0, noise_sigma=np.full(6, sig))
+        c.scale = 0.01 * (1 + 0.01 * rng.standard_normal(6))
+        c.bias = 0.3 * rng.standard_normal(6)
+        cals[k] = c
+    cal = with_effects(Calibration(cals))
+    g = cal["gyro"]
+    g.effects["g_sensitivity"] = {p: 10.0 * v for p, v in g.effects["g_sensitivity"].items()}
+    n = 1200
+    t = np.arange(n) / 100.0
+    T = 20.0 + 10.0 * t / t[-1]
+    w = np.radians(60.0) * np.sin(2 * np.pi * t[:, None] / np.array([7.0, 11.0, 13.0]))
+    f = np.array([0.0, 0.0, -9.81]) + 3.0 * np.sin(2 * np.pi * t[:, None] / np.array([5.0, 3.0, 9.0]))
+    from rimu.calibration.model import RuntimeInputs
+    from rimu.fusion import EffectCompensation
+
+    inputs = RuntimeInputs(t=t, temperature=T, specific_force=f, angular_rate=w)
+    raw, valid = {}, {}
+    for k, u in (("gyro", w), ("accel", f)):
+        c = cal[k]
+        z = EffectCompensation(c).forward(u, inputs)
+        raw[k] = z + rng.standard_normal(z.shape) * c.noise_sigma / c.scale
+        valid[k] = np.ones((n, 6), bool)
+    raw["accel"][300:500, 2] += 40 * 0.02 / cal["accel"].scale[2]   # a fault that clears: isolated, re-admitted
+    raw["gyro"][700:900, 4] += 8 * 0.002 / g.scale[4]               # a small one: alarm episodes before isolation
+    valid["gyro"][1000:1004, 1] = False                             # invalid samples
+    g.range_raw = np.quantile(np.abs(raw["gyro"]), 0.998, axis=0)   # a few clipped outputs
+    raw["gyro"] = np.clip(raw["gyro"], -g.range_raw, g.range_raw)
+
+    def block():
+        return EpochBlock(t, {k: v.copy() for k, v in raw.items()}, {k: v.copy() for k, v in valid.items()}, T)
+
+    def managers():
+        return UnitManager(Pipeline(cal, temperature=True), confirm=3, readmit_after=R)
+
+    um = managers()
+    ref = {k: [] for k in cal.instruments}
+    for ep in block().epochs():
+        for k, r in um.step(ep).items():
+            ref[k].append((r.x.copy(), r.validity, r.alarm, tuple(um.managers[k].health.isolated)))
+    kinds = {e.kind for m in um.managers.values() for e in m.events}
+    assert {"isolated", "readmitted"} <= kinds
+    assert np.any(np.abs(raw["gyro"]) >= g.range_raw)
+    for chunk in (1, 7, 4096):
+        res = managers().run(block(), chunk=chunk)
+        for k in cal.instruments:
+            x = np.array([r[0] for r in ref[k]])
+            assert np.abs(res[k].x - x).max() <= 1e-12 * np.abs(x).max(), (chunk, k)
+            assert np.array_equal(res[k].alarm, [r[2] for r in ref[k]]), (chunk, k)
+            assert np.array_equal(res[k].validity, [int(r[1]) for r in ref[k]]), (chunk, k)
+            assert [(e.kind, e.t) for e in res[k].events] == [(e.kind, e.t) for e in um.managers[k].events]
