@@ -1,8 +1,11 @@
 """C references of the runtime kernels for the runtime benchmarks (not a benchmark itself: ``dev.py bench`` skips
 ``_`` files).
 
-The C functions do the arithmetic of ``rimu/fusion/_kernels.py`` line by line, on the same arrays (the compiled
-program's F, L, W), so that a ratio to them measures the implementation, not a different computation. They are
+The C functions do the arithmetic of ``rimu/fusion/_kernels.py`` operation by operation, in the same order, on the
+same arrays (the compiled program's F, L, W: the same effects, Newton steps and fixed-point rounds), so that a
+ratio to them measures the implementation, not a different computation. The C code keeps the plain shape of one
+static function per step (gcc inlines the small ones); the numba code differs only in how it is arranged for numba (its
+epoch is one loop over the fixed-point rounds and the instruments, so that the inlined Newton solve appears once). They are
 built at run time with the system compiler, ``-O3 -march=native`` (no fast-math: IEEE arithmetic, as numba's);
 ``build()`` returns None where no compiler is found (the benchmark then reports no C reference).
 """

@@ -11,7 +11,8 @@
 * ``step`` path, both backends, against a loop of one bare numpy mat-vec per sample (``G @ y``). Targets: numpy
   <= 3x, numba <= 1.5x its time.
 
-Prints a table and one JSON line. Medians over repeats; ratios are what to compare across machines.
+Prints a table and one JSON line. Every candidate is timed once per round, in turn (a load change hits all
+alike); times are medians over rounds, ratios medians of the per-round ratios.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _ckernel import build
-from _timing import median_time
+from _timing import interleaved_times, round_ratio
 
 from rimu.fusion import InstrumentPipeline, numba_available
 from rimu.sim import cho_park_table3
@@ -54,13 +55,14 @@ def main() -> dict:
         reps = max(5, 2_000_000 // N // 20)
         inner = max(1, 200_000 // N)  # calls per timed run at small N (timer resolution)
         row: dict = {}
+        fns: dict = {}  # every candidate once per round, in turn: a load change hits all alike
         for b, p in pipes.items():
             p.process(Y)
 
             def run(p=p, Y=Y, inner=inner):
                 for _ in range(inner):
                     p.process(Y)
-            row[f"{b}_ns_per_sample"] = median_time(run, reps) / (inner * N) * 1e9
+            fns[b] = run
 
         if "numba" in pipes:  # the compiled kernel itself (process takes the BLAS path past 512 samples)
             pn = pipes["numba"]
@@ -70,24 +72,27 @@ def main() -> dict:
                 for _ in range(inner):
                     pn._kblock(Y, pn._Re, pn._offe, pn._range, buf)
             kern()
-            row["numba_kernel_ns_per_sample"] = median_time(kern, reps) / (inner * N) * 1e9
+            fns["numba_kernel"] = kern
 
         def floor(Y=Y, inner=inner):
             for _ in range(inner):
                 Y @ K.T
-        row["numpy_matmul_ns_per_sample"] = median_time(floor, reps) / (inner * N) * 1e9
+        fns["numpy_matmul"] = floor
         if ck is not None:
             out = np.empty((N, K.shape[0]))
             rr = np.full(6, np.inf)
-            ts = [ck.project_block(Y, K, off, rr, out, inner)[0] for _ in range(reps)]
-            row["c_ns_per_sample"] = float(np.median(ts)) / N * 1e9
+            fns["c"] = lambda Y=Y, out=out, rr=rr, inner=inner: ck.project_block(Y, K, off, rr, out, inner)[0] * inner
+        times = interleaved_times(fns, reps)
+        for k, ts in times.items():
+            row[f"{k}_ns_per_sample"] = float(np.median(ts)) / (inner * N) * 1e9
+        if ck is not None:
             np.testing.assert_allclose(out, Y @ K.T - off, rtol=1e-9, atol=1e-9)  # it computed the same
-            for b in backends:
-                row[f"{b}_vs_c"] = row["c_ns_per_sample"] / row[f"{b}_ns_per_sample"]
-            if "numba_kernel_ns_per_sample" in row:
-                row["numba_kernel_vs_c"] = row["c_ns_per_sample"] / row["numba_kernel_ns_per_sample"]
+            for b in backends:  # median over rounds of the ratio within a round
+                row[f"{b}_vs_c"] = round_ratio(times, "c", b)
+            if "numba_kernel" in times:
+                row["numba_kernel_vs_c"] = round_ratio(times, "c", "numba_kernel")
         for b in backends:
-            row[f"{b}_vs_matmul"] = row["numpy_matmul_ns_per_sample"] / row[f"{b}_ns_per_sample"]
+            row[f"{b}_vs_matmul"] = round_ratio(times, "numpy_matmul", b)
         res["block"][str(N)] = row
 
     M = 50_000
@@ -107,12 +112,12 @@ def main() -> dict:
         step_loop()
         steps[b] = step_loop
     bare_loop()
-    t_bare = median_time(bare_loop, 7)
-    res["bare_matvec_us_per_sample"] = t_bare / M * 1e6
+    times = interleaved_times({"bare": bare_loop, **steps}, 7)
+    res["bare_matvec_us_per_sample"] = float(np.median(times["bare"])) / M * 1e6
     res["step"] = {}
-    for b, fn in steps.items():
-        t = median_time(fn, 7)
-        res["step"][b] = {"us_per_sample": t / M * 1e6, "time_ratio_to_bare": t / t_bare}
+    for b in steps:
+        res["step"][b] = {"us_per_sample": float(np.median(times[b])) / M * 1e6,
+                          "time_ratio_to_bare": round_ratio(times, b, "bare")}
     # former keys (numpy backend, 1e5 block against Y @ K.T)
     res["block_throughput_ratio"] = res["block"][str(BLOCKS[0])]["numpy_vs_matmul"]
     res["step_time_ratio"] = res["step"]["numpy"]["time_ratio_to_bare"]

@@ -17,7 +17,10 @@ the numpy and (where installed) numba backends; medians over repeats, ratios to 
 to the numpy ``base`` step, and the bare numpy ``G @ y`` of one instrument. Target: ``all`` step within 2x of
 ``base`` step. With numba, ``process`` with every effect is also timed against a C kernel of the same arithmetic
 (``benchmarks/_ckernel.py``, ``-O3 -march=native``, on the compiled program's arrays) on blocks of 1e5 and 1e3
-samples (targets: >= 0.7x and >= 0.5x its throughput). Prints a table and one JSON line.
+samples (targets: >= 0.7x and >= 0.5x its throughput). The C and numba runs alternate, as do the configurations'
+runs, so that a change of the machine's load falls on both sides of a ratio; the C ratio is also given on the
+thread's CPU time (``time.thread_time``), which preemption on a shared machine does not inflate. Prints a table
+and one JSON line.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -72,13 +76,24 @@ def data(cal, N: int, seed: int = 0) -> EpochBlock:
     return EpochBlock(t, raw, temperature=T)
 
 
-def _time_steps(pipe, epochs, reps):
-    def step_loop():
+def _time_configurations(pipes, epochs, head, reps):
+    """Per-sample ``step`` and ``process`` times of every configuration's pipeline, s; the configurations are
+    timed in turn within each repeat, so that a change of the machine's load falls on all of them."""
+    def step_loop(pipe):
         step = pipe.step
         for e in epochs:
             step(e)
-    step_loop()
-    return median_time(step_loop, reps) / len(epochs)
+    for pipe in pipes.values():
+        step_loop(pipe)
+        pipe.process(head)
+    steps: dict = {name: [] for name in pipes}
+    blocks: dict = {name: [] for name in pipes}
+    for r in range(reps):
+        for name, pipe in pipes.items():
+            steps[name].append(median_time(lambda pipe=pipe: step_loop(pipe), 1) / len(epochs))
+            if r < max(3, reps // 2):
+                blocks[name].append(median_time(lambda pipe=pipe: pipe.process(head), 1) / len(head))
+    return {name: (float(np.median(steps[name])), float(np.median(blocks[name]))) for name in pipes}
 
 
 def _c_reference(ck, cal, block, sizes, reps):
@@ -96,21 +111,29 @@ def _c_reference(ck, cal, block, sizes, reps):
         dT = sub.temperature - pipe._t_ref
         Ys = [np.ascontiguousarray(sub.raw[k]) for k in order]
         Os = [np.empty((N, 3 + pipe[k].r)) for k in order]
-        ts = []
-        for _ in range(reps):
-            dt, bad = ck.epoch_block(prog.F, prog.L, prog.W, Ys[0], Ys[-1], t, dT, Os[0], Os[-1], inner)
-            assert bad == -1
-            ts.append(dt)
         ref = pipe.process(sub)
+        _, bad = ck.epoch_block(prog.F, prog.L, prog.W, Ys[0], Ys[-1], t, dT, Os[0], Os[-1], 1)
+        assert bad == -1
         for k, O in zip(order, Os):
             np.testing.assert_allclose(O[:, :3], ref[k].x, rtol=0, atol=1e-12 * np.abs(ref[k].x).max())
 
         def run(sub=sub, inner=inner):
             for _ in range(inner):
                 pipe.process(sub)
-        t_nb = median_time(run, reps) / (inner * N)
+        ts, tn, cpu_c, cpu_nb = [], [], [], []
+        for _ in range(reps):  # alternated, so that a change of the machine's load falls on both
+            c0 = time.thread_time()
+            ts.append(ck.epoch_block(prog.F, prog.L, prog.W, Ys[0], Ys[-1], t, dT, Os[0], Os[-1], inner)[0])
+            c1 = time.thread_time()
+            tn.append(median_time(run, 1))
+            cpu_c.append(c1 - c0)
+            cpu_nb.append(time.thread_time() - c1)
+        t_nb = float(np.median(tn)) / (inner * N)
         t_c = float(np.median(ts)) / N
-        out[str(N)] = {"c_us": t_c * 1e6, "numba_us": t_nb * 1e6, "numba_vs_c": t_c / t_nb}
+        # the same on the thread's CPU time: what a loaded (shared) machine does not inflate by preemption
+        cpu_ratio = float(np.median(cpu_c)) / float(np.median(cpu_nb))
+        out[str(N)] = {"c_us": t_c * 1e6, "numba_us": t_nb * 1e6, "numba_vs_c": t_c / t_nb,
+                       "numba_vs_c_cpu_time": cpu_ratio}
     return out
 
 
@@ -126,11 +149,8 @@ def main(quick: bool = False) -> dict:
                              temperature=block.temperature[:M]).epochs())
     rows: dict = {b: {} for b in backends}
     for b in backends:
-        for name, cal in cfgs.items():
-            pipe = Pipeline(cal, temperature=True, backend=b)
-            t_step = _time_steps(pipe, epochs, reps)
-            pipe.process(head)
-            t_block = median_time(lambda pipe=pipe: pipe.process(head), max(3, reps // 2)) / N
+        pipes = {name: Pipeline(cal, temperature=True, backend=b) for name, cal in cfgs.items()}
+        for name, (t_step, t_block) in _time_configurations(pipes, epochs, head, reps).items():
             rows[b][name] = {"step_us": t_step * 1e6, "block_us": t_block * 1e6}
     # references timed in the same run: bare numpy G @ y (one instrument) per sample
     g = Pipeline(cfgs["base"], backend="numpy")["gyro"]
@@ -152,7 +172,7 @@ def main(quick: bool = False) -> dict:
             r["step_ratio_to_bare_matvec"] = r["step_us"] / (t_bare * 1e6)
     ck = build() if "numba" in backends else None
     cref = None if ck is None else _c_reference(ck, cfgs["all"], block, (100_000, 1_000) if not quick
-                                                else (20_000, 1_000), reps)
+                                                else (20_000, 1_000), 3 * reps)
     res = {"benchmark": "runtime_effects", "geometry": "cone6 gyro + accel", "step_samples": M, "block_samples": N,
            "machine": {"cpus": os.cpu_count(), "load_1min": os.getloadavg()[0]}, "backends": backends,
            "bare_matvec_us": t_bare * 1e6, "configurations": rows["numpy"], "by_backend": rows,
@@ -171,7 +191,7 @@ def main(quick: bool = False) -> dict:
         print(f"\nall effects, Pipeline.process (numba) vs a C kernel of the same arithmetic ({ck.compiler}), us/sample")
         for n_, r in cref.items():
             print(f"{n_:>9} samples  numba {r['numba_us']:.3f}  C {r['c_us']:.3f}  throughput ratio "
-                  f"{r['numba_vs_c']:.2f}")
+                  f"{r['numba_vs_c']:.2f} (on CPU time {r['numba_vs_c_cpu_time']:.2f})")
     print(json.dumps(res))
     return res
 

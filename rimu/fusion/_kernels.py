@@ -32,8 +32,16 @@ except ImportError as exc:  # pragma: no cover - the caller checks availability 
 
 __all__ = ["Program", "epoch_block", "epoch_step", "project_block", "project_one"]
 
-#: IEEE arithmetic as numpy's (error_model="numpy": x / 0 is inf or nan, not an exception); no fast-math
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+#: IEEE arithmetic as numpy's (error_model="numpy": x / 0 is inf or nan, not an exception); no fast-math.
+#: No reference counting (``_nrt=False``): the kernels allocate nothing, and with NRT every call of a helper
+#: increfs and decrefs its array arguments with atomic instructions, which cost more than the per-sample
+#: arithmetic of a small unit (about 0.15 us of every sample of the all-effects epoch on cone6)
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+#: the helpers of the compensation are inlined into :func:`_epoch` (numba IR inlining: LLVM does not inline them,
+#: and a call passes every array as a struct of seven words); :func:`_epoch` calls :func:`_solve` from one place,
+#: so that its code, the longest, appears once; :func:`_epoch` itself stays one function that both epoch kernels
+#: call (one call per epoch; inlining it into both doubled the compile time for no measurable gain)
+_inline = numba.njit(cache=True, nogil=True, error_model="numpy", _nrt=False, inline="always")
 
 #: index cast: an unsigned index needs no negative-index wraparound check (numba adds one to every signed index
 #: whose sign it cannot prove, which costs half the speed of these loops); every index here is >= 0
@@ -103,7 +111,7 @@ def project_block(Y: Any, R: Any, off: Any, rng: Any, out: Any) -> bool:  # prag
 W_MONO, W_F, W_W, W_U = 0, M, M + 3, M + 6
 
 
-@_jit
+@_inline
 def _monomials(t: float, dT: float, have_f: bool, have_w: bool, W: Any) -> None:  # pragma: no cover - compiled
     """rimu.fusion.effects._monomials_one of (t, dT, f = W[W_F:], w = W[W_W:]) into W[0:M]; absent as zeros."""
     W[_u(0)] = 1.0
@@ -123,7 +131,7 @@ def _monomials(t: float, dT: float, have_f: bool, have_w: bool, W: Any) -> None:
                 W[_u(j + a)] = 0.0
 
 
-@_jit
+@_inline
 def _coefs(F: Any, L: Any, base: int, W: Any, k0: int) -> None:  # pragma: no cover - compiled
     """Coefficients of every present block for every sensor into W[k0:k0 + 5 n]: each row of C times the
     monomials it uses, in the order of the monomials (EffectCompensation._coefficient_arrays; only the constant
@@ -151,7 +159,7 @@ def _coefs(F: Any, L: Any, base: int, W: Any, k0: int) -> None:  # pragma: no co
         cols += nc
 
 
-@_jit
+@_inline
 def _estimate(F: Any, L: Any, base: int, W: Any, q0: int, u0: int) -> bool:  # pragma: no cover - compiled
     """MB estimate W[u0:u0+3] = G q on the current set (InstrumentPipeline.estimate); False if q is not finite."""
     n = L[_u(base + S_N)]
@@ -169,7 +177,7 @@ def _estimate(F: Any, L: Any, base: int, W: Any, q0: int, u0: int) -> bool:  # p
     return True
 
 
-@_jit
+@_inline
 def _solve(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - compiled
     """EffectCompensation.solve_one of the slot's input y: the effect-free outputs q into the work area
     (Newton on each sensor's own input, the cross coupling from the estimate); False if not finite."""
@@ -235,10 +243,11 @@ def _solve(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - com
     return True
 
 
-@_jit
-def _raw(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - compiled
+@_inline
+def _raw(F: Any, L: Any, base: int, W: Any) -> None:  # pragma: no cover - compiled
     """EffectCompensation.raw_one: the raw outputs of an ideal scale/misalignment/bias sensor into the slot's raw
-    area."""
+    area; for a slot that inverts output-side effects, from the effect-free outputs :func:`_solve` left in the
+    work area."""
     n = L[_u(base + S_N)]
     mode = L[_u(base + S_MODE)]
     y0 = L[_u(base + S_WY)]
@@ -246,8 +255,7 @@ def _raw(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - compi
     if mode == MODE_NONE:
         for i in range(n):
             W[_u(r0 + i)] = W[_u(y0 + i)]
-        return True
-    if mode == MODE_RAWEXO:  # y - E mono / SF, E stored (monomial, sensor): the sensors' sums side by side
+    elif mode == MODE_RAWEXO:  # y - E mono / SF, E stored (monomial, sensor): the sensors' sums side by side
         e0 = L[_u(base + S_RAWEXO)]
         cols = L[_u(base + S_COLS)]  # the exogenous block's monomials come first
         for i in range(n):
@@ -260,18 +268,15 @@ def _raw(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - compi
                 W[_u(r0 + i)] += F[_u(ej + i)] * mj
         for i in range(n):
             W[_u(r0 + i)] = W[_u(y0 + i)] - W[_u(r0 + i)]
-        return True
-    if not _solve(F, L, base, W):
-        return False
-    sc = L[_u(base + S_SCALE)]
-    bi = L[_u(base + S_BIAS)]
-    q0 = L[_u(H_WORK)]
-    for i in range(n):
-        W[_u(r0 + i)] = (W[_u(q0 + i)] + F[_u(bi + i)]) / F[_u(sc + i)]
-    return True
+    else:
+        sc = L[_u(base + S_SCALE)]
+        bi = L[_u(base + S_BIAS)]
+        q0 = L[_u(H_WORK)]
+        for i in range(n):
+            W[_u(r0 + i)] = (W[_u(q0 + i)] + F[_u(bi + i)]) / F[_u(sc + i)]
 
 
-@_jit
+@_inline
 def _project(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - compiled
     """InstrumentPipeline.step's common path on the compensated raw sample: range, R raw - off, finiteness."""
     n = L[_u(base + S_N)]
@@ -301,31 +306,39 @@ def _project(F: Any, L: Any, base: int, W: Any) -> bool:  # pragma: no cover - c
 def _epoch(F: Any, L: Any, W: Any, t: float, dT: float) -> bool:  # pragma: no cover - compiled
     """Pipeline.step of one epoch whose raw samples are in W: compensation of every instrument (with the fixed
     point where the gyros need the specific force and the accelerometers the rate), then the projection, in
-    the pipeline's order; outputs into W."""
+    the pipeline's order; outputs into W.
+
+    One loop over the stages of the epoch: first the rounds of the fixed point (accelerometers, then gyros, each
+    solved and estimated), then every slot (compensated and projected)."""
     if not (t - t == 0.0 and dT - dT == 0.0):  # the numpy path makes every output invalid
         return False
     have_f = False
     have_w = False
-    if L[_u(H_CYCLIC)]:
-        ba = H_SIZE + S_SIZE * L[_u(H_ACC)]
-        bg = H_SIZE + S_SIZE * L[_u(H_GYR)]
-        q0 = L[_u(H_WORK)]
+    cycle = 2 * L[_u(H_ROUNDS)] if L[_u(H_CYCLIC)] else 0
+    q0 = L[_u(H_WORK)]
+    if cycle:
         for a in range(3):
             W[_u(W_W + a)] = 0.0
-        for _ in range(L[_u(H_ROUNDS)]):
-            _monomials(t, dT, False, True, W)
-            if not _solve(F, L, ba, W) or not _estimate(F, L, ba, W, q0, W_F):
-                return False
-            _monomials(t, dT, True, False, W)
-            if not _solve(F, L, bg, W) or not _estimate(F, L, bg, W, q0, W_W):
-                return False
-        have_w = True
-    for s in range(L[_u(H_NSLOT)]):
-        base = H_SIZE + S_SIZE * s
-        if L[_u(base + S_MODE)] != MODE_NONE:
-            _monomials(t, dT, have_f, have_w, W)
-        if not _raw(F, L, base, W):
+    for stage in range(cycle + L[_u(H_NSLOT)]):
+        if stage < cycle:
+            acc = stage % 2 == 0
+            base = H_SIZE + S_SIZE * (L[_u(H_ACC)] if acc else L[_u(H_GYR)])
+            _monomials(t, dT, not acc, acc, W)
+            mode = MODE_FULL
+        else:
+            base = H_SIZE + S_SIZE * (stage - cycle)
+            mode = L[_u(base + S_MODE)]
+            if mode != MODE_NONE:
+                _monomials(t, dT, have_f, have_w, W)
+        if mode == MODE_FULL and not _solve(F, L, base, W):
             return False
+        if stage < cycle:
+            if not _estimate(F, L, base, W, q0, W_F if acc else W_W):
+                return False
+            if stage == cycle - 1:
+                have_w = True
+            continue
+        _raw(F, L, base, W)
         if not _project(F, L, base, W):
             return False
         w0 = L[_u(base + S_WOUT)]

@@ -697,27 +697,31 @@ class Pipeline:
 
     def _step_compiled(self, epoch: Epoch) -> dict[str, StepResult] | None:
         """:meth:`step` in one compiled call; None (nothing changed) when the epoch is off the common path."""
-        for v in epoch.valid.values():
-            if not v.all():
-                return None
-        T = self._origin(epoch.temperature, float(epoch.t))
+        valid = epoch.valid
+        if valid:
+            for v in valid.values():
+                if not v.all():
+                    return None
+        T = epoch.temperature
+        if T is None or self.t0 is None:
+            self._origin(T, float(epoch.t))
         prog = self._program
         pipes = prog.pipes
-        if pipes[0]._set is not prog._sets[0] or pipes[-1]._set is not prog._sets[-1] \
-                or prog.rounds != self.cycle_rounds:
+        p0, p1 = pipes[0], pipes[-1]
+        if p0._set is not prog._sets[0] or p1._set is not prog._sets[-1] or prog.rounds != self.cycle_rounds:
             self._program_ready()
         raw = epoch.raw
-        y0 = raw[self._order[0]]
-        y1 = raw[self._order[-1]]
+        order = self._order
+        y0 = raw[order[0]]
+        y1 = raw[order[-1]]
         if type(y0) is not _NDARRAY or type(y1) is not _NDARRAY:
             return None
-        for k in self._order:  # a clipped raw value is judged before compensation: the numpy path routes it
-            ip = self.instruments[k]
-            if ip.range_raw is not None and ip.clipped(raw[k]).any():
-                return None
+        # a clipped raw value is judged before compensation: the numpy path routes it
+        if (p0.range_raw is not None and p0.clipped(y0).any()) or (p1.range_raw is not None and p1.clipped(y1).any()):
+            return None
         try:
             ok = self._epoch_step(prog.F, prog.L, prog.W, y0, y1, float(epoch.t) - self.t0,
-                                  0.0 if T is None else float(T) - self._t_ref, pipes[0]._out, pipes[-1]._out)
+                                  0.0 if T is None else float(T) - self._t_ref, p0._out, p1._out)
         except Exception:  # an array the kernel cannot type (2-D, object): the numpy path says what is wrong
             return None
         if not ok:
