@@ -43,6 +43,12 @@ Gyros (:func:`fit_gyro`)
     scatter of each residual group (two passes) with a Huber loss against outliers (a bumped pose), and the
     covariance includes the accelerometer parameters' uncertainty (through the gravity directions).
 
+    Pre-integration (Forster et al. 2017): the motion samples are integrated once at the current parameters,
+    keeping each motion's rotation and the weighted sums of its mid-sample attitudes that give the rotation for
+    any nearby G, c to first order in the rate change (linear in G and c); the fit iterates on these O(motions)
+    quantities and integrates again only while a correction turns a motion by more than 3e-4 rad
+    (``fit_gyro(..., preintegrate=False)``: the reference that integrates every sample at every evaluation).
+
 Redundant units: ``mode="joint"`` calibrates all sensors of an instrument together (skewed sets through the
 least-squares estimate of the specific force and angular rate); ``mode="subunits"`` calibrates each sub-unit
 triad on its own (each in its own gauge frame).
@@ -69,7 +75,7 @@ import numpy as np
 
 from ..errors import IdentifiabilityError, SessionFormatError
 from ..geometry import Geometry
-from ..session import Segment, Session, rotation_matrix, skew
+from ..session import Segment, Session
 from .estimate import CalibrationResult, estimate_noise_sigma, make_sensor_fit
 from .lsq import LsqResult, central_jacobian
 from .model import ErrorModel, SensorContext
@@ -288,27 +294,104 @@ def _mb_nominal(g: Geometry) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------- pose data
-def white_noise_sigma_hf(session: Session, instrument: str, order: int = 3) -> np.ndarray:
+@dataclass
+class _RawStats:
+    """One instrument's samples of every segment, back to back as rows (n, N) minus a reference sample (so sums of
+    products keep their precision), with the per-segment sums and peaks: one pass over the data that the noise
+    level, the clip levels, the pose means and the gyro fit's sums all read, instead of one pass each (each a
+    strided reduction over the (N, n) sample arrays)."""
+
+    X: np.ndarray  # (n, N) raw - ref
+    ref: np.ndarray  # (n,)
+    starts: np.ndarray  # (S,) first column of each segment in X
+    counts: np.ndarray  # (S,)
+    sums: np.ndarray  # (S, n) sum of the raw samples of each segment
+    peak: np.ndarray  # (S, n) largest |raw| of each segment
+    t: np.ndarray  # (N,) sample times
+
+    def means(self, seg_index: Sequence[int], idx: Sequence[int] | slice = slice(None)) -> np.ndarray:
+        j = np.asarray(seg_index, dtype=int)
+        return (self.sums[j] / self.counts[j, None])[:, idx]
+
+
+def _raw_stats(session: Session, instrument: str) -> _RawStats:
+    segs = session.segments
+    counts = np.array([s.n_samples for s in segs], dtype=int)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(int)
+    n = session.geometries[instrument].n
+    ref = np.asarray(segs[0].raw[instrument][0], dtype=float).copy() if counts[0] else np.zeros(n)
+    X = np.empty((n, int(counts.sum())))
+    for s, a, k in zip(segs, starts, counts):
+        np.subtract(s.raw[instrument].T, ref[:, None], out=X[:, a:a + k])
+    ok = counts > 0
+    sums = np.zeros((len(segs), n))
+    hi = np.full((len(segs), n), -np.inf)
+    lo = np.full((len(segs), n), np.inf)
+    if np.any(ok):
+        st = starts[ok]
+        sums[ok] = np.add.reduceat(X, st, axis=1).T
+        hi[ok] = np.maximum.reduceat(X, st, axis=1).T
+        lo[ok] = np.minimum.reduceat(X, st, axis=1).T
+    sums += counts[:, None] * ref
+    peak = np.where(ok[:, None], np.maximum(np.abs(hi + ref), np.abs(lo + ref)), 0.0)
+    t = np.concatenate([s.t for s in segs]) if segs else np.zeros(0)
+    return _RawStats(X, ref, starts, counts, sums, peak, t)
+
+
+def _diff_power(rs: _RawStats, eligible: np.ndarray, order: int) -> tuple[np.ndarray, int]:
+    """Sum over the eligible segments of the squared differences of order ``order`` (per sensor), and their count:
+    ``sum_t (sum_k a_k x_t+k)^2 = sum_kl a_k a_l sum_t x_t+k x_t+l`` from the lagged products of the whole record
+    (one dot product per lag and sensor), less the differences that are not inside one eligible segment (across a
+    boundary, or in a motion), which are formed explicitly."""
+    from math import comb
+
+    X = rs.X
+    n, N = X.shape
+    if N <= order:
+        return np.zeros(n), 0
+    a = np.array([(-1.0) ** (order - k) * comb(order, k) for k in range(order + 1)])
+    m = N - order  # windows t = 0 .. m-1 over the whole record
+    lag = [np.array([X[i, :N - d] @ X[i, d:] for i in range(n)]) for d in range(order + 1)]
+    total = np.zeros(n)
+    for k in range(order + 1):
+        for l in range(order + 1):
+            d = abs(l - k)
+            lo = min(k, l)
+            # sum_{t=0}^{m-1} x_{t+lo} x_{t+lo+d} = lag_d minus the products before lo and after m-1+lo
+            head = np.einsum("ij,ij->i", X[:, :lo], X[:, d:d + lo])
+            tail = np.einsum("ij,ij->i", X[:, m + lo:N - d], X[:, m + lo + d:N])
+            total += a[k] * a[l] * (lag[d] - head - tail)
+    valid = np.zeros(m, bool)
+    cnt = 0
+    for j in np.flatnonzero(eligible):
+        s, c = rs.starts[j], rs.counts[j]
+        valid[s:s + c - order] = True
+        cnt += c - order
+    bad = np.flatnonzero(~valid)
+    if bad.size:
+        e = X[:, bad[:, None] + np.arange(order + 1)] @ a  # (n, B)
+        total -= np.einsum("ij,ij->i", e, e)
+    return np.maximum(total, 0.0), cnt
+
+
+def white_noise_sigma_hf(session: Session, instrument: str, order: int = 3,
+                         _stats: _RawStats | None = None) -> np.ndarray:
     """Per-sample white-noise standard deviation (raw) from differences of order ``order`` within the poses.
 
     A hand-held pose is not still: tremor (8-12 Hz) and sway are real motion that the sensors measure and the
     calibration integrates, not noise. Differences of order k multiply white noise variance by C(2k, k) and
     attenuate a 10 Hz tremor sampled at 100 Hz by (2 sin(pi f / fs))^(2k) (0.06 for k = 3), so third
-    differences see the white noise and hardly the hand.
+    differences see the white noise and hardly the hand. (Computed from lagged products in one pass, see
+    :func:`_diff_power`; equal to the differences formed sample by sample, tested to 1e-9.)
     """
     from math import comb
 
-    segs = _statics(session) or list(session.segments)
-    n = session.geometries[instrument].n
-    acc = np.zeros(n)
-    cnt = 0
-    for sg in segs:
-        y = sg.raw[instrument]
-        if y.shape[0] <= order + 2:
-            continue
-        d = np.diff(y, n=order, axis=0)
-        acc += np.sum(d**2, axis=0)
-        cnt += d.shape[0]
+    rs = _raw_stats(session, instrument) if _stats is None else _stats
+    kinds = np.array([s.kind in STATIC_KINDS for s in session.segments], dtype=bool)
+    if not np.any(kinds):
+        kinds[:] = True
+    eligible = kinds & (rs.counts > order + 2)
+    acc, cnt = _diff_power(rs, eligible, order)
     if cnt == 0:
         return estimate_noise_sigma(session, instrument)
     sig = np.sqrt(acc / cnt / comb(2 * order, order))
@@ -319,9 +402,15 @@ def _statics(session: Session) -> list[Segment]:
     return [s for s in session.segments if s.kind in STATIC_KINDS]
 
 
-def _pose_stats(segs: Sequence[Segment], inst: str, idx: Sequence[int], sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _static_index(session: Session) -> list[int]:
+    return [j for j, s in enumerate(session.segments) if s.kind in STATIC_KINDS]
+
+
+def _pose_stats(segs: Sequence[Segment], inst: str, idx: Sequence[int], sigma: np.ndarray,
+                ybar: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Mean raw output of each pose (K, n) and its standard deviation from the per-sample noise (K, n)."""
-    ybar = np.array([s.raw[inst][:, idx].mean(axis=0) for s in segs])
+    if ybar is None:
+        ybar = np.array([s.raw[inst][:, idx].mean(axis=0) for s in segs])
     N = np.array([s.n_samples for s in segs], dtype=float)
     return ybar, sigma[None, :] / np.sqrt(N)[:, None]
 
@@ -387,6 +476,64 @@ def _specific_forces(Wp: np.ndarray, c: np.ndarray, ybar: np.ndarray, sd: np.nda
     return f, info, e
 
 
+def _accel_problem(theta: np.ndarray, free: np.ndarray, fixed: np.ndarray, ybar: np.ndarray, sd: np.ndarray,
+                   gravity: float, tau2: float, jac: bool = True):
+    """Residuals of the accelerometer fit (:func:`fit_accel`, step 2) and their analytic Jacobian.
+
+    Per pose k: ``f_k = (W^T S_k W)^-1 W^T S_k (ybar_k - c)`` (S_k = diag(1 / sd_k^2)), the norm residual
+    ``(|f_k| - g) / sqrt(u_k^T info_k^-1 u_k + tau^2)`` and, for skewed sets, the whitened parity
+    ``(ybar_k - c - W f_k) / sd_k``. Returns (r, J, df) with df = d f / d theta (K, 3, p) (None without ``jac``).
+    With info = W^T S W and rho = ybar - c - W f: ``d f / d c_i = -info^-1 W_i s_i``,
+    ``d f / d W_ia = info^-1 s_i (e_a rho_i - W_i f_a)``; ``d s2 = 2 (info^-1 u) . du - (info^-1 u)^T d info
+    (info^-1 u)``, ``du = (I - u u^T) df / |f|``.
+    """
+    n = free.shape[0]
+    Wp, c = _unpack(theta, free, fixed, n)
+    f, info, e = _specific_forces(Wp, c, ybar, sd)
+    Sinv = np.linalg.inv(info)  # (K, 3, 3)
+    nf = np.sqrt(np.einsum("ka,ka->k", f, f))
+    u = f / nf[:, None]
+    Su = np.einsum("kab,kb->ka", Sinv, u)
+    s2n = np.einsum("ka,ka->k", u, Su)
+    den = np.sqrt(s2n + tau2)
+    d = nf - gravity
+    r = d / den
+    if n > 3:
+        r = np.concatenate([r, e.ravel()])
+    if not jac:
+        return r, None, None
+    K = len(ybar)
+    w = 1.0 / sd**2  # (K, n)
+    rho = e * sd  # (K, n) unwhitened residual
+    nfree = int(free.sum())
+    p = nfree + n
+    # d f / d W (K, 3, n, 3) and d f / d c (K, 3, n)
+    SW = np.einsum("kab,ib->kai", Sinv, Wp) * w[:, None, :]  # info^-1 W_i s_i  (K, 3, n)
+    dfW = (Sinv[:, :, None, :] * (w * rho)[:, None, :, None]
+           - SW[:, :, :, None] * f[:, None, None, :])  # (K, 3(out), n, 3(a))
+    df = np.empty((K, 3, p))
+    df[:, :, :nfree] = dfW.reshape(K, 3, 3 * n)[:, :, free.ravel()]
+    df[:, :, nfree:] = -SW
+    du = (df - u[:, :, None] * np.einsum("ka,kap->kp", u, df)[:, None, :]) / nf[:, None, None]
+    dnf = np.einsum("ka,kap->kp", u, df)
+    ds2 = 2.0 * np.einsum("ka,kap->kp", Su, du)
+    # - (Su)^T d info (Su), d info / d W_ia = s_i (e_a W_i^T + W_i e_a^T)
+    dinfo = 2.0 * w[:, :, None] * Su[:, None, :] * (Su @ Wp.T)[:, :, None]  # (K, n, 3(a))
+    ds2[:, :nfree] -= dinfo.reshape(K, 3 * n)[:, free.ravel()]
+    J_norm = dnf / den[:, None] - 0.5 * (d / den**3)[:, None] * ds2
+    if n <= 3:
+        return r, J_norm, df
+    # parity: e_ki = (ybar_ki - c_i - W_i . f_k) / sd_ki
+    de = -np.einsum("ia,kap->kip", Wp, df)
+    dW_direct = np.zeros((K, n, n, 3))
+    idx = np.arange(n)
+    dW_direct[:, idx, idx, :] = -f[:, None, :]
+    de[:, :, :nfree] += dW_direct.reshape(K, n, 3 * n)[:, :, free.ravel()]
+    de[:, :, nfree:] -= np.eye(n)[None]
+    de /= sd[:, :, None]
+    return r, np.vstack([J_norm, de.reshape(K * n, p)]), df
+
+
 def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, names: Sequence[str],
               members: Sequence[int] | None = None, robust: bool = False, model: str = "full",
               quick: bool = False) -> AccelFit:
@@ -411,8 +558,6 @@ def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, n
         One refinement without the pose-variance component, no covariance (zero) and no identifiability checks:
         for scoring many candidate detections.
     """
-    from scipy.optimize import least_squares
-
     ybar = np.asarray(ybar, float)
     K, n = ybar.shape
     members = list(range(n)) if members is None else list(members)
@@ -484,12 +629,11 @@ def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, n
         u = f / nf[:, None]
         return nf - gravity, np.einsum("ka,kab,kb->k", u, np.linalg.inv(info), u), e
 
-    def resid(theta):
-        d, s2n, e = norm_parts(theta)
-        r = d / np.sqrt(s2n + tau2[0])
-        return np.concatenate([r, e.ravel()]) if n > 3 else r
+    def fun(theta):
+        return _accel_problem(theta, free, fixed, ybar, sd, gravity, tau2[0])[:2]
 
-    # 2. nonlinear refinement of the full model on all poses. A pose held by hand is disturbed by more than the
+    # 2. nonlinear refinement of the full model on all poses (Gauss-Newton / Levenberg-Marquardt on the analytic
+    # Jacobian of _accel_problem). A pose held by hand is disturbed by more than the
     # white noise (a pose-to-pose variance tau^2 that does not fall with the pose's length): when the norm
     # residuals exceed the white-noise prediction, tau^2 is the additive variance that brings their chi-square
     # to its degrees of freedom, and the fit is repeated with it (variance components; otherwise a long still
@@ -497,10 +641,7 @@ def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, n
     tau2 = [0.0]
     theta = theta0
     for _ in range(1 if quick else 3):
-        sol = least_squares(resid, theta, x_scale=typ, method="trf", loss="huber" if robust else "linear",
-                            f_scale=3.0, xtol=1e-10 if quick else 1e-13, ftol=1e-10 if quick else 1e-13,
-                            gtol=1e-10 if quick else 1e-13, max_nfev=200 * len(theta0))
-        theta = sol.x
+        theta = _gauss_newton(fun, theta, typ, robust, xtol=1e-8 if quick else 1e-12, max_iter=200)[0]
         if quick:
             break
         dof_n = K - len(theta) + (K * (n - 3) if n > 3 else 0)
@@ -516,9 +657,8 @@ def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, n
         d_, s2_, e_ = norm_parts(theta)
         return AccelFit(members, tri, Wp @ P, c, np.zeros((len(theta), len(theta))), theta, free, P,
                         np.zeros((K, 3)), d_, np.sqrt(s2_), 0.0, K - len(theta), 1.0, None, [], ybar, sd, 0.0)
-    # 3. covariance from the Jacobian (central differences) and the residual noise
-    J = central_jacobian(resid, theta, typ * 1e-6)
-    r = resid(theta)
+    # 3. covariance from the (analytic) Jacobian and the residual noise
+    r, J = fun(theta)
     nobs = K + (K * (n - 3) if n > 3 else 0)
     dof = nobs - len(theta)
     _check_jacobian(J, typ, _theta_names(free, names, P_names=("x", "y", "z")), "accel")
@@ -544,11 +684,12 @@ def _distinct_directions(ybar: np.ndarray, deg: float = 5.0) -> int:
     """Number of distinct directions among the pose means (centred roughly), clusters closer than ``deg``."""
     y = ybar - 0.5 * (ybar.max(axis=0) + ybar.min(axis=0))
     u = y / np.maximum(np.linalg.norm(y, axis=1, keepdims=True), 1e-300)
-    reps: list[np.ndarray] = []
+    C = (u @ u.T).tolist()
     c = np.cos(np.radians(deg))
-    for v in u:
-        if not any(float(v @ r) > c for r in reps):
-            reps.append(v)
+    reps: list[int] = []
+    for i, row in enumerate(C):
+        if not any(row[r] > c for r in reps):
+            reps.append(i)
     return len(reps)
 
 
@@ -567,17 +708,23 @@ def _axis_ellipsoid_fit(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _extra_variance(d: np.ndarray, s2: np.ndarray, rest: float, dof: int) -> float:
     """The additive pose variance tau^2 >= 0 with ``sum d_k^2 / (s2_k + tau^2) + rest = dof`` (0 when the white
-    noise explains the residuals already). Bisection; the sum falls monotonically with tau^2."""
-    if float(np.sum(d**2 / s2)) + rest <= dof:
+    noise explains the residuals already). Newton's method from tau^2 = 0: the sum falls with tau^2 and is convex
+    in it, so the iterates rise monotonically to the root without overshooting."""
+    d2 = d**2
+    if float(np.sum(d2 / s2)) + rest <= dof:
         return 0.0
-    lo, hi = 0.0, float(np.max(d**2)) * len(d) + float(np.max(s2))
+    hi = float(np.max(d2)) * len(d) + float(np.max(s2))
+    if float(np.sum(d2 / (s2 + hi))) + rest > dof:  # no root below this bound (the parity alone exceeds dof)
+        return hi
+    tau = 0.0
     for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        if float(np.sum(d**2 / (s2 + mid))) + rest > dof:
-            lo = mid
-        else:
-            hi = mid
-    return hi
+        q = d2 / (s2 + tau)
+        g = float(np.sum(q)) + rest - dof
+        step = g / float(np.sum(q / (s2 + tau)))
+        tau += step
+        if step <= 1e-15 * tau:
+            break
+    return tau
 
 
 def _theta_names(free: np.ndarray, names: Sequence[str], P_names=("x", "y", "z")) -> list[str]:
@@ -657,6 +804,20 @@ def pose_windows(session: Session) -> list[tuple[int, int, list[Segment]]]:
     return out
 
 
+class _LazyDict(dict):
+    """A dict whose listed keys are computed on first access (``makers[key]()``), then kept."""
+
+    def __init__(self, makers: dict[str, Any]) -> None:
+        super().__init__()
+        self._makers = makers
+
+    def __missing__(self, key: str) -> Any:
+        if key not in self._makers:
+            raise KeyError(key)
+        value = self[key] = self._makers[key]()
+        return value
+
+
 @dataclass
 class GyroFit:
     """Result of :func:`fit_gyro`."""
@@ -688,9 +849,148 @@ class GyroFit:
         return float(np.degrees(np.sqrt(np.mean(np.sum(self.rotation_residual**2, axis=1)))))
 
 
+def _rodrigues(v: np.ndarray) -> np.ndarray:
+    """Rotation matrices (M, 3, 3) of rotation vectors (M, 3) (Rodrigues' formula, series near zero)."""
+    x, y, z = v.T
+    th2 = x * x + y * y + z * z
+    if float(th2.max(initial=0.0)) < 1e-8:  # every angle below 1e-4 rad: the series to th^4 is exact in double
+        a = 1.0 - th2 / 6.0 + th2 * th2 / 120.0
+        b = 0.5 - th2 / 24.0 + th2 * th2 / 720.0
+    else:
+        th = np.sqrt(th2)
+        big = th > 1e-4
+        ths = np.where(big, th, 1.0)
+        a = np.where(big, np.sin(ths) / ths, 1.0 - th2 / 6.0 + th2 * th2 / 120.0)
+        b = np.where(big, (1.0 - np.cos(ths)) / (ths * ths), 0.5 - th2 / 24.0 + th2 * th2 / 720.0)
+    R = np.empty((len(v), 3, 3))
+    bx, by = b * x, b * y
+    ax, ay, az = a * x, a * y, a * z
+    R[:, 0, 0] = 1.0 - b * (y * y + z * z)
+    R[:, 1, 1] = 1.0 - b * (x * x + z * z)
+    R[:, 2, 2] = 1.0 - b * (x * x + y * y)
+    R[:, 0, 1] = bx * y - az
+    R[:, 1, 0] = bx * y + az
+    R[:, 0, 2] = bx * z + ay
+    R[:, 2, 0] = bx * z - ay
+    R[:, 1, 2] = by * z - ax
+    R[:, 2, 1] = by * z + ax
+    return R
+
+
+def _right_jacobian(x: np.ndarray) -> np.ndarray:
+    """Right Jacobians (M, 3, 3) of the rotation exponential at x (M, 3): ``Exp(x + dx) = Exp(x) Exp(Jr dx)``,
+    ``Jr = I - (1 - cos t) / t^2 [x]x + (t - sin t) / t^3 [x]x^2``."""
+    t2 = np.einsum("mi,mi->m", x, x)
+    t = np.sqrt(t2)
+    big = t > 1e-4
+    ts = np.where(big, t, 1.0)
+    a = np.where(big, (1.0 - np.cos(ts)) / ts**2, 0.5 - t2 / 24.0)
+    b = np.where(big, (ts - np.sin(ts)) / ts**3, 1.0 / 6.0 - t2 / 120.0)
+    K = np.zeros((len(x), 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -x[:, 2], x[:, 1], -x[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = x[:, 2], -x[:, 1], x[:, 0]
+    return np.eye(3) - a[:, None, None] * K + b[:, None, None] * (K @ K)
+
+
+def _cross_cols(v: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """``v x X`` for every column of X: v (M, 3), X (M, 3, p) -> (M, 3, p) (``skew(v) @ X``)."""
+    out = np.empty_like(X)
+    out[:, 0] = v[:, 1, None] * X[:, 2] - v[:, 2, None] * X[:, 1]
+    out[:, 1] = v[:, 2, None] * X[:, 0] - v[:, 0, None] * X[:, 2]
+    out[:, 2] = v[:, 0, None] * X[:, 1] - v[:, 1, None] * X[:, 0]
+    return out
+
+
+def _scan_planar(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exclusive prefix products along the last axis (length a power of two) of quaternion planes (4, M, L),
+    and the total product (4, M): a work-efficient (Blelloch) up- and down-sweep, 2 L products in all."""
+    levels = [q]
+    while levels[-1].shape[-1] > 1:
+        a = levels[-1]
+        levels.append(_qmul_planar(a[..., 0::2], a[..., 1::2]))
+    total = levels[-1][..., 0]
+    ex = np.zeros_like(levels[-1])
+    ex[0] = 1.0
+    for a in levels[-2::-1]:
+        nxt = np.empty_like(a)
+        nxt[..., 0::2] = ex
+        nxt[..., 1::2] = _qmul_planar(ex, a[..., 0::2])
+        ex = nxt
+    return ex, total
+
+
+def _huber_weights(r: np.ndarray, robust: bool, f_scale: float) -> np.ndarray:
+    """IRLS weights of scipy's ``loss="huber"`` (rho'(z), z = (r / f_scale)^2): 1 inside, f_scale / |r| beyond."""
+    if not robust:
+        return np.ones_like(r)
+    a = np.abs(r)
+    return np.where(a <= f_scale, 1.0, f_scale / np.maximum(a, 1e-300))
+
+
+def _huber_cost(r: np.ndarray, robust: bool, f_scale: float) -> float:
+    """scipy's ``0.5 * sum(f_scale^2 rho((r / f_scale)^2))`` for the Huber (or the linear) loss."""
+    if not robust:
+        return 0.5 * float(r @ r)
+    z = (r / f_scale) ** 2
+    return 0.5 * f_scale**2 * float(np.sum(np.where(z <= 1.0, z, 2.0 * np.sqrt(z) - 1.0)))
+
+
+def _gauss_newton(fun, theta: np.ndarray, typ: np.ndarray, robust: bool, f_scale: float = 3.0,
+                  xtol: float = 1e-10, max_iter: int = 100, reach=None, radius: float = np.inf):
+    """Minimise the (Huber-)robust least-squares cost of ``fun(theta) -> (r, J)`` by Levenberg-Marquardt steps on
+    iteratively reweighted residuals (the stationary point of scipy's ``least_squares(loss="huber")``): a step
+    that does not lower the cost is retried with ten times the damping, an accepted one divides it by ten. Stops
+    when the step is below ``xtol`` in units of ``typ`` (or the damping found no lower cost).
+
+    ``reach(theta)`` (optional) measures how far theta is from where ``fun`` is valid (a model about a point); a
+    step beyond ``radius`` is shortened to it and, if it lowers the cost, ends the solve there. Returns
+    (theta, r, J, whether the solve stopped at the radius)."""
+    r, J = fun(theta)
+    cost = _huber_cost(r, robust, f_scale)
+    lam = 0.0
+    near = False
+    for _ in range(max_iter):
+        w = _huber_weights(r, robust, f_scale)
+        Js = J * typ
+        # curvature: the reweighted one (rho') while far, the Gauss-Newton model of the robust cost itself once the
+        # steps are small (scipy's scaling: rho' + 2 rho'' z, for the Huber loss 0 beyond f_scale): the
+        # stationary point is the same, reached at the rate of Gauss-Newton rather than of reweighting
+        hw = np.where(w < 1.0, 1e-6, 1.0) if (robust and near) else w
+        A = Js.T @ (Js * hw[:, None])
+        g = Js.T @ (w * r)
+        dA = np.diag(A).copy()
+        while True:
+            try:
+                step = -np.linalg.solve(A + lam * np.diag(dA), g)
+            except np.linalg.LinAlgError:
+                step = -np.linalg.lstsq(A + lam * np.diag(dA), g, rcond=None)[0]
+            small = float(np.max(np.abs(step))) <= xtol
+            th_new = theta + step * typ
+            edge = False
+            if reach is not None:
+                far, here = reach(th_new), reach(theta)
+                if far > radius:  # the reach is convex along the step: shorten it to the radius
+                    th_new = theta + step * typ * max(radius - here, 0.0) / max(far - here, 1e-300)
+                    edge = True
+            r_new, J_new = fun(th_new)
+            c_new = _huber_cost(r_new, robust, f_scale)
+            if c_new <= cost * (1 + 1e-9) or small:  # (rounding of the cost; a Jacobian first order in the poses)
+                lam = lam / 10.0 if lam > 1e-6 else 0.0
+                break
+            lam = max(lam * 10.0, 1e-4)
+            if lam > 1e8:
+                return theta, r, J, False
+        theta, r, J, cost = th_new, r_new, J_new, c_new
+        near = lam == 0.0 and float(np.max(np.abs(step))) < 1e-3
+        if small or edge:
+            return theta, r, J, edge
+    return theta, r, J, False
+
+
 def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], accel_dirs: np.ndarray,
              accel_dir_jac: np.ndarray | None, accel_cov: np.ndarray | None, idx: Sequence[int], sigma: np.ndarray,
-             H: np.ndarray, robust: bool = True, dir_cov: np.ndarray | None = None) -> GyroFit:
+             H: np.ndarray, robust: bool = True, dir_cov: np.ndarray | None = None,
+             preintegrate: bool = True, _stats: _RawStats | None = None, _ybar: np.ndarray | None = None) -> GyroFit:
     """Gyros from the rotations between poses (module docstring; Tedaldi et al. 2014, Eq. 14-18).
 
     Parameters
@@ -703,9 +1003,14 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     idx : the gyro columns calibrated together; sigma their per-sample raw noise; H their nominal axes.
     dir_cov : ndarray (K, 3, 3), optional
         Covariance of each pose's gravity direction (from the accelerometer noise); default isotropic 1e-8.
+    preintegrate : bool
+        ``True`` (default): each motion's samples are integrated once at the current parameters, keeping the
+        rotation and its Jacobian (pre-integration, as in Forster et al. 2017); the fit then iterates on these
+        per-motion quantities, ``R(theta) = R(theta_l) Exp(J_l (theta - theta_l))``, and integrates again only
+        while the correction turns some motion by more than 1e-4 rad (the model's error is second order in it).
+        ``False``: the reference, every sample integrated again at every evaluation of a trust-region solver
+        (``scipy.optimize.least_squares``); both reach the same optimum (tested).
     """
-    from scipy.optimize import least_squares
-
     statics = _statics(session)
     inst = "gyro"
     n = len(idx)
@@ -713,39 +1018,47 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         raise IdentifiabilityError("gyro: no motion between two consecutive static poses; record the rotations "
                                    "between poses (do not cut them out) to calibrate the gyros",
                                    ["scale", "misalignment"])
-    ybar, sd = _pose_stats(statics, inst, idx, sigma)
+    ybar, sd = _pose_stats(statics, inst, idx, sigma, _ybar)
     if dir_cov is None:
         dir_cov = np.broadcast_to(np.eye(3) * 1e-8, (len(statics), 3, 3))
     # samples of every window, back to back, grouped
     M = len(windows)
     ka = np.array([w[0] for w in windows])
     kb = np.array([w[1] for w in windows])
+    rst = _raw_stats(session, inst) if _stats is None else _stats
+    rows = slice(None) if list(idx) == list(range(rst.X.shape[0])) else list(idx)
+    ref = rst.ref[rows]
+    seg_pos = {id(s): j for j, s in enumerate(session.segments)}
     # per window: the pose-k samples (first order: tremor and sway are small rotations), the motion samples
     # (exact rotations, padded to a common power-of-two length with identity steps) and the pose-(k+1) samples
     L = 1
-    ys: list[np.ndarray] = []
-    acc_ys: list[np.ndarray | None] = []
+    cols: list[tuple[int, int]] = []
     parts_idx: list[tuple[np.ndarray, np.ndarray, np.ndarray, int, int]] = []
     mot_dt = []
     SA_w, SB_w = np.zeros(M), np.zeros(M)
     Tw, Tw2 = np.zeros(M), np.zeros(M)
     q_ab_list: list[float] = []
+    dt_all = np.zeros(len(rst.t))  # t[i+1] - t[i] (the last entry of every window is set below)
+    np.subtract(rst.t[1:], rst.t[:-1], out=dt_all[:-1])
+    ramp = np.arange(int(rst.counts.max()) + 1, dtype=float)
     for m, (_, _, chain) in enumerate(windows):
-        t = np.concatenate([s.t for s in chain])
-        y = np.vstack([s.raw[inst][:, idx] for s in chain])
-        dt = np.diff(t, append=t[-1] + (t[-1] - t[-2] if len(t) > 1 else 1.0 / session.sample_rate))
-        na, nb = chain[0].n_samples, chain[-1].n_samples
+        j0, j1 = seg_pos[id(chain[0])], seg_pos[id(chain[-1])]
+        c0, c1 = int(rst.starts[j0]), int(rst.starts[j1] + rst.counts[j1])
+        cols.append((c0, c1))
+        # dt[i] = t[i+1] - t[i] within the window, the last sample's the one before it
+        dt = dt_all[c0:c1].copy() if c1 - c0 > 1 else np.array([1.0 / session.sample_rate])
+        if c1 - c0 > 1:
+            dt[-1] = dt_all[c1 - 2]
+        na, nb = int(rst.counts[j0]), int(rst.counts[j1])
         # attitude at sample i of pose k relative to the end of the pose: -sum_{tau >= i} w dt; its mean
-        wa = dt[:na] * (np.arange(na) + 1) / na
+        wa = dt[:na] * ramp[1:na + 1] / na
         # attitude at sample j of pose k+1 relative to its start: sum_{tau < j} w dt; its mean
-        wb = dt[len(t) - nb:] * (nb - 1 - np.arange(nb)) / nb
+        wb = dt[c1 - c0 - nb:] * ramp[nb - 1::-1] / nb
         SA_w[m], SB_w[m] = wa.sum(), wb.sum()
         q_ab_list.append(float(wa @ wa + wb @ wb))
-        mot_dt.append(dt[na:len(t) - nb])
-        L = max(L, len(t) - na - nb)
+        mot_dt.append(dt[na:c1 - c0 - nb])
+        L = max(L, c1 - c0 - na - nb)
         Tw[m], Tw2[m] = dt.sum(), dt @ dt
-        ys.append(y)
-        acc_ys.append(np.vstack([s.raw["accel"] for s in chain]) if "accel" in chain[0].raw else None)
         parts_idx.append((wa, wb, dt, na, nb))
     L = 1 << int(np.ceil(np.log2(max(L, 1))))
     q_ab = np.array(q_ab_list)
@@ -753,19 +1066,42 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     for m in range(M):
         DM[m, :len(mot_dt[m])] = mot_dt[m]
 
-    def sums(ys_: list[np.ndarray]) -> dict[str, np.ndarray]:
-        """The data sums the residual needs, from the raw samples of every window (linear in them)."""
-        out = {"SA_y": np.zeros((M, n)), "SB_y": np.zeros((M, n)), "YM": np.zeros((M, L, n)),
+    def window_samples(name: str) -> list:
+        """The raw samples (N_m, n) of every window (gyro: the fitted columns; or the accelerometers'), built
+        only when asked for (diagnosis)."""
+        if name == "gyro":
+            return [np.vstack([s.raw[inst][:, idx] for s in w[2]]) for w in windows]
+        if "accel" not in session.geometries:
+            return [None] * M
+        return [np.vstack([s.raw["accel"] for s in w[2]]) for w in windows]
+
+    def sums(ys_: list[np.ndarray] | None = None) -> dict[str, np.ndarray]:
+        """The data sums the residual needs, from the raw samples of every window (linear in them): the
+        dt-weighted motion samples as planes (n, M, L), the weighted pose sums and the window integrals. Without
+        ``ys_``, from the one pass over the session (rows minus a reference sample; the reference added back)."""
+        out = {"SA_y": np.zeros((M, n)), "SB_y": np.zeros((M, n)), "YD": np.zeros((n, M, L)),
                "Yint": np.zeros((M, n))}
-        for m, (y, (wa, wb, dt, na, nb)) in enumerate(zip(ys_, parts_idx)):
-            out["SA_y"][m] = wa @ y[:na]
-            out["SB_y"][m] = wb @ y[len(y) - nb:]
-            out["YM"][m, :len(y) - na - nb] = y[na:len(y) - nb]
-            out["Yint"][m] = dt @ y
+        for m, (wa, wb, dt, na, nb) in enumerate(parts_idx):
+            nm = len(dt) - na - nb
+            if ys_ is None:  # each sample read once: the pose sums and their part of the integral together
+                c0, c1 = cols[m]
+                X = rst.X[rows, c0:c1]
+                Xa, Xb = X[:, :na], X[:, na + nm:]
+                xm = X[:, na:na + nm] * dt[na:na + nm]
+                out["SA_y"][m] = Xa @ wa + ref * SA_w[m]
+                out["SB_y"][m] = Xb @ wb + ref * SB_w[m]
+                out["YD"][:, m, :nm] = xm + ref[:, None] * dt[na:na + nm]
+                out["Yint"][m] = Xa @ dt[:na] + Xb @ dt[na + nm:] + xm.sum(axis=1) + ref * Tw[m]
+            else:
+                y = ys_[m]
+                out["SA_y"][m] = wa @ y[:na]
+                out["SB_y"][m] = wb @ y[len(y) - nb:]
+                out["YD"][:, m, :nm] = (y[na:len(y) - nb] * dt[na:len(y) - nb, None]).T
+                out["Yint"][m] = dt @ y
         return out
 
-    D = sums(ys)
-    T = np.array([_tangent(accel_dirs[k]) for k in kb])  # (M, 2, 3) tangent basis at each measured end direction
+    D = sums()
+    T = _tangent(accel_dirs[kb])  # (M, 2, 3) tangent basis at each measured end direction
     sig_int = sigma[None, :] * np.sqrt(Tw2)[:, None]
 
     def _G(W):
@@ -774,23 +1110,76 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         wi = 1.0 / sigma**2
         return np.linalg.solve(W.T @ (W * wi[:, None]), W.T * wi)
 
-    def rotations(W, c):
+    def integrate(theta, jac=True):
+        """The rotation of every motion (M, 3, 3), exact (a quaternion per sample, combined pairwise), and with
+        ``jac`` the pre-integration at theta: ``(theta, R, DG, Qc, G, c)`` for :func:`model_x`.
+
+        To first order in the change of every sample's rate, ``R' = R Exp(sum_t dt A_t^T (omega'_t - omega_t))``
+        with A_t the rotation from the middle of sample t to the end, ``A_t = C_mid,t^T R`` (C_mid,t: attitude at
+        the middle of sample t relative to the start, from the exclusive prefix products). The rate is linear in
+        G and c, ``omega_t = G (y_t - c)``, so the sum needs only the sums ``Q_i = R^T sum_t dt (y_ti - c_i)
+        C_mid,t`` (one per sensor) and ``Qc = R^T sum_t dt C_mid,t``: one prefix scan and n + 1 weighted sums,
+        after which any G, c near these is O(motions) work (Forster et al. 2017's pre-integration, here for the
+        gyro scale, misalignment and bias)."""
+        W = theta[:3 * n].reshape(n, 3)
+        c = theta[3 * n:]
+        Gm = _G(W)
+        omp = (Gm @ D["YD"].reshape(n, -1)).reshape(3, M, L) - (Gm @ c)[:, None, None] * DM  # rad per sample
+        q = _qexp_planar(omp)
+        if not jac:
+            while q.shape[2] > 1:  # pairwise products: the rotation over the motion
+                q = _qmul_planar(q[:, :, 0::2], q[:, :, 1::2])
+            return _qmat_planar(q[:, :, 0] / np.linalg.norm(q[:, :, 0], axis=0, keepdims=True))
+        ex, total = _scan_planar(q)
+        mid = _qmul_planar(ex, q)
+        mid += ex  # (P_t-1 q_t + P_t-1) / |.| = P_t-1 q_t^(1/2): the attitude at the middle of sample t
+        mid /= np.sqrt(np.maximum(2.0 * (1.0 + q[0]), 1e-300))
+        Cm = _qmat_planar(mid)  # (M, L, 3, 3)
+        wts = np.concatenate([D["YD"] - c[:, None, None] * DM, DM[None]], axis=0)  # (n + 1, M, L)
+        S = (wts.transpose(1, 0, 2) @ Cm.reshape(M, L, 9)).reshape(M, n + 1, 3, 3)  # sum_t w C_mid
+        Rm = _qmat_planar(total / np.linalg.norm(total, axis=0, keepdims=True))
+        Q = np.einsum("mba,mkbc->mkac", Rm, S)  # R^T sum_t w C_mid
+        DG = Q[:, :n].transpose(0, 2, 3, 1).reshape(M, 3, 3 * n)  # d x / d vec(G), vec(G)[a n + i] = G[a, i]
+        return (theta.copy(), Rm, DG, Q[:, n], Gm, c.copy())
+
+    def model_x(theta, pre, jac=False, Gm=None):
+        """The rotation vector x with ``R(theta) = R_l Exp(x)`` of the pre-integration ``pre`` (first order in the
+        change of the sample rates, exact in their linear dependence on G), and with ``jac`` d x / d theta."""
+        _, _, DG, Qc, G_l, c_l = pre
+        c = theta[3 * n:]
+        Gm = _G(theta[:3 * n].reshape(n, 3)) if Gm is None else Gm
+        v = Gm @ (c - c_l)
+        x = DG @ (Gm - G_l).ravel() - Qc @ v
+        if not jac:
+            return x
+        dx = np.empty((M, 3, 4 * n))
+        # d G / d W_ij = -G e_i e_j^T G (the least-squares G of skewed sets: the same, to first order)
+        X = DG.reshape(M, 3, 3, n) @ Gm.T  # (M, 3, 3a, 3j)
+        QG = Qc @ Gm  # (M, 3, n)
+        dxW = -(Gm.T @ X) + QG[:, :, :, None] * v[None, None, None, :]
+        dx[:, :, :3 * n] = dxW.reshape(M, 3, 3 * n)
+        dx[:, :, 3 * n:] = -QG
+        return x, dx
+
+    def pose_rotations(theta):
+        W = theta[:3 * n].reshape(n, 3)
+        c = theta[3 * n:]
         Gm = _G(W)
         psi_a = -(D["SA_y"] - c * SA_w[:, None]) @ Gm.T  # mean attitude of pose k (end of pose k = reference)
         phi_b = (D["SB_y"] - c * SB_w[:, None]) @ Gm.T  # mean attitude of pose k+1 relative to its start
-        q = _qexp_planar(np.moveaxis((D["YM"] - c) @ Gm.T, -1, 0) * DM)  # (4, M, L)
-        q[:, DM == 0] = ((1.0,), (0.0,), (0.0,), (0.0,))
-        while q.shape[2] > 1:  # pairwise products: the rotation over the motion
-            q = _qmul_planar(q[:, :, 0::2], q[:, :, 1::2])
-        Rm = _qmat_planar(q[:, :, 0] / np.linalg.norm(q[:, :, 0], axis=0, keepdims=True))
-        Ca = rotation_matrix(psi_a)
-        Cb = Rm @ rotation_matrix(phi_b)
-        return np.einsum("mji,mjk->mik", Cb, Ca)  # Cb^T Ca: pose-k body vector -> pose-(k+1) body
+        return Gm, psi_a, phi_b
+
+    def rotations(theta, pre=None):
+        """Cb^T Ca (pose-k body vector -> pose-(k+1) body) at theta; the motion rotations exact, or from the
+        pre-integration ``pre = (theta_l, R_l, Dth_l)``."""
+        _, psi_a, phi_b = pose_rotations(theta)
+        Rm = integrate(theta, jac=False) if pre is None else pre[1] @ _rodrigues(model_x(theta, pre))
+        Cb = Rm @ _rodrigues(phi_b)
+        return np.einsum("mji,mjk->mik", Cb, _rodrigues(psi_a))
 
     def parts(theta, dirs, R=None):
-        W = theta[:3 * n].reshape(n, 3)
         c = theta[3 * n:]
-        R = rotations(W, c) if R is None else R  # R: the rotations at theta, when already known
+        R = rotations(theta) if R is None else R  # R: the rotations at theta, when already known
         pred = np.einsum("mij,mj->mi", R, dirs[ka])
         rr = np.einsum("mai,mi->ma", T, pred - dirs[kb])
         rs = (ybar - c) / sd
@@ -804,54 +1193,34 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         z = D["Yint"] - c * Tw[:, None]
         return (z - z @ _G(W).T @ W.T) / sig_int
 
-    def rot_jac(theta, dirs):
-        """d rr / d theta (M, 2, p), first order in the small pose rotations (module docstring)."""
-        W = theta[:3 * n].reshape(n, 3)
-        c = theta[3 * n:]
-        Gm = _G(W)
-        psi_a = -(D["SA_y"] - c * SA_w[:, None]) @ Gm.T
-        phi_b = (D["SB_y"] - c * SB_w[:, None]) @ Gm.T
-        om = (D["YM"] - c) @ Gm.T
-        omp = np.moveaxis(om, -1, 0) * DM  # (3, M, L)
-        q = _qexp_planar(omp)
-        q[:, DM == 0] = ((1.0,), (0.0,), (0.0,), (0.0,))
-        qh = _qexp_planar(omp / 2)
-        # suffix products Sigma_t = q_t q_t+1 ... (reverse scan), A_t = qh_t Sigma_t+1
-        r = q[:, :, ::-1].copy()
-        d = 1
-        while d < L:
-            r[:, :, d:] = _qmul_planar(r[:, :, d:], r[:, :, :-d])
-            d *= 2
-        suf = r[:, :, ::-1]
-        nxt = np.empty_like(suf)
-        nxt[:, :, :-1] = suf[:, :, 1:]
-        nxt[:, :, -1] = ((1.0,), (0.0,), (0.0,), (0.0,))
-        A = _qmat_planar(_qmul_planar(qh, nxt))  # (M, L, 3, 3)
-        Rm = _qmat_planar(suf[:, :, 0] / np.linalg.norm(suf[:, :, 0], axis=0, keepdims=True))
-        Qj = np.einsum("mt,mtj,mtba->mjab", DM, om, A)  # sum dt w_j A^T
-        Qc = np.einsum("mt,mtba->mab", DM, A)
-        Eb = rotation_matrix(phi_b)
-        Ca = rotation_matrix(psi_a)
+    def rot_parts(theta, pre, dirs):
+        """Rotation residuals (M, 2) and d rr / d theta (M, 2, p) with the motion rotations of the pre-integration
+        ``pre`` (:func:`integrate`); first order in the small pose rotations (module docstring)."""
+        Gm, psi_a, phi_b = pose_rotations(theta)
+        x, Dth = model_x(theta, pre, jac=True, Gm=Gm)
+        Rx, Eb, Ca = np.split(_rodrigues(np.concatenate([x, phi_b, psi_a])), 3)
+        Rm = pre[1] @ Rx
+        if float(np.max(np.abs(x))) > 1e-3:  # d Exp(x) = Exp(x) [Jr(x) dx]x; Jr = I to 5e-4 below 1 mrad
+            Dth = _right_jacobian(x) @ Dth
         Cb = Rm @ Eb
-        v = np.einsum("mij,mj->mi", Ca, dirs[ka])
-        pred = np.einsum("mji,mj->mi", Cb, v)
+        v = (Ca @ dirs[ka][:, :, None])[:, :, 0]
+        CbT = Cb.transpose(0, 2, 1)
+        pred = (CbT @ v[:, :, None])[:, :, 0]
         p = 4 * n
-        Dth = np.zeros((M, 3, p))
-        Dpsi = np.zeros((M, 3, p))
-        Dphi = np.zeros((M, 3, p))
-        for i in range(n):
-            gi = Gm[:, i]
-            for j in range(3):
-                Dth[:, :, 3 * i + j] = -Qj[:, j] @ gi
-                Dpsi[:, :, 3 * i + j] = -np.outer(psi_a[:, j], gi)
-                Dphi[:, :, 3 * i + j] = -np.outer(phi_b[:, j], gi)
-            Dth[:, :, 3 * n + i] = -Qc @ gi
-            Dpsi[:, :, 3 * n + i] = SA_w[:, None] * gi
-            Dphi[:, :, 3 * n + i] = -SB_w[:, None] * gi
-        Dbeta = np.einsum("mji,mjp->mip", Eb, Dth) + Dphi
-        dpred = (np.einsum("mij,mjp->mip", skew(pred), Dbeta)
-                 - np.einsum("mji,mjk,mkp->mip", Cb, skew(v), Dpsi))
-        return np.einsum("mai,mip->map", T, dpred)
+        Dpsi = np.empty((M, 3, p))
+        Dphi = np.empty((M, 3, p))
+        Dpsi[:, :, :3 * n] = (-Gm[None, :, :, None] * psi_a[:, None, None, :]).reshape(M, 3, 3 * n)
+        Dphi[:, :, :3 * n] = (-Gm[None, :, :, None] * phi_b[:, None, None, :]).reshape(M, 3, 3 * n)
+        Dpsi[:, :, 3 * n:] = SA_w[:, None, None] * Gm
+        Dphi[:, :, 3 * n:] = -SB_w[:, None, None] * Gm
+        Dbeta = Eb.transpose(0, 2, 1) @ Dth + Dphi
+        dpred = _cross_cols(pred, Dbeta) - CbT @ _cross_cols(v, Dpsi)
+        rr = (T @ (pred - dirs[kb])[:, :, None])[:, :, 0]
+        return rr, T @ dpred
+
+    def rot_jac(theta, dirs):
+        """d rr / d theta (M, 2, p) at theta, the motions integrated there."""
+        return rot_parts(theta, integrate(theta), dirs)[1]
 
     # initial: W from the nominal axes and the accelerometers' scale ratio is not known; use the statics for c
     # and a first motion-based guess of one common scale from the integrated angles
@@ -864,7 +1233,12 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     w_st = 1.0
     w_par = 1.0
 
+    problem = _LazyDict({"ys": lambda: window_samples("gyro"), "accel_ys": lambda: window_samples("accel")})
     Lw = np.eye(2 * M)  # whitening of the rotation residuals (set after the first pass)
+    Lwi = Lw
+    Js_static = np.zeros((ybar.size, 4 * n))
+    for i in range(n):
+        Js_static[i::n, 3 * n + i] = -1.0 / sd[:, i]
 
     def resid(theta, dirs=accel_dirs, R=None):
         rr, rs, rp = parts(theta, dirs, R)
@@ -874,44 +1248,79 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     def rot_resid_shift(theta, deltas):
         """The weighted rotation residuals with the raw gyro samples of every window shifted by ``deltas``."""
         saved = dict(D)
-        D.update(sums([y + d for y, d in zip(ys, deltas)]))
+        D.update(sums([y + d for y, d in zip(problem["ys"], deltas)]))
         try:
             return resid(theta)[:2 * M]
         finally:
             D.update(saved)
 
-    def jac(theta, dirs=accel_dirs):
-        Jr = np.linalg.solve(Lw, rot_jac(theta, dirs).reshape(2 * M, -1)) * w_rot
-        Js_ = np.zeros((ybar.size, 4 * n))
-        for i in range(n):
-            Js_[i::n, 3 * n + i] = -w_st / sd[:, i]
-        out = [Jr, Js_]
+    def other_jac(theta):
+        out = [Js_static * w_st]
         if n > 3:
             out.append(central_jacobian(lambda th: parity(th).ravel(), theta, typ * 1e-6) * w_par)
-        return np.vstack(out)
+        return out
+
+    def jac(theta, dirs=accel_dirs):
+        Jr = np.linalg.solve(Lw, rot_jac(theta, dirs).reshape(2 * M, -1)) * w_rot
+        return np.vstack([Jr, *other_jac(theta)])
+
+    def model_fun(pre):
+        """(r, J) with the motion rotations from the pre-integration ``pre``."""
+        def f(theta):
+            rr, Jr = rot_parts(theta, pre, accel_dirs)
+            rs = (ybar - theta[3 * n:]) / sd
+            r = np.concatenate([(Lwi @ rr.ravel()) * w_rot, rs.ravel() * w_st, parity(theta).ravel() * w_par])
+            J = np.vstack([(Lwi @ Jr.reshape(2 * M, -1)) * w_rot, *other_jac(theta)])
+            return r, J
+        return f
 
     gain = np.diag(np.linalg.inv(H.T @ (H / sigma[:, None] ** 2)))  # per-sample rate variance / s0^2 (nominal)
     q_m = float(np.mean(gain)) / s0**2 * (np.array([d @ d for d in mot_dt]) + q_ab)
     theta = theta0
+    pre = None
+    by_pose = {int(a): m for m, a in enumerate(ka)}
     for it in range(2):
-        sol = least_squares(resid, theta, jac=jac, x_scale=typ, loss="huber" if robust else "linear",
-                            f_scale=3.0, xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=100 * len(theta))
-        theta = sol.x
-        R = rotations(theta[:3 * n].reshape(n, 3), theta[3 * n:])  # at theta: for Cr, the weights and the end
+        if preintegrate:
+            for _ in range(20):  # integrate at theta, iterate on the motions' rotations and Jacobians
+                if pre is None:
+                    pre = integrate(theta)
+
+                def reach(th, pre=pre):  # the largest change of a motion's rotation the model predicts, rad
+                    return float(np.max(np.abs(model_x(th, pre))))
+
+                theta, _, _, edge = _gauss_newton(model_fun(pre), theta, typ, robust, xtol=1e-8, reach=reach,
+                                                 radius=1.0)
+                # done when the model's correction turns no motion by more than 1 mrad: its error, second order
+                # in that, is below 1e-6 rad (the motions' residual scatter is ~1e-3 rad)
+                if not edge and reach(theta) <= 3e-4:
+                    break
+                pre = None
+            R = rotations(theta, pre)
+        else:
+            from scipy.optimize import least_squares
+
+            sol = least_squares(resid, theta, jac=jac, x_scale=typ, loss="huber" if robust else "linear",
+                                f_scale=3.0, xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=100 * len(theta))
+            theta = sol.x
+            R = rotations(theta)  # at theta: for Cr, the weights and the end
         if it == 0:
             # correlated residuals: the gravity direction of pose k enters motions k-1 and k; generalised least
             # squares with the block-tridiagonal covariance of the pose-direction and integrated-gyro noise
-            Cr = np.zeros((2 * M, 2 * M))
-            for m in range(M):
-                Ta = T[m] @ R[m]
-                Cr[2 * m:2 * m + 2, 2 * m:2 * m + 2] = (Ta @ dir_cov[ka[m]] @ Ta.T + T[m] @ dir_cov[kb[m]] @ T[m].T
-                                                        + q_m[m] * np.eye(2))
-                for m2 in range(M):
-                    if ka[m2] == kb[m]:
-                        X = -T[m] @ dir_cov[kb[m]] @ (T[m2] @ R[m2]).T
-                        Cr[2 * m:2 * m + 2, 2 * m2:2 * m2 + 2] = X
-                        Cr[2 * m2:2 * m2 + 2, 2 * m:2 * m + 2] = X.T
+            Cr4 = np.zeros((M, M, 2, 2))  # (m, m2) blocks
+            TR = T @ R
+            TRt, Tt = TR.transpose(0, 2, 1), T.transpose(0, 2, 1)
+            ar = np.arange(M)
+            Cr4[ar, ar] = TR @ dir_cov[ka] @ TRt + T @ dir_cov[kb] @ Tt + q_m[:, None, None] * np.eye(2)
+            nxt = np.array([by_pose.get(int(k), -1) for k in kb])
+            m1 = np.flatnonzero(nxt >= 0)
+            if m1.size:
+                m2 = nxt[m1]
+                X = -T[m1] @ dir_cov[kb[m1]] @ TRt[m2]
+                Cr4[m1, m2] = X
+                Cr4[m2, m1] = X.transpose(0, 2, 1)
+            Cr = Cr4.transpose(0, 2, 1, 3).reshape(2 * M, 2 * M)
             Lw = np.linalg.cholesky(Cr)
+            Lwi = np.linalg.inv(Lw)
             w_rot = 1.0
         rr, rs, rp = parts(theta, accel_dirs, R)
         rw = np.linalg.solve(Lw, rr.ravel())
@@ -921,7 +1330,10 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         w_rot = 1.0 / np.sqrt(max(float(rw @ rw) / dof_rot, 1e-6)) if it == 1 else w_rot
         w_st = 1.0 / max(_robust_rms(rs), 1.0)
         w_par = 1.0 / max(_robust_rms(rp), 1.0) if rp.size else 1.0
-    J = jac(theta)
+    if preintegrate:
+        J = model_fun(pre)(theta)[1]
+    else:
+        J = jac(theta)
     names = [f"{i}.w_{a}" for i in range(n) for a in "xyz"] + [f"{i}.bias" for i in range(n)]
     _check_jacobian(J, typ, names, "gyro")
     Js = J * typ
@@ -930,28 +1342,31 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     weak = _check_spread(Ninv / np.outer(size, size), names, "gyro")
     cov = Ninv
     if accel_dir_jac is not None and accel_cov is not None:
-        # d resid / d accel params through the gravity directions (the rotations do not depend on them)
-        h = 1e-7
-        Ja = np.empty((J.shape[0], accel_dir_jac.shape[1]))
-        r0 = resid(theta, accel_dirs, R)
-        for j in range(accel_dir_jac.shape[1]):
-            d = accel_dirs + h * accel_dir_jac[:, j].reshape(-1, 3)
-            Ja[:, j] = (resid(theta, d, R) - r0) / h
+        # d resid / d accel params through the gravity directions (the rotations do not depend on them; the
+        # rotation residual T_m (R_m u_ka - u_kb) is linear in the directions)
+        K = accel_dirs.shape[0]
+        Jd = np.zeros((M, 2, K, 3))
+        Jd[np.arange(M), :, ka, :] = np.einsum("mai,mij->maj", T, R)
+        Jd[np.arange(M), :, kb, :] -= T
+        Ja = np.zeros((J.shape[0], accel_dir_jac.shape[1]))
+        Ja[:2 * M] = np.linalg.solve(Lw, Jd.reshape(2 * M, 3 * K) @ accel_dir_jac) * w_rot
         B = Ninv @ J.T @ Ja
         cov = cov + B @ accel_cov @ B.T
-    rr, rs, rp = parts(theta, accel_dirs, R)
+    rr, rs_, rp = parts(theta, accel_dirs, R)
     W = theta[:3 * n].reshape(n, 3)
     c = theta[3 * n:]
+    problem.update({"resid": resid, "jac": jac, "typ": typ, "dt": [p[2] for p in parts_idx], "n_rot": 2 * M,
+                    "rot_resid_shift": rot_resid_shift, "integrate": integrate, "model_x": model_x,
+                    "model_fun": model_fun})
     ang = np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1, 1))
     rw = np.linalg.solve(Lw, rr.ravel())
-    chi2 = {"rotation": float(rw @ rw * w_rot**2), "static": float(np.sum(rs**2) * w_st**2)}
+    chi2 = {"rotation": float(rw @ rw * w_rot**2), "static": float(np.sum(rs_**2) * w_st**2)}
     if rp.size:
         chi2["parity"] = float(np.sum(rp**2) * w_par**2)
     scale = {"rotation_rad": 1.0 / w_rot, "static_sigma": 1.0 / w_st}
-    return GyroFit(list(idx), W, c, cov, theta, list(zip(ka.tolist(), kb.tolist())), rr, ang, rs * sd,
+    return GyroFit(list(idx), W, c, cov, theta, list(zip(ka.tolist(), kb.tolist())), rr, ang, rs_ * sd,
                    chi2, J.shape[0] - len(theta), scale, weak,
-                   {"resid": resid, "jac": jac, "typ": typ, "ys": ys, "accel_ys": acc_ys, "dt": [p[2] for p in parts_idx],
-                    "n_rot": 2 * M, "rot_resid_shift": rot_resid_shift})
+                   problem)
 
 
 def _robust_rms(r: np.ndarray) -> float:
@@ -962,11 +1377,15 @@ def _robust_rms(r: np.ndarray) -> float:
 
 
 def _tangent(u: np.ndarray) -> np.ndarray:
-    u = u / np.linalg.norm(u)
-    a = np.eye(3)[int(np.argmin(np.abs(u)))]
+    """Orthonormal tangent bases (M, 2, 3) at directions u (M, 3) (or (2, 3) at one direction (3,))."""
+    one = u.ndim == 1
+    u = np.atleast_2d(u)
+    u = u / np.linalg.norm(u, axis=1, keepdims=True)
+    a = np.eye(3)[np.argmin(np.abs(u), axis=1)]
     e1 = np.cross(u, a)
-    e1 /= np.linalg.norm(e1)
-    return np.vstack([e1, np.cross(u, e1)])
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    out = np.stack([e1, np.cross(u, e1)], axis=1)
+    return out[0] if one else out
 
 
 def _initial_gyro_scale(Yint, Tw, c0, H, dirs, ka, kb) -> float:
@@ -982,18 +1401,17 @@ def _initial_gyro_scale(Yint, Tw, c0, H, dirs, ka, kb) -> float:
     return float(np.median(np.linalg.norm(u[ok], axis=1) / ang[ok]))
 
 
-def clip_levels(session: Session, instrument: str) -> np.ndarray:
+def clip_levels(session: Session, instrument: str, _stats: _RawStats | None = None) -> np.ndarray:
     """Per sensor, the raw level at which the output clips, or inf: the largest |raw| of the session when it is
     reached at least twice and is a power of two or one less (an ADC's full scale, e.g. 32767 / 32768)."""
-    n = session.geometries[instrument].n
-    m = np.zeros(n)
-    for s in session.segments:
-        m = np.maximum(m, np.max(np.abs(s.raw[instrument]), axis=0))
+    rs = _raw_stats(session, instrument) if _stats is None else _stats
+    n = rs.X.shape[0]
+    m = rs.peak.max(axis=0) if len(rs.peak) else np.zeros(n)
     out = np.full(n, np.inf)
     for i in range(n):
         v = round(m[i])
         if v >= 128 and abs(m[i] - v) < 1e-9 and ((v & (v - 1)) == 0 or ((v + 1) & v) == 0):
-            cnt = sum(int(np.sum(np.abs(s.raw[instrument][:, i]) >= m[i])) for s in session.segments)
+            cnt = int(np.sum(np.abs(rs.X[i] + rs.ref[i]) >= m[i]))
             if cnt >= 2:
                 out[i] = m[i]
     return out
@@ -1034,11 +1452,11 @@ class HandHeld:
         self.sigma, self.mode, self.instruments, self.robust = sigma, mode, instruments, robust
         self.pose_weights, self.accel_model = pose_weights, accel_model
 
-    def _sigma(self, session: Session, inst: str) -> np.ndarray:
+    def _sigma(self, session: Session, inst: str, stats: _RawStats | None = None) -> np.ndarray:
         n = session.geometries[inst].n
         if self.sigma and inst in self.sigma:
             return np.broadcast_to(np.asarray(self.sigma[inst], float), (n,)).copy()
-        return white_noise_sigma_hf(session, inst)
+        return white_noise_sigma_hf(session, inst, _stats=stats)
 
     def _groups(self, g: Geometry) -> list[list[int]]:
         if self.mode == "joint":
@@ -1059,11 +1477,16 @@ class HandHeld:
                                      "'static'); run 'rimu detect' on the raw recording first")
         windows = pose_windows(session)
         clipped: list[str] = []
+        # one pass over each instrument's samples: noise level, clip levels, pose means and the gyro fit's sums
+        raw = {k: _raw_stats(session, k) for k in ("accel", "gyro") if k in session.geometries}
+        st_idx = _static_index(session)
+        seg_pos = {id(s): j for j, s in enumerate(session.segments)}
         if "gyro" in session.geometries and windows:
-            lim = clip_levels(session, "gyro")
+            lim = clip_levels(session, "gyro", _stats=raw["gyro"])
             keep = []
+            hit = np.any(raw["gyro"].peak >= lim, axis=1).tolist()  # per segment
             for w in windows:
-                if any(np.any(np.abs(s.raw["gyro"]) >= lim) for s in w[2]):
+                if any(hit[seg_pos[id(s)]] for s in w[2]):
                     clipped.append(f"{w[2][0].label}->{w[2][-1].label}")
                 else:
                     keep.append(w)
@@ -1073,7 +1496,7 @@ class HandHeld:
         else:
             want = ["accel"] + (["gyro"] if "gyro" in session.geometries and windows else [])
         ga = session.geometries["accel"]
-        sa = self._sigma(session, "accel")
+        sa = self._sigma(session, "accel", raw["accel"])
         model = ErrorModel.base()
         out: dict[str, LsqResult] = {}
         extra: dict[str, Any] = {}
@@ -1084,7 +1507,7 @@ class HandHeld:
         acc_sensors: dict[int, Any] = {}
         labels = [s.label for s in statics]
         for grp in self._groups(ga):
-            ybar, sd = _pose_stats(statics, "accel", grp, sa[grp])
+            ybar, sd = _pose_stats(statics, "accel", grp, sa[grp], raw["accel"].means(st_idx, grp))
             if self.pose_weights == "equal":
                 sd = np.broadcast_to(np.median(sd, axis=0), sd.shape).copy()
             af = fit_accel(ybar, sd, ga.H[grp], session.gravity, [ga.names[i] for i in grp], grp, robust=False,
@@ -1115,7 +1538,7 @@ class HandHeld:
             if "gyro" not in session.geometries:
                 raise SessionFormatError("the session has no gyro data")
             gg = session.geometries["gyro"]
-            sg = self._sigma(session, "gyro")
+            sg = self._sigma(session, "gyro", raw["gyro"])
             gyro_sensors: dict[int, Any] = {}
             ggroups = self._groups(gg) if self.mode == "subunits" else [list(range(gg.n))]
             rot_res, angles = [], []
@@ -1124,7 +1547,7 @@ class HandHeld:
                 dirs, djac, acov, dcov = _dirs_with_jacobian(af, statics, session, sa)
                 try:
                     gf = fit_gyro(session, windows, dirs, djac, acov, grp, sg[grp], gg.H[grp], robust=self.robust,
-                                  dir_cov=dcov)
+                                  dir_cov=dcov, _stats=raw["gyro"], _ybar=raw["gyro"].means(st_idx, grp))
                 except IdentifiabilityError as exc:
                     if self.instruments is not None:  # asked for explicitly: the caller hears why not
                         raise
@@ -1179,17 +1602,14 @@ def _dirs_with_jacobian(af: AccelFit, statics: list[Segment], session: Session, 
     n = len(grp)
     fixed = np.zeros((n, 3))
 
-    def dirs(theta):
-        Wp, c = _unpack(theta, af.free, fixed, n)
-        f, _, _ = _specific_forces(Wp, c, ybar, sd)
-        f = f @ af.P
-        return (f / np.linalg.norm(f, axis=1)[:, None]).ravel()
-
-    typ = np.maximum(np.abs(af.theta), 1e-12)
-    J = central_jacobian(dirs, af.theta, typ * 1e-6)
-    u = dirs(af.theta).reshape(-1, 3)
     Wp, c = _unpack(af.theta, af.free, fixed, n)
     f, info, _ = _specific_forces(Wp, c, ybar, sd)
+    df = _accel_problem(af.theta, af.free, fixed, ybar, sd, session.gravity, af.tau2)[2]  # (K, 3, p)
+    nf = np.linalg.norm(f, axis=1)
+    up = f / nf[:, None]
+    Pu = (np.eye(3) - up[:, :, None] * up[:, None, :]) / nf[:, None, None]
+    J = (af.P.T @ (Pu @ df)).reshape(-1, df.shape[2])  # d (P^T f / |f|) / d theta
+    u = up @ af.P
     Cf = af.P.T @ np.linalg.inv(info) @ af.P * af.scale2 / (np.linalg.norm(f, axis=1) ** 2)[:, None, None]
     Pu = np.eye(3) - np.einsum("ki,kj->kij", u, u)
     return u, J, af.cov, Pu @ Cf @ Pu
