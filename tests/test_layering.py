@@ -18,6 +18,7 @@ PKG = ROOT / "rimu"
 STAGE = {
     "errors": 0, "plotting": 0, "units": 0, "epoch": 0, "geometry": 0, "py.typed": 0,   # foundations
     "atomic": 0, "progress": 0,                                           # atomic writes, progress bars
+    "_backend": 0,       # numpy or numba: the generic backend choice (runtime and calibration kernels)
     "io": 1,             # raw data in
     "session": 2, "session_io": 2,
     "calibration": 3,

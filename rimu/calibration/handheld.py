@@ -73,6 +73,7 @@ from typing import Any
 
 import numpy as np
 
+from .._backend import resolve as _resolve_backend
 from ..errors import IdentifiabilityError, SessionFormatError
 from ..geometry import Geometry
 from ..session import Segment, Session
@@ -101,6 +102,19 @@ __all__ = [
 
 #: segment kinds that are poses at rest
 STATIC_KINDS = ("static", "static_unknown")
+
+_KERNELS: list[Any] = []
+
+
+def _kernels() -> Any:
+    """The compiled kernels (:mod:`rimu.calibration._hh_kernels`, imports numba once), or None without numba."""
+    if not _KERNELS:
+        try:
+            from . import _hh_kernels as k
+        except ImportError:
+            k = None
+        _KERNELS.append(k)
+    return _KERNELS[0]
 
 
 # ---------------------------------------------------------------------- algebra
@@ -308,13 +322,14 @@ class _RawStats:
     sums: np.ndarray  # (S, n) sum of the raw samples of each segment
     peak: np.ndarray  # (S, n) largest |raw| of each segment
     t: np.ndarray  # (N,) sample times
+    d3: np.ndarray | None = None  # (S, n) sum of squared third differences inside each segment (compiled pass)
 
     def means(self, seg_index: Sequence[int], idx: Sequence[int] | slice = slice(None)) -> np.ndarray:
         j = np.asarray(seg_index, dtype=int)
         return (self.sums[j] / self.counts[j, None])[:, idx]
 
 
-def _raw_stats(session: Session, instrument: str) -> _RawStats:
+def _raw_stats(session: Session, instrument: str, kern: Any = None) -> _RawStats:
     segs = session.segments
     counts = np.array([s.n_samples for s in segs], dtype=int)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(int)
@@ -335,7 +350,11 @@ def _raw_stats(session: Session, instrument: str) -> _RawStats:
     sums += counts[:, None] * ref
     peak = np.where(ok[:, None], np.maximum(np.abs(hi + ref), np.abs(lo + ref)), 0.0)
     t = np.concatenate([s.t for s in segs]) if segs else np.zeros(0)
-    return _RawStats(X, ref, starts, counts, sums, peak, t)
+    d3 = None
+    if kern is not None:  # compiled: the third differences of the noise level in the same pass
+        d3 = np.zeros((len(segs), n))
+        kern.third_differences(X, starts, counts, d3)
+    return _RawStats(X, ref, starts, counts, sums, peak, t, d3)
 
 
 def _diff_power(rs: _RawStats, eligible: np.ndarray, order: int) -> tuple[np.ndarray, int]:
@@ -391,7 +410,10 @@ def white_noise_sigma_hf(session: Session, instrument: str, order: int = 3,
     if not np.any(kinds):
         kinds[:] = True
     eligible = kinds & (rs.counts > order + 2)
-    acc, cnt = _diff_power(rs, eligible, order)
+    if rs.d3 is not None and order == 3:  # the compiled pass formed them sample by sample
+        acc, cnt = rs.d3[eligible].sum(axis=0), int(np.sum(rs.counts[eligible] - order))
+    else:
+        acc, cnt = _diff_power(rs, eligible, order)
     if cnt == 0:
         return estimate_noise_sigma(session, instrument)
     sig = np.sqrt(acc / cnt / comb(2 * order, order))
@@ -886,10 +908,20 @@ def _right_jacobian(x: np.ndarray) -> np.ndarray:
     ts = np.where(big, t, 1.0)
     a = np.where(big, (1.0 - np.cos(ts)) / ts**2, 0.5 - t2 / 24.0)
     b = np.where(big, (ts - np.sin(ts)) / ts**3, 1.0 / 6.0 - t2 / 120.0)
-    K = np.zeros((len(x), 3, 3))
-    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -x[:, 2], x[:, 1], -x[:, 0]
-    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = x[:, 2], -x[:, 1], x[:, 0]
-    return np.eye(3) - a[:, None, None] * K + b[:, None, None] * (K @ K)
+    # [x]x^2 = x x^T - t^2 I: Jr = (1 - b t^2) I - a [x]x + b x x^T, written entry by entry
+    J = b[:, None, None] * (x[:, :, None] * x[:, None, :])
+    d = 1.0 - b * t2
+    J[:, 0, 0] += d
+    J[:, 1, 1] += d
+    J[:, 2, 2] += d
+    ax = a[:, None] * x
+    J[:, 0, 1] += ax[:, 2]
+    J[:, 1, 0] -= ax[:, 2]
+    J[:, 0, 2] -= ax[:, 1]
+    J[:, 2, 0] += ax[:, 1]
+    J[:, 1, 2] += ax[:, 0]
+    J[:, 2, 1] -= ax[:, 0]
+    return J
 
 
 def _cross_cols(v: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -959,6 +991,7 @@ def _gauss_newton(fun, theta: np.ndarray, typ: np.ndarray, robust: bool, f_scale
         A = Js.T @ (Js * hw[:, None])
         g = Js.T @ (w * r)
         dA = np.diag(A).copy()
+        here = reach(theta) if reach is not None else 0.0  # theta is fixed while the damping is retried
         while True:
             try:
                 step = -np.linalg.solve(A + lam * np.diag(dA), g)
@@ -968,7 +1001,7 @@ def _gauss_newton(fun, theta: np.ndarray, typ: np.ndarray, robust: bool, f_scale
             th_new = theta + step * typ
             edge = False
             if reach is not None:
-                far, here = reach(th_new), reach(theta)
+                far = reach(th_new)
                 if far > radius:  # the reach is convex along the step: shorten it to the radius
                     th_new = theta + step * typ * max(radius - here, 0.0) / max(far - here, 1e-300)
                     edge = True
@@ -990,7 +1023,8 @@ def _gauss_newton(fun, theta: np.ndarray, typ: np.ndarray, robust: bool, f_scale
 def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], accel_dirs: np.ndarray,
              accel_dir_jac: np.ndarray | None, accel_cov: np.ndarray | None, idx: Sequence[int], sigma: np.ndarray,
              H: np.ndarray, robust: bool = True, dir_cov: np.ndarray | None = None,
-             preintegrate: bool = True, _stats: _RawStats | None = None, _ybar: np.ndarray | None = None) -> GyroFit:
+             preintegrate: bool = True, _stats: _RawStats | None = None, _ybar: np.ndarray | None = None,
+             _kern: Any = None) -> GyroFit:
     """Gyros from the rotations between poses (module docstring; Tedaldi et al. 2014, Eq. 14-18).
 
     Parameters
@@ -1124,19 +1158,25 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         W = theta[:3 * n].reshape(n, 3)
         c = theta[3 * n:]
         Gm = _G(W)
-        omp = (Gm @ D["YD"].reshape(n, -1)).reshape(3, M, L) - (Gm @ c)[:, None, None] * DM  # rad per sample
-        q = _qexp_planar(omp)
+        if not jac or _kern is None:
+            omp = (Gm @ D["YD"].reshape(n, -1)).reshape(3, M, L) - (Gm @ c)[:, None, None] * DM  # rad per sample
         if not jac:
+            q = _qexp_planar(omp)
             while q.shape[2] > 1:  # pairwise products: the rotation over the motion
                 q = _qmul_planar(q[:, :, 0::2], q[:, :, 1::2])
             return _qmat_planar(q[:, :, 0] / np.linalg.norm(q[:, :, 0], axis=0, keepdims=True))
-        ex, total = _scan_planar(q)
-        mid = _qmul_planar(ex, q)
-        mid += ex  # (P_t-1 q_t + P_t-1) / |.| = P_t-1 q_t^(1/2): the attitude at the middle of sample t
-        mid /= np.sqrt(np.maximum(2.0 * (1.0 + q[0]), 1e-300))
-        Cm = _qmat_planar(mid)  # (M, L, 3, 3)
-        wts = np.concatenate([D["YD"] - c[:, None, None] * DM, DM[None]], axis=0)  # (n + 1, M, L)
-        S = (wts.transpose(1, 0, 2) @ Cm.reshape(M, L, 9)).reshape(M, n + 1, 3, 3)  # sum_t w C_mid
+        if _kern is not None:  # compiled: the same quantities sample by sample (rimu.calibration._hh_kernels)
+            tot, S = _kern.integrate_motions(D["YD"], DM, Gm, c)
+            total = np.ascontiguousarray(tot.T)
+        else:
+            q = _qexp_planar(omp)
+            ex, total = _scan_planar(q)
+            mid = _qmul_planar(ex, q)
+            mid += ex  # (P_t-1 q_t + P_t-1) / |.| = P_t-1 q_t^(1/2): the attitude at the middle of sample t
+            mid /= np.sqrt(np.maximum(2.0 * (1.0 + q[0]), 1e-300))
+            Cm = _qmat_planar(mid)  # (M, L, 3, 3)
+            wts = np.concatenate([D["YD"] - c[:, None, None] * DM, DM[None]], axis=0)  # (n + 1, M, L)
+            S = (wts.transpose(1, 0, 2) @ Cm.reshape(M, L, 9)).reshape(M, n + 1, 3, 3)  # sum_t w C_mid
         Rm = _qmat_planar(total / np.linalg.norm(total, axis=0, keepdims=True))
         Q = np.einsum("mba,mkbc->mkac", Rm, S)  # R^T sum_t w C_mid
         DG = Q[:, :n].transpose(0, 2, 3, 1).reshape(M, 3, 3 * n)  # d x / d vec(G), vec(G)[a n + i] = G[a, i]
@@ -1266,11 +1306,20 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
 
     def model_fun(pre):
         """(r, J) with the motion rotations from the pre-integration ``pre``."""
+        Lws = Lwi * w_rot  # the weights are fixed while the model of one pre-integration is solved
+        J_st = Js_static * w_st
+        nr = 2 * M + ybar.size
+
         def f(theta):
             rr, Jr = rot_parts(theta, pre, accel_dirs)
             rs = (ybar - theta[3 * n:]) / sd
-            r = np.concatenate([(Lwi @ rr.ravel()) * w_rot, rs.ravel() * w_st, parity(theta).ravel() * w_par])
-            J = np.vstack([(Lwi @ Jr.reshape(2 * M, -1)) * w_rot, *other_jac(theta)])
+            rj = Lws @ np.concatenate([rr.reshape(2 * M, 1), Jr.reshape(2 * M, -1)], axis=1)
+            r = np.concatenate([rj[:, 0], rs.ravel() * w_st, parity(theta).ravel() * w_par])
+            if n > 3:
+                return r, np.vstack([rj[:, 1:], *other_jac(theta)])
+            J = np.empty((nr, 4 * n))
+            J[:2 * M] = rj[:, 1:]
+            J[2 * M:] = J_st
             return r, J
         return f
 
@@ -1438,19 +1487,24 @@ class HandHeld:
     pose_weights : {"noise", "equal"}
         ``"noise"``: each pose mean weighted by its white noise (its length), plus a common pose-to-pose variance
         when the residuals call for it; ``"equal"``: every pose alike (as imu_tk does).
+    backend : {"auto", "numpy", "numba"}, optional
+        Implementation of the pass over the samples and of the integration of the motions (:mod:`rimu._backend`;
+        default ``RIMU_BACKEND``, else ``"auto"``: numba where installed). Both give the same calibration to
+        rounding (tested to 1e-9 relative); numpy is the reference.
     """
 
     method = "hand-held (Zhang et al. 2010 accelerometers, Tedaldi et al. 2014 gyros)"
 
     def __init__(self, sigma: dict[str, Any] | None = None, mode: str = "joint",
                  instruments: Sequence[str] | None = None, robust: bool = True, pose_weights: str = "noise",
-                 accel_model: str = "full") -> None:
+                 accel_model: str = "full", backend: str | None = None) -> None:
         choices = (("mode", mode, ("joint", "subunits")), ("pose_weights", pose_weights, ("noise", "equal")))
         for name, value, allowed in choices:
             if value not in allowed:
                 raise ValueError(f"{name} must be {' or '.join(repr(x) for x in allowed)}, got {value!r}")
         self.sigma, self.mode, self.instruments, self.robust = sigma, mode, instruments, robust
         self.pose_weights, self.accel_model = pose_weights, accel_model
+        self.backend = _resolve_backend(backend, _kernels() is not None, "the compiled hand-held kernels")
 
     def _sigma(self, session: Session, inst: str, stats: _RawStats | None = None) -> np.ndarray:
         n = session.geometries[inst].n
@@ -1478,7 +1532,8 @@ class HandHeld:
         windows = pose_windows(session)
         clipped: list[str] = []
         # one pass over each instrument's samples: noise level, clip levels, pose means and the gyro fit's sums
-        raw = {k: _raw_stats(session, k) for k in ("accel", "gyro") if k in session.geometries}
+        kern = _kernels() if self.backend == "numba" else None
+        raw = {k: _raw_stats(session, k, kern) for k in ("accel", "gyro") if k in session.geometries}
         st_idx = _static_index(session)
         seg_pos = {id(s): j for j, s in enumerate(session.segments)}
         if "gyro" in session.geometries and windows:
@@ -1547,7 +1602,8 @@ class HandHeld:
                 dirs, djac, acov, dcov = _dirs_with_jacobian(af, statics, session, sa)
                 try:
                     gf = fit_gyro(session, windows, dirs, djac, acov, grp, sg[grp], gg.H[grp], robust=self.robust,
-                                  dir_cov=dcov, _stats=raw["gyro"], _ybar=raw["gyro"].means(st_idx, grp))
+                                  dir_cov=dcov, _stats=raw["gyro"], _ybar=raw["gyro"].means(st_idx, grp),
+                                  _kern=kern)
                 except IdentifiabilityError as exc:
                     if self.instruments is not None:  # asked for explicitly: the caller hears why not
                         raise

@@ -1,0 +1,52 @@
+"""Choice of implementation, numpy (the reference) or compiled kernels (numba), shared by every stage.
+
+``backend="auto"`` (the default) uses numba where it is installed (``pip install rimu[fast]``) and numpy otherwise;
+``"numpy"`` and ``"numba"`` ask for one. Without an argument the environment variable ``RIMU_BACKEND`` decides
+(``auto`` when unset). A foundation (stage 0): the runtime (:mod:`rimu.fusion.backend`) and the calibration
+(:mod:`rimu.calibration.handheld`) resolve their ``backend=`` here, each with its own kernels.
+"""
+
+from __future__ import annotations
+
+import os
+
+from .errors import BackendUnavailableError, OptionError
+
+__all__ = ["BACKENDS", "resolve"]
+
+#: accepted values of ``backend`` and ``RIMU_BACKEND``
+BACKENDS = ("auto", "numpy", "numba")
+
+
+def resolve(backend: str | None, available: bool, what: str = "the compiled runtime") -> str:
+    """``"numpy"`` or ``"numba"`` for a requested backend (None: ``RIMU_BACKEND``, else ``"auto"``), given whether
+    the compiled kernels can be used.
+
+    Raises
+    ------
+    OptionError
+        Not one of :data:`BACKENDS`.
+    BackendUnavailableError
+        ``"numba"`` asked for and not ``available``.
+
+    >>> resolve("auto", available=False)
+    'numpy'
+    >>> resolve("numba", available=True)
+    'numba'
+    """
+    source = "backend"
+    if backend is None:
+        backend = os.environ.get("RIMU_BACKEND", "").strip() or "auto"
+        source = "RIMU_BACKEND"
+    name = str(backend).strip().lower()
+    if name not in BACKENDS:
+        raise OptionError(f"{source} must be one of {', '.join(BACKENDS)}; got {backend!r}")
+    if name == "numpy":
+        return "numpy"
+    if available:
+        return "numba"
+    if name == "auto":
+        return "numpy"
+    raise BackendUnavailableError(
+        f"{source}='numba' asks for {what}, and numba is not installed: pip install rimu[fast] "
+        "(or use backend='numpy', the reference, or 'auto')")

@@ -1,0 +1,117 @@
+"""Compiled kernels (numba) of the hand-held calibration (:mod:`rimu.calibration.handheld`): the one pass over an
+instrument's samples and the integration of the motions. The numpy code of handheld.py is the reference; these
+give its numbers to rounding (another summation order; tested in tests/calibration/test_handheld_numba.py).
+
+Imported only when numba is installed (``pip install rimu[fast]``) and the backend is not ``"numpy"``
+(:mod:`rimu._backend`). Compiled on first use and cached on disk (``cache=True``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+try:
+    import numba
+except ImportError as exc:  # pragma: no cover - the caller checks availability first
+    raise ImportError("the compiled hand-held kernels need numba: pip install rimu[fast]") from exc
+
+__all__ = ["integrate_motions", "third_differences"]
+
+#: IEEE arithmetic as numpy's (no exceptions, no fast-math)
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+
+
+@_jit
+def third_differences(X, starts, counts, d3):  # pragma: no cover - compiled
+    """Per segment j and row i of X (n, N) (segments back to back along the columns), the sum of the squared third
+    differences inside the segment, ``x_t - 3 x_t-1 + 3 x_t-2 - x_t-3`` for t >= 3, into ``d3[j, i]``. Two
+    interleaved partial sums (even and odd t), so that the additions do not wait on each other."""
+    n = X.shape[0]
+    for j in range(starts.shape[0]):
+        a = starts[j]
+        k = counts[j]
+        for i in range(n):
+            p0 = 0.0
+            p1 = 0.0
+            t = a + 3
+            end = a + k
+            while t + 1 < end:
+                e0 = X[i, t] - 3.0 * X[i, t - 1] + 3.0 * X[i, t - 2] - X[i, t - 3]
+                e1 = X[i, t + 1] - 3.0 * X[i, t] + 3.0 * X[i, t - 1] - X[i, t - 2]
+                p0 += e0 * e0
+                p1 += e1 * e1
+                t += 2
+            if t < end:
+                e0 = X[i, t] - 3.0 * X[i, t - 1] + 3.0 * X[i, t - 2] - X[i, t - 3]
+                p0 += e0 * e0
+            d3[j, i] = p0 + p1
+
+
+@_jit
+def integrate_motions(YD, DM, Gm, c):  # pragma: no cover - compiled
+    """The motions' rotations and pre-integration sums, sample by sample (handheld.fit_gyro's ``integrate``).
+
+    YD (n, M, L): dt-weighted raw samples of each motion (zero-padded); DM (M, L): their dt; the rate of sample t
+    is ``omega_t dt = G (YD_t - c DM_t)``, its rotation the exact quaternion ``exp``. Returns the total
+    quaternion of every motion (M, 4) (not normalised) and ``S[m, k] = sum_t w_kt C_mid,t`` (M, n + 1, 3, 3), the
+    weights ``w = (YD_i - c_i DM, DM)`` and ``C_mid,t`` the attitude at the middle of sample t relative to the
+    start, ``(P_t-1 q_t + P_t-1) / sqrt(2 (1 + q_t,w))`` as the numpy reference forms it."""
+    n, M, L = YD.shape
+    tot = np.empty((M, 4))
+    S = np.zeros((M, n + 1, 3, 3))
+    wk = np.empty(n + 1)
+    for m in range(M):
+        ew, ex, ey, ez = 1.0, 0.0, 0.0, 0.0
+        for t in range(L):
+            dm = DM[m, t]
+            ox = 0.0
+            oy = 0.0
+            oz = 0.0
+            for i in range(n):
+                yi = YD[i, m, t] - c[i] * dm
+                wk[i] = yi
+                ox += Gm[0, i] * yi
+                oy += Gm[1, i] * yi
+                oz += Gm[2, i] * yi
+            wk[n] = dm
+            th = np.sqrt(ox * ox + oy * oy + oz * oz)
+            half = 0.5 * th
+            kk = np.sin(half) / th if th > 1e-12 else 0.5 - th * th / 48.0
+            qw, qx, qy, qz = np.cos(half), ox * kk, oy * kk, oz * kk
+            # P_t-1 q_t
+            pw = ew * qw - ex * qx - ey * qy - ez * qz
+            px = ew * qx + ex * qw + ey * qz - ez * qy
+            py = ew * qy - ex * qz + ey * qw + ez * qx
+            pz = ew * qz + ex * qy - ey * qx + ez * qw
+            den = np.sqrt(max(2.0 * (1.0 + qw), 1e-300))
+            w = (pw + ew) / den
+            x = (px + ex) / den
+            y = (py + ey) / den
+            z = (pz + ez) / den
+            c00 = 1 - 2 * (y * y + z * z)
+            c01 = 2 * (x * y - w * z)
+            c02 = 2 * (x * z + w * y)
+            c10 = 2 * (x * y + w * z)
+            c11 = 1 - 2 * (x * x + z * z)
+            c12 = 2 * (y * z - w * x)
+            c20 = 2 * (x * z - w * y)
+            c21 = 2 * (y * z + w * x)
+            c22 = 1 - 2 * (x * x + y * y)
+            for k in range(n + 1):
+                v = wk[k]
+                if v != 0.0:
+                    S[m, k, 0, 0] += v * c00
+                    S[m, k, 0, 1] += v * c01
+                    S[m, k, 0, 2] += v * c02
+                    S[m, k, 1, 0] += v * c10
+                    S[m, k, 1, 1] += v * c11
+                    S[m, k, 1, 2] += v * c12
+                    S[m, k, 2, 0] += v * c20
+                    S[m, k, 2, 1] += v * c21
+                    S[m, k, 2, 2] += v * c22
+            ew, ex, ey, ez = pw, px, py, pz
+        tot[m, 0] = ew
+        tot[m, 1] = ex
+        tot[m, 2] = ey
+        tot[m, 3] = ez
+    return tot, S
