@@ -1,6 +1,7 @@
-"""Compiled kernels (numba) of the hand-held calibration (:mod:`rimu.calibration.handheld`): the one pass over an
-instrument's samples and the integration of the motions. The numpy code of handheld.py is the reference; these
-give its numbers to rounding (another summation order; tested in tests/calibration/test_handheld_numba.py).
+"""Compiled kernels (numba) of the hand-held calibration (:mod:`rimu.calibration.handheld`): the third differences
+of the noise level, the sums of the motion windows and the integration of the motions. The numpy code of
+handheld.py is the reference; these give its numbers to rounding (another summation order; tested in
+tests/calibration/test_handheld_numba.py).
 
 Imported only when numba is installed (``pip install rimu[fast]``) and the backend is not ``"numpy"``
 (:mod:`rimu._backend`). Compiled on first use and cached on disk (``cache=True``).
@@ -15,7 +16,7 @@ try:
 except ImportError as exc:  # pragma: no cover - the caller checks availability first
     raise ImportError("the compiled hand-held kernels need numba: pip install rimu[fast]") from exc
 
-__all__ = ["integrate_motions", "third_differences"]
+__all__ = ["integrate_motions", "third_differences", "window_sums"]
 
 #: IEEE arithmetic as numpy's (no exceptions, no fast-math)
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -115,3 +116,72 @@ def integrate_motions(YD, DM, Gm, c):  # pragma: no cover - compiled
         tot[m, 2] = ey
         tot[m, 3] = ez
     return tot, S
+
+
+@_jit
+def window_sums(X, ref, dt_all, c0s, c1s, nas, nbs, SA_w, SB_w, Tw, SA_y, SB_y, YD, Yint):  # pragma: no cover
+    """handheld.fit_gyro's ``sums()`` from the one pass (X (n, N) rows minus ``ref``), every window in one call.
+
+    Window m spans columns c0 .. c1-1 (at least two): pose k (na samples), the motion, pose k+1 (nb samples);
+    ``dt_t = t_t+1 - t_t`` (``dt_all``), the last sample's the one before it. Pose weights ``wa_t = dt_t (t + 1)
+    / na`` and ``wb_j = dt_j (nb - 1 - j) / nb`` (j from the start of pose k+1); SA_y, SB_y the weighted pose sums,
+    YD (n, M, L) the dt-weighted motion samples, Yint the window integral (``ref`` added back through SA_w, SB_w,
+    dt and Tw)."""
+    n = X.shape[0]
+    for m in range(c0s.shape[0]):
+        c0 = c0s[m]
+        N = c1s[m] - c0
+        na = nas[m]
+        nb = nbs[m]
+        nm = N - na - nb
+        for i in range(n):
+            r = ref[i]
+            # three loops without branches or divisions (the pose weights' 1 / na and 1 / nb applied once)
+            sa = 0.0
+            si = 0.0
+            sa2 = 0.0
+            si2 = 0.0
+            for t in range(0, na - 1, 2):  # two partial sums each (t even, t odd): the additions overlap
+                xd = X[i, c0 + t] * dt_all[c0 + t]
+                xd2 = X[i, c0 + t + 1] * dt_all[c0 + t + 1]
+                si += xd
+                sa += xd * (t + 1.0)
+                si2 += xd2
+                sa2 += xd2 * (t + 2.0)
+            if na % 2:
+                t = na - 1
+                xd = X[i, c0 + t] * dt_all[c0 + t]
+                si += xd
+                sa += xd * (t + 1.0)
+            si += si2
+            sa += sa2
+            sm = 0.0
+            for t in range(na, na + nm):
+                d = dt_all[c0 + t]
+                xd = X[i, c0 + t] * d
+                sm += xd
+                YD[i, m, t - na] = xd + r * d
+            sb = 0.0
+            sj = 0.0
+            sb2 = 0.0
+            sj2 = 0.0
+            t = na + nm
+            while t + 1 < N - 1:
+                xd = X[i, c0 + t] * dt_all[c0 + t]
+                xd2 = X[i, c0 + t + 1] * dt_all[c0 + t + 1]
+                sj += xd
+                sb += xd * (N - 1.0 - t)
+                sj2 += xd2
+                sb2 += xd2 * (N - 2.0 - t)
+                t += 2
+            if t < N - 1:
+                xd = X[i, c0 + t] * dt_all[c0 + t]
+                sj += xd
+                sb += xd * (N - 1.0 - t)
+            sj += sj2
+            sb += sb2
+            xd = X[i, c0 + N - 1] * dt_all[c0 + N - 2]  # the last sample: weight 0 in the pose sum
+            sj += xd
+            SA_y[m, i] = sa / na + r * SA_w[m]
+            SB_y[m, i] = sb / nb + r * SB_w[m]
+            Yint[m, i] = (si + sm + sj) + r * Tw[m]

@@ -1115,6 +1115,13 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         ``ys_``, from the one pass over the session (rows minus a reference sample; the reference added back)."""
         out = {"SA_y": np.zeros((M, n)), "SB_y": np.zeros((M, n)), "YD": np.zeros((n, M, L)),
                "Yint": np.zeros((M, n))}
+        if ys_ is None and _kern is not None and all(c1 - c0 > 1 for c0, c1 in cols):  # compiled, one call
+            c0s, c1s = np.array(cols, dtype=np.int64).T
+            _kern.window_sums(rst.X if isinstance(rows, slice) else rst.X[rows], ref, dt_all, c0s, c1s,
+                              np.array([p[3] for p in parts_idx], dtype=np.int64),
+                              np.array([p[4] for p in parts_idx], dtype=np.int64), SA_w, SB_w, Tw,
+                              out["SA_y"], out["SB_y"], out["YD"], out["Yint"])
+            return out
         for m, (wa, wb, dt, na, nb) in enumerate(parts_idx):
             nm = len(dt) - na - nb
             if ys_ is None:  # each sample read once: the pose sums and their part of the integral together
