@@ -16,7 +16,7 @@ try:
 except ImportError as exc:  # pragma: no cover - the caller checks availability first
     raise ImportError("the compiled hand-held kernels need numba: pip install rimu[fast]") from exc
 
-__all__ = ["integrate_motions", "third_differences", "window_sums"]
+__all__ = ["integrate_motions", "rotation_model", "third_differences", "window_sums"]
 
 #: IEEE arithmetic as numpy's (no exceptions, no fast-math)
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -185,3 +185,175 @@ def window_sums(X, ref, dt_all, c0s, c1s, nas, nbs, SA_w, SB_w, Tw, SA_y, SB_y, 
             SA_y[m, i] = sa / na + r * SA_w[m]
             SB_y[m, i] = sb / nb + r * SB_w[m]
             Yint[m, i] = (si + sm + sj) + r * Tw[m]
+
+
+@_jit
+def _rod(x, y, z, series, out):  # pragma: no cover - compiled
+    """handheld._rodrigues of one rotation vector into out (3, 3); ``series``: every angle of the batch is tiny."""
+    th2 = x * x + y * y + z * z
+    if series:
+        a = 1.0 - th2 / 6.0 + th2 * th2 / 120.0
+        b = 0.5 - th2 / 24.0 + th2 * th2 / 720.0
+    else:
+        th = np.sqrt(th2)
+        if th > 1e-4:
+            a = np.sin(th) / th
+            b = (1.0 - np.cos(th)) / (th * th)
+        else:
+            a = 1.0 - th2 / 6.0 + th2 * th2 / 120.0
+            b = 0.5 - th2 / 24.0 + th2 * th2 / 720.0
+    bx, by = b * x, b * y
+    ax, ay, az = a * x, a * y, a * z
+    out[0, 0] = 1.0 - b * (y * y + z * z)
+    out[1, 1] = 1.0 - b * (x * x + z * z)
+    out[2, 2] = 1.0 - b * (x * x + y * y)
+    out[0, 1] = bx * y - az
+    out[1, 0] = bx * y + az
+    out[0, 2] = bx * z + ay
+    out[2, 0] = bx * z - ay
+    out[1, 2] = by * z - ax
+    out[2, 1] = by * z + ax
+
+
+@_jit
+def rotation_model(Gm, c, Rl, DG, Qc, G_l, c_l, SA_y, SB_y, SA_w, SB_w, u_a, u_b, T):  # pragma: no cover
+    """handheld.fit_gyro's ``rot_parts`` (the rotation residuals (M, 2) and their Jacobian (M, 2, 4n) with the
+    motions from a pre-integration), motion by motion; the same formulas, named there."""
+    n = c.shape[0]
+    M = Rl.shape[0]
+    p = 4 * n
+    v = np.zeros(3)
+    for a in range(3):
+        for i in range(n):
+            v[a] += Gm[a, i] * (c[i] - c_l[i])
+    dGv = np.empty(3 * n)
+    for a in range(3):
+        for i in range(n):
+            dGv[a * n + i] = Gm[a, i] - G_l[a, i]
+    x = np.zeros((M, 3))
+    psi = np.zeros((M, 3))
+    phi = np.zeros((M, 3))
+    big = 0.0
+    xmax = 0.0
+    for m in range(M):
+        for r in range(3):
+            s = 0.0
+            for k in range(3 * n):
+                s += DG[m, r, k] * dGv[k]
+            for b in range(3):
+                s -= Qc[m, r, b] * v[b]
+            x[m, r] = s
+            xmax = max(xmax, abs(s))
+            sa = 0.0
+            sb = 0.0
+            for i in range(n):
+                sa -= Gm[r, i] * (SA_y[m, i] - c[i] * SA_w[m])
+                sb += Gm[r, i] * (SB_y[m, i] - c[i] * SB_w[m])
+            psi[m, r] = sa
+            phi[m, r] = sb
+        for q in (x[m], psi[m], phi[m]):
+            big = max(big, q[0] * q[0] + q[1] * q[1] + q[2] * q[2])
+    series = big < 1e-8
+    rr = np.empty((M, 2))
+    Jr = np.empty((M, 2, p))
+    Rx = np.empty((3, 3))
+    Eb = np.empty((3, 3))
+    Ca = np.empty((3, 3))
+    Dth = np.empty((3, p))
+    Dth2 = np.empty((3, p))
+    Dpsi = np.empty((3, p))
+    Dbeta = np.empty((3, p))
+    Cb = np.empty((3, 3))
+    Rm = np.empty((3, 3))
+    dpred = np.empty((3, p))
+    cv = np.empty((3, p))
+    QG = np.empty((3, n))
+    vv = np.empty(3)
+    pred = np.empty(3)
+    for m in range(M):
+        # d x / d theta (model_x)
+        for r in range(3):
+            for i in range(n):
+                s = 0.0
+                for b in range(3):
+                    s += Qc[m, r, b] * Gm[b, i]
+                QG[r, i] = s
+        for r in range(3):
+            for i in range(n):
+                for j in range(3):
+                    s = 0.0
+                    for a in range(3):
+                        xa = 0.0
+                        for k in range(n):
+                            xa += DG[m, r, a * n + k] * Gm[j, k]
+                        s += Gm[a, i] * xa
+                    Dth[r, 3 * i + j] = -s + QG[r, i] * v[j]
+                Dth[r, 3 * n + i] = -QG[r, i]
+        _rod(x[m, 0], x[m, 1], x[m, 2], series, Rx)
+        _rod(phi[m, 0], phi[m, 1], phi[m, 2], series, Eb)
+        _rod(psi[m, 0], psi[m, 1], psi[m, 2], series, Ca)
+        if xmax > 1e-3:  # Dth = Jr(x) Dth (handheld._right_jacobian)
+            x0, x1, x2 = x[m, 0], x[m, 1], x[m, 2]
+            t2 = x0 * x0 + x1 * x1 + x2 * x2
+            t = np.sqrt(t2)
+            if t > 1e-4:
+                ca = (1.0 - np.cos(t)) / t**2
+                cb = (t - np.sin(t)) / t**3
+            else:
+                ca = 0.5 - t2 / 24.0
+                cb = 1.0 / 6.0 - t2 / 120.0
+            Jx = np.empty((3, 3))
+            xs = (x0, x1, x2)
+            for r in range(3):
+                for k in range(3):
+                    Jx[r, k] = cb * (xs[r] * xs[k])
+            d = 1.0 - cb * t2
+            Jx[0, 0] += d
+            Jx[1, 1] += d
+            Jx[2, 2] += d
+            Jx[0, 1] += ca * x2
+            Jx[1, 0] -= ca * x2
+            Jx[0, 2] -= ca * x1
+            Jx[2, 0] += ca * x1
+            Jx[1, 2] += ca * x0
+            Jx[2, 1] -= ca * x0
+            for r in range(3):
+                for k in range(p):
+                    Dth2[r, k] = Jx[r, 0] * Dth[0, k] + Jx[r, 1] * Dth[1, k] + Jx[r, 2] * Dth[2, k]
+            Dth[:, :] = Dth2
+        for r in range(3):
+            for k in range(3):
+                Rm[r, k] = Rl[m, r, 0] * Rx[0, k] + Rl[m, r, 1] * Rx[1, k] + Rl[m, r, 2] * Rx[2, k]
+        for r in range(3):
+            for k in range(3):
+                Cb[r, k] = Rm[r, 0] * Eb[0, k] + Rm[r, 1] * Eb[1, k] + Rm[r, 2] * Eb[2, k]
+        for r in range(3):
+            vv[r] = Ca[r, 0] * u_a[m, 0] + Ca[r, 1] * u_a[m, 1] + Ca[r, 2] * u_a[m, 2]
+        for r in range(3):
+            pred[r] = Cb[0, r] * vv[0] + Cb[1, r] * vv[1] + Cb[2, r] * vv[2]
+        for a in range(3):
+            for i in range(n):
+                for j in range(3):
+                    Dpsi[a, 3 * i + j] = -Gm[a, i] * psi[m, j]
+                    Dbeta[a, 3 * i + j] = -Gm[a, i] * phi[m, j]
+                Dpsi[a, 3 * n + i] = SA_w[m] * Gm[a, i]
+                Dbeta[a, 3 * n + i] = -SB_w[m] * Gm[a, i]
+        for r in range(3):  # Dbeta = Eb^T Dth + Dphi
+            for k in range(p):
+                Dbeta[r, k] += Eb[0, r] * Dth[0, k] + Eb[1, r] * Dth[1, k] + Eb[2, r] * Dth[2, k]
+        for k in range(p):  # v x Dpsi, pred x Dbeta
+            cv[0, k] = vv[1] * Dpsi[2, k] - vv[2] * Dpsi[1, k]
+            cv[1, k] = vv[2] * Dpsi[0, k] - vv[0] * Dpsi[2, k]
+            cv[2, k] = vv[0] * Dpsi[1, k] - vv[1] * Dpsi[0, k]
+            dpred[0, k] = pred[1] * Dbeta[2, k] - pred[2] * Dbeta[1, k]
+            dpred[1, k] = pred[2] * Dbeta[0, k] - pred[0] * Dbeta[2, k]
+            dpred[2, k] = pred[0] * Dbeta[1, k] - pred[1] * Dbeta[0, k]
+        for r in range(3):
+            for k in range(p):
+                dpred[r, k] -= Cb[0, r] * cv[0, k] + Cb[1, r] * cv[1, k] + Cb[2, r] * cv[2, k]
+        for e in range(2):
+            rr[m, e] = (T[m, e, 0] * (pred[0] - u_b[m, 0]) + T[m, e, 1] * (pred[1] - u_b[m, 1])
+                        + T[m, e, 2] * (pred[2] - u_b[m, 2]))
+            for k in range(p):
+                Jr[m, e, k] = T[m, e, 0] * dpred[0, k] + T[m, e, 1] * dpred[1, k] + T[m, e, 2] * dpred[2, k]
+    return rr, Jr

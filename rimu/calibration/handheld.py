@@ -1243,6 +1243,9 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     def rot_parts(theta, pre, dirs):
         """Rotation residuals (M, 2) and d rr / d theta (M, 2, p) with the motion rotations of the pre-integration
         ``pre`` (:func:`integrate`); first order in the small pose rotations (module docstring)."""
+        if _kern is not None:  # compiled, motion by motion (rimu.calibration._hh_kernels.rotation_model)
+            return _kern.rotation_model(_G(theta[:3 * n].reshape(n, 3)), theta[3 * n:], pre[1], pre[2], pre[3],
+                                        pre[4], pre[5], D["SA_y"], D["SB_y"], SA_w, SB_w, dirs[ka], dirs[kb], T)
         Gm, psi_a, phi_b = pose_rotations(theta)
         x, Dth = model_x(theta, pre, jac=True, Gm=Gm)
         Rx, Eb, Ca = np.split(_rodrigues(np.concatenate([x, phi_b, psi_a])), 3)

@@ -1,11 +1,13 @@
-"""The compiled kernels of the hand-held calibration (numba, issue 15) give the numbers of the numpy reference,
-and the backend choice is explicit (``backend=`` / ``RIMU_BACKEND``, a named error when numba is asked for and
-missing).
+"""The compiled kernels of the hand-held calibration (numba, issue 15: the noise level's third differences, the
+window sums, the pre-integration of the motions and the rotation model the fit iterates on) give the numbers of
+the numpy reference, and the backend choice is explicit (``backend=`` / ``RIMU_BACKEND``, a named error when numba
+is asked for and missing).
 
 "Equal": the third differences to 1e-12 relative of the sums formed by ``np.diff`` (integer raw data: exact);
 the pre-integration of the motions (a sequential product instead of a prefix tree, another summation order) to
-1e-12 of the size of each quantity; the whole calibration (parameters and covariance) to 1e-9 relative, far below
-any standard deviation (~1e-4 relative) and above the rounding of another order of operations (~1e-15).
+1e-12 of the size of each quantity; the weighted rotation residuals and their Jacobian to 1e-9 of their largest;
+the whole calibration (parameters and covariance) to 1e-9 relative, far below any standard deviation (~1e-4
+relative) and above the rounding of another order of operations (~1e-15).
 """
 
 from __future__ import annotations
@@ -72,6 +74,15 @@ def test_preintegration_equal(run):
         np.testing.assert_allclose(b[k], a[k], rtol=0, atol=1e-12 * np.abs(a[k]).max())
     R_exact = g_np.problem["integrate"](theta, jac=False)
     np.testing.assert_allclose(b[1], R_exact, rtol=0, atol=1e-12)
+    # the rotation model on it (residuals and Jacobian), near its point and far enough (a correction above
+    # 1 mrad) that the right Jacobian of the exponential enters
+    for step in (1e-6, 3e-3):
+        th = theta * (1 + step)
+        ra, Ja = g_np.problem["model_fun"](a)(th)
+        rb, Jb = g_nb.problem["model_fun"](b)(th)
+        assert np.max(np.abs(g_np.problem["model_x"](th, a))) > (1e-3 if step > 1e-4 else 0.0)
+        np.testing.assert_allclose(rb, ra, rtol=0, atol=1e-9 * np.abs(ra).max())
+        np.testing.assert_allclose(Jb, Ja, rtol=0, atol=1e-9 * np.abs(Ja).max())
 
 
 @pytest.mark.parametrize("seed", [5, 11])
