@@ -1,5 +1,5 @@
-"""Compiled kernels (numba) of the hand-held calibration (:mod:`rimu.calibration.handheld`): the third differences
-of the noise level, the sums of the motion windows and the integration of the motions. The numpy code of
+"""Compiled kernels (numba) of the hand-held calibration (:mod:`rimu.calibration.handheld`): the one pass over
+an instrument's samples (segment sums, peaks, the noise level's third differences), the sums of the motion windows and the integration of the motions. The numpy code of
 handheld.py is the reference; these give its numbers to rounding (another summation order; tested in
 tests/calibration/test_handheld_numba.py).
 
@@ -16,35 +16,68 @@ try:
 except ImportError as exc:  # pragma: no cover - the caller checks availability first
     raise ImportError("the compiled hand-held kernels need numba: pip install rimu[fast]") from exc
 
-__all__ = ["integrate_motions", "rotation_model", "third_differences", "window_sums"]
+__all__ = ["integrate_motions", "rotation_model", "segment_stats", "window_sums"]
 
 #: IEEE arithmetic as numpy's (no exceptions, no fast-math)
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 
 
 @_jit
-def third_differences(X, starts, counts, d3):  # pragma: no cover - compiled
-    """Per segment j and row i of X (n, N) (segments back to back along the columns), the sum of the squared third
-    differences inside the segment, ``x_t - 3 x_t-1 + 3 x_t-2 - x_t-3`` for t >= 3, into ``d3[j, i]``. Two
+def segment_stats(Y, starts, counts, ref, sums, hi, lo, d3):  # pragma: no cover - compiled
+    """One pass over the samples Y (N, n) of every segment back to back (rows as stored): per segment j and
+    column i of ``x = Y - ref``, the sum, largest and smallest value and the sum of the squared third differences
+    inside the segment (``x_t - 3 x_t-1 + 3 x_t-2 - x_t-3``, t >= 3), into row j of sums, hi, lo, d3. Two
     interleaved partial sums (even and odd t), so that the additions do not wait on each other."""
-    n = X.shape[0]
+    n = Y.shape[1]
     for j in range(starts.shape[0]):
         a = starts[j]
         k = counts[j]
         for i in range(n):
+            r = ref[i]
+            s0 = 0.0
+            s1 = 0.0
             p0 = 0.0
             p1 = 0.0
-            t = a + 3
-            end = a + k
-            while t + 1 < end:
-                e0 = X[i, t] - 3.0 * X[i, t - 1] + 3.0 * X[i, t - 2] - X[i, t - 3]
-                e1 = X[i, t + 1] - 3.0 * X[i, t] + 3.0 * X[i, t - 1] - X[i, t - 2]
-                p0 += e0 * e0
-                p1 += e1 * e1
+            h = -np.inf
+            lw = np.inf
+            x3 = x2 = x1 = 0.0
+            t = 0
+            while t + 1 < k:
+                xa = Y[a + t, i] - r
+                xb = Y[a + t + 1, i] - r
+                s0 += xa
+                s1 += xb
+                if xa > h:
+                    h = xa
+                if xa < lw:
+                    lw = xa
+                if xb > h:
+                    h = xb
+                if xb < lw:
+                    lw = xb
+                if t >= 3:
+                    e = xa - 3.0 * x1 + 3.0 * x2 - x3
+                    p0 += e * e
+                if t >= 2:
+                    e = xb - 3.0 * xa + 3.0 * x1 - x2
+                    p1 += e * e
+                x3 = x1
+                x2 = xa
+                x1 = xb
                 t += 2
-            if t < end:
-                e0 = X[i, t] - 3.0 * X[i, t - 1] + 3.0 * X[i, t - 2] - X[i, t - 3]
-                p0 += e0 * e0
+            if t < k:
+                xa = Y[a + t, i] - r
+                s0 += xa
+                if xa > h:
+                    h = xa
+                if xa < lw:
+                    lw = xa
+                if t >= 3:
+                    e = xa - 3.0 * x1 + 3.0 * x2 - x3
+                    p0 += e * e
+            sums[j, i] = s0 + s1
+            hi[j, i] = h
+            lo[j, i] = lw
             d3[j, i] = p0 + p1
 
 
@@ -119,15 +152,16 @@ def integrate_motions(YD, DM, Gm, c):  # pragma: no cover - compiled
 
 
 @_jit
-def window_sums(X, ref, dt_all, c0s, c1s, nas, nbs, SA_w, SB_w, Tw, SA_y, SB_y, YD, Yint):  # pragma: no cover
-    """handheld.fit_gyro's ``sums()`` from the one pass (X (n, N) rows minus ``ref``), every window in one call.
+def window_sums(Y, ref, dt_all, c0s, c1s, nas, nbs, SA_w, SB_w, Tw, SA_y, SB_y, YD, Yint):  # pragma: no cover
+    """handheld.fit_gyro's ``sums()`` from the samples Y (N, n) back to back (``x = Y - ref``), every window in
+    one call.
 
     Window m spans columns c0 .. c1-1 (at least two): pose k (na samples), the motion, pose k+1 (nb samples);
     ``dt_t = t_t+1 - t_t`` (``dt_all``), the last sample's the one before it. Pose weights ``wa_t = dt_t (t + 1)
     / na`` and ``wb_j = dt_j (nb - 1 - j) / nb`` (j from the start of pose k+1); SA_y, SB_y the weighted pose sums,
     YD (n, M, L) the dt-weighted motion samples, Yint the window integral (``ref`` added back through SA_w, SB_w,
     dt and Tw)."""
-    n = X.shape[0]
+    n = Y.shape[1]
     for m in range(c0s.shape[0]):
         c0 = c0s[m]
         N = c1s[m] - c0
@@ -142,15 +176,15 @@ def window_sums(X, ref, dt_all, c0s, c1s, nas, nbs, SA_w, SB_w, Tw, SA_y, SB_y, 
             sa2 = 0.0
             si2 = 0.0
             for t in range(0, na - 1, 2):  # two partial sums each (t even, t odd): the additions overlap
-                xd = X[i, c0 + t] * dt_all[c0 + t]
-                xd2 = X[i, c0 + t + 1] * dt_all[c0 + t + 1]
+                xd = (Y[c0 + t, i] - r) * dt_all[c0 + t]
+                xd2 = (Y[c0 + t + 1, i] - r) * dt_all[c0 + t + 1]
                 si += xd
                 sa += xd * (t + 1.0)
                 si2 += xd2
                 sa2 += xd2 * (t + 2.0)
             if na % 2:
                 t = na - 1
-                xd = X[i, c0 + t] * dt_all[c0 + t]
+                xd = (Y[c0 + t, i] - r) * dt_all[c0 + t]
                 si += xd
                 sa += xd * (t + 1.0)
             si += si2
@@ -158,7 +192,7 @@ def window_sums(X, ref, dt_all, c0s, c1s, nas, nbs, SA_w, SB_w, Tw, SA_y, SB_y, 
             sm = 0.0
             for t in range(na, na + nm):
                 d = dt_all[c0 + t]
-                xd = X[i, c0 + t] * d
+                xd = (Y[c0 + t, i] - r) * d
                 sm += xd
                 YD[i, m, t - na] = xd + r * d
             sb = 0.0
@@ -167,20 +201,20 @@ def window_sums(X, ref, dt_all, c0s, c1s, nas, nbs, SA_w, SB_w, Tw, SA_y, SB_y, 
             sj2 = 0.0
             t = na + nm
             while t + 1 < N - 1:
-                xd = X[i, c0 + t] * dt_all[c0 + t]
-                xd2 = X[i, c0 + t + 1] * dt_all[c0 + t + 1]
+                xd = (Y[c0 + t, i] - r) * dt_all[c0 + t]
+                xd2 = (Y[c0 + t + 1, i] - r) * dt_all[c0 + t + 1]
                 sj += xd
                 sb += xd * (N - 1.0 - t)
                 sj2 += xd2
                 sb2 += xd2 * (N - 2.0 - t)
                 t += 2
             if t < N - 1:
-                xd = X[i, c0 + t] * dt_all[c0 + t]
+                xd = (Y[c0 + t, i] - r) * dt_all[c0 + t]
                 sj += xd
                 sb += xd * (N - 1.0 - t)
             sj += sj2
             sb += sb2
-            xd = X[i, c0 + N - 1] * dt_all[c0 + N - 2]  # the last sample: weight 0 in the pose sum
+            xd = (Y[c0 + N - 1, i] - r) * dt_all[c0 + N - 2]  # the last sample: weight 0 in the pose sum
             sj += xd
             SA_y[m, i] = sa / na + r * SA_w[m]
             SB_y[m, i] = sb / nb + r * SB_w[m]

@@ -315,7 +315,7 @@ class _RawStats:
     level, the clip levels, the pose means and the gyro fit's sums all read, instead of one pass each (each a
     strided reduction over the (N, n) sample arrays)."""
 
-    X: np.ndarray  # (n, N) raw - ref
+    X: np.ndarray | None  # (n, N) raw - ref (compiled path: None until asked for, see x())
     ref: np.ndarray  # (n,)
     starts: np.ndarray  # (S,) first column of each segment in X
     counts: np.ndarray  # (S,)
@@ -323,6 +323,13 @@ class _RawStats:
     peak: np.ndarray  # (S, n) largest |raw| of each segment
     t: np.ndarray  # (N,) sample times
     d3: np.ndarray | None = None  # (S, n) sum of squared third differences inside each segment (compiled pass)
+    Y: np.ndarray | None = None  # (N, n) raw samples back to back (compiled pass; the kernels subtract ref)
+
+    def x(self) -> np.ndarray:
+        """The rows ``raw - ref`` (n, N) (formed from Y on first use on the compiled path)."""
+        if self.X is None:
+            self.X = np.ascontiguousarray((self.Y - self.ref).T)
+        return self.X
 
     def means(self, seg_index: Sequence[int], idx: Sequence[int] | slice = slice(None)) -> np.ndarray:
         j = np.asarray(seg_index, dtype=int)
@@ -335,6 +342,13 @@ def _raw_stats(session: Session, instrument: str, kern: Any = None) -> _RawStats
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(int)
     n = session.geometries[instrument].n
     ref = np.asarray(segs[0].raw[instrument][0], dtype=float).copy() if counts[0] else np.zeros(n)
+    if kern is not None and len(segs):  # compiled: one pass over the samples as stored (rows), no transpose
+        Y = np.concatenate([s.raw[instrument] for s in segs]).astype(float, copy=False)
+        sums, hi, lo, d3 = (np.empty((len(segs), n)) for _ in range(4))
+        kern.segment_stats(Y, starts, counts, ref, sums, hi, lo, d3)
+        sums += counts[:, None] * ref
+        peak = np.where((counts > 0)[:, None], np.maximum(np.abs(hi + ref), np.abs(lo + ref)), 0.0)
+        return _RawStats(None, ref, starts, counts, sums, peak, np.concatenate([s.t for s in segs]), d3, Y)
     X = np.empty((n, int(counts.sum())))
     for s, a, k in zip(segs, starts, counts):
         np.subtract(s.raw[instrument].T, ref[:, None], out=X[:, a:a + k])
@@ -350,11 +364,7 @@ def _raw_stats(session: Session, instrument: str, kern: Any = None) -> _RawStats
     sums += counts[:, None] * ref
     peak = np.where(ok[:, None], np.maximum(np.abs(hi + ref), np.abs(lo + ref)), 0.0)
     t = np.concatenate([s.t for s in segs]) if segs else np.zeros(0)
-    d3 = None
-    if kern is not None:  # compiled: the third differences of the noise level in the same pass
-        d3 = np.zeros((len(segs), n))
-        kern.third_differences(X, starts, counts, d3)
-    return _RawStats(X, ref, starts, counts, sums, peak, t, d3)
+    return _RawStats(X, ref, starts, counts, sums, peak, t)
 
 
 def _diff_power(rs: _RawStats, eligible: np.ndarray, order: int) -> tuple[np.ndarray, int]:
@@ -364,7 +374,7 @@ def _diff_power(rs: _RawStats, eligible: np.ndarray, order: int) -> tuple[np.nda
     boundary, or in a motion), which are formed explicitly."""
     from math import comb
 
-    X = rs.X
+    X = rs.x()
     n, N = X.shape
     if N <= order:
         return np.zeros(n), 0
@@ -1060,7 +1070,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     ka = np.array([w[0] for w in windows])
     kb = np.array([w[1] for w in windows])
     rst = _raw_stats(session, inst) if _stats is None else _stats
-    rows = slice(None) if list(idx) == list(range(rst.X.shape[0])) else list(idx)
+    rows = slice(None) if list(idx) == list(range(len(rst.ref))) else list(idx)
     ref = rst.ref[rows]
     seg_pos = {id(s): j for j, s in enumerate(session.segments)}
     # per window: the pose-k samples (first order: tremor and sway are small rotations), the motion samples
@@ -1115,9 +1125,9 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         ``ys_``, from the one pass over the session (rows minus a reference sample; the reference added back)."""
         out = {"SA_y": np.zeros((M, n)), "SB_y": np.zeros((M, n)), "YD": np.zeros((n, M, L)),
                "Yint": np.zeros((M, n))}
-        if ys_ is None and _kern is not None and all(c1 - c0 > 1 for c0, c1 in cols):  # compiled, one call
-            c0s, c1s = np.array(cols, dtype=np.int64).T
-            _kern.window_sums(rst.X if isinstance(rows, slice) else rst.X[rows], ref, dt_all, c0s, c1s,
+        if ys_ is None and _kern is not None and rst.Y is not None and all(c1 - c0 > 1 for c0, c1 in cols):
+            c0s, c1s = np.array(cols, dtype=np.int64).T  # compiled, every window in one call
+            _kern.window_sums(rst.Y if isinstance(rows, slice) else rst.Y[:, rows], ref, dt_all, c0s, c1s,
                               np.array([p[3] for p in parts_idx], dtype=np.int64),
                               np.array([p[4] for p in parts_idx], dtype=np.int64), SA_w, SB_w, Tw,
                               out["SA_y"], out["SB_y"], out["YD"], out["Yint"])
@@ -1126,7 +1136,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
             nm = len(dt) - na - nb
             if ys_ is None:  # each sample read once: the pose sums and their part of the integral together
                 c0, c1 = cols[m]
-                X = rst.X[rows, c0:c1]
+                X = rst.x()[rows, c0:c1]
                 Xa, Xb = X[:, :na], X[:, na + nm:]
                 xm = X[:, na:na + nm] * dt[na:na + nm]
                 out["SA_y"][m] = Xa @ wa + ref * SA_w[m]
@@ -1464,13 +1474,13 @@ def clip_levels(session: Session, instrument: str, _stats: _RawStats | None = No
     """Per sensor, the raw level at which the output clips, or inf: the largest |raw| of the session when it is
     reached at least twice and is a power of two or one less (an ADC's full scale, e.g. 32767 / 32768)."""
     rs = _raw_stats(session, instrument) if _stats is None else _stats
-    n = rs.X.shape[0]
+    n = len(rs.ref)
     m = rs.peak.max(axis=0) if len(rs.peak) else np.zeros(n)
     out = np.full(n, np.inf)
     for i in range(n):
         v = round(m[i])
         if v >= 128 and abs(m[i] - v) < 1e-9 and ((v & (v - 1)) == 0 or ((v + 1) & v) == 0):
-            cnt = int(np.sum(np.abs(rs.X[i] + rs.ref[i]) >= m[i]))
+            cnt = int(np.sum(np.abs(rs.x()[i] + rs.ref[i]) >= m[i]))
             if cnt >= 2:
                 out[i] = m[i]
     return out

@@ -3,7 +3,8 @@ window sums, the pre-integration of the motions and the rotation model the fit i
 the numpy reference, and the backend choice is explicit (``backend=`` / ``RIMU_BACKEND``, a named error when numba
 is asked for and missing).
 
-"Equal": the third differences to 1e-12 relative of the sums formed by ``np.diff`` (integer raw data: exact);
+"Equal": the one pass (segment sums, extremes, third differences) to 1e-12 relative of numpy's reductions and
+``np.diff`` (integer raw data: exact);
 the pre-integration of the motions (a sequential product instead of a prefix tree, another summation order) to
 1e-12 of the size of each quantity; the weighted rotation residuals and their Jacobian to 1e-9 of their largest;
 the whole calibration (parameters and covariance) to 1e-9 relative, far below any standard deviation (~1e-4
@@ -40,18 +41,28 @@ def test_backend_choice(monkeypatch):
     assert hh.HandHeld().backend == "numpy"
 
 
-def test_third_differences_sample_by_sample():
+def test_segment_stats_sample_by_sample():
+    """The compiled one pass: per segment the sum, extremes and squared third differences of ``Y - ref``, against
+    numpy's reductions and ``np.diff`` (segments of 0 to 101 samples, odd and even lengths)."""
     pytest.importorskip("numba")
     kern = hh._kernels()
     rng = np.random.default_rng(2)
     counts = np.array([0, 1, 3, 4, 5, 6, 7, 50, 101])
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    X = rng.normal(size=(3, counts.sum())) * 40.0
-    d3 = np.zeros((len(counts), 3))
-    kern.third_differences(X, starts, counts, d3)
+    Y = rng.normal(size=(counts.sum(), 3)) * 40.0 + 1000.0
+    ref = Y[0].copy()
+    out = [np.zeros((len(counts), 3)) for _ in range(4)]
+    kern.segment_stats(Y, starts, counts, ref, *out)
     for j, (a, k) in enumerate(zip(starts, counts)):
-        want = np.sum(np.diff(X[:, a:a + k], 3, axis=1) ** 2, axis=1) if k > 3 else np.zeros(3)
-        np.testing.assert_allclose(d3[j], want, rtol=1e-12, atol=0.0)
+        x = Y[a:a + k] - ref
+        if k == 0:
+            assert np.all(out[0][j] == 0) and np.all(out[1][j] == -np.inf) and np.all(out[2][j] == np.inf)
+            continue
+        np.testing.assert_allclose(out[0][j], x.sum(axis=0), rtol=1e-12, atol=1e-9)
+        np.testing.assert_array_equal(out[1][j], x.max(axis=0))
+        np.testing.assert_array_equal(out[2][j], x.min(axis=0))
+        want = np.sum(np.diff(x, 3, axis=0) ** 2, axis=0) if k > 3 else np.zeros(3)
+        np.testing.assert_allclose(out[3][j], want, rtol=1e-12, atol=0.0)
 
 
 def test_noise_level_equal(run):
