@@ -93,9 +93,9 @@ def run(args: argparse.Namespace) -> int:
                         confirm=args.confirm, duration=args.duration, fault_start=args.fault_start,
                         closed_loop=not args.open_loop_only, base_seed=args.seed)
     from ..fdi import isolability
-    from ..fdi.campaign import _setup
+    from ..fdi.campaign import campaign_unit
 
-    truth, pipe, _ = _setup(spec)
+    truth, pipe, _ = campaign_unit(spec)
     print(isolability(pipe.table, truth[spec.instrument].geometry.names, spec.geometry).summary())
     res = run_campaign(spec, workers=args.workers, scheduler=args.scheduler, progress=True)
     print(res.table())

@@ -224,14 +224,27 @@ def _source(cal: Calibration, real: str, fdi: FdiSettings) -> str:
             f"static const rimu_real {lc}_b[{P}_N] = {_array(inst.bias, real)};",
             f"static const rimu_real {lc}_axes[3 * {P}_N] = {_array(inst.axes_mb(), real, 3)};",
             f"static const rimu_real {lc}_w[{P}_N] = {_array(1.0 / inst.noise_sigma**2, real)};",
+        ]
+        rr = getattr(inst, "range_raw", None)
+        if rr is not None:
+            out += [f"/* {k}: range of each sensor (raw units): |y| >= range is saturated and routed around */",
+                    f"static const rimu_real {lc}_range[{P}_N] = {_array(rr, real)};"]
+        out += [
             "",
             f"{'' if c_effects.plan(cal).public_step(k) else 'static '}void rimu_{lc}_step(const rimu_state *st, "
             "const rimu_real *y, const unsigned char *valid, rimu_output *out)",
             "{",
-            f"    rimu_solve({n}, {lc}_sf, {lc}_b, {lc}_axes, {lc}_w, st, y, valid, out);",
-            "}",
-            "",
         ]
+        if rr is None:
+            out += [f"    rimu_solve({n}, {lc}_sf, {lc}_b, {lc}_axes, {lc}_w, st, y, valid, out);"]
+        else:  # InstrumentPipeline.usable: flagged valid and inside the range
+            out += [f"    unsigned char use[{P}_N];",
+                    "    int i;",
+                    f"    for (i = 0; i < {P}_N; ++i)  /* a saturated output is no measurement: routed around */",
+                    "        use[i] = (unsigned char)((valid == NULL || valid[i]) && !(fabs(y[i]) >= "
+                    f"{lc}_range[i]));",
+                    f"    rimu_solve({n}, {lc}_sf, {lc}_b, {lc}_axes, {lc}_w, st, y, use, out);"]
+        out += ["}", ""]
         out += _fdi_unit(k, inst, real, fdi, max(cal[j].geometry.n for j in cal.instruments),
                          c_effects.plan(cal).public_step(k))
     out.append(c_effects.source(cal, real))
@@ -257,9 +270,6 @@ def _fdi_unit(k: str, inst: InstrumentCalibration, real: str, fdi: FdiSettings, 
     if v is not None:
         out += [f"/* {k}: detection weights 1 / v_i of the calibration's noise model (the whitened GLT) */",
                 f"static const rimu_real {lc}_wdet[{P}_N] = {_array(1.0 / v, real)};"]
-    if rr is not None:
-        out += [f"/* {k}: range of each sensor (raw units): |y| >= range is saturated and routed around */",
-                f"static const rimu_real {lc}_range[{P}_N] = {_array(rr, real)};"]
     wdet = f"{lc}_wdet" if v is not None else f"{lc}_w"
     out += [
         f"static const rimu_fdi_unit {lc}_unit = {{{n}, {lc}_sf, {lc}_b, {lc}_axes, {lc}_w, {lc}_sig2, {wdet}, "

@@ -23,9 +23,9 @@ first; where both need the other, ``Pipeline.cycle_rounds`` rounds of accelerome
 
 Inside the compensation the C estimate of u and of the preliminary rounds uses the sensors that are not isolated,
 flagged valid and finite, as the Python runtime (:meth:`rimu.fusion.InstrumentPipeline.usable`). In the fault
-managers' epoch (``rimu_fdi_step``) a raw output at its range limit is, as in Python, also left out of those
-estimates and handed on as it came (the step routes it around as saturated); the statistics-only ``rimu_step``
-does not judge the range (its per-instrument step has no saturation test).
+unit's epoch (``rimu_step`` and the fault managers' ``rimu_fdi_step``) a raw output at its range limit is, as in
+Python, also left out of those estimates and handed on as it came, and each instrument's step routes it around as
+saturated.
 """
 
 from __future__ import annotations
@@ -434,7 +434,7 @@ def source(cal: Calibration, real: str) -> str:
     for k, c in p.comps.items():
         parts.append(_instrument(k, c, real, p.cyclic))
     parts.append(unit_step(cal, "rimu_step", STEP_PARAMS, "{k}_state->isolated",
-                           "rimu_{k}_step({k}_state, {y}, {k}_valid, {k}_out);", "{k}_out->x"))
+                           "rimu_{k}_step({k}_state, {y}, {k}_valid, {k}_out);", "{k}_out->x", clip=True))
     return "\n".join(parts)
 
 

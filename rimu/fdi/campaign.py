@@ -42,7 +42,7 @@ from .kalman import ParityKalman
 from .manager import HealthState, RedundancyManager
 
 __all__ = ["CampaignSpec", "CampaignResult", "run_campaign", "run_task", "run_tasks", "clopper_pearson", "make_detector",
-           "simulated_truth"]
+           "simulated_truth", "campaign_unit"]
 
 DETECTORS = ("glt", "glt_window", "cusum", "kalman", "baseline")
 
@@ -155,7 +155,9 @@ def split_isolations(events: Sequence[Any], onset: float, at: Callable[[Any], fl
 _CACHE: dict[Any, Any] = {}
 
 
-def _setup(spec: CampaignSpec) -> tuple[Any, InstrumentPipeline, float]:
+def campaign_unit(spec: CampaignSpec) -> tuple[Any, InstrumentPipeline, float]:
+    """The simulated unit a campaign runs on: the simulator's truth calibration, the instrument's pipeline on it
+    and the simulated white-noise sigma (cached for the last spec's geometry, instrument, seed and noise)."""
     from ..geometry import preset
     from ..sim import Simulator
 
@@ -203,7 +205,7 @@ def run_task(spec: CampaignSpec, task: Sequence[int]) -> dict[str, Any]:
     from .faults import Injection, inject
 
     f_i, sensor, z_i, rep = (int(x) for x in task)
-    truth, pipe, _sigma = _setup(spec)
+    truth, pipe, _sigma = campaign_unit(spec)
     cal = truth[spec.instrument]
     seed = task_seed(spec, task)
     sim = Simulator({spec.instrument: cal.geometry}, truth=truth, arw_deg_sqrt_h=spec.arw,

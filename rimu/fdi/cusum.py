@@ -39,6 +39,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Callable
+from math import isfinite
 from operator import mul
 
 import numpy as np
@@ -295,12 +296,16 @@ class CusumBank:
         self._M = list(self._C)
 
     def update(self, parity: np.ndarray) -> tuple[float, float]:
-        """Advance the bank by one sample; returns (largest statistic / its threshold, 1.0)."""
+        """Advance the bank by one sample; returns (largest statistic / its threshold, 1.0). A non-finite parity
+        raises :class:`NonFiniteError` (as :meth:`block`) and leaves the bank as it was."""
         if self._dof < 1:
             return 0.0, float("inf")
         na = self._na
         if not na:
             return 0.0, 1.0
+        p = parity.tolist()[:self._dof]
+        if not all(map(isfinite, p)):  # before any state changes: the bank stays usable after the error
+            raise _non_finite()
         base, part, C, M, half, inv = self._base, self._part, self._C, self._M, self._half, self._inv
         k = self._count
         if k == self.REBASE:  # move the origin before the sample (after any reset() of the last one)
@@ -315,7 +320,6 @@ class CusumBank:
         k += 1
         self._count = k
         kf = float(k)
-        p = parity.tolist()[:self._dof]
         A = [0.0] * na
         for j, w in enumerate(self._cols):
             part[j] = part[j] + sum(map(mul, p, w))       # same order of operations as block()
@@ -568,7 +572,7 @@ def _dense_alarms(Ct: np.ndarray, a0: int, m: int, inv: np.ndarray, idx: np.ndar
 def _non_finite() -> NonFiniteError:
     return NonFiniteError("the parity block holds a non-finite value (NaN or inf); the CUSUM's running sums would "
                           "carry it to every later sample: leave invalid samples out of the block (or set their "
-                          "parity to 0, as the campaign does) before calling block()")
+                          "parity to 0, as the campaign does) before calling block() or update()")
 
 
 #: samples per block of the running sums (both paths: the sum is the earlier blocks' sum plus a partial sum)

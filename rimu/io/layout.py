@@ -763,44 +763,72 @@ class CanCodec:
         return DecodedFrames(*(np.concatenate([getattr(p, f) for p in parts])
                                for f in ("status", "message", "counter", "values", "flags_ok")))
 
+    def _status_counters(self, data: np.ndarray, dlc: np.ndarray, E: int) -> tuple[np.ndarray, np.ndarray]:
+        """Status (E, K) from the lengths and the checksums, and the counters (E, K) with the aligned ones read
+        (the start shared by :meth:`_decode_regular` and :meth:`decode_slots`)."""
+        K = self.n_messages
+        status = np.where(dlc.reshape(E, K) == self._lengths, STATUS_OK, STATUS_BAD_LENGTH).astype(np.int8)
+        bad = self._checksum_regular(data, E)
+        if bad is not None:
+            status[bad & (status == STATUS_OK)] = STATUS_CHECKSUM
+        counter = np.zeros((E, K), dtype=np.int64)
+        for dt, cols, cdst in self._aligned_counters:
+            counter[:, cdst] = np.take(data.view(dt).reshape(E, -1), cols, axis=1)
+        return status, counter
+
+    class _Words:
+        """The (E, K) 64-bit words of E samples of K frames, little-endian, and big-endian made on first use."""
+
+        def __init__(self, data: np.ndarray, E: int, K: int) -> None:
+            self.data, self.E = data, E
+            self.le = data.view("<u8").reshape(E, K)
+            self._be: np.ndarray | None = None
+
+        def be(self) -> np.ndarray:
+            if self._be is None:
+                self._be = self.le.byteswap()
+            return self._be
+
+    @staticmethod
+    def _physical(r: np.ndarray, nv: int, scale: Any, offset: Any, scaled: bool) -> np.ndarray:
+        """The first ``nv`` raw fields of a group as physical values (``raw * scale + offset`` where scaled)."""
+        v = r[:, :nv].astype(float)
+        if scaled:
+            v *= scale
+            v += offset
+        return v
+
+    def _group_raws(self, words: _Words):
+        """Each extraction group of :meth:`_vector_plan` with its raw fields (E, fields)."""
+        for g in self._groups:
+            little, ext = g[0], g[1]
+            if little == "bytes":
+                yield g, ext.raw(words.data, words.E)
+            else:
+                yield g, ext.raw(words.le if little else words.be())
+
     def _decode_regular(self, data: np.ndarray, dlc: np.ndarray, E: int) -> DecodedFrames:
         """E samples of K frames in layout order: the (E, K) words of every message at once, each signal a column
         of one array per byte order (:meth:`_vector_plan`), checksums by pair tables over all frames."""
         K = self.n_messages
         N = E * K
         V, F = self.max_values, self.max_flags
-        status = np.where(dlc.reshape(E, K) == self._lengths, STATUS_OK, STATUS_BAD_LENGTH).astype(np.int8)
-        bad = self._checksum_regular(data, E)
-        if bad is not None:
-            status[bad & (status == STATUS_OK)] = STATUS_CHECKSUM
-        counter = np.zeros((E, K), dtype=np.int64)
+        status, counter = self._status_counters(data, dlc, E)
         values = np.zeros((E, K * V))
         flags_ok = np.ones((E, K * F), dtype=bool)
-        for dt, cols, cdst in self._aligned_counters:
-            counter[:, cdst] = np.take(data.view(dt).reshape(E, -1), cols, axis=1)
         for v, vdst, _ in self._aligned_values(data, E):
             values[:, vdst] = v
-        wle = data.view("<u8").reshape(E, K)
-        wbe = None
-        for little, ext, nv, nc, vdst, scale, offset, scaled, cdst, fdst, okm, _ in self._groups:
-            if little == "bytes":
-                r = ext.raw(data, E)
-            else:
-                if not little and wbe is None:
-                    wbe = wle.byteswap()
-                r = ext.raw(wle if little else wbe)
+        words = self._Words(data, E, K)
+        for (_, _, nv, nc, vdst, scale, offset, scaled, cdst, fdst, okm, _), r in self._group_raws(words):
             if nv:
-                v = r[:, :nv].astype(float)
-                if scaled:
-                    v *= scale
-                    v += offset
+                v = self._physical(r, nv, scale, offset, scaled)
                 values[:, vdst] = v
             if nc:
                 counter[:, cdst] = r[:, nv:nv + nc]
             if len(fdst):
                 flags_ok[:, fdst] = (r[:, nv + nc:] & okm) == 0
         if self._rest:
-            wbe = wle.byteswap() if wbe is None else wbe
+            wle, wbe = words.le, words.be()
             for mi, kind, j, sg in self._rest:
                 raw = self._extract(wle[:, mi], wbe[:, mi], sg)
                 if kind == "value":
@@ -821,35 +849,19 @@ class CanCodec:
         the last in layout order is kept, as the assembler does)."""
         K = self.n_messages
         V, F = self.max_values, self.max_flags
-        status = np.where(dlc.reshape(E, K) == self._lengths, STATUS_OK, STATUS_BAD_LENGTH).astype(np.int8)
-        bad = self._checksum_regular(data, E)
-        if bad is not None:
-            status[bad & (status == STATUS_OK)] = STATUS_CHECKSUM
-        counter = np.zeros((E, K), dtype=np.int64)
+        status, counter = self._status_counters(data, dlc, E)
         slots = np.zeros((E, self.n_slots))
         sensor_bad = None          # (E, n_sensors): a flag of the sample says the sensor is not valid
-        for dt, cols, cdst in self._aligned_counters:
-            counter[:, cdst] = np.take(data.view(dt).reshape(E, -1), cols, axis=1)
         for v, vdst, sdst in self._aligned_values(data, E):
             last = self._last_writer[vdst]
             if last.all():
                 slots[:, sdst] = v
             else:
                 slots[:, sdst[last]] = v[:, last]
-        wle = data.view("<u8").reshape(E, K)
-        wbe = None
-        for little, ext, nv, nc, vdst, scale, offset, scaled, cdst, fdst, okm, last in self._groups:
-            if little == "bytes":
-                r = ext.raw(data, E)
-            else:
-                if not little and wbe is None:
-                    wbe = wle.byteswap()
-                r = ext.raw(wle if little else wbe)
+        words = self._Words(data, E, K)
+        for (_, _, nv, nc, vdst, scale, offset, scaled, cdst, fdst, okm, last), r in self._group_raws(words):
             if nv:
-                v = r[:, :nv].astype(float)
-                if scaled:
-                    v *= scale
-                    v += offset
+                v = self._physical(r, nv, scale, offset, scaled)
                 if last.all():
                     slots[:, self._slot_of[vdst]] = v
                 else:
@@ -862,7 +874,7 @@ class CanCodec:
                     b = fb @ self._flag_cover[fdst]
                     sensor_bad = b if sensor_bad is None else sensor_bad | b
         if self._rest:
-            wbe = wle.byteswap() if wbe is None else wbe
+            wle, wbe = words.le, words.be()
             for mi, kind, j, sg in self._rest:
                 raw = self._extract(wle[:, mi], wbe[:, mi], sg)
                 if kind == "value":

@@ -27,7 +27,7 @@ def _build(cal, tmp_path, real="double"):
     return d / "rimu_filter"
 
 
-def _run(exe, t, raw: dict, valid: dict | None = None):
+def _run(exe, t, raw: dict, valid: dict | None = None, T=None):
     cols = [t[:, None]] + [raw[k] for k in raw]
     rows = []
     for r in range(len(t)):
@@ -36,6 +36,8 @@ def _run(exe, t, raw: dict, valid: dict | None = None):
             for i, v in enumerate(raw[k][r]):
                 ok = valid is None or k not in valid or valid[k][r, i]
                 cells.append(repr(float(v)) if ok else "")
+        if T is not None:  # the temperature column, read by a filter whose effects need it
+            cells.append(repr(float(T[r])))
         rows.append(",".join(cells))
     del cols
     res = subprocess.run([str(exe), "--stats"], input="t,raw\n" + "\n".join(rows) + "\n", capture_output=True, text=True,
@@ -128,3 +130,40 @@ def test_cli_exports_and_builds(unit, tmp_path, capsys):
     out = capsys.readouterr().out.strip().splitlines()
     assert len(out) == 1 and "built" in out[0]
     assert (tmp_path / "c" / "rimu_filter").exists()
+
+
+@needs_cc
+@pytest.mark.parametrize("effects", [False, True], ids=["base", "every_effect"])
+def test_saturated_outputs_are_routed_around_as_in_python(unit, tmp_path, effects):
+    """A raw output at its range limit is no measurement: the Python runtime leaves it out of the estimate (and
+    of the compensation's own estimates, handing it on as it came); the exported statistics-only ``rimu_step``
+    must do the same, sample for sample, or the flight code would fly on a clipped gyro that Python ignores."""
+    from rimu.epoch import EpochBlock
+
+    run, cal = unit
+    if effects:
+        from rimu.sim.typical import with_effects
+
+        cal = with_effects(cal, {"gyro": ["g_sensitivity", "sf_quadratic"], "accel": ["bias_temperature"]})
+    block = run.block
+    n = min(len(block), 1500)
+    t = block.t[:n]
+    raw = {k: block.raw[k][:n].copy() for k in cal.instruments}
+    g = cal["gyro"]
+    g.range_raw = np.quantile(np.abs(raw["gyro"]), 0.99, axis=0)   # about 1 % of the outputs clipped
+    raw["gyro"] = np.clip(raw["gyro"], -g.range_raw, g.range_raw)
+    clipped = np.abs(raw["gyro"]) >= g.range_raw
+    assert clipped.any(axis=1).sum() >= 20
+    T = np.full(n, 25.0)
+    exe = _build(cal, tmp_path)
+    c = _run(exe, t, raw, T=T if effects else None)
+    py = Pipeline(cal, temperature=effects or None).process(
+        EpochBlock(t, {k: raw[k].copy() for k in raw}, temperature=T if effects else None))
+    for k in cal.instruments:
+        x = np.column_stack([c[f"{k}_x"], c[f"{k}_y"], c[f"{k}_z"]])
+        obs = c[f"{k}_observable"].astype(bool)
+        assert np.array_equal(obs, py[k].observable)
+        assert np.max(np.abs(x[obs] - py[k].x[obs])) <= 1e-12 * np.abs(py[k].x[obs]).max() * 10, k
+        assert np.array_equal(c[f"{k}_dof"][obs].astype(int), py[k].dof[obs])
+    rows = clipped.any(axis=1) & py["gyro"].observable
+    assert np.all(c["gyro_dof"][rows] < 3)  # the clipped sensors were left out

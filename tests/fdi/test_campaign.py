@@ -47,9 +47,9 @@ def test_wrong_isolation_at_10_sigma_consistent_with_parity_correlations(geometr
                         base_seed=303)
     res = run_campaign(spec, workers=0)
     s = res.summary()[0]
-    from rimu.fdi.campaign import _setup
+    from rimu.fdi.campaign import campaign_unit
 
-    _, pipe, sigma = _setup(spec)
+    _, pipe, sigma = campaign_unit(spec)
     Vz = pipe.table.Vz[0]
     b = [wrong_isolation_bounds(Vz, j, 10 * sigma) for j in range(6)]
     lo_th, hi_th = float(np.mean([x[0] for x in b])), float(np.mean([x[1] for x in b]))

@@ -189,6 +189,27 @@ def test_cusum_block_non_finite_is_named(backend, where, value):
         bank.block(P[:, :2], V6, 3)
 
 
+def test_cusum_update_non_finite_is_named_and_changes_nothing():
+    """The step path as the block path: a NaN or inf parity raises NonFiniteError (it used to make every later
+    statistic 0, silently), and the bank is left as it was: the samples after it give the statistics of a bank
+    that never saw it."""
+    rng = np.random.default_rng(23)
+    P = rng.standard_normal((400, 3))
+    P[200:] += 2.0 * V6[:, 1]
+    a, b = CusumBank(1.0, 1e4), CusumBank(1.0, 1e4)
+    a.REBASE = b.REBASE = 96
+    for bank in (a, b):
+        bank.configure(V6, 3)
+    for k, p in enumerate(P):
+        if k in (50, 250, 251):
+            for bad in (np.nan, np.inf):
+                q = p.copy()
+                q[2] = bad
+                with pytest.raises(NonFiniteError, match="non-finite"):
+                    a.update(q)
+        assert a.update(p) == b.update(p)
+
+
 def test_block_backend_choice(monkeypatch):
     """``backend=`` as the runtime's (rimu.fusion.backend): numba asked for and missing is named, auto falls
     back to numpy, RIMU_BACKEND decides without an argument."""
