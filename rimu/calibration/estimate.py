@@ -105,7 +105,7 @@ def _known_input(ctx: SensorContext, seg: Segment) -> np.ndarray | None:
     """``ctx.input(seg)``, without building a rotation matrix per sample when the segment is static."""
     if seg.kind == "static" and not np.any(seg.table_rate()):
         if ctx.instrument == "gyro":
-            if seg.mat_ln_mb is not None and ctx.latitude is not None:
+            if seg.mat_ln_mb is not None and ctx.latitude is not None and ctx.include_earth_rate:
                 from ..session import earth_rate_ln
 
                 return np.broadcast_to(seg.mat_ln_mb.T @ earth_rate_ln(ctx.latitude), (seg.n_samples, 3))
@@ -125,7 +125,7 @@ def _input_form(ctx: SensorContext, seg: Segment) -> tuple[str | None, Any]:
     if ctx.instrument == "gyro":
         if seg.kind not in ("rate", "static"):
             return None, None
-        earth = seg.mat_ln_mb is not None and ctx.latitude is not None and (ctx.include_earth_rate or not turning)
+        earth = seg.mat_ln_mb is not None and ctx.latitude is not None and ctx.include_earth_rate
         if not earth:
             return "constant", np.asarray(w, dtype=float)
         from ..session import earth_rate_ln

@@ -184,3 +184,32 @@ def test_statistics_are_read_afresh_by_each_fit(session):
     for name, v in before.items():
         if name.endswith(".scale"):
             assert after[name] == pytest.approx(v / 2, rel=1e-12)
+
+
+@pytest.mark.parametrize("earth", [True, False])
+def test_the_known_input_forms_are_the_contexts_input(session, earth):
+    """``_known_input`` (no rotation per sample on static segments) and ``_input_form`` (a constant, or the
+    [1, cos, sin] basis on turning segments) are ``SensorContext.input`` sample by sample, with the Earth rate
+    in the gyro input or left out (``include_earth_rate=False``, as the diagnosis' --no-earth-rate), on static
+    and turning segments alike."""
+    from rimu.calibration.estimate import _input_form, _known_input
+
+    n_static = 0
+    for inst in ("gyro", "accel"):
+        ctx = contexts(session, inst, include_earth_rate=earth)[0]
+        for seg in session.segments:
+            want = ctx.input(seg)
+            if want is None:
+                continue
+            n_static += seg.kind == "static" and inst == "gyro"
+            assert np.max(np.abs(_known_input(ctx, seg) - want)) <= 1e-15 * max(1.0, np.abs(want).max())
+            kind, u = _input_form(ctx, seg)
+            if kind == "constant":
+                got = np.broadcast_to(u, want.shape)
+            elif kind == "basis":
+                th = np.linalg.norm(seg.table_rate()) * (seg.t - seg.t[0])
+                got = np.column_stack([np.ones_like(th), np.cos(th), np.sin(th)]) @ u
+            else:
+                got = u
+            assert np.max(np.abs(got - want)) <= 1e-12 * max(1.0, np.abs(want).max()), (inst, seg.label, kind)
+    assert n_static >= 10
