@@ -8,11 +8,13 @@
 
 from __future__ import annotations
 
+import importlib
 import os
+from types import ModuleType
 
 from .errors import BackendUnavailableError, OptionError
 
-__all__ = ["BACKENDS", "resolve"]
+__all__ = ["BACKENDS", "import_once", "resolve"]
 
 #: accepted values of ``backend`` and ``RIMU_BACKEND``
 BACKENDS = ("auto", "numpy", "numba")
@@ -50,3 +52,16 @@ def resolve(backend: str | None, available: bool, what: str = "the compiled runt
     raise BackendUnavailableError(
         f"{source}='numba' asks for {what}, and numba is not installed: pip install rimu[fast] "
         "(or use backend='numpy', the reference, or 'auto')")
+
+
+def import_once(cache: list, module: str) -> ModuleType | None:
+    """The kernels' module ``module`` (absolute name), imported at the first call and kept in ``cache`` (a list the
+    caller owns, empty until then, so that a test can patch in ``[None]``); None where it cannot be imported
+    (numba missing)."""
+    if not cache:
+        try:
+            m: ModuleType | None = importlib.import_module(module)
+        except ImportError:
+            m = None
+        cache.append(m)
+    return cache[0]

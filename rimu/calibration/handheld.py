@@ -73,6 +73,7 @@ from typing import Any
 
 import numpy as np
 
+from .._backend import import_once
 from .._backend import resolve as _resolve_backend
 from ..errors import IdentifiabilityError, SessionFormatError
 from ..geometry import Geometry
@@ -108,13 +109,7 @@ _KERNELS: list[Any] = []
 
 def _kernels() -> Any:
     """The compiled kernels (:mod:`rimu.calibration._hh_kernels`, imports numba once), or None without numba."""
-    if not _KERNELS:
-        try:
-            from . import _hh_kernels as k
-        except ImportError:
-            k = None
-        _KERNELS.append(k)
-    return _KERNELS[0]
+    return import_once(_KERNELS, "rimu.calibration._hh_kernels")
 
 
 # ---------------------------------------------------------------------- algebra

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from types import ModuleType
 
-from .._backend import BACKENDS, resolve
+from .._backend import BACKENDS, import_once, resolve
 
 __all__ = ["BACKENDS", "numba_available", "resolve_backend"]
 
@@ -20,13 +20,7 @@ _KERNELS: list[ModuleType | None] = []
 
 def _kernels() -> ModuleType | None:
     """The compiled kernels (imports numba once), or None without numba."""
-    if not _KERNELS:
-        try:
-            from . import _kernels as k
-        except ImportError:
-            k = None
-        _KERNELS.append(k)
-    return _KERNELS[0]
+    return import_once(_KERNELS, "rimu.fusion._kernels")
 
 
 def numba_available() -> bool:
