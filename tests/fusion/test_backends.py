@@ -138,6 +138,24 @@ def _pair(cal, **kw):
     return a, b
 
 
+def _same_block_step_and_stream(cal, block, label):
+    """A compiled (numba) and a numpy pipeline of ``cal`` (temperature read) on ``block``: the same block results,
+    the same step results epoch by epoch (each on fresh pipelines), every block and epoch done by the compiled
+    path, and the same compensated stream (what the FDI managers get). Returns the step-run pair."""
+    a, b = _pair(cal, temperature=True)
+    done = _spy(a)
+    _same_block(a.process(block), b.process(block), label)
+    a, b = _pair(cal, temperature=True)
+    done_step = _spy(a)
+    for j, ep in enumerate(block.epochs()):
+        _same_step(a.step(ep), b.step(ep), f"{label} epoch {j}")
+    assert done == [True] and len(done_step) == len(block) and all(done_step)  # all on the compiled path
+    ca, cb = a.compensate(block), b.compensate(block)
+    for k in INSTS:
+        _close(ca.raw[k], cb.raw[k], f"{label} compensate {k}")
+    return a, b
+
+
 @pytest.mark.parametrize("geometry", ["cone6", "cone24"])
 def test_numba_equals_numpy_with_every_effect(geometry):
     """Every compensable effect on both instruments of a misaligned unit (the fixed point between them
@@ -145,20 +163,9 @@ def test_numba_equals_numpy_with_every_effect(geometry):
     g = cone6() if geometry == "cone6" else cone(24)
     cal = _unit(g, seed=3)
     block = _stream(cal, 40, seed=4)
-    a, b = _pair(cal, temperature=True)
-    done = _spy(a)
-    _same_block(a.process(block), b.process(block), geometry)
-    a, b = _pair(cal, temperature=True)
-    done_step = _spy(a)
-    for j, ep in enumerate(block.epochs()):
-        _same_step(a.step(ep), b.step(ep), f"{geometry} epoch {j}")
-    assert done == [True] and len(done_step) == len(block) and all(done_step)  # all on the compiled path
+    a, b = _same_block_step_and_stream(cal, block, geometry)
     for k in INSTS:
         assert a[k].samples == b[k].samples == len(block)
-    # the compensated stream (what the FDI managers get) is the same too
-    ca, cb = a.compensate(block), b.compensate(block)
-    for k in INSTS:
-        _close(ca.raw[k], cb.raw[k], f"compensate {k}")
     # and the check above can fail: the same stream without compensation is off by the effects
     plain = Pipeline(_unit(g, seed=3, effects=False), backend="numba").process(block)
     assert np.abs(plain["gyro"].x - b.process(block)["gyro"].x).max() > 1e3 * REL * np.abs(plain["gyro"].x).max()
@@ -185,18 +192,8 @@ def test_numba_equals_numpy_with_subsets_of_effects(subset):
     step, and did the work; the compensated stream is the same too."""
     cal = with_effects(_unit(cone6(), seed=11, effects=False), SUBSETS[subset])
     block = _stream(cal, 25, seed=12)
-    a, b = _pair(cal, temperature=True)
-    assert a._program is not None
-    done = _spy(a)
-    _same_block(a.process(block), b.process(block), subset)
-    a, b = _pair(cal, temperature=True)
-    done_step = _spy(a)
-    for j, ep in enumerate(block.epochs()):
-        _same_step(a.step(ep), b.step(ep), f"{subset} epoch {j}")
-    assert done == [True] and len(done_step) == len(block) and all(done_step)
-    ca, cb = a.compensate(block), b.compensate(block)
-    for k in INSTS:
-        _close(ca.raw[k], cb.raw[k], f"{subset} compensate {k}")
+    assert _pair(cal, temperature=True)[0]._program is not None
+    _, b = _same_block_step_and_stream(cal, block, subset)
     # the check can fail: without compensation the estimates are off by the effects
     plain = Pipeline(_unit(cone6(), seed=11, effects=False), backend="numpy").process(block)
     k = "accel" if subset == "size_effect_only" else "gyro"
