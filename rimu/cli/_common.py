@@ -183,6 +183,25 @@ def add_procedure_options(p: argparse.ArgumentParser, noise: Callable[[str], flo
     p.add_argument("--vrw", type=noise, default=200.0, help="accelerometer noise density, micro-g/sqrt(Hz)")
 
 
+def add_readmit_options(p: Any, other: str) -> None:
+    """``--readmit-after N`` and ``--no-readmit`` (of a parser or argument group); read them with
+    :func:`readmit_after`. ``other`` names the command that shares the default."""
+    p.add_argument("--readmit-after", type=positive_int, default=None,
+                   help="clean samples before an isolated sensor is re-admitted (doubled at each further isolation; "
+                        f"default rimu.fdi.health.READMIT_AFTER, as the manager and {other})")
+    p.add_argument("--no-readmit", action="store_true", help="never re-admit an isolated sensor automatically")
+
+
+def readmit_after(args: argparse.Namespace) -> int | None:
+    """Clean samples before re-admission: ``--readmit-after``, else the default of every entry point
+    (:data:`rimu.fdi.health.READMIT_AFTER`); None with ``--no-readmit``."""
+    from ..fdi.health import READMIT_AFTER
+
+    if args.no_readmit:
+        return None
+    return READMIT_AFTER if args.readmit_after is None else int(args.readmit_after)
+
+
 def add_accept_implausible(p: argparse.ArgumentParser) -> None:
     """``--accept-implausible``: turn refusals of the plausibility checks (units against gravity and commanded
     rates, sample rate against timestamps; rimu.session.checks) into warnings."""

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import positive_float, positive_int, probability
+from ._common import add_readmit_options, positive_float, positive_int, probability, readmit_after
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -26,10 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="consecutive alarms naming the same sensor set before it is isolated")
     g.add_argument("--invalid-persist", type=positive_int, default=None,
                    help="consecutive invalid samples before a sensor is isolated")
-    g.add_argument("--readmit-after", type=positive_int, default=None,
-                   help="clean samples before an isolated sensor is re-admitted (doubled at each further isolation; "
-                        "default rimu.fdi.health.READMIT_AFTER, as the manager and rimu replay)")
-    g.add_argument("--no-readmit", action="store_true", help="never re-admit an isolated sensor automatically")
+    add_readmit_options(g, "rimu replay")
     g.add_argument("--fail-after", type=positive_int, default=None,
                    help="isolations of one sensor after which it is FAILED (not re-admitted)")
     g.add_argument("--backoff", type=positive_float, default=None,
@@ -53,13 +50,11 @@ def fdi_settings(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     if args.backoff is not None and args.backoff < 1:
         raise OptionError(f"--backoff {args.backoff:g}: must be at least 1 (the clean period never shrinks)")
     given = {"p_fa": args.p_fa, "confirm": args.confirm, "invalid_persist": args.invalid_persist,
-             "readmit_after": args.readmit_after, "fail_after": args.fail_after, "backoff": args.backoff,
+             "fail_after": args.fail_after, "backoff": args.backoff,
              "clear_after": args.clear_after, "episode_gap": args.episode_gap, "alpha": args.set_alpha,
              "max_size": args.max_set_size}
     kw = {k: v for k, v in given.items() if v is not None}   # the others keep FdiSettings' defaults
-    if args.no_readmit:
-        kw["readmit_after"] = None
-    return FdiSettings(**kw)
+    return FdiSettings(**kw, readmit_after=readmit_after(args))
 
 
 def run(args: argparse.Namespace) -> int:

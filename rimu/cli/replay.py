@@ -39,11 +39,13 @@ from ._common import (
     Deprecated,
     add_accept_implausible,
     add_json_option,
+    add_readmit_options,
     add_report_option,
     nonnegative_int,
     positive_float,
     positive_int,
     probability,
+    readmit_after,
 )
 
 DETECTORS = ["glt", "glt_window", "cusum", "kalman", "baseline"]
@@ -60,10 +62,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--p-fa", type=probability, default=1e-3, help="per-sample false-alarm probability")
     p.add_argument("--arl0", type=positive_float, default=1e5, help="mean samples between false alarms (cusum, baseline)")
     p.add_argument("--confirm", type=positive_int, default=3, help="consecutive alarms before isolation")
-    p.add_argument("--readmit-after", type=positive_int, default=None,
-                   help="clean samples before an isolated sensor is re-admitted (doubled at each further isolation; "
-                        "default rimu.fdi.health.READMIT_AFTER, as the manager and rimu export-c)")
-    p.add_argument("--no-readmit", action="store_true", help="never re-admit an isolated sensor automatically")
+    add_readmit_options(p, "rimu export-c")
     p.add_argument("--noise", type=positive_float, default=None, help="per-sample noise (SI) if the calibration has none")
     p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of random fault types")
     p.add_argument("--motion-fit", type=positive_float, default=None, metavar="SECONDS",
@@ -358,16 +357,6 @@ class _Errors:
         E = np.array([self.sd[i] / self.n[i] for i in order])
         return InstrumentErrors(self.k, float(np.sqrt(np.mean(E * E))), float(np.sqrt(self.sq / self.count)),
                                 [self.session.segments[i].label for i in order], E)
-
-
-def readmit_after(args: argparse.Namespace) -> int | None:
-    """Clean samples before re-admission: ``--readmit-after``, else the default of every entry point
-    (:data:`rimu.fdi.health.READMIT_AFTER`); None with ``--no-readmit``."""
-    from ..fdi.health import READMIT_AFTER
-
-    if args.no_readmit:
-        return None
-    return READMIT_AFTER if args.readmit_after is None else int(args.readmit_after)
 
 
 def run(args: argparse.Namespace) -> int:
