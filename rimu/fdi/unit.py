@@ -31,6 +31,9 @@ from .manager import FdiResult, RedundancyManager, ReplayResult, _Collector
 
 __all__ = ["UnitManager"]
 
+#: epochs of the first run after an isolation set changed (runs then double up to ``chunk``)
+_RESTART = 64
+
 
 class UnitManager:
     """One :class:`RedundancyManager` per instrument of a :class:`rimu.fusion.Pipeline`, run epoch by epoch through
@@ -102,7 +105,8 @@ class UnitManager:
         where a manager's isolation set changed (the next epoch's compensation must use the new set), and the
         instruments after the first are redone closed loop on an epoch where the first one's manager estimate
         differs from the compensation's (an alarm episode leaving suspects out), since their effects take the
-        manager's estimate. ``chunk`` bounds a run's length (memory)."""
+        manager's estimate. ``chunk`` bounds a run's length (memory); after a set change a run starts at 64
+        epochs and doubles, so that sets changing often do not each waste a chunk's compensation."""
         N = len(block)
         t = np.asarray(block.t, dtype=float)
         if not self.pipeline.compensation:  # nothing couples the instruments: each manager runs on its own
@@ -122,11 +126,14 @@ class UnitManager:
                          None if T is None else float(T[i]))
 
         i = 0
+        size = chunk  # a run's length: back to _RESTART after a set change (the compensation ahead of it was
+        #               wasted; sets that change often would waste a whole chunk each time), doubled after a run
+        #               that ends whole, up to chunk
         with np.errstate(invalid="ignore", over="ignore"):  # non-finite raw values are routed around, not warned
             while i < N:
                 for m in mgrs.values():
                     m.sync_pipeline()
-                j1 = min(N, i + chunk)
+                j1 = min(N, i + size)
                 sub = EpochBlock(t[i:j1], {k: y[i:j1] for k, y in raw.items()},
                                  {k: v[i:j1] for k, v in valid.items()}, None if T is None else T[i:j1])
                 ycomp, xcomp = self._open_loop(sub)
@@ -151,6 +158,7 @@ class UnitManager:
                     j += 1
                     if [m._iso_bytes for m in mgrs.values()] != before:
                         break  # the next epoch's compensation uses the new sets
+                size = min(chunk, 2 * size) if i + j == j1 else min(chunk, _RESTART)
                 i += j
         return {k: c.result(t) for k, c in out.items()}
 
