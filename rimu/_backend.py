@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib
 import os
+from collections.abc import Callable
 from types import ModuleType
 
 from .errors import BackendUnavailableError, OptionError
@@ -20,9 +21,10 @@ __all__ = ["BACKENDS", "import_once", "resolve"]
 BACKENDS = ("auto", "numpy", "numba")
 
 
-def resolve(backend: str | None, available: bool, what: str = "the compiled runtime") -> str:
+def resolve(backend: str | None, available: bool | Callable[[], bool], what: str = "the compiled runtime") -> str:
     """``"numpy"`` or ``"numba"`` for a requested backend (None: ``RIMU_BACKEND``, else ``"auto"``), given whether
-    the compiled kernels can be used.
+    the compiled kernels can be used (or a function that tells, called only when the answer matters: asking for
+    numpy imports no numba).
 
     Raises
     ------
@@ -35,6 +37,8 @@ def resolve(backend: str | None, available: bool, what: str = "the compiled runt
     'numpy'
     >>> resolve("numba", available=True)
     'numba'
+    >>> resolve("numpy", available=lambda: 1 / 0)  # not asked
+    'numpy'
     """
     source = "backend"
     if backend is None:
@@ -45,7 +49,7 @@ def resolve(backend: str | None, available: bool, what: str = "the compiled runt
         raise OptionError(f"{source} must be one of {', '.join(BACKENDS)}; got {backend!r}")
     if name == "numpy":
         return "numpy"
-    if available:
+    if available() if callable(available) else available:
         return "numba"
     if name == "auto":
         return "numpy"

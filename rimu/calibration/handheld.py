@@ -1519,7 +1519,7 @@ class HandHeld:
                 raise ValueError(f"{name} must be {' or '.join(repr(x) for x in allowed)}, got {value!r}")
         self.sigma, self.mode, self.instruments, self.robust = sigma, mode, instruments, robust
         self.pose_weights, self.accel_model = pose_weights, accel_model
-        self.backend = _resolve_backend(backend, _kernels() is not None, "the compiled hand-held kernels")
+        self.backend = _resolve_backend(backend, lambda: _kernels() is not None, "the compiled hand-held kernels")
 
     def _sigma(self, session: Session, inst: str, stats: _RawStats | None = None) -> np.ndarray:
         n = session.geometries[inst].n

@@ -45,4 +45,4 @@ def resolve_backend(backend: str | None = None) -> str:
     ...
     rimu.errors.OptionError: backend must be one of auto, numpy, numba; got 'fortran'
     """
-    return resolve(backend, numba_available())
+    return resolve(backend, numba_available)
