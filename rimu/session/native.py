@@ -123,7 +123,9 @@ def save_session(session: Session, path: str | Path) -> Path:
         side = session_sidecar(session)
         arrays = {"t": t, "segment": np.concatenate([np.full(s.n_samples, k) for k, s in enumerate(session.segments)])}
         for k in session.instruments:
-            arrays[f"raw_{k}"] = np.vstack([s.raw[k] for s in session.segments])
+            # C order whatever the segments hold (a session of transposed or column-major data, as `rimu detect`
+            # makes from a CSV, stacked Fortran-ordered): the streaming reader reads rows in chunks
+            arrays[f"raw_{k}"] = np.ascontiguousarray(np.vstack([s.raw[k] for s in session.segments]))
         if has_temp:
             arrays["temperature"] = np.concatenate([s.temperature for s in session.segments])
         with atomic_path(path) as tmp:  # whole or not at all (Ctrl-C, full disk)

@@ -69,3 +69,20 @@ def test_errors_name_the_row_and_column(tmp_path, run):
         list(iter_blocks(q))
     with pytest.raises(SessionFormatError, match="at least 1"):
         list(iter_blocks(q, chunk=0))
+
+
+def test_a_session_of_column_major_arrays_is_written_so_that_it_streams(tmp_path, run):
+    """Segments holding Fortran-ordered raw arrays (what `rimu detect` builds from a CSV's columns) are saved
+    C-ordered: the file streams (rimu replay read it as 'stored in Fortran order' before) with the same values."""
+    from rimu.session import Segment, Session
+
+    s = run.session
+    segs = [Segment(x.label, x.kind, x.t, {k: np.asfortranarray(v) for k, v in x.raw.items()}, rate_mb=x.rate_mb,
+                    mat_ln_mb=x.mat_ln_mb, angle_mb=x.angle_mb, specific_force_mb=x.specific_force_mb)
+            for x in s.segments[:1]]  # one segment: its stacked array keeps the Fortran order
+    one = Session(segs, s.geometries, s.sample_rate, s.latitude, s.gravity)
+    assert not np.vstack([x.raw["gyro"] for x in one.segments]).flags["C_CONTIGUOUS"]
+    p = save_session(one, tmp_path / "f.npz")
+    blocks = list(iter_blocks(p, chunk=100))
+    for inst in ("gyro", "accel"):
+        assert np.array_equal(np.vstack([b.raw[inst] for b in blocks]), segs[0].raw[inst])
