@@ -222,7 +222,6 @@ def run_task(spec: CampaignSpec, task: Sequence[int]) -> dict[str, Any]:
 
     # open loop: one active set (the full one), samples the pipeline had to route around are left out
     det = make_detector(spec, pipe.table.sigma)
-    pipe.set_isolated(np.zeros(pipe.n, bool))
     res = pipe.process(Y, V)
     e0 = pipe.table.lookup(pipe.table.full_code)
     full = res.entry == e0
@@ -268,9 +267,11 @@ def run_task(spec: CampaignSpec, task: Sequence[int]) -> dict[str, Any]:
         out["transient_events"] = sum(1 for e in rr.events if e.t >= spec.fault_start
                                       and e.kind in ("transient", "invalid_transient") and e.sensor == name)
         out["final_state"] = mgr.state.value
-        out["finite"] = bool(np.all(np.isfinite(rr.x)) and np.all(np.isfinite(rr.statistic)))
+        # an estimate is a finite number wherever there is one (NaN exactly where the set is unobservable)
+        obs = rr.validity != 2
+        out["finite"] = bool(np.all(np.isfinite(rr.x[obs])) and np.all(np.isnan(rr.x[~obs]))
+                             and np.all(np.isfinite(rr.statistic)))
         mgr.reset()
-    pipe.set_isolated(np.zeros(pipe.n, bool))
     return out
 
 

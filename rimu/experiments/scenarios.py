@@ -190,7 +190,9 @@ def _one_run(spec: ScenarioSpec, geometry: str, kind: str, run: int, cal: Any, m
         "readmitted_at_end": not end_iso, "isolations": len(after),
         "biased_while_nominal": biased, "undetectable_samples": int(undetectable.size),
         "undetectable_max_bias": float(undetectable.max()) if undetectable.size else 0.0,
-        "finite": bool(np.all(np.isfinite(res.x))),
+        # a number wherever there is an estimate, NaN exactly where there is none (unobservable)
+        "finite": bool(np.array_equal(np.isfinite(res.x).all(axis=1), res.validity != 2)
+                       and not np.isinf(res.x).any()),
     }
 
 

@@ -190,6 +190,7 @@ static void rimu_solve(int n, const rimu_real *sf, const rimu_real *b, const rim
         const rimu_real Nv[6] = {N00, N01, N02, N11, N12, N22}, hv[3] = {h0, h1, h2};
         if (!rimu_inverse3(Nv, scale, m, hv, out->P, out->x)) {
             out->observable = 0;
+            out->x[0] = out->x[1] = out->x[2] = NAN;  /* no estimate: not a number */
             return;
         }
     }

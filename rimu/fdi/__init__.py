@@ -27,7 +27,8 @@ from .multiple import FaultSetGlt, SetDecision, set_fault_rates, single_fault_ra
 from .noise import NoiseEstimator
 from .parity import IsolabilityReport, detection_probability, isolability, wrong_isolation_bounds
 from .px4_selector import Px4GyroSelector, Px4SelectorResult
-from .unit import UnitManager
+from .settings import FdiSettings
+from .unit import Runtime, UnitManager
 
 __all__ = [
     "glt_threshold",
@@ -52,6 +53,8 @@ __all__ = [
     "stated_covariance",
     "NoiseEstimator",
     "RedundancyManager",
+    "Runtime",
+    "FdiSettings",
     "UnitManager",
     "HealthState",
     "Health",

@@ -279,15 +279,14 @@ def test_cli_exports_a_calibration_file_with_effects(tmp_path, capsys):
 @needs_cc
 def test_isolated_sensors_leave_the_compensation_too(tmp_path):
     """With a sensor of each instrument isolated (rimu_state.isolated), the estimates inside the compensation (cross
-    coupling, the gyro <-> accelerometer rounds) leave it out, as InstrumentPipeline.isolate does in Python."""
+    coupling, the gyro <-> accelerometer rounds) leave it out, as the pipeline's active sets do in Python."""
     cal = with_effects(_base("cone6"))
     t, T, raw, _ = _session(cal, 500, noise=True, seed=9)
     raw["gyro"][:, 1] += 0.2 / cal["gyro"].scale[1]   # the isolated sensors are faulty: 0.2 rad/s, 0.5 m/s^2
     raw["accel"][:, 4] -= 0.5 / cal["accel"].scale[4]
     pipe = Pipeline(cal, backend="numpy")
-    pipe["gyro"].isolate(1)
-    pipe["accel"].isolate(4)
-    py = pipe.process(EpochBlock(t, {k: v.copy() for k, v in raw.items()}, temperature=T))
+    py = pipe.process(EpochBlock(t, {k: v.copy() for k, v in raw.items()}, temperature=T),
+                      active={"gyro": np.arange(6) != 1, "accel": np.arange(6) != 4})
     d = tmp_path / "c"
     export_c(cal, d)
     src = (d / "rimu_filter.c").read_text()

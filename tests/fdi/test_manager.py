@@ -82,9 +82,10 @@ def test_no_redundancy_and_unobservable_states():
         r = mgr.step(y)
         assert mgr.state.value == want and r.state.value == want and int(r.validity) == val
         assert r.active.sum() == 5 - i and not mgr.pipeline.result.active[i]
-    assert not r.observable and np.all(np.isfinite(r.x)) and np.all(np.isinf(np.diag(r.P)))
-    mgr.pipeline.readmit(0)                              # behind the manager's back: the manager's set rules
-    assert not mgr.step(y).active[0]
+    assert not r.observable and np.all(np.isnan(r.x)) and np.all(np.isinf(np.diag(r.P)))
+    mgr.pipeline.step(y)                                 # the pipeline alone, on every sensor: no isolation state
+    assert mgr.pipeline.result.active.all()
+    assert not mgr.step(y).active[0]                     # the manager's set is an argument of each of its steps
     mgr.reset()
     r = mgr.step(y)
     assert r.active.all() and r.validity == 0 and mgr.state.value == "nominal"
