@@ -192,6 +192,32 @@ def add_readmit_options(p: Any, other: str) -> None:
     p.add_argument("--no-readmit", action="store_true", help="never re-admit an isolated sensor automatically")
 
 
+#: the fault management's defaults as the help texts state them (tests/fdi/test_settings_defaults.py checks them
+#: against rimu.fdi.settings.DEFAULTS, which the options resolve to: the parsers stay free of heavy imports)
+FDI_HELP_DEFAULTS = {"p_fa": "0.001", "confirm": "3"}
+
+
+def add_fdi_options(p: Any) -> None:
+    """``--p-fa`` and ``--confirm`` of every command that runs the fault management; an option not given takes
+    the one default of :class:`rimu.fdi.FdiSettings` (read them with :func:`fdi_settings`)."""
+    p.add_argument("--p-fa", type=probability, default=None,
+                   help=f"per-sample false-alarm probability of the detector (default {FDI_HELP_DEFAULTS['p_fa']}, "
+                        "rimu.fdi.FdiSettings)")
+    p.add_argument("--confirm", type=positive_int, default=None,
+                   help="consecutive alarms naming the same sensor set before it is isolated (default "
+                        f"{FDI_HELP_DEFAULTS['confirm']}, rimu.fdi.FdiSettings)")
+
+
+def fdi_settings(args: argparse.Namespace, **more: Any) -> Any:
+    """The :class:`rimu.fdi.FdiSettings` of the options (an option not given keeps the one default); the
+    namespace's ``p_fa`` and ``confirm`` are set to the values in use."""
+    from ..fdi.settings import DEFAULTS
+
+    st = DEFAULTS.replace(p_fa=getattr(args, "p_fa", None), confirm=getattr(args, "confirm", None), **more)
+    args.p_fa, args.confirm = st.p_fa, st.confirm
+    return st
+
+
 def readmit_after(args: argparse.Namespace) -> int | None:
     """Clean samples before re-admission: ``--readmit-after``, else the default of every entry point
     (:data:`rimu.fdi.health.READMIT_AFTER`); None with ``--no-readmit``."""
