@@ -340,6 +340,10 @@ def check_outputs(args: argparse.Namespace, files: Iterable[str] = OUTPUT_FILE_O
 
 
 # ---------------------------------------------------------------- logging
+class _CliHandler(logging.StreamHandler):
+    """The command line's handler (a class of its own, so that a second configuration replaces it)."""
+
+
 def configure_logging(command: str, verbose: int = 0, quiet: bool = False) -> None:
     """Standard ``logging`` for the ``rimu`` logger tree: warnings by default, ``-v`` info, ``-vv`` debug, ``-q``
     errors only. One line per record on stderr, prefixed with the command."""
@@ -348,11 +352,10 @@ def configure_logging(command: str, verbose: int = 0, quiet: bool = False) -> No
     level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
     root = logging.getLogger("rimu")
     for h in list(root.handlers):
-        if getattr(h, "_rimu_cli", False):
+        if isinstance(h, _CliHandler):
             root.removeHandler(h)
-    h = logging.StreamHandler(sys.stderr)
+    h = _CliHandler(sys.stderr)
     h.setFormatter(_Formatter(f"rimu {command}".strip()))
-    h._rimu_cli = True  # type: ignore[attr-defined]
     root.addHandler(h)
     root.setLevel(level)
     progress.set_enabled(not quiet)

@@ -19,7 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--real", choices=("double", "float"), default="double",
                    help="floating-point type of the generated code (float for FPUs without double)")
     p.add_argument("--build", action="store_true", help="also build rimu_filter with the system C compiler")
-    g = p.add_argument_group("fault management (baked into the code; an option not given keeps rimu.export.FdiSettings' default, which is rimu.fdi.RedundancyManager's)")
+    g = p.add_argument_group("fault management (baked into the code; an option not given keeps the one default of rimu.fdi.FdiSettings)")
     g.add_argument("--p-fa", type=probability, default=None,
                    help="per-sample false-alarm probability of the detection test (and of the re-admission test)")
     g.add_argument("--confirm", type=positive_int, default=None,
