@@ -110,7 +110,7 @@ def main() -> int:
                 res = subprocess.run([str(Path(d) / "bench"), str(Path(d) / "y.bin"), str(args.samples),
                                       str(args.repeats)], capture_output=True, text=True, check=True)
                 c_ns, state_b = float(res.stdout.split()[0]), int(res.stdout.split()[1])
-                mgr = s.manager(cal)
+                mgr = _manager(s, cal)
 
                 def py(mgr=mgr, Y=Y):
                     mgr.reset()
@@ -130,3 +130,11 @@ def main() -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+def _manager(settings, inst):
+    """The Python manager of one instrument calibration with these settings (the C's decisions)."""
+    from rimu.fdi import RedundancyManager
+    from rimu.fusion import InstrumentPipeline
+
+    return RedundancyManager(InstrumentPipeline(inst), **settings.manager_kwargs())

@@ -33,6 +33,7 @@ import numpy as np
 from scipy.stats import beta as _beta
 from scipy.stats import ncx2
 
+from ..fdi.detectors import DETECTORS  # the runtime's names, re-exported here
 from ..fdi.detectors import make_detector as _make_detector
 from ..fdi.glt import glt_threshold
 from ..fdi.manager import HealthState, RedundancyManager
@@ -43,7 +44,6 @@ from .faults import FAULTS
 __all__ = ["CampaignSpec", "CampaignResult", "run_campaign", "run_task", "run_tasks", "clopper_pearson", "make_detector",
            "simulated_truth", "campaign_unit"]
 
-from ..fdi.detectors import DETECTORS  # noqa: E402  (the runtime's names; re-exported here)
 
 
 def clopper_pearson(k: int, n: int, level: float = 0.99) -> tuple[float, float]:

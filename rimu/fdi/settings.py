@@ -104,27 +104,12 @@ class FdiSettings:
                            collinear_tol=self.collinear_tol)
 
     def manager_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments of :class:`rimu.fdi.RedundancyManager` that make the same decisions."""
+        """Keyword arguments of :class:`rimu.fdi.RedundancyManager` that make the same decisions
+        (``RedundancyManager(InstrumentPipeline(inst), **settings.manager_kwargs())``; the whole unit's:
+        ``rimu.fdi.Runtime(cal, settings)``, what the generated ``rimu_fdi_step`` does per epoch)."""
         return {"p_fa": self.p_fa, "confirm": self.confirm, "invalid_persist": self.invalid_persist,
                 "readmit_after": self.readmit_after, "fail_after": self.fail_after, "backoff": self.backoff,
                 "clear_after": self.clear_after, "episode_gap": self.episode_gap, "isolator": self.isolator()}
-
-    def manager(self, inst: Any) -> Any:
-        """The Python :class:`rimu.fdi.RedundancyManager` of one instrument calibration with these settings."""
-        from ..fusion import InstrumentPipeline
-        from .manager import RedundancyManager
-
-        return RedundancyManager(InstrumentPipeline(inst), **self.manager_kwargs())
-
-    def unit_manager(self, cal: Any, **pipeline_kwargs: Any) -> Any:
-        """The :class:`rimu.fdi.Runtime` of a whole calibration with these settings: what the generated
-        ``rimu_fdi_step`` does per epoch (``pipeline_kwargs`` go to :class:`rimu.fusion.Pipeline`)."""
-        from ..fusion import Pipeline
-        from .unit import Runtime
-
-        return Runtime(Pipeline(cal, **pipeline_kwargs), settings=self)
-
-    runtime = unit_manager
 
     # ---------------------------------------------------------------- tables of the generated code
     def required(self) -> list[int]:

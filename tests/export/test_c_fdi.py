@@ -18,9 +18,10 @@ import pytest
 from scipy.stats import chi2
 
 from rimu.calibration.result import Calibration, InstrumentCalibration
-from rimu.errors import ExportError, SessionFormatError
+from rimu.errors import ExportError, OptionError, SessionFormatError
 from rimu.experiments.scenarios import ScenarioSpec, _inject
 from rimu.export import Estimates, FdiSettings, estimate_columns, export_c, read_estimates, write_estimates
+from rimu.fdi import Runtime
 from rimu.fdi.health import SensorState
 from rimu.fdi.manager import STATE_CODES
 from rimu.geometry import cone, cone6, tetrad4, triad3
@@ -142,7 +143,7 @@ class _Counting:
 def _python(cal, raws, valids, t):
     out, events, scatter = {}, set(), 0
     for k in cal.instruments:
-        mgr = SETTINGS.manager(cal[k])
+        mgr = _manager(SETTINGS, cal[k])
         cnt = _Counting(mgr)
         out[k] = mgr.run(raws[k], valids[k], t)
         events |= {(e.kind, e.sensor) for e in out[k].events}
@@ -292,17 +293,17 @@ def test_same_decisions_with_further_effects(name, tmp_path):
         raws["gyro"] = np.clip(raws["gyro"], -g.range_raw, g.range_raw)
         clipped += int(np.sum(np.abs(raws["gyro"]) >= g.range_raw))
         block = EpochBlock(t, {k: v.copy() for k, v in raws.items()}, {k: v.copy() for k, v in valids.items()}, T)
-        py = SETTINGS.unit_manager(cal).run(block)
+        py = Runtime(cal, SETTINGS).run(block)
         seen |= {e.kind for r in py.values() for e in r.events}
         c = _table(_run(exe, t, raws, valids, "--detail", temperature=T))
         diffs, err = _compare(cal, c, py, "double")
         assert diffs == 0, f"{kinds}: {diffs} samples with other decisions"
         assert err <= 1e-12, f"{kinds}: estimate off by {err:.2e} relative"
         for k in cal.instruments:  # the device's values, effects left in
-            r = SETTINGS.manager(cal[k]).run(raws[k], valids[k], t)
+            r = _manager(SETTINGS, cal[k]).run(raws[k], valids[k], t)
             differs_raw += int(np.sum((r.sensor_state != py[k].sensor_state).any(axis=1)))
         comp = Pipeline(cal).compensate(block)
-        ol = {k: SETTINGS.manager(cal[k]).run(comp.raw[k], valids[k], t) for k in cal.instruments}
+        ol = {k: _manager(SETTINGS, cal[k]).run(comp.raw[k], valids[k], t) for k in cal.instruments}
         open_loop = max(open_loop, _compare(cal, c, ol, "double")[1])
     assert {"isolated", "readmitted"} <= seen
     assert clipped > 0 and differs_raw > 0
@@ -392,7 +393,7 @@ def test_noise_model_and_saturation(tmp_path):
     Y[900:905, 2] = 70.0  # saturated for 5 samples
     exe = _build(cal, tmp_path / "c")
     t = np.arange(N) / FS
-    mgr = SETTINGS.manager(g)
+    mgr = _manager(SETTINGS, g)
     assert mgr.detector.noise is not None
     r = mgr.run(Y, valid, t)
     assert r.first("isolated") is not None
@@ -408,11 +409,12 @@ def test_noise_model_and_saturation(tmp_path):
 
 
 def test_settings_are_checked():
-    with pytest.raises(ExportError, match="max_size"):
+    # the runtime's settings (rimu.fdi.FdiSettings): a value out of range is an option error
+    with pytest.raises(OptionError, match="max_size"):
         FdiSettings(max_size=3)
-    with pytest.raises(ExportError, match="confirm"):
+    with pytest.raises(OptionError, match="confirm"):
         FdiSettings(confirm=0)
-    with pytest.raises(ExportError, match="p_fa"):
+    with pytest.raises(OptionError, match="p_fa"):
         FdiSettings(p_fa=1.5)
     # the tables baked into the code are the manager's thresholds
     s = FdiSettings(readmit_after=40, backoff=1.5, fail_after=4)
@@ -452,9 +454,17 @@ def test_cli_bakes_the_manager_settings(tmp_path, capsys):
     s = FdiSettings(confirm=1, readmit_after=20, fail_after=2, max_size=1, p_fa=1e-4)
     Y, valid = _scenario(cal["gyro"], "repeat", 11)
     t = np.arange(N) / FS
-    r = s.manager(cal["gyro"]).run(Y, valid, t)
+    r = _manager(s, cal["gyro"]).run(Y, valid, t)
     c = _table(_run(tmp_path / "c" / "rimu_filter", t, {"gyro": Y}, {"gyro": valid}, "--detail"))
     assert _compare(cal, c, {"gyro": r}, "double")[0] == 0
-    default = SETTINGS.manager(cal["gyro"]).run(Y, valid, t)
+    default = _manager(SETTINGS, cal["gyro"]).run(Y, valid, t)
     assert not np.array_equal(default.sensor_state, r.sensor_state)  # the settings matter on this run
     assert (r.sensor_state == SensorState.FAILED).any()
+
+
+def _manager(settings, inst):
+    """The Python manager of one instrument calibration with these settings (the C's decisions)."""
+    from rimu.fdi import RedundancyManager
+    from rimu.fusion import InstrumentPipeline
+
+    return RedundancyManager(InstrumentPipeline(inst), **settings.manager_kwargs())

@@ -43,7 +43,6 @@ def test_full_replay_without_isolation(kind, run):
     assert su.delivering == rec.names           # every unit of these recordings delivers data
     problems = []
     for inst in su.calibration.instruments:
-        n = su.calibration[inst].geometry.n
         pipe = InstrumentPipeline(su.calibration[inst])
         mgr = RedundancyManager(pipe, p_fa=1e-3, confirm=3)
         res = mgr.run(su.block.raw[inst], su.block.valid[inst], su.block.t)
