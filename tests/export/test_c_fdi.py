@@ -18,7 +18,7 @@ import pytest
 from scipy.stats import chi2
 
 from rimu.calibration.result import Calibration, InstrumentCalibration
-from rimu.errors import ExportError, OptionError, SessionFormatError
+from rimu.errors import OptionError, SessionFormatError
 from rimu.experiments.scenarios import ScenarioSpec, _inject
 from rimu.export import Estimates, FdiSettings, estimate_columns, export_c, read_estimates, write_estimates
 from rimu.fdi import Runtime
