@@ -7,7 +7,6 @@ import uuid
 
 import can
 import numpy as np
-import pytest
 from scipy.stats import ncx2
 
 from rimu.epoch import EpochBlock
