@@ -183,21 +183,24 @@ def test_api_replay_monitor_serial_can_and_c_decide_alike(tmp_path, capsys):
     channel = f"rimu-25-{uuid.uuid4().hex[:8]}"
     dev = CanDevice("cone6_rimu")
     plain = EpochBlock(block.t, {k: np.nan_to_num(v) for k, v in block.raw.items()}, {}, block.temperature)
-    msgs = dev.frames(plain)
-    per = len(msgs) // N
     drop = {0x102: np.zeros(N, bool), 0x101: np.zeros(N, bool)}
     drop[0x102][DROP] = True
     drop[0x102][ALL_NAN] = drop[0x101][ALL_NAN] = True
-    keep = [m for j, m in enumerate(msgs) if not (m.arbitration_id in drop and drop[m.arbitration_id][j // per])]
 
     def can_send():
-        tx = can.Bus(interface="virtual", channel=channel)
+        # the frames keep their stamps (the sample's time, 10 us apart within a sample; preserve_timestamps), so
+        # that a stall of this thread on a loaded machine cannot split a sample's frames into two epochs
+        tx = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
         time.sleep(1.0)  # the monitor's bus is open
 
         def run():
-            t0 = time.monotonic()
+            t0 = time.time()
+            msgs = dev.frames(plain, t0)
+            per = len(msgs) // N
+            keep = [m for j, m in enumerate(msgs)
+                    if not (m.arbitration_id in drop and drop[m.arbitration_id][j // per])]
             for m in keep:
-                lag = m.timestamp / 8.0 - (time.monotonic() - t0)
+                lag = (m.timestamp - t0) / 8.0 - (time.time() - t0)
                 if lag > 0:
                     time.sleep(lag)
                 tx.send(m)
