@@ -356,7 +356,7 @@ class InstrumentPipeline:
         return self.result
 
     # ------------------------------------------------------------------ blocks (replay)
-    def process(self, Y: np.ndarray, valid: np.ndarray | None = None, active: np.ndarray | int | None = None
+    def process(self, Y: np.ndarray, valid: np.ndarray | None = None, *, active: np.ndarray | int | None = None
                 ) -> BlockResult:
         """Process N samples at once, (N, n), on the sensors ``active`` (as :meth:`step`). Identical to calling
         :meth:`step` on each row."""
@@ -690,7 +690,7 @@ class Pipeline:
                                   ests[k])
                 if clipped[k].any():  # a clipped output stays clipped: the projection routes around it
                     out[k] = np.where(clipped[k], block.raw[k], out[k])
-            res = self.instruments[k].process(out[k], block.valid.get(k), self.instruments[k]._code)
+            res = self.instruments[k].process(out[k], block.valid.get(k), active=self.instruments[k]._code)
             results[k] = res
             # the next instrument's effects take the estimate; where there is none, zero (no input)
             x_feed = np.asarray(res.x) if np.all(res.observable) else np.where(
@@ -880,11 +880,11 @@ class Pipeline:
                 w = x_feed
         return {k: res[k] for k in self.instruments}
 
-    def process(self, block: EpochBlock, active: dict[str, Any] | None = None) -> dict[str, BlockResult]:
+    def process(self, block: EpochBlock, *, active: dict[str, Any] | None = None) -> dict[str, BlockResult]:
         """N epochs at once on the sets ``active`` (as :meth:`step`); the same numbers as :meth:`step` on each
         epoch."""
         self._use(active)
         if not self.compensation:
-            return {k: p.process(block.raw[k], block.valid.get(k), p._code) for k, p in self.instruments.items()}
+            return {k: p.process(block.raw[k], block.valid.get(k), active=p._code) for k, p in self.instruments.items()}
         _, results = self._compensate_block(block, want_raw=False)
         return {k: results[k] for k in self.instruments}
