@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields
 from typing import Any
 
-from ..errors import OptionError
+from ..errors import ExportError
 from .health import READMIT_AFTER
 
 __all__ = ["DEFAULTS", "FdiSettings"]
@@ -81,8 +81,8 @@ class FdiSettings:
             (0 <= self.collinear_tol < 1, f"collinear_tol must be in [0, 1), got {self.collinear_tol}"),
         ]
         for ok, msg in checks:
-            if not ok:
-                raise OptionError(msg)
+            if not ok:  # (ExportError: these settings are also baked into the flight code, rimu.export)
+                raise ExportError(msg)
 
     @property
     def gap(self) -> int:
