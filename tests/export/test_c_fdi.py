@@ -18,7 +18,7 @@ import pytest
 from scipy.stats import chi2
 
 from rimu.calibration.result import Calibration, InstrumentCalibration
-from rimu.errors import OptionError, SessionFormatError
+from rimu.errors import ExportError, SessionFormatError
 from rimu.experiments.scenarios import ScenarioSpec, _inject
 from rimu.export import Estimates, FdiSettings, estimate_columns, export_c, read_estimates, write_estimates
 from rimu.fdi import Runtime
@@ -409,12 +409,11 @@ def test_noise_model_and_saturation(tmp_path):
 
 
 def test_settings_are_checked():
-    # the runtime's settings (rimu.fdi.FdiSettings): a value out of range is an option error
-    with pytest.raises(OptionError, match="max_size"):
+    with pytest.raises(ExportError, match="max_size"):
         FdiSettings(max_size=3)
-    with pytest.raises(OptionError, match="confirm"):
+    with pytest.raises(ExportError, match="confirm"):
         FdiSettings(confirm=0)
-    with pytest.raises(OptionError, match="p_fa"):
+    with pytest.raises(ExportError, match="p_fa"):
         FdiSettings(p_fa=1.5)
     # the tables baked into the code are the manager's thresholds
     s = FdiSettings(readmit_after=40, backoff=1.5, fail_after=4)
