@@ -13,7 +13,8 @@ second of two runs over the same data is measurably faster: the order alone move
   a 10-sigma fault isolated half way, 5 000 samples;
 * ``unit run``: the unit's runtime on a block (``UnitManager.run`` before, ``Runtime.run`` now; gyros and
   accelerometers with g-sensitivity and a temperature effect: the compensation in the loop), 4 000 epochs;
-* ``unit step``: the same unit epoch by epoch (``.step(epoch)``), 500 epochs.
+* ``unit step``: the same unit epoch by epoch (``.step(epoch)``), 500 epochs; ``unit step numba``: the same with
+  the numba backend (the runtime now steps an epoch through the compiled compensation stage).
 
 Prints a table and one JSON line. With numba installed the compiled kernels of both sides are this tree's
 (``rimu.fusion._kernels`` is imported by name); the numpy backend is timed so that both sides run their own code.
@@ -118,8 +119,16 @@ def _cases(pkg: object) -> dict:
         for e in eps:
             um.step(e)
 
-    return {"pipeline step": (step, len(Ys)), "pipeline block": (block, len(Y)), "manager step": (manager, len(Yfs)),
+    def unit_step_numba():
+        um = unit_cls(fusion.Pipeline(ucal, temperature=True, backend="numba"))
+        for e in eps:
+            um.step(e)
+
+    cases = {"pipeline step": (step, len(Ys)), "pipeline block": (block, len(Y)), "manager step": (manager, len(Yfs)),
             "unit run": (unit_run, N), "unit step": (unit_step, len(eps))}
+    if comp.numba_available():
+        cases["unit step numba"] = (unit_step_numba, len(eps))
+    return cases
 
 
 def main() -> dict:

@@ -134,7 +134,34 @@ class Runtime:
         instrument's compensated outputs, in the pipeline's order. Returns the managers' (reused) results."""
         t = float(epoch.t)
         mgrs = self.managers
-        return self.pipeline.step_through(epoch, lambda k, y, valid: mgrs[k].step(y, valid, t), self.active_sets())
+        pipe = self.pipeline
+        if pipe.compiled:  # the compiled compensation stage: the epoch as a block of one, as run() does
+            return self._step_compiled(epoch, t)
+        return pipe.step_through(epoch, lambda k, y, valid: mgrs[k].step(y, valid, t), self.active_sets())
+
+    def _step_compiled(self, epoch: Epoch, t: float) -> dict[str, FdiResult]:
+        """:meth:`step` with the compensation computed by the compiled block path (one epoch; the managers'
+        sets), each manager stepping on its instrument's compensated outputs in order; closed loop through
+        :meth:`rimu.fusion.Pipeline.step_through` on an epoch where the first instrument's manager estimate is not
+        the compensation's (an alarm leaving suspects out: the next instrument's effects take the manager's)."""
+        pipe, mgrs = self.pipeline, self.managers
+        valid = epoch.valid
+        sub = EpochBlock(np.array([t]), {k: np.asarray(y, dtype=float)[None] for k, y in epoch.raw.items()},
+                         {k: np.asarray(v, dtype=bool)[None] for k, v in valid.items()},
+                         None if epoch.temperature is None else np.array([float(epoch.temperature)]))
+        active = self.active_sets()
+        ycomp, xcomp = pipe.compensate_block(sub, active)
+        order = pipe.order
+        done: dict[str, FdiResult] = {}
+        for n_k, k in enumerate(order):
+            r = mgrs[k].step(ycomp[k][0], valid.get(k), t)
+            done[k] = r
+            if n_k + 1 < len(order) and k in xcomp and not np.array_equal(r.x, xcomp[k][0], equal_nan=True):
+                def rest(kk: str, y: np.ndarray, vv: Any, done: dict = done) -> Any:
+                    return done[kk] if kk in done else mgrs[kk].step(y, vv, t)
+
+                return dict(pipe.step_through(epoch, rest, active))
+        return {k: done[k] for k in pipe.instruments}
 
     def run(self, block: EpochBlock, chunk: int = 4096) -> dict[str, ReplayResult]:
         """N epochs one by one (closed loop); continues from the current state, as
@@ -185,7 +212,8 @@ class Runtime:
                         v = valid.get(k)
                         r = mgrs[k].step(ycomp[k][j], None if v is None else v[g], float(t[g]))
                         done[k] = r
-                        if n_k + 1 < len(order) and k in xcomp and not np.array_equal(r.x, xcomp[k][j]):
+                        if n_k + 1 < len(order) and k in xcomp and not np.array_equal(r.x, xcomp[k][j],
+                                                                                      equal_nan=True):
                             # the next instrument's effects take this estimate: that epoch, closed loop
                             def rest(kk: str, y: np.ndarray, vv: Any, done: dict = done, tg: float = float(t[g])):
                                 return done[kk] if kk in done else mgrs[kk].step(y, vv, tg)

@@ -621,6 +621,11 @@ class Pipeline:
         return w
 
     @property
+    def compiled(self) -> bool:
+        """Whether the compensation stage runs compiled (numba backend, every effect with a compiled form)."""
+        return self._program is not None
+
+    @property
     def order(self) -> list[str]:
         """The instruments in the order the compensation stage steps them (the first one's estimate feeds the
         second one's effects)."""
