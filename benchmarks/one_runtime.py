@@ -44,9 +44,9 @@ def _reference(rev: str) -> tuple[object, str]:
     """The ``rimu`` package of ``rev`` imported as ``rimu_ref``."""
     import importlib
 
-    if rev == "merge-base":
-        rev = subprocess.run(["git", "-C", str(ROOT), "merge-base", "HEAD", "main"], capture_output=True,
-                             text=True, check=True).stdout.strip()
+    if rev == "merge-base":  # the code before this branch; on main itself (or without a main ref) HEAD
+        mb = subprocess.run(["git", "-C", str(ROOT), "merge-base", "HEAD", "main"], capture_output=True, text=True)
+        rev = mb.stdout.strip() if mb.returncode == 0 and mb.stdout.strip() else "HEAD"
     d = Path(tempfile.mkdtemp(prefix="rimu-ref-"))
     tar = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "rimu"], capture_output=True, check=True).stdout
     subprocess.run(["tar", "-x", "-C", str(d)], input=tar, check=True)
