@@ -351,7 +351,7 @@ static void rimu_fit_set(const rimu_fdi_unit *u, const rimu_real *w, const unsig
         f->q[i] = 1 - w[i] * (a[0] * pa[0] + a[1] * pa[1] + a[2] * pa[2]);
         if (z) {
             rimu_real r = z[i] - (a[0] * f->x[0] + a[1] * f->x[1] + a[2] * f->x[2]);
-            f->e[i] = sqrt(w[i]) * r;
+            f->e[i] = RIMU_SQRT(w[i]) * r;
             f->chi2 += w[i] * r * r;
         }
     }
@@ -361,7 +361,7 @@ static void rimu_fit_set(const rimu_fdi_unit *u, const rimu_real *w, const unsig
 static rimu_real rimu_pi(const rimu_fdi_unit *u, const rimu_fit *f, int j, int k)
 {
     const rimu_real *a = u->ax + 3 * j, *pb = f->Pa + 3 * k;
-    return -sqrt(u->w[j] * u->w[k]) * (a[0] * pb[0] + a[1] * pb[1] + a[2] * pb[2]);
+    return -RIMU_SQRT(u->w[j] * u->w[k]) * (a[0] * pb[0] + a[1] * pb[1] + a[2] * pb[2]);
 }
 
 static int rimu_same(const unsigned char *a, const unsigned char *b, int n)
@@ -387,12 +387,12 @@ static int rimu_state_of(const rimu_fdi_unit *u, rimu_fdi *m, const unsigned cha
     } else {
         ok = f.dof >= 2;
         for (j = 0; ok && j < n; ++j) {
-            if (!use[j] || !(sqrt(u->w[j] * f.q[j]) > 1e-9)) continue;
+            if (!use[j] || !(RIMU_SQRT(u->w[j] * f.q[j]) > (rimu_real)1e-9)) continue;
             for (k = j + 1; k < n; ++k) {
                 rimu_real rho;
-                if (!use[k] || !(sqrt(u->w[k] * f.q[k]) > 1e-9)) continue;
-                rho = rimu_pi(u, &f, j, k) / sqrt(f.q[j] * f.q[k]);
-                if (!(fabs(rho) < 1 - 1e-6)) {
+                if (!use[k] || !(RIMU_SQRT(u->w[k] * f.q[k]) > (rimu_real)1e-9)) continue;
+                rho = rimu_pi(u, &f, j, k) / RIMU_SQRT(f.q[j] * f.q[k]);
+                if (!(RIMU_FABS(rho) < (rimu_real)(1 - 1e-6))) {
                     ok = 0;
                     break;
                 }
@@ -423,7 +423,7 @@ static void rimu_decide(const rimu_fdi_unit *u, const rimu_fit *f, const unsigne
     if (d < 2) return;
     for (i = 0; i < n; ++i) {
         single[i] = 0;
-        if (use[i] && sqrt(u->w[i] * f->q[i]) > 1e-12) cand[mm++] = i;
+        if (use[i] && RIMU_SQRT(u->w[i] * f->q[i]) > (rimu_real)1e-12) cand[mm++] = i;
         if (use[i]) total += M ? M[RIMU_TRI(i, i)] : s[i] * s[i];
     }
     K = RIMU_FDI_K;
@@ -451,9 +451,9 @@ static void rimu_decide(const rimu_fdi_unit *u, const rimu_fit *f, const unsigne
                 int j = cand[a];
                 for (b = a + 1; b < mm; ++b) {
                     int l = cand[b];
-                    rimu_real pjl = rimu_pi(u, f, j, l), rho = pjl / sqrt(f->q[j] * f->q[l]), det, T, R;
+                    rimu_real pjl = rimu_pi(u, f, j, l), rho = pjl / RIMU_SQRT(f->q[j] * f->q[l]), det, T, R;
                     rimu_real Mjj, Mll, Mjl;
-                    if (!(sqrt(1 - fabs(rho)) > RIMU_FDI_COLLINEAR_TOL)) continue;  /* not a hypothesis */
+                    if (!(RIMU_SQRT(1 - RIMU_FABS(rho)) > RIMU_FDI_COLLINEAR_TOL)) continue;  /* not a hypothesis */
                     if (!tested) {
                         c2 = rimu_thr_set(u, d, 2, samples);
                         tested = 1;
@@ -578,7 +578,7 @@ static int rimu_clean_sample(rimu_fdi *m, int i, rimu_real z)
 /* RedundancyManager._invalid: 1 when the isolation set changed */
 static int rimu_invalid(const rimu_fdi_unit *u, rimu_fdi *m, const unsigned char *inv)
 {
-    int i, j, n = u->n, changed = 0, any = 0, nc = 0, cand[RIMU_NMAX];
+    int i, j, n = u->n, changed = 0, any = 0, nc = 0, cand[RIMU_NMAX] = {0};
     unsigned char mask[RIMU_NMAX] = {0};
     for (i = 0; i < n; ++i) {
         if (!inv[i] && m->invalid_run[i] > 0) m->invalid_run[i] = 0;
@@ -610,7 +610,7 @@ static void rimu_decide_episode(const rimu_fdi_unit *u, rimu_fdi *m, const rimu_
 {
     int i, n = u->n;
     long N = m->ep_n;
-    rimu_real s[RIMU_NMAX] = {0}, ss = 0, sq = sqrt((rimu_real)N);
+    rimu_real s[RIMU_NMAX] = {0}, ss = 0, sq = RIMU_SQRT((rimu_real)N);
     if (m->last_kind != RIMU_DEC_NONE && m->last_kind != RIMU_DEC_ISOLATED && m->ep_alarms > 4 * RIMU_FDI_CONFIRM
         && m->ep_alarms % 10) {
         dec->kind = m->last_kind;
@@ -638,7 +638,7 @@ static int rimu_on_alarm(const rimu_fdi_unit *u, rimu_fdi *m, const rimu_fit *f,
 {
     int i, n = u->n, same;
     unsigned char mask[RIMU_NMAX] = {0}, rest[RIMU_NMAX] = {0};
-    rimu_dec dec;
+    rimu_dec dec = {0};  /* set[] is read below even when nset is 0 */
     m->ep_alarms += 1;
     m->ep_quiet = 0;
     if (f->dof >= 1) {
@@ -713,7 +713,7 @@ static void rimu_fdi_run(const rimu_fdi_unit *u, rimu_fdi *m, const rimu_real *y
     /* the pipeline: compensation (Cho & Park Eq. 20) on the valid, unsaturated, not isolated sensors */
     for (i = 0; i < n; ++i) {
         int good = (valid == 0 || valid[i]) && isfinite(y[i]);
-        int sat = good && u->range && fabs(y[i]) >= u->range[i];
+        int sat = good && u->range && RIMU_FABS(y[i]) >= u->range[i];
         inv[i] = (unsigned char)!good;
         use_y[i] = (unsigned char)(good && !sat);
         use[i] = (unsigned char)(use_y[i] && !m->iso[i]);
@@ -812,7 +812,7 @@ static void rimu_fdi_run(const rimu_fdi_unit *u, rimu_fdi *m, const rimu_real *y
             r = (u->sf[i] * y[i] - u->b[i]) - (a[0] * o->x[0] + a[1] * o->x[1] + a[2] * o->x[2]);
             v = u->sig2[i] + a[0] * (P[0] * a[0] + P[1] * a[1] + P[2] * a[2])
                 + a[1] * (P[3] * a[0] + P[4] * a[1] + P[5] * a[2]) + a[2] * (P[6] * a[0] + P[7] * a[1] + P[8] * a[2]);
-            back |= rimu_clean_sample(m, i, r / sqrt(v));
+            back |= rimu_clean_sample(m, i, r / RIMU_SQRT(v));
         }
         if (back) rimu_apply(m, n);
     }
