@@ -29,6 +29,7 @@ _FUNC = re.compile(r"^([0-9a-f]+) <([^>]+)>:$")
 _CALL = re.compile(r"\t(bl|b|b\.w|b\.n)\s+[0-9a-f]+ <([^>+]+)>")
 _PUSH = re.compile(r"\t(push|stmdb\s+sp!,|stmfd\s+sp!,)\s*\{([^}]*)\}")
 _VPUSH = re.compile(r"\tvpush\s*\{([^}]*)\}")
+_PRE = re.compile(r"\tstr[a-z.]*\s+[^\[]*\[sp, #-(\d+)\]!")   # str.w lr, [sp, #-8]! (a push with padding)
 _SUB = re.compile(r"\tsub(?:w|\.w)?\s+sp,\s*(?:sp,\s*)?#(\d+)")
 
 
@@ -44,11 +45,22 @@ def _regs(text: str) -> list[str]:
 
 
 def _frames_from_su(su: Path) -> tuple[dict[str, int], list[str]]:
+    """Frames per function from GCC's stack usage: the ``.ci`` call-graph file of ``-fcallgraph-info=su`` beside
+    ``su`` when there is one (it names each clone, ``rimu_fit_set.constprop.0``), else the ``.su`` file (clones
+    share a name there: the largest frame is taken)."""
     frames: dict[str, int] = {}
     dynamic = []
+    ci = su.with_suffix(".ci")
+    if ci.exists():
+        for m in re.finditer(r'node: \{ title: "(?:[^"]*:)?([^":]+)" label: "[^"]*\\n(\d+) bytes \(([^)]*)\)"',
+                             ci.read_text()):
+            frames[m.group(1)] = int(m.group(2))
+            if m.group(3) != "static":
+                dynamic.append(m.group(1))
+        return frames, dynamic
     for line in su.read_text().splitlines():
         loc, size, kind = line.rsplit("\t", 2)
-        name = loc.rsplit(":", 1)[-1].split(".")[0]   # rimu_fit_set.constprop -> rimu_fit_set
+        name = loc.rsplit(":", 1)[-1]
         frames[name] = max(frames.get(name, 0), int(size))
         if kind != "static":
             dynamic.append(name)
@@ -131,7 +143,7 @@ def stack_graph(elf: str | Path, su: str | Path | None = None, objdump: str = "a
         if fn is None:
             continue
         m = _CALL.search(line)
-        if m and m.group(2) != fn:
+        if m:  # a call of itself included: recursion
             g.calls[fn].add(m.group(2))
         if re.search(r"\tblx\s+r\d+", line):
             g.indirect.add(fn)
@@ -141,13 +153,16 @@ def stack_graph(elf: str | Path, su: str | Path | None = None, objdump: str = "a
         m = _VPUSH.search(line)
         if m:
             g.frames[fn] += sum(8 if r.startswith("d") else 4 for r in _regs(m.group(1)))
-        m = _SUB.search(line)
-        if m:
-            g.frames[fn] += int(m.group(1))
+        for rx in (_SUB, _PRE):
+            m = rx.search(line)
+            if m:
+                g.frames[fn] += int(m.group(1))
+        if re.search(r"\t(sub|add)[a-z.]*\s+sp, (sp, )?r\d+|\tmov[a-z.]*\s+sp, r\d+", line):
+            g.dynamic.append(fn)   # the stack pointer moved by a register: no static frame
     for fn in g.frames:
-        base = fn.split(".")[0]
-        if base in su_frames:
-            g.frames[fn] = su_frames[base]
+        key = fn if fn in su_frames else fn.rsplit(".", 1)[0] if fn.rsplit(".", 1)[0] in su_frames else None
+        if key is not None:
+            g.frames[fn] = su_frames[key]
             g.source[fn] = "-fstack-usage"
     return g
 
