@@ -177,14 +177,23 @@ def test_24_axes_double_faults_and_clipping(tmp_path):
 
 
 @needs_target
-def test_no_recursion_no_dynamic_memory_and_the_stack_from_stack_usage(tmp_path):
+def test_no_recursion_no_dynamic_memory_and_the_stack_from_stack_usage(tmp_path, capsys):
     """The call graph of rimu_fdi_step in the flight image is acyclic and reaches no allocator; the frames of the
     generated functions are GCC's -fstack-usage figures and equal their prologues in the disassembly."""
+    from rimu.cli import main
     from rimu.export.target import build_target
 
     cal = _unit(cone6(), ("gyro", "accel"))
-    write_target(cal, tmp_path, SETTINGS)
-    assert build_target(tmp_path).returncode == 0
+    cal.save(tmp_path / "cal.json")
+    # the command line builds it (rimu export-c --target cortex-m4 --build)
+    assert main(["export-c", str(tmp_path / "cal.json"), "-o", str(tmp_path), "--target", "cortex-m4", "--build",
+                 "--readmit-after", "100", "--fail-after", "3"]) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    assert len(out) == 1 and "built rimu_target.elf" in out[0], out
+    assert main(["export-c", str(tmp_path / "cal.json"), "-o", str(tmp_path / "d"), "--target", "cortex-m4",
+                 "--real", "double"]) != 0
+    err = capsys.readouterr()
+    assert "single precision" in err.out + err.err and not (tmp_path / "d").exists()
     b = measure(tmp_path)
     g = stack_graph(tmp_path / "rimu_flight.elf", tmp_path / "rimu_unit.su")
     prologue = stack_graph(tmp_path / "rimu_flight.elf")
