@@ -305,13 +305,31 @@ static rimu_real rimu_thr_set(const rimu_fdi_unit *u, int dof, int k, long sampl
     return (rimu_real)rimu_chi2_isf(RIMU_FDI_ALPHA, samples * (long)(dof - k));
 }
 
-/* ---- weighted least squares on one sensor set (weights w), with P a_i, q_i = 1 - w_i a_i^T P a_i and the
- * whitened residuals e_i = sqrt(w_i) (z_i - a_i . x) when z is given */
+/* P a_i and q_i = 1 - w_i a_i^T P a_i of the used sensors of an observable fit: made for the isolation test only
+ * (a set's state, an alarm), not on every sample */
+static void rimu_fit_q(const rimu_fdi_unit *u, const rimu_real *w, const unsigned char *use, rimu_fit *f)
+{
+    rimu_real P00 = f->P[0], P01 = f->P[1], P02 = f->P[2], P11 = f->P[4], P12 = f->P[5], P22 = f->P[8];
+    int i;
+    if (!f->observable) return;
+    for (i = 0; i < u->n; ++i) {
+        const rimu_real *a = u->ax + 3 * i;
+        rimu_real *pa = f->Pa + 3 * i;
+        if (!use[i]) continue;
+        pa[0] = P00 * a[0] + P01 * a[1] + P02 * a[2];
+        pa[1] = P01 * a[0] + P11 * a[1] + P12 * a[2];
+        pa[2] = P02 * a[0] + P12 * a[1] + P22 * a[2];
+        f->q[i] = 1 - w[i] * (a[0] * pa[0] + a[1] * pa[1] + a[2] * pa[2]);
+    }
+}
+
+/* ---- weighted least squares on one sensor set (weights w), with the whitened residuals
+ * e_i = sqrt(w_i) (z_i - a_i . x) when z is given, else with P a_i and q_i (rimu_fit_q) */
 static void rimu_fit_set(const rimu_fdi_unit *u, const rimu_real *w, const unsigned char *use, const rimu_real *z,
                          rimu_fit *f)
 {
     rimu_real N00 = 0, N01 = 0, N02 = 0, N11 = 0, N12 = 0, N22 = 0, h0 = 0, h1 = 0, h2 = 0, scale = 0;
-    rimu_real P00, P01, P02, P11, P12, P22;
+    rimu_real x0, x1, x2;
     int i, m = 0, n = u->n;
     for (i = 0; i < n; ++i) {
         const rimu_real *a = u->ax + 3 * i;
@@ -340,20 +358,18 @@ static void rimu_fit_set(const rimu_fdi_unit *u, const rimu_real *w, const unsig
     }
     f->observable = 1;
     f->dof = m - 3;
-    P00 = f->P[0]; P01 = f->P[1]; P02 = f->P[2]; P11 = f->P[4]; P12 = f->P[5]; P22 = f->P[8];
+    if (!z) {
+        rimu_fit_q(u, w, use, f);
+        return;
+    }
+    x0 = f->x[0]; x1 = f->x[1]; x2 = f->x[2];  /* in registers: the stores below may alias f->x */
     for (i = 0; i < n; ++i) {
         const rimu_real *a = u->ax + 3 * i;
-        rimu_real *pa = f->Pa + 3 * i;
+        rimu_real r;
         if (!use[i]) continue;
-        pa[0] = P00 * a[0] + P01 * a[1] + P02 * a[2];
-        pa[1] = P01 * a[0] + P11 * a[1] + P12 * a[2];
-        pa[2] = P02 * a[0] + P12 * a[1] + P22 * a[2];
-        f->q[i] = 1 - w[i] * (a[0] * pa[0] + a[1] * pa[1] + a[2] * pa[2]);
-        if (z) {
-            rimu_real r = z[i] - (a[0] * f->x[0] + a[1] * f->x[1] + a[2] * f->x[2]);
-            f->e[i] = RIMU_SQRT(w[i]) * r;
-            f->chi2 += w[i] * r * r;
-        }
+        r = z[i] - (a[0] * x0 + a[1] * x1 + a[2] * x2);
+        f->e[i] = RIMU_SQRT(w[i]) * r;
+        f->chi2 += w[i] * r * r;
     }
 }
 
@@ -368,7 +384,7 @@ static int rimu_same(const unsigned char *a, const unsigned char *b, int n)
 {
     int i;
     for (i = 0; i < n; ++i)
-        if ((a[i] != 0) != (b[i] != 0)) return 0;
+        if ((a[i] != 0u) != (b[i] != 0u)) return 0;
     return 1;
 }
 
@@ -740,6 +756,7 @@ static void rimu_fdi_run(const rimu_fdi_unit *u, rimu_fdi *m, const rimu_real *y
     alarm = f.dof >= 1 && stat > thr;
     if (alarm) {
         m->quiet = 0;
+        rimu_fit_q(u, u->w, use, &f);  /* the isolation test's P a_i, q_i */
         changed |= rimu_on_alarm(u, m, &f, use, inv, excl);
     } else {
         if (m->ep_n) {

@@ -57,6 +57,11 @@ SYSTICK_HZ = 25e6
 def missing_tools() -> list[str]:
     """The tools of :data:`TOOLS` (and a host C compiler) that are not installed."""
     miss = [t for t in TOOLS if shutil.which(t) is None]
+    if "arm-none-eabi-gcc" not in miss:  # the C library of the Cortex-M4F (newlib)
+        lib = subprocess.run(["arm-none-eabi-gcc", *CPU_FLAGS, "-print-file-name=libc.a"], capture_output=True,
+                             text=True).stdout.strip()
+        if not Path(lib).is_absolute():
+            miss.append("libnewlib-arm-none-eabi")
     if not any(shutil.which(c) for c in ("cc", "gcc", "clang")):
         miss.append("cc")
     return miss
@@ -68,7 +73,14 @@ def _prefix(k: str) -> str:
 
 def input_dtype(cal: Calibration) -> np.dtype:
     """One epoch of ``rimu_input.bin``: ``t`` (s, double), ``temperature`` (degC, double), then per instrument the
-    raw values (float, the target's ``rimu_real``) and their validity flags (one byte each), packed."""
+    raw values (float, the target's ``rimu_real``) and their validity flags (one byte each), packed.
+
+    >>> from rimu.calibration.result import Calibration, InstrumentCalibration
+    >>> from rimu.geometry import cone6
+    >>> cal = Calibration({"gyro": InstrumentCalibration.nominal("gyro", cone6(), noise_sigma=0.01)})
+    >>> input_dtype(cal).itemsize   # t and temperature (8 + 8), 6 floats (24), 6 flags (6)
+    46
+    """
     fields: list[tuple[str, Any, Any]] = [("t", "<f8", ()), ("temperature", "<f8", ())]
     for k in cal.instruments:
         n = cal[k].geometry.n
@@ -316,7 +328,9 @@ CROSS ?= arm-none-eabi-
 HOSTCC ?= cc
 CPU = {cpu}
 FP = {fp}
-OPT ?= -O3
+# -O3 with the sensor loops peeled completely (their count is a constant of the unit); GCC 12's
+# -Wstringop-overflow misreads the peeled loops over RIMU_NMAX-sized arrays (a false positive), so it is off
+OPT ?= -O3 --param max-completely-peeled-insns=2000 --param max-completely-peel-times=32 -fno-tree-loop-distribute-patterns -Wno-stringop-overflow
 WARN = -std=c99 $(OPT) -Wall -Wextra -Werror -pedantic
 TFLAGS = $(CPU) $(FP) $(WARN) -ffunction-sections -fdata-sections -DRIMU_CORTEX_M
 LFLAGS = $(CPU) -nostartfiles -T rimu_m4.ld -Wl,--gc-sections

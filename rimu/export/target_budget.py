@@ -34,6 +34,11 @@ _SUB = re.compile(r"\tsub(?:w|\.w)?\s+sp,\s*(?:sp,\s*)?#(\d+)")
 
 
 def _regs(text: str) -> list[str]:
+    """The registers of a ``push``/``vpush`` list.
+
+    >>> _regs("r4, r5, lr"), _regs("d8-d10")
+    (['r4', 'r5', 'lr'], ['d8', 'd9', 'd10'])
+    """
     out = []
     for part in (p.strip() for p in text.split(",")):
         if "-" in part:
