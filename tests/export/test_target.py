@@ -139,6 +139,14 @@ def test_cone6_fault_in_the_raw_data(tmp_path):
     tgt, host, py = out["target"], out["host"], out["py"]
     assert tgt.estimates == host.estimates and tgt.detail == host.detail
     assert _bits_equal(tgt.estimates, host.estimates)
+    # it is the estimates file: read back, the same isolations and validity as the detail
+    import io
+
+    from rimu.export import read_estimates
+
+    est = read_estimates(io.StringIO(tgt.estimates), cal)
+    assert est.isolated["gyro"][-1].nonzero()[0].tolist() == [2]
+    assert np.array_equal(est.validity["gyro"], np.array(_table(tgt.detail)["gyro_validity"], int))
     assert out["unexplained"] == 0, out
     print(f"cone6: {out['near']} samples near a threshold, {out['differ']} decided otherwise")
     # the faults were there to be found: both isolated, on their sensors
