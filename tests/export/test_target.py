@@ -139,6 +139,15 @@ def test_cone6_fault_in_the_raw_data(tmp_path):
     tgt, host, py = out["target"], out["host"], out["py"]
     assert tgt.estimates == host.estimates and tgt.detail == host.detail
     assert _bits_equal(tgt.estimates, host.estimates)
+    # the desktop filter of the same export (rimu_filter, built by rimu.export.build_filter, reading the CSV
+    # input) writes the same estimates file, bit for bit
+    from test_c_fdi import _run
+
+    from rimu.export import build_filter
+
+    _, made = build_filter(tmp_path / "m4")
+    assert made.returncode == 0, made.stderr
+    assert _bits_equal(tgt.estimates, _run(tmp_path / "m4" / "rimu_filter", t, raw, valid))
     # it is the estimates file: read back, the same isolations and validity as the detail
     import io
 
