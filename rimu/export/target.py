@@ -13,7 +13,8 @@ desktop sources,
   whose link map gives the flash and RAM of the flight code (:mod:`rimu.export.target_budget`);
 * ``rimu_m4_startup.c`` and ``rimu_m4.ld``: the vector table, reset handler (FPU on, ``.data`` copied,
   ``.bss`` zeroed) and memory map of the board;
-* ``Makefile.cortex-m4``: ``make -f Makefile.cortex-m4`` builds ``rimu_target.elf`` and ``rimu_flight.elf``
+* ``Makefile.cortex-m4``: ``make -f Makefile.cortex-m4`` builds ``rimu_target.elf``, ``rimu_target_stats.elf``
+  (the harness running ``rimu_step``, without fault management, for its instruction count) and ``rimu_flight.elf``
   with ``arm-none-eabi-gcc -mcpu=cortex-m4 -mfpu=fpv4-sp-d16 -mfloat-abi=hard``, and ``rimu_target_host``, the
   same harness and unit built for the desktop with the same floating-point settings (``-ffp-contract=off`` on
   both, so no multiply-add is fused on one side only and the two outputs can be compared bit for bit).
@@ -140,8 +141,12 @@ def _harness(cal: Calibration) -> str:
                      f"static rimu_fdi m_{k};\nstatic rimu_fdi_output f_{k};" for k in insts)
     reads = "\n".join(f"        ok = ok && fread(y_{k}, sizeof y_{k}, 1, in) == 1 && fread(v_{k}, sizeof v_{k}, 1, in) "
                       "== 1;" for k in insts)
-    call = "rimu_fdi_step((rimu_real)(t - t0), (rimu_real)temp, " + \
-        ", ".join(f"&m_{k}, y_{k}, v_{k}, &f_{k}" for k in insts) + ");"
+    call = "RIMU_HARNESS_STEP;"
+    fdi_call = "rimu_fdi_step((rimu_real)(t - t0), (rimu_real)temp, " + \
+        ", ".join(f"&m_{k}, y_{k}, v_{k}, &f_{k}" for k in insts) + ")"
+    stats_decl = "\n".join(f"static rimu_state s_{k};\nstatic rimu_output o_{k};" for k in insts)
+    stats_call = "rimu_step((rimu_real)(t - t0), (rimu_real)temp, " + \
+        ", ".join(f"&s_{k}, y_{k}, v_{k}, &o_{k}" for k in insts) + ")"
     est = "\n".join(f"        put_est(est, &m_{k}, &f_{k}, {_prefix(k)}_N);" for k in insts)
     det = "\n".join(f"        put_detail(det, &m_{k}, &f_{k}, {_prefix(k)}_N);" for k in insts)
     head_est = ",".join(f"{k}_x,{k}_y,{k}_z,{k}_validity,{k}_isolated" for k in insts)
@@ -155,6 +160,14 @@ def _harness(cal: Calibration) -> str:
 #include "rimu_unit.h"
 {_SYSTICK}
 {decl}
+#ifdef RIMU_STATS_ONLY
+/* the projection and parity statistics only (rimu_step), no fault management: its instructions are counted, the
+ * estimates and detail files are not its output */
+{stats_decl}
+#define RIMU_HARNESS_STEP {stats_call}
+#else
+#define RIMU_HARNESS_STEP {fdi_call}
+#endif
 
 static void put_est(FILE *f, const rimu_fdi *m, const rimu_fdi_output *o, int n)
 {{
@@ -334,13 +347,16 @@ OPT ?= -O3 --param max-completely-peeled-insns=2000 --param max-completely-peel-
 WARN = -std=c99 $(OPT) -Wall -Wextra -Werror -pedantic
 TFLAGS = $(CPU) $(FP) $(WARN) -ffunction-sections -fdata-sections -DRIMU_CORTEX_M
 LFLAGS = $(CPU) -nostartfiles -T rimu_m4.ld -Wl,--gc-sections
-all: rimu_target.elf rimu_flight.elf rimu_target_host
+all: rimu_target.elf rimu_target_stats.elf rimu_flight.elf rimu_target_host
 rimu_unit.o: rimu_unit.c rimu_unit.h
 \t$(CROSS)gcc $(TFLAGS) -fstack-usage -fcallgraph-info=su -c rimu_unit.c -o $@
 rimu_target.elf: rimu_target.c rimu_m4_startup.c rimu_unit.o rimu_m4.ld
 \t$(CROSS)gcc $(TFLAGS) -Wno-pedantic -c rimu_target.c -o rimu_target.o
 \t$(CROSS)gcc $(CPU) -O2 -Wall -Werror -c rimu_m4_startup.c -o rimu_m4_startup.o
 \t$(CROSS)gcc $(LFLAGS) -specs=rdimon.specs -Wl,-Map=rimu_target.map -o $@ rimu_target.o rimu_m4_startup.o rimu_unit.o -lm
+rimu_target_stats.elf: rimu_target.c rimu_target.elf rimu_unit.o
+\t$(CROSS)gcc $(TFLAGS) -Wno-pedantic -DRIMU_STATS_ONLY -c rimu_target.c -o rimu_target_stats.o
+\t$(CROSS)gcc $(LFLAGS) -specs=rdimon.specs -o $@ rimu_target_stats.o rimu_m4_startup.o rimu_unit.o -lm
 rimu_flight.elf: rimu_flight.c rimu_target.elf rimu_unit.o rimu_m4.ld
 \t$(CROSS)gcc $(TFLAGS) -c rimu_flight.c -o rimu_flight.o
 \t$(CROSS)gcc $(LFLAGS) -specs=nosys.specs -Wl,-Map=rimu_flight.map -o $@ rimu_flight.o rimu_m4_startup.o rimu_unit.o -lm
@@ -402,10 +418,11 @@ class TargetRun:
 
 
 def run_target(directory: str | os.PathLike[str], input_path: str | os.PathLike[str], host: bool = False,
-               timeout: float = 120.0) -> TargetRun:
+               timeout: float = 120.0, stats_only: bool = False) -> TargetRun:
     """Stream ``input_path`` (:func:`write_input`) through the built harness: under ``qemu-system-arm -M
     mps2-an386 -icount shift=0`` with semihosting (or the desktop twin with ``host=True``), in a scratch folder
-    beside ``directory``."""
+    beside ``directory``. ``stats_only``: the harness that runs ``rimu_step`` (projection and parity statistics,
+    no fault management; only its instruction counts mean something)."""
     d = Path(directory).resolve()
     with tempfile.TemporaryDirectory(dir=d) as w:
         wd = Path(w)
@@ -415,7 +432,7 @@ def run_target(directory: str | os.PathLike[str], input_path: str | os.PathLike[
         else:
             cmd = ["qemu-system-arm", "-M", QEMU_BOARD, "-cpu", "cortex-m4", "-nographic", "-monitor", "none",
                    "-serial", "none", "-icount", "shift=0", "-semihosting-config", "enable=on,target=native",
-                   "-kernel", str(d / "rimu_target.elf")]
+                   "-kernel", str(d / ("rimu_target_stats.elf" if stats_only else "rimu_target.elf"))]
         res = subprocess.run(cmd, cwd=wd, capture_output=True, text=True, timeout=timeout)
         if res.returncode != 0:
             raise ExportError(f"the harness failed ({' '.join(cmd[:1])}, status {res.returncode}): "

@@ -171,6 +171,9 @@ def test_cone6_fault_in_the_raw_data(tmp_path):
     # one instruction per cycle (QEMU's count is deterministic: this is no timing)
     print(f"cone6: {np.median(tgt.instructions):.0f} instructions per epoch (median), {tgt.instructions.max():.0f} max")
     assert np.median(tgt.instructions) <= 0.05 * 45_000
+    # fault management costs instructions on top of the projection and parity statistics (rimu_step)
+    stats = run_target(tmp_path / "m4", tmp_path / "in.bin", stats_only=True).instructions
+    assert 0 < np.median(stats) < np.median(tgt.instructions)
     # the painted stack of every epoch stays inside the static bound over the call graph
     b = measure(tmp_path / "m4")
     assert 0 < tgt.stack.max() <= b.stack
