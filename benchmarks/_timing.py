@@ -23,14 +23,18 @@ def median_time(fn: Callable[[], object], repeats: int) -> float:
 def interleaved_times(fns: dict[str, Callable[[], float | None]], repeats: int,
                       clock: Callable[[], float] = time.perf_counter) -> dict[str, list[float]]:
     """Each of ``fns`` called once per round, ``repeats`` rounds, in turn (so that a change of the machine's load
-    hits every candidate alike); returns every call's time in s by name. A function that returns a number reports
+    hits every candidate alike; the order turns by one each round); returns every call's time in s by name. A function that returns a number reports
     its own time (a C kernel timing itself inside C, with the same ``clock``); otherwise its time is measured here
     with ``clock`` (wall time by default; ``time.thread_time``, the CPU time of this thread, leaves out the time
     slices the shared cores give to other processes). Take medians of the times, and medians of per-round ratios
     for a ratio."""
     out: dict[str, list[float]] = {k: [] for k in fns}
-    for _ in range(repeats):
-        for k, fn in fns.items():
+    order = list(fns)
+    for rnd in range(repeats):
+        # the order turns by one each round, so that no candidate always runs on the caches, the TLB and the pages
+        # its predecessor left (a candidate that allocates large arrays slows the next one's first touch)
+        for k in order[rnd % len(order):] + order[:rnd % len(order)]:
+            fn = fns[k]
             t0 = clock()
             r = fn()
             dt = clock() - t0
