@@ -63,8 +63,8 @@ def _blocks(N: int, pipes: dict, backends: list, Yall: dict, Rs: list, offs: lis
     """Every block candidate at N epochs, interleaved; ns/epoch and per-round throughput ratios."""
     Ys = [np.ascontiguousarray(Yall[k][:N]) for k in INSTS]
     block = EpochBlock(np.arange(N) * 1e-3, dict(zip(INSTS, Ys)))
-    inner = max(1, 200_000 // N)  # calls per timed run (timer resolution at small N)
-    reps = 15
+    inner = max(1, 20_000 // N)  # calls per timed run (timer resolution at small N)
+    reps = ROUNDS
     fns: dict = {}
     outs = {b: {k: np.empty((N, 6)) for k in INSTS} for b in backends}
     for b, p in pipes.items():
@@ -95,7 +95,7 @@ def _blocks(N: int, pipes: dict, backends: list, Yall: dict, Rs: list, offs: lis
         fns["c_export"] = lambda: ce.block(Ys[0], Ys[1], eout[0], eout[1], inner)[0] * inner
     for f in fns.values():
         f()
-    times = interleaved_times(fns, reps)
+    times = interleaved_times(fns, reps, CLOCK)
     row: dict = {f"{k}_ns_per_epoch": float(np.median(ts)) / (inner * N) * 1e9 for k, ts in times.items()}
     # it computed the same: rimu against the C kernels (and the numpy backend against numba)
     for j, k in enumerate(INSTS):
