@@ -35,6 +35,8 @@ COMMANDS = [
     "noise",
     "export_c",
     "array",
+    "import_",
+    "setup",
 ]
 
 EXIT_OK = 0

@@ -20,12 +20,14 @@ from typing import Any
 import numpy as np
 
 from ._common import positive_float, probability
+from ._inputs import add_log_options
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("noise", help="Allan deviation and noise terms (ARW/VRW, bias instability, RRW) of a static "
                        "recording", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("recording", help="session file (.npz, .csv + .json sidecar) or plain .npy/.csv in SI")
+    p.add_argument("recording", help="session file (.npz, .csv + .json sidecar), a static log (rimu import --help), "
+                   "or plain .npy/.csv in SI")
     p.add_argument("-o", "--output", default="noise.json", help="noise model file (default noise.json)")
     p.add_argument("--report", default=None, metavar="DIR", help="folder for the plots and noise.md")
     p.add_argument("--json", default=None, metavar="FILE", help="machine-readable summary")
@@ -39,6 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sample-rate", type=positive_float, default=None, help="Hz (plain recordings)")
     p.add_argument("--geometry", default=None, help="geometry preset of a plain recording (for the parity check)")
     p.add_argument("--p-fa", type=probability, default=1e-3, help="false-verdict probability of each parity check")
+    add_log_options(p)
     p.set_defaults(func=run)
 
 
@@ -62,6 +65,17 @@ def _plain(args: argparse.Namespace, path: Path) -> Any:
                     meta={"recording": str(path), "plain": True})
 
 
+def _is_plain(path: Path) -> bool:
+    """A plain array in SI: ``.npy``, or a numeric ``.csv`` without a sidecar that no log format claims."""
+    if path.suffix == ".npy":
+        return True
+    if path.suffix != ".csv" or path.with_suffix(".json").exists():
+        return False
+    from ..io.formats import find_format
+
+    return find_format(path) in (None, "text")
+
+
 def _terms(args: argparse.Namespace) -> tuple[str, ...]:
     return tuple(t.strip() for t in args.terms.split(",") if t.strip())
 
@@ -83,13 +97,13 @@ def _run(args: argparse.Namespace) -> int:
     if not path.exists():
         raise FileNotFoundError(f"no such recording: {path}")
     cal = None
-    if path.suffix == ".npy" or (path.suffix == ".csv" and not path.with_suffix(".json").exists()):
+    if _is_plain(path):
         model = _plain(args, path)
     else:
         from ..calibration import Calibration
-        from ..session import load_session
+        from ._inputs import open_session
 
-        session = load_session(path)
+        session = open_session(path, kind="static_unknown", args=args)
         if args.calibration:
             cal = Calibration.load(args.calibration, geometries=session.geometries)
         model = identify_session(session, cal, args.segment, args.instrument, _terms(args), args.p_fa)

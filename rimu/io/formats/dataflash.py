@@ -72,7 +72,7 @@ def _scales() -> dict[str, float]:
 
 
 class _Fmt:
-    __slots__ = ("type", "length", "name", "format", "columns", "dtype", "scales")
+    __slots__ = ("columns", "dtype", "format", "length", "name", "scales", "type")
 
     def __init__(self, type_: int, length: int, name: str, fmt: str, columns: list[str], scales: dict[str, float]
                  ) -> None:
