@@ -267,3 +267,31 @@ def open_array(path: str | os.PathLike[str], args: argparse.Namespace | None = N
     accel = block.raw["accel"][ok].reshape(-1, k, 3) if "accel" in block.raw else None
     layout = ArrayLayout(np.repeat(np.eye(3)[None], k, axis=0), np.zeros((k, 3)), tuple(rec.names))
     return layout, block.t[ok], gyro, accel
+
+
+class _LogSource:
+    """Factory of the epoch source of a log (a :class:`rimu.io.multiimu.MultiImuCsvSource` over the recording)."""
+
+    @staticmethod
+    def make(rec: Any) -> Any:
+        from ..io.multiimu import MultiImuCsvSource
+
+        class LogSource(MultiImuCsvSource):
+            def _read(self, mapping: Any, path: Any) -> Any:
+                return rec
+
+        return LogSource(mapping=rec)
+
+
+def log_source(path: str | os.PathLike[str], args: argparse.Namespace | None = None) -> Any:
+    """The epoch source of an IMU log for ``rimu monitor --replay`` (every IMU on the first one's time base, SI),
+    or None when ``path`` is no IMU log rimu's formats know (then it is a python-can log)."""
+    from ..io.formats import find_format
+
+    p = Path(path)
+    if not p.exists():
+        return None
+    opts = log_options(args)
+    if "format" not in opts and find_format(p) in (None, "text"):
+        return None
+    return _LogSource.make(open_recording(p, args))
