@@ -119,49 +119,78 @@ class _Parser:
         self.lengths[t] = ln
         self.fmts[t] = _Fmt(t, ln, name, fmt, [c for c in cols.split(",") if c], self.scales)
 
-    def walk(self, buf: bytes, final: bool) -> tuple[dict[int, list[int]], int]:
+    def _chain(self, arr: np.ndarray, p: int, L: np.ndarray) -> np.ndarray:
+        """Starts of the messages that follow each other from ``p`` (each the previous start plus its length),
+        found for the whole block at once: every ``A3 95`` is a candidate whose successor is the candidate at
+        its end; the chain from ``p`` is listed by pointer doubling (log2 of its length numpy steps)."""
+        n = len(arr)
+        if n - p < 3:
+            return np.zeros(0, np.int64)
+        cand = np.flatnonzero((arr[p:n - 2] == 0xA3) & (arr[p + 1:n - 1] == 0x95)).astype(np.int64) + p
+        ln = L[arr[cand + 2]]
+        nxt = cand + ln
+        m = len(cand)
+        idx = np.searchsorted(cand, nxt)
+        fits = (ln > 0) & (nxt <= n)
+        succ = fits & (idx < m)
+        succ[succ] = cand[idx[succ]] == nxt[succ]
+        f = np.append(np.where(succ, idx, m), m)
+        path = np.zeros(1, np.int64)
+        jump = f
+        while path[-1] != m:
+            path = np.concatenate([path, jump[path]])
+            jump = jump[jump]
+        path = path[: int(np.argmax(path == m))]
+        if len(path) and not fits[path[-1]]:
+            path = path[:-1]
+        return cand[path]
+
+    def walk(self, buf: bytes, final: bool) -> tuple[dict[int, np.ndarray], int]:
         """Starts of the messages of ``buf`` by type, and how many bytes were consumed."""
-        starts: dict[int, list[int]] = {}
-        lengths = self.lengths
+        arr = np.frombuffer(buf, np.uint8)
         n = len(buf)
+        parts = []
         p = 0
-        find = buf.find
         while p + 3 <= n:
-            if buf[p] != 0xA3 or buf[p + 1] != 0x95 or not lengths[buf[p + 2]]:
-                q = find(HEAD, p + 1)
-                while q >= 0 and q + 2 < n and not lengths[buf[q + 2]]:
-                    q = find(HEAD, q + 1)
-                q = n if q < 0 else q
+            L = np.asarray(self.lengths, np.int64)
+            if buf[p] != 0xA3 or buf[p + 1] != 0x95 or not L[buf[p + 2]]:
+                q = buf.find(HEAD, p + 1)
+                while q >= 0 and q + 2 < n and not L[buf[q + 2]]:
+                    q = buf.find(HEAD, q + 1)
+                if q < 0 or q + 2 >= n:
+                    q = n if (final or q < 0) else q
                 if self.first_garbage is None:
                     self.first_garbage = self.offset + p
                 self.garbage += q - p
                 p = q
                 continue
-            t = buf[p + 2]
-            ln = lengths[t]
-            if p + ln > n:
-                break
-            if t == FMT_TYPE:
-                self._fmt(buf, p)
-            else:
-                lst = starts.get(t)
-                if lst is None:
-                    starts[t] = lst = []
-                lst.append(p)
-            p += ln
-        self.records += sum(len(v) for v in starts.values())
+            chain = self._chain(arr, p, L)
+            if not len(chain):
+                break  # the message at p is cut by the end of the block
+            for q in chain[arr[chain + 2] == FMT_TYPE].tolist():
+                self._fmt(buf, q)
+            parts.append(chain)
+            last = int(chain[-1])
+            p = last + int(L[buf[last + 2]])
+        pos = np.concatenate(parts) if parts else np.zeros(0, np.int64)
+        types = arr[pos + 2]
+        keep = types != FMT_TYPE
+        pos, types = pos[keep], types[keep]
+        self.records += len(pos)
+        starts = {int(t): pos[types == t] for t in np.unique(types)}
         if final and p < n:
             self.truncated += 1
             p = n
         return starts, p
 
-    def decode(self, buf: bytes, t: int, pos: list[int]) -> np.ndarray | None:
-        f = self.fmts.get(t)
-        if f is None or f.dtype is None or not pos:
+    def decode(self, buf: bytes, t: int | None, pos: Any) -> np.ndarray | None:
+        f = self.fmts.get(t) if t is not None else None
+        if f is None or f.dtype is None or pos is None or not len(pos):
             return None
         arr = np.frombuffer(buf, np.uint8)
-        idx = np.asarray(pos, np.int64)[:, None] + (3 + np.arange(f.length - 3))
-        return arr[idx].view(f.dtype).ravel()
+        w = f.length - 3
+        rows = np.lib.stride_tricks.as_strided(arr, (len(arr) - w + 1, w), (1, 1), writeable=False)
+        return rows[np.asarray(pos, np.int64) + 3].view(f.dtype).ravel()
 
 
 def _imu_types(fmts: dict[int, _Fmt]) -> dict[int, tuple[str, str]]:
@@ -224,14 +253,14 @@ def iter_chunks(path: str | os.PathLike[str], block: int = BLOCK, **options: Any
             imu_types = _imu_types(parser.fmts)
             time_type = next((t for t, f in parser.fmts.items() if f.name == "TIME" and "StartTime" in f.columns), None)
             pieces: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]]] = {}
-            tpos = np.asarray(starts.get(time_type, []) if time_type is not None else [], np.int64)
+            tpos = starts.get(time_type, np.zeros(0, np.int64)) if time_type is not None else np.zeros(0, np.int64)
             tval = None
-            if len(tpos):
-                trec = parser.decode(buf, time_type, list(tpos))  # type: ignore[arg-type]
-                tval = parser.fmts[time_type].field(trec, "StartTime")  # type: ignore[index,arg-type]
+            trec = parser.decode(buf, time_type, tpos)
+            if trec is not None:
+                tval = parser.fmts[time_type].field(trec, "StartTime")  # type: ignore[index]
             for t, (flavour, base) in imu_types.items():
                 pos = starts.get(t)
-                if not pos:
+                if pos is None or not len(pos):
                     continue
                 f = parser.fmts[t]
                 rec = parser.decode(buf, t, pos)
