@@ -41,6 +41,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sample-rate", type=positive_float, default=None, help="Hz (plain recordings)")
     p.add_argument("--geometry", default=None, help="geometry preset of a plain recording (for the parity check)")
     p.add_argument("--p-fa", type=probability, default=1e-3, help="false-verdict probability of each parity check")
+    p.add_argument("--kalibr", default=None, metavar="YAML",
+                   help="also write kalibr's imu.yaml (noise densities and random walks per triad, SI)")
     add_log_options(p)
     p.set_defaults(func=run)
 
@@ -122,6 +124,8 @@ def _run(args: argparse.Namespace) -> int:
                               for k, v in model.parity.items()}}
         Path(args.json).write_text(json.dumps(summary, indent=1))
         extra.append(f"summary {args.json}")
+    if args.kalibr:
+        extra.append(f"kalibr {_write_kalibr(model, args.kalibr)}")
     if args.write_calibration:
         if cal is None:
             from ..errors import CalibrationFileError
@@ -135,6 +139,25 @@ def _run(args: argparse.Namespace) -> int:
     insts = ", ".join(f"{k} ({m.n} sensors)" for k, m in model.instruments.items())
     print(f"noise of {insts} -> {out}" + ("; " + "; ".join(extra) if extra else ""))
     return 0
+
+
+def _write_kalibr(model: Any, path: str) -> str:
+    """kalibr's imu.yaml of the model: one block per triad of the geometry (rimu.noise.kalibr)."""
+    from ..atomic import write_text
+    from ..noise.kalibr import kalibr_yaml, to_kalibr, to_kalibr_chain
+
+    n = max(m.n for m in model.instruments.values())
+    if n == 3:
+        doc = to_kalibr(model.instruments)
+    elif n % 3 == 0:
+        doc = to_kalibr_chain(model.instruments, [[3 * j, 3 * j + 1, 3 * j + 2] for j in range(n // 3)])
+    else:
+        from ..errors import NotApplicableError
+
+        raise NotApplicableError(f"--kalibr: kalibr describes triads; this unit has {n} sensors, not 3 per IMU")
+    write_text(path, kalibr_yaml(doc))
+    print("kalibr noise (SI): " + ", ".join(f"{k} {v:.4g}" for k, v in doc.items() if isinstance(v, float)))
+    return path
 
 
 def _report(model: Any, folder: Path) -> Path:

@@ -3,8 +3,8 @@
 
 Clock offsets of every IMU against the first (where the IMUs have their own clocks), axis alignment of every
 triad (unless the log says its IMUs are already in one body frame), gyro and accelerometer bias differences and
-per-sensor noise from the triads' disagreement are fitted on ``--fit-window START:END`` (s on the log's time
-base; default the whole log) by :func:`rimu.calibration.multi_imu.setup_multi_imu`. Writes the calibration
+per-sensor noise from the triads' disagreement are fitted on ``--fit-window START:END`` (s from the start of the
+log; default the whole log) by :func:`rimu.calibration.multi_imu.setup_multi_imu`. Writes the calibration
 (``-o``: the nominal one of the log's own mounting, rotations fitted) and, with ``--session``, the whole log on
 one time base (averaged over ``--average`` s) as a session file that ``rimu replay --calibration`` monitors.
 LOG is anything ``rimu import`` reads, or its recording file.
@@ -40,7 +40,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", required=True, help="calibration file to write")
     p.add_argument("--session", default=None, metavar="FILE.npz", help="write the unit's samples on one time base")
     p.add_argument("--fit-window", type=_window, default=None, metavar="START:END",
-                   help="fit on this span, s (default: the whole log)")
+                   help="fit on this span, s from the start of the log (default: the whole log)")
     p.add_argument("--average", type=nonnegative_float, default=0.1,
                    help="block-average length, s (0: none; default %(default)s)")
     add_json_option(p, "clock offsets (s) and rotation angles (deg) per triad")
@@ -61,7 +61,9 @@ def run(args: argparse.Namespace) -> int:
     rec = open_recording(args.log, args, "warn" if args.accept_implausible else "strict")
     if len(rec.units) < 2:
         raise SessionFormatError(f"{args.log}: {len(rec.units)} IMU; a unit of triads needs two or more")
-    su = setup_multi_imu(rec, average_s=args.average or None, fit_window_s=args.fit_window)
+    t0 = float(rec.units[0].t[0])  # the window counts from the start of the log (the first IMU's first stamp)
+    win = None if args.fit_window is None else (args.fit_window[0] + t0, args.fit_window[1] + t0)
+    su = setup_multi_imu(rec, average_s=args.average or None, fit_window_s=win)
     print(su.report())
     out = su.calibration.save(args.output)
     print(f"calibration written to {out}")
@@ -78,6 +80,6 @@ def run(args: argparse.Namespace) -> int:
         doc = {"imus": rec.names, "offsets_s": None if su.timing is None else list(su.timing.offsets_s),
                "rotation_deg": [float(np.degrees(np.arccos(np.clip((np.trace(a.mat_unit_ref) - 1) / 2, -1, 1))))
                                 for a in su.alignments],
-               "fit_window_s": list(su.fit_window_s), "n_average": su.n_average, "delivering": su.delivering}
+               "fit_window_s": [w - t0 for w in su.fit_window_s], "n_average": su.n_average, "delivering": su.delivering}
         print(f"summary written to {json_dump(doc, args.json)}")
     return 0
