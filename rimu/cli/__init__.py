@@ -37,6 +37,7 @@ COMMANDS = [
     "array",
     "import_",
     "setup",
+    "apply",
 ]
 
 EXIT_OK = 0
