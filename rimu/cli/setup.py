@@ -6,7 +6,8 @@ triad (unless the log says its IMUs are already in one body frame), gyro and acc
 per-sensor noise from the triads' disagreement are fitted on ``--fit-window START:END`` (s from the start of the
 log; default the whole log) by :func:`rimu.calibration.multi_imu.setup_multi_imu`. Writes the calibration
 (``-o``: the nominal one of the log's own mounting, rotations fitted) and, with ``--session``, the whole log on
-one time base (averaged over ``--average`` s) as a session file that ``rimu replay --calibration`` monitors.
+one time base (averaged over ``--average`` s; time from the start of the log) as a session file that ``rimu replay
+--calibration`` monitors.
 LOG is anything ``rimu import`` reads, or its recording file.
 """
 
@@ -71,10 +72,11 @@ def run(args: argparse.Namespace) -> int:
     insts = [k for k in su.calibration.instruments if k in b.raw]
     if args.session:
         ok = np.all([b.valid[k].all(axis=1) for k in insts], axis=0)
-        seg = Segment("log", "motion", b.t[ok], {k: b.raw[k][ok] for k in insts},
+        seg = Segment("log", "motion", b.t[ok] - t0, {k: b.raw[k][ok] for k in insts},
                       None if b.temperature is None else b.temperature[ok], meta={"imus": rec.names})
         s = Session([seg], {k: su.calibration[k].geometry for k in insts}, 1.0 / float(np.median(np.diff(b.t[ok]))),
-                    raw_unit="SI", meta={"raw_units": {"gyro": "rad/s", "accel": "m/s^2"}, "source": str(args.log)})
+                    raw_unit="SI", meta={"raw_units": {"gyro": "rad/s", "accel": "m/s^2"}, "source": str(args.log),
+                                         "t0_s": t0})
         print(f"session written to {save_session(s, args.session)}: {int(ok.sum())} epochs at {s.sample_rate:.4g} Hz")
     if args.json:
         doc = {"imus": rec.names, "offsets_s": None if su.timing is None else list(su.timing.offsets_s),

@@ -16,7 +16,8 @@ IMUs read:
 * PX4 sdlog2: ``IMU``, ``IMU1``, ``IMU2`` (``GyroX/Y/Z`` [rad/s], ``AccX/Y/Z`` [m/s^2], ``tG`` [degC]), stamped with
   the ``TIME.StartTime`` [us] record logged before them (one TIME per logging cycle).
 
-Rejected records are counted by reason in ``meta["rejected"]`` per IMU: ``nonfinite`` (a NaN or inf value),
+Both autopilots log their IMUs rotated into the vehicle's body frame (``meta["body_frame"]``: a unit set up from the
+log keeps its triads parallel). Rejected records are counted by reason in ``meta["rejected"]`` per IMU: ``nonfinite`` (a NaN or inf value),
 ``time_not_increasing`` (a stamp at or before the previous one of the same IMU); bytes that are no message
 (``garbage_bytes``) and a cut last message (``truncated``) are counted for the file.
 
@@ -336,7 +337,7 @@ def iter_chunks(path: str | os.PathLike[str], block: int = BLOCK, **options: Any
                                              f"it declares {names}")
                 meta.update({"records": parser.records, "garbage_bytes": parser.garbage,
                              "truncated": parser.truncated, "rejected": rejected,
-                             "flavour": sorted(flavour_seen), "units_from": units_from,
+                             "flavour": sorted(flavour_seen), "units_from": units_from, "body_frame": True,
                              "first_garbage_byte": parser.first_garbage})
             yield MultiImuRecording(units, meta)
             if final:
