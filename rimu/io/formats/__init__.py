@@ -21,14 +21,18 @@ True
 
 from __future__ import annotations
 
+import gzip
 import importlib
+import lzma
 import os
+import struct
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-from ...errors import SessionFormatError, TransportError
+from ...errors import RimuError, SessionFormatError, TransportError
 
 __all__ = ["FALLBACK", "FORMATS", "find_format", "format_module", "iter_log", "read_log", "register_format"]
 
@@ -94,11 +98,42 @@ def _module_for(path: str | os.PathLike[str], format: str | None) -> ModuleType:
     return format_module(fmt)
 
 
+def _printable(text: str, limit: int = 160) -> str:
+    return "".join(c if c.isprintable() else "?" for c in text)[:limit]
+
+
+def _malformed(path: Any, name: str, exc: BaseException) -> SessionFormatError:
+    """The one error of a reader that met content it does not foresee (never a traceback, never binary text)."""
+    if isinstance(exc, UnicodeDecodeError):
+        return SessionFormatError(f"{path}: byte {exc.start} of the text is not UTF-8 (binary content in a {name} "
+                                  "log); check that the file is the log as written, or give --format")
+    return SessionFormatError(f"{path}: malformed {name} log ({type(exc).__name__}: {_printable(str(exc))}); check "
+                              "that the file is complete and of this format (--format NAME to force another)")
+
+
+#: what a reader may raise on content it does not foresee (turned into one SessionFormatError naming the file)
+_CONTENT_ERRORS = (ValueError, IndexError, KeyError, TypeError, EOFError, OverflowError, struct.error, lzma.LZMAError,
+                   zlib.error, gzip.BadGzipFile)
+
+
 def read_log(path: str | os.PathLike[str], format: str | None = None, **options: Any) -> Any:
     """Every IMU of a log as a :class:`rimu.io.multiimu.MultiImuRecording` in SI (``format``: found from the
-    content and name when None)."""
+    content and name when None).
+
+    Raises
+    ------
+    SessionFormatError
+        Not a known format, or content the format's reader refuses (the message names the file and the record).
+    TransportError
+        No such file.
+    """
     mod = _module_for(path, format)
-    rec = mod.read(path, **options)
+    try:
+        rec = mod.read(path, **options)
+    except (RimuError, ImportError):
+        raise
+    except _CONTENT_ERRORS as exc:
+        raise _malformed(path, mod.NAME, exc) from exc
     rec.meta.setdefault("format", mod.NAME)
     return rec
 
@@ -106,7 +141,12 @@ def read_log(path: str | os.PathLike[str], format: str | None = None, **options:
 def iter_log(path: str | os.PathLike[str], format: str | None = None, **options: Any) -> Iterator[Any]:
     """The log in pieces (the format's ``iter_chunks``; one piece for formats without it)."""
     mod = _module_for(path, format)
-    if hasattr(mod, "iter_chunks"):
-        yield from mod.iter_chunks(path, **options)
-    else:
+    if not hasattr(mod, "iter_chunks"):
         yield read_log(path, mod.NAME, **options)
+        return
+    try:
+        yield from mod.iter_chunks(path, **options)
+    except (RimuError, ImportError):
+        raise
+    except _CONTENT_ERRORS as exc:
+        raise _malformed(path, mod.NAME, exc) from exc
