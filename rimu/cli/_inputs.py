@@ -85,6 +85,13 @@ def is_session_file(path: str | os.PathLike[str]) -> bool:
     return False
 
 
+def _not_a_log(p: Path) -> bool:
+    """No log format but the catch-all text claims ``p``."""
+    from ..io.formats import find_format
+
+    return find_format(p) in (None, "text")
+
+
 def _is_ferraris(p: Path) -> bool:
     from ..io.formats import format_module
 
@@ -199,6 +206,8 @@ def open_session(path: str | os.PathLike[str], checks: str = "strict", kind: str
         return load_session(p, checks=checks)
     if _is_ferraris(p):
         return load_ferraris(p)
+    if p.suffix in (".npz", ".csv", ".json") and not log_options(args) and _not_a_log(p):
+        return load_session(p, checks=checks)  # meant as a session: its reader says what is wrong with it
     rec = open_recording(p, args, checks)
     return recording_session(rec, kind)
 
@@ -255,10 +264,15 @@ def open_array(path: str | os.PathLike[str], args: argparse.Namespace | None = N
     from ..array import ArrayLayout
 
     p = Path(path)
-    if p.suffix == ".npz" and p.is_file():
-        with np.load(p, allow_pickle=False) as z:
-            if "gyro" in z.files and "t" in z.files:
-                return None
+    if p.suffix == ".npz" and p.is_file() and not log_options(args):
+        try:
+            with np.load(p, allow_pickle=False) as z:
+                if "gyro" in z.files and "t" in z.files:
+                    return None
+        except (OSError, ValueError, EOFError):
+            return None  # not an archive: rimu array's own reader names what is wrong
+        if _not_a_log(p):
+            return None
     rec = open_recording(p, args)
     block = rec.to_block()
     k = len(rec.units)
