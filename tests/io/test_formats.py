@@ -260,3 +260,36 @@ def test_one_hour_three_imus_at_1khz_imports_in_constant_memory(tmp_path):
     assert peak < 80e6, f"peak {peak / 1e6:.0f} MB while importing"
     z = np.load(tmp_path / "hour.npz", mmap_mode="r")
     assert z["2.t"][-1] == pytest.approx(3599.999 + 74e-6)
+
+
+def test_ulog_fifo_topics_unpacked_at_their_full_rate(tmp_path):
+    """sensor_gyro_fifo / sensor_accel_fifo: ``samples`` int16 values times ``scale``, ``dt`` us apart, the last at
+    ``timestamp_sample`` (PX4's message definition)."""
+    pytest.importorskip("pyulog")
+    out = bytearray(b"ULog\x01\x12\x35\x01" + struct.pack("<Q", 0))
+
+    def msg(kind: bytes, payload: bytes) -> None:
+        out.extend(struct.pack("<HB", len(payload), kind[0]) + payload)
+
+    msg(b"B", bytes(40))
+    for topic in ("sensor_gyro_fifo", "sensor_accel_fifo"):
+        msg(b"F", f"{topic}:uint64_t timestamp;uint64_t timestamp_sample;uint32_t device_id;float dt;float scale;"
+                  "uint8_t samples;int16_t[32] x;int16_t[32] y;int16_t[32] z;".encode())
+    msg(b"A", struct.pack("<BH", 0, 0) + b"sensor_gyro_fifo")
+    msg(b"A", struct.pack("<BH", 0, 1) + b"sensor_accel_fifo")
+    per, dt = 4, 250.0
+    for k in range(50):
+        ts = 1000 + int(k * per * dt)
+        for mid, scale in ((0, 0.001), (1, 0.01)):
+            body = struct.pack("<HQQIffB", mid, ts + 5, ts + int((per - 1) * dt), 3, dt, scale, per)
+            body += struct.pack("<32h", *([k * per + j for j in range(per)] + [0] * (32 - per)))
+            body += struct.pack("<32h", *([1] * 32)) + struct.pack("<32h", *([980] * 32))
+            msg(b"D", body)
+    p = tmp_path / "fifo.ulg"
+    p.write_bytes(bytes(out))
+    rec = read_log(p)
+    u = rec["fifo0"]
+    assert len(u) == 200 and 1.0 / u.period_s == pytest.approx(4000.0)
+    np.testing.assert_allclose(u.gyro[:, 0], 0.001 * np.arange(200), atol=1e-9)
+    np.testing.assert_allclose(u.accel[:, 2], 9.8, rtol=1e-6)
+    np.testing.assert_allclose(u.t[:2], [1000e-6, 1250e-6])
