@@ -29,7 +29,10 @@ def sniff(name: str, head: bytes) -> bool:
     """Text whose lines after any header hold numbers (the last resort of the sniffers)."""
     if not head or not is_text(head):
         return False
-    lines = [ln for ln in head.decode("utf-8", "replace").splitlines()[1:-1] if ln.strip()]
+    lines = head.decode("utf-8", "replace").splitlines()
+    if not head.endswith(b"\n"):
+        lines = lines[:-1]  # the last line may be cut by the end of the head
+    lines = [ln for ln in lines[1:] if ln.strip()]
     return any(sum(c.isdigit() for c in ln) >= 3 for ln in lines)
 
 
