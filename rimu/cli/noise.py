@@ -41,6 +41,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sample-rate", type=positive_float, default=None, help="Hz (plain recordings)")
     p.add_argument("--geometry", default=None, help="geometry preset of a plain recording (for the parity check)")
     p.add_argument("--p-fa", type=probability, default=1e-3, help="false-verdict probability of each parity check")
+    p.add_argument("--from-kalibr", default=None, metavar="YAML",
+                   help="no recording: seed the noise model of --calibration's sensors from kalibr's imu.yaml "
+                        "(white noise and random walk per triad; RECORDING is then '-')")
     p.add_argument("--kalibr", default=None, metavar="YAML",
                    help="also write kalibr's imu.yaml (noise densities and random walks per triad, SI)")
     add_log_options(p)
@@ -95,6 +98,8 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     from ..noise.api import identify_session
 
+    if args.from_kalibr:
+        return _seed(args)
     path = Path(args.recording)
     if not path.exists():
         raise FileNotFoundError(f"no such recording: {path}")
@@ -138,6 +143,40 @@ def _run(args: argparse.Namespace) -> int:
         extra.append(f"calibration with noise {args.write_calibration}")
     insts = ", ".join(f"{k} ({m.n} sensors)" for k, m in model.instruments.items())
     print(f"noise of {insts} -> {out}" + ("; " + "; ".join(extra) if extra else ""))
+    return 0
+
+
+def _seed(args: argparse.Namespace) -> int:
+    """``--from-kalibr``: the noise of every sensor of the calibration from kalibr's imu.yaml (or IMU chain)."""
+    from ..calibration import Calibration
+    from ..errors import OptionError
+    from ..noise.kalibr import noise_from_kalibr, read_kalibr
+    from ..noise.model import NoiseModel
+
+    if not args.calibration:
+        raise OptionError("--from-kalibr needs --calibration (the unit whose sensors the noise is for)")
+    cal = Calibration.load(args.calibration)
+    doc = read_kalibr(args.from_kalibr)
+    models = {}
+    for k in cal.instruments:
+        names = list(cal[k].geometry.names)
+        blocks = [doc[f"imu{j}"] for j in range(len(names) // 3)] if "imu0" in doc else [doc]
+        if len(blocks) * 3 != len(names) and len(blocks) != 1:
+            raise OptionError(f"--from-kalibr: {len(blocks)} IMU blocks for {len(names)} {k} sensors")
+        per = [noise_from_kalibr(blocks[min(i // 3, len(blocks) - 1)], k, [n]) for i, n in enumerate(names)]
+        m = noise_from_kalibr(blocks[0], k, names)
+        for t in m.terms:
+            m.terms[t] = np.array([p.terms[t][0] for p in per])
+        models[k] = m
+        cal[k].noise = m
+        u = ("rad/s/sqrt(Hz)", "rad/s^2/sqrt(Hz)") if k == "gyro" else ("m/s^2/sqrt(Hz)", "m/s^3/sqrt(Hz)")
+        print(f"{k}: noise density " + ", ".join(f"{v:.4g}" for v in m.terms["white"]) + f" {u[0]}, random walk "
+              + ", ".join(f"{v:.4g}" for v in m.terms["rate_random_walk"]) + f" {u[1]}, at {m.sample_rate:g} Hz")
+    out = NoiseModel(models, meta={"source": str(args.from_kalibr)}).save(args.output)
+    msg = f"noise model seeded from {args.from_kalibr} -> {out}"
+    if args.write_calibration:
+        msg += f"; calibration with noise {cal.save(args.write_calibration)}"
+    print(msg)
     return 0
 
 

@@ -94,6 +94,8 @@ def test_kalibr_yaml_and_setup_figures(journey):
     doc = yaml.safe_load((out / "mpu_imu.yaml").read_text())
     # the MPU-6050's gyro noise density is 0.005 deg/s/sqrt(Hz) by its data sheet: 8.7e-5 rad/s/sqrt(Hz)
     assert 3e-5 < doc["gyroscope_noise_density"] < 3e-4 and doc["update_rate"] == 100.0
+    seeded = json.loads((out / "mpu_seeded.json").read_text())["instruments"]["gyro"]["terms"]["white"]
+    assert seeded == pytest.approx([doc["gyroscope_noise_density"]] * 3, rel=1e-5)  # kalibr seeds rimu's model
     setup = json.loads((out / "h10_setup.json").read_text())
     assert setup["imus"] == ["imu1", "imu2", "imu3", "imu4"]
     assert all(abs(o) < 0.05 for o in setup["offsets_s"])  # the units' clocks agree within a few samples
