@@ -35,6 +35,7 @@ COMMANDS = [
     "noise",
     "export_c",
     "array",
+    "selfcal",
 ]
 
 EXIT_OK = 0

@@ -56,7 +56,7 @@ import numpy as np
 from scipy import optimize, stats
 
 from ..calibration.result import InstrumentCalibration
-from ..errors import MissingInputError, ShapeError
+from ..errors import MissingInputError, MissingNoiseError, ShapeError
 from ..geometry.base import null_space_rows
 from ..noise.model import FLICKER_AVAR
 from .glt import GltWindow, glt_threshold
@@ -276,7 +276,7 @@ class SelfCalTracker:
             elif calibration.noise is not None:
                 sigma = calibration.noise.sample_sigma()
             else:
-                raise MissingInputError("the tracker needs the sensors' noise: give sigma= or a calibration with "
+                raise MissingNoiseError("the tracker needs the sensors' noise: give sigma= or a calibration with "
                                         "noise_sigma or a noise model")
         self.sigma = np.broadcast_to(np.asarray(sigma, dtype=float), (n,)).copy()
         self.n = n
@@ -478,6 +478,15 @@ class SelfCalTracker:
             suffix = {"bias": "bias", "scale": "scale"}.get(name, f"bias_{name}")
             pnames += [f"{nm}.{suffix}" for nm in names]
         cov = J @ state.P @ J.T
+        # the calibration's other parameters keep their covariance; the tracked ones get the tracker's (no
+        # correlation between the two is known)
+        keep = [i for i, nm in enumerate(cal.param_names) if nm not in set(pnames)]
+        if keep and cal.covariance is not None:
+            old = cal.covariance[np.ix_(keep, keep)]
+            full = np.zeros((len(keep) + len(pnames),) * 2)
+            full[:len(keep), :len(keep)] = old
+            full[len(keep):, len(keep):] = cov
+            cov, pnames = full, [cal.param_names[i] for i in keep] + pnames
         return InstrumentCalibration(cal.instrument, cal.geometry, scale, cal.misalignment.copy(), bias,
                                      None if cal.noise_sigma is None else cal.noise_sigma.copy(), cov, pnames,
                                      effects, None if cal.range_raw is None else cal.range_raw.copy(), cal.noise)
