@@ -74,7 +74,7 @@ def recordings(shared: Path) -> list[tuple[str, object]]:
 
 def settings() -> SelfCalSettings:
     return SelfCalSettings(bias_rw=(0.06 * DEG_TO_RAD) ** 2 / 60.0, bias_sigma0=0.1 * DEG_TO_RAD,
-                           scale_rw=(200 * PPM) ** 2 / 7200.0, scale_sigma0=0.01, window_s=1.0, hold_s=5.0)
+                           scale_rw=(200 * PPM) ** 2 / 7200.0, scale_sigma0=0.01, window_s=1.0, hold_s=1.0)
 
 
 def compare(rec, p_fa: float = 1e-3, confirm: int = 3) -> dict:
@@ -98,5 +98,7 @@ def compare(rec, p_fa: float = 1e-3, confirm: int = 3) -> dict:
     return {"n": cal.geometry.n, "samples": int(second.sum()), "rate_hz": 1.0 / float(np.median(np.diff(t))),
             "rms_fixed": float(np.sqrt(np.mean(P0**2))), "rms_tracked": float(np.sqrt(np.mean(P1**2))),
             "isolations_tracked": len(iso), "isolations_fixed": len(iso0),
+            "invalid_isolations_tracked": sum(e.kind == "invalid_isolated" for e in iso),
+            "invalid_isolations_fixed": sum(e.kind == "invalid_isolated" for e in iso0),
             "alarms_tracked": float(res.replay.alarm.mean()), "alarms_fixed": float(res0.alarm.mean()),
             "result": res, "tracker": trk, "t": t, "second": second}

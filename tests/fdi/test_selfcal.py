@@ -227,3 +227,63 @@ def test_step_of_the_final_drift_size_isolated_as_fast_as_by_a_fresh_unit(flown)
                                                  trk.correction_covariance(s, _mdb_regressors(F, N2, trk)), P_FA)
                          / minimum_detectable_bias(trk.parity_rows(), WINDOW, None, P_FA)))
     assert np.median(tracked) <= 1.25 * np.median(fresh), (ratio, tracked, fresh)
+
+
+# ---------------------------------------------------------------------------------------------- fault-aware
+def _small_unit():
+    geo = cone6()
+    cal = InstrumentCalibration.nominal("gyro", geo, 1.0, noise_sigma=1e-3)
+    return cal, SelfCalTracker(cal, SelfCalSettings(bias_rw=1e-10, bias_sigma0=1e-4, scale_rw=1e-10,
+                                                    scale_sigma0=1e-3, temperature_sigma=(1e-5,)))
+
+
+def test_frozen_sensors_are_not_moved_and_the_covariance_stays_exact():
+    _, trk = _small_unit()
+    rng = np.random.default_rng(3)
+    s = trk.initial_state()
+    frozen = np.zeros(6, bool)
+    frozen[2] = True
+    for k in range(30):
+        z = 1e-3 * rng.standard_normal((50, 6)) + np.array([3e-4, 0, 0, 0, 0, 0])
+        u = rng.standard_normal((50, 3))
+        s, info = trk.update(trk.predict(s, k + 1.0), z, trk.regressors(50, u, np.full(50, 30.0)), frozen=frozen)
+        assert info.accepted
+    th = s.theta.reshape(trk.m, 6)
+    assert np.all(th[:, 2] == 0.0)                     # the isolated sensor's terms: exactly as they were
+    assert np.abs(th[:, [0, 1, 3, 4, 5]]).max() > 0    # the others learn
+    # Joseph form with the zeroed gain rows: P stays symmetric positive definite, and the frozen sensor's own
+    # variance only grows (prediction) and is never reduced by an update
+    assert np.allclose(s.P, s.P.T) and np.linalg.eigvalsh(s.P).min() > 0
+    j = [b * 6 + 2 for b in range(trk.m)]
+    assert np.all(np.diag(s.P)[j] >= trk.p0[j] - 1e-18)
+
+
+def test_a_step_faster_than_the_model_is_gated_out():
+    _, trk = _small_unit()
+    rng = np.random.default_rng(4)
+    s = trk.initial_state()
+    g = trk.regressors(50, rng.standard_normal((50, 3)), np.full(50, 25.0))
+    s1, info = trk.update(trk.predict(s, 1.0), 1e-3 * rng.standard_normal((50, 6)), g)
+    assert info.accepted and info.d2 <= info.gate
+    step = np.zeros(6)
+    step[4] = 2e-3                                     # 2 sigma per sample on one sensor: 14 sigma over the window
+    s2, info = trk.update(trk.predict(s1, 2.0), 1e-3 * rng.standard_normal((50, 6)) + step, g)
+    assert not info.accepted and info.d2 > info.gate
+    assert np.array_equal(s2.theta, s1.theta) and s2.rejected == 1
+
+
+def test_a_ramp_faster_than_the_model_is_isolated_while_the_drift_is_tracked():
+    F = flight(cone6(), hours=0.25, fs=FS, seed=5)
+    trk = SelfCalTracker(F.cal, F.settings)
+    Y = F.Y.copy()
+    on = 600.0
+    rate = 2.0 * DH_TO_RS                              # 2 (deg/h)/s: 7200 deg/h per hour, far beyond the drift model
+    Y[:, 1] += rate * np.clip(F.t - on, 0.0, None)
+    r = SelfCalibratingRun(_manager(F.cal), trk).run(Y, None, F.t, F.temperature)
+    ev = [e for e in r.replay.events if e.kind == "isolated"]
+    assert ev and ev[0].sensor == "y1" and ev[0].t > on, ev
+    print(f"\nramp of 2 (deg/h)/s on y1 from {on:.0f} s: isolated {ev[0].t - on:.1f} s later "
+          f"(at {rate * (ev[0].t - on) / DH_TO_RS:.0f} deg/h); {len(ev)} isolation(s)")
+    # the tracked bias of y1 stopped following the ramp: it holds far less than the ramp's size at isolation
+    i = int(np.searchsorted(r.t, ev[0].t))
+    assert abs(r.values[i, 0, 1]) < 0.5 * rate * (ev[0].t - on)
