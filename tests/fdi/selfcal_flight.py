@@ -46,7 +46,7 @@ def unit(geometry, fs: float) -> tuple[InstrumentCalibration, SelfCalSettings]:
     sigma = float(noise.sample_sigma()[0])
     cal = InstrumentCalibration.nominal("gyro", geometry, 1.0, noise_sigma=np.full(n, sigma))
     st = SelfCalSettings(bias_rw=bias_random_walk(noise, 3.0, 3600.0), scale_rw=SCALE_RW,
-                         temperature_sigma=TC_SIGMA, reference_temperature=25.0, window_s=1.0, hold_s=15.0)
+                         temperature_sigma=TC_SIGMA, reference_temperature=25.0, window_s=2.0, hold_s=3.0)
     return cal, st
 
 
