@@ -564,7 +564,8 @@ class SelfCalRunResult:
     ``replay``: the manager's outputs over the whole run (:class:`rimu.fdi.ReplayResult`); ``t`` (W,) the end of
     each window, s; ``values``/``sigmas`` (W, m, n) the tracked terms of :meth:`SelfCalTracker.terms` after
     each window (SI); ``accepted``/``rejected``/``discarded`` windows absorbed, gated out, thrown away because of
-    an alarm; ``correction`` (N, n) the correction applied to each sample, SI.
+    an alarm; ``correction`` (N, n) the correction applied to each sample, SI; ``theta`` (W, m n) the state itself
+    after each window (per sensor, common mode included: what is frozen for an isolated sensor).
     """
 
     replay: Any
@@ -576,6 +577,7 @@ class SelfCalRunResult:
     discarded: int
     correction: np.ndarray
     blocks: tuple[str, ...] = field(default_factory=tuple)
+    theta: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
     @property
     def isolations(self) -> int:
@@ -649,7 +651,7 @@ class SelfCalibratingRun:
         if self.state is None:
             self.state = trk.initial_state(float(t[0]))
         det = mgr.detector if isinstance(mgr.detector, TrackedGltWindow) else None
-        parts, tw, vals, sigs, corr = [], [], [], [], np.zeros((N, trk.n))
+        parts, tw, vals, sigs, ths, corr = [], [], [], [], [], np.zeros((N, trk.n))
         acc = rej = disc = 0
         g_last = trk.regressors(1, np.zeros((1, 3)), None if temperature is None else np.asarray(temperature)[:1])[0]
         span = 1 if det is None else int(math.ceil(det.window / M)) + 1
@@ -692,6 +694,7 @@ class SelfCalibratingRun:
             tw.append(float(t[b - 1]))
             vals.append(np.stack([terms[k][0] for k in trk.blocks]))
             sigs.append(np.stack([terms[k][1] for k in trk.blocks]))
+            ths.append(self.state.theta)
             g_last = self._g_rms(g)
         return SelfCalRunResult(_concat_replay(parts), np.array(tw), np.array(vals), np.array(sigs), acc, rej, disc,
-                                corr, trk.blocks)
+                                corr, trk.blocks, np.array(ths))

@@ -287,3 +287,27 @@ def test_a_ramp_faster_than_the_model_is_isolated_while_the_drift_is_tracked():
     # the tracked bias of y1 stopped following the ramp: it holds far less than the ramp's size at isolation
     i = int(np.searchsorted(r.t, ev[0].t))
     assert abs(r.values[i, 0, 1]) < 0.5 * rate * (ev[0].t - on)
+
+
+def test_readmission_uses_the_tracked_values():
+    """A transient fault on a sensor whose bias had drifted: isolated, frozen while out (its tracked terms do not
+    move), re-admitted once the fault is gone, because its outputs are corrected with those frozen terms."""
+    F = flight(cone6(), hours=0.4, fs=FS, seed=8)
+    trk = SelfCalTracker(F.cal, F.settings)
+    run = SelfCalibratingRun(RedundancyManager(InstrumentPipeline(F.cal), TrackedGltWindow(WINDOW, P_FA), p_fa=P_FA,
+                                               confirm=CONFIRM, readmit_after=200), trk)
+    Y = F.Y.copy()
+    j, on, off = 3, 1000.0, 1030.0
+    Y[:, j] += np.where((F.t >= on) & (F.t < off), 20 * F.sigma, 0.0)
+    r = run.run(Y, None, F.t, F.temperature)
+    ev = [(e.kind, e.sensor, e.t) for e in r.replay.events if e.kind in ("isolated", "readmitted")]
+    assert ev[0][:2] == ("isolated", "x2") and on < ev[0][2] < on + 5, ev
+    assert ev[1][:2] == ("readmitted", "x2") and ev[1][2] > off, ev
+    out = (r.t > ev[0][2] + 2.0) & (r.t < ev[1][2])                 # while isolated
+    held = r.theta[out].reshape(-1, trk.m, trk.n)[:, :, j]
+    assert out.sum() > 10 and np.all(held == held[0]), "the isolated sensor's tracked terms moved"
+    drift_x2 = abs(F.bias[int(off * FS), j] + sum(F.tc[k][j] * (F.temperature[int(off * FS)] - 25.0) ** (k + 1)
+                                                  for k in range(3)))
+    print(f"\nx2 isolated at {ev[0][2]:.1f} s, re-admitted at {ev[1][2]:.1f} s (its drift then {drift_x2 / DH_TO_RS:.0f} "
+          "deg/h, corrected by its frozen tracked terms)")
+    assert len(ev) == 2
