@@ -64,6 +64,9 @@ def _settings(args: argparse.Namespace, cal: Any, inst: str, has_temperature: bo
     from ..errors import MissingNoiseError, OptionError
     from ..fdi.selfcal import SelfCalSettings, bias_random_walk
 
+    if cal.noise_sigma is None and cal.noise is None:
+        raise MissingNoiseError(f"the {inst} calibration has neither noise_sigma nor a noise model: the tracker needs "
+                                "the sensors' noise; identify it first (rimu noise) or set noise_sigma in the file")
     if args.bias_rw is not None:
         q = args.bias_rw
     elif cal.noise is not None:

@@ -150,6 +150,7 @@ def flown(request):
 _NORMALISED = {}
 
 
+@pytest.mark.slow
 def test_tracked_terms_normalised_errors(flown):
     z = flown["z"]
     rms = float(np.sqrt(np.mean(z**2)))
@@ -159,6 +160,7 @@ def test_tracked_terms_normalised_errors(flown):
     assert 0.8 <= rms <= 1.25
 
 
+@pytest.mark.slow
 def test_no_isolation_over_two_hours_with_tracking(flown):
     F, N2 = flown["F"], flown["N2"]
     # without tracking: the same flight through the same detector on the fixed calibration; the alarms over the
@@ -185,6 +187,7 @@ def _mdb_regressors(F, N2, trk):
     return np.stack([gs[b] for b in trk.blocks])
 
 
+@pytest.mark.slow
 def test_minimum_detectable_bias_after_two_hours(flown):
     F, N2, trk, s = flown["F"], flown["N2"], flown["tracker"], flown["state"]
     Vz = trk.parity_rows()
@@ -197,6 +200,7 @@ def test_minimum_detectable_bias_after_two_hours(flown):
     assert ratio.max() <= 1.2
 
 
+@pytest.mark.slow
 def test_step_of_the_final_drift_size_isolated_as_fast_as_by_a_fresh_unit(flown):
     F, N2, trk, s = flown["F"], flown["N2"], flown["tracker"], flown["state"]
     dT = F.temperature[N2 - 1] - 25.0
