@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from ._common import add_json_option, json_dump, positive_float, positive_int, probability
+from ._common import add_json_option, add_report_option, json_dump, positive_float, positive_int, probability
 
 _TC_DEFAULT = {"gyro": (1e-4, 1e-5, 1e-6), "accel": (1e-3, 1e-4, 1e-5)}
 
@@ -57,6 +57,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--gate", type=probability, default=1e-4,
                    help="innovation gate probability: windows beyond it are not absorbed (default %(default)s)")
     add_json_option(p)
+    add_report_option(p, "selfcal-<instrument>.png: the tracked terms over the log with their 1-sigma band")
     p.set_defaults(func=run)
 
 
@@ -105,6 +106,7 @@ def run(args: argparse.Namespace) -> int:
     trackers: dict[str, Any] = {}
     states: dict[str, Any] = {}
     counts: dict[str, list[int]] = {}
+    history: dict[str, list[tuple[float, np.ndarray, np.ndarray]]] = {}
     n_samples, t_first, t_last, has_t = 0, None, None, None
     for blk in iter_blocks(args.data):
         if has_t is None:
@@ -119,6 +121,7 @@ def run(args: argparse.Namespace) -> int:
                 trackers[k] = SelfCalTracker(cal[k], _settings(args, cal[k], k, has_t))
                 states[k] = trackers[k].initial_state(float(blk.t[0]))
                 counts[k] = [0, 0]
+                history[k] = []
             t_first = float(blk.t[0])
         comp = pipe.compensate(blk)
         n_samples += len(blk.t)
@@ -143,6 +146,10 @@ def run(args: argparse.Namespace) -> int:
                 st = trk.predict(states[k], float(blk.t[b - 1]))
                 states[k], info = trk.update(st, zw, g)
                 counts[k][0 if info.accepted else 1] += 1
+                if args.report:
+                    tm = trk.terms(states[k])
+                    history[k].append((float(blk.t[b - 1]), np.stack([tm[x][0] for x in trk.blocks]),
+                                       np.stack([tm[x][1] for x in trk.blocks])))
     if not trackers:
         raise SessionFormatError(f"{args.data}: the log holds no samples")
     out = dict(cal.instruments_cal)
@@ -183,6 +190,40 @@ def run(args: argparse.Namespace) -> int:
                        "tracked": {k: list(t.blocks) for k, t in trackers.items()}}
     written = Calibration(out, cal.raw_unit, f"{cal.method}+selfcal", metadata=meta).save(args.output)
     print(f"updated calibration written to {written}")
+    if args.report:
+        for k, trk in trackers.items():
+            print(f"report: {_plot(k, trk, history[k], args.report)}")
     if args.json:
         json_dump(summary, args.json)
     return 0
+
+
+def _plot(inst: str, trk: Any, hist: list[tuple[float, np.ndarray, np.ndarray]], folder: str) -> Any:
+    """The tracked terms of every sensor over the log, each with its 1-sigma band, in the field's units."""
+    from pathlib import Path
+
+    from ..plotting import pyplot, save_figure
+    from ..units import MS2_TO_UG, PPM, RS_TO_DH
+
+    plt = pyplot()
+    f, unit = (RS_TO_DH, "deg/h") if inst == "gyro" else (MS2_TO_UG, "micro-g")
+    t = np.array([h[0] for h in hist])
+    v = np.array([h[1] for h in hist])
+    s = np.array([h[2] for h in hist])
+    fig, axes = plt.subplots(trk.m, 1, figsize=(9, 2.2 * trk.m), sharex=True, squeeze=False)
+    names = trk.calibration.geometry.names
+    for b, (name, ax) in enumerate(zip(trk.blocks, axes[:, 0])):
+        fb, ub = (1.0 / PPM, "ppm") if name == "scale" else (f, unit if name == "bias" else f"{unit}/K^{name[2]}")
+        for i in range(trk.n):
+            line, = ax.plot(t, v[:, b, i] * fb, lw=0.8, label=names[i] if trk.n <= 12 else None)
+            ax.fill_between(t, (v[:, b, i] - s[:, b, i]) * fb, (v[:, b, i] + s[:, b, i]) * fb,
+                            color=line.get_color(), alpha=0.15, lw=0)
+        ax.set_ylabel(f"{name} ({ub})")
+        ax.grid(alpha=0.3)
+    if trk.n <= 12:
+        axes[0, 0].legend(ncol=min(trk.n, 6), fontsize=7)
+    axes[-1, 0].set_xlabel("time (s)")
+    axes[0, 0].set_title(f"{inst}: tracked terms (without their common mode) with 1-sigma bands")
+    fig.tight_layout()
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    return save_figure(fig, Path(folder) / f"selfcal-{inst}.png")

@@ -34,10 +34,11 @@ def test_selfcal_writes_the_fitted_terms_with_their_covariance(log, capsys):
     tsig = ",".join(str(s) for s in F.settings.temperature_sigma)
     rc = main(["selfcal", str(d / "flight.npz"), "--calibration", str(d / "cal.json"), "-o", str(d / "cal2.json"),
                "--bias-rw", repr(q), "--scale-rw", repr(F.settings.scale_rw), "--temperature-orders", "3",
-               "--temperature-sigma", tsig, "--json", str(d / "s.json")])
+               "--temperature-sigma", tsig, "--json", str(d / "s.json"), "--report", str(d / "rep")])
     out = capsys.readouterr().out
     assert rc == 0, out
     assert "deg/h" in out and "ppm" in out and "third-order" in out
+    assert (d / "rep" / "selfcal-gyro.png").stat().st_size > 10000
     c2 = Calibration.load(d / "cal2.json")["gyro"]
     names = list(F.cal.geometry.names)
     n = len(names)
