@@ -26,6 +26,7 @@ __all__ = ["FORMATS", "format_module", "register_format"]
 
 #: name -> module path (imported on first use)
 FORMATS: dict[str, str] = {
+    "mimu4444": "rimu.io.formats.mimu4444",
 }
 
 
