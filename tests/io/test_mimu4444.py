@@ -56,7 +56,7 @@ def test_decoder_any_chunking_resync_and_accounting():
 
 
 def test_clipped_and_impossible_samples_are_invalid(tmp_path):
-    data, counts = _stream(60, clip_at=[(5, 2), (7, 6)])
+    data, _ = _stream(60, clip_at=[(5, 2), (7, 6)])
     raw = bytearray(data)
     zero = m.encode_packet(60, 60 * 1_024_000, np.zeros((8, 6), int))      # a placeholder record of zeros
     f = tmp_path / "run.bin.xz"
