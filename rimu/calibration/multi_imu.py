@@ -165,8 +165,8 @@ def triad_noise(Z: np.ndarray) -> np.ndarray:
 
 
 def still_epochs(block: EpochBlock, sample_rate: float | None = None, window_s: float = 1.0, factor: float = 6.0,
-                 min_still_s: float = 2.0, max_accel_std: float = 0.3, max_gravity_error: float = 0.1
-                 ) -> np.ndarray:
+                 min_still_s: float = 2.0, max_accel_std: float = 0.3, max_gravity_error: float = 0.1,
+                 max_gyro_std: float = 0.03) -> np.ndarray:
     """Epochs at rest of a block of triads: every triad still at once.
 
     The imu_tk-style detector (:func:`rimu.calibration.detect.detect_intervals`, Tedaldi et al. 2014) on the
@@ -174,7 +174,8 @@ def still_epochs(block: EpochBlock, sample_rate: float | None = None, window_s: 
     its 10th percentile, in runs of at least ``min_still_s``; that threshold is relative, so two absolute
     guards keep a recording that is never still (a flight) from calling its calmest part rest: every
     accelerometer's moving standard deviation stays below ``max_accel_std`` (m/s^2) and its magnitude within
-    ``max_gravity_error`` (relative) of g. Invalid samples are never still.
+    ``max_gravity_error`` (relative) of g, and every gyro's below ``max_gyro_std`` (rad/s). Invalid samples
+    are never still.
 
     Parameters
     ----------
@@ -221,6 +222,9 @@ def still_epochs(block: EpochBlock, sample_rate: float | None = None, window_s: 
         nrm = np.linalg.norm(aj, axis=1)
         sd = np.sqrt(sum(_moving_var(aj[:, c], w) for c in range(3)))
         still &= (sd < max_accel_std) & (np.abs(nrm / G0 - 1.0) < max_gravity_error)
+        if G is not None:
+            gj = G[:, 3 * j:3 * j + 3]
+            still &= np.sqrt(sum(_moving_var(gj[:, c], w) for c in range(3))) < max_gyro_std
     # an invalid sample, or one within half a window of it, is not rest
     bad = np.convolve((~ok).astype(float), np.ones(w), mode="same") > 0
     return still & ~bad
@@ -233,6 +237,29 @@ def _median_sigma(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     med = np.median(d, axis=0)
     frac = effective_fraction(d - med) if len(d) > 20 else 1.0
     return med, 1.2533 * d.std(axis=0) / np.sqrt(max(1.0, frac * len(d)))
+
+
+def _chi2_scale(Zmb: np.ndarray, sig: np.ndarray, q: float = 0.99) -> float:
+    """Variance factor that makes the parity statistic of aligned triads at rest chi-square: the ``q`` quantile
+    of ``T = r^T W r`` (r the weighted least-squares residual of the triads' common rate, W = diag(sigma^-2),
+    Cho & Park 2005, Eq. 13) over the chi-square quantile with ``3k - 3`` degrees of freedom; at least 1.
+
+    ``triad_noise`` gives each sensor's own variance; what it leaves out (noise correlated between the axes
+    of one chip, quantisation, tails) shows in T, and the detectors' thresholds assume T is chi-square.
+    """
+    from scipy.stats import chi2
+
+    Z = Zmb[np.isfinite(Zmb).all(axis=1)]
+    k = Z.shape[1] // 3
+    if len(Z) < 100 or k < 2:
+        return 1.0
+    w = 1.0 / sig**2
+    H = np.tile(np.eye(3), (k, 1))
+    Hw = H * w[:, None]
+    x = Z @ Hw @ np.linalg.inv(H.T @ Hw)
+    r = Z - x @ H.T
+    T = (r * r * w).sum(axis=1)
+    return float(max(1.0, np.quantile(T, q) / chi2.ppf(q, 3 * k - 3)))
 
 
 def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: int = 0,
@@ -309,13 +336,18 @@ def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: in
         b_ref = np.nanmedian(G[st][:, ref_cols], axis=0) if use_rest else np.zeros(3)
         moving = (np.linalg.norm(np.nan_to_num(G[:, ref_cols] - b_ref), axis=1) >= min_rate_rad_s) & ~st
         motion_s = float(moving.sum()) * dt_avg
+        # rates are informative about a rotation when they vary in two directions at least by more than the
+        # motion threshold (a constant rate, or a turn about one axis, leaves a rotation about it unobserved)
+        Rm = G[moving][:, ref_cols]
+        Rm = Rm[np.isfinite(Rm).all(axis=1)]
+        informative = len(Rm) >= 3 and float(np.sqrt(np.linalg.eigvalsh(np.cov(Rm.T))[1])) >= min_rate_rad_s
         A = np.where(block.valid["accel"], block.raw["accel"], np.nan)[win] if "accel" in insts else None
         for j in range(k):
             if j == reference or names[j] not in delivering:
                 continue
             cols = slice(3 * j, 3 * j + 3)
             if align:
-                if moving.sum() >= 3:
+                if informative:
                     a = align_triads(G[:, ref_cols], G[:, cols], static=~moving, name=names[j])
                 else:
                     a = _align_from_gravity(A, st, ref_cols, cols, names[j], min_rate_rad_s)
@@ -330,6 +362,7 @@ def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: in
                 bias_sigma.setdefault("gyro", np.zeros(3 * k))[cols] = sg
     geo = triads(rotations, None, names)
     cals = {}
+    noise_scale: dict[str, float] = {}
     for inst in insts:
         Y = np.where(block.valid[inst], block.raw[inst], np.nan)[win]
         bias = gyro_bias.copy() if inst == "gyro" else np.zeros(3 * k)
@@ -354,9 +387,13 @@ def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: in
                 sig[3 * j:3 * j + 3] = s_live[3 * q:3 * q + 3]
         finite = sig[np.isfinite(sig)]
         sig[~np.isfinite(sig)] = finite.max() if finite.size else 1.0
+        if rows is st and len(live) >= 3:
+            c = _chi2_scale(Zmb, sig[np.concatenate([np.arange(3 * j, 3 * j + 3) for j in live])])
+            sig *= np.sqrt(c)
+            noise_scale[inst] = c
         cals[inst] = InstrumentCalibration.nominal(inst, geo, scale=1.0, bias=bias, noise_sigma=sig)
     spans = {"still_s": float(st.sum()) * dt_avg if use_rest else 0.0, "motion_s": motion_s,
-             "noise_at_rest": bool(use_rest and st.sum() >= 50)}
+             "noise_at_rest": bool(use_rest and st.sum() >= 50), "noise_scale": noise_scale}
     meta: dict[str, Any] = {"source": recording.meta.get("source") or recording.meta.get("folder"),
                             "averaged": n_avg, "reference": names[reference]}
     cal = Calibration(cals, raw_unit="SI", method="multi-imu-setup", metadata=meta)
@@ -385,8 +422,8 @@ def _placeholders_invalid(block: EpochBlock) -> EpochBlock:
 def _align_from_gravity(A: np.ndarray | None, still: np.ndarray, ref_cols: slice, cols: slice, name: str,
                         min_rate_rad_s: float) -> AlignmentResult:
     """The rotation from gravity alone (a recording without motion), or the reason it cannot be found."""
-    why = (f"no motion in the fit window (every rate, measured from the bias at rest, stays below "
-           f"{min_rate_rad_s:g} rad/s)")
+    why = (f"no motion in the fit window that turns about two axes (the rates, measured from the bias at rest, "
+           f"vary by less than {min_rate_rad_s:g} rad/s in a second direction)")
     if A is None or still.sum() < 3:
         raise IdentifiabilityError(f"triad {name!r}: {why} and no accelerometers at rest: the rotation between "
                                    "the triads cannot be found; give align_axes=False to keep them parallel, or "
