@@ -30,7 +30,7 @@ def unit():
 
 
 def test_fault_free_replay_isolates_no_healthy_triad(unit):
-    su, det, half, fs = unit
+    su, det, _half, _fs = unit
     b, cal = su.block, su.calibration["gyro"]
     assert su.spans["still_s"] > 100 and su.spans["motion_s"] > 3     # rest and moves in the fit half
     mgr = RedundancyManager(InstrumentPipeline(cal), det, p_fa=1e-3, confirm=3)

@@ -67,7 +67,7 @@ def test_biases_come_from_the_rest_and_rotations_from_the_motion():
 
 
 def test_static_recording_of_level_units_is_refused_with_its_reason():
-    rec, rots, biases, sig = _rest_then_motion(move_s=0.0, level_only=True)
+    rec, _rots, _biases, _sig = _rest_then_motion(move_s=0.0, level_only=True)
     with pytest.raises(IdentifiabilityError, match="no motion in the fit window") as exc:
         setup_multi_imu(rec, average_s=None)
     assert "one direction" in str(exc.value)
@@ -84,7 +84,7 @@ def test_static_recording_of_level_units_is_refused_with_its_reason():
 
 
 def test_gravity_in_two_poses_gives_the_rotation_without_motion():
-    rec, rots, biases, sig = _rest_then_motion(move_s=0.0)
+    rec, rots, _biases, _sig = _rest_then_motion(move_s=0.0)
     # a second pose: the whole unit turned by 90 deg about x for the second half
     R2 = rotation_matrix(np.radians([90.0, 0.0, 0.0]))
     for j, u in enumerate(rec.units):
