@@ -13,9 +13,9 @@
    (ambiguous, more faults than the parity space separates, or parity dimension below 2) the fault is
    reported as present but not isolable and every output is flagged DEGRADED until the alarms stop;
 4. isolates a sensor whose output stays invalid (non-finite, dropout) for ``invalid_persist`` samples
-   unless that would leave fewer sensors than span three dimensions; only the samples where the invalidity is
-   confined to one sub-unit count (:class:`rimu.fdi.common_cause.EvidenceGate`: triads clipping together
-   are a common cause, ``common_invalid`` event, nothing isolated); an alarm while the detector says its
+   unless that would leave fewer sensors than span three dimensions; with ``common_cause=True`` only the
+   samples where the invalidity is confined to one sub-unit count (:class:`rimu.fdi.common_cause.EvidenceGate`:
+   triads clipping together are a common cause, ``common_invalid`` event, nothing isolated); an alarm while the detector says its
    motion model is exceeded (``detector.model_exceeded``) is logged as ``model_exceeded``, the output is
    DEGRADED and nothing is isolated;
 5. re-admits an isolated sensor after its output agrees with the estimate of the others (each sample and
@@ -254,6 +254,10 @@ class RedundancyManager:
     episode_gap : int, optional
         An alarm episode, whose parity vectors are pooled as evidence for the set test, ends after this
         many consecutive alarm-free samples (default ``max(confirm, 5)``).
+    common_cause : bool
+        Count toward ``invalid_persist`` only the samples whose invalidity is confined to one sub-unit
+        (:class:`rimu.fdi.common_cause.EvidenceGate`): for units of triads that clip together in fast motion.
+        Off: every invalid sample counts (a dropout of several triads isolates them until they are clean).
 
     Examples
     --------
@@ -274,7 +278,7 @@ class RedundancyManager:
                  confirm: int = 3, invalid_persist: int = 10, readmit_after: int | None = READMIT_AFTER,
                  sample_rate: float | None = None, max_events: int = 10000,
                  isolator: FaultSetGlt | str | None = None, fail_after: int = 4, backoff: float = 2.0,
-                 clear_after: int = 50, episode_gap: int | None = None) -> None:
+                 clear_after: int = 50, episode_gap: int | None = None, common_cause: bool = False) -> None:
         if confirm < 1 or invalid_persist < 1:
             raise ValueError("confirm and invalid_persist must be at least 1 sample")
         if not getattr(pipeline, "noise_given", True):
@@ -293,6 +297,7 @@ class RedundancyManager:
         self.max_events = int(max_events)
         self.clear_after = int(clear_after)
         self.episode_gap = int(episode_gap) if episode_gap is not None else max(self.confirm, 5)
+        self.common_cause = bool(common_cause)
         if isolator is None:
             isolator = FaultSetGlt(alpha=1e-4) if _evidence_detector(self.detector) else "detector"
         if isinstance(isolator, str) and isolator != "detector":
@@ -746,7 +751,7 @@ class RedundancyManager:
         alone = self._alone_run
         alone[~inv] = 0
         was_common = self._gate.common
-        ev = self._gate.invalid_alone(inv)
+        ev = self._gate.invalid_alone(inv) if self.common_cause else inv
         if self._gate.common and not was_common:
             self._log("common_invalid", None, f"{int(inv.sum())} sensors of several sub-units invalid at once "
                       "(range or common cause): routed around, nothing isolated", t)

@@ -33,7 +33,7 @@ def test_fault_free_replay_isolates_no_healthy_triad(unit):
     su, det, _half, _fs = unit
     b, cal = su.block, su.calibration["gyro"]
     assert su.spans["still_s"] > 100 and su.spans["motion_s"] > 3     # rest and moves in the fit half
-    mgr = RedundancyManager(InstrumentPipeline(cal), det, p_fa=1e-3, confirm=3)
+    mgr = RedundancyManager(InstrumentPipeline(cal), det, p_fa=1e-3, confirm=3, common_cause=True)
     res = mgr.run(b.raw["gyro"], b.valid["gyro"], b.t)
     kinds = [e.kind for e in res.events]
     assert "isolated" not in kinds and "invalid_isolated" not in kinds
@@ -53,7 +53,7 @@ def test_a_small_bias_at_rest_is_isolated_within_a_second(unit):
         col = 3 * tri + tri % 3
         Y = b.raw["gyro"][sl].copy()
         Y[on:, col] += np.radians(1.0)
-        mgr = RedundancyManager(InstrumentPipeline(cal), det, p_fa=1e-3, confirm=3)
+        mgr = RedundancyManager(InstrumentPipeline(cal), det, p_fa=1e-3, confirm=3, common_cause=True)
         res = mgr.run(Y, b.valid["gyro"][sl], b.t[sl])
         iso = [(e.sensor, e.t - b.t[k0]) for e in res.events if e.kind == "isolated"]
         assert iso and iso[0][0] == cal.geometry.names[col] and 0 <= iso[0][1] <= 1.0, (tri, iso)

@@ -112,14 +112,16 @@ def test_invalidity_of_several_triads_at_once_isolates_nothing():
     V = np.ones((N, 12), bool)
     V[50:80, 0:3] = False            # triads 1 and 2 clip together for 30 samples
     V[50:80, 3:6] = False
-    mgr = RedundancyManager(InstrumentPipeline(_cal(4)), p_fa=1e-3, confirm=3, invalid_persist=10)
+    mgr = RedundancyManager(InstrumentPipeline(_cal(4)), p_fa=1e-3, confirm=3, invalid_persist=10,
+                            common_cause=True)
     res = mgr.run(Y, V)
     assert not mgr.isolated.any()
     assert [e.kind for e in res.events].count("common_invalid") == 1
     # one triad alone invalid for as long: that points at it
     V2 = np.ones((N, 12), bool)
     V2[50:80, 6:9] = False
-    mgr = RedundancyManager(InstrumentPipeline(_cal(4)), p_fa=1e-3, confirm=3, invalid_persist=10)
+    mgr = RedundancyManager(InstrumentPipeline(_cal(4)), p_fa=1e-3, confirm=3, invalid_persist=10,
+                            common_cause=True)
     res = mgr.run(Y, V2)
     assert sorted(e.sensor for e in res.events if e.kind == "invalid_isolated") == ["imu2_x", "imu2_y", "imu2_z"]
     assert res.events[0].t == 59          # after invalid_persist = 10 samples alone
