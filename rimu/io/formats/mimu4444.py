@@ -51,6 +51,7 @@ import numpy as np
 
 from ...epoch import Epoch
 from ...errors import SessionFormatError, TransportError
+from ...geometry.presets.mimu4444 import MAT_ARRAY_RAW_BOTTOM, POSITIONS_M
 from ...units import DEG_TO_RAD, G0
 from ..accounting import Accounting
 from ..multiimu import ImuStream, MultiImuRecording
@@ -72,12 +73,6 @@ TICK_HZ = 64e6
 ACCEL_LSB_PER_G = 2048.0
 GYRO_LSB_PER_DPS = 16.4
 INT16_LIMITS = (-32768, 32767)
-#: v_array = C v_raw for the bottom-side IMUs 2, 4, 6, 8
-MAT_ARRAY_RAW_BOTTOM = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
-#: nominal triad positions in the array frame, m (IMU 1 .. 8; the board's IMU_positions.csv)
-POSITIONS_M = np.array([[-9.45e-3, 9.45e-3, 1e-3], [-9.45e-3, 9.45e-3, -1e-3], [-9.45e-3, -9.45e-3, 1e-3],
-                        [-9.45e-3, -9.45e-3, -1e-3], [9.45e-3, 9.45e-3, 1e-3], [9.45e-3, 9.45e-3, -1e-3],
-                        [9.45e-3, -9.45e-3, 1e-3], [9.45e-3, -9.45e-3, -1e-3]])
 _ACCEL_SI = G0 / ACCEL_LSB_PER_G
 _GYRO_SI = DEG_TO_RAD / GYRO_LSB_PER_DPS
 
@@ -300,17 +295,15 @@ def read(path: str | os.PathLike[str], **options: Any) -> MultiImuRecording:
 
 
 def geometry(positions: bool = True) -> Any:
-    """The board as :func:`rimu.geometry.triads`: eight triads ``imu1`` .. ``imu8``, the bottom ones rotated
-    (``mat_sb_mb = C^T``: an array-frame vector in the triad's raw axes), nominal positions in metres.
+    """The board as the geometry preset ``mimu4444`` (:func:`rimu.geometry.presets.mimu4444.mimu4444`): eight
+    triads ``imu1`` .. ``imu8``, the bottom ones rotated, nominal positions in metres.
 
-    >>> g = geometry()
-    >>> g.n, g.subunits[1].mat_sb_mb.tolist()[2], g.subunits[4].position_mb_m.tolist()
-    (24, [0.0, 0.0, -1.0], [0.00945, 0.00945, 0.001])
+    >>> geometry().n
+    24
     """
-    from ...geometry import triads
+    from ...geometry import preset
 
-    rot = [np.eye(3) if j % 2 == 0 else MAT_ARRAY_RAW_BOTTOM.T.copy() for j in range(N_IMU)]
-    return triads(rot, POSITIONS_M.copy() if positions else None, [f"imu{j + 1}" for j in range(N_IMU)])
+    return preset("mimu4444", positions=positions)
 
 
 class Mimu4444SerialSource(SerialSource):
