@@ -148,3 +148,18 @@ def test_alarm_beyond_the_fitted_motion_isolates_nothing():
     mgr = RedundancyManager(InstrumentPipeline(cal), det, p_fa=1e-3, confirm=3)
     res = mgr.run(Y)
     assert [(e.sensor, e.t) for e in res.events if e.kind == "isolated"] == [("imu0_x", 102)]
+
+
+def test_replay_states_what_the_motion_thresholds_assume(tmp_path, capsys):
+    from rimu.cli import main
+    from rimu.sim import Simulator
+
+    assert main(["simulate", "--procedure", "cho_park_table2", "--sample-rate", "10", "-o",
+                 str(tmp_path / "t2.npz")]) == 0
+    Simulator(seed=0, sample_rate=10.0).truth_calibration().save(tmp_path / "cal.json")
+    assert main(["replay", str(tmp_path / "t2.npz"), "--calibration", str(tmp_path / "cal.json"),
+                 "--motion-fit", "12"]) == 0
+    out = capsys.readouterr().out
+    line = next(ln for ln in out.splitlines() if "thresholds assume the motion of the fit span" in ln)
+    rate = float(line.split("|rate| up to ")[1].split(" deg/s")[0])
+    assert 0 < rate < 1e4 and "model_exceeded" in line
