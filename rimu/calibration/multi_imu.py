@@ -239,27 +239,27 @@ def _median_sigma(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return med, 1.2533 * d.std(axis=0) / np.sqrt(max(1.0, frac * len(d)))
 
 
-def _chi2_scale(Zmb: np.ndarray, sig: np.ndarray, q: float = 0.99) -> float:
-    """Variance factor that makes the parity statistic of aligned triads at rest chi-square: the ``q`` quantile
-    of ``T = r^T W r`` (r the weighted least-squares residual of the triads' common rate, W = diag(sigma^-2),
-    Cho & Park 2005, Eq. 13) over the chi-square quantile with ``3k - 3`` degrees of freedom; at least 1.
+def _chi2_scale(Yc: np.ndarray, axes: np.ndarray, sig: np.ndarray, q: float = 0.999) -> float:
+    """Variance factor that makes the parity statistic at rest chi-square: the ``q`` quantile of
+    ``T = r^T W r`` (r the weighted least-squares residual of the compensated outputs ``Yc`` (N, n) on their
+    axes ``axes`` (n, 3), W = diag(sigma^-2), Cho & Park 2005, Eq. 13) over the chi-square quantile with
+    ``n - 3`` degrees of freedom; at least 1.
 
-    ``triad_noise`` gives each sensor's own variance; what it leaves out (noise correlated between the axes
-    of one chip, quantisation, tails) shows in T, and the detectors' thresholds assume T is chi-square.
+    ``triad_noise`` gives each sensor's own variance; what it leaves out (noise correlated between sensors,
+    tails) shows in T, and the detectors' thresholds assume T is chi-square.
     """
     from scipy.stats import chi2
 
-    Z = Zmb[np.isfinite(Zmb).all(axis=1)]
-    k = Z.shape[1] // 3
-    if len(Z) < 100 or k < 2:
+    Z = Yc[np.isfinite(Yc).all(axis=1)]
+    n = Z.shape[1]
+    if len(Z) < 100 or n < 6:
         return 1.0
     w = 1.0 / sig**2
-    H = np.tile(np.eye(3), (k, 1))
-    Hw = H * w[:, None]
-    x = Z @ Hw @ np.linalg.inv(H.T @ Hw)
-    r = Z - x @ H.T
+    Aw = axes * w[:, None]
+    x = Z @ Aw @ np.linalg.inv(axes.T @ Aw)
+    r = Z - x @ axes.T
     T = (r * r * w).sum(axis=1)
-    return float(max(1.0, np.quantile(T, q) / chi2.ppf(q, 3 * k - 3)))
+    return float(max(1.0, np.quantile(T, q) / chi2.ppf(q, n - 3)))
 
 
 def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: int = 0,
@@ -382,13 +382,15 @@ def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: in
         Zmb = np.column_stack([(Y[rows][:, 3 * j:3 * j + 3] - bias[3 * j:3 * j + 3]) @ rotations[j] for j in live])
         sig = np.full(3 * k, np.nan)
         if len(live) >= 2:
-            s_live = triad_noise(Zmb)
+            s_live = triad_noise(Zmb)           # per MB axis of each triad: back to the triad's own axes
             for q, j in enumerate(live):
-                sig[3 * j:3 * j + 3] = s_live[3 * q:3 * q + 3]
+                sig[3 * j:3 * j + 3] = np.sqrt(rotations[j] ** 2 @ s_live[3 * q:3 * q + 3] ** 2)
         finite = sig[np.isfinite(sig)]
         sig[~np.isfinite(sig)] = finite.max() if finite.size else 1.0
         if rows is st and len(live) >= 3:
-            c = _chi2_scale(Zmb, sig[np.concatenate([np.arange(3 * j, 3 * j + 3) for j in live])])
+            cols = np.concatenate([np.arange(3 * j, 3 * j + 3) for j in live])
+            Yc = np.column_stack([Y[rows][:, 3 * j:3 * j + 3] - bias[3 * j:3 * j + 3] for j in live])
+            c = _chi2_scale(Yc, np.vstack([rotations[j] for j in live]), sig[cols])
             sig *= np.sqrt(c)
             noise_scale[inst] = c
         cals[inst] = InstrumentCalibration.nominal(inst, geo, scale=1.0, bias=bias, noise_sigma=sig)
