@@ -17,51 +17,26 @@ from pathlib import Path
 import numpy as np
 
 from ._common import positive_float
+from ._inputs import add_log_options, open_array
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("array", help="self-calibration of an array of triads from motion, with its report",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("data", help="NPZ file with t, gyro[, accel, rotations, positions_m, names]")
+    p.add_argument("data", help="NPZ file with t, gyro[, accel, rotations, positions_m, names], or a multi-IMU log")
     p.add_argument("-o", "--output", default=None, help="JSON file for the fitted parameters (SI, body frame)")
     p.add_argument("--report", default=None, metavar="DIR", help="folder for array_report.md and array_report.png")
     p.add_argument("--json", default=None, metavar="FILE", help="machine-readable summary")
     p.add_argument("--lowpass-hz", type=positive_float, default=None, help="low-pass every triad first (vehicles)")
-    p.add_argument("--format", default=None, metavar="NAME",
-                   help="read DATA as a registered log format (e.g. mimu4444) instead of NPZ; the triads' rotations "
-                        "and positions come from the format's geometry() where it has one")
     p.add_argument("--motion-threshold-deg-s", type=positive_float, default=30.0,
                    help="samples faster than this count as 'in motion' for the parity figures")
+    add_log_options(p)
     p.set_defaults(func=run)
 
 
-def _load_log(path: str, fmt: str):
-    """A registered log format (a local call until the shared opener of every command exists)."""
-    from ..array import ArrayLayout
-    from ..io.formats import format_module
-
-    mod = format_module(fmt)
-    rec = mod.read(path)
-    blk = rec.to_block()
-    k = len(rec.units)
-    gyro = np.where(blk.valid["gyro"], blk.raw["gyro"], np.nan).reshape(len(blk), k, 3)
-    accel = None
-    if "accel" in blk.raw:
-        accel = np.where(blk.valid["accel"], blk.raw["accel"], np.nan).reshape(len(blk), k, 3)
-    rot, pos = np.repeat(np.eye(3)[None], k, axis=0), np.zeros((k, 3))
-    if hasattr(mod, "geometry"):
-        geo = mod.geometry()
-        rot = np.stack([su.mat_sb_mb.T for su in geo.subunits])     # triad axes -> body
-        pos = np.stack([su.position_mb_m if su.position_mb_m is not None else np.zeros(3) for su in geo.subunits])
-    return ArrayLayout(rot, pos, tuple(rec.names)), blk.t, gyro, accel
-
-
-def _load(path: str, fmt: str | None = None):
+def _load(path: str):
     from ..array import ArrayLayout
     from ..errors import ShapeError
-
-    if fmt is not None:
-        return _load_log(path, fmt)
 
     try:
         d = np.load(path, allow_pickle=False)
@@ -86,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     from ..errors import RimuError
 
     try:
-        layout, t, gyro, accel = _load(args.data, args.format)
+        layout, t, gyro, accel = open_array(args.data, args) or _load(args.data)
         rep = array_report(layout, t, gyro, accel, motion_threshold_deg_s=args.motion_threshold_deg_s,
                            lowpass_hz=args.lowpass_hz)
     except RimuError as exc:
