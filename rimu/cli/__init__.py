@@ -38,6 +38,7 @@ COMMANDS = [
     "import_",
     "setup",
     "apply",
+    "selfcal",
 ]
 
 EXIT_OK = 0
