@@ -86,5 +86,6 @@ def run(args: argparse.Namespace) -> int:
     if rep.accel_steps:
         a = list(rep.accel_steps.values())
         line += f", accelerometers {a[0].mean():.4g} -> {a[-1].mean():.4g} m/s^2"
-    print(line + f"; limited now by {rep.limiting_term}")
+    lim = rep.limiting_term
+    print(line + (f"; what is left is {lim}" if lim.startswith("unexplained") else f"; limited now by {lim}"))
     return 0

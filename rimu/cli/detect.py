@@ -38,6 +38,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="shorter motions between two poses are bumps, merged into the pose, s (default %(default)s)")
     p.add_argument("--margin", type=float, default=None, help="trimmed from both ends of each pose, s (default: window/2)")
     p.add_argument("--gravity", type=positive_float, default=None, help="local gravity, m/s^2 (default 9.80665)")
+    p.add_argument("--geometry", default=None, metavar="NAME|FILE.json",
+                   help="the unit's geometry for both instruments when the file has more than three columns each: a "
+                        "preset name (e.g. mimu4444, triads with k parallel triads as triads:K) or a geometry JSON "
+                        "file (Geometry.to_dict); default: one triad")
     p.add_argument("--report", metavar="DIR", help="write detection.png and detection.md here")
     p.add_argument("--json", metavar="FILE", help="write a machine-readable summary here")
     p.add_argument("--imu", default=None, help="the IMU of a multi-IMU log to read (default: the first)")
@@ -47,6 +51,26 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _cols(text: str | None):
     return None if text is None else [c.strip() for c in text.split(",") if c.strip()]
+
+
+def geometry_option(text: str) -> object:
+    """``NAME`` (a preset), ``triads:K`` (k parallel triads) or a geometry JSON file."""
+    import json as _json
+
+    from ..errors import GeometryError
+    from ..geometry import Geometry, preset
+
+    if text.endswith(".json"):
+        try:
+            return Geometry.from_dict(_json.loads(Path(text).read_text()))
+        except (OSError, ValueError) as exc:
+            raise GeometryError(f"cannot read the geometry file {text!r} ({exc})") from None
+    name, _, k = text.partition(":")
+    if k:
+        if not k.isdigit() or int(k) < 1:
+            raise GeometryError(f"--geometry {text!r}: give the number of triads as triads:K, K a positive integer")
+        return preset(name, rotations=int(k))
+    return preset(name)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -61,7 +85,16 @@ def run(args: argparse.Namespace) -> int:
             if "init" in str(k).lower() and isinstance(v, float) and v > 0:
                 init = v
     factor: float | str = args.factor if args.factor == "auto" else float(args.factor)
-    session, det = detect_session(log.t, log.raw, log.sample_rate, gravity=args.gravity or G0,
+    geometries = None
+    if args.geometry:
+        geo = geometry_option(args.geometry)
+        geometries = {k: geo for k in log.raw}
+        bad = {k: y.shape[1] for k, y in log.raw.items() if y.shape[1] != geo.n}
+        if bad:
+            from ..errors import GeometryError
+
+            raise GeometryError(f"--geometry {args.geometry} has {geo.n} sensors; the file's {bad} columns differ")
+    session, det = detect_session(log.t, log.raw, log.sample_rate, geometries, gravity=args.gravity or G0,
                                   window_s=args.window, factor=factor, init_still_s=init,
                                   min_static_s=args.min_static, min_motion_s=args.min_motion, margin_s=args.margin)
     poses = [s for s in session.segments if s.kind == "static_unknown"]

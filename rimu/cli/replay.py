@@ -581,6 +581,11 @@ def _motion_detector(cal, block, seconds: float, margin: float, p_fa: float, fs:
           f"scale {1e2 * float(np.median(model.scale_rel)):.2f} %, misalignment "
           f"{1e3 * float(np.median(model.misalignment_rad)):.2f} mrad, time offset "
           f"{1e3 * float(np.median(model.time_offset_s)):.2f} ms (medians)")
+    if det.envelope is not None:
+        print(f"  gyro thresholds assume the motion of the fit span: |rate| up to "
+              f"{np.degrees(det.envelope[0]):.4g} deg/s, |angular acceleration| up to "
+              f"{np.degrees(det.envelope[1]):.4g} deg/s^2; an alarm beyond is reported as model_exceeded "
+              "(output DEGRADED) and isolates nothing")
     return det
 
 

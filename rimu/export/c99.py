@@ -461,6 +461,9 @@ def export_c(calibration: Calibration, directory: str | os.PathLike[str], real: 
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
     fdi = fdi if fdi is not None else FdiSettings()
+    if fdi.common_cause:
+        raise ExportError("common_cause (the evidence gate of units of triads) is not in the generated code; export "
+                          "with common_cause=False")
     files = {"rimu_unit.h": _header(calibration, real, fdi), "rimu_unit.c": _source(calibration, real, fdi),
              "rimu_filter.c": _filter(calibration, real), "Makefile": _MAKEFILE}
     out = []

@@ -38,6 +38,10 @@ class FdiSettings:
         Alarm-free samples after which a "not isolable" report is withdrawn.
     episode_gap : int or None
         Alarm-free samples that end an alarm episode (None: ``max(confirm, 5)``).
+    common_cause : bool
+        Count toward ``invalid_persist`` only invalid samples confined to one sub-unit
+        (:class:`rimu.fdi.common_cause.EvidenceGate`; units of triads that clip together). Not in the generated
+        C: the export refuses it.
     alpha, max_size, max_sets, collinear_tol
         The set test's (:class:`rimu.fdi.multiple.FaultSetGlt`): level ``alpha`` = 1e-4 (small, so that the true
         set is not rejected by chance while the evidence accumulates), sets of up to ``max_size`` sensors.
@@ -62,6 +66,7 @@ class FdiSettings:
     max_size: int = 2
     max_sets: int = 20000
     collinear_tol: float = 1e-3
+    common_cause: bool = False
 
     def __post_init__(self) -> None:
         checks = [
@@ -109,7 +114,8 @@ class FdiSettings:
         ``rimu.fdi.Runtime(cal, settings)``, what the generated ``rimu_fdi_step`` does per epoch)."""
         return {"p_fa": self.p_fa, "confirm": self.confirm, "invalid_persist": self.invalid_persist,
                 "readmit_after": self.readmit_after, "fail_after": self.fail_after, "backoff": self.backoff,
-                "clear_after": self.clear_after, "episode_gap": self.episode_gap, "isolator": self.isolator()}
+                "clear_after": self.clear_after, "episode_gap": self.episode_gap, "isolator": self.isolator(),
+                "common_cause": self.common_cause}
 
     # ---------------------------------------------------------------- tables of the generated code
     def required(self) -> list[int]:

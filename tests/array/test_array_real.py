@@ -45,7 +45,9 @@ def test_xsens_dot_parity_falls_and_positions_repeat_across_flights():
         g = _falls(rep.gyro_steps)
         a = _falls(rep.accel_steps)
         assert g[-1] < 0.3 * g[0] and a[-1] < 0.4 * a[0], rep.to_markdown()
-        assert rep.limiting_term in ("aa_sensitivity", "rate_nonlinearity", "g_sensitivity", "noise")
+        # a term is named limiting only when it explains at least 10 % of what is left (issue 32)
+        assert rep.limiting_term.split(" ")[0] in ("aa_sensitivity", "rate_nonlinearity", "g_sensitivity", "noise",
+                                                   "unexplained")
         positions.append(rep.position_fit.positions_m - rep.position_fit.positions_m[0])
         tau = rep.gyro_fit.sampling_offset_s
         assert 2e-3 < abs(tau[2] - tau[0]) < 7e-3 and 2e-3 < abs(tau[3] - tau[0]) < 7e-3, tau
