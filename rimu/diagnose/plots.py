@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..calibration.effects._common import input_unit, output_unit
+from ..calibration.effects._common import input_unit
 from ..plotting import pyplot
 from .candidates import candidate_bases
 from .residuals import input_bins
@@ -225,24 +225,24 @@ def plot_regressors(fit: ModelFit, tests: list[CandidateTest], path: str | Path,
 def plot_comparison(comp: Comparison, path: str | Path) -> Path:
     """Before and after: rms per sensor (field units) and the residual of the most improved sensor over time."""
     plt = pyplot()
-    u = output_unit(comp.before.contexts[0])
-    rb, ra = comp.before.rms_si() * u[2], comp.after.rms_si() * u[2]
+    unit, rb, ra = comp.rms()
+    fb, fa = rb / np.maximum(comp.before.rms_raw(), 1e-300), ra / np.maximum(comp.after.rms_raw(), 1e-300)
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 3.4), gridspec_kw={"width_ratios": [1, 2]})
     x = np.arange(len(rb))
     a1.bar(x - 0.2, rb, 0.4, label="before")
     a1.bar(x + 0.2, ra, 0.4, label="after")
     a1.set_xticks(x, [s.name for s in comp.before.sensors])
-    a1.set_ylabel(f"residual rms [{u[1]}]")
+    a1.set_ylabel(f"residual rms [{unit}]")
     a1.legend(fontsize=7)
     k = int(np.argmax(rb - ra))
     sb, sa = comp.before.sensors[k], comp.after.sensors[k]
     cnt = np.maximum(np.bincount(sb.seg_index), 1)
     tm = np.bincount(sb.seg_index, weights=sb.t) / cnt
-    a2.plot(tm, np.bincount(sb.seg_index, weights=sb.r) / cnt * sb.scale * u[2], "o-", ms=3, label="before")
-    a2.plot(tm, np.bincount(sa.seg_index, weights=sa.r) / cnt * sa.scale * u[2], "o-", ms=3, label="after")
+    a2.plot(tm, np.bincount(sb.seg_index, weights=sb.r) / cnt * fb[k], "o-", ms=3, label="before")
+    a2.plot(tm, np.bincount(sa.seg_index, weights=sa.r) / cnt * fa[k], "o-", ms=3, label="after")
     a2.axhline(0, color="k", lw=0.5)
     a2.set_xlabel("time [s]")
-    a2.set_ylabel(f"{sb.name} segment mean residual [{u[1]}]")
+    a2.set_ylabel(f"{sb.name} segment mean residual [{unit}]")
     a2.legend(fontsize=7)
     fig.suptitle(f"{comp.instrument}: + {', '.join(comp.added)}: chi2/dof {comp.chi2_before:.3g} -> {comp.chi2_after:.3g}")
     return _save(fig, path)

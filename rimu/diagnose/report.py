@@ -9,7 +9,6 @@ from pathlib import Path
 from typing import Any
 
 from ..atomic import atomic_files
-from ..calibration.effects._common import output_unit
 from . import plots
 from .api import Comparison, Diagnosis, Iteration, format_p
 
@@ -35,16 +34,16 @@ def render_markdown(diagnosis: Diagnosis, directory: Path, comparisons: Sequence
     for k, why in diagnosis.errors.items():
         md += [f"> {k}: not diagnosed: {why}", ""]
     for inst, d in diagnosis.instruments.items():
-        u = output_unit(d.fit.contexts[0])
         md += [f"## {inst}: model `{d.model.label}`", ""]
         md += [f"chi2/dof {d.fit.chi2_dof:.4g}, BIC {d.fit.bic:.1f}, {len(d.fit.segment_labels)} segments used"
                + (f", {len(d.fit.skipped)} skipped ({'; '.join(sorted(set(d.fit.skipped.values())))})" if d.fit.skipped else ""), ""]
         md += ["### Residual statistics", ""]
-        md += _table(["sensor", f"rms [{u[1]}]", "noise sigma [raw]", "chi2/dof", "z(chi2)", "lag-1 rho",
+        unit, fac = d.fit.display()
+        md += _table(["sensor", f"rms [{unit}]", f"noise sigma [{d.fit.raw_unit}]", "chi2/dof", "z(chi2)", "lag-1 rho",
                       "Ljung-Box p", "white"],
-                     [(x.name, f"{x.rms_si * u[2]:.4g}", f"{x.sigma:.4g}{'' if x.sigma_known else ' (est.)'}",
+                     [(x.name, f"{x.rms_raw * f:.4g}", f"{x.sigma:.4g}{'' if x.sigma_known else ' (est.)'}",
                        f"{x.chi2_dof:.4f}", f"{x.chi2_z:+.1f}", f"{x.lag1:+.3f}", f"{x.ljung_box_p:.2g}",
-                       "yes" if x.white else "no") for x in d.stats])
+                       "yes" if x.white else "no") for x, f in zip(d.stats, fac)])
         md += [""]
         fl = d.failures
         md += ["### Where the model fails", ""]
@@ -106,11 +105,10 @@ def render_markdown(diagnosis: Diagnosis, directory: Path, comparisons: Sequence
     if comparisons:
         md += ["## Add it and watch the error fall", ""]
         for n, c in enumerate(comparisons, start=1):
-            u = output_unit(c.before.contexts[0])
             md += [f"### {c.instrument}: + {', '.join(c.added)}", "",
                    f"chi2/dof {c.chi2_before:.4g} -> **{c.chi2_after:.4g}**, dBIC {c.dbic:+.1f}, dAIC {c.daic:+.1f}", ""]
-            rb, ra = c.before.rms_si() * u[2], c.after.rms_si() * u[2]
-            md += _table(["sensor", f"rms before [{u[1]}]", f"rms after [{u[1]}]", "change"],
+            unit, rb, ra = c.rms()
+            md += _table(["sensor", f"rms before [{unit}]", f"rms after [{unit}]", "change"],
                          [(s.name, f"{b:.4g}", f"{a:.4g}", f"{100 * (a - b) / b:+.1f}%")
                           for s, b, a in zip(c.before.sensors, rb, ra)])
             md += ["", "New parameters (1-sigma):", ""]
