@@ -2,13 +2,13 @@
 cut-off from the vibration spectrum, and whether a step made the agreement worse.
 
 * **Units.** The array works in SI (rad/s, m/s^2). Rates in deg/s read as rad/s are 57 times too fast: a median
-  rotation rate above 6 rad/s (340 deg/s) or a 99th percentile above 35 rad/s (2000 deg/s, beyond the full scale
-  of nearly every MEMS gyro) is refused. Specific force in g or milli-g read as m/s^2 gives a median norm near 1 or
+  rotation rate above 3 rad/s (170 deg/s) or a 99th percentile of the rate norm above 70 rad/s (4000 deg/s, beyond
+  the full scale of MEMS gyros) is refused. Specific force in g or milli-g read as m/s^2 gives a median norm near 1 or
   1000 instead of 9.8: refused outside 0.5 g to 2 g.
 * **Low-pass.** The rigid-body model holds where the triads agree: in the band where the array-mean (common)
   signal dominates the triads' disagreement (parity). The cut-off is the lowest frequency at which the power of
-  the common signal falls below :data:`SNR_MIN` times the parity power per triad (Welch spectra, the
-  accelerometers where there are any, else the gyros); none when the triads agree up to 0.4 of the sample rate.
+  the gyros' common signal falls below :data:`SNR_MIN` times their parity power per triad (Welch spectra); none
+  when the triads agree up to 0.4 of the sample rate.
 * **Never worse.** A step whose parity rms in motion (mean over triads) is above its input's is not applied; the
   report names it and the figures.
 
@@ -28,7 +28,7 @@ from ..units import G0, RAD_TO_DEG
 __all__ = ["SNR_MIN", "check_units", "choose_lowpass", "worse"]
 
 #: common-to-parity power ratio below which a frequency band is vibration, not rigid-body motion
-SNR_MIN = 3.0
+SNR_MIN = 10.0
 #: a step raising the mean parity rms by more than this fraction of it is refused
 WORSE_TOL = 1e-3
 
@@ -40,7 +40,7 @@ def check_units(gyro: np.ndarray, accel: "np.ndarray | None") -> list[str]:
     w = w[np.isfinite(w)]
     if w.size:
         med, p99 = float(np.median(w)), float(np.percentile(w, 99))
-        if med > 6.0 or p99 > 35.0:
+        if med > 3.0 or p99 > 70.0:
             out.append(f"gyro rates of median {med:.3g} and 99th percentile {p99:.3g} 'rad/s' ({med * RAD_TO_DEG:.3g} "
                        f"and {p99 * RAD_TO_DEG:.3g} deg/s) are beyond any vehicle or MEMS full scale: the values look "
                        "like deg/s; declare it with --gyro-unit deg/s (or convert to rad/s)")
@@ -63,8 +63,11 @@ def choose_lowpass(t: np.ndarray, gyro: np.ndarray, accel: "np.ndarray | None" =
 
     t = np.asarray(t, dtype=float)
     fs = 1.0 / float(np.median(np.diff(t)))
-    x = np.asarray(accel if accel is not None else gyro, dtype=float)
-    what = "accelerometers" if accel is not None else "gyros"
+    # the gyros: their triads differ by about 1 % before calibration, so the common-to-parity ratio is large
+    # wherever the motion is rigid; the accelerometers also differ by the lever arms and their gains, which
+    # would read as vibration at every frequency
+    x = np.asarray(gyro, dtype=float)
+    what = "gyros"
     if x.shape[0] < 256 or x.shape[1] < 2:
         return None, "too short or a single triad: no spectrum to choose a low-pass from"
     x = np.where(np.isfinite(x), x, 0.0)
