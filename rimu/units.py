@@ -60,6 +60,7 @@ __all__ = [
     "fmt",
     "fmt_raw",
     "raw_to_si",
+    "raw_unit_for",
     "scale_unit",
 ]
 
@@ -151,6 +152,27 @@ def raw_to_si(instrument: str, raw_unit: str | None) -> float | None:
     if u.lower() == "si":
         return 1.0
     return RAW_UNITS.get(instrument, {}).get(u)
+
+
+def raw_unit_for(raw_unit: "str | dict[str, str] | None", instrument: str) -> str:
+    """The raw unit of one instrument from a declaration for all: one string, a mapping, or the text form
+    ``"gyro: deg/s; accel: m/s^2"`` that session and calibration files keep.
+
+    >>> raw_unit_for("gyro: deg/s; accel: m/s^2", "gyro"), raw_unit_for("count", "accel"), raw_unit_for(None, "gyro")
+    ('deg/s', 'count', 'count')
+    """
+    if raw_unit is None:
+        return "count"
+    if isinstance(raw_unit, dict):
+        return str(raw_unit.get(instrument, "count"))
+    text = str(raw_unit)
+    if ":" in text:
+        for part in text.split(";"):
+            k, _, v = part.partition(":")
+            if k.strip() == instrument:
+                return v.strip()
+        return "count"
+    return text
 
 
 def scale_unit(instrument: str, raw_unit: str | None = "count") -> str:

@@ -11,10 +11,12 @@ that ran and failed, 2 bad input or options, 3 an internal error (a bug: rerun w
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
 import os
 import sys
+import warnings
 
 from ..errors import RimuError
 from ._common import Parser, check_outputs, configure_logging
@@ -104,6 +106,24 @@ def _describe(exc: BaseException) -> tuple[str, int]:
             "traceback", EXIT_INTERNAL)
 
 
+@contextlib.contextmanager
+def _promises(args: argparse.Namespace):  # type: ignore[no-untyped-def]
+    """What ``-q`` promises (errors only: the results a command prints go nowhere, except a ``--json -`` asked
+    for on stdout), and Python warnings (matplotlib's, numpy's) as one log line each, none under ``-q``."""
+    wlog = logging.getLogger("rimu.warnings")
+
+    def show(message, category, filename, lineno, file=None, line=None):  # type: ignore[no-untyped-def]
+        wlog.warning("%s", str(message).splitlines()[0] if str(message) else category.__name__)
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        if getattr(args, "quiet", False) and getattr(args, "json", None) != "-":
+            with open(os.devnull, "w") as null, contextlib.redirect_stdout(null):
+                yield
+        else:
+            yield
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run ``rimu`` with ``argv`` (default ``sys.argv[1:]``) and return the exit status."""
     parser = build_parser()
@@ -118,7 +138,8 @@ def main(argv: list[str] | None = None) -> int:
     log.debug("arguments: %s", {k: v for k, v in vars(args).items() if k != "func"})
     try:
         check_outputs(args)
-        return int(args.func(args) or 0)
+        with _promises(args):
+            return int(args.func(args) or 0)
     except BrokenPipeError:  # `rimu ... | head`: the reader left; nothing to say
         try:
             sys.stdout = open(os.devnull, "w")

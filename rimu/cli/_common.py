@@ -238,8 +238,12 @@ def _json_default(o: Any) -> Any:
 
 
 # ---------------------------------------------------------------- outputs checked before work
-def _sidecar(p: Path) -> list[Path]:
-    return [p, p.with_suffix(".json")] if p.suffix == ".csv" else [p]
+#: commands whose -o/--output CSV is a session with its .json sidecar (a monitor's CSV of epochs has none)
+SESSION_OUTPUT_COMMANDS = ("simulate", "detect")
+
+
+def _sidecar(p: Path, sidecar: bool = True) -> list[Path]:
+    return [p, p.with_suffix(".json")] if p.suffix == ".csv" and sidecar else [p]
 
 
 def _check_file(opt: str, p: Path) -> None:
@@ -296,7 +300,8 @@ def check_outputs(args: argparse.Namespace, files: Iterable[str] = OUTPUT_FILE_O
             _check_file(opt, p)  # (a file inside a --report folder about to be created is checked with it)
         elif p.is_dir():
             raise OutputPathError(f"--{opt} {p}: is a folder; give a file name")
-        for q in _sidecar(p):
+        session_out = name == "output" and getattr(args, "command", None) in SESSION_OUTPUT_COMMANDS
+        for q in _sidecar(p, session_out):
             r = q.resolve()
             what = f"{q} (the sidecar of --{opt} {p})" if q != p else f"--{opt} {q}"
             if r in seen:

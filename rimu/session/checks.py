@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import PlausibilityError
-from ..units import DEG_TO_RAD, G0, RAW_UNITS
+from ..units import DEG_TO_RAD, G0, RAW_UNITS, raw_unit_for
 from .model import Session
 
 __all__ = ["UNITS", "Finding", "check_session", "enforce", "raw_unit_of", "CHECK_MODES"]
@@ -82,10 +82,7 @@ def raw_unit_of(session: Session, instrument: str) -> str:
     per = session.meta.get("raw_units") if isinstance(session.meta, dict) else None
     if isinstance(per, dict) and instrument in per:
         return str(per[instrument])
-    ru = session.raw_unit
-    if isinstance(ru, dict):
-        return str(ru.get(instrument, "count"))
-    return str(ru)
+    return raw_unit_for(session.raw_unit, instrument)
 
 
 def _unit_factor(instrument: str, unit: str) -> float | None:
