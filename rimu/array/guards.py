@@ -2,7 +2,7 @@
 cut-off from the vibration spectrum, and whether a step made the agreement worse.
 
 * **Units.** The array works in SI (rad/s, m/s^2). Rates in deg/s read as rad/s are 57 times too fast: a median
-  rotation rate above 3 rad/s (170 deg/s) or a 99th percentile of the rate norm above 70 rad/s (4000 deg/s, beyond
+  rotation rate above 10 rad/s (570 deg/s) or a 99th percentile of the rate norm above 70 rad/s (4000 deg/s, beyond
   the full scale of MEMS gyros) is refused. Specific force in g or milli-g read as m/s^2 gives a median norm near 1 or
   1000 instead of 9.8: refused outside 0.5 g to 2 g.
 * **Low-pass.** The rigid-body model holds where the triads agree: in the band where the array-mean (common)
@@ -40,7 +40,7 @@ def check_units(gyro: np.ndarray, accel: "np.ndarray | None") -> list[str]:
     w = w[np.isfinite(w)]
     if w.size:
         med, p99 = float(np.median(w)), float(np.percentile(w, 99))
-        if med > 3.0 or p99 > 70.0:
+        if med > 10.0 or p99 > 70.0:
             out.append(f"gyro rates of median {med:.3g} and 99th percentile {p99:.3g} 'rad/s' ({med * RAD_TO_DEG:.3g} "
                        f"and {p99 * RAD_TO_DEG:.3g} deg/s) are beyond any vehicle or MEMS full scale: the values look "
                        "like deg/s; declare it with --gyro-unit deg/s (or convert to rad/s)")

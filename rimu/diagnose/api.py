@@ -200,8 +200,11 @@ class InstrumentDiagnosis:
         return out
 
     def to_dict(self) -> dict[str, Any]:
+        unit, fac = self.fit.display()
         return {
             "instrument": self.instrument, "model": self.model.label, "chi2_dof": self.fit.chi2_dof,
+            "raw_unit": self.fit.raw_unit, "rms_unit": unit,
+            "rms": [float(s.rms_raw * f) for s, f in zip(self.stats, fac)],
             "bic": self.fit.bic, "nothing_missing": self.nothing_missing, "alpha": self.alpha,
             "sensors": [s.to_dict() for s in self.stats], "failures": json.loads(json.dumps(self.failures)),  # a plain copy
             "findings": [{"effects": f.effects, "confounded": f.confounded,

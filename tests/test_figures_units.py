@@ -1,0 +1,274 @@
+"""Never a wrong number: every figure a command prints is the truth in the unit it states (issue 27).
+
+Simulated recordings with known truth (counts with a known scale, deg/s and g declared and undeclared), the real
+MPU-6050 hand-held session (skipped when the shared data are absent), and the bad-input cases of the new paths.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rimu.calibration import Calibration, InstrumentCalibration
+from rimu.cli import main
+from rimu.geometry import triad3
+from rimu.units import DEG_TO_RAD, G0, RAD_TO_DEG, RS_TO_DH, field_unit, fmt
+from tests.conftest import shared_data
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _cli(capsys, *argv: str) -> tuple[int, list[str], list[str]]:
+    rc = main([str(a) for a in argv])
+    cap = capsys.readouterr()
+    return rc, cap.out.strip().splitlines(), cap.err.strip().splitlines()
+
+
+def test_field_units_are_closed_form():
+    assert fmt(1e-5, "rate") == f"{1e-5 * RS_TO_DH:.4g} deg/h"                 # 2.063 deg/h
+    assert fmt(0.0103, "rate") == f"{0.0103 * RAD_TO_DEG:.4g} deg/s"           # a MEMS residual: deg/s
+    assert fmt(3.7e-2, "specific_force") == f"{3.7e-2 / (1e-3 * G0):.4g} mg"
+    assert field_unit("accel", 5e-4 * G0) == ("ug", 1e6 / G0)
+    with pytest.raises(ValueError, match="not a unit of rate"):
+        fmt(1.0, "rate", "m/s^2")
+
+
+# ------------------------------------------------------------------ rimu noise: counts with a known scale
+def _raw_log(path: Path, n: int, fs: float, seed: int, scale_g: float, scale_a: float, sg: float, sa: float) -> None:
+    """A raw log of counts (metadata row, header, int columns): white noise of sigma sg [rad/s], sa [m/s^2]."""
+    rng = np.random.default_rng(seed)
+    gyro = (0.01 + sg * rng.standard_normal((n, 3))) / scale_g
+    acc = (np.array([0.0, 0.0, G0]) + sa * rng.standard_normal((n, 3))) / scale_a
+    rows = np.round(np.hstack([acc, gyro])).astype(int)
+    with open(path, "w") as f:
+        f.write(f"Fs,{fs:g}\nax,ay,az,gx,gy,gz\n")
+        np.savetxt(f, rows, fmt="%d", delimiter=",")
+
+
+def test_noise_of_counts_applies_the_calibration_and_prints_the_truth(tmp_path, capsys):
+    fs, n = 100.0, 30000
+    scale_g, scale_a, sg, sa = 1e-4, 1e-3, 0.02, 0.05       # noise 200 and 50 counts: quantisation negligible
+    _raw_log(tmp_path / "static.csv", n, fs, 1, scale_g, scale_a, sg, sa)
+    g = triad3()
+    cal = Calibration({"gyro": InstrumentCalibration.nominal("gyro", g, scale=scale_g, bias=0.0),
+                       "accel": InstrumentCalibration.nominal("accel", g, scale=scale_a, bias=0.0)})
+    cal.save(tmp_path / "cal.json")
+    # without the calibration: refused, one line, exit 2 (the counts are never taken as SI)
+    rc, out, err = _cli(capsys, "noise", tmp_path / "static.csv", "-o", tmp_path / "n.json")
+    assert rc == 2 and len(err) == 1 and "raw log" in err[0] and "--calibration" in err[0], err
+    rc, out, err = _cli(capsys, "noise", tmp_path / "static.csv", "--calibration", tmp_path / "cal.json",
+                        "--terms", "white", "-o", tmp_path / "n.json", "--json", tmp_path / "s.json")
+    assert rc == 0, err
+    rows = json.loads((tmp_path / "s.json").read_text())["instruments"]
+    # truth: ARW = sigma / sqrt(fs) [rad/sqrt(s)] -> deg/sqrt(h) = * RAD_TO_DEG * 60; VRW -> m/s/sqrt(h) = * 60
+    arw = sg / math.sqrt(fs) * RAD_TO_DEG * 60
+    vrw = sa / math.sqrt(fs) * 60
+    head = {ln.split()[0]: ln for ln in out if ln.split() and ln.split()[0] in ("gyro", "accel")}
+    assert "[deg/sqrt(h)]" in head["gyro"] and "[m/s/sqrt(h)]" in head["accel"], head
+    for inst, truth in (("gyro", arw), ("accel", vrw)):
+        for r in rows[inst]:
+            # within 4 of its stated 1-sigma and 3 %: the stated uncertainty is honest
+            assert abs(r["white"] - truth) < max(4 * r["white_sigma"], 0.03 * truth), (inst, r, truth)
+    # the printed table carries the same figures
+    gx = next(ln for ln in out if ln.startswith("gx")).split()   # gx, quantization +/- sd, white +/- sd, ...
+    assert abs(float(gx[4]) - rows["gyro"][0]["white"]) < 1e-3 * rows["gyro"][0]["white"], gx
+
+
+@pytest.mark.parametrize("case, match", [
+    ("counts", "look like raw counts"),
+    ("accel_as_gyro", "not gyro outputs at rest"),
+    ("g_as_accel", "these are in g"),
+    ("calibration_on_plain", "a calibration would not apply"),
+    ("two_instruments", "one instrument"),
+])
+def test_noise_plain_array_bad_input(tmp_path, capsys, case, match):
+    rng = np.random.default_rng(2)
+    z = {"counts": np.round(300 * rng.standard_normal((2000, 3))),
+         "accel_as_gyro": np.array([0, 0, G0]) + 0.01 * rng.standard_normal((2000, 3)),
+         "g_as_accel": np.array([0, 0, 1.0]) + 0.001 * rng.standard_normal((2000, 3)),
+         "calibration_on_plain": 0.01 * rng.standard_normal((2000, 3)),
+         "two_instruments": 0.01 * rng.standard_normal((2000, 3))}[case]
+    np.save(tmp_path / "z.npy", z)
+    argv = ["noise", tmp_path / "z.npy", "--sample-rate", "100", "-o", tmp_path / "n.json"]
+    if case == "g_as_accel":
+        argv += ["--instrument", "accel"]
+    if case == "calibration_on_plain":
+        argv += ["--calibration", tmp_path / "cal.json"]
+    if case == "two_instruments":
+        argv += ["--instrument", "gyro", "--instrument", "accel"]
+    rc, out, err = _cli(capsys, *argv)
+    assert rc == 2 and len(err) == 1 and match in err[0], err
+    assert not (tmp_path / "n.json").exists()
+
+
+# ------------------------------------------------------------------ rimu diagnose: counts stay counts
+def _bias_session(tmp_path: Path, raw_unit: str, per_si: float, sigma_si: float) -> tuple[Path, np.ndarray]:
+    """Static segments of known attitude; gyro outputs = bias + white noise, in ``raw_unit`` (per_si raw units
+    per rad/s). Returns the session file and the noise sigma in raw units per sensor."""
+    from rimu.session import Segment, Session, save_session
+
+    rng = np.random.default_rng(5)
+    g = triad3()
+    segs = []
+    for k, up in enumerate(np.vstack([np.eye(3), -np.eye(3)])):
+        t = k * 10 + np.arange(1000) / 100.0
+        gy = (np.array([0.01, -0.02, 0.005]) + sigma_si * rng.standard_normal((1000, 3))) * per_si
+        ac = np.tile(up * G0, (1000, 1)) + 0.01 * rng.standard_normal((1000, 3))
+        segs.append(Segment(f"S{k}", "static", t, {"gyro": gy, "accel": ac}, specific_force_mb=up * G0))
+    s = Session(segs, {"gyro": g, "accel": g}, 100.0, None, G0, raw_unit,
+                {"raw_units": {"gyro": raw_unit, "accel": "m/s^2"}})
+    path = tmp_path / f"s_{raw_unit.replace('/', '_')}.npz"
+    save_session(s, path)
+    return path, np.full(3, sigma_si * per_si)
+
+
+@pytest.mark.parametrize("raw_unit, per_si", [("count", 1.0 / 1.3e-4), ("deg/s", RAD_TO_DEG), ("rad/s", 1.0)])
+def test_diagnose_prints_residuals_in_the_unit_they_are_in(tmp_path, capsys, raw_unit, per_si):
+    sigma_si = 0.004                                                    # rad/s, 0.23 deg/s
+    path, _ = _bias_session(tmp_path, raw_unit, per_si, sigma_si)
+    rc, out, err = _cli(capsys, "diagnose", path, "--model", "bias", "--instrument", "gyro", "--no-earth-rate",
+                        "--json", tmp_path / "d.json")
+    assert rc == 0, err
+    doc = json.loads((tmp_path / "d.json").read_text())["diagnosis"]["instruments"]["gyro"]
+    stats = doc["sensors"]
+    lines = [ln for ln in out if re.match(r"\s+[xyz]: rms ", ln)]
+    assert len(lines) == 3, out
+    for ln in lines:
+        value, unit = re.search(r"rms (\S+) ([^,\s]+)", ln).groups()
+        if raw_unit == "count":                       # no scale known: counts, never SI
+            assert unit == "count", ln
+            truth = sigma_si * per_si
+        else:                                         # the declared unit gives the SI; printed in a field unit
+            name, f = field_unit("rate", sigma_si)
+            assert unit == name, ln
+            truth = sigma_si * f
+        # the residual of a bias-only fit to white noise: its rms is sigma within 3 % (3000 samples per sensor)
+        assert abs(float(value) - truth) < 0.03 * truth, (ln, truth)
+    assert all((s["rms_si"] is None) == (raw_unit == "count") for s in stats)
+    # the JSON states the unit of the figures it gives, as printed
+    assert doc["rms_unit"] == unit and [f"{v:.4g}" for v in doc["rms"]] == [
+        re.search(r"rms (\S+)", ln).group(1) for ln in lines]
+
+
+def test_mpu6050_handheld_diagnosis_prints_the_gyro_residual_in_deg_s(tmp_path, capsys):
+    raw = shared_data("mpu6050_handheld_session") / "calibration_data" / "example_data_calibration.csv"
+    s = tmp_path / "mpu.npz"
+    assert _cli(capsys, "detect", raw, "-o", s)[0] == 0
+    assert _cli(capsys, "calibrate", s, "--method", "handheld", "-o", tmp_path / "cal.json")[0] == 0
+    rc, out, err = _cli(capsys, "diagnose", s, "--calibration", tmp_path / "cal.json", "--json", tmp_path / "d.json")
+    assert rc == 0, err
+    d = json.loads((tmp_path / "d.json").read_text())["diagnosis"]
+    cal = json.loads((tmp_path / "cal.json").read_text())
+    scale = np.asarray(cal["payload"]["instruments"]["gyro"]["scale"], float)
+    gy = [ln for ln in out if re.match(r"\s+[xyz]: rms ", ln)][:3]
+    stats = _stats(d, "gyro")
+    for ln, st, sc in zip(gy, stats, scale):
+        value, unit = re.search(r"rms (\S+) ([^,\s]+)", ln).groups()
+        assert unit == "deg/s", ln
+        # the raw residual (counts) times the calibration's own scale factor, in deg/s: 0.59 deg/s on x,
+        # not 1.552e+07 'deg/h' (counts times 206265)
+        assert float(value) == pytest.approx(st["rms_raw"] * sc * RAD_TO_DEG, rel=1e-3)
+        assert st["rms_si"] == pytest.approx(st["rms_raw"] * sc, rel=1e-9)
+    assert 0.3 < float(re.search(r"rms (\S+)", gy[0]).group(1)) < 1.0
+
+
+def _stats(d: dict, inst: str) -> list[dict]:
+    return d["instruments"][inst]["sensors"]
+
+
+# ------------------------------------------------------------------ rimu array: units declared or refused
+def _array_npz(tmp_path: Path, name: str, gyro_f: float, accel_f: float) -> Path:
+    from rimu.array import ArrayLayout
+    from rimu.sim.array import random_array_truth, simulate_array
+
+    lay = ArrayLayout.planar_grid(2, 2, pitch_m=0.012)
+    rec = simulate_array(random_array_truth(lay, seed=6, centre_gyro_common_mode=True), duration_s=1.5, seed=6)
+    p = tmp_path / name
+    np.savez(p, t=rec.t, gyro=rec.gyro * gyro_f, accel=rec.accel * accel_f, rotations=lay.rotations,
+             positions_m=lay.positions_m)
+    return p
+
+
+def test_array_refuses_deg_s_and_g_as_si_and_reads_them_declared(tmp_path, capsys):
+    si = _array_npz(tmp_path, "si.npz", 1.0, 1.0)
+    fu = _array_npz(tmp_path, "field.npz", RAD_TO_DEG, 1.0 / G0)
+    rc, out, err = _cli(capsys, "array", fu)
+    assert rc == 2 and len(err) == 1 and "--gyro-unit deg/s" in err[0] and "--accel-unit g" in err[0], err
+    rc1, out1, _ = _cli(capsys, "array", si, "--lowpass-hz", "none", "--no-held-out")
+    rc2, out2, _ = _cli(capsys, "array", fu, "--gyro-unit", "deg/s", "--accel-unit", "g", "--lowpass-hz", "none",
+                        "--no-held-out")
+    assert rc1 == rc2 == 0 and out1[-1] == out2[-1], (out1, out2)
+    assert re.search(r"gyro parity rms in motion \S+ deg/s -> \S+ deg/s, accelerometers \S+ m/s\^2 -> \S+ m/s\^2",
+                     out1[-1])
+
+
+# ------------------------------------------------------------------ calibrate: the scale's unit names the data's
+def test_scale_unit_names_the_declared_raw_unit():
+    from rimu.units import scale_unit
+
+    assert scale_unit("gyro", "deg/s") == "(rad/s)/(deg/s)"
+    assert scale_unit("gyro", "gyro: deg/s; accel: m/s^2".split(";")[0].split(":")[1].strip()) == "(rad/s)/(deg/s)"
+    assert scale_unit("accel", "count") == "(m/s^2)/count"
+
+
+def test_ferraris_raw_unit_and_calibration_table(tmp_path, capsys):
+    folder = shared_data("imucal_ferraris_session")
+    from rimu.session import load_ferraris
+    from rimu.session.checks import raw_unit_of
+
+    s = load_ferraris(folder)
+    assert (raw_unit_of(s, "gyro"), raw_unit_of(s, "accel")) == ("deg/s", "m/s^2")
+    from rimu.calibration import LeastSquares
+
+    table = LeastSquares().fit(s).table()
+    assert "(rad/s)/(deg/s)" in table and "(rad/s)/count" not in table, table
+
+
+# ------------------------------------------------------------------ the CLI keeps its promises
+def test_quiet_prints_nothing_but_errors(tmp_path, capsys):
+    path, _ = _bias_session(tmp_path, "rad/s", 1.0, 0.004)
+    rc, out, err = _cli(capsys, "diagnose", path, "--model", "bias", "--no-earth-rate", "-q",
+                        "--report", tmp_path / "rep")
+    assert rc == 0 and out == [] and err == [], (out, err)
+    assert (tmp_path / "rep" / "report.html").exists()
+    rc, out, err = _cli(capsys, "diagnose", path, "--model", "bias", "--no-earth-rate", "-q", "--json", "-")
+    assert rc == 0 and len(out) == 1 and json.loads(out[0])["diagnosis"]
+
+
+def test_monitor_csv_has_no_sidecar_to_refuse(tmp_path, capsys):
+    rc, out, err = _cli(capsys, "monitor", "--simulate", "--duration", "2", "-o", tmp_path / "a.csv",
+                        "--json", tmp_path / "a.json")
+    assert rc == 0 and (tmp_path / "a.csv").exists() and (tmp_path / "a.json").exists(), err
+    rc, out, err = _cli(capsys, "simulate", "-o", tmp_path / "s.csv", "--truth", tmp_path / "s.json")
+    assert rc == 2 and len(err) == 1 and "sidecar" in err[0]
+
+
+def test_python_m_rimu_beside_a_checkout_named_rimu(tmp_path):
+    (tmp_path / "rimu").mkdir()
+    (tmp_path / "rimu" / "pyproject.toml").write_text("[project]\nname = 'rimu'\n")
+    code = ("import rimu, runpy, sys; sys.argv = ['rimu', '--version']; "
+            f"runpy.run_path({str(ROOT / 'rimu' / '__main__.py')!r}, run_name='__main__')")
+    env = {k: v for k, v in __import__("os").environ.items() if k != "PYTHONPATH"}
+    r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, env=env,
+                       timeout=60)
+    assert r.returncode == 0 and r.stdout.startswith("rimu "), (r.stdout, r.stderr)
+
+
+def test_advice_keeps_the_effect():
+    from rimu.errors import MissingInputError
+    from rimu.fusion import Pipeline
+
+    g = triad3()
+    ic = InstrumentCalibration.nominal("gyro", g, scale=1.0)
+    ic.effects = {"g_sensitivity": {f"{n}.gsens_{a}": 1e-4 for n in g.names for a in "xyz"}}
+    with pytest.raises(MissingInputError) as ei:
+        Pipeline(Calibration({"gyro": ic}))
+    msg = str(ei.value)
+    assert "calibrate the accelerometers too" in msg and "recalibrate without" not in msg, msg
