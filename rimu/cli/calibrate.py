@@ -25,7 +25,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--instruments", default=None, help="comma-separated subset of gyro,accel")
     p.add_argument("--wavelet", action="store_true", help="oliveira only: db4/8-level wavelet denoising")
     p.add_argument("-o", "--output", default="calibration.json", help="calibration file to write")
-    add_report_option(p, "the residual plot per segment (residuals.png)")
+    add_report_option(p, "the calibration report (calibration.html, calibration.pdf) and residuals.png")
+    p.add_argument("--reference", default=None, metavar="CAL",
+                   help="a calibration of the same unit to compare with in the report (e.g. the maker's)")
     add_json_option(p, "the coefficients, their standard deviations (SI) and chi2/dof")
     p.add_argument("--plot", action=Deprecated, new="--report DIR (writes DIR/residuals.png)", metavar="PNG")
     add_accept_implausible(p)
@@ -90,8 +92,14 @@ def bias_at_zero_input(res) -> dict[str, dict[str, tuple[float, float]]]:  # typ
 
 
 def _print_bias_note(zero: dict) -> None:
+    for line in _bias_note_lines(zero):
+        print(line)
+
+
+def _bias_note_lines(zero: dict) -> list[str]:
     from ..units import MS2_TO_UG, RS_TO_DH
 
+    out = []
     unit = {"gyro": ("deg/h", RS_TO_DH), "accel": ("ug", MS2_TO_UG)}
     for k, per in zero.items():
         u, f = unit.get(k, ("SI", 1.0))
@@ -99,10 +107,11 @@ def _print_bias_note(zero: dict) -> None:
         if ratio < 1.5:
             continue
         row = ", ".join(f"{n} {z * f:.3g}" for n, (z, _) in per.items())
-        print(f"note: {k} bias std at zero input (the error of SF*y - B at rest; what 'rimu design' predicts, Cho & Park"
+        out.append(f"note: {k} bias std at zero input (the error of SF*y - B at rest; what 'rimu design' predicts, Cho & Park"
               f" Eq. 19), {u}: {row}. The bias column above is the marginal std of B = SF x raw offset, up to "
               f"{ratio:.3g} times larger: it also carries the scale-factor uncertainty times the raw offset, which "
               "the correlation of B with SF cancels in the compensated output")
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
@@ -130,6 +139,14 @@ def run(args: argparse.Namespace) -> int:
                                    "bias_std_at_zero_input_si": {n: z for n, (z, _) in zero.get(k, {}).items()}}
                                for k in res.instruments}}
         print(f"summary written to {json_dump(doc, args.json)}")
+    if args.report:
+        from ..calibration import Calibration
+        from ..calibration.report import calibration_report
+
+        ref = Calibration.load(args.reference, session.geometries) if args.reference else None
+        html, pdf = calibration_report(res, session, ref, cautions=_bias_note_lines(zero)).write(
+            args.report, "calibration")
+        print(f"calibration report written to {html} and {pdf}")
     png = Path(args.plot) if args.plot else (Path(args.report) / "residuals.png" if args.report else None)
     if png is not None:
         from ..calibration.plots import plot_residuals

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import html
 import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from ..atomic import atomic_files
+from ..report import Report, collect_problems
 from . import plots
 from .api import Comparison, Diagnosis, Iteration, format_p
 
@@ -67,7 +67,9 @@ def render_markdown(diagnosis: Diagnosis, directory: Path, comparisons: Sequence
             f3 = plots.plot_input(d.fit, fd / f"{inst}_input.png")
             f4 = plots.plot_temperature(d.fit, fd / f"{inst}_temperature.png")
             md += [f"![residual over time]({f1.relative_to(directory)})", "",
-                   f"![segments]({f2.relative_to(directory)})", "", f"![input]({f3.relative_to(directory)})", ""]
+                   f"![segments]({f2.relative_to(directory)})", ""]
+            if f3:
+                md += [f"![input]({f3.relative_to(directory)})", ""]
             if f4:
                 md += [f"![temperature]({f4.relative_to(directory)})", ""]
         md += ["### Which effect is missing", ""]
@@ -131,6 +133,24 @@ def write_report(diagnosis: Diagnosis | Iteration, directory: str | Path, compar
     """
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
+    with collect_problems() as problems:
+        text, data = _render(diagnosis, directory, comparisons, title, figures)
+    md = directory / "report.md"
+    rep = Report(title)
+    rep.cautions(cautions(diagnosis))
+    rep.markdown(text, directory)
+    rep.problems.extend(problems)
+    with atomic_files() as tx:  # the files appear together, whole
+        tx.path(md).write_text(text)
+        tx.path(directory / "diagnosis.json").write_text(json.dumps(data, indent=1, default=float))
+        if html_page:
+            tx.path(directory / "report.html").write_text(rep.html())
+            rep.write_pdf(tx.path(directory / "report.pdf"))
+    return md
+
+
+def _render(diagnosis: Diagnosis | Iteration, directory: Path, comparisons: Sequence[Comparison], title: str,
+            figures: bool) -> tuple[str, dict]:
     if isinstance(diagnosis, Iteration):
         first = diagnosis.rounds[0][0] if diagnosis.rounds else diagnosis.final
         comps = [c for _, cs in diagnosis.rounds for c in cs.values()]
@@ -143,51 +163,10 @@ def write_report(diagnosis: Diagnosis | Iteration, directory: str | Path, compar
     else:
         text = render_markdown(diagnosis, directory, comparisons, title, figures)
         data = {"diagnosis": diagnosis.to_dict(), "comparisons": [c.to_dict() for c in comparisons]}
-    md = directory / "report.md"
-    with atomic_files() as tx:  # the three files appear together, whole
-        tx.path(md).write_text(text)
-        tx.path(directory / "diagnosis.json").write_text(json.dumps(data, indent=1, default=float))
-        if html_page:
-            tx.path(directory / "report.html").write_text(_html(text, title))
-    return md
+    return text, data
 
 
-def _html(md: str, title: str) -> str:
-    """A minimal HTML rendering of the report's Markdown (headings, images, tables, paragraphs)."""
-    out = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
-           "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-collapse:collapse}"
-           "td,th{border:1px solid #ccc;padding:2px 6px;font-size:12px}img{max-width:100%}</style></head><body>"]
-    in_table = False
-    for line in md.splitlines():
-        if line.startswith("|"):
-            cells = [c.strip() for c in line.strip("|").split("|")]
-            if set("".join(cells)) <= set("-"):
-                continue
-            if not in_table:
-                out.append("<table>")
-                in_table = True
-            out.append("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in cells) + "</tr>")
-            continue
-        if in_table:
-            out.append("</table>")
-            in_table = False
-        if line.startswith("#"):
-            n = len(line) - len(line.lstrip("#"))
-            out.append(f"<h{n}>{html.escape(line[n:].strip())}</h{n}>")
-        elif line.startswith("!["):
-            alt, src = line[2:].split("](", 1)
-            out.append(f"<img alt='{html.escape(alt)}' src='{html.escape(src.rstrip(')'))}'>")
-        elif line.strip():
-            out.append(f"<p>{_inline(line.lstrip('-> '))}</p>")
-    if in_table:
-        out.append("</table>")
-    out.append("</body></html>")
-    return "\n".join(out)
-
-
-def _inline(s: str) -> str:
-    s = html.escape(s)
-    parts = s.split("**")
-    s = "".join(f"<b>{p}</b>" if k % 2 else p for k, p in enumerate(parts))
-    parts = s.split("`")
-    return "".join(f"<code>{p}</code>" if k % 2 else p for k, p in enumerate(parts))
+def cautions(diagnosis: Diagnosis | Iteration) -> list[str]:
+    """The console's cautions and notes, word for word (the report shows them above everything else)."""
+    keys = ("caution", "note:", "not applied", "not testable", "warning")
+    return [ln.strip() for ln in diagnosis.summary().splitlines() if any(k in ln for k in keys)]
