@@ -29,9 +29,10 @@ import html
 import io
 import re
 import textwrap
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 __all__ = ["Report", "check_figure", "collect_problems", "has_unit"]
 
@@ -157,6 +158,17 @@ class Report:
             if not n.startswith("removed"):
                 self.problems.append(n)
         self.blocks.append(("figure", (fig, caption)))
+
+    def save_figure(self, index: int, path: str | Path, dpi: int = 100) -> Path | None:
+        """Also write the ``index``-th figure as a PNG (whole or not at all); None when there is no such figure."""
+        from .atomic import atomic_path
+
+        figs = [v[0] for kind, v in self.blocks if kind == "figure"]
+        if index >= len(figs):
+            return None
+        with atomic_path(Path(path)) as tmp:
+            figs[index].savefig(tmp, dpi=dpi, format="png")
+        return Path(path)
 
     def image(self, path: str | Path, caption: str = "") -> None:
         """A picture already drawn (PNG)."""
@@ -298,6 +310,13 @@ class Report:
 def _svg(fig: Any) -> str:
     import matplotlib
 
+    for i, ax in enumerate(fig.axes):  # named, so that a browser can find the labels and titles
+        if not hasattr(ax, "_colorbar"):
+            for name, t in (("xlabel", ax.xaxis.label), ("ylabel", ax.yaxis.label), ("title", ax.title)):
+                if t.get_text():
+                    t.set_gid(f"{name}-{i}")
+    if getattr(fig, "_suptitle", None) is not None:
+        fig._suptitle.set_gid("suptitle")
     buf = io.StringIO()
     with matplotlib.rc_context({"svg.fonttype": "none"}):  # text stays text: searchable, measurable
         fig.savefig(buf, format="svg")

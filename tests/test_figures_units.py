@@ -19,7 +19,7 @@ import pytest
 from rimu.calibration import Calibration, InstrumentCalibration
 from rimu.cli import main
 from rimu.geometry import triad3
-from rimu.units import DEG_TO_RAD, G0, RAD_TO_DEG, RS_TO_DH, field_unit, fmt
+from rimu.units import G0, RAD_TO_DEG, RS_TO_DH, field_unit, fmt
 from tests.conftest import shared_data
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -103,7 +103,7 @@ def test_noise_plain_array_bad_input(tmp_path, capsys, case, match):
         argv += ["--calibration", tmp_path / "cal.json"]
     if case == "two_instruments":
         argv += ["--instrument", "gyro", "--instrument", "accel"]
-    rc, out, err = _cli(capsys, *argv)
+    rc, _out, err = _cli(capsys, *argv)
     assert rc == 2 and len(err) == 1 and match in err[0], err
     assert not (tmp_path / "n.json").exists()
 
@@ -161,7 +161,12 @@ def test_mpu6050_handheld_diagnosis_prints_the_gyro_residual_in_deg_s(tmp_path, 
     raw = shared_data("mpu6050_handheld_session") / "calibration_data" / "example_data_calibration.csv"
     s = tmp_path / "mpu.npz"
     assert _cli(capsys, "detect", raw, "-o", s)[0] == 0
-    assert _cli(capsys, "calibrate", s, "--method", "handheld", "-o", tmp_path / "cal.json")[0] == 0
+    assert _cli(capsys, "calibrate", s, "--method", "handheld", "-o", tmp_path / "cal.json", "--report",
+                tmp_path / "crep")[0] == 0
+    page = (tmp_path / "crep" / "calibration.html").read_text()
+    # the accelerometers of a hand-held fit have no per-segment residual (identically zero): no panel for them;
+    # their residual is the gravity norm per pose, drawn with its threshold
+    assert "accel: segment" not in page and "accelerometers: gravity norm per pose" in page
     rc, out, err = _cli(capsys, "diagnose", s, "--calibration", tmp_path / "cal.json", "--json", tmp_path / "d.json")
     assert rc == 0, err
     d = json.loads((tmp_path / "d.json").read_text())["diagnosis"]
@@ -199,7 +204,7 @@ def _array_npz(tmp_path: Path, name: str, gyro_f: float, accel_f: float) -> Path
 def test_array_refuses_deg_s_and_g_as_si_and_reads_them_declared(tmp_path, capsys):
     si = _array_npz(tmp_path, "si.npz", 1.0, 1.0)
     fu = _array_npz(tmp_path, "field.npz", RAD_TO_DEG, 1.0 / G0)
-    rc, out, err = _cli(capsys, "array", fu)
+    rc, _out, err = _cli(capsys, "array", fu)
     assert rc == 2 and len(err) == 1 and "--gyro-unit deg/s" in err[0] and "--accel-unit g" in err[0], err
     rc1, out1, _ = _cli(capsys, "array", si, "--lowpass-hz", "none", "--no-held-out")
     rc2, out2, _ = _cli(capsys, "array", fu, "--gyro-unit", "deg/s", "--accel-unit", "g", "--lowpass-hz", "none",
@@ -243,10 +248,10 @@ def test_quiet_prints_nothing_but_errors(tmp_path, capsys):
 
 
 def test_monitor_csv_has_no_sidecar_to_refuse(tmp_path, capsys):
-    rc, out, err = _cli(capsys, "monitor", "--simulate", "--duration", "2", "-o", tmp_path / "a.csv",
+    rc, _out, err = _cli(capsys, "monitor", "--simulate", "--duration", "2", "-o", tmp_path / "a.csv",
                         "--json", tmp_path / "a.json")
     assert rc == 0 and (tmp_path / "a.csv").exists() and (tmp_path / "a.json").exists(), err
-    rc, out, err = _cli(capsys, "simulate", "-o", tmp_path / "s.csv", "--truth", tmp_path / "s.json")
+    rc, _out, err = _cli(capsys, "simulate", "-o", tmp_path / "s.csv", "--truth", tmp_path / "s.json")
     assert rc == 2 and len(err) == 1 and "sidecar" in err[0]
 
 

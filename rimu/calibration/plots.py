@@ -44,7 +44,7 @@ def plot_residuals(result: Any, path: str | None = None):
     insts = []
     for k in result.instruments:  # an instrument no segment's known input constrains (hand-held) has no panel
         q = residual_table(result, k)[3]
-        if q.size and np.nanmax(np.nan_to_num(q)) > 1e-6:
+        if q.size and np.nanmax(np.nan_to_num(q)) > 1e-3:
             insts.append(k)
     insts = insts or list(result.instruments)
     fig, axes = plt.subplots(len(insts), 2, figsize=(13, 3.6 * len(insts)), squeeze=False)

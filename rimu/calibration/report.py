@@ -62,7 +62,7 @@ def _segment_residuals(rep: Report, result: Any, plt: Any) -> None:
     panels = []
     for inst in result.instruments:
         segs, sensors, z, q = residual_table(result, inst)
-        if segs and np.any(np.isfinite(q)) and np.nanmax(np.nan_to_num(q)) > 1e-6:  # residuals, not a zero fill
+        if segs and np.any(np.isfinite(q)) and np.nanmax(np.nan_to_num(q)) > 1e-3:  # residuals, not a fill of ~0
             panels.append((inst, segs, sensors, z, q))
     if not panels:
         return
@@ -77,12 +77,15 @@ def _segment_residuals(rep: Report, result: Any, plt: Any) -> None:
         row[1].axhline(1.0, color="k", lw=0.8, ls="--", label="noise level")
         row[0].set_ylabel("mean / std. error [-]")
         row[1].set_ylabel("rms / noise sigma [-]")
+        step = max(1, len(segs) // 40)  # at most about 40 segment names: each tick label is drawn three times
         for a, what in ((row[0], "segment mean residual"), (row[1], "segment rms residual")):
-            a.set_xticks(x, segs, rotation=90, fontsize=7)
+            a.set_xticks(x[::step], segs[::step], rotation=90, fontsize=7)
             a.set_title(f"{inst}: {what}", fontsize=10)
             a.grid(alpha=0.3)
-        row[1].legend(fontsize=7, ncol=4, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    fig.tight_layout()
+        row[1].legend(fontsize=7, ncol=1 + len(sensors) // 9, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    h = 3.4 * len(panels)
+    right = 0.86 - 0.06 * (max(len(p[2]) for p in panels) // 9)
+    fig.subplots_adjust(left=0.07, right=right, bottom=0.9 / h, top=1 - 0.35 / h, hspace=0.55, wspace=0.25)
     rep.figure(fig, "Each segment's residual: the mean against its standard error (outside +-3: the model misses "
                     "something constant over the segment), the rms against the noise level (1 = noise).")
 

@@ -19,7 +19,6 @@ from pathlib import Path
 import numpy as np
 
 from ..units import DEG_TO_RAD
-
 from ._common import add_accept_implausible, positive_float
 
 
@@ -75,10 +74,8 @@ def _load(path: str):
 
 def run(args: argparse.Namespace) -> int:
     from ..array import array_report
-    from ..errors import RimuError
-
     from ..array.guards import check_units
-    from ..errors import PlausibilityError
+    from ..errors import PlausibilityError, RimuError
     from ..units import RAW_UNITS
 
     try:

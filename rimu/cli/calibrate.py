@@ -144,10 +144,13 @@ def run(args: argparse.Namespace) -> int:
         from ..calibration.report import calibration_report
 
         ref = Calibration.load(args.reference, session.geometries) if args.reference else None
-        html, pdf = calibration_report(res, session, ref, cautions=_bias_note_lines(zero)).write(
-            args.report, "calibration")
+        rep = calibration_report(res, session, ref, cautions=_bias_note_lines(zero))
+        Path(args.report).mkdir(parents=True, exist_ok=True)
+        if not args.plot and rep.save_figure(0, Path(args.report) / "residuals.png"):
+            print(f"residual plot written to {Path(args.report) / 'residuals.png'}")
+        html, pdf = rep.write(args.report, "calibration")
         print(f"calibration report written to {html} and {pdf}")
-    png = Path(args.plot) if args.plot else (Path(args.report) / "residuals.png" if args.report else None)
+    png = Path(args.plot) if args.plot else None
     if png is not None:
         from ..calibration.plots import plot_residuals
 

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import PlausibilityError
-from ..units import DEG_TO_RAD, G0, RAW_UNITS, raw_unit_for
+from ..units import DEG_TO_RAD, RAW_UNITS, raw_unit_for
 from .model import Session
 
 __all__ = ["UNITS", "Finding", "check_session", "enforce", "raw_unit_of", "CHECK_MODES"]
