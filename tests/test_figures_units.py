@@ -277,3 +277,12 @@ def test_advice_keeps_the_effect():
         Pipeline(Calibration({"gyro": ic}))
     msg = str(ei.value)
     assert "calibrate the accelerometers too" in msg and "recalibrate without" not in msg, msg
+
+
+def test_help_texts_have_no_rest_markup(capsys):
+    from rimu.cli import COMMANDS
+
+    for name in ["--help"] + [[c.replace("_", "-"), "--help"] for c in COMMANDS]:
+        assert main(name if isinstance(name, list) else [name]) == 0
+        out = capsys.readouterr().out
+        assert "``" not in out and ":func:" not in out and ":class:" not in out and "**" not in out, (name, out)

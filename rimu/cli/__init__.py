@@ -19,7 +19,7 @@ import sys
 import warnings
 
 from ..errors import RimuError
-from ._common import Parser, check_outputs, configure_logging
+from ._common import Parser, check_outputs, configure_logging, plain_text
 
 __all__ = ["main", "COMMANDS", "build_parser", "EXIT_OK", "EXIT_CHECK_FAILED", "EXIT_BAD_INPUT", "EXIT_INTERNAL",
            "EXIT_INTERRUPTED"]
@@ -76,7 +76,18 @@ def build_parser() -> argparse.ArgumentParser:
         importlib.import_module(f"{__name__}.{name}").register(sub)
     for p in sub.choices.values():
         _common_options(p, top=False)
+        _plain_help(p)
+    for a in sub._choices_actions:
+        a.help = plain_text(a.help)
     return parser
+
+
+def _plain_help(p: argparse.ArgumentParser) -> None:
+    """Help texts as a terminal shows them: the module docstrings' reST markup (``code``, :func:`x`) removed."""
+    p.description = plain_text(p.description)
+    p.epilog = plain_text(p.epilog)
+    for a in p._actions:
+        a.help = plain_text(a.help)
 
 
 def _describe(exc: BaseException) -> tuple[str, int]:

@@ -47,6 +47,7 @@ __all__ = [
     "OUTPUT_DIR_OPTIONS",
     "INPUT_OPTIONS",
     "json_dump",
+    "plain_text",
 ]
 
 log = logging.getLogger("rimu.cli")
@@ -235,6 +236,21 @@ def _json_default(o: Any) -> Any:
     if isinstance(o, Path):
         return str(o)
     return str(o)
+
+
+def plain_text(text: str | None) -> str | None:
+    """reST markup of a docstring as plain text for the terminal: ``x`` -> 'x', :func:`a.b` -> a.b, **x** -> x.
+
+    >>> plain_text("reads ``t`` with :func:`rimu.array.lowpass` (**zero phase**)")
+    "reads 't' with rimu.array.lowpass (zero phase)"
+    """
+    if not text:
+        return text
+    import re
+
+    text = re.sub(r":[a-z]+:`~?([^`]+)`", r"\1", text)
+    text = re.sub(r"``([^`]+)``", r"'\1'", text)
+    return text.replace("**", "")
 
 
 # ---------------------------------------------------------------- outputs checked before work
