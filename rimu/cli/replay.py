@@ -372,6 +372,7 @@ def run(args: argparse.Namespace) -> int:
     from ..fusion import Pipeline
     from ..progress import bar
     from ..session import iter_blocks
+    from ..units import fmt  # the field's units, as rimu calibrate prints them
     from ._common import check_outputs
 
     if args.estimates:  # a CSV without a sidecar: checked alone, then against the other outputs and the inputs
@@ -503,8 +504,8 @@ def run(args: argparse.Namespace) -> int:
         err = errors[k].result()
         if err is not None:
             entry.update(err.to_dict())
-            print(f"    runtime error: segment_error_rms {err.segment_error_rms:.4g} {entry['unit']} over "
-                  f"{len(err.segments)} segments, sample_error_rms {err.sample_error_rms:.4g} {entry['unit']}")
+            print(f"    runtime error: segment_error_rms {fmt(err.segment_error_rms, k)} over "
+                  f"{len(err.segments)} segments, sample_error_rms {fmt(err.sample_error_rms, k)}")
         print(f"    alarms {entry['alarms']}, isolations {entry['isolations']}")
         summary[k] = entry
     if args.estimates:
@@ -529,7 +530,7 @@ def run(args: argparse.Namespace) -> int:
         write_text(out / "summary.json", json.dumps(summary, indent=1))
         print(f"  summary: {out / 'summary.json'}")
     n_iso = sum(v["isolations"] for v in summary.values())
-    errs = ", ".join(f"{k} segment_error_rms {v['segment_error_rms']:.3g} {v['unit']}"
+    errs = ", ".join(f"{k} segment_error_rms {fmt(v['segment_error_rms'], k, digits=3)}"
                      for k, v in summary.items() if "segment_error_rms" in v)
     print(f"replayed {scan.n} samples: {n_iso} isolation(s)" + (f"; {errs}" if errs else ""))
     return 0
