@@ -286,3 +286,32 @@ def test_help_texts_have_no_rest_markup(capsys):
         assert main(name if isinstance(name, list) else [name]) == 0
         out = capsys.readouterr().out
         assert "``" not in out and ":func:" not in out and ":class:" not in out and "**" not in out, (name, out)
+
+
+def test_bad_input_of_the_new_paths(tmp_path, capsys):
+    """Every new path ends bad input in one line and exit status 2, and writes nothing."""
+    fs, n = 100.0, 600
+    _raw_log(tmp_path / "log.csv", n, fs, 3, 1e-4, 1e-3, 0.02, 0.05)
+    g = triad3()
+    Calibration({"gyro": InstrumentCalibration.nominal("gyro", g, scale=1e-4)}).save(tmp_path / "gyro_only.json")
+    from rimu.geometry import tetrad4
+
+    Calibration({"gyro": InstrumentCalibration.nominal("gyro", tetrad4(), scale=1e-4),
+                 "accel": InstrumentCalibration.nominal("accel", tetrad4(), scale=1e-3)}).save(tmp_path / "four.json")
+    arr = _array_npz(tmp_path, "arr.npz", 1.0, 1.0)
+    session, _ = _bias_session(tmp_path, "rad/s", 1.0, 0.004)
+    cases = [
+        # a raw log with a calibration that lacks one of its instruments, asked for it
+        (["noise", tmp_path / "log.csv", "--calibration", tmp_path / "gyro_only.json", "--instrument", "accel"],
+         "calibrate the accel too"),
+        # a calibration of another unit (4 sensors) for a 3-axis log
+        (["noise", tmp_path / "log.csv", "--calibration", tmp_path / "four.json"], "calibrates 4 accel sensors"),
+        (["noise", tmp_path / "log.csv", "--calibration", tmp_path / "nope.json"], "nope.json"),
+        (["array", arr, "--lowpass-hz", "fast"], "--lowpass-hz"),
+        (["array", arr, "--gyro-unit", "rpm"], "--gyro-unit"),
+        (["calibrate", session, "--reference", tmp_path / "nope.json", "--report", tmp_path / "rep"], "nope.json"),
+    ]
+    for argv, msg in cases:
+        rc, _out, err = _cli(capsys, *argv, "-o", tmp_path / "out.json")
+        assert rc == 2 and len(err) == 1 and msg in err[0], (argv, err)
+        assert not (tmp_path / "out.json").exists(), argv

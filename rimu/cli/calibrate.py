@@ -124,6 +124,11 @@ def run(args: argparse.Namespace) -> int:
         raise OptionError(f"--wavelet applies to --method oliveira only, not {args.method}")
     session = load_session(args.session, checks="warn" if args.accept_implausible else "strict")
     inst = _instruments(args.instruments, session)
+    ref = None
+    if args.reference:  # read before any work: a bad reference writes nothing
+        from ..calibration import Calibration
+
+        ref = Calibration.load(args.reference, session.geometries)
     res = estimator(args.method, inst, args.effects, args.wavelet).fit(session)
     print(res.table())
     zero = bias_at_zero_input(res)
@@ -140,10 +145,8 @@ def run(args: argparse.Namespace) -> int:
                                for k in res.instruments}}
         print(f"summary written to {json_dump(doc, args.json)}")
     if args.report:
-        from ..calibration import Calibration
         from ..calibration.report import calibration_report
 
-        ref = Calibration.load(args.reference, session.geometries) if args.reference else None
         rep = calibration_report(res, session, ref, cautions=_bias_note_lines(zero))
         Path(args.report).mkdir(parents=True, exist_ok=True)
         if not args.plot and rep.save_figure(0, Path(args.report) / "residuals.png"):
