@@ -315,3 +315,38 @@ def test_bad_input_of_the_new_paths(tmp_path, capsys):
         rc, _out, err = _cli(capsys, *argv, "-o", tmp_path / "out.json")
         assert rc == 2 and len(err) == 1 and msg in err[0], (argv, err)
         assert not (tmp_path / "out.json").exists(), argv
+
+
+def test_calibrate_prints_the_truth_in_the_units_it_states(tmp_path, capsys):
+    """rimu calibrate on a simulated turntable session of counts with known truth: every scale factor and bias the
+    table prints is the truth, in the unit the row states, within 5 of the standard deviations it prints."""
+    from rimu.units import MS2_TO_UG
+
+    assert main(["simulate", "-o", str(tmp_path / "s.npz"), "--truth", str(tmp_path / "truth.json"),
+                 "--duration", "5"]) == 0
+    capsys.readouterr()
+    rc, out, err = _cli(capsys, "calibrate", tmp_path / "s.npz", "-o", tmp_path / "cal.json")
+    assert rc == 0, err
+    truth = json.loads((tmp_path / "truth.json").read_text())["payload"]["instruments"]
+    inst, checked = None, 0
+    for ln in out:
+        m = re.match(r"^(gyro|accel): chi2/dof", ln)
+        if m:
+            inst = m.group(1)
+            names = truth[inst]["geometry"]["names"]
+            continue
+        m = re.match(r"^\s+(\w+)\.(scale|bias)\s+(\S+)\s+(\S+)\s+(.+)$", ln)
+        if not (m and inst):
+            continue
+        sensor, what, value, std, unit = m.group(1), m.group(2), float(m.group(3)), float(m.group(4)), m.group(5)
+        i = names.index(sensor)
+        if what == "scale":
+            assert unit == ("(rad/s)/count" if inst == "gyro" else "(m/s^2)/count") + " (std ppm)", ln
+            rel_ppm = (value / truth[inst]["scale"][i] - 1) * 1e6
+            assert abs(rel_ppm) < 5 * std, (ln, rel_ppm)
+        else:
+            assert unit == ("deg/h" if inst == "gyro" else "ug"), ln
+            t = truth[inst]["bias"][i] * (RS_TO_DH if inst == "gyro" else MS2_TO_UG)
+            assert abs(value - t) < 5 * std, (ln, t)
+        checked += 1
+    assert checked == 24, out                     # 6 gyros and 6 accelerometers, scale and bias each
