@@ -407,12 +407,52 @@ class Comparison:
             unit, fb, fa = self.before.raw_unit, np.ones(len(fb)), np.ones(len(fa))
         return unit, self.before.rms_raw() * fb, self.after.rms_raw() * fa
 
+    def held_out(self) -> tuple[str, np.ndarray, np.ndarray] | None:
+        """(unit, rms before, rms after) per sensor on held-out segments: both models fitted on every other
+        segment (in time order) and evaluated on the rest, and the other way round. None when half of the
+        segments cannot identify a model."""
+        unit, fb = self.before.display()
+        ua, fa = self.after.display(unit)
+        if ua != unit:
+            unit, fb, fa = self.before.raw_unit, np.ones(len(fb)), np.ones(len(fa))
+        out = []
+        for fit in (self.before, self.after):
+            rms = []
+            for s in fit.sensors:
+                segs = np.unique(s.seg_index)
+                if len(segs) < 4:
+                    return None
+                half = np.isin(s.seg_index, segs[::2])
+                sq, n = 0.0, 0
+                for train in (half, ~half):
+                    X, y = s.X[train], s.y[train]
+                    if np.linalg.matrix_rank(X) < X.shape[1]:
+                        return None
+                    beta = np.linalg.lstsq(X, y, rcond=None)[0]
+                    r = s.y[~train] - s.X[~train] @ beta
+                    sq, n = sq + float(r @ r), n + r.size
+                rms.append(np.sqrt(sq / n))
+            out.append(np.array(rms))
+        return unit, out[0] * fb, out[1] * fa
+
+    def worse_held_out(self) -> bool:
+        """Whether the added effects raise the held-out residual (mean over the sensors): they fit the noise of
+        these segments, not the instrument."""
+        h = self.held_out()
+        return h is not None and float(np.mean(h[2])) > float(np.mean(h[1])) * (1 + 1e-3)
+
     def lines(self) -> list[str]:
         unit, rb, ra = self.rms()
         out = [f"{self.instrument}: added {', '.join(self.added)}: chi2/dof {self.chi2_before:.4g} -> "
                f"{self.chi2_after:.4g}, BIC {self.dbic:+.1f}, AIC {self.daic:+.1f}"]
         for s, b, a in zip(self.before.sensors, rb, ra):
             out.append(f"  {s.name}: rms {b:.4g} -> {a:.4g} {unit} ({100 * (a - b) / b:+.1f}%)")
+        h = self.held_out()
+        if h is not None:
+            out.append(f"  held out (fitted on every other segment, checked on the rest): rms {np.mean(h[1]):.4g} -> "
+                       f"{np.mean(h[2]):.4g} {h[0]} (mean over the sensors)"
+                       + ("; caution: worse on held-out data: it fits these segments' noise, not the instrument"
+                          if self.worse_held_out() else ""))
         for r in self.new_parameters():
             out.append(f"  {r['sensor']}.{r['parameter']} = {r['value']:.4g} +- {r['std']:.2g} {r['report_unit']}")
         return out
@@ -422,6 +462,8 @@ class Comparison:
         return {"instrument": self.instrument, "added": self.added, "chi2_before": self.chi2_before,
                 "chi2_after": self.chi2_after, "dbic": self.dbic, "daic": self.daic,
                 "rms_before": rb.tolist(), "rms_after": ra.tolist(), "rms_unit": unit,
+                "held_out": (None if (h := self.held_out()) is None else
+                             {"rms_before": h[1].tolist(), "rms_after": h[2].tolist(), "rms_unit": h[0]}),
                 "parameters": self.new_parameters()}
 
 
@@ -516,9 +558,10 @@ def iterate(session: Session, model: Any = None, max_rounds: int = 6, **kwargs: 
     real is missing (or only confounded groups remain, or ``max_rounds``). Keyword arguments go to
     :func:`diagnose`.
 
-    An effect enters only when it is significant (Holm over the candidates) *and* lowers the BIC on the
-    sensors it names (Schwarz's criterion: its fit gain must pay ln(N) per parameter); a significant finding
-    that does not is reported in :attr:`Iteration.notes` and the iteration stops there. The candidates are
+    An effect enters only when it is significant (Holm over the candidates), lowers the BIC on the
+    sensors it names (Schwarz's criterion: its fit gain must pay ln(N) per parameter) *and* does not raise the
+    residual on held-out segments (:meth:`Comparison.worse_held_out`); a significant finding that does not is
+    reported in :attr:`Iteration.notes` and the iteration stops there. The candidates are
     evaluated on the calibrated axes (:func:`rimu.diagnose.fit_model`), so a nonlinearity on a misaligned
     sensor does not leave a cross-coupling-like residue."""
     rounds = []
@@ -537,7 +580,13 @@ def iterate(session: Session, model: Any = None, max_rounds: int = 6, **kwargs: 
                             "add it")
                 continue
             notes.pop(k, None)
-            comps.update(d.add(top, instrument=k))
+            for kk, c in d.add(top, instrument=k).items():
+                if c.worse_held_out():  # a step that makes the held-out answer worse is not taken
+                    h = c.held_out()
+                    notes[kk] = (f"{top} is not added: fitted on every other segment it raises the residual of the "
+                                 f"others from {np.mean(h[1]):.4g} to {np.mean(h[2]):.4g} {h[0]}")
+                    continue
+                comps[kk] = c
         if not comps:
             break
         rounds.append((d, comps))
