@@ -590,17 +590,19 @@ def _plot(path: Path, results: dict) -> Path | None:
                 ax.axvline(e.t, color="m" if e.kind != "readmitted" else "g", lw=0.8, ls=":")
                 ax.text(e.t, ax.get_ylim()[1], f"{e.kind[:3]} {e.sensor}", fontsize=7, rotation=90, va="top")
         ax.set_title(f"{k}: parity test statistic")
+        ax.set_ylabel("statistic [-]")
         ax.legend(fontsize=7, loc="upper left")
         ax = axes[1, c]
         for a, col in zip(range(3), "rgb"):
             ax.plot(r.t, r.x[:, a], col, lw=0.5, label="xyz"[a])
-        ax.set_title(f"{k}: MB-frame estimate (SI)")
+        ax.set_title(f"{k}: MB-frame estimate")
+        ax.set_ylabel("angular rate [rad/s]" if k == "gyro" else "specific force [m/s^2]")
         ax.legend(fontsize=7)
         ax = axes[2, c]
         ax.step(r.t, r.state, where="post")
         ax.set_yticks(range(len(HealthState)))
         ax.set_yticklabels([s.value for s in HealthState], fontsize=7)
-        ax.set_xlabel("time, s")
+        ax.set_xlabel("time [s]")
         ax.set_title(f"{k}: state")
     fig.tight_layout()
     from ..atomic import atomic_path
