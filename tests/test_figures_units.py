@@ -368,3 +368,16 @@ def test_added_effect_is_checked_on_held_out_segments(tmp_path):
     np.testing.assert_allclose(hb, rb, rtol=0.03)
     assert float(np.mean(ha)) > 0.99 * float(np.mean(hb))
     assert c.to_dict()["held_out"]["rms_unit"] == unit
+
+
+@pytest.mark.parametrize("raw_unit, per_si", [("deg/s", RAD_TO_DEG), ("rad/s", 1.0)])
+def test_noise_of_a_session_declared_in_deg_s_is_converted(tmp_path, capsys, raw_unit, per_si):
+    """A session declared in deg/s: the white noise printed is the truth in deg/sqrt(h), whatever the unit."""
+    sigma_si, fs = 0.004, 100.0
+    path, _ = _bias_session(tmp_path, raw_unit, per_si, sigma_si)
+    rc, _out, err = _cli(capsys, "noise", path, "--instrument", "gyro", "--terms", "white", "-o", tmp_path / "n.json",
+                        "--json", tmp_path / "s.json")
+    assert rc == 0, err
+    truth = sigma_si / math.sqrt(fs) * RAD_TO_DEG * 60          # deg/sqrt(h)
+    for r in json.loads((tmp_path / "s.json").read_text())["instruments"]["gyro"]:
+        assert abs(r["white"] - truth) < max(4 * r["white_sigma"], 0.05 * truth), (r, truth)
