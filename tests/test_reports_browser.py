@@ -120,3 +120,14 @@ def test_diagnosis_report_renders_with_the_console_cautions(tmp_path, capsys):
     res = _browse(tmp_path / "rep" / "report.html", tmp_path)
     _assert_page(res, cautions, 4)
     assert _pdf_pages(tmp_path / "rep" / "report.pdf", tmp_path) >= 3
+
+
+def test_array_report_renders(tmp_path, capsys):
+    from tests.test_figures_units import _array_npz
+
+    npz = _array_npz(tmp_path, "arr.npz", 1.0, 1.0)
+    out = _console(capsys, ["array", npz, "--report", tmp_path / "rep"])
+    res = _browse(tmp_path / "rep" / "array_report.html", tmp_path)
+    _assert_page(res, [ln[len("note: "):] for ln in out if ln.startswith("note: ")], 1)
+    assert "gyro: each triad against the array, in motion" in res["titles"]
+    assert _pdf_pages(tmp_path / "rep" / "array_report.pdf", tmp_path) >= 2

@@ -84,30 +84,38 @@ class ArrayReport:
         out += [f"- **not applied**: {r}" for r in self.refused.values()]
         return "\n".join(out) + "\n"
 
-    def plot(self, path: "str | Path") -> Path:
-        """Bar chart per triad and step (PNG). Needs the ``plots`` extra (matplotlib)."""
-        from ..plotting import pyplot, save_figure
+    def figure(self):  # type: ignore[no-untyped-def]
+        """The bar chart per triad and step (a matplotlib Figure; the ``plots`` extra): linear axes from zero,
+        every axis with its unit, the legend beside the bars."""
+        from ..plotting import pyplot
 
         plt = pyplot()
-
         panels = [(s, u, t) for s, u, t in ((self.gyro_steps, "deg/s", "gyro"), (self.accel_steps, "m/s^2", "accel"))
                   if s]
-        fig, axes = plt.subplots(len(panels), 1, figsize=(max(6.0, 0.3 * len(self.names) + 3), 3.2 * len(panels)),
-                                 squeeze=False)
+        w = max(7.5, 0.35 * len(self.names) + 4.5)
+        fig, axes = plt.subplots(len(panels), 1, figsize=(w, 3.0 * len(panels) + 0.6), squeeze=False)
         for ax, (steps, unit, title) in zip(axes[:, 0], panels):
             x = np.arange(len(self.names))
             wbar = 0.8 / len(steps)
             for i, (name, v) in enumerate(steps.items()):
                 ax.bar(x + i * wbar - 0.4 + wbar / 2, v, wbar, label=name)
-            ax.set_yscale("log")
+            ax.set_ylim(0, None)
             ax.set_xticks(x, self.names, rotation=90 if len(self.names) > 12 else 0)
+            ax.set_xlabel("triad [name]")
             ax.set_ylabel(f"parity rms [{unit}]")
-            ax.set_title(f"{title}: each triad against the array, in motion")
-            ax.legend(fontsize=7)
+            ax.set_title(f"{title}: each triad against the array, in motion", fontsize=10)
+            ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
         if self.limiting_term:
-            fig.suptitle(f"gyro agreement now limited by: {self.limiting_term}", fontsize=9)
-        fig.subplots_adjust(left=0.1, right=0.98, top=0.93, bottom=0.12, hspace=0.45)
-        return save_figure(fig, path)
+            fig.suptitle(f"gyro agreement now limited by: {self.limiting_term}", fontsize=10)
+        h = 3.0 * len(panels) + 0.6
+        fig.subplots_adjust(left=0.9 / w, right=1 - 2.2 / w, top=1 - 0.75 / h, bottom=0.75 / h, hspace=0.7)
+        return fig
+
+    def plot(self, path: "str | Path") -> Path:
+        """The bar chart of :meth:`figure` as PNG. Needs the ``plots`` extra (matplotlib)."""
+        from ..plotting import save_figure
+
+        return save_figure(self.figure(), path)
 
 
 def _held_out(layout: ArrayLayout, t: np.ndarray, gyro: np.ndarray, terms: tuple[str, ...],

@@ -105,6 +105,14 @@ def run(args: argparse.Namespace) -> int:
             rep.plot(out / "array_report.png")
         except ImportError as exc:
             print(f"rimu array: no plot: {exc}", file=sys.stderr)
+        else:  # the one report layout (HTML + PDF), as rimu calibrate and rimu diagnose write it
+            from ..report import Report
+
+            page = Report(f"rimu array: {layout.k} triads")
+            page.cautions([f"note: {n}" for n in rep.notes] + [f"not applied: {r}" for r in rep.refused.values()])
+            page.markdown(rep.to_markdown().split("\n", 1)[1].split("\n- ", 1)[0], out)
+            page.figure(rep.figure(), "parity rms in motion per triad and step (the steps applied)")
+            page.write(out, "array_report")
     if args.json:
         Path(args.json).write_text(json.dumps(rep.to_dict(), indent=1))
     from ..units import fmt
