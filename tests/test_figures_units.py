@@ -381,3 +381,17 @@ def test_noise_of_a_session_declared_in_deg_s_is_converted(tmp_path, capsys, raw
     truth = sigma_si / math.sqrt(fs) * RAD_TO_DEG * 60          # deg/sqrt(h)
     for r in json.loads((tmp_path / "s.json").read_text())["instruments"]["gyro"]:
         assert abs(r["white"] - truth) < max(4 * r["white_sigma"], 0.05 * truth), (r, truth)
+
+
+def test_calibrate_lsq_checks_added_effects_on_held_out_segments(tmp_path, capsys):
+    """rimu calibrate --method lsq with an effect the simulated truth does not have: the step is compared with its
+    input on held-out segments and brings no gain there (reported with its figures, in the field's unit)."""
+    assert main(["simulate", "-o", str(tmp_path / "s.npz"), "--duration", "5"]) == 0
+    capsys.readouterr()
+    rc, out, err = _cli(capsys, "calibrate", tmp_path / "s.npz", "--method", "lsq", "--effects",
+                        "bias,scale_misalignment,g_sensitivity", "-o", tmp_path / "cal.json")
+    assert rc == 0, err
+    lines = [ln for ln in out if "held-out segments" in ln]
+    assert len(lines) == 1 and lines[0].split(":")[1].strip() == "gyro", out   # g_sensitivity: gyros only
+    b, a, unit = re.search(r"goes (\S+) -> (\S+) (\S+?);?$", lines[0].split(";")[0]).groups()
+    assert unit == "deg/s" and float(a) > 0.99 * float(b), lines

@@ -114,6 +114,47 @@ def _bias_note_lines(zero: dict) -> list[str]:
     return out
 
 
+def _held_out_lines(session, effects: str | None, instruments) -> list[str]:  # type: ignore[no-untyped-def]
+    """lsq with effects beyond scale, misalignment and bias: the step that adds them compared with its input on
+    held-out segments (fitted on every other segment, checked on the rest; rimu.diagnose.Comparison.held_out)."""
+    from ..calibration.model import ErrorModel
+    from ..diagnose.api import compare
+    from ..diagnose.fitting import fit_model
+    from ..errors import IdentifiabilityError
+
+    if not effects:
+        return []
+    model = ErrorModel.from_names(effects)
+    base_names = [e.name for e in model if e.name in ("bias", "scale_misalignment")]
+    extra_effects = [e for e in model if e.name not in base_names]
+    if not extra_effects or set(base_names) != {"bias", "scale_misalignment"}:
+        return []
+    base = ErrorModel.from_names(",".join(base_names))
+    out = []
+    for k in instruments or session.instruments:
+        try:
+            before = fit_model(session, base, k)
+            extra = [e.name for e in extra_effects if any(e.applies_to(ctx) for ctx in before.contexts)]
+            if not extra:
+                continue
+            c = compare(session, before, model)
+        except (IdentifiabilityError, ValueError):
+            continue
+        h = c.held_out()
+        if h is None:
+            out.append(f"note: {k}: the effects {', '.join(extra)} could not be checked on held-out segments (half "
+                       "of the segments cannot identify the model)")
+            continue
+        b, a = float(h[1].mean()), float(h[2].mean())
+        line = (f"note: {k}: with {', '.join(extra)} the residual on held-out segments (fitted on every other "
+                f"segment, checked on the rest) goes {b:.4g} -> {a:.4g} {h[0]}")
+        if c.worse_held_out():
+            line = line.replace("note:", "caution:", 1) + (f"; they fit these segments, not the instrument: "
+                                                           f"calibrate without them (--effects {','.join(base_names)})")
+        out.append(line)
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     from ..errors import OptionError
     from ..session import load_session
@@ -133,6 +174,9 @@ def run(args: argparse.Namespace) -> int:
     print(res.table())
     zero = bias_at_zero_input(res)
     _print_bias_note(zero)
+    held = _held_out_lines(session, args.effects, inst) if args.method == "lsq" else []
+    for line in held:
+        print(line)
     out = res.to_calibration().save(Path(args.output))
     print(f"\ncalibration written to {out}")
     if args.json:
@@ -147,7 +191,7 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         from ..calibration.report import calibration_report
 
-        rep = calibration_report(res, session, ref, cautions=_bias_note_lines(zero))
+        rep = calibration_report(res, session, ref, cautions=_bias_note_lines(zero) + held)
         Path(args.report).mkdir(parents=True, exist_ok=True)
         if not args.plot and rep.save_figure(0, Path(args.report) / "residuals.png"):
             print(f"residual plot written to {Path(args.report) / 'residuals.png'}")
