@@ -20,6 +20,7 @@ import numpy as np
 
 from ..units import DEG_TO_RAD
 from ._common import add_accept_implausible, positive_float
+from ._inputs import add_log_options, open_array
 
 
 def _lowpass(text: str) -> "float | str | None":
@@ -31,7 +32,7 @@ def _lowpass(text: str) -> "float | str | None":
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("array", help="self-calibration of an array of triads from motion, with its report",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("data", help="NPZ file with t, gyro[, accel, rotations, positions_m, names]")
+    p.add_argument("data", help="NPZ file with t, gyro[, accel, rotations, positions_m, names], or a multi-IMU log")
     p.add_argument("-o", "--output", default=None, help="JSON file for the fitted parameters (SI, body frame)")
     p.add_argument("--report", default=None, metavar="DIR", help="folder for array_report.md and array_report.png")
     p.add_argument("--json", default=None, metavar="FILE", help="machine-readable summary")
@@ -47,6 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_accept_implausible(p)
     p.add_argument("--motion-threshold-deg-s", type=positive_float, default=30.0,
                    help="samples faster than this count as 'in motion' for the parity figures")
+    add_log_options(p)
     p.set_defaults(func=run)
 
 
@@ -79,9 +81,11 @@ def run(args: argparse.Namespace) -> int:
     from ..units import RAW_UNITS
 
     try:
-        layout, t, gyro, accel = _load(args.data)
-        gyro = gyro * RAW_UNITS["gyro"][args.gyro_unit]
-        accel = None if accel is None else accel * RAW_UNITS["accel"][args.accel_unit]
+        opened = open_array(args.data, args)  # a log its reader converts to SI, or None: rimu's NPZ arrays
+        layout, t, gyro, accel = opened or _load(args.data)
+        if opened is None:  # the NPZ's arrays are in the units declared (default SI)
+            gyro = gyro * RAW_UNITS["gyro"][args.gyro_unit]
+            accel = None if accel is None else accel * RAW_UNITS["accel"][args.accel_unit]
         problems = check_units(gyro, accel)
         if problems and not args.accept_implausible:
             raise PlausibilityError(f"{args.data}: " + "; ".join(problems)

@@ -13,6 +13,7 @@ import json
 from pathlib import Path
 
 from ._common import positive_float
+from ._inputs import add_log_options, open_raw
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -39,6 +40,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--gravity", type=positive_float, default=None, help="local gravity, m/s^2 (default 9.80665)")
     p.add_argument("--report", metavar="DIR", help="write detection.png and detection.md here")
     p.add_argument("--json", metavar="FILE", help="write a machine-readable summary here")
+    p.add_argument("--imu", default=None, help="the IMU of a multi-IMU log to read (default: the first)")
+    add_log_options(p)
     p.set_defaults(func=run)
 
 
@@ -48,11 +51,10 @@ def _cols(text: str | None):
 
 def run(args: argparse.Namespace) -> int:
     from ..calibration.detect import detect_session, plot_detection
-    from ..io.rawtext import read_raw_text
     from ..session import save_session
     from ..units import G0
 
-    log = read_raw_text(args.raw, args.rate, _cols(args.accel), _cols(args.gyro), args.time)
+    log = open_raw(args.raw, args.rate, _cols(args.accel), _cols(args.gyro), args.time, args, args.imu)
     init = args.init_still
     if init is None:
         for k, v in log.meta.items():

@@ -31,12 +31,9 @@ with known poses is a :class:`rimu.session.Session`, read by ``rimu.session.load
 
 from __future__ import annotations
 
-import bz2
 import csv
-import gzip
 import io
 import json
-import lzma
 import math
 import os
 from collections.abc import Iterator, Sequence
@@ -86,14 +83,14 @@ def _factor(unit: str | float, quantity: str) -> float:
 
 
 def open_text(path: str | os.PathLike[str]) -> io.TextIOBase:
-    """Open a text file, decompressing ``.xz``, ``.gz`` and ``.bz2`` on the fly."""
+    """Open a text file, decompressing ``.xz``, ``.gz``, ``.bz2`` and ``.zst`` on the fly
+    (:func:`rimu.io.formats._open.open_text`, by content)."""
+    from .formats._open import open_text as _open
+
     p = Path(path)
     if not p.exists():
         raise TransportError(f"no file at {p}")
-    opener = {".xz": lzma.open, ".gz": gzip.open, ".bz2": bz2.open}.get(p.suffix.lower())
-    if opener is None:
-        return open(p, newline="", encoding="utf-8")
-    return opener(p, "rt", newline="", encoding="utf-8")  # type: ignore[operator,no-any-return]
+    return _open(p)
 
 
 @dataclass
