@@ -19,7 +19,7 @@ import pytest
 from rimu.calibration import Calibration, InstrumentCalibration
 from rimu.cli import main
 from rimu.geometry import triad3
-from rimu.units import G0, RAD_TO_DEG, RS_TO_DH, field_unit, fmt
+from rimu.units import DEG_TO_RAD, G0, RAD_TO_DEG, RS_TO_DH, field_unit, fmt
 from tests.conftest import shared_data
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -52,20 +52,30 @@ def _raw_log(path: Path, n: int, fs: float, seed: int, scale_g: float, scale_a: 
         np.savetxt(f, rows, fmt="%d", delimiter=",")
 
 
+def _log_geometries(path: Path) -> dict:
+    """The geometries rimu's log reader gives a raw log (the calibration of the unit must be made for them)."""
+    from rimu.cli._inputs import open_session
+
+    return open_session(path, kind="static_unknown").geometries
+
+
 def test_noise_of_counts_applies_the_calibration_and_prints_the_truth(tmp_path, capsys):
     fs, n = 100.0, 30000
-    scale_g, scale_a, sg, sa = 1e-4, 1e-3, 0.02, 0.05       # noise 200 and 50 counts: quantisation negligible
+    # the MPU-6050's scales (131 LSB per deg/s, 16384 LSB per g): its log format knows them as nominal ones
+    scale_g, scale_a, sg, sa = DEG_TO_RAD / 131, G0 / 16384, 0.02, 0.05   # noise 150 and 84 counts
     _raw_log(tmp_path / "static.csv", n, fs, 1, scale_g, scale_a, sg, sa)
-    g = triad3()
-    cal = Calibration({"gyro": InstrumentCalibration.nominal("gyro", g, scale=scale_g, bias=0.0),
-                       "accel": InstrumentCalibration.nominal("accel", g, scale=scale_a, bias=0.0)})
+    geo = _log_geometries(tmp_path / "static.csv")
+    cal = Calibration({"gyro": InstrumentCalibration.nominal("gyro", geo["gyro"], scale=scale_g, bias=0.0),
+                       "accel": InstrumentCalibration.nominal("accel", geo["accel"], scale=scale_a, bias=0.0)})
     cal.save(tmp_path / "cal.json")
-    # without the calibration: refused, one line, exit 2 (the counts are never taken as SI)
-    rc, out, err = _cli(capsys, "noise", tmp_path / "static.csv", "-o", tmp_path / "n.json")
-    assert rc == 2 and len(err) == 1 and "raw log" in err[0] and "--calibration" in err[0], err
+    # the log's reader applies the MPU-6050's nominal scale factors: a calibration of counts on top would scale
+    # twice, and is refused with one line; without it the figures are the truth
     rc, out, err = _cli(capsys, "noise", tmp_path / "static.csv", "--calibration", tmp_path / "cal.json",
-                        "--terms", "white", "-o", tmp_path / "n.json", "--json", tmp_path / "s.json")
-    assert rc == 0, err
+                        "-o", tmp_path / "n.json")
+    assert rc == 2 and len(err) == 1 and "scale them twice" in err[0], err
+    rc, out, err = _cli(capsys, "noise", tmp_path / "static.csv", "--terms", "white", "-o", tmp_path / "n.json",
+                        "--json", tmp_path / "s.json")
+    assert rc == 0 and err == [], err
     rows = json.loads((tmp_path / "s.json").read_text())["instruments"]
     # truth: ARW = sigma / sqrt(fs) [rad/sqrt(s)] -> deg/sqrt(h) = * RAD_TO_DEG * 60; VRW -> m/s/sqrt(h) = * 60
     arw = sg / math.sqrt(fs) * RAD_TO_DEG * 60
@@ -77,8 +87,9 @@ def test_noise_of_counts_applies_the_calibration_and_prints_the_truth(tmp_path, 
             # within 4 of its stated 1-sigma and 3 %: the stated uncertainty is honest
             assert abs(r["white"] - truth) < max(4 * r["white_sigma"], 0.03 * truth), (inst, r, truth)
     # the printed table carries the same figures
-    gx = next(ln for ln in out if ln.startswith("gx")).split()   # gx, quantization +/- sd, white +/- sd, ...
-    assert abs(float(gx[4]) - rows["gyro"][0]["white"]) < 1e-3 * rows["gyro"][0]["white"], gx
+    first = rows["gyro"][0]
+    gx = next(ln for ln in out if ln.startswith(first["sensor"])).split()   # name, quantization +/- sd, white ...
+    assert abs(float(gx[4]) - first["white"]) < 1e-3 * first["white"], gx
 
 
 @pytest.mark.parametrize("case, match", [
@@ -280,9 +291,10 @@ def test_advice_keeps_the_effect():
 
 
 def test_help_texts_have_no_rest_markup(capsys):
-    from rimu.cli import COMMANDS
+    from rimu.cli import build_parser
 
-    for name in ["--help"] + [[c.replace("_", "-"), "--help"] for c in COMMANDS]:
+    sub = next(a for a in build_parser()._actions if a.__class__.__name__ == "_SubParsersAction")
+    for name in ["--help"] + [[c, "--help"] for c in sub.choices]:
         assert main(name if isinstance(name, list) else [name]) == 0
         out = capsys.readouterr().out
         assert "``" not in out and ":func:" not in out and ":class:" not in out and "**" not in out, (name, out)
@@ -291,8 +303,8 @@ def test_help_texts_have_no_rest_markup(capsys):
 def test_bad_input_of_the_new_paths(tmp_path, capsys):
     """Every new path ends bad input in one line and exit status 2, and writes nothing."""
     fs, n = 100.0, 600
-    _raw_log(tmp_path / "log.csv", n, fs, 3, 1e-4, 1e-3, 0.02, 0.05)
-    g = triad3()
+    _raw_log(tmp_path / "log.csv", n, fs, 3, DEG_TO_RAD / 131, G0 / 16384, 0.02, 0.05)
+    g = _log_geometries(tmp_path / "log.csv")["gyro"]
     Calibration({"gyro": InstrumentCalibration.nominal("gyro", g, scale=1e-4)}).save(tmp_path / "gyro_only.json")
     from rimu.geometry import tetrad4
 
@@ -301,14 +313,13 @@ def test_bad_input_of_the_new_paths(tmp_path, capsys):
     arr = _array_npz(tmp_path, "arr.npz", 1.0, 1.0)
     session, _ = _bias_session(tmp_path, "rad/s", 1.0, 0.004)
     cases = [
-        # a raw log with a calibration that lacks one of its instruments, asked for it
-        (["noise", tmp_path / "log.csv", "--calibration", tmp_path / "gyro_only.json", "--instrument", "accel"],
-         "calibrate the accel too"),
+        # a log already in SI (its reader's nominal scales) with a calibration of counts: it would scale twice
+        (["noise", tmp_path / "log.csv", "--calibration", tmp_path / "gyro_only.json"], "scale them twice"),
         # a calibration of another unit (4 sensors) for a 3-axis log
-        (["noise", tmp_path / "log.csv", "--calibration", tmp_path / "four.json"], "calibrates 4 accel sensors"),
+        (["noise", tmp_path / "log.csv", "--calibration", tmp_path / "four.json"], "calibrate this unit"),
         (["noise", tmp_path / "log.csv", "--calibration", tmp_path / "nope.json"], "nope.json"),
         (["array", arr, "--lowpass-hz", "fast"], "--lowpass-hz"),
-        (["array", arr, "--gyro-unit", "rpm"], "--gyro-unit"),
+        (["array", arr, "--gyro-unit", "rpm"], "--gyro-unit rpm"),
         (["calibrate", session, "--reference", tmp_path / "nope.json", "--report", tmp_path / "rep"], "nope.json"),
     ]
     for argv, msg in cases:

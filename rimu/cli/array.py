@@ -23,6 +23,34 @@ from ._common import add_accept_implausible, positive_float
 from ._inputs import add_log_options, open_array
 
 
+def _own_npz(path: str) -> bool:
+    """Whether ``path`` is an NPZ of rimu array's own shape (``t`` and ``gyro`` arrays)."""
+    if not str(path).endswith(".npz"):
+        return False
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return "t" in z.files and "gyro" in z.files
+    except (OSError, ValueError, EOFError):
+        return False
+
+
+def _factor(instrument: str, unit: "str | None") -> float:
+    """Factor to SI of a declared unit of the arrays: a name (deg/s, g, mg, ...) or SI per unit; SI when None."""
+    from ..errors import OptionError
+    from ..units import RAW_UNITS, raw_to_si
+
+    if unit is None:
+        return 1.0
+    try:
+        f = float(unit)
+    except ValueError:
+        f = raw_to_si(instrument, unit)  # type: ignore[assignment]
+    if f is None or not np.isfinite(f) or f <= 0:
+        names = ", ".join(RAW_UNITS[instrument])
+        raise OptionError(f"--{instrument}-unit {unit}: not a unit of {instrument} outputs ({names}, or SI per unit)")
+    return float(f)
+
+
 def _lowpass(text: str) -> "float | str | None":
     if text.strip().lower() in ("auto", "none"):
         return None if text.strip().lower() == "none" else "auto"
@@ -39,10 +67,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lowpass-hz", type=_lowpass, default="auto",
                    help="low-pass every triad first: a cut-off in Hz, 'auto' (default: chosen from the vibration "
                         "spectrum, where the triads stop agreeing) or 'none'")
-    p.add_argument("--gyro-unit", choices=("rad/s", "deg/s"), default="rad/s",
-                   help="unit of the gyro arrays in DATA (default: %(default)s)")
-    p.add_argument("--accel-unit", choices=("m/s^2", "g", "mg"), default="m/s^2",
-                   help="unit of the accel arrays in DATA (default: %(default)s)")
     p.add_argument("--no-held-out", action="store_true",
                    help="do not check the gyro steps on a held-out part (the last 30 %%) of the recording")
     add_accept_implausible(p)
@@ -78,14 +102,14 @@ def run(args: argparse.Namespace) -> int:
     from ..array import array_report
     from ..array.guards import check_units
     from ..errors import PlausibilityError, RimuError
-    from ..units import RAW_UNITS
 
     try:
-        opened = open_array(args.data, args)  # a log its reader converts to SI, or None: rimu's NPZ arrays
-        layout, t, gyro, accel = opened or _load(args.data)
-        if opened is None:  # the NPZ's arrays are in the units declared (default SI)
-            gyro = gyro * RAW_UNITS["gyro"][args.gyro_unit]
-            accel = None if accel is None else accel * RAW_UNITS["accel"][args.accel_unit]
+        if _own_npz(args.data):  # rimu array's NPZ: its arrays in the units declared (--gyro-unit, --accel-unit; SI)
+            layout, t, gyro, accel = _load(args.data)
+            gyro = gyro * _factor("gyro", args.gyro_unit)
+            accel = None if accel is None else accel * _factor("accel", args.accel_unit)
+        else:  # a log: its reader converts to SI (the units options declare a text log's)
+            layout, t, gyro, accel = open_array(args.data, args) or _load(args.data)
         problems = check_units(gyro, accel)
         if problems and not args.accept_implausible:
             raise PlausibilityError(f"{args.data}: " + "; ".join(problems)

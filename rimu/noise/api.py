@@ -104,6 +104,13 @@ def identify_session(session: Any, calibration: Any = None, segment: str | None 
         g = session.geometries[k]
         y = seg.raw[k]
         if calibration is not None and k in calibration:
+            unit = _declared_factor(session, k)
+            if unit is not None and str(getattr(calibration, "raw_unit", "count")).lower() in ("count", "counts"):
+                raise IdentifiabilityError(
+                    f"the {k} outputs of this recording are already in a physical unit (declared by the file or "
+                    "applied by its reader's nominal scale factors), and the calibration is one of raw counts: it "
+                    "would scale them twice. Drop --calibration to use the recording's own unit, or give the "
+                    "recording in counts", [f"{k}.scale"])
             c = calibration[k]
             calibration.check_geometry(k, g)
             outputs[k] = c.compensate(y)
