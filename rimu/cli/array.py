@@ -1,9 +1,11 @@
 """``rimu array DATA.npz``: an array of k triads as one instrument: relative gyro calibration from the motion
 (gain, bias, sampling offset), the accelerometers' positions, gains and biases, the parity rms in motion after
-each step per triad, and the term that limits the agreement now (docs/array.md).
+each step per triad, and the term that limits the agreement now (docs/array.md). A step that raises the parity
+rms is not applied and the output says so; the low-pass cut-off is chosen from the vibration spectrum.
 
-DATA.npz holds ``t`` (N,) [s], ``gyro`` (N, k, 3) [rad/s] and optionally ``accel`` (N, k, 3) [m/s^2], each
-triad in its own axes; optionally ``rotations`` (k, 3, 3) (triad axes -> body, default identity),
+DATA.npz holds ``t`` (N,) [s], ``gyro`` (N, k, 3) [rad/s, or --gyro-unit] and optionally ``accel`` (N, k, 3)
+[m/s^2, or --accel-unit], each triad in its own axes (values far from these units are refused: rates beyond any
+full scale, an accelerometer norm far from one gravity); optionally ``rotations`` (k, 3, 3) (triad axes -> body, default identity),
 ``positions_m`` (k, 3) nominal positions, and ``names`` (k,).
 """
 
@@ -16,8 +18,43 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import positive_float
+from ..units import DEG_TO_RAD
+from ._common import add_accept_implausible, positive_float
 from ._inputs import add_log_options, open_array
+
+
+def _own_npz(path: str) -> bool:
+    """Whether ``path`` is an NPZ of rimu array's own shape (``t`` and ``gyro`` arrays)."""
+    if not str(path).endswith(".npz"):
+        return False
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return "t" in z.files and "gyro" in z.files
+    except (OSError, ValueError, EOFError):
+        return False
+
+
+def _factor(instrument: str, unit: "str | None") -> float:
+    """Factor to SI of a declared unit of the arrays: a name (deg/s, g, mg, ...) or SI per unit; SI when None."""
+    from ..errors import OptionError
+    from ..units import RAW_UNITS, raw_to_si
+
+    if unit is None:
+        return 1.0
+    try:
+        f = float(unit)
+    except ValueError:
+        f = raw_to_si(instrument, unit)  # type: ignore[assignment]
+    if f is None or not np.isfinite(f) or f <= 0:
+        names = ", ".join(RAW_UNITS[instrument])
+        raise OptionError(f"--{instrument}-unit {unit}: not a unit of {instrument} outputs ({names}, or SI per unit)")
+    return float(f)
+
+
+def _lowpass(text: str) -> "float | str | None":
+    if text.strip().lower() in ("auto", "none"):
+        return None if text.strip().lower() == "none" else "auto"
+    return positive_float(text)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -27,7 +64,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", default=None, help="JSON file for the fitted parameters (SI, body frame)")
     p.add_argument("--report", default=None, metavar="DIR", help="folder for array_report.md and array_report.png")
     p.add_argument("--json", default=None, metavar="FILE", help="machine-readable summary")
-    p.add_argument("--lowpass-hz", type=positive_float, default=None, help="low-pass every triad first (vehicles)")
+    p.add_argument("--lowpass-hz", type=_lowpass, default="auto",
+                   help="low-pass every triad first: a cut-off in Hz, 'auto' (default: chosen from the vibration "
+                        "spectrum, where the triads stop agreeing) or 'none'")
+    p.add_argument("--no-held-out", action="store_true",
+                   help="do not check the gyro steps on a held-out part (the last 30 %%) of the recording")
+    add_accept_implausible(p)
     p.add_argument("--motion-threshold-deg-s", type=positive_float, default=30.0,
                    help="samples faster than this count as 'in motion' for the parity figures")
     add_log_options(p)
@@ -58,12 +100,24 @@ def _load(path: str):
 
 def run(args: argparse.Namespace) -> int:
     from ..array import array_report
-    from ..errors import RimuError
+    from ..array.guards import check_units
+    from ..errors import PlausibilityError, RimuError
 
     try:
-        layout, t, gyro, accel = open_array(args.data, args) or _load(args.data)
+        if _own_npz(args.data):  # rimu array's NPZ: its arrays in the units declared (--gyro-unit, --accel-unit; SI)
+            layout, t, gyro, accel = _load(args.data)
+            gyro = gyro * _factor("gyro", args.gyro_unit)
+            accel = None if accel is None else accel * _factor("accel", args.accel_unit)
+        else:  # a log: its reader converts to SI (the units options declare a text log's)
+            layout, t, gyro, accel = open_array(args.data, args) or _load(args.data)
+        problems = check_units(gyro, accel)
+        if problems and not args.accept_implausible:
+            raise PlausibilityError(f"{args.data}: " + "; ".join(problems)
+                                    + " (--accept-implausible to run anyway)")
+        for p in problems:
+            print(f"rimu array: warning: {p}", file=sys.stderr)
         rep = array_report(layout, t, gyro, accel, motion_threshold_deg_s=args.motion_threshold_deg_s,
-                           lowpass_hz=args.lowpass_hz)
+                           lowpass_hz=args.lowpass_hz, held_out=not args.no_held_out)
     except RimuError as exc:
         print(f"rimu array: error: {exc}", file=sys.stderr)
         return 2
@@ -79,13 +133,27 @@ def run(args: argparse.Namespace) -> int:
             rep.plot(out / "array_report.png")
         except ImportError as exc:
             print(f"rimu array: no plot: {exc}", file=sys.stderr)
+        else:  # the one report layout (HTML + PDF), as rimu calibrate and rimu diagnose write it
+            from ..report import Report
+
+            page = Report(f"rimu array: {layout.k} triads")
+            page.cautions([f"note: {n}" for n in rep.notes] + [f"not applied: {r}" for r in rep.refused.values()])
+            page.markdown(rep.to_markdown().split("\n", 1)[1].split("\n- ", 1)[0], out)
+            page.figure(rep.figure(), "parity rms in motion per triad and step (the steps applied)")
+            page.write(out, "array_report")
     if args.json:
         Path(args.json).write_text(json.dumps(rep.to_dict(), indent=1))
+    from ..units import fmt
+
     g = list(rep.gyro_steps.values())
-    line = (f"array of {layout.k} triads: gyro parity rms in motion {g[0].mean():.4g} -> {g[-1].mean():.4g} deg/s")
+    line = (f"array of {layout.k} triads: gyro parity rms in motion {fmt(g[0].mean() * DEG_TO_RAD, 'rate', 'deg/s')} "
+            f"-> {fmt(g[-1].mean() * DEG_TO_RAD, 'rate', 'deg/s')}")
     if rep.accel_steps:
         a = list(rep.accel_steps.values())
-        line += f", accelerometers {a[0].mean():.4g} -> {a[-1].mean():.4g} m/s^2"
+        line += f", accelerometers {fmt(a[0].mean(), 'specific_force', 'm/s^2')} -> {fmt(a[-1].mean(), 'specific_force', 'm/s^2')}"
+    for n in rep.notes[:1] + [n for n in rep.notes[1:] if "not applied" in n] + [
+            f"not applied: {r}" for r in rep.refused.values()]:
+        print(f"note: {n}")
     lim = rep.limiting_term
     print(line + (f"; what is left is {lim}" if lim.startswith("unexplained") else f"; limited now by {lim}"))
     return 0

@@ -226,11 +226,11 @@ def test_api_replay_monitor_serial_can_and_c_decide_alike(tmp_path, capsys):
         for k in ("gyro", "accel"):
             cells += [repr(float(v)) if block.valid[k][r, i] else "" for i, v in enumerate(block.raw[k][r])]
         rows.append(",".join(cells))
-    out = subprocess.run([str(d / "rimu_filter")], input="t,raw\n" + "\n".join(rows) + "\n", capture_output=True,
+    out = subprocess.run([str(d / "rimu_filter")], input="\n".join(rows) + "\n", capture_output=True,
                          text=True, check=True).stdout
     (tmp_path / "c.csv").write_text(out)
     _same(ref, read_estimates(tmp_path / "c.csv", cal), "the exported C filter")
-    det = subprocess.run([str(d / "rimu_filter"), "--detail"], input="t,raw\n" + "\n".join(rows) + "\n",
+    det = subprocess.run([str(d / "rimu_filter"), "--detail"], input="\n".join(rows) + "\n",
                          capture_output=True, text=True, check=True).stdout.splitlines()
     head = det[0].split(",")
     st = np.array([int(ln.split(",")[head.index("gyro_state")]) for ln in det[1:]])
