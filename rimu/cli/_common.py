@@ -42,6 +42,7 @@ __all__ = [
     "add_report_option",
     "add_accept_implausible",
     "check_outputs",
+    "output_options",
     "configure_logging",
     "OUTPUT_FILE_OPTIONS",
     "OUTPUT_DIR_OPTIONS",
@@ -53,7 +54,7 @@ log = logging.getLogger("rimu.cli")
 
 #: attributes of a parsed namespace that name output files / output folders / input files (checked by
 #: :func:`check_outputs` for every subcommand, including ones added later that follow the convention)
-OUTPUT_FILE_OPTIONS = ("output", "json", "truth", "record", "side_log", "plot")
+OUTPUT_FILE_OPTIONS = ("output", "json", "truth", "record", "side_log", "plot", "estimates")
 OUTPUT_DIR_OPTIONS = ("report",)
 INPUT_OPTIONS = ("session", "data", "calibration", "layout", "csv", "npz", "replay", "ulog")
 
@@ -266,26 +267,79 @@ def _check_dir(opt: str, p: Path) -> None:
         raise OutputPathError(f"--{opt} {p}: {q} is not writable (permission denied); write elsewhere")
 
 
+def output_options(args: argparse.Namespace, files: Iterable[str] = OUTPUT_FILE_OPTIONS,
+                   dirs: Iterable[str] = OUTPUT_DIR_OPTIONS) -> tuple[list[str], list[str]]:
+    """The attributes of ``args`` that name output files and output folders: the convention's names, every
+    ``write_*`` option, and ``-o`` as a folder where the command says so (``output_is_dir``)."""
+    files = list(files) + sorted(k for k in vars(args) if k.startswith("write_") and k not in files)
+    dirs = list(dirs)
+    if getattr(args, "output_is_dir", False):  # a command whose main artifact is a folder (export-c)
+        files.remove("output")
+        dirs.append("output")
+    return files, dirs
+
+
+def _inputs(args: argparse.Namespace, outputs: Iterable[str], inputs: Iterable[str] | None) -> list[tuple[str, Path]]:
+    """(option, path) of every input of the run: the named ``inputs``, or (None) every other string option or
+    argument that names an existing file, with the sidecar of a session (``.csv`` <-> ``.json``)."""
+    names = list(inputs) if inputs is not None else [k for k in vars(args) if k not in set(outputs)]
+    found = []
+    for name in names:
+        v = getattr(args, name, None)
+        if not v or v == "-" or not isinstance(v, (str, os.PathLike)):
+            continue
+        p = Path(v)
+        for q in _sidecar(p) + ([p.with_suffix(".csv")] if p.suffix == ".json" else []):
+            if q.is_file():
+                found.append((name.replace("_", "-"), q))
+    return found
+
+
+def _same(a: Path, b: Path) -> bool:
+    try:
+        return a.resolve() == b.resolve() or (a.exists() and b.exists() and os.path.samefile(a, b))
+    except OSError:
+        return False
+
+
 def check_outputs(args: argparse.Namespace, files: Iterable[str] = OUTPUT_FILE_OPTIONS,
-                  dirs: Iterable[str] = OUTPUT_DIR_OPTIONS, inputs: Iterable[str] = INPUT_OPTIONS) -> None:
-    """Refuse, before any work, output paths that cannot be written, that name the same file twice (including a
-    CSV's ``.json`` sidecar), or that would overwrite an input of the run.
+                  dirs: Iterable[str] = OUTPUT_DIR_OPTIONS, inputs: Iterable[str] | None = None
+                  ) -> tuple[list[Path], list[Path]]:
+    """Refuse, before any work, output paths that cannot be written, that name the same file twice (including the
+    ``.json`` sidecar of a ``-o`` session ``.csv``), or that resolve to an input of the run (symlinks, hard links
+    and relative paths included; by default every option and argument naming an existing file is an input).
+
+    The one input-protection check of every command (:func:`rimu.cli.main` calls it for all of them).
+
+    Returns
+    -------
+    files, dirs : list of Path
+        The planned output files (with sidecars) and folders: the :class:`rimu.atomic.OutputGroup` of the run.
 
     Raises
     ------
     OutputPathError
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> d = Path(tempfile.mkdtemp())
+    >>> _ = (d / "raw.csv").write_text("t,a\\n")
+    >>> os.symlink(d / "raw.csv", d / "link.csv")
+    >>> check_outputs(argparse.Namespace(raw=str(d / "raw.csv"), output=str(d / "link.csv")))
+    Traceback (most recent call last):
+    ...
+    rimu.errors.OutputPathError: --output ... would overwrite the input .../raw.csv (raw); write the output elsewhere
     """
-    files, dirs = list(files), list(dirs)
-    if getattr(args, "output_is_dir", False):  # a command whose main artifact is a folder (export-c)
-        files.remove("output")
-        dirs.append("output")
-    planned = []
+    files, dirs = output_options(args, files, dirs)
+    planned_dirs: list[Path] = []
     for name in dirs:
         v = getattr(args, name, None)
         if v and isinstance(v, (str, os.PathLike)):
             _check_dir(name.replace("_", "-"), Path(v))
-            planned.append(Path(v).resolve())
-    seen: dict[Path, tuple[str, str]] = {}
+            planned_dirs.append(Path(v))
+    planned = [d.resolve() for d in planned_dirs]
+    seen: dict[Path, tuple[str, str, Path]] = {}
     for name in files:
         v = getattr(args, name, None)
         if not v or v == "-" or not isinstance(v, (str, os.PathLike)):
@@ -296,21 +350,17 @@ def check_outputs(args: argparse.Namespace, files: Iterable[str] = OUTPUT_FILE_O
             _check_file(opt, p)  # (a file inside a --report folder about to be created is checked with it)
         elif p.is_dir():
             raise OutputPathError(f"--{opt} {p}: is a folder; give a file name")
-        for q in _sidecar(p):
+        for q in (_sidecar(p) if name == "output" else [p]):
             r = q.resolve()
             what = f"{q} (the sidecar of --{opt} {p})" if q != p else f"--{opt} {q}"
             if r in seen:
                 raise OutputPathError(f"{what} would overwrite {seen[r][1]}; give them different names")
-            seen[r] = (opt, what)
-    for name in inputs:
-        v = getattr(args, name, None)
-        if not v or not isinstance(v, (str, os.PathLike)):
-            continue
-        p = Path(v)
-        for q in _sidecar(p) + ([p.with_suffix(".csv")] if p.suffix == ".json" else []):
-            r = q.resolve()
-            if r in seen and q.exists():
-                raise OutputPathError(f"{seen[r][1]} would overwrite the input {q}; write the output elsewhere")
+            seen[r] = (opt, what, q)
+    for name, q in _inputs(args, files + dirs, inputs):
+        for opt, what, out in seen.values():
+            if _same(out, q):
+                raise OutputPathError(f"{what} would overwrite the input {q} ({name}); write the output elsewhere")
+    return [q for _, _, q in seen.values()], planned_dirs
 
 
 # ---------------------------------------------------------------- logging

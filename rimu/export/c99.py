@@ -35,7 +35,6 @@ cross coupling, size effect) is compensated before the projection by code genera
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -460,15 +459,12 @@ def export_c(calibration: Calibration, directory: str | os.PathLike[str], real: 
     fdi = fdi if fdi is not None else FdiSettings()
     files = {"rimu_unit.h": _header(calibration, real, fdi), "rimu_unit.c": _source(calibration, real, fdi),
              "rimu_filter.c": _filter(calibration, real), "Makefile": _MAKEFILE}
-    out = []
-    for name, text in files.items():
-        fd, tmp = tempfile.mkstemp(dir=d, prefix=f".{name}.")
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, d / name)
-        out.append(d / name)
-    return out
+    from ..atomic import atomic_files
+
+    with atomic_files() as tx:  # the four files appear together or not at all
+        for name, text in files.items():
+            tx.path(d / name).write_text(text)
+    return [d / name for name in files]
 
 
 def build_filter(directory: str | os.PathLike[str]) -> tuple[str | None, Any]:

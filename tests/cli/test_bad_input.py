@@ -256,7 +256,7 @@ CASES = [
     (["replay", "{s}", "--calibration", "{cal}", "--estimates", "{afile}/x.csv"], 2, ["--estimates", "not a folder"]),
     (["replay", "{s}", "--calibration", "{cal}", "--estimates", "{dir}/missing/x.csv"], 2, ["--estimates", "does not exist"]),
     (["replay", "{s}", "--calibration", "{cal}", "--estimates", "{dir}"], 2, ["--estimates", "is a folder"]),
-    (["replay", "{s}", "--calibration", "{cal}", "--estimates", "{s}"], 2, ["--estimates", "would overwrite the data file"]),
+    (["replay", "{s}", "--calibration", "{cal}", "--estimates", "{s}"], 2, ["--estimates", "would overwrite the input"]),
     (["replay", "{s}", "--calibration", "{cal}", "--estimates", "{dir}/e.csv", "--json", "{dir}/e.csv"], 2,
      ["--estimates", "would overwrite --json"]),
     # simulate, design, campaign options
