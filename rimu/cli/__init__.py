@@ -156,6 +156,9 @@ def main(argv: list[str] | None = None) -> int:
             msg += f" (could not undo {', '.join(map(str, left))})"
         print(f"rimu {args.command}: error: {msg}", file=sys.stderr)
         return code
+    finally:  # SystemExit and the like: the run's outputs are undone too
+        if group is not None and not group.done:
+            group.abort()
 
 
 def _finish(group: object, ok: bool) -> list:

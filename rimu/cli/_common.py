@@ -357,7 +357,7 @@ def check_outputs(args: argparse.Namespace, files: Iterable[str] = OUTPUT_FILE_O
                 raise OutputPathError(f"{what} would overwrite {seen[r][1]}; give them different names")
             seen[r] = (opt, what, q)
     for name, q in _inputs(args, files + dirs, inputs):
-        for opt, what, out in seen.values():
+        for _opt, what, out in seen.values():
             if _same(out, q):
                 raise OutputPathError(f"{what} would overwrite the input {q} ({name}); write the output elsewhere")
     return [q for _, _, q in seen.values()], planned_dirs

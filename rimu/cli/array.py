@@ -35,50 +35,75 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _load(path: str):
     from ..array import ArrayLayout
     from ..errors import ShapeError
+    from ..io.guard import load_array
 
-    try:
-        d = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise ShapeError(f"cannot read {path!r} as NPZ ({exc}); write it with numpy.savez") from exc
-    missing = [k for k in ("t", "gyro") if k not in d.files]
+    d = load_array(path, "NPZ file")
+    if not isinstance(d, dict):
+        raise ShapeError(f"{path}: a single array; array needs an NPZ file with t (N,) and gyro (N, k, 3) [rad/s]")
+    missing = [k for k in ("t", "gyro") if k not in d]
     if missing:
         raise ShapeError(f"{path!r} lacks {', '.join(missing)}: it needs t (N,) and gyro (N, k, 3) [rad/s]")
     gyro = np.asarray(d["gyro"], dtype=float)
     if gyro.ndim != 3 or gyro.shape[2] != 3:
-        raise ShapeError(f"gyro must have shape (N, k, 3), got {gyro.shape}")
+        raise ShapeError(f"{path}: gyro must have shape (N, k, 3), got {gyro.shape}")
     k = gyro.shape[1]
-    rot = d["rotations"] if "rotations" in d.files else np.repeat(np.eye(3)[None], k, axis=0)
-    pos = d["positions_m"] if "positions_m" in d.files else np.zeros((k, 3))
-    names = tuple(str(x) for x in d["names"]) if "names" in d.files else ()
-    accel = np.asarray(d["accel"], dtype=float) if "accel" in d.files else None
+    rot = d["rotations"] if "rotations" in d else np.repeat(np.eye(3)[None], k, axis=0)
+    pos = d["positions_m"] if "positions_m" in d else np.zeros((k, 3))
+    names = tuple(str(x) for x in d["names"]) if "names" in d else ()
+    accel = np.asarray(d["accel"], dtype=float) if "accel" in d else None
+    _plausible(path, gyro, accel)
     return ArrayLayout(rot, pos, names), np.asarray(d["t"], dtype=float), gyro, accel
+
+
+#: no MEMS gyro measures beyond +-4000 deg/s, no accelerometer of an array beyond +-400 g
+_GYRO_MAX_RAD_S = 4000.0 * np.pi / 180.0
+_ACCEL_MAX_MS2 = 400 * 9.80665
+
+
+def _plausible(path: str, gyro: np.ndarray, accel: np.ndarray | None) -> None:
+    """Units: rates beyond any MEMS gyro's range are deg/s under the rad/s label (or counts); accelerations
+    likewise."""
+    from ..errors import PlausibilityError
+
+    for name, y, top, unit, likely in (("gyro", gyro, _GYRO_MAX_RAD_S, "rad/s", "deg/s or counts"),
+                                       ("accel", accel, _ACCEL_MAX_MS2, "m/s^2", "counts")):
+        if y is None:
+            continue
+        peak = float(np.nanmax(np.abs(y))) if np.isfinite(y).any() else 0.0
+        if peak > top:
+            raise PlausibilityError(f"{path}: {name} reaches {peak:.4g} {unit}, beyond the range of any MEMS "
+                                    f"{name} ({top:.4g} {unit}): the values look like {likely}; convert them to "
+                                    f"{unit}")
 
 
 def run(args: argparse.Namespace) -> int:
     from ..array import array_report
+    from ..atomic import write_text
     from ..errors import RimuError
+    from ._common import json_dump
 
     try:
         layout, t, gyro, accel = _load(args.data)
         rep = array_report(layout, t, gyro, accel, motion_threshold_deg_s=args.motion_threshold_deg_s,
                            lowpass_hz=args.lowpass_hz)
     except RimuError as exc:
-        print(f"rimu array: error: {exc}", file=sys.stderr)
+        where = "" if str(args.data) in str(exc) else f"{args.data}: "
+        print(f"rimu array: error: {where}{exc}", file=sys.stderr)
         return 2
     if args.output:
         doc = {"gyro": rep.gyro_fit.to_dict() if rep.gyro_fit else None,
                "accel": rep.position_fit.to_dict() if rep.position_fit else None}
-        Path(args.output).write_text(json.dumps(doc, indent=1))
+        write_text(args.output, json.dumps(doc, indent=1))
     if args.report:
         out = Path(args.report)
         out.mkdir(parents=True, exist_ok=True)
-        (out / "array_report.md").write_text(rep.to_markdown())
+        write_text(out / "array_report.md", rep.to_markdown())
         try:
             rep.plot(out / "array_report.png")
         except ImportError as exc:
             print(f"rimu array: no plot: {exc}", file=sys.stderr)
     if args.json:
-        Path(args.json).write_text(json.dumps(rep.to_dict(), indent=1))
+        json_dump(rep.to_dict(), args.json)
     g = list(rep.gyro_steps.values())
     line = (f"array of {layout.k} triads: gyro parity rms in motion {g[0].mean():.4g} -> {g[-1].mean():.4g} deg/s")
     if rep.accel_steps:

@@ -9,7 +9,6 @@ report (``--report DIR``) holds the signal with the detected poses and motions s
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from ._common import positive_float
@@ -47,10 +46,12 @@ def _cols(text: str | None):
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..atomic import write_text
     from ..calibration.detect import detect_session, plot_detection
     from ..io.rawtext import read_raw_text
     from ..session import save_session
     from ..units import G0
+    from ._common import json_dump
 
     log = read_raw_text(args.raw, args.rate, _cols(args.accel), _cols(args.gyro), args.time)
     init = args.init_still
@@ -88,9 +89,9 @@ def run(args: argparse.Namespace) -> int:
                  "![detection](detection.png)", "", "| segment | kind | start (s) | end (s) |", "|---|---|---|---|"]
         lines += [f"| {s['label']} | {s['kind']} | {s['start'] / fs:.2f} | {s['end'] / fs:.2f} |"
                   for s in summary["segments"]]
-        (d / "detection.md").write_text("\n".join(lines) + "\n")
+        write_text(d / "detection.md", "\n".join(lines) + "\n")
     if args.json:
-        Path(args.json).write_text(json.dumps(summary, indent=1))
+        json_dump(summary, args.json)
     out = save_session(session, args.output)
     print(f"session written to {out}: {len(poses)} poses, {len(motions)} motions")
     return 0

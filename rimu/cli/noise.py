@@ -12,7 +12,6 @@ terms in its optional ``noise`` section (what the detectors of rimu.fdi read). S
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -48,7 +47,30 @@ def _plain(args: argparse.Namespace, path: Path) -> Any:
 
     if args.sample_rate is None:
         raise SessionFormatError(f"{path} is a plain array: give its --sample-rate (Hz)")
-    z = np.load(path) if path.suffix == ".npy" else np.loadtxt(path, delimiter=",", ndmin=2)
+    from ..io.guard import load_array, reading
+
+    if path.suffix == ".npy":
+        z = load_array(path, "NPY array")
+    else:
+        with reading(path, "CSV text"):
+            try:
+                z = np.loadtxt(path, delimiter=",", ndmin=2)
+            except ValueError as exc:
+                raise SessionFormatError(f"{path}: not a table of numbers ({exc}); a plain recording is N rows "
+                                         "of comma-separated numbers, one column per sensor") from None
+    if not isinstance(z, np.ndarray) or z.ndim != 2 or z.shape[0] < 2 or not np.issubdtype(z.dtype, np.number):
+        shape = getattr(z, "shape", None)
+        raise SessionFormatError(f"{path}: a plain recording is a numeric array of N rows and one column per sensor "
+                                 f"(N, n), got shape {shape}; reshape it (a single sensor: (N, 1))")
+    z = np.asarray(z, dtype=float)
+    if not np.all(np.isfinite(z)):
+        r, c = np.argwhere(~np.isfinite(z))[0]
+        raise SessionFormatError(f"{path}: {int((~np.isfinite(z)).sum())} values are not finite (first: row {r + 1}, "
+                                 f"column {c + 1}); noise identification needs an unbroken static recording")
+    flat = np.flatnonzero(np.ptp(z, axis=0) == 0)
+    if flat.size:
+        raise SessionFormatError(f"{path}: column {int(flat[0]) + 1} is constant: not the output of a sensor (a "
+                                 "disconnected channel?); remove it")
     inst = (args.instrument or ["gyro"])[0]
     axes = names = None
     if args.geometry:
@@ -63,7 +85,15 @@ def _plain(args: argparse.Namespace, path: Path) -> Any:
 
 
 def _terms(args: argparse.Namespace) -> tuple[str, ...]:
-    return tuple(t.strip() for t in args.terms.split(",") if t.strip())
+    from ..errors import OptionError
+    from ..noise.model import TERMS
+
+    terms = tuple(t.strip() for t in args.terms.split(",") if t.strip())
+    unknown = [t for t in terms if t not in TERMS]
+    if not terms or unknown:
+        raise OptionError(f"--terms {args.terms!r}: give one or more of {', '.join(TERMS)}, comma-separated"
+                          + (f" (unknown: {', '.join(unknown)})" if unknown else ""))
+    return terms
 
 
 def run(args: argparse.Namespace) -> int:
@@ -78,10 +108,16 @@ def run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     from ..noise.api import identify_session
+    from ._common import json_dump
 
     path = Path(args.recording)
     if not path.exists():
         raise FileNotFoundError(f"no such recording: {path}")
+    _terms(args)  # the options first: a refusal before any work
+    if args.write_calibration and not args.calibration:
+        from ..errors import OptionError
+
+        raise OptionError("--write-calibration needs --calibration (the file to add the noise to)")
     cal = None
     if path.suffix == ".npy" or (path.suffix == ".csv" and not path.with_suffix(".json").exists()):
         model = _plain(args, path)
@@ -106,7 +142,7 @@ def _run(args: argparse.Namespace) -> int:
         summary = {"output": str(out), "instruments": {k: m.table_rows() for k, m in model.instruments.items()},
                    "parity": {k: {"white": v["white"], "independent": v["independent"], "verdict": v["verdict"]}
                               for k, v in model.parity.items()}}
-        Path(args.json).write_text(json.dumps(summary, indent=1))
+        json_dump(summary, args.json)
         extra.append(f"summary {args.json}")
     if args.write_calibration:
         if cal is None:
@@ -124,6 +160,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _report(model: Any, folder: Path) -> Path:
+    from ..atomic import write_text
     from ..noise.model import FIELD_UNITS, TERMS
     from ..noise.plots import plot_instrument, plot_parity
 
@@ -143,5 +180,5 @@ def _report(model: Any, folder: Path) -> Path:
             pp = plot_parity(model.parity[k], folder / f"parity-{k}.png")
             lines += [model.parity[k]["verdict"], "", f"![parity]({pp.name})", ""]
     md = folder / "noise.md"
-    md.write_text("\n".join(lines))
+    write_text(md, "\n".join(lines))
     return md
