@@ -52,7 +52,7 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO
 
-__all__ = ["OutputGroup", "output_group", "current_group", "atomic_files", "atomic_path", "atomic_open", "write_text", "write_bytes", "AtomicFiles", "file_mode"]
+__all__ = ["OutputGroup", "output_group", "current_group", "flush_outputs", "atomic_files", "atomic_path", "atomic_open", "write_text", "write_bytes", "AtomicFiles", "file_mode"]
 
 
 def file_mode() -> int:
@@ -154,6 +154,7 @@ class OutputGroup:
     def __init__(self, files: Iterable[str | os.PathLike[str]] = (), dirs: Iterable[str | os.PathLike[str]] = ()
                  ) -> None:
         self._held: list[tuple[Path, Path]] = []
+        self._flushed: list[tuple[Path, Path | None]] = []
         self._files = {Path(f): _state(Path(f)) for f in files}
         self._dirs = {Path(d): (Path(d).is_dir(), _listing(Path(d))) for d in dirs}
         self._token: contextvars.Token | None = None
@@ -175,9 +176,19 @@ class OutputGroup:
             self._token = None
 
     def flush(self) -> None:
-        """Move the held outputs into place now (a later step reads them: a build); :meth:`abort` still removes
-        them when they are planned outputs or inside a planned folder."""
-        _move(self._held)
+        """Move the held outputs into place now (a later step reads them: a build, a reload). An existing file
+        they replace is kept aside until the group ends, so that :meth:`abort` can still put it back."""
+        mode = file_mode()
+        for tmp, final in self._held:
+            if not tmp.exists():
+                continue
+            backup = None
+            if final.exists():
+                backup = final.parent / f".{final.name}.{secrets.token_hex(4)}.tmpbak"
+                os.replace(final, backup)
+            os.chmod(tmp, mode)
+            os.replace(tmp, final)
+            self._flushed.append((final, backup))
         self._held.clear()
 
     def commit(self) -> None:
@@ -185,6 +196,8 @@ class OutputGroup:
         self._deactivate()
         if not self.done:
             self.flush()
+            _remove(b for _, b in self._flushed if b is not None)
+            self._flushed.clear()
             self.done = True
 
     def abort(self) -> list[Path]:
@@ -196,6 +209,15 @@ class OutputGroup:
         self.done = True
         left = _remove(t for t, _ in self._held)
         self._held.clear()
+        for final, backup in reversed(self._flushed):  # outputs already in place: the previous file back
+            try:
+                if backup is not None:
+                    os.replace(backup, final)
+                else:
+                    left += _remove([final])
+            except OSError:
+                left.append(final)
+        self._flushed.clear()
         for f, before in self._files.items():
             now = _state(f)
             if before is None and now is not None:
@@ -216,6 +238,10 @@ class OutputGroup:
         self.left_behind = left
         return left
 
+    def folders(self) -> list[Path]:
+        """The folders the run writes into (of the planned files and folders)."""
+        return sorted({f.parent for f in self._files} | set(self._dirs))
+
     def __enter__(self) -> OutputGroup:
         return self.activate()
 
@@ -230,6 +256,14 @@ def _is_temporary(p: Path) -> bool:
     parts = p.name.split(".")
     return p.name.startswith(".") and len(parts) >= 4 and any(x.startswith("tmp") for x in parts[2:]) and \
         any(len(x) == 8 and all(c in "0123456789abcdef" for c in x) for x in parts)
+
+
+def flush_outputs() -> None:
+    """Move the outputs held back so far into place (a command that reads one of its outputs back calls this
+    first); outside a group, nothing to do."""
+    group = _GROUP.get()
+    if group is not None:
+        group.flush()
 
 
 def output_group(files: Iterable[str | os.PathLike[str]] = (), dirs: Iterable[str | os.PathLike[str]] = ()

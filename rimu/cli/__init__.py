@@ -152,6 +152,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.debug:
             raise
         msg, code = _describe(exc)
+        if isinstance(exc, OSError) and not getattr(exc, "filename", None) and group is not None and group.folders():
+            # a write failed (a full disk): the file object does not know its name, the run knows its folders
+            where = ", ".join(map(str, group.folders()))
+            msg = f"{exc.strerror or exc} while writing the outputs in {where}; free some space or write elsewhere"
         if left:
             msg += f" (could not undo {', '.join(map(str, left))})"
         print(f"rimu {args.command}: error: {msg}", file=sys.stderr)

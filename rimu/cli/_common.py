@@ -34,6 +34,8 @@ __all__ = [
     "probability",
     "positive_int",
     "nonnegative_int",
+    "bounded_float",
+    "check_samples",
     "Deprecated",
     "add_old_out",
     "add_procedure_options",
@@ -94,13 +96,55 @@ def _validator(kind: Callable[[str], _N], ok: Callable[[_N], bool], rule: str, n
     return check
 
 
-positive_float = _validator(float, lambda v: v > 0, "> 0", "positive_float", "A finite number > 0.")
-finite_float = _validator(float, lambda v: True, "finite", "finite_float", "A finite number.")
-nonnegative_float = _validator(float, lambda v: v >= 0, ">= 0", "nonnegative_float", "A finite number >= 0.")
-probability = _validator(float, lambda v: 0 < v < 1, "a probability strictly between 0 and 1", "probability",
+#: the extremes every numeric option takes: magnitudes beyond 1e12 or positive values below 1e-12 are typing
+#: mistakes for every quantity rimu takes (s, Hz, SI noise, factors), counts beyond a C int do not fit the
+#: exported code, and probabilities below 1e-15 are lost in the double precision of 1 - p
+FLOAT_MAX = 1e12
+FLOAT_TINY = 1e-12
+INT_MAX = 2**31 - 1
+P_MIN = 1e-15
+
+positive_float = _validator(float, lambda v: FLOAT_TINY <= v <= FLOAT_MAX, f"> 0, between {FLOAT_TINY:g} and "
+                            f"{FLOAT_MAX:g}", "positive_float", "A finite number > 0 (between 1e-12 and 1e12).")
+finite_float = _validator(float, lambda v: abs(v) <= FLOAT_MAX, f"finite, at most {FLOAT_MAX:g} in magnitude",
+                          "finite_float", "A finite number (at most 1e12 in magnitude).")
+nonnegative_float = _validator(float, lambda v: v == 0 or FLOAT_TINY <= v <= FLOAT_MAX,
+                               f">= 0, 0 or between {FLOAT_TINY:g} and {FLOAT_MAX:g}", "nonnegative_float",
+                               "A finite number >= 0 (0, or between 1e-12 and 1e12).")
+probability = _validator(float, lambda v: P_MIN <= v <= 1 - P_MIN, f"a probability strictly between 0 and 1 "
+                         f"(between {P_MIN:g} and 1 - {P_MIN:g})", "probability",
                          "A probability strictly between 0 and 1 (a false-alarm probability, a significance level).")
-positive_int = _validator(int, lambda v: v >= 1, "an integer >= 1", "positive_int", "An integer >= 1.")
-nonnegative_int = _validator(int, lambda v: v >= 0, "an integer >= 0", "nonnegative_int", "An integer >= 0.")
+positive_int = _validator(int, lambda v: 1 <= v <= INT_MAX, f"an integer >= 1 (at most {INT_MAX})", "positive_int",
+                          "An integer >= 1 (at most 2**31 - 1).")
+nonnegative_int = _validator(int, lambda v: 0 <= v <= INT_MAX, f"an integer >= 0 (at most {INT_MAX})",
+                             "nonnegative_int", "An integer >= 0 (at most 2**31 - 1).")
+
+
+def bounded_float(lo: float, hi: float, unit: str = "", why: str = "") -> Callable[[str], float]:
+    """An argparse ``type=``: a finite number in ``[lo, hi]`` (``why`` says where the range comes from).
+
+    >>> bounded_float(9.7, 9.9, "m/s^2")("9.81")
+    9.81
+    """
+    rule = f"between {lo:g} and {hi:g}{' ' + unit if unit else ''}" + (f" ({why})" if why else "")
+    return _validator(float, lambda v: lo <= v <= hi, rule, "bounded_float", f"A finite number {rule}.")
+
+
+def check_samples(n: float, options: str, limit: float = 5e7, least: float = 2) -> None:
+    """Refuse options whose product asks for more than ``limit`` samples (the memory of the machine) or fewer
+    than ``least`` (nothing to compute).
+
+    >>> check_samples(1e12, "--duration 1e10 at --sample-rate 100")
+    Traceback (most recent call last):
+    ...
+    rimu.errors.OptionError: --duration 1e10 at --sample-rate 100: 1e+12 samples, more than the 5e+07 rimu holds in memory; shorten it
+    """
+    from ..errors import OptionError
+
+    if not n <= limit:
+        raise OptionError(f"{options}: {n:.3g} samples, more than the {limit:.3g} rimu holds in memory; shorten it")
+    if n < least:
+        raise OptionError(f"{options}: {n:.3g} samples, fewer than {least:g}; lengthen it")
 
 
 # ---------------------------------------------------------------- deprecated spellings

@@ -76,6 +76,24 @@ def _plausible(path: str, gyro: np.ndarray, accel: np.ndarray | None) -> None:
                                     f"{unit}")
 
 
+def _check_options(args: argparse.Namespace, t: np.ndarray, gyro: np.ndarray) -> None:
+    """--lowpass-hz below the Nyquist frequency of the data; --motion-threshold-deg-s below the rates reached."""
+    from ..errors import OptionError, ShapeError
+
+    if len(t) < 10 or not np.all(np.diff(t) > 0):
+        raise ShapeError(f"{args.data}: t must hold at least 10 increasing times, s")
+    fs = 1.0 / float(np.median(np.diff(t)))
+    if args.lowpass_hz is not None and args.lowpass_hz >= fs / 2:
+        raise OptionError(f"--lowpass-hz {args.lowpass_hz:g}: must be below the Nyquist frequency of "
+                          f"{args.data} ({fs / 2:.4g} Hz)")
+    rate = np.degrees(np.linalg.norm(np.nanmean(gyro, axis=1), axis=1))
+    fast = int(np.sum(rate > args.motion_threshold_deg_s))
+    if fast < 10:
+        raise OptionError(f"--motion-threshold-deg-s {args.motion_threshold_deg_s:g}: only {fast} samples of "
+                          f"{args.data} turn faster (peak {np.nanmax(rate):.4g} deg/s); give a threshold below the "
+                          "peak rate")
+
+
 def run(args: argparse.Namespace) -> int:
     from ..array import array_report
     from ..atomic import write_text
@@ -84,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         layout, t, gyro, accel = _load(args.data)
+        _check_options(args, t, gyro)
         rep = array_report(layout, t, gyro, accel, motion_threshold_deg_s=args.motion_threshold_deg_s,
                            lowpass_hz=args.lowpass_hz)
     except RimuError as exc:

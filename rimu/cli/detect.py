@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import positive_float
+from ._common import bounded_float, nonnegative_float, positive_float
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -34,8 +34,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--min-static", type=positive_float, default=1.0, help="shortest pose kept, s (default %(default)s)")
     p.add_argument("--min-motion", type=positive_float, default=0.2,
                    help="shorter motions between two poses are bumps, merged into the pose, s (default %(default)s)")
-    p.add_argument("--margin", type=float, default=None, help="trimmed from both ends of each pose, s (default: window/2)")
-    p.add_argument("--gravity", type=positive_float, default=None, help="local gravity, m/s^2 (default 9.80665)")
+    p.add_argument("--margin", type=nonnegative_float, default=None,
+                   help="trimmed from both ends of each pose, s (default: window/2; less than half of --min-static)")
+    p.add_argument("--gravity", type=bounded_float(9.76, 9.84, "m/s^2", "local gravity anywhere on Earth's surface"),
+                   default=None, help="local gravity, m/s^2 (default 9.80665)")
     p.add_argument("--report", metavar="DIR", help="write detection.png and detection.md here")
     p.add_argument("--json", metavar="FILE", help="write a machine-readable summary here")
     p.set_defaults(func=run)
@@ -43,6 +45,20 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _cols(text: str | None):
     return None if text is None else [c.strip() for c in text.split(",") if c.strip()]
+
+
+def _factor(text: str) -> float | str:
+    from ..errors import OptionError
+
+    if text == "auto":
+        return text
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not (1.0 < v <= 1e6):
+        raise OptionError(f"--factor {text}: give 'auto' or a multiple of the noise floor above 1 (at most 1e6)")
+    return v
 
 
 def run(args: argparse.Namespace) -> int:
@@ -59,7 +75,12 @@ def run(args: argparse.Namespace) -> int:
         for k, v in log.meta.items():
             if "init" in str(k).lower() and isinstance(v, float) and v > 0:
                 init = v
-    factor: float | str = args.factor if args.factor == "auto" else float(args.factor)
+    factor = _factor(args.factor)
+    if args.margin is not None and 2 * args.margin >= args.min_static:
+        from ..errors import OptionError
+
+        raise OptionError(f"--margin {args.margin:g} s: trimmed from both ends, it must leave some of the shortest pose "
+                          f"(--min-static {args.min_static:g} s): give less than {args.min_static / 2:g} s")
     session, det = detect_session(log.t, log.raw, log.sample_rate, gravity=args.gravity or G0,
                                   window_s=args.window, factor=factor, init_still_s=init,
                                   min_static_s=args.min_static, min_motion_s=args.min_motion, margin_s=args.margin)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import add_readmit_options, positive_float, positive_int, probability, readmit_after
+from ._common import add_readmit_options, bounded_float, positive_int, probability, readmit_after
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_readmit_options(g, "rimu replay")
     g.add_argument("--fail-after", type=positive_int, default=None,
                    help="isolations of one sensor after which it is FAILED (not re-admitted)")
-    g.add_argument("--backoff", type=positive_float, default=None,
+    g.add_argument("--backoff", type=bounded_float(1.0, 100.0, why="the clean period never shrinks"), default=None,
                    help="factor on the clean period at each further isolation of a sensor (>= 1)")
     g.add_argument("--clear-after", type=positive_int, default=None,
                    help="alarm-free samples after which a 'not isolable' fault report is withdrawn")

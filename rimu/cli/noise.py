@@ -101,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         return _run(args)
-    except (RimuError, OSError, ValueError) as exc:
+    except RimuError as exc:
         print(f"rimu noise: error: {exc}", file=sys.stderr)
         return 2
 

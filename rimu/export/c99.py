@@ -471,6 +471,10 @@ def build_filter(directory: str | os.PathLike[str]) -> tuple[str | None, Any]:
     """Build ``rimu_filter`` in an exported ``directory`` with the system C compiler (``cc``, ``gcc`` or
     ``clang``) and ``make``. Returns ``(compiler, completed make process)``, or ``(None, None)`` when no compiler
     or no ``make`` is installed."""
+    from ..atomic import flush_outputs
+
+    flush_outputs()  # the files of a command's output group, held back until its end, are built from: in place
+
     import shutil
     import subprocess
 

@@ -180,6 +180,10 @@ def variant(kind: str, src: Path, target: Path) -> bool:
 
 
 FILE_CLASSES = ("garbage", "truncated", "empty", "encoding", "nonfinite", "units")
+#: commands that do not read the unit label the "units" variant of a session changes (its values stay what they
+#: were), with the reason
+UNIT_LABEL_NOT_READ = {"monitor": "streams the raw values through the calibration, whose raw unit applies; the "
+                                  "values are unchanged, so the result is right"}
 
 
 # ------------------------------------------------------------------ running and the rules
@@ -228,6 +232,8 @@ def check_file_class(command: str, kind: str, src: Path, inp: Path, out: Path, c
     """``command`` with its input ``src`` replaced by the ``kind`` variant (None: not applicable)."""
     bad = inp / "bad" / f"{kind}-{src.name}"
     bad.parent.mkdir(exist_ok=True)
+    if kind == "units" and src.name == "s.npz" and command in UNIT_LABEL_NOT_READ:
+        return None
     if not variant(kind, src, bad):
         return None
     args = [bad.as_posix() if a == str(src) else a for a in argv(command, inp, out)]
@@ -320,11 +326,17 @@ def check_option_parsing(command: str, inp: Path, out: Path, capsys: Any) -> dic
     return accepted
 
 
+#: commands whose working run is long (s): their extreme options run up to the first write of an output, where
+#: they are interrupted (what the options do before any output is written is what can crash or hang)
+LONG_RUNS = {"demo": 9.0}
+
+
 def check_extreme_options(command: str, accepted: dict[str, list[str]], inp: Path, out: Path, capsys: Any,
                           pick: Callable[[list[str]], str]) -> list[str]:
     """Run ``command`` with the picked accepted extreme value of every numeric option at once; an option the
     command refuses (exit 2, its name in the line) is dropped and the rest run again. Never a traceback, never
     exit 3, never a leftover. Returns the options refused at run time."""
+    ok = (130,) if command in LONG_RUNS else (0, 1)
     parser = subparsers()[command]
     values = {flag: pick(v) for flag, v in accepted.items()}
     refused = []
@@ -333,11 +345,12 @@ def check_extreme_options(command: str, accepted: dict[str, list[str]], inp: Pat
         for flag, v in values.items():
             args = _with_option(args, flag, v, parser)
         before = digest(out)
-        with memory_limit():
+        with memory_limit(), (trap().armed(out, KeyboardInterrupt()) if command in LONG_RUNS
+                              else contextlib.nullcontext()):
             code, o, err = run(args, capsys)
         no_traceback(code, o, err, args)
         if code != 2:
-            assert code in (0, 1), (args, code, err[-2000:])
+            assert code in ok, (args, code, err[-2000:])
             return refused
         line = one_error(err, command, args)
         named = [f for f in values if f in line]
@@ -438,15 +451,14 @@ def check_full_disk(command: str, inp: Path, out: Path, capsys: Any) -> None:
 
 def fill(folder: Path) -> None:
     """Fill the file system of ``folder`` to the last byte."""
-    with open(folder / ".filler", "ab") as fh:
-        with contextlib.suppress(OSError):
-            while True:
-                fh.write(b"\0" * 4096)
-                fh.flush()
-        with contextlib.suppress(OSError):
-            while True:
-                fh.write(b"\0")
-                fh.flush()
+    fd = os.open(folder / ".filler", os.O_WRONLY | os.O_CREAT | os.O_APPEND)
+    try:
+        for size in (1 << 16, 4096, 1):
+            with contextlib.suppress(OSError):
+                while os.write(fd, b"\0" * size):
+                    pass
+    finally:
+        os.close(fd)
 
 
 # ------------------------------------------------------------------ readers
