@@ -98,7 +98,8 @@ def _validator(kind: Callable[[str], _N], ok: Callable[[_N], bool], rule: str, n
 
 #: the extremes every numeric option takes: magnitudes beyond 1e12 or positive values below 1e-12 are typing
 #: mistakes for every quantity rimu takes (s, Hz, SI noise, factors), counts beyond a C int do not fit the
-#: exported code, and probabilities below 1e-15 are lost in the double precision of 1 - p
+#: exported code, and probabilities below 1e-15 are lost in the double precision of 1 - p (above 0.5 a test
+#: decides nothing)
 FLOAT_MAX = 1e12
 FLOAT_TINY = 1e-12
 INT_MAX = 2**31 - 1
@@ -111,9 +112,10 @@ finite_float = _validator(float, lambda v: abs(v) <= FLOAT_MAX, f"finite, at mos
 nonnegative_float = _validator(float, lambda v: v == 0 or FLOAT_TINY <= v <= FLOAT_MAX,
                                f">= 0, 0 or between {FLOAT_TINY:g} and {FLOAT_MAX:g}", "nonnegative_float",
                                "A finite number >= 0 (0, or between 1e-12 and 1e12).")
-probability = _validator(float, lambda v: P_MIN <= v <= 1 - P_MIN, f"a probability strictly between 0 and 1 "
-                         f"(between {P_MIN:g} and 1 - {P_MIN:g})", "probability",
-                         "A probability strictly between 0 and 1 (a false-alarm probability, a significance level).")
+probability = _validator(float, lambda v: P_MIN <= v <= 0.5, f"a probability strictly between 0 and 1 "
+                         f"(between {P_MIN:g} and 0.5: a false-alarm probability or significance level above one "
+                         "half decides nothing)", "probability",
+                         "A false-alarm probability or significance level, between 1e-15 and 0.5.")
 positive_int = _validator(int, lambda v: 1 <= v <= INT_MAX, f"an integer >= 1 (at most {INT_MAX})", "positive_int",
                           "An integer >= 1 (at most 2**31 - 1).")
 nonnegative_int = _validator(int, lambda v: 0 <= v <= INT_MAX, f"an integer >= 0 (at most {INT_MAX})",

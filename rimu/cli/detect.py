@@ -61,6 +61,18 @@ def _factor(text: str) -> float | str:
     return v
 
 
+def _check_spans(args: argparse.Namespace, span: float) -> None:
+    """The durations given as options against the record's length, s."""
+    from ..errors import OptionError
+
+    for opt, v, most in (("--window", args.window, span / 4), ("--min-static", args.min_static, span / 2),
+                         ("--min-motion", args.min_motion, span / 2), ("--init-still", args.init_still, span / 2)):
+        if v is not None and v > most:
+            rate = f"--rate {args.rate:g} Hz" if args.rate else "the sample rate of the file"
+            raise OptionError(f"{opt} {v:g} s: the record {args.raw} lasts {span:.4g} s at {rate}; give at most "
+                              f"{most:.4g} s")
+
+
 def run(args: argparse.Namespace) -> int:
     from ..atomic import write_text
     from ..calibration.detect import detect_session, plot_detection
@@ -70,6 +82,7 @@ def run(args: argparse.Namespace) -> int:
     from ._common import json_dump
 
     log = read_raw_text(args.raw, args.rate, _cols(args.accel), _cols(args.gyro), args.time)
+    _check_spans(args, len(log.t) / log.sample_rate)
     init = args.init_still
     if init is None:
         for k, v in log.meta.items():

@@ -54,7 +54,19 @@ def fdi_settings(args: argparse.Namespace):  # type: ignore[no-untyped-def]
              "clear_after": args.clear_after, "episode_gap": args.episode_gap, "alpha": args.set_alpha,
              "max_size": args.max_set_size}
     kw = {k: v for k, v in given.items() if v is not None}   # the others keep FdiSettings' defaults
-    return FdiSettings(**kw, readmit_after=readmit_after(args))
+    try:
+        return FdiSettings(**kw, readmit_after=readmit_after(args))
+    except ValueError as exc:  # a combination out of range: named by the options that set it
+        text = str(exc)
+        for field, opt in _OPTIONS.items():
+            text = text.replace(field, opt)
+        raise OptionError(text) from None
+
+
+#: FdiSettings field -> option (for its messages)
+_OPTIONS = {"readmit_after": "--readmit-after", "fail_after": "--fail-after", "invalid_persist": "--invalid-persist",
+            "clear_after": "--clear-after", "episode_gap": "--episode-gap", "confirm": "--confirm",
+            "backoff": "--backoff", "p_fa": "--p-fa", "alpha": "--set-alpha", "max_size": "--max-set-size"}
 
 
 def run(args: argparse.Namespace) -> int:

@@ -321,7 +321,7 @@ def run(args: argparse.Namespace) -> int:
     if not fdi.events:
         print("  no sensor isolated")
     if args.record:
-        print(f"  recording: {Path(args.record)}")
+        print(f"  recording: {Path(args.record)}" if n else "  no recording written (no epoch)")
     if args.json == "-":
         print(json.dumps(summary))
     elif args.json:

@@ -62,7 +62,11 @@ class CsvRecorder:
         self.rows += 1
 
     def close(self) -> None:
-        """Finish the recording: the file appears under its name."""
+        """Finish the recording: the file appears under its name (no epoch written: no file, an empty file is
+        not a recording)."""
+        if self.rows == 0:
+            self.abort()
+            return
         if not self._fh.closed:
             self._fh.close()
             self._tx.commit()

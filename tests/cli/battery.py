@@ -22,6 +22,7 @@ import json
 import math
 import os
 import sys
+import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -292,7 +293,9 @@ def _with_option(base: list[str], flag: str, value: str, parser: argparse.Argume
 # ------------------------------------------------------------------ options
 NUMERIC_TYPES = {float, int}
 #: values a hostile user types into a numeric option
-HOSTILE = ["nan", "inf", "-inf", "1e400", "-1e308", "0", "-1", "99999999999999999999", "1e-320", ""]
+HOSTILE = ["nan", "inf", "-inf", "1e400", "-1e308", "0", "-1", "99999999999999999999", "1e-320", "",
+           # and the edges of what the validators accept (rimu.cli._common): each must run or be refused by name
+           "2147483647", "1e12", "-1e12", "1e-12", "1e-15", "0.5"]
 
 
 def numeric_options(command: str) -> list[argparse.Action]:
@@ -379,16 +382,24 @@ def memory_limit(extra: int = 1 << 30) -> Iterator[None]:
 
 # ------------------------------------------------------------------ interruptions and a full disk
 class _Trap:
-    """An audit hook that fires at the first file opened for writing under ``folder`` (KeyboardInterrupt, or
-    OSError ENOSPC)."""
+    """An audit hook that delivers ``exc`` just after the first file under ``folder`` is opened for writing: at the
+    next audited event of the main thread (the next open, mkdir, chmod or rename), so that the first output
+    exists, partly written, when the interruption comes."""
 
     def __init__(self) -> None:
         self.folder: str | None = None
         self.exc: BaseException | None = None
         self.fired: list[str] = []
+        self.due = False
 
     def __call__(self, event: str, args: tuple) -> None:
-        if event != "open" or self.folder is None:
+        if self.folder is None or threading.current_thread() is not threading.main_thread():
+            return
+        if self.due:
+            self.due, self.folder = False, None
+            assert self.exc is not None
+            raise self.exc
+        if event != "open":
             return
         path, mode, flags = args
         if not isinstance(path, (str, bytes, os.PathLike)):
@@ -397,18 +408,16 @@ class _Trap:
             (flags or 0) & (os.O_WRONLY | os.O_RDWR | os.O_CREAT))
         p = os.path.abspath(os.fsdecode(path))
         if writing and p.startswith(self.folder):
-            self.folder = None
             self.fired.append(p)
-            assert self.exc is not None
-            raise self.exc
+            self.due = True
 
     @contextlib.contextmanager
     def armed(self, folder: Path, exc: BaseException) -> Iterator[list[str]]:
-        self.folder, self.exc, self.fired = str(folder.resolve()) + os.sep, exc, []
+        self.folder, self.exc, self.fired, self.due = str(folder.resolve()) + os.sep, exc, [], False
         try:
             yield self.fired
         finally:
-            self.folder = None
+            self.folder, self.due = None, False
 
 
 _TRAP: _Trap | None = None
@@ -422,15 +431,39 @@ def trap() -> _Trap:
     return _TRAP
 
 
+#: commands for which Ctrl-C is the normal end (a live recording): the outputs are then written whole
+CTRL_C_ENDS = {"monitor": "Ctrl-C ends a live recording; the epochs received so far are the recording"}
+
+
+def whole(p: Path) -> None:
+    """An output file that parses to its end."""
+    if p.suffix == ".json":
+        json.loads(p.read_text())
+    elif p.suffix == ".csv":
+        from rimu.io.recorded import CsvSource
+
+        src = CsvSource(p)
+        list(src)
+        assert src.accounting.rejected == 0, (p, src.accounting.as_dict())
+
+
 def check_ctrl_c(command: str, inp: Path, out: Path, capsys: Any) -> None:
-    """KeyboardInterrupt at the first write of an output: exit 130, the 'no partial output' line only when true,
-    nothing of the run in ``out``, inputs unchanged."""
+    """KeyboardInterrupt just after the first output file is opened for writing: exit 130, the 'no partial output'
+    line only when true, nothing of the run in ``out``, inputs unchanged (or, where Ctrl-C is the normal end, the
+    outputs whole and no temporary left)."""
     args = argv(command, inp, out)
     before_in, before_out = digest(inp), digest(out)
     with trap().armed(out, KeyboardInterrupt()) as fired:
         code, o, err = run(args, capsys)
     assert fired, (args, "the command wrote nothing", code, err[-1000:])
     no_traceback(code, o, err, args)
+    if command in CTRL_C_ENDS:
+        assert code in (0, 1), (args, code, err[-2000:])
+        files = [p for p in out.rglob("*") if p.is_file()]
+        assert not [p for p in files if p.name.startswith(".")], (args, "temporaries left", files)
+        for p in files:
+            whole(p)
+        return
     assert code == 130, (args, code, err[-2000:])
     assert err.strip().endswith(f"rimu {command}: interrupted; no partial output file was left behind"), err
     nothing_left(out, before_out, args)

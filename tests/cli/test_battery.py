@@ -28,20 +28,6 @@ from . import battery as B
 COMMANDS = sorted(B.subparsers())
 
 
-@pytest.fixture(scope="module")
-def inp(tmp_path_factory) -> Path:
-    d = tmp_path_factory.mktemp("battery-in")
-    B.make_inputs(d)
-    return d
-
-
-@pytest.fixture
-def out(tmp_path) -> Path:
-    d = tmp_path / "out"
-    d.mkdir()
-    return d
-
-
 def test_every_registered_command_has_a_working_invocation():
     from rimu.cli import COMMANDS as MODULES
 
@@ -51,6 +37,7 @@ def test_every_registered_command_has_a_working_invocation():
 
 
 # ------------------------------------------------------------------ input files: every class, every input
+# (fixtures inp: the valid inputs, out: an empty output folder: tests/cli/conftest.py)
 def _file_cases() -> list[tuple[str, str, str]]:
     cases = []
     for c in COMMANDS:
@@ -85,7 +72,9 @@ def test_extreme_options(command, inp, out, capsys):
     for flag in big:
         assert flag in accepted
     small = {f: [x for x in v if 0 < abs(float(x)) < 1e-300] for f, v in accepted.items()}
-    B.check_extreme_options(command, {f: v for f, v in small.items() if v}, inp, out, capsys, pick=lambda v: v[0])
+    small = {f: v for f, v in small.items() if v}
+    if small:  # (the validators refuse subnormal values at parse time today)
+        B.check_extreme_options(command, small, inp, out, capsys, pick=lambda v: v[0])
 
 
 def test_export_c_compiles_at_the_extremes_it_accepts(inp, out, capsys):
