@@ -65,6 +65,8 @@ class MultiImuSetup:
     fit_window_s: tuple[float, float] = (float("-inf"), float("inf"))
     full_block: EpochBlock | None = None
     n_average: int = 1
+    #: per unit with its own clock: offset and rate against the reference (rimu.calibration.timing.estimate_clocks)
+    clocks: list = field(default_factory=list)
 
     def average(self, full_block: EpochBlock) -> EpochBlock:
         """Average a block on the full-rate time base (e.g. one with injected faults) as :attr:`block` was."""
@@ -140,10 +142,26 @@ def triad_noise(Z: np.ndarray) -> np.ndarray:
     return out
 
 
+def _clocks(recording: Any, reference: int, max_lag_s: float, checks: str) -> list:
+    import logging
+
+    from .timing import estimate_clocks
+
+    clocks = estimate_clocks(recording, reference, max_lag_s=max_lag_s, checks=checks)
+    log = logging.getLogger(__name__)
+    for c in clocks[:reference] + clocks[reference + 1:]:
+        log.info("clock of %s: offset %+.3f ms, rate %+.3g +- %.2g ppm (drift %.3g ms at the ends)", c.name,
+                 1e3 * c.offset_s, c.rate_ppm, c.rate_sigma_ppm, 1e3 * c.drift_s)
+        if checks != "strict" and c.drift_s > 0.5 * float(np.median(np.diff(recording.units[reference].t))):
+            log.warning("clock of %s runs %+.3g ppm fast: %.3g ms of drift that one offset does not remove",
+                        c.name, c.rate_ppm, 1e3 * c.drift_s)
+    return clocks
+
+
 def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: int = 0,
                     fit_window_s: Sequence[float] | None = None, estimate_clocks: bool | None = None,
-                    max_lag_s: float = 0.5, min_rate_rad_s: float = 0.05, align_axes: bool | None = None
-                    ) -> MultiImuSetup:
+                    max_lag_s: float = 0.5, min_rate_rad_s: float = 0.05, align_axes: bool | None = None,
+                    clock_checks: str = "strict") -> MultiImuSetup:
     """Set up a unit of triads from its own recording (see the module docstring).
 
     Parameters
@@ -163,6 +181,9 @@ def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: in
         (``meta["own_clocks"]``).
     min_rate_rad_s : float
         Rates below this are not used for the axis alignment.
+    clock_checks : {"strict", "warn"}
+        A unit's clock rate (:func:`rimu.calibration.timing.estimate_clocks`, in ``clocks``) whose drift over the
+        record exceeds half a sample period after the offset is removed: refused, or logged as a warning.
     align_axes : bool, optional
         Fit the triads' rotations; default: unless the recording says its triads are already in one body frame
         (``meta["body_frame"]``, as an autopilot logs them). The gyro bias differences are fitted either way.
@@ -173,6 +194,8 @@ def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: in
     k = len(names)
     own = bool(recording.meta.get("own_clocks", False)) if estimate_clocks is None else bool(estimate_clocks)
     timing = estimate_offsets(recording, reference, max_lag_s) if (own and k > 1) else None
+    # a rate as well as an offset: refused where the drift exceeds what resampling on one offset absorbs
+    clocks = _clocks(recording, reference, max_lag_s, clock_checks) if (own and k > 1) else []
     full = recording.to_block(offsets_s=None if timing is None else timing.offsets_s, reference=reference)
     n_avg = 1
     if average_s:
@@ -227,4 +250,4 @@ def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: in
     meta: dict[str, Any] = {"source": recording.meta.get("source") or recording.meta.get("folder"),
                             "averaged": n_avg, "reference": names[reference]}
     cal = Calibration(cals, raw_unit="SI", method="multi-imu-setup", metadata=meta)
-    return MultiImuSetup(cal, block, timing, alignments, delivering, (lo, hi), full, n_avg)
+    return MultiImuSetup(cal, block, timing, alignments, delivering, (lo, hi), full, n_avg, clocks)
