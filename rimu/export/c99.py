@@ -53,7 +53,14 @@ _PREFIX = {"gyro": "RIMU_GYRO", "accel": "RIMU_ACCEL"}
 FDI_PARAMS = "rimu_fdi *{k}_m, const rimu_real *{k}_y, const unsigned char *{k}_valid, rimu_fdi_output *{k}_out"
 
 
+#: the largest finite C float (FLT_MAX)
+FLT_MAX = float(np.finfo(np.float32).max)
+
+
 def _num(v: float, real: str) -> str:
+    if real == "float" and abs(float(v)) > FLT_MAX:
+        raise ExportError(f"a coefficient of the calibration, {float(v):g}, is beyond the range of a C float "
+                          f"({FLT_MAX:.4g}): the generated code would not compile; export with --real double")
     s = repr(float(v))
     if "e" not in s and "." not in s and "inf" not in s and "nan" not in s:
         s += ".0"

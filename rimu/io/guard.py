@@ -122,8 +122,14 @@ def load_array(path: str | os.PathLike[str], what: str = "array file") -> Any:
         raise
     except ValueError as exc:
         if "allow_pickle" in str(exc):
-            raise SessionFormatError(f"{p}: holds Python objects (pickled arrays), which rimu never loads; save plain "
-                                     "numeric arrays with numpy.save or numpy.savez") from None
+            with open(p, "rb") as fh:
+                head = fh.read(2)
+            if head[:1] == b"\x80":  # a pickle (protocol 2 and later)
+                raise SessionFormatError(f"{p}: holds pickled Python objects, which rimu never loads; save plain "
+                                         "numeric arrays with numpy.save or numpy.savez") from None
+            raise SessionFormatError(f"{p}: not an NPZ or NPY file (numpy's files start with 'PK' or "
+                                     f"'\\x93NUMPY', this one with {head!r}); write the {what} with numpy.save or "
+                                     "numpy.savez") from None
         raise SessionFormatError(f"{p}: not a readable {what} ({exc}); write it with numpy.save or numpy.savez")\
             from None
     except (OSError, EOFError, KeyError, SyntaxError, tokenize.TokenError, zipfile.BadZipFile, zlib.error) as exc:

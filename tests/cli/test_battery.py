@@ -351,3 +351,57 @@ def test_the_battery_json_counts(inp):
     assert len(_file_cases()) >= len(COMMANDS) * 4
     assert json.loads((inp / "cal.json").read_text())
     assert os.path.getsize(inp / "s.npz") > 1000
+
+
+# ------------------------------------------------------------------ the issue's own examples, one by one
+ISSUE_CASES = [
+    (["noise", "{in}/s.npz", "--calibration", "{in}/cal.json", "-o", "{out}/n.json", "--terms", ""], "--terms"),
+    (["noise", "{in}/s.npz", "-o", "{out}/n.json", "--write-calibration", "{out}/c.json"], "--write-calibration"),
+    (["detect", "{in}/raw.csv", "-o", "{out}/d.npz", "--margin", "nan"], "--margin"),
+    (["detect", "{in}/raw.csv", "-o", "{out}/d.npz", "--margin", "5"], "--margin"),
+    (["detect", "{in}/raw.csv", "-o", "{out}/d.npz", "--gravity", "1e9"], "--gravity"),
+    (["detect", "{in}/raw.csv", "-o", "{out}/d.npz", "--gyro", "ax,ay,az"], "serve as more than one"),
+    (["export-c", "{in}/cal.json", "-o", "{out}/x", "--confirm", "99999999999999999999"], "--confirm"),
+    (["array", "{in}/arr.npz", "--motion-threshold-deg-s", "1e9"], "--motion-threshold-deg-s"),
+    (["array", "{in}/arr.npz", "--lowpass-hz", "1e6"], "--lowpass-hz"),
+]
+
+
+@pytest.mark.parametrize("args,word", ISSUE_CASES, ids=[" ".join(c[0][:1] + c[0][-2:]) for c in ISSUE_CASES])
+def test_the_issue_examples_are_refused_by_name(args, word, inp, out, capsys):
+    argv = [a.format(**{"in": inp, "out": out}) for a in args]
+    code, o, err = B.run(argv, capsys)
+    B.no_traceback(code, o, err, argv)
+    lines = [ln for ln in err.splitlines() if "error" in ln]
+    assert code == 2 and len(lines) == 1 and word in lines[0], err
+    assert not list(out.iterdir()), "the refusal left output behind"
+
+
+def test_monitor_json_beside_a_csv_recording_is_not_a_sidecar(inp, out, capsys):
+    args = ["monitor", "--npz", f"{inp}/s.npz", "--calibration", f"{inp}/cal.json", "-o", f"{out}/rec.csv",
+            "--json", f"{out}/rec.json", "-q"]
+    code, _, err = B.run(args, capsys)
+    assert code == 0, err
+    assert json.loads((out / "rec.json").read_text())["epochs"] > 0
+    B.whole(out / "rec.csv")
+
+
+def test_xsens_dot_reads_a_relative_folder(tmp_path, monkeypatch):
+    from rimu.io.xsens_dot import read_xsens_dot_run
+
+    _xsens(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    assert read_xsens_dot_run("run").names == ["imu1", "imu2"]
+
+
+def test_export_c_float_refuses_a_coefficient_beyond_the_float_range(inp, out, capsys):
+    from rimu.calibration import Calibration
+
+    cal = Calibration.load(inp / "cal.json")
+    k = cal.instruments[0]
+    cal[k].bias = cal[k].bias + 1e39
+    cal.save(out / "big.json")
+    code, _, err = B.run(["export-c", str(out / "big.json"), "-o", str(out / "c"), "--real", "float"], capsys)
+    assert code == 2 and "C float" in err and not (out / "c").exists()
+    code, _, err = B.run(["export-c", str(out / "big.json"), "-o", str(out / "d")], capsys)
+    assert code == 0, err
