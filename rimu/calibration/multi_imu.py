@@ -73,10 +73,14 @@ class MultiImuSetup:
         return average_block(full_block, self.n_average)
 
     def report(self) -> str:
-        """Human-readable summary: offsets (ms), rotations (deg with 1-sigma), noise levels."""
+        """Human-readable summary: offsets (ms), clock rates (ppm), rotations (deg with 1-sigma), noise levels."""
         lines = []
         if self.timing is not None:
             lines.append(self.timing.table())
+        if self.clocks:
+            lines.append("clock rates against the reference (ppm; drift left at the ends after one offset, ms)")
+            lines += [f"  {c.name:>8}: {c.rate_ppm:+9.3g} +- {c.rate_sigma_ppm:.2g} ppm   (drift {1e3 * c.drift_s:.3g})"
+                      for c in self.clocks]
         for a in self.alignments:
             lines.append("rotation " + a.table())
         for k in self.calibration.instruments:

@@ -295,7 +295,7 @@ CASES = [
     (["export-c", "{dir}/nocal.json", "-o", "{dir}/x"], 2, ["nocal.json"]),
     (["export-c", "{cal}", "-o", "{afile}"], 2, ["--output", "not a folder"]),
     (["export-c", "{cal}", "-o", "{dir}/x", "--real", "half"], 2, ["--real", "half"]),
-    (["export-c", "{cal}", "-o", "{dir}/x", "--backoff", "0.5"], 2, ["--backoff", "at least 1"]),
+    (["export-c", "{cal}", "-o", "{dir}/x", "--backoff", "0.5"], 2, ["--backoff", "between 1 and 100"]),
     (["export-c", "{cal}", "-o", "{dir}/x", "--max-set-size", "3"], 2, ["--max-set-size", "3"]),
     # demo
     (["demo", "--report", "{afile}"], 2, ["--report", "not a folder"]),

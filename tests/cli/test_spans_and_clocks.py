@@ -36,6 +36,7 @@ def test_a_clock_one_percent_fast_is_refused_and_its_rate_measured():
     assert abs(c.rate_ppm - 1e4) < 3 * c.rate_sigma_ppm + 1.0 and c.rate_sigma_ppm < 500
     ok = setup_multi_imu(_two_clocks(0.0))
     b = ok.clocks[1]
+    assert "clock rates against the reference (ppm" in ok.report() and f"{b.rate_ppm:+9.3g}" in ok.report()
     assert abs(b.rate_ppm) < 3 * b.rate_sigma_ppm + 1e-6 and abs(b.offset_s - 0.02) < 3 * b.offset_sigma_s + 1e-4
 
 
