@@ -17,8 +17,8 @@ import time
 import numpy as np
 from scipy.stats import norm
 
+from rimu.experiments.campaign import CampaignSpec, clopper_pearson, run_campaign
 from rimu.fdi import CusumBank, GltSnapshot, GltWindow, ParityKalman, RedundancyManager, markov_arl, siegmund_arl
-from rimu.fdi.campaign import CampaignSpec, clopper_pearson, run_campaign
 from rimu.fdi.cusum import bias_delays
 from rimu.fusion import InstrumentPipeline, numba_available
 from rimu.geometry import cone6

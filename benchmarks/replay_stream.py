@@ -30,15 +30,15 @@ import json, sys, time
 mode, data, cal, out = sys.argv[1:5]
 import numpy as np
 from rimu.cli import main
-import rimu.cli.replay, rimu.fdi, rimu.fdi.campaign, rimu.fdi.faults, rimu.fusion.validation, rimu.session  # imports untimed
+import rimu.cli.replay, rimu.fdi, rimu.experiments.campaign, rimu.experiments.faults, rimu.fusion.validation, rimu.session  # imports untimed
 t0 = time.perf_counter()
 if mode == "stream":
     assert main(["replay", data, "--calibration", cal, "-o", out, "-q"]) == 0
     summary = json.load(open(out + "/summary.json"))
 elif mode == "memory":
     from rimu.calibration import Calibration
-    from rimu.fdi.campaign import CampaignSpec, make_detector
-    from rimu.fdi.validate import validate
+    from rimu.experiments.campaign import CampaignSpec, make_detector
+    from rimu.experiments.validate import validate
     from rimu.session import load_session
     session = load_session(data)
     v = validate(session, Calibration.load(cal, geometries=session.geometries), p_fa=1e-3, confirm=3,

@@ -19,7 +19,7 @@ from rimu.calibration import LeastSquares
 from rimu.calibration.effects import GSensitivity
 from rimu.calibration.model import ErrorModel
 from rimu.diagnose import diagnose
-from rimu.fdi.validate import validate
+from rimu.experiments.validate import validate
 from rimu.fusion.validation import plot_segment_errors
 from rimu.geometry import cone6
 from rimu.sim import Simulator, TruthEffect

@@ -18,9 +18,9 @@ import argparse
 import json
 from pathlib import Path
 
+from rimu.experiments.campaign import CampaignSpec, run_campaign
+from rimu.experiments.faults import FAULTS
 from rimu.fdi import isolability
-from rimu.fdi.campaign import CampaignSpec, run_campaign
-from rimu.fdi.faults import FAULTS
 from rimu.fusion import ProjectionTable
 from rimu.geometry import cone6, dodecahedron6, tetrad4
 
@@ -54,7 +54,7 @@ def main() -> None:
                             closed_loop=False, base_seed=2)
         res = run_campaign(spec, workers=args.workers, progress=True)
         s = res.summary()[0]
-        rep = isolability(__import__("rimu.fdi.campaign", fromlist=["_setup"])._setup(spec)[1].table, None, geo)
+        rep = isolability(__import__("rimu.experiments.campaign", fromlist=["_setup"])._setup(spec)[1].table, None, geo)
         lo, hi = rep.full.wrong_isolation_10sigma
         print(f"{geo}: wrong isolation at 10 sigma (snapshot GLT) {100 * s['wrong_isolation']:.3f} % "
               f"(99% CI {100 * s['wrong_isolation_ci'][0]:.3f} .. {100 * s['wrong_isolation_ci'][1]:.3f} %); "

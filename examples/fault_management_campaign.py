@@ -14,7 +14,7 @@ import argparse
 import json
 import time
 
-from rimu.fdi.scenarios import ScenarioSpec, run_scenarios, scenario_table, summarise
+from rimu.experiments.scenarios import ScenarioSpec, run_scenarios, scenario_table, summarise
 
 
 def main() -> None:

@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 
 from rimu.calibration.multi_imu import MultiImuSetup, setup_multi_imu
+from rimu.experiments.faults import Injection, inject
 from rimu.fdi import RedundancyManager
-from rimu.fdi.faults import Injection, inject
 from rimu.fdi.manager import STATE_CODES
 from rimu.fusion import InstrumentPipeline
 from rimu.io.pixhawk_dual import read_pixhawk_dual

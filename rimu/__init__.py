@@ -20,7 +20,7 @@ _LAZY = {"Calibration": "calibration", "InstrumentCalibration": "calibration", "
          "Epoch": "epoch", "EpochBlock": "epoch", "Geometry": "geometry", "SubUnit": "geometry",
          "preset": "geometry", "Segment": "session", "Session": "session"}
 #: subpackages reachable as attributes after a bare ``import rimu`` (as when this module imported them)
-_SUBPACKAGES = ("array", "calibration", "cli", "diagnose", "epoch", "errors", "export", "fdi", "fusion", "geometry",
+_SUBPACKAGES = ("array", "calibration", "cli", "diagnose", "epoch", "errors", "experiments", "export", "fdi", "fusion", "geometry",
                 "io", "noise", "session", "sim", "units")
 
 __version__ = "0.1.0"

@@ -67,7 +67,7 @@ def parity_check(session: Session, result: CalibrationResult, instrument: str = 
     calibrated (``v_c``, Eq. 25) parity vectors applied to the scale-corrected half differences of every +/-
     pair, with the standard deviation expected from noise alone (SI). A plain-dict view of
     :func:`rimu.calibration.parity_check.pair_parity` (``stats``: the fit's segment sums); the chi-square verdict is
-    :func:`rimu.fdi.quality.parity_quality`."""
+    :func:`rimu.experiments.quality.parity_quality`."""
     pp = pair_parity(session, result.instruments[instrument].to_calibration(), stats)
     return {"v": pp.v, "v_c": pp.v_c, "nominal": pp.nominal, "corrected": pp.corrected,
             "noise_std": pp.noise_std, "pairs": pp.labels}

@@ -1,7 +1,7 @@
 """The parity vectors of a calibration on its +w / -w rate pairs: de Oliveira et al. 2012, Eq. 21-25.
 
 This is the one implementation of de Oliveira's parity-based calibration check. The estimator
-:class:`rimu.calibration.Oliveira` attaches its raw figures to its result; :func:`rimu.fdi.quality.parity_quality`
+:class:`rimu.calibration.Oliveira` attaches its raw figures to its result; :func:`rimu.experiments.quality.parity_quality`
 (the check a user runs, ``rimu check``) turns them into a chi-square verdict that also carries the
 calibration's own uncertainty.
 

@@ -67,8 +67,8 @@ def _list(opt: str, text: str, kind, lo: float | None = None) -> list:
 
 def run(args: argparse.Namespace) -> int:
     from ..errors import OptionError
-    from ..fdi.campaign import CampaignSpec, run_campaign
-    from ..fdi.faults import FAULTS
+    from ..experiments.campaign import CampaignSpec, run_campaign
+    from ..experiments.faults import FAULTS
     from ..geometry import preset
 
     if args.scheduler:  # the extra, before any work
@@ -97,8 +97,8 @@ def run(args: argparse.Namespace) -> int:
                         detector=args.detector, window=args.window, p_fa=args.p_fa, arl0=args.arl0,
                         confirm=args.confirm, duration=args.duration, fault_start=args.fault_start,
                         closed_loop=not args.open_loop_only, base_seed=args.seed)
+    from ..experiments.campaign import campaign_unit
     from ..fdi import isolability
-    from ..fdi.campaign import campaign_unit
 
     truth, pipe, _ = campaign_unit(spec)
     print(isolability(pipe.table, truth[spec.instrument].geometry.names, spec.geometry).summary())

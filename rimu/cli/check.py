@@ -3,7 +3,7 @@
 For every pair of rate sequences with opposite commanded rates, the mean parity vector of the commanded-rate
 part with the nominal and with the calibrated geometry; a quality index per direction of excitation and an
 overall verdict, without a reference. Accelerometers see the same gravity in both sequences of a pair, so they
-are checked at rest instead (rimu.fdi.static_quality: the parity of the compensated outputs of every static
+are checked at rest instead (rimu.experiments.static_quality: the parity of the compensated outputs of every static
 segment). A triad has no parity space: the check says "not applicable" for it.
 
 Prints a table per instrument; ``--report DIR`` writes the plots, ``--json FILE`` the figures. Exit status 0 when
@@ -82,8 +82,8 @@ def _not_applicable(session: Any, cal: Any, k: str) -> str | None:
 def run(args: argparse.Namespace) -> int:
     from ..calibration import Calibration
     from ..errors import CalibrationFileError, OptionError
-    from ..fdi.quality import parity_quality
-    from ..fdi.static_quality import static_parity_quality
+    from ..experiments.quality import parity_quality
+    from ..experiments.static_quality import static_parity_quality
 
     session, _ = read_session(args.session, "warn" if args.accept_implausible else "strict")
     cal = Calibration.load(args.calibration, geometries=session.geometries)

@@ -269,7 +269,7 @@ def _close_the_loop(sim, cal_run, cal, top: str, out: Path) -> dict:
     """Base calibration vs the one with ``top`` refitted, replayed on a held-out session (errors, FDI)."""
     from ..calibration import LeastSquares
     from ..calibration.model import ErrorModel
-    from ..fdi.validate import validate
+    from ..experiments.validate import validate
     from ..fusion.validation import plot_segment_errors
     from ..sim.typical import validation_procedure
     from ..units import MS2_TO_UG, RS_TO_DH

@@ -365,10 +365,10 @@ def run(args: argparse.Namespace) -> int:
     from ..calibration import Calibration
     from ..epoch import EpochBlock
     from ..errors import CalibrationFileError, OptionError, RimuError, SessionFormatError
+    from ..experiments.campaign import CampaignSpec, make_detector
+    from ..experiments.faults import inject, parse_injection
     from ..export.estimates import Estimates, estimate_columns, write_estimates
     from ..fdi import RedundancyManager, UnitManager
-    from ..fdi.campaign import CampaignSpec, make_detector
-    from ..fdi.faults import inject, parse_injection
     from ..fusion import Pipeline
     from ..progress import bar
     from ..session import iter_blocks

@@ -10,9 +10,9 @@
   :class:`GltWindow` (Daly, Gai & Harrison 1979), :class:`CusumBank`, :class:`ParityKalman` (steady-state filter; filterpy as its reference),
   :class:`CalibrationAwareGlt`, and the autopilot-style baseline :class:`MeanDisagreement`.
 * :func:`isolability`: what a geometry can detect and isolate, with wrong-isolation bounds.
-* :mod:`rimu.fdi.faults`: fault injection; :mod:`rimu.fdi.campaign`: campaigns; :mod:`rimu.fdi.scenarios`: the
-  fault-management campaign (every fault type, closed loop, three geometries); :mod:`rimu.fdi.quality`:
-  parity-based calibration quality (de Oliveira et al. 2012, Eq. 21-25).
+
+The experiment harness (fault injection, campaigns, scenarios, validation, calibration quality reports) lives
+above the runtime in :mod:`rimu.experiments`; the runtime never imports it.
 """
 
 from .baseline import MeanDisagreement
@@ -27,7 +27,6 @@ from .multiple import FaultSetGlt, SetDecision, set_fault_rates, single_fault_ra
 from .noise import NoiseEstimator
 from .parity import IsolabilityReport, detection_probability, isolability, wrong_isolation_bounds
 from .px4_selector import Px4GyroSelector, Px4SelectorResult
-from .quality import QualityReport, parity_quality
 from .unit import UnitManager
 
 __all__ = [
@@ -70,6 +69,4 @@ __all__ = [
     "isolability",
     "detection_probability",
     "wrong_isolation_bounds",
-    "parity_quality",
-    "QualityReport",
 ]

@@ -27,11 +27,11 @@ def files(tmp_path_factory):
 
 def in_memory(data, cal_path, specs):  # type: ignore[no-untyped-def]
     """The reference: the whole session in memory, faults injected, effects compensated, one manager run per
-    instrument, segment errors (rimu.fdi.validate, with the replay's detector and settings)."""
+    instrument, segment errors (rimu.experiments.validate, with the replay's detector and settings)."""
     from rimu.calibration import Calibration
-    from rimu.fdi.campaign import CampaignSpec, make_detector
-    from rimu.fdi.faults import parse_injection
-    from rimu.fdi.validate import validate
+    from rimu.experiments.campaign import CampaignSpec, make_detector
+    from rimu.experiments.faults import parse_injection
+    from rimu.experiments.validate import validate
     from rimu.session import load_session
 
     session = load_session(data)

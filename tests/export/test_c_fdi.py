@@ -1,6 +1,6 @@
 """The exported C fault management against rimu.fdi.RedundancyManager, sample by sample (skips without a C compiler).
 
-Seeded runs with the faults of the fault-management campaign (rimu.fdi.scenarios: bias step, two faults at once,
+Seeded runs with the faults of the fault-management campaign (rimu.experiments.scenarios: bias step, two faults at once,
 an intermittent fault that clears so the sensor is re-admitted, a dropout of several sensors, a stuck output, a
 ramp) plus a noise burst, a fault that keeps coming back (FAILED after ``fail_after`` isolations) and invalid
 samples, replayed through the Python manager and the generated ``rimu_filter``: the same validity, set state and
@@ -19,10 +19,10 @@ from scipy.stats import chi2
 
 from rimu.calibration.result import Calibration, InstrumentCalibration
 from rimu.errors import ExportError, SessionFormatError
+from rimu.experiments.scenarios import ScenarioSpec, _inject
 from rimu.export import Estimates, FdiSettings, estimate_columns, export_c, read_estimates, write_estimates
 from rimu.fdi.health import SensorState
 from rimu.fdi.manager import STATE_CODES
-from rimu.fdi.scenarios import ScenarioSpec, _inject
 from rimu.geometry import cone, cone6, tetrad4, triad3
 
 CC = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")

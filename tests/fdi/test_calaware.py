@@ -5,8 +5,8 @@ import pytest
 from scipy.stats import ncx2
 
 from rimu.calibration import InstrumentCalibration
+from rimu.experiments.campaign import clopper_pearson
 from rimu.fdi import CalibrationAwareGlt, CalibrationCovariance, RedundancyManager, glt_threshold, stated_covariance
-from rimu.fdi.campaign import clopper_pearson
 from rimu.fusion import InstrumentPipeline
 from rimu.geometry import cone6
 from rimu.sim import cho_park_table3

@@ -7,8 +7,8 @@ import pytest
 from rimu.calibration import InstrumentCalibration
 from rimu.calibration.model import RuntimeInputs
 from rimu.errors import MissingInputError
+from rimu.experiments.campaign import clopper_pearson
 from rimu.fdi import CalibrationAwareGlt, CalibrationCovariance, RedundancyManager, glt_threshold, stated_covariance
-from rimu.fdi.campaign import clopper_pearson
 from rimu.fusion import EffectCompensation, InstrumentPipeline
 from rimu.geometry import cone6
 from rimu.sim import cho_park_table3

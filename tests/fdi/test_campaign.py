@@ -6,9 +6,9 @@ import json
 import numpy as np
 import pytest
 
+from rimu.experiments.campaign import CampaignSpec, clopper_pearson, run_campaign
+from rimu.experiments.faults import FAULTS
 from rimu.fdi import wrong_isolation_bounds
-from rimu.fdi.campaign import CampaignSpec, clopper_pearson, run_campaign
-from rimu.fdi.faults import FAULTS
 
 P_FA = 1e-3
 
@@ -47,7 +47,7 @@ def test_wrong_isolation_at_10_sigma_consistent_with_parity_correlations(geometr
                         base_seed=303)
     res = run_campaign(spec, workers=0)
     s = res.summary()[0]
-    from rimu.fdi.campaign import campaign_unit
+    from rimu.experiments.campaign import campaign_unit
 
     _, pipe, sigma = campaign_unit(spec)
     Vz = pipe.table.Vz[0]

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2, norm
 
+from rimu.experiments.campaign import clopper_pearson
 from rimu.fdi import (
     CusumBank,
     GltSnapshot,
@@ -18,7 +19,6 @@ from rimu.fdi import (
     markov_arl,
     siegmund_arl,
 )
-from rimu.fdi.campaign import clopper_pearson
 from rimu.fdi.cusum import bias_delays
 from rimu.geometry import cone6, dodecahedron6
 

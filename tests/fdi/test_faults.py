@@ -6,7 +6,7 @@ import pytest
 from rimu.calibration import Calibration, InstrumentCalibration
 from rimu.epoch import EpochBlock
 from rimu.errors import ShapeError
-from rimu.fdi.faults import FAULTS, Injection, inject, parse_injection
+from rimu.experiments.faults import FAULTS, Injection, inject, parse_injection
 from rimu.geometry import cone6
 
 SCALE = 0.002  # SI per count

@@ -6,8 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rimu.calibration import InstrumentCalibration
+from rimu.experiments.faults import FAULTS, Injection, inject
 from rimu.fdi import CusumBank, GltWindow, HealthState, RedundancyManager
-from rimu.fdi.faults import FAULTS, Injection, inject
 from rimu.fusion import InstrumentPipeline
 from rimu.geometry import cone6, tetrad4
 from rimu.sim import Simulator, rotation

@@ -6,8 +6,8 @@ import pytest
 from scipy.stats import chi2
 
 from rimu.calibration import InstrumentCalibration
+from rimu.experiments.campaign import clopper_pearson
 from rimu.fdi import RedundancyManager
-from rimu.fdi.campaign import clopper_pearson
 from rimu.fdi.multiple import FaultSetGlt, set_fault_rates, single_fault_rates
 from rimu.fusion import InstrumentPipeline
 from rimu.fusion.validity import Validity

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from rimu.calibration import InstrumentCalibration
+from rimu.experiments.quality import parity_quality
 from rimu.fdi import stated_covariance
-from rimu.fdi.quality import parity_quality
 from rimu.geometry import tetrad4
 from rimu.sim import Simulator, oliveira_table1
 from rimu.units import DEG_TO_RAD, RAD_TO_ARCSEC

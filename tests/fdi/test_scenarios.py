@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from rimu.calibration import InstrumentCalibration
+from rimu.experiments.campaign import CampaignSpec, clopper_pearson, run_campaign
+from rimu.experiments.scenarios import SCENARIOS, ScenarioSpec, run_scenarios, scenario_table, summarise
 from rimu.fdi import CusumBank, RedundancyManager
-from rimu.fdi.campaign import CampaignSpec, clopper_pearson, run_campaign
 from rimu.fdi.multiple import FaultSetGlt
-from rimu.fdi.scenarios import SCENARIOS, ScenarioSpec, run_scenarios, scenario_table, summarise
 from rimu.fusion import InstrumentPipeline
 from rimu.geometry import cone6
 

@@ -1,4 +1,4 @@
-"""The accelerometers' parity check at rest (rimu.fdi.static_quality): chi-square under a correct calibration,
+"""The accelerometers' parity check at rest (rimu.experiments.static_quality): chi-square under a correct calibration,
 and it fails on a miscalibrated one."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from rimu.errors import SessionFormatError
-from rimu.fdi.static_quality import static_parity_quality
+from rimu.experiments.static_quality import static_parity_quality
 from rimu.geometry import triad3
 from rimu.sim import Simulator, cho_park_table1
 

@@ -1,6 +1,6 @@
 """A fault-management campaign: every fault type through the closed-loop manager on several geometries.
 
-Where :mod:`rimu.fdi.campaign` measures the detectors against their theory one fault at a time, this campaign
+Where :mod:`rimu.experiments.campaign` measures the detectors against their theory one fault at a time, this campaign
 asks what a flight computer sees: for each geometry (cone6, tetrad4, dodecahedron6 by default) and each
 scenario (``single``, ``double``, ``intermittent``, ``dropout``, ``stuck``, ``ramp``) it replays seeded runs
 sample by sample through :class:`rimu.fdi.RedundancyManager` and counts
@@ -30,11 +30,11 @@ import numpy as np
 from scipy.optimize import brentq
 from scipy.stats import chi2, ncx2
 
+from ..fdi.health import READMIT_AFTER
+from ..fdi.manager import RedundancyManager
 from ..fusion import InstrumentPipeline
 from ..fusion.validity import Validity
 from .campaign import check_spec, run_tasks, split_isolations
-from .health import READMIT_AFTER
-from .manager import RedundancyManager
 
 __all__ = ["SCENARIOS", "ScenarioSpec", "run_scenarios", "scenario_table"]
 
@@ -221,7 +221,7 @@ def run_scenarios(spec: ScenarioSpec, workers: int | None = 0,
                   progress: bool | Callable[[int, int], None] = False) -> list[dict[str, Any]]:
     """Every (geometry, scenario, run) of ``spec``, in order; one dict per run.
 
-    ``workers`` and ``progress`` as in :func:`rimu.fdi.campaign.run_campaign` (the same loop): 0, the default,
+    ``workers`` and ``progress`` as in :func:`rimu.experiments.campaign.run_campaign` (the same loop): 0, the default,
     runs in this process; the rows do not depend on it (every run is seeded on its own).
     """
     tasks = [(g, kind, r) for g in spec.geometries for kind in spec.scenarios for r in range(spec.runs)]

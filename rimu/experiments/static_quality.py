@@ -1,5 +1,5 @@
 """Parity check of a calibration on the segments at rest: the accelerometers' counterpart of de Oliveira's
-rate-pair check (:mod:`rimu.fdi.quality`).
+rate-pair check (:mod:`rimu.experiments.quality`).
 
 The +w / -w rate pairs of de Oliveira et al. 2012 (Eq. 21-25) excite the gyros; accelerometers see the same
 gravity in both sequences of a pair, so their ``g_w`` is zero and that check cannot fail for them. At rest the
@@ -11,7 +11,7 @@ means only, whatever the attitude. A scale, misalignment or bias error left in t
 
 Each static segment is tested with ``q^T C^-1 q`` against ``chi2(n - 3)`` at ``p_fa / segments`` (Bonferroni),
 ``C = v_c diag(sigma^2 / N) v_c^T`` plus the calibration's own covariance propagated at the segment's specific
-force (:class:`rimu.fdi.calaware.CalibrationCovariance`). The statistic is the one of :mod:`rimu.fdi.quality`, so
+force (:class:`rimu.fdi.calaware.CalibrationCovariance`). The statistic is the one of :mod:`rimu.experiments.quality`, so
 the report reads the same way; the misfit is given in micro-g.
 """
 
@@ -57,7 +57,7 @@ class SegmentQuality:
 
 @dataclass
 class StaticQualityReport(ParityCheckReport, rows="segments"):
-    """Per-segment statistics and the verdict (attributes as :class:`rimu.fdi.quality.QualityReport`, with
+    """Per-segment statistics and the verdict (attributes as :class:`rimu.experiments.quality.QualityReport`, with
     ``segments``, one a segment at rest, in place of its pairs)."""
 
     segments: list[SegmentQuality]

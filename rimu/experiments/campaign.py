@@ -1,6 +1,6 @@
 """Fault-injection campaigns: fault type x sensor x size x seed, on any executor, with confidence intervals.
 
-Every task simulates a short manoeuvre (:mod:`rimu.sim`), injects one fault (:mod:`rimu.fdi.faults`) and
+Every task simulates a short manoeuvre (:mod:`rimu.sim`), injects one fault (:mod:`rimu.experiments.faults`) and
 replays it through the runtime pipeline twice:
 
 * open loop (vectorised, :meth:`InstrumentPipeline.process` and the detector's ``block``): per-sample
@@ -33,13 +33,13 @@ import numpy as np
 from scipy.stats import beta as _beta
 from scipy.stats import ncx2
 
+from ..fdi.baseline import MeanDisagreement
+from ..fdi.cusum import CusumBank
+from ..fdi.glt import GltSnapshot, GltWindow, glt_threshold
+from ..fdi.kalman import ParityKalman
+from ..fdi.manager import HealthState, RedundancyManager
 from ..fusion import InstrumentPipeline
-from .baseline import MeanDisagreement
-from .cusum import CusumBank
 from .faults import FAULTS
-from .glt import GltSnapshot, GltWindow, glt_threshold
-from .kalman import ParityKalman
-from .manager import HealthState, RedundancyManager
 
 __all__ = ["CampaignSpec", "CampaignResult", "run_campaign", "run_task", "run_tasks", "clopper_pearson", "make_detector",
            "simulated_truth", "campaign_unit"]
@@ -71,7 +71,7 @@ class CampaignSpec:
     geometry, instrument : str
         A preset name and ``"gyro"`` or ``"accel"``.
     faults : list of str
-        Fault types (:data:`rimu.fdi.faults.FAULTS`).
+        Fault types (:data:`rimu.experiments.faults.FAULTS`).
     sensors : list of int or None
         Faulty sensor indices (None: all).
     sizes : list of float
@@ -174,7 +174,7 @@ def campaign_unit(spec: CampaignSpec) -> tuple[Any, InstrumentPipeline, float]:
 
 def simulated_truth(geometry: str, instrument: str, sample_rate: float, seed: int) -> Any:
     """The simulator's truth calibration of one instrument of a preset geometry (Cho & Park-like coefficients,
-    noise_sigma of the simulated white noise); used by the fault-management campaign (:mod:`rimu.fdi.scenarios`)."""
+    noise_sigma of the simulated white noise); used by the fault-management campaign (:mod:`rimu.experiments.scenarios`)."""
     from ..geometry import preset
     from ..sim import Simulator
 
@@ -454,7 +454,7 @@ def run_tasks(fn: Callable[[Any, Any], dict[str, Any]], spec: Any, tasks: Sequen
               progress: bool | Callable[[int, int], None] = False, chunks_per_worker: int = 4
               ) -> tuple[list[dict[str, Any]], int]:
     """``fn(spec, task)`` for every task, in task order whatever the executor, and the number of workers used:
-    the one loop of both campaigns (this module's and :func:`rimu.fdi.scenarios.run_scenarios`). ``fn`` must be
+    the one loop of both campaigns (this module's and :func:`rimu.experiments.scenarios.run_scenarios`). ``fn`` must be
     a module-level function (pickled to the workers); the options are those of :func:`run_campaign`."""
     import os
 

@@ -16,12 +16,12 @@ from typing import Any
 import numpy as np
 
 from ..calibration.result import Calibration
+from ..fdi.health import READMIT_AFTER
+from ..fdi.manager import RedundancyManager, ReplayResult
+from ..fdi.unit import UnitManager
 from ..fusion import Pipeline
 from ..fusion.validation import InstrumentErrors, segment_errors, session_block
 from ..session import Session
-from .health import READMIT_AFTER
-from .manager import RedundancyManager, ReplayResult
-from .unit import UnitManager
 
 __all__ = ["InstrumentValidation", "validate"]
 
@@ -50,7 +50,7 @@ def validate(session: Session, calibration: Calibration, p_fa: float = 1e-3, con
     isolations. The whole session is held in memory: this is also the reference that the
     streaming ``rimu replay`` is checked against.
 
-    ``injections`` (:class:`rimu.fdi.faults.Injection`, drawn with ``seed``) are injected into the raw data
+    ``injections`` (:class:`rimu.experiments.faults.Injection`, drawn with ``seed``) are injected into the raw data
     first; ``detector(instrument_pipeline)`` makes each manager's detector (default: the manager's own).
 
     Examples

@@ -30,9 +30,9 @@ from scipy.stats import chi2
 
 from ..calibration.parity_check import pair_parity
 from ..calibration.result import InstrumentCalibration
+from ..fdi.calaware import CalibrationCovariance
 from ..session import Session
 from ..units import RAD_TO_ARCSEC, RAD_TO_DEG
-from .calaware import CalibrationCovariance
 
 __all__ = ["PairQuality", "QualityReport", "parity_quality", "ParityCheckReport"]
 
@@ -43,7 +43,7 @@ _FLAG = "  <-- error shows here"
 @dataclass
 class ParityCheckReport:
     """What the parity checks of a calibration share (the rate pairs here, the segments at rest in
-    :mod:`rimu.fdi.static_quality`): the verdict, the frame of the summary and of the dictionary.
+    :mod:`rimu.experiments.static_quality`): the verdict, the frame of the summary and of the dictionary.
 
     A subclass is a dataclass that adds its list of rows (each with ``bad`` and ``to_dict()``, named by ``rows=``
     in its class statement), ``p_fa``, ``uses_calibration_covariance`` and ``notes``.
