@@ -1,7 +1,8 @@
 """Live serial transports against their line rate: does ``rimu monitor --serial`` keep up?
 
-    python benchmarks/serial_transports.py            # 1 MB per round, 5 rounds
+    python benchmarks/serial_transports.py            # 500 kB per round, 5 rounds
     python benchmarks/serial_transports.py --quick    # 200 kB, 3 rounds
+    python3 dev.py bench serial_transports            # the same, recorded in benchmarks/results
 
 For each pyserial transport rimu's live source reads (``loop://``, ``socket://`` to a local TCP server, a
 pseudo-terminal as a local port), a sender writes rimu-framed epochs (SerialDevice, the simulated device) as fast
@@ -14,7 +15,7 @@ transport, the read calls and the frame decoding (CRC, values), not the pipeline
 the per-round ratio to the line rate. ``loop://`` is pyserial's in-process loopback for tests, not a line: its
 writer puts every byte into a queue of at most 4096 bytes one by one, so its figure is that writer's pace (both
 strategies alike), not the reader's. The reader's capacity is measured: the sender runs ahead, so the figure
-is how fast the bytes are taken and decoded, which must be at least what the line delivers. Prints a table and one JSON line (benchmarks/results/serial_transports.json).
+is how fast the bytes are taken and decoded, which must be at least what the line delivers. Prints a table and one JSON line.
 """
 
 from __future__ import annotations
@@ -137,7 +138,7 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--rounds", type=int, default=None)
     a = ap.parse_args()
-    size = 200_000 if a.quick else 1_000_000
+    size = 200_000 if a.quick else 500_000
     rounds = a.rounds or (3 if a.quick else 5)
     frames = SerialDevice().frames(fuzz.random_block(4000))
     per = len(b"".join(frames)) / len(frames)
@@ -159,8 +160,6 @@ def main() -> None:
         print(f"{name:<12}{r['block']:>13.2f}x{r['previous']:>16.2f}x")
     doc = {"baud": BAUD, "line_rate_bytes_s": LINE_RATE, "bytes_per_round": len(stream), "rounds": rounds,
            "ratio_to_line_rate": rows}
-    out = Path(__file__).resolve().parent / "results" / "serial_transports.json"
-    out.write_text(json.dumps(doc, indent=1) + "\n")
     print(json.dumps(doc))
 
 

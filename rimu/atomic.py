@@ -48,6 +48,7 @@ import contextvars
 import os
 import secrets
 import shutil
+import time
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO
@@ -158,6 +159,7 @@ class OutputGroup:
         self._files = {Path(f): _state(Path(f)) for f in files}
         self._dirs = {Path(d): (Path(d).is_dir(), _listing(Path(d))) for d in dirs}
         self._token: contextvars.Token | None = None
+        self._started = time.time_ns() - 2_000_000_000  # (file system clocks are coarse)
         #: after :meth:`abort`: outputs that could not be removed, or existing files the run changed
         self.left_behind: list[Path] = []
         self.done = False
@@ -231,10 +233,11 @@ class OutputGroup:
                 new = sorted(_listing(d) - entries, key=lambda p: len(p.parts))
                 top = [p for p in new if p.parent not in new]
                 left += _remove(top)
-        # temporaries of writers that were still open (their names carry the atomic pattern)
+        # temporaries of writers that were still open (their names carry the atomic pattern; made during this run)
         for folder in {f.parent for f in self._files} | {d for d in self._dirs if d.is_dir()}:
             with contextlib.suppress(OSError):
-                left += _remove(p for p in folder.glob(".*.tmp*") if _is_temporary(p))
+                left += _remove(p for p in folder.glob(".*.tmp*")
+                                if _is_temporary(p) and p.stat().st_mtime_ns >= self._started)
         self.left_behind = left
         return left
 
