@@ -11,6 +11,7 @@ that ran and failed, 2 bad input or options, 3 an internal error (a bug: rerun w
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import logging
 import os
@@ -152,7 +153,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.debug:
             raise
         msg, code = _describe(exc)
-        if isinstance(exc, OSError) and not getattr(exc, "filename", None) and group is not None and group.folders():
+        if (isinstance(exc, OSError) and exc.errno in _FULL and not getattr(exc, "filename", None)
+                and group is not None and group.folders()):
             # a write failed (a full disk): the file object does not know its name, the run knows its folders
             where = ", ".join(map(str, group.folders()))
             msg = f"{exc.strerror or exc} while writing the outputs in {where}; free some space or write elsewhere"
@@ -163,6 +165,10 @@ def main(argv: list[str] | None = None) -> int:
     finally:  # SystemExit and the like: the run's outputs are undone too
         if group is not None and not group.done:
             group.abort()
+
+
+#: errno of a write that found no room (a full disk, a quota, a file too large)
+_FULL = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG}
 
 
 def _finish(group: object, ok: bool) -> list:
