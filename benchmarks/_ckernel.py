@@ -1,7 +1,16 @@
 """C references of the runtime kernels for the runtime benchmarks (not a benchmark itself: ``dev.py bench`` skips
 ``_`` files).
 
-The C functions do the arithmetic of ``rimu/fusion/_kernels.py`` operation by operation, in the same order, on the
+* :func:`build_fixed`: the block path as a C programmer writes it for one unit: the sizes of each instrument fixed
+  at compile time (``#define``), ``restrict`` pointers, ``O = Y R^T - off`` with the range and finiteness test once
+  per block (a running maximum of ``|y|`` per sensor and a running sum of each output, tested at the end), built
+  with ``-O3 -march=native``: gcc unrolls and vectorises it. The reference of ``Pipeline.process``.
+* :func:`build_exported`: rimu's own exported C (:func:`rimu.export.export_c`) of the same calibration, ``rimu_step``
+  per epoch over the block, its estimates copied out; it computes more per sample (the weighted least-squares
+  solve, covariance, chi-square and isolation statistics), so it is a second, weaker reference.
+* :func:`build` (``epoch_block``): the compensation of every effect (``runtime_effects.py``).
+
+The effects' C functions do the arithmetic of ``rimu/fusion/_kernels.py`` operation by operation, in the same order, on the
 same arrays (the compiled program's F, L, W: the same effects, Newton steps and fixed-point rounds), so that a
 ratio to them measures the implementation, not a different computation. The C code keeps the plain shape of one
 static function per step (gcc inlines the small ones); the numba code differs only in how it is arranged for numba (its
@@ -27,33 +36,6 @@ SOURCE = r"""
 #include <math.h>
 #include <stdint.h>
 typedef int64_t i64;
-
-/* rimu.fusion._kernels.project_block */
-static int project_block(i64 N, i64 n, i64 m, const double *Y, const double *R, const double *off,
-                         const double *rng, double *out) {
-    for (i64 k = 0; k < N; k++) {
-        const double *y = Y + k * n;
-        for (i64 i = 0; i < n; i++)
-            if (!(fabs(y[i]) < rng[i])) return 0;
-        double s = 0.0;
-        for (i64 j = 0; j < m; j++) {
-            double acc = 0.0;
-            for (i64 i = 0; i < n; i++) acc += R[j * n + i] * y[i];
-            acc -= off[j];
-            out[k * m + j] = acc;
-            s += acc;
-        }
-        if (!(s - s == 0.0)) return 0;
-    }
-    return 1;
-}
-
-int project_block_repeat(i64 reps, i64 N, i64 n, i64 m, const double *Y, const double *R, const double *off,
-                         const double *rng, double *out) {
-    int ok = 1;
-    for (i64 r = 0; r < reps; r++) ok &= project_block(N, n, m, Y, R, off, rng, out);
-    return ok;
-}
 
 /* rimu.fusion._kernels: the compensation of every effect, on the program's F, L, W */
 enum {M = 22, W_F = M, W_W = M + 3, W_U = M + 6};
@@ -250,18 +232,7 @@ class CKernels:
     def __init__(self, lib: ctypes.CDLL, compiler: str) -> None:
         self.lib = lib
         self.compiler = compiler
-        lib.project_block_repeat.restype = ctypes.c_int
         lib.epoch_block_repeat.restype = ctypes.c_int64
-
-    def project_block(self, Y: np.ndarray, R: np.ndarray, off: np.ndarray, rng: np.ndarray, out: np.ndarray,
-                      reps: int) -> tuple[float, bool]:
-        N, n = Y.shape
-        m = R.shape[0]
-        args = [_I(N), _I(n), _I(m), _p(Y), _p(np.ascontiguousarray(R)), _p(np.ascontiguousarray(off)), _p(rng),
-                _p(out)]
-        t0 = time.perf_counter()
-        ok = self.lib.project_block_repeat(_I(reps), *args)
-        return (time.perf_counter() - t0) / reps, bool(ok)
 
     def epoch_block(self, F: np.ndarray, L: np.ndarray, W: np.ndarray, Y0: np.ndarray, Y1: np.ndarray,
                     t: np.ndarray, dT: np.ndarray, O0: np.ndarray, O1: np.ndarray, reps: int) -> tuple[float, int]:
@@ -280,3 +251,124 @@ def build() -> CKernels | None:
     (d / "k.c").write_text(SOURCE)
     subprocess.run([cc, *FLAGS, "k.c", "-o", "k.so", "-lm"], cwd=d, check=True)
     return CKernels(ctypes.CDLL(str(d / "k.so")), f"{Path(cc).name} {' '.join(FLAGS[:2])}")
+
+
+FIXED_INSTRUMENT = r"""
+#define N_IN @N@
+#define M_OUT @M@
+static int inst@S@(int64_t N, const double *restrict Y, const double *restrict R, const double *restrict off,
+                   const double *restrict lim, double *restrict out) {
+    double s[M_OUT] = {0}, a[N_IN] = {0};
+    for (int64_t k = 0; k < N; k++) {
+        const double *y = Y + k * N_IN;
+        double *o = out + k * M_OUT;
+        for (int i = 0; i < N_IN; i++) { double v = fabs(y[i]); a[i] = a[i] > v ? a[i] : v; }
+        for (int j = 0; j < M_OUT; j++) {
+            double acc = -off[j];
+            for (int i = 0; i < N_IN; i++) acc += R[j * N_IN + i] * y[i];
+            o[j] = acc;
+            s[j] += acc;
+        }
+    }
+    int ok = 1;
+    double t = 0.0;
+    for (int i = 0; i < N_IN; i++) ok &= a[i] < lim[i];
+    for (int j = 0; j < M_OUT; j++) t += s[j];
+    return ok && t - t == 0.0;
+}
+#undef N_IN
+#undef M_OUT
+"""
+
+
+class FixedKernel:
+    """The fixed-size C block kernel of a unit (:func:`build_fixed`)."""
+
+    def __init__(self, lib: ctypes.CDLL, compiler: str, k: int) -> None:
+        self.lib, self.compiler, self.k = lib, compiler, k
+        self.clock = time.perf_counter  # the clock of the timing (time.thread_time: CPU time of the thread)
+        lib.unit_block_repeat.restype = ctypes.c_int
+
+    def block(self, Ys: list[np.ndarray], Rs: list[np.ndarray], offs: list[np.ndarray], lims: list[np.ndarray],
+              outs: list[np.ndarray], reps: int) -> tuple[float, bool]:
+        """Run the unit's block ``reps`` times; (seconds per run, whether every block was clean)."""
+        args = [_I(reps), _I(len(Ys[0]))]
+        for Y, R, off, lim, out in zip(Ys, Rs, offs, lims, outs):
+            args += [_p(Y), _p(R), _p(off), _p(lim), _p(out)]
+        t0 = self.clock()
+        ok = self.lib.unit_block_repeat(*args)
+        return (self.clock() - t0) / reps, bool(ok)
+
+
+def _compile(src: str, extra: list[str] | None = None, cwd: Path | None = None) -> tuple[ctypes.CDLL, str] | None:
+    cc = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
+    if cc is None:
+        return None
+    d = cwd or Path(tempfile.mkdtemp(prefix="rimu_cref_"))
+    (d / "k.c").write_text(src)
+    subprocess.run([cc, *FLAGS, "-I", str(d), "k.c", *(extra or []), "-o", "k.so", "-lm"], cwd=d, check=True)
+    return ctypes.CDLL(str(d / "k.so")), f"{Path(cc).name} {' '.join(FLAGS[:2])}"
+
+
+def build_fixed(sizes: list[tuple[int, int]]) -> FixedKernel | None:
+    """The fixed-size kernel of a unit whose instruments have ``(n inputs, m outputs)``; None without a compiler."""
+    src = "#include <math.h>\n#include <stdint.h>\n"
+    for s, (n, m) in enumerate(sizes):
+        src += FIXED_INSTRUMENT.replace("@N@", str(n)).replace("@M@", str(m)).replace("@S@", str(s))
+    params = ", ".join(f"const double *Y{s}, const double *R{s}, const double *f{s}, const double *l{s}, double *O{s}"
+                       for s in range(len(sizes)))
+    calls = " & ".join(f"inst{s}(N, Y{s}, R{s}, f{s}, l{s}, O{s})" for s in range(len(sizes)))
+    src += (f"int unit_block_repeat(int64_t reps, int64_t N, {params}) {{\n    int ok = 1;\n"
+            f"    for (int64_t r = 0; r < reps; r++) ok &= {calls};\n    return ok;\n}}\n")
+    built = _compile(src)
+    return None if built is None else FixedKernel(built[0], built[1], len(sizes))
+
+
+EXPORTED_DRIVER = r"""
+#include <string.h>
+#include <stdint.h>
+#include "rimu_unit.h"
+/* every epoch of the block through rimu_step, the estimates copied into Og, Oa (N, 3) */
+int export_block_repeat(int64_t reps, int64_t N, const double *Yg, const double *Ya, double *Og, double *Oa) {
+    rimu_state sg, sa;
+    rimu_output og, oa;
+    int obs = 1;
+    memset(&sg, 0, sizeof sg);
+    memset(&sa, 0, sizeof sa);
+    for (int64_t r = 0; r < reps; r++)
+        for (int64_t k = 0; k < N; k++) {
+            rimu_step(0.0, 25.0, &sg, Yg + k * RIMU_GYRO_N, 0, &og, &sa, Ya + k * RIMU_ACCEL_N, 0, &oa);
+            memcpy(Og + 3 * k, og.x, sizeof og.x);
+            memcpy(Oa + 3 * k, oa.x, sizeof oa.x);
+            obs &= og.observable & oa.observable;
+        }
+    return obs;
+}
+"""
+
+
+class ExportedKernel:
+    """rimu's exported C of a gyro + accelerometer unit, ``rimu_step`` per epoch (:func:`build_exported`)."""
+
+    def __init__(self, lib: ctypes.CDLL, compiler: str) -> None:
+        self.lib, self.compiler = lib, compiler
+        self.clock = time.perf_counter
+        lib.export_block_repeat.restype = ctypes.c_int
+
+    def block(self, Yg: np.ndarray, Ya: np.ndarray, Og: np.ndarray, Oa: np.ndarray, reps: int) -> tuple[float, bool]:
+        t0 = self.clock()
+        ok = self.lib.export_block_repeat(_I(reps), _I(len(Yg)), _p(Yg), _p(Ya), _p(Og), _p(Oa))
+        return (self.clock() - t0) / reps, bool(ok)
+
+
+def build_exported(calibration: object) -> ExportedKernel | None:
+    """Export ``calibration`` (gyro + accel, with noise_sigma) with :func:`rimu.export.export_c` and build it with
+    the driver above (``-O3 -march=native``); None without a compiler."""
+    from rimu.export import export_c
+
+    if not (shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")):
+        return None
+    d = Path(tempfile.mkdtemp(prefix="rimu_export_"))
+    export_c(calibration, d)  # type: ignore[arg-type]
+    built = _compile(EXPORTED_DRIVER, ["rimu_unit.c"], d)
+    return None if built is None else ExportedKernel(built[0], built[1])

@@ -12,19 +12,25 @@ Prints a table and one JSON line. Skips (and says so) without a C compiler.
 
 from __future__ import annotations
 
+import os
+
+os.environ.update(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")  # pinned in the script
+
 import argparse
 import json
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from _timing import median_time
+from _timing import ratio_stats
 
 from rimu.calibration.result import Calibration, InstrumentCalibration
 from rimu.export import FdiSettings, export_c
@@ -107,20 +113,29 @@ def main() -> int:
             for faulty in (False, True):
                 Y = _stream(cal, args.samples, faulty)
                 np.ascontiguousarray(Y, dtype="<f8").tofile(Path(d) / "y.bin")
-                res = subprocess.run([str(Path(d) / "bench"), str(Path(d) / "y.bin"), str(args.samples),
-                                      str(args.repeats)], capture_output=True, text=True, check=True)
-                c_ns, state_b = float(res.stdout.split()[0]), int(res.stdout.split()[1])
                 mgr = s.manager(cal)
 
                 def py(mgr=mgr, Y=Y):
                     mgr.reset()
                     return mgr.run(Y)
 
-                py_s = median_time(py, args.repeats)
+                py()
+                times: dict[str, list[float]] = {"c": [], "py": []}
+                for _ in range(args.repeats):  # interleaved: one C run (its own loop time) and one Python run
+                    res = subprocess.run([str(Path(d) / "bench"), str(Path(d) / "y.bin"), str(args.samples), "1"],
+                                         capture_output=True, text=True, check=True)
+                    times["c"].append(float(res.stdout.split()[0]) * 1e-9 * args.samples)
+                    t0 = time.perf_counter()
+                    py()
+                    times["py"].append(time.perf_counter() - t0)
+                state_b = int(res.stdout.split()[1])
+                c_ns = statistics.median(times["c"]) / args.samples * 1e9
                 alarms = int(py().alarm.sum())
-                py_us = py_s / args.samples * 1e6
+                py_us = statistics.median(times["py"]) / args.samples * 1e6
+                rr = ratio_stats(times, "py", "c")
                 row = {"geometry": g.name, "n": g.n, "stream": "faults" if faulty else "clean", "c_ns": c_ns,
-                       "python_us": py_us, "ratio": py_us * 1e3 / c_ns, "alarms": alarms, "state_bytes": state_b}
+                       "python_us": py_us, "ratio": rr["median"], "ratio_range": [rr["min"], rr["max"]],
+                       "alarms": alarms, "state_bytes": state_b}
                 out["rows"].append(row)
                 print(f"{g.name:>14} {g.n:>4} {row['stream']:>7} {c_ns:>12.1f} {py_us:>17.1f} {row['ratio']:>8.0f} "
                       f"{alarms:>7} {state_b:>8}")

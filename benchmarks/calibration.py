@@ -21,6 +21,10 @@ the script says so and reports rimu alone. Prints a table and a JSON line.
 
 from __future__ import annotations
 
+import os
+
+os.environ.update(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")  # pinned in the script
+
 import argparse
 import json
 import statistics
@@ -32,7 +36,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from _timing import median_time
+from _timing import interleaved_times, load, ratio_stats
 
 from rimu.calibration import ChoPark, LeastSquares, Oliveira, Zhang
 from rimu.calibration.handheld import HandHeld
@@ -62,13 +66,22 @@ def ferraris_procedure(static_s: float, turn_rate_deg: float = 36.0):
     return steps
 
 
-def imucal_fit(session, fs: float):
-    """imucal's Ferraris calibration of the session's sections; returns (SF acc, axes acc, bias acc, SF gyro,
-    axes gyro, bias gyro) in rimu's conventions (SI per raw unit, unit rows, SI bias)."""
+def imucal_regions(session):
+    """The session's sections as imucal's FerrarisSignalRegions, each array in the layout imucal's own loader
+    (``ferraris_regions_from_section_list``, from a pandas frame) makes: column-ordered (Fortran) copies, on which
+    its column means run about 12x faster than on row-ordered views."""
     seg = {s.label: s for s in session.segments}
-    regions = FerrarisSignalRegions(
-        *[seg[k].raw["accel"] for k in SECTIONS[:6]], *[seg[k].raw["gyro"] for k in SECTIONS[:6]],
-        *[seg[k].raw["accel"] for k in SECTIONS[6:]], *[seg[k].raw["gyro"] for k in SECTIONS[6:]])
+    return FerrarisSignalRegions(
+        *[np.asfortranarray(seg[k].raw["accel"]) for k in SECTIONS[:6]],
+        *[np.asfortranarray(seg[k].raw["gyro"]) for k in SECTIONS[:6]],
+        *[np.asfortranarray(seg[k].raw["accel"]) for k in SECTIONS[6:]],
+        *[np.asfortranarray(seg[k].raw["gyro"]) for k in SECTIONS[6:]])
+
+
+def imucal_fit(session, fs: float, regions=None):
+    """imucal's Ferraris calibration of the session's sections (or of ``regions`` made from it); returns (SF acc,
+    axes acc, bias acc, SF gyro, axes gyro, bias gyro) in rimu's conventions (SI per raw unit, unit rows, SI bias)."""
+    regions = imucal_regions(session) if regions is None else regions
     cal = FerrarisCalibration(grav=G0, expected_angle=360.0).compute(regions, fs, "count", "count")
     ka, kg = np.diag(cal.K_a), np.diag(cal.K_g)
     return (1 / ka, cal.R_a / np.linalg.norm(cal.R_a, axis=1)[:, None], np.asarray(cal.b_a) / ka,
@@ -114,8 +127,10 @@ def main() -> None:
     ol_s = 6 * n_target / 7 / 16 / 100.0
     ol = Simulator({"gyro": tetrad4(), "accel": g}, latitude_deg=-23.2, seed=4).run(
         oliveira_table1(rate=2 * 2 * np.pi / ol_s, turns=2))
+    fer_regions = imucal_regions(fer.session) if HAVE_IMUCAL else None  # prepared outside the timing, as
+    # rimu's sessions are: both sides start from data in memory in the layout their own loaders make
     cases = {  # name: (label, session, fit); imucal first
-        "imucal_ferraris": ("imucal Ferraris, triad", fer.session, (lambda: imucal_fit(fer.session, 100.0))
+        "imucal_ferraris": ("imucal Ferraris, triad", fer.session, (lambda: imucal_fit(fer.session, 100.0, fer_regions))
                             if HAVE_IMUCAL else None),
         "chopark": ("rimu ChoPark, triad, Tables 1+2", cp.session, lambda: ChoPark().fit(cp.session).to_calibration()),
         "oliveira": ("rimu Oliveira, gyro tetrad, Table 1", ol.session,
@@ -127,18 +142,18 @@ def main() -> None:
     }
     size = {k: (sum(x.n_samples for x in c[1].segments), sum(geo.n for geo in c[1].geometries.values()))
             for k, c in cases.items()}
-    times: dict[str, list[float]] = {k: [] for k, c in cases.items() if c[2] is not None}
-    for k in times:  # one warm-up call each (imports; no statistics outlive a fit)
-        cases[k][2]()
-    for _ in range(args.repeats):  # interleaved: each estimator once per round, so load changes hit all alike
-        for k in times:
-            times[k].append(median_time(cases[k][2], 1))
+    fns = {k: c[2] for k, c in cases.items() if c[2] is not None}
+    for f in fns.values():  # one warm-up call each (imports; no statistics outlive a fit)
+        f()
+    times = interleaved_times(fns, args.repeats, time.thread_time)  # each estimator once per round, in turn
     med = {k: statistics.median(v) for k, v in times.items()}
     t_imucal = med.get("imucal_ferraris")
-    print(f"timing (median of {args.repeats} interleaved rounds; imucal's input: {size['imucal_ferraris'][0]} samples x "
-          f"{size['imucal_ferraris'][1]} channels)")
-    print(f"  {'estimator':42s} {'samples x ch':>15s} {'ms':>9s} {'/ imucal':>9s} {'per sample-ch':>14s}")
-    ratio, ratio_sc = {}, {}
+    print(f"timing (thread CPU time, median of {args.repeats} interleaved rounds; ratio = median [min, max] of the "
+          f"per-round ratios; {load()}; imucal's input: {size['imucal_ferraris'][0]} samples x "
+          f"{size['imucal_ferraris'][1]} channels, column-ordered as its loader makes them, sections prepared; "
+          "rimu's: a simulated session in memory)")
+    print(f"  {'estimator':42s} {'samples x ch':>15s} {'ms':>9s} {'/ imucal':>20s} {'per sample-ch':>14s}")
+    ratio, ratio_sc, ratio_range = {}, {}, {}
     for k, (label, _, _) in cases.items():
         if k not in med:
             print(f"  {label:42s} imucal is not importable here: install it (pip install imucal)")
@@ -146,13 +161,18 @@ def main() -> None:
         n, c = size[k]
         line = f"  {label:42s} {f'{n} x {c}':>15s} {med[k] * 1e3:9.2f}"
         if t_imucal is not None and k != "imucal_ferraris":
-            ratio[k] = med[k] / t_imucal
+            rs = ratio_stats(times, k, "imucal_ferraris")
+            ratio[k], ratio_range[k] = rs["median"], rs
             n0, c0 = size["imucal_ferraris"]
-            ratio_sc[k] = (med[k] / (n * c)) / (t_imucal / (n0 * c0))
-            line += f" {ratio[k]:9.2f} {ratio_sc[k]:14.2f}"
+            ratio_sc[k] = ratio[k] * (n0 * c0) / (n * c)
+            line += f" {rs['median']:6.2f} [{rs['min']:.2f}, {rs['max']:.2f}] {ratio_sc[k]:14.2f}"
         print(line)
     out["timing_ms"] = {k: v * 1e3 for k, v in med.items()}
     out["ratio_to_imucal"] = ratio
+    out["ratio_to_imucal_range"] = ratio_range
+    out["timing_includes"] = {"imucal": "FerrarisCalibration().compute on FerrarisSignalRegions prepared beforehand "
+                                        "(column-ordered arrays, as its loader makes)",
+                              "rimu": "estimator().fit(session).to_calibration() on a session in memory"}
     out["ratio_to_imucal_per_sample_channel"] = ratio_sc
     out["size_samples_channels"] = size
 
@@ -190,7 +210,7 @@ def main() -> None:
         sess = load_ferraris(folder)
         real: dict = {"samples": sum(x.n_samples for x in sess.segments), "estimators": {}}
         print(f"\nreal Ferraris recording ({real['samples']} samples; median of {args.repeats}; each fit on a freshly "
-              "loaded session, so no cache helps):")
+              "loaded session, loaded outside the timing, so no cache helps):")
         for name, est in (("chopark", ChoPark), ("oliveira", Oliveira), ("zhang", Zhang), ("handheld", HandHeld),
                           ("lsq", LeastSquares)):
             try:
@@ -199,37 +219,61 @@ def main() -> None:
                 real["estimators"][name] = {"refused": f"{type(exc).__name__}: {exc}"}
                 print(f"  {est.__name__:12s} refused: {type(exc).__name__}: {exc}")
                 continue
-            tr = []
-            for _ in range(args.repeats):
-                fresh = load_ferraris(folder)
-                t0 = time.perf_counter()
-                est().fit(fresh).to_calibration()
-                tr.append(time.perf_counter() - t0)
-            real["estimators"][name] = {"ms": statistics.median(tr) * 1e3}
-        real["rimu_lsq_ms"] = real["estimators"]["lsq"].get("ms")
+            fresh = [load_ferraris(folder) for _ in range(args.repeats + 1)]
+            it = iter(fresh)
+            ts = interleaved_times({name: lambda est=est, it=it: est().fit(next(it)).to_calibration()},
+                                   args.repeats, time.thread_time)[name]
+            real["estimators"][name] = {"ms": statistics.median(ts) * 1e3}
+        # rimu's LeastSquares against imucal, both from prepared data and both from the files, interleaved
+        sessions = iter([load_ferraris(folder) for _ in range(args.repeats + 2)])  # loaded outside the timing
+        fns = {"rimu_prepared": lambda: LeastSquares().fit(next(sessions)).to_calibration(),
+               "rimu_files": lambda: LeastSquares().fit(load_ferraris(folder)).to_calibration()}
+        includes = {"rimu_prepared": "LeastSquares().fit(session).to_calibration() on a session loaded beforehand",
+                    "rimu_files": "load_ferraris(folder) (CSV + section list) + the same fit"}
         if HAVE_IMUCAL:
             import pandas as pd
-            from imucal import FerrarisCalibration, ferraris_regions_from_section_list
+            from imucal import ferraris_regions_from_section_list
 
-            data = pd.read_csv(folder / "example_ferraris_session.csv", header=0, index_col=0)
-            sections = pd.read_json(folder / "example_ferraris_session_list.json").T
-            ti = []
-            for _ in range(args.repeats):
-                t0 = time.perf_counter()
+            csv_path, json_path = folder / "example_ferraris_session.csv", folder / "example_ferraris_session_list.json"
+
+            def imucal_files():
+                data = pd.read_csv(csv_path, header=0, index_col=0)
+                sections = pd.read_json(json_path).T
                 regions = ferraris_regions_from_section_list(data, sections)
-                FerrarisCalibration().compute(regions, sampling_rate_hz=102.4, from_acc_unit="m/s^2",
-                                              from_gyr_unit="deg/s")
-                ti.append(time.perf_counter() - t0)
-            real["imucal_ms"] = statistics.median(ti) * 1e3
+                return FerrarisCalibration().compute(regions, sampling_rate_hz=102.4, from_acc_unit="m/s^2",
+                                                     from_gyr_unit="deg/s")
+
+            regions = ferraris_regions_from_section_list(pd.read_csv(csv_path, header=0, index_col=0),
+                                                         pd.read_json(json_path).T)  # its own loader's arrays
+            fns["imucal_prepared"] = lambda: FerrarisCalibration().compute(
+                regions, sampling_rate_hz=102.4, from_acc_unit="m/s^2", from_gyr_unit="deg/s")
+            fns["imucal_files"] = imucal_files
+            includes["imucal_prepared"] = ("FerrarisCalibration().compute on the FerrarisSignalRegions its loader "
+                                           "made beforehand")
+            includes["imucal_files"] = "pandas read_csv + read_json + ferraris_regions_from_section_list + compute"
+        for f in fns.values():
+            f()
+        ts = interleaved_times(fns, args.repeats, time.thread_time)
+        real["ms"] = {k: statistics.median(v) * 1e3 for k, v in ts.items()}
+        real["includes"] = includes
+        real["rimu_lsq_ms"] = real["ms"]["rimu_prepared"]
+        print(f"  LeastSquares against imucal (thread CPU time, median of {args.repeats} interleaved rounds; "
+              f"ratio = median [min, max] of per-round ratios; {load()}):")
+        for k in fns:
+            print(f"    {k:16s} {real['ms'][k]:7.2f} ms  ({includes[k]})")
+        if HAVE_IMUCAL:
+            real["ratio_prepared"] = ratio_stats(ts, "rimu_prepared", "imucal_prepared")
+            real["ratio_files"] = ratio_stats(ts, "rimu_files", "imucal_files")
+            for w, tgt in (("prepared", 2.0), ("files", 1.0)):
+                r = real[f"ratio_{w}"]
+                print(f"    rimu / imucal from {w:8s}: {r['median']:.2f} [{r['min']:.2f}, {r['max']:.2f}]  "
+                      f"target <= {tgt}")
             for v in real["estimators"].values():
                 if "ms" in v:
-                    v["ratio_to_imucal"] = v["ms"] / real["imucal_ms"]
-            real["ratio_rimu_over_imucal"] = real["rimu_lsq_ms"] / real["imucal_ms"]
-            print(f"  {'imucal':12s} {real['imucal_ms']:.2f} ms (from the CSV and section list in memory)")
+                    v["ratio_to_imucal_prepared"] = v["ms"] / real["ms"]["imucal_prepared"]
         for name, v in real["estimators"].items():
             if "ms" in v:
-                print(f"  {name:12s} {v['ms']:.2f} ms" + (f" = {v['ratio_to_imucal']:.2f} x imucal"
-                                                          if "ratio_to_imucal" in v else ""))
+                print(f"  {name:12s} {v['ms']:.2f} ms (fit of a session loaded beforehand)")
         out["real_ferraris"] = real
     else:
         print("\nreal Ferraris recording: ../shared/data/imucal_ferraris_session is absent here")

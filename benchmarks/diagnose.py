@@ -11,9 +11,12 @@ Prints a table and one JSON line. Usage: python benchmarks/diagnose.py [--repeat
 
 from __future__ import annotations
 
+import os
+
+os.environ.update(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")  # pinned in the script
+
 import argparse
 import json
-import os
 import resource
 import subprocess
 import sys
@@ -23,9 +26,6 @@ from pathlib import Path
 
 # one BLAS thread per process unless told otherwise: on a shared 2-core machine threaded BLAS on thin
 # matrices oversubscribes the cores and runs several times slower (set OPENBLAS_NUM_THREADS to override)
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-os.environ.setdefault("OMP_NUM_THREADS", "1")
-
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -14,6 +14,10 @@ Prints a table and one JSON line. Skips (and says so) without a C compiler.
 
 from __future__ import annotations
 
+import os
+
+os.environ.update(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")  # pinned in the script
+
 import argparse
 import json
 import shutil

@@ -10,6 +10,10 @@ Prints tables and one JSON line (medians of repeated runs).
 
 from __future__ import annotations
 
+import os
+
+os.environ.update(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")  # pinned in the script
+
 import argparse
 import json
 import time

@@ -7,6 +7,10 @@ Run: python benchmarks/handheld.py [N_SEEDS] [N_POSES]
 
 from __future__ import annotations
 
+import os
+
+os.environ.update(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")  # pinned in the script
+
 import json
 import sys
 import time

@@ -12,9 +12,12 @@ every message, nothing else), against which the Message figures are put ("floors
 
 from __future__ import annotations
 
+import os
+
+os.environ.update(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")  # pinned in the script
+
 import argparse
 import json
-import os
 import statistics
 import sys
 import tempfile

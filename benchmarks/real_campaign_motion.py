@@ -10,6 +10,10 @@ flight fall, the detections and isolations of the faults are the ones to watch.
 
 from __future__ import annotations
 
+import os
+
+os.environ.update(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")  # pinned in the script
+
 import sys
 from pathlib import Path
 

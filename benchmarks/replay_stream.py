@@ -14,9 +14,12 @@ rounding is ~1e-16 g, from errors of ~1e-5 g). Prints a table and one JSON line.
 
 from __future__ import annotations
 
+import os
+
+os.environ.update(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")  # pinned in the script
+
 import argparse
 import json
-import os
 import statistics
 import subprocess
 import sys

@@ -25,8 +25,11 @@ and one JSON line.
 
 from __future__ import annotations
 
-import json
 import os
+
+os.environ.update(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")  # pinned in the script
+
+import json
 import sys
 import time
 from pathlib import Path

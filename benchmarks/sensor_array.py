@@ -14,7 +14,12 @@ Prints a table and one JSON line. Medians over repeats; ratios are what to compa
 
 from __future__ import annotations
 
+import os
+
+os.environ.update(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")  # pinned in the script
+
 import json
+import statistics
 import sys
 from pathlib import Path
 
@@ -22,7 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from _timing import median_time
+from _timing import interleaved_times, median_time, ratio_stats
 
 from rimu.array import ArrayLayout, accel_model, crb, fit_positions, fit_relative_gyro, ml_motion
 from rimu.sim.array import random_array_truth, simulate_array
@@ -38,15 +43,17 @@ def bench_ml(rows: int, cols: int) -> dict:
     theta = np.repeat(truth[None], M, axis=0)
     fa = accel_model(theta, lay.positions_m) + rng.normal(0, sa, (M, lay.k, 3))
     fg = theta[:, None, :3] + rng.normal(0, sg, (M, lay.k, 3))
-    t_ml = median_time(lambda: ml_motion(lay, fa, fg, sa, sg), 3)
     wts = np.full(lay.k, 1 / sg**2)
-    t_ref = median_time(lambda: np.einsum("k,nki->ni", wts / wts.sum(), fg), 5)
+    times = interleaved_times({"ml": lambda: ml_motion(lay, fa, fg, sa, sg),
+                               "ref": lambda: np.einsum("k,nki->ni", wts / wts.sum(), fg)}, 5)  # in turn
+    t_ml, t_ref = statistics.median(times["ml"]), statistics.median(times["ref"])
+    r_ml = ratio_stats(times, "ml", "ref")
     est = ml_motion(lay, fa, fg, sa, sg)
     x = np.column_stack([est.omega, est.omega_dot])
     P = crb(truth[None, :3], lay.positions_m, sg, sa)[0]
     ratio = np.var(x, axis=0) / np.diag(P)[:6]
     return {"triads": lay.k, "samples": M, "ml_samples_per_s": M / t_ml, "mean_samples_per_s": M / t_ref,
-            "time_ratio": t_ml / t_ref, "var_over_crb_rate": ratio[:3].tolist(),
+            "time_ratio": r_ml["median"], "time_ratio_range": [r_ml["min"], r_ml["max"]], "var_over_crb_rate": ratio[:3].tolist(),
             "var_over_crb_angacc": ratio[3:].tolist()}
 
 
@@ -55,7 +62,6 @@ def bench_cal(rows: int, cols: int, duration: float) -> dict:
     tr = random_array_truth(lay, seed=1, centre_gyro_common_mode=True)
     rec = simulate_array(tr, duration_s=duration, seed=1)
     terms = ("scale_misalignment", "bias", "sampling_offset")
-    t_fit = median_time(lambda: fit_relative_gyro(lay, rec.t, rec.gyro, terms=terms), 3)
     fit = fit_relative_gyro(lay, rec.t, rec.gyro, terms=terms)
     z = lay.to_body(rec.gyro)
 
@@ -69,13 +75,16 @@ def bench_cal(rows: int, cols: int, duration: float) -> dict:
         A = X.reshape(-1, 12)
         return A, w, [np.linalg.lstsq(A, (z[:, j] - w).ravel(), rcond=None)[0] for j in range(lay.k)]
 
-    t_naive = median_time(naive, 3)
+    times = interleaved_times({"fit": lambda: fit_relative_gyro(lay, rec.t, rec.gyro, terms=terms), "naive": naive},
+                              3)  # in turn: a load change hits both
+    t_fit, t_naive = statistics.median(times["fit"]), statistics.median(times["naive"])
+    r_fit = ratio_stats(times, "fit", "naive")
     A, w, sols = naive()
     res = np.array([(z[:, j] - w).ravel() - A @ sol for j, sol in enumerate(sols)])
     naive_rms = float(np.sqrt(np.mean(res**2)) * RAD_TO_DEG)
     t_pos = median_time(lambda: fit_positions(lay, rec.t, rec.accel, fit, rec.gyro), 1)
     return {"triads": lay.k, "samples": len(rec.t), "fit_s": t_fit, "naive_lstsq_s": t_naive,
-            "time_ratio": t_fit / t_naive,
+            "time_ratio": r_fit["median"], "time_ratio_range": [r_fit["min"], r_fit["max"]],
             "parity_rms_deg_s": {"raw": float(fit.parity_rms_rad_s["before"].mean() * RAD_TO_DEG),
                                  "naive_gain_bias": naive_rms,
                                  "rimu": float(fit.parity_rms_rad_s["after"].mean() * RAD_TO_DEG)},

@@ -15,6 +15,10 @@ Prints a table and a JSON line. The paper used 500 runs.
 
 from __future__ import annotations
 
+import os
+
+os.environ.update(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")  # pinned in the script
+
 import argparse
 import json
 import sys

@@ -262,6 +262,42 @@ class Calibration:
     def __contains__(self, instrument: object) -> bool:
         return instrument in self.instruments_cal
 
+    def apply(self, raw: dict[str, Any] | None = None, **arrays: Any) -> dict[str, np.ndarray]:
+        """Calibrated SI outputs of raw samples: the one call of imucal's ``cal_info.calibrate(acc, gyr, ...)``.
+
+        ``raw`` (or keyword arrays ``gyro=``, ``accel=``) holds per instrument the raw outputs (N, n) in this
+        calibration's raw unit. Each triad of the geometry (a sub-unit of three sensors) gives its vector in MB,
+        ``u = A^-1 (SF y - B)`` with ``A`` its calibrated axes (Cho & Park Eq. 1 and 20), so a unit of k triads
+        gives (N, 3k); any other geometry gives the least-squares vector of all its sensors, ``A^+ (SF y - B)``
+        (Cho & Park Eq. 20), (N, 3). Effects beyond scale, misalignment and bias are not applied here: a file that
+        holds them is refused (:class:`rimu.fusion.Compensator` compensates every effect).
+
+        >>> from rimu.geometry import triad3
+        >>> cal = Calibration({"accel": InstrumentCalibration.nominal("accel", triad3(), scale=2.0, bias=0.5)})
+        >>> cal.apply(accel=np.array([[1.0, 1.0, 5.0]]))["accel"].tolist()
+        [[1.5, 1.5, 9.5]]
+        """
+        from ..errors import NotCompensableError, ShapeError
+
+        data = dict(raw or {}, **arrays)
+        out = {}
+        for k, y in data.items():
+            c = self[k]
+            if c.effects:
+                raise NotCompensableError(f"the {k} calibration holds the effects {sorted(c.effects)}, which apply() "
+                                          "does not compensate; use rimu.fusion.Compensator (rimu replay) for them")
+            y = np.asarray(y, dtype=float)
+            if y.ndim != 2 or y.shape[1] != c.geometry.n:
+                raise ShapeError(f"{k}: raw outputs of shape {y.shape}; this calibration needs (N, {c.geometry.n})")
+            z = c.compensate(y)
+            A = c.axes_mb()
+            subs = c.geometry.subunits
+            if subs and all(len(su.members) == 3 for su in subs):
+                out[k] = np.hstack([np.linalg.solve(A[list(su.members)], z[:, list(su.members)].T).T for su in subs])
+            else:
+                out[k] = z @ np.linalg.pinv(A).T
+        return out
+
     def check_geometry(self, instrument: str, geometry: Geometry) -> None:
         """Raise GeometryMismatchError unless this calibration's geometry for ``instrument`` is ``geometry``."""
         mine = self[instrument].geometry

@@ -36,6 +36,9 @@ COMMANDS = [
     "noise",
     "export_c",
     "array",
+    "import_",
+    "setup",
+    "apply",
 ]
 
 EXIT_OK = 0
@@ -48,7 +51,8 @@ log = logging.getLogger("rimu.cli")
 
 #: optional modules and the extra that installs them (pyproject.toml)
 _EXTRAS = {"matplotlib": "plots", "pywt": "wavelets", "cantools": "dbc", "pyulog": "ulog", "distributed": "distributed",
-           "dask": "distributed", "tqdm": "progress"}
+           "dask": "distributed", "tqdm": "progress", "pymavlink": "logs",
+           "rosbags": "logs", "zstandard": "logs", "imucal": "bench"}
 
 
 def _common_options(p: argparse.ArgumentParser, top: bool) -> None:

@@ -56,7 +56,7 @@ log = logging.getLogger("rimu.cli")
 
 #: attributes of a parsed namespace that name output files / output folders / input files (checked by
 #: :func:`check_outputs` for every subcommand, including ones added later that follow the convention)
-OUTPUT_FILE_OPTIONS = ("output", "json", "truth", "record", "side_log", "plot", "estimates")
+OUTPUT_FILE_OPTIONS = ("output", "json", "truth", "record", "side_log", "plot", "estimates", "kalibr")
 OUTPUT_DIR_OPTIONS = ("report",)
 INPUT_OPTIONS = ("session", "data", "calibration", "layout", "csv", "npz", "replay", "ulog")
 

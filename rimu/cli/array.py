@@ -17,18 +17,20 @@ from pathlib import Path
 import numpy as np
 
 from ._common import positive_float
+from ._inputs import add_log_options, open_array
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("array", help="self-calibration of an array of triads from motion, with its report",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("data", help="NPZ file with t, gyro[, accel, rotations, positions_m, names]")
+    p.add_argument("data", help="NPZ file with t, gyro[, accel, rotations, positions_m, names], or a multi-IMU log")
     p.add_argument("-o", "--output", default=None, help="JSON file for the fitted parameters (SI, body frame)")
     p.add_argument("--report", default=None, metavar="DIR", help="folder for array_report.md and array_report.png")
     p.add_argument("--json", default=None, metavar="FILE", help="machine-readable summary")
     p.add_argument("--lowpass-hz", type=positive_float, default=None, help="low-pass every triad first (vehicles)")
     p.add_argument("--motion-threshold-deg-s", type=positive_float, default=30.0,
                    help="samples faster than this count as 'in motion' for the parity figures")
+    add_log_options(p)
     p.set_defaults(func=run)
 
 
@@ -101,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
     from ._common import json_dump
 
     try:
-        layout, t, gyro, accel = _load(args.data)
+        layout, t, gyro, accel = open_array(args.data, args) or _load(args.data)
         _check_options(args, t, gyro)
         rep = array_report(layout, t, gyro, accel, motion_threshold_deg_s=args.motion_threshold_deg_s,
                            lowpass_hz=args.lowpass_hz)

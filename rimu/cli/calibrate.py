@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ._common import Deprecated, add_accept_implausible, add_json_option, add_report_option
+from ._inputs import add_log_options, open_session
 
 METHODS = ("cho", "oliveira", "zhang", "lsq", "handheld")
 
@@ -16,7 +17,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("calibrate", help="estimate scale factor, misalignment and bias from a session file",
                        description="Calibrate a session (rimu session format: .csv + .json sidecar, or .npz; "
                                    "see docs/session-format.md) and print a coefficient table with uncertainties.")
-    p.add_argument("session", help="session file (.csv, .json sidecar, or .npz)")
+    p.add_argument("session", help="session file (.csv, .json sidecar, or .npz), Ferraris folder, or a log")
     p.add_argument("--method", choices=METHODS, default="cho",
                    help="cho: Cho & Park 2005; oliveira: de Oliveira et al. 2012 (tetrad); zhang: Zhang et al. "
                         "2010 (triads, no attitude needed); lsq: generic least squares on the effect model; handheld: "
@@ -29,6 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_json_option(p, "the coefficients, their standard deviations (SI) and chi2/dof")
     p.add_argument("--plot", action=Deprecated, new="--report DIR (writes DIR/residuals.png)", metavar="PNG")
     add_accept_implausible(p)
+    add_log_options(p)
     p.set_defaults(func=run)
 
 
@@ -107,13 +109,11 @@ def _print_bias_note(zero: dict) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..errors import OptionError
-    from ..session import load_session
-
     if args.effects and args.method != "lsq":
         raise OptionError(f"--effects applies to --method lsq only, not {args.method}")
     if args.wavelet and args.method != "oliveira":
         raise OptionError(f"--wavelet applies to --method oliveira only, not {args.method}")
-    session = load_session(args.session, checks="warn" if args.accept_implausible else "strict")
+    session = open_session(args.session, "warn" if args.accept_implausible else "strict", args=args)
     inst = _instruments(args.instruments, session)
     res = estimator(args.method, inst, args.effects, args.wavelet).fit(session)
     print(res.table())

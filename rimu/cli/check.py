@@ -29,6 +29,7 @@ from ._common import (
     positive_float,
     probability,
 )
+from ._inputs import add_log_options
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -44,16 +45,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_json_option(p, "the figures of every check")
     add_old_out(p, "check")
     add_accept_implausible(p)
+    add_log_options(p)
     p.set_defaults(func=run)
 
 
-def read_session(path: str | Path, checks: str = "strict") -> tuple[Any, Any]:
+def read_session(path: str | Path, checks: str = "strict", args: Any = None) -> tuple[Any, Any]:
     """(Session, EpochBlock) of a session file in rimu's format (``.npz``, or ``.csv`` / ``.json`` with its
     sidecar; :func:`rimu.session.load_session`), the samples of every segment back to back."""
     from ..epoch import EpochBlock
-    from ..session import load_session
+    from ._inputs import open_session
 
-    session = load_session(path, checks=checks)
+    session = open_session(path, checks, args=args)
     segs = session.segments
     temps = [s.temperature for s in segs]
     block = EpochBlock(np.concatenate([s.t for s in segs]),
@@ -85,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     from ..experiments.quality import parity_quality
     from ..experiments.static_quality import static_parity_quality
 
-    session, _ = read_session(args.session, "warn" if args.accept_implausible else "strict")
+    session, _ = read_session(args.session, "warn" if args.accept_implausible else "strict", args)
     cal = Calibration.load(args.calibration, geometries=session.geometries)
     shared = [k for k in cal.instruments if k in session.geometries]
     if args.instrument:

@@ -12,6 +12,7 @@ import argparse
 from pathlib import Path
 
 from ._common import bounded_float, nonnegative_float, positive_float
+from ._inputs import add_log_options, open_raw
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -40,6 +41,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    default=None, help="local gravity, m/s^2 (default 9.80665)")
     p.add_argument("--report", metavar="DIR", help="write detection.png and detection.md here")
     p.add_argument("--json", metavar="FILE", help="write a machine-readable summary here")
+    p.add_argument("--imu", default=None, help="the IMU of a multi-IMU log to read (default: the first)")
+    add_log_options(p)
     p.set_defaults(func=run)
 
 
@@ -76,12 +79,11 @@ def _check_spans(args: argparse.Namespace, span: float) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..atomic import write_text
     from ..calibration.detect import detect_session, plot_detection
-    from ..io.rawtext import read_raw_text
     from ..session import save_session
     from ..units import G0
     from ._common import json_dump
 
-    log = read_raw_text(args.raw, args.rate, _cols(args.accel), _cols(args.gyro), args.time)
+    log = open_raw(args.raw, args.rate, _cols(args.accel), _cols(args.gyro), args.time, args, args.imu)
     _check_spans(args, len(log.t) / log.sample_rate)
     init = args.init_still
     if init is None:

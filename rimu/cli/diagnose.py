@@ -12,9 +12,10 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
-from ..errors import SessionFormatError
 from ._common import add_accept_implausible, add_json_option, add_report_option, finite_float, probability
+from ._inputs import add_log_options
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -35,22 +36,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_json_option(p, "the diagnosis ('-': on stdout instead of the text)", allow_bare=True)
     p.add_argument("--list-effects", action="store_true", help="list the effects of the library and exit")
     add_accept_implausible(p)
+    add_log_options(p)
     p.set_defaults(func=run)
 
 
-def load_session(path: str | Path, checks: str = "strict"):
+def load_session(path: str | Path, checks: str = "strict", args: Any = None):
     """A Session from a Ferraris recording folder, or a rimu session file (``.csv`` with its ``.json``
     sidecar, the sidecar itself, or ``.npz``; see ``docs/session-format.md``)."""
-    from ..session import load_ferraris
-    from ..session import load_session as _load
+    from ._inputs import open_session
 
-    path = Path(path)
-    if path.is_dir():
-        return load_ferraris(path)
-    if not path.exists():
-        raise SessionFormatError(f"{path} does not exist; give a Ferraris recording folder or a rimu session file "
-                                 "(.csv + .json sidecar, or .npz, as 'rimu simulate' writes)")
-    return _load(path, checks=checks)
+    return open_session(path, checks, args=args)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -64,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
             if name == cls.name:
                 print(f"{name:20s} {'/'.join(cls.instruments):11s} {cls.description}")
         return 0
-    session = load_session(args.session, "warn" if args.accept_implausible else "strict")
+    session = load_session(args.session, "warn" if args.accept_implausible else "strict", args)
     sigma = None
     if args.calibration:
         from ..calibration import Calibration

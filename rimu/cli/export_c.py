@@ -16,9 +16,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "docs/flying.md.")
     p.add_argument("calibration", help="calibration file (rimu calibrate -o ...)")
     p.add_argument("-o", "--output", required=True, help="directory to write the C sources into")
-    p.add_argument("--real", choices=("double", "float"), default="double",
-                   help="floating-point type of the generated code (float for FPUs without double)")
+    p.add_argument("--real", choices=("double", "float"), default=None,
+                   help="floating-point type of the generated code (float for FPUs without double; default double, "
+                        "float with --target cortex-m4)")
     p.add_argument("--build", action="store_true", help="also build rimu_filter with the system C compiler")
+    p.add_argument("--target", choices=("host", "cortex-m4"), default="host",
+                   help="cortex-m4: single precision for a Cortex-M4F, plus its QEMU harness, flight image and "
+                        "Makefile.cortex-m4 (--build builds them with arm-none-eabi-gcc; docs/flight-target.md)")
     g = p.add_argument_group("fault management (baked into the code; an option not given keeps rimu.export.FdiSettings' default, which is rimu.fdi.RedundancyManager's)")
     g.add_argument("--p-fa", type=probability, default=None,
                    help="per-sample false-alarm probability of the detection test (and of the re-admission test)")
@@ -75,8 +79,11 @@ def run(args: argparse.Namespace) -> int:
 
     fdi = fdi_settings(args)
     cal = Calibration.load(args.calibration)
-    files = export_c(cal, args.output, real=args.real, fdi=fdi)
-    msg = f"wrote {', '.join(f.name for f in files)} to {Path(args.output)} ({args.real}; fault management " \
+    if args.target == "cortex-m4":
+        return _run_target(args, cal, fdi)
+    real = args.real or "double"
+    files = export_c(cal, args.output, real=real, fdi=fdi)
+    msg = f"wrote {', '.join(f.name for f in files)} to {Path(args.output)} ({real}; fault management " \
           f"p_fa {fdi.p_fa:g}, confirm {fdi.confirm})"
     if args.build:
         cc, res = build_filter(args.output)
@@ -89,5 +96,31 @@ def run(args: argparse.Namespace) -> int:
             print(f"{msg}; the build failed (above)")
             return 1
         msg += f"; built {Path(args.output) / 'rimu_filter'}"
+    print(msg)
+    return 0
+
+
+def _run_target(args: argparse.Namespace, cal, fdi) -> int:  # type: ignore[no-untyped-def]
+    """``--target cortex-m4``: the single-precision export with the Cortex-M4 harness (rimu.export.target)."""
+    from ..errors import OptionError
+    from ..export.target import build_target, missing_tools, write_target
+
+    if args.real == "double":
+        raise OptionError("--target cortex-m4 builds in single precision: drop --real double")
+    files = write_target(cal, args.output, fdi)
+    msg = f"wrote {len(files)} files to {Path(args.output)} (float, Cortex-M4F; fault management p_fa {fdi.p_fa:g}, " \
+          f"confirm {fdi.confirm})"
+    if args.build:
+        miss = missing_tools()
+        if miss:
+            print(f"{msg}; not built: {', '.join(miss)} not installed (Debian: apt-get install gcc-arm-none-eabi "
+                  "libnewlib-arm-none-eabi qemu-system-arm make gcc)")
+            return 1
+        res = build_target(args.output)
+        if res.returncode != 0:
+            print(res.stderr.strip())
+            print(f"{msg}; the build failed (above)")
+            return 1
+        msg += f"; built rimu_target.elf, rimu_flight.elf and rimu_target_host in {Path(args.output)}"
     print(msg)
     return 0

@@ -32,7 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--can", metavar="INTERFACE:CHANNEL", help="python-can interface and channel")
     src.add_argument("--serial", metavar="PORT", help="serial port or pyserial URL")
-    src.add_argument("--replay", metavar="LOG", help="python-can log file")
+    src.add_argument("--replay", metavar="LOG", help="python-can log file, or an IMU log (rimu import --help)")
     src.add_argument("--csv", metavar="FILE", help="rimu CSV recording")
     src.add_argument("--npz", metavar="FILE", help="NPZ file of rimu simulate")
     src.add_argument("--ulog", metavar="FILE", help="PX4 ULog flight log (extra 'ulog')")
@@ -76,6 +76,7 @@ def _open(args: argparse.Namespace) -> tuple[Any, Any, dict]:
     from ..errors import CalibrationFileError
     from ..io import SideLog
     from ..io.layout import load_layout
+    from ._inputs import log_source
 
     side = SideLog(args.side_log, max_items=0) if args.side_log else None
     extra: dict = {}
@@ -141,6 +142,8 @@ def _open(args: argparse.Namespace) -> tuple[Any, Any, dict]:
         from ..io.serial import SerialSource
 
         src = SerialSource(args.serial, args.baud, idle_timeout=args.idle_timeout, side_log=side)
+    elif args.replay and (src := log_source(args.replay)) is not None:  # an IMU log (rimu import --help)
+        pass
     elif args.replay:
         from ..io.can import CanReplaySource
 
@@ -163,6 +166,8 @@ def _open(args: argparse.Namespace) -> tuple[Any, Any, dict]:
     geos = _geometries(args, layout)
     if args.ulog:
         geos = {k: src.geometry(k) for k in src.instances}
+    elif hasattr(src, "recording"):  # an IMU log: the unit's geometry is the calibration's (rimu setup fits axes)
+        geos = None
     return src, Calibration.load(args.calibration, geometries=geos), extra
 
 

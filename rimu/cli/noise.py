@@ -19,12 +19,14 @@ from typing import Any
 import numpy as np
 
 from ._common import positive_float, probability
+from ._inputs import add_log_options
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("noise", help="Allan deviation and noise terms (ARW/VRW, bias instability, RRW) of a static "
                        "recording", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("recording", help="session file (.npz, .csv + .json sidecar) or plain .npy/.csv in SI")
+    p.add_argument("recording", help="session file (.npz, .csv + .json sidecar), a static log (rimu import --help), "
+                   "or plain .npy/.csv in SI")
     p.add_argument("-o", "--output", default="noise.json", help="noise model file (default noise.json)")
     p.add_argument("--report", default=None, metavar="DIR", help="folder for the plots and noise.md")
     p.add_argument("--json", default=None, metavar="FILE", help="machine-readable summary")
@@ -38,6 +40,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sample-rate", type=positive_float, default=None, help="Hz (plain recordings)")
     p.add_argument("--geometry", default=None, help="geometry preset of a plain recording (for the parity check)")
     p.add_argument("--p-fa", type=probability, default=1e-3, help="false-verdict probability of each parity check")
+    p.add_argument("--from-kalibr", default=None, metavar="YAML",
+                   help="no recording: seed the noise model of --calibration's sensors from kalibr's imu.yaml "
+                        "(white noise and random walk per triad; RECORDING is then '-')")
+    p.add_argument("--kalibr", default=None, metavar="YAML",
+                   help="also write kalibr's imu.yaml (noise densities and random walks per triad, SI)")
+    add_log_options(p)
     p.set_defaults(func=run)
 
 
@@ -84,6 +92,17 @@ def _plain(args: argparse.Namespace, path: Path) -> Any:
                     meta={"recording": str(path), "plain": True})
 
 
+def _is_plain(path: Path) -> bool:
+    """A plain array in SI: ``.npy``, or a numeric ``.csv`` without a sidecar that no log format claims."""
+    if path.suffix == ".npy":
+        return True
+    if path.suffix != ".csv" or path.with_suffix(".json").exists():
+        return False
+    from ..io.formats import find_format
+
+    return find_format(path) in (None, "text")
+
+
 def _terms(args: argparse.Namespace) -> tuple[str, ...]:
     from ..errors import OptionError
     from ..noise.model import TERMS
@@ -110,6 +129,8 @@ def _run(args: argparse.Namespace) -> int:
     from ..noise.api import identify_session
     from ._common import json_dump
 
+    if args.from_kalibr:
+        return _seed(args)
     path = Path(args.recording)
     if not path.exists():
         raise FileNotFoundError(f"no such recording: {path}")
@@ -119,13 +140,13 @@ def _run(args: argparse.Namespace) -> int:
 
         raise OptionError("--write-calibration needs --calibration (the file to add the noise to)")
     cal = None
-    if path.suffix == ".npy" or (path.suffix == ".csv" and not path.with_suffix(".json").exists()):
+    if _is_plain(path):
         model = _plain(args, path)
     else:
         from ..calibration import Calibration
-        from ..session import load_session
+        from ._inputs import open_session
 
-        session = load_session(path)
+        session = open_session(path, kind="static_unknown", args=args)
         if args.calibration:
             cal = Calibration.load(args.calibration, geometries=session.geometries)
         model = identify_session(session, cal, args.segment, args.instrument, _terms(args), args.p_fa)
@@ -144,6 +165,8 @@ def _run(args: argparse.Namespace) -> int:
                               for k, v in model.parity.items()}}
         json_dump(summary, args.json)
         extra.append(f"summary {args.json}")
+    if args.kalibr:
+        extra.append(f"kalibr {_write_kalibr(model, args.kalibr)}")
     if args.write_calibration:
         if cal is None:
             from ..errors import CalibrationFileError
@@ -157,6 +180,59 @@ def _run(args: argparse.Namespace) -> int:
     insts = ", ".join(f"{k} ({m.n} sensors)" for k, m in model.instruments.items())
     print(f"noise of {insts} -> {out}" + ("; " + "; ".join(extra) if extra else ""))
     return 0
+
+
+def _seed(args: argparse.Namespace) -> int:
+    """``--from-kalibr``: the noise of every sensor of the calibration from kalibr's imu.yaml (or IMU chain)."""
+    from ..calibration import Calibration
+    from ..errors import OptionError
+    from ..noise.kalibr import noise_from_kalibr, read_kalibr
+    from ..noise.model import NoiseModel
+
+    if not args.calibration:
+        raise OptionError("--from-kalibr needs --calibration (the unit whose sensors the noise is for)")
+    cal = Calibration.load(args.calibration)
+    doc = read_kalibr(args.from_kalibr)
+    models = {}
+    for k in cal.instruments:
+        names = list(cal[k].geometry.names)
+        blocks = [doc[f"imu{j}"] for j in range(len(names) // 3)] if "imu0" in doc else [doc]
+        if len(blocks) * 3 != len(names) and len(blocks) != 1:
+            raise OptionError(f"--from-kalibr: {len(blocks)} IMU blocks for {len(names)} {k} sensors")
+        per = [noise_from_kalibr(blocks[min(i // 3, len(blocks) - 1)], k, [n]) for i, n in enumerate(names)]
+        m = noise_from_kalibr(blocks[0], k, names)
+        for t in m.terms:
+            m.terms[t] = np.array([p.terms[t][0] for p in per])
+        models[k] = m
+        cal[k].noise = m
+        u = ("rad/s/sqrt(Hz)", "rad/s^2/sqrt(Hz)") if k == "gyro" else ("m/s^2/sqrt(Hz)", "m/s^3/sqrt(Hz)")
+        print(f"{k}: noise density " + ", ".join(f"{v:.4g}" for v in m.terms["white"]) + f" {u[0]}, random walk "
+              + ", ".join(f"{v:.4g}" for v in m.terms["rate_random_walk"]) + f" {u[1]}, at {m.sample_rate:g} Hz")
+    out = NoiseModel(models, meta={"source": str(args.from_kalibr)}).save(args.output)
+    msg = f"noise model seeded from {args.from_kalibr} -> {out}"
+    if args.write_calibration:
+        msg += f"; calibration with noise {cal.save(args.write_calibration)}"
+    print(msg)
+    return 0
+
+
+def _write_kalibr(model: Any, path: str) -> str:
+    """kalibr's imu.yaml of the model: one block per triad of the geometry (rimu.noise.kalibr)."""
+    from ..atomic import write_text
+    from ..noise.kalibr import kalibr_yaml, to_kalibr, to_kalibr_chain
+
+    n = max(m.n for m in model.instruments.values())
+    if n == 3:
+        doc = to_kalibr(model.instruments)
+    elif n % 3 == 0:
+        doc = to_kalibr_chain(model.instruments, [[3 * j, 3 * j + 1, 3 * j + 2] for j in range(n // 3)])
+    else:
+        from ..errors import NotApplicableError
+
+        raise NotApplicableError(f"--kalibr: kalibr describes triads; this unit has {n} sensors, not 3 per IMU")
+    write_text(path, kalibr_yaml(doc))
+    print("kalibr noise (SI): " + ", ".join(f"{k} {v:.4g}" for k, v in doc.items() if isinstance(v, float)))
+    return path
 
 
 def _report(model: Any, folder: Path) -> Path:

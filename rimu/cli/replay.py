@@ -47,6 +47,7 @@ from ._common import (
     probability,
     readmit_after,
 )
+from ._inputs import add_log_options
 
 DETECTORS = ["glt", "glt_window", "cusum", "kalman", "baseline"]
 
@@ -54,7 +55,7 @@ DETECTORS = ["glt", "glt_window", "cusum", "kalman", "baseline"]
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("replay", help="replay data through pipeline + FDI, optionally injecting faults",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("data", help="session file (.npz, or .csv/.json with sidecar)")
+    p.add_argument("data", help="session file (.npz, or .csv/.json with sidecar), or a log (rimu import --help)")
     p.add_argument("--calibration", required=True, help="calibration JSON file")
     p.add_argument("--inject", action="append", default=[], metavar="SPEC", help="fault to inject (repeatable)")
     p.add_argument("--detector", default="glt", choices=DETECTORS)
@@ -81,6 +82,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "by ';'): the columns the exported C filter writes")
     p.add_argument("--out", action=Deprecated, new="--report DIR and --json FILE", convert=_old_out, metavar="DIR")
     add_accept_implausible(p)
+    add_log_options(p)
     p.set_defaults(func=run, output_is_dir=True)  # -o names a folder (summary.json), checked as one
 
 
@@ -382,9 +384,9 @@ def run(args: argparse.Namespace) -> int:
         for what, v in (("--json", args.json), ("the data file", args.data), ("--calibration", args.calibration)):
             if v and v != "-" and Path(v).resolve() == est_path:
                 raise OutputPathError(f"--estimates {args.estimates} would overwrite {what} {v}; give another name")
-    path = Path(args.data)
-    if path.is_dir():
-        raise SessionFormatError(f"{path} is a folder; give a session file (.csv with its .json sidecar, or .npz)")
+    from ._inputs import session_file
+
+    path = session_file(args.data, "warn" if args.accept_implausible else "strict", args=args)
     try:  # pass 1: every format and plausibility check, the sample count, time span and rate; constant memory
         scan = _Scan(path, "warn" if args.accept_implausible else "strict")
     except RimuError:

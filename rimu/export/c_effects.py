@@ -234,9 +234,9 @@ static void rimu_wls_setup(int n, const rimu_real *ax, const rimu_real *w, const
         s->use[i] = (unsigned char)(!iso[i] && (valid == 0 || valid[i]) && isfinite(z[i]));
         m += s->use[i];
     }
-    s->G = m == n ? G : 0;
-    s->observable = s->G != 0;
-    if (s->G != 0) return;
+    s->G = m == n ? G : NULL;
+    s->observable = s->G != NULL;
+    if (s->G != NULL) return;
     m = 0;
     for (i = 0; i < n; ++i) {
         const rimu_real *a = ax + 3 * i;
@@ -265,7 +265,7 @@ static int rimu_wls_apply(int n, const rimu_real *ax, const rimu_real *w, const 
 {
     rimu_real h0 = 0, h1 = 0, h2 = 0;
     int i;
-    if (s->G != 0) {
+    if (s->G != NULL) {
         const rimu_real *G = s->G;
         for (i = 0; i < n; ++i) {
             if (!isfinite(z[i])) return 0;
@@ -464,7 +464,7 @@ def unit_step(cal: Calibration, name: str, params: str, iso: str, call: str, x: 
             for k in ranged:
                 b += [f"    for (i = 0; i < RIMU_{k.upper()}_N; ++i)  /* usable: flagged valid and inside the range */",
                       f"        {k}_use[i] = (unsigned char)(({k}_valid == 0 || {k}_valid[i]) "
-                      f"&& !(fabs({k}_y[i]) >= {k}_range[i]));"]
+                      f"&& !(RIMU_FABS({k}_y[i]) >= {k}_range[i]));"]
         b += [f"    dT = {'temperature - RIMU_REFERENCE_TEMPERATURE' if p.needs_temperature else '0'};"]
         if not p.needs_time:
             b += ["    t = 0;  /* no drift term: the time is not read */"]
@@ -496,7 +496,7 @@ def unit_step(cal: Calibration, name: str, params: str, iso: str, call: str, x: 
                       f"    {k}_raw({iso.format(k=k)}, {vname[k]}, {k}_y, m, yr);"]
                 if k in ranged:
                     b += [f"    for (i = 0; i < RIMU_{k.upper()}_N; ++i)  /* a clipped output stays clipped */",
-                          f"        if (fabs({k}_y[i]) >= {k}_range[i]) yr[i] = {k}_y[i];"]
+                          f"        if (RIMU_FABS({k}_y[i]) >= {k}_range[i]) yr[i] = {k}_y[i];"]
                 b += ["    " + call.format(k=k, y="yr")]
             else:
                 b += ["    " + call.format(k=k, y=f"{k}_y")]

@@ -326,13 +326,31 @@ static rimu_real rimu_thr_set(const rimu_fdi_unit *u, int dof, int k, long sampl
     return (rimu_real)rimu_chi2_isf(RIMU_FDI_ALPHA, samples * (long)(dof - k));
 }
 
-/* ---- weighted least squares on one sensor set (weights w), with P a_i, q_i = 1 - w_i a_i^T P a_i and the
- * whitened residuals e_i = sqrt(w_i) (z_i - a_i . x) when z is given */
+/* P a_i and q_i = 1 - w_i a_i^T P a_i of the used sensors of an observable fit: made for the isolation test only
+ * (a set's state, an alarm), not on every sample */
+static void rimu_fit_q(const rimu_fdi_unit *u, const rimu_real *w, const unsigned char *use, rimu_fit *f)
+{
+    rimu_real P00 = f->P[0], P01 = f->P[1], P02 = f->P[2], P11 = f->P[4], P12 = f->P[5], P22 = f->P[8];
+    int i;
+    if (!f->observable) return;
+    for (i = 0; i < u->n; ++i) {
+        const rimu_real *a = u->ax + 3 * i;
+        rimu_real *pa = f->Pa + 3 * i;
+        if (!use[i]) continue;
+        pa[0] = P00 * a[0] + P01 * a[1] + P02 * a[2];
+        pa[1] = P01 * a[0] + P11 * a[1] + P12 * a[2];
+        pa[2] = P02 * a[0] + P12 * a[1] + P22 * a[2];
+        f->q[i] = 1 - w[i] * (a[0] * pa[0] + a[1] * pa[1] + a[2] * pa[2]);
+    }
+}
+
+/* ---- weighted least squares on one sensor set (weights w), with the whitened residuals
+ * e_i = sqrt(w_i) (z_i - a_i . x) when z is given, else with P a_i and q_i (rimu_fit_q) */
 static void rimu_fit_set(const rimu_fdi_unit *u, const rimu_real *w, const unsigned char *use, const rimu_real *z,
                          rimu_fit *f)
 {
     rimu_real N00 = 0, N01 = 0, N02 = 0, N11 = 0, N12 = 0, N22 = 0, h0 = 0, h1 = 0, h2 = 0, scale = 0;
-    rimu_real P00, P01, P02, P11, P12, P22;
+    rimu_real x0, x1, x2;
     int i, m = 0, n = u->n;
     for (i = 0; i < n; ++i) {
         const rimu_real *a = u->ax + 3 * i;
@@ -361,20 +379,18 @@ static void rimu_fit_set(const rimu_fdi_unit *u, const rimu_real *w, const unsig
     }
     f->observable = 1;
     f->dof = m - 3;
-    P00 = f->P[0]; P01 = f->P[1]; P02 = f->P[2]; P11 = f->P[4]; P12 = f->P[5]; P22 = f->P[8];
+    if (!z) {
+        rimu_fit_q(u, w, use, f);
+        return;
+    }
+    x0 = f->x[0]; x1 = f->x[1]; x2 = f->x[2];  /* in registers: the stores below may alias f->x */
     for (i = 0; i < n; ++i) {
         const rimu_real *a = u->ax + 3 * i;
-        rimu_real *pa = f->Pa + 3 * i;
+        rimu_real r;
         if (!use[i]) continue;
-        pa[0] = P00 * a[0] + P01 * a[1] + P02 * a[2];
-        pa[1] = P01 * a[0] + P11 * a[1] + P12 * a[2];
-        pa[2] = P02 * a[0] + P12 * a[1] + P22 * a[2];
-        f->q[i] = 1 - w[i] * (a[0] * pa[0] + a[1] * pa[1] + a[2] * pa[2]);
-        if (z) {
-            rimu_real r = z[i] - (a[0] * f->x[0] + a[1] * f->x[1] + a[2] * f->x[2]);
-            f->e[i] = sqrt(w[i]) * r;
-            f->chi2 += w[i] * r * r;
-        }
+        r = z[i] - (a[0] * x0 + a[1] * x1 + a[2] * x2);
+        f->e[i] = RIMU_SQRT(w[i]) * r;
+        f->chi2 += w[i] * r * r;
     }
 }
 
@@ -382,14 +398,14 @@ static void rimu_fit_set(const rimu_fdi_unit *u, const rimu_real *w, const unsig
 static rimu_real rimu_pi(const rimu_fdi_unit *u, const rimu_fit *f, int j, int k)
 {
     const rimu_real *a = u->ax + 3 * j, *pb = f->Pa + 3 * k;
-    return -sqrt(u->w[j] * u->w[k]) * (a[0] * pb[0] + a[1] * pb[1] + a[2] * pb[2]);
+    return -RIMU_SQRT(u->w[j] * u->w[k]) * (a[0] * pb[0] + a[1] * pb[1] + a[2] * pb[2]);
 }
 
 static int rimu_same(const unsigned char *a, const unsigned char *b, int n)
 {
     int i;
     for (i = 0; i < n; ++i)
-        if ((a[i] != 0) != (b[i] != 0)) return 0;
+        if ((a[i] != 0u) != (b[i] != 0u)) return 0;
     return 1;
 }
 
@@ -408,12 +424,12 @@ static int rimu_state_of(const rimu_fdi_unit *u, rimu_fdi *m, const unsigned cha
     } else {
         ok = f.dof >= 2;
         for (j = 0; ok && j < n; ++j) {
-            if (!use[j] || !(sqrt(u->w[j] * f.q[j]) > 1e-9)) continue;
+            if (!use[j] || !(RIMU_SQRT(u->w[j] * f.q[j]) > (rimu_real)1e-9)) continue;
             for (k = j + 1; k < n; ++k) {
                 rimu_real rho;
-                if (!use[k] || !(sqrt(u->w[k] * f.q[k]) > 1e-9)) continue;
-                rho = rimu_pi(u, &f, j, k) / sqrt(f.q[j] * f.q[k]);
-                if (!(fabs(rho) < 1 - 1e-6)) {
+                if (!use[k] || !(RIMU_SQRT(u->w[k] * f.q[k]) > (rimu_real)1e-9)) continue;
+                rho = rimu_pi(u, &f, j, k) / RIMU_SQRT(f.q[j] * f.q[k]);
+                if (!(RIMU_FABS(rho) < (rimu_real)(1 - 1e-6))) {
                     ok = 0;
                     break;
                 }
@@ -444,7 +460,7 @@ static void rimu_decide(const rimu_fdi_unit *u, const rimu_fit *f, const unsigne
     if (d < 2) return;
     for (i = 0; i < n; ++i) {
         single[i] = 0;
-        if (use[i] && sqrt(u->w[i] * f->q[i]) > 1e-12) cand[mm++] = i;
+        if (use[i] && RIMU_SQRT(u->w[i] * f->q[i]) > (rimu_real)1e-12) cand[mm++] = i;
         if (use[i]) total += M ? M[RIMU_TRI(i, i)] : s[i] * s[i];
     }
     K = RIMU_FDI_K;
@@ -472,9 +488,9 @@ static void rimu_decide(const rimu_fdi_unit *u, const rimu_fit *f, const unsigne
                 int j = cand[a];
                 for (b = a + 1; b < mm; ++b) {
                     int l = cand[b];
-                    rimu_real pjl = rimu_pi(u, f, j, l), rho = pjl / sqrt(f->q[j] * f->q[l]), det, T, R;
+                    rimu_real pjl = rimu_pi(u, f, j, l), rho = pjl / RIMU_SQRT(f->q[j] * f->q[l]), det, T, R;
                     rimu_real Mjj, Mll, Mjl;
-                    if (!(sqrt(1 - fabs(rho)) > RIMU_FDI_COLLINEAR_TOL)) continue;  /* not a hypothesis */
+                    if (!(RIMU_SQRT(1 - RIMU_FABS(rho)) > RIMU_FDI_COLLINEAR_TOL)) continue;  /* not a hypothesis */
                     if (!tested) {
                         c2 = rimu_thr_set(u, d, 2, samples);
                         tested = 1;
@@ -599,7 +615,7 @@ static int rimu_clean_sample(rimu_fdi *m, int i, rimu_real z)
 /* RedundancyManager._invalid: 1 when the isolation set changed */
 static int rimu_invalid(const rimu_fdi_unit *u, rimu_fdi *m, const unsigned char *inv)
 {
-    int i, j, n = u->n, changed = 0, any = 0, nc = 0, cand[RIMU_NMAX];
+    int i, j, n = u->n, changed = 0, any = 0, nc = 0, cand[RIMU_NMAX] = {0};
     unsigned char mask[RIMU_NMAX] = {0};
     for (i = 0; i < n; ++i) {
         if (!inv[i] && m->invalid_run[i] > 0) m->invalid_run[i] = 0;
@@ -631,7 +647,7 @@ static void rimu_decide_episode(const rimu_fdi_unit *u, rimu_fdi *m, const rimu_
 {
     int i, n = u->n;
     long N = m->ep_n;
-    rimu_real s[RIMU_NMAX] = {0}, ss = 0, sq = sqrt((rimu_real)N);
+    rimu_real s[RIMU_NMAX] = {0}, ss = 0, sq = RIMU_SQRT((rimu_real)N);
     if (m->last_kind != RIMU_DEC_NONE && m->last_kind != RIMU_DEC_ISOLATED && m->ep_alarms > 4 * RIMU_FDI_CONFIRM
         && m->ep_alarms % 10) {
         dec->kind = m->last_kind;
@@ -659,7 +675,7 @@ static int rimu_on_alarm(const rimu_fdi_unit *u, rimu_fdi *m, const rimu_fit *f,
 {
     int i, n = u->n, same;
     unsigned char mask[RIMU_NMAX] = {0}, rest[RIMU_NMAX] = {0};
-    rimu_dec dec;
+    rimu_dec dec = {0};  /* set[] is read below even when nset is 0 */
     m->ep_alarms += 1;
     m->ep_quiet = 0;
     if (f->dof >= 1) {
@@ -734,7 +750,7 @@ static void rimu_fdi_run(const rimu_fdi_unit *u, rimu_fdi *m, const rimu_real *y
     /* the pipeline: compensation (Cho & Park Eq. 20) on the valid, unsaturated, not isolated sensors */
     for (i = 0; i < n; ++i) {
         int good = (valid == 0 || valid[i]) && isfinite(y[i]);
-        int sat = good && u->range && fabs(y[i]) >= u->range[i];
+        int sat = good && u->range && RIMU_FABS(y[i]) >= u->range[i];
         inv[i] = (unsigned char)!good;
         use_y[i] = (unsigned char)(good && !sat);
         use[i] = (unsigned char)(use_y[i] && !m->iso[i]);
@@ -761,6 +777,7 @@ static void rimu_fdi_run(const rimu_fdi_unit *u, rimu_fdi *m, const rimu_real *y
     alarm = f.dof >= 1 && stat > thr;
     if (alarm) {
         m->quiet = 0;
+        rimu_fit_q(u, u->w, use, &f);  /* the isolation test's P a_i, q_i */
         changed |= rimu_on_alarm(u, m, &f, use, inv, excl);
     } else {
         if (m->ep_n) {
@@ -833,7 +850,7 @@ static void rimu_fdi_run(const rimu_fdi_unit *u, rimu_fdi *m, const rimu_real *y
             r = (u->sf[i] * y[i] - u->b[i]) - (a[0] * o->x[0] + a[1] * o->x[1] + a[2] * o->x[2]);
             v = u->sig2[i] + a[0] * (P[0] * a[0] + P[1] * a[1] + P[2] * a[2])
                 + a[1] * (P[3] * a[0] + P[4] * a[1] + P[5] * a[2]) + a[2] * (P[6] * a[0] + P[7] * a[1] + P[8] * a[2]);
-            back |= rimu_clean_sample(m, i, r / sqrt(v));
+            back |= rimu_clean_sample(m, i, r / RIMU_SQRT(v));
         }
         if (back) rimu_apply(m, n);
     }

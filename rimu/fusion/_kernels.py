@@ -30,7 +30,7 @@ try:
 except ImportError as exc:  # pragma: no cover - the caller checks availability first
     raise ImportError("the compiled backend needs numba: pip install rimu[fast]") from exc
 
-__all__ = ["Program", "epoch_block", "epoch_step", "project_block", "project_one"]
+__all__ = ["BlockPath", "Program", "block_kernel", "epoch_block", "epoch_step", "project_block", "project_one"]
 
 #: IEEE arithmetic as numpy's (error_model="numpy": x / 0 is inf or nan, not an exception); no fast-math.
 #: No reference counting (``_nrt=False``): the kernels allocate nothing, and with NRT every call of a helper
@@ -533,3 +533,140 @@ class Program:
             if pipe._set is not self._sets[s]:
                 return True
         return False
+
+
+# ---------------------------------------------------------------------------------------------- the block path
+#: largest n * m of an instrument whose block path is compiled, written out in full (every coefficient a local,
+#: every loop unrolled: the C a programmer writes for one unit); larger instruments take numpy's BLAS product,
+#: which is as fast there (a 24-axis instrument is 576 multiply-adds a sample)
+UNROLL_MAX = 400
+#: bound on the raw inputs beyond which the block path hands the block to numpy: with every |y_i| below
+#: ``_SAFE / (1 + max_j sum_i |R_ji|)`` and every |off_j| below ``_SAFE``, no output can overflow, so a block whose
+#: inputs pass the range test needs no finiteness test of its outputs
+_SAFE = 1e300
+
+
+def _block_source(sizes: tuple[tuple[int, int], ...]) -> str:
+    """Python source of :func:`block_kernel` for instruments of sizes ``(n, m)``.
+
+    The kernel ``k(Y0, [Y1,] P, O0, [O1])`` does ``O = Y @ R.T - off`` for every instrument of a unit in one pass
+    and returns whether every raw value was finite and inside its limit: the test is a maximum of the bit patterns
+    of ``|y|`` (monotone in ``|y|`` for non-negative doubles; NaN's pattern is above inf's), an integer reduction
+    that the compiler vectorises, compared with the limits once per block. ``P`` packs, per instrument, ``R`` (m, n)
+    row-major, ``off`` (m) and the limits (n) (:meth:`BlockPath.pack`)."""
+    k = len(sizes)
+    args = [f"Y{s}" for s in range(k)] + ["P"] + [f"O{s}" for s in range(k)]
+    L = [f"def kernel({', '.join(args)}):", "    N = Y0.shape[0]", "    Pb = P.view(np.int64)"]
+    tail: list[str] = []
+    pos = 0
+    for s, (n, m) in enumerate(sizes):
+        L += [f"    y{s} = Y{s}.reshape(N * {n})", f"    yb{s} = y{s}.view(np.int64)", f"    o{s} = O{s}.reshape(N * {m})"]
+        lim = pos + m * n + m
+        for j in range(m):
+            L.append("    " + ", ".join(f"r{s}_{j}_{i}" for i in range(n)) + ", = "
+                     + ", ".join(f"P[{pos + j * n + i}]" for i in range(n)) + ",")
+            L.append(f"    f{s}_{j} = P[{pos + m * n + j}]")
+        L.append("    " + ", ".join(f"a{s}_{i}" for i in range(n)) + ", = " + ", ".join("np.int64(0)" for _ in range(n))
+                 + ",")
+        body = ["    for k in range(N):", f"        b = u(k * {n})", f"        c = u(k * {m})"]
+        for i in range(n):
+            body.append(f"        y{s}_{i} = y{s}[b + u({i})]")
+            body.append(f"        a{s}_{i} = max(a{s}_{i}, yb{s}[b + u({i})] & MASK)")
+        for j in range(m):
+            body.append(f"        o{s}[c + u({j})] = " + " + ".join(f"r{s}_{j}_{i} * y{s}_{i}" for i in range(n))
+                        + f" - f{s}_{j}")
+        tail += [f"a{s}_{i} < Pb[{lim + i}]" for i in range(n)]
+        L += body  # one loop per instrument: its coefficients stay in registers
+        pos = lim + n
+    L.append("    return " + " and ".join(tail))
+    return "\n".join(L) + "\n"
+
+
+_BLOCK_KERNELS: dict[tuple[tuple[int, int], ...], Any] = {}
+
+
+def block_kernel(sizes: tuple[tuple[int, int], ...]) -> Any:
+    """The compiled block path of instruments of sizes ``((n, m), ...)`` (one or two), its sizes fixed at compile
+    time (:func:`_block_source`); compiled once per process for each set of sizes, and cached on disk where the
+    generated source can be written (``NUMBA_CACHE_DIR``, else the user's cache directory)."""
+    sizes = tuple((int(n), int(m)) for n, m in sizes)
+    fn = _BLOCK_KERNELS.get(sizes)
+    if fn is not None:
+        return fn
+    src = "import numpy as np\nimport numba\n\nMASK = np.int64(0x7FFFFFFFFFFFFFFF)\nu = numba.uint64\n\n\n" \
+        + _block_source(sizes)
+    name = "rimu_block_" + "_".join(f"{n}x{m}" for n, m in sizes) + f"_v1_{UNROLL_MAX}"
+    ns: dict[str, Any] = {}
+    try:
+        import importlib.util
+        import os
+        import sys
+        from pathlib import Path
+        root = os.environ.get("NUMBA_CACHE_DIR") or os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+        d = Path(root) / "rimu" / "kernels"
+        d.mkdir(parents=True, exist_ok=True)
+        f = d / f"{name}.py"
+        if not f.exists() or f.read_text() != src:
+            tmp = f.with_suffix(f".{os.getpid()}.tmp")
+            tmp.write_text(src)
+            os.replace(tmp, f)
+        spec = importlib.util.spec_from_file_location(name, f)
+        mod = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+        spec.loader.exec_module(mod)  # type: ignore[union-attr]
+        sys.modules[name] = mod  # numba's disk cache finds the function's module by name
+        fn = numba.njit(cache=True, nogil=True, error_model="numpy", _nrt=False)(mod.kernel)
+    except OSError:  # nowhere to write: compiled in memory, every process
+        exec(compile(src, f"<{name}>", "exec"), ns)  # the source above: made from two integers per instrument
+        fn = numba.njit(nogil=True, error_model="numpy", _nrt=False)(ns["kernel"])
+    _BLOCK_KERNELS[sizes] = fn
+    return fn
+
+
+class BlockPath:
+    """The compiled block path of instrument pipelines (one, or a unit's two): ``out = Y @ R.T - off`` on each
+    one's current active set (Cho & Park 2005, Eq. 20 folded into R and off; de Oliveira 2012, Eq. 11 for the
+    parity rows), with the range and finiteness test, for every block length, in one call.
+
+    The kernel's coefficients are packed when an active set changes (never per block); :meth:`run` returns False
+    (outputs unspecified) when some raw value is non-finite, at its range or too large to project without overflow,
+    and the caller then runs the numpy path, which routes around it.
+    """
+
+    def __init__(self, pipes: list[Any]) -> None:
+        self.pipes = pipes
+        self.sizes = tuple((p.n, 3 + p.r) for p in pipes)
+        self.kernel = block_kernel(self.sizes)
+        self.P = np.zeros(sum(m * n + m + n for n, m in self.sizes))
+        #: the active set of each instrument that P holds
+        self.sets: list[Any] = [None] * len(pipes)
+
+    def pack(self) -> None:
+        """Copy every instrument's current R, off and input limit into P."""
+        pos = 0
+        for s, (p, (n, m)) in enumerate(zip(self.pipes, self.sizes)):
+            st = p._set
+            R = np.asarray(st.R, dtype=float)
+            off = np.asarray(st.off, dtype=float)
+            self.P[pos:pos + m * n] = R.reshape(-1)
+            self.P[pos + m * n:pos + m * n + m] = off
+            lim = np.minimum(p._range, _SAFE / (1.0 + float(np.abs(R).sum(axis=1).max())))
+            if not st.observable or not np.all(np.abs(off) < _SAFE):
+                lim = np.zeros(n)  # every block to the numpy path
+            self.P[pos + m * n + m:pos + m * n + m + n] = lim
+            pos += m * n + m + n
+            self.sets[s] = st
+
+    def current(self) -> bool:
+        """Whether P holds every instrument's current active set (else :meth:`pack`)."""
+        for p, st in zip(self.pipes, self.sets):
+            if p._set is not st:
+                return False
+        return True
+
+    def run(self, Ys: list[np.ndarray], outs: list[np.ndarray]) -> bool:
+        """Project the blocks ``Ys`` (C-contiguous float64 (N, n)) into ``outs`` (C-contiguous (N, m))."""
+        if not self.current():
+            self.pack()
+        if len(Ys) == 1:
+            return self.kernel(Ys[0], self.P, outs[0])
+        return self.kernel(Ys[0], Ys[1], self.P, outs[0], outs[1])

@@ -132,6 +132,16 @@ class BlockResult:
         return int(self.x.shape[0])
 
 
+def _out_buffer(out: np.ndarray | None, N: int, m: int) -> np.ndarray:
+    """``out`` checked as a C-ordered float64 (N, m) buffer, or a new one."""
+    if out is None:
+        return np.empty((N, m))
+    if type(out) is not _NDARRAY or out.shape != (N, m) or out.dtype != _F8 or not out.flags.c_contiguous:
+        raise ShapeError(f"out must be a C-ordered float64 array of shape ({N}, {m}), got "
+                         f"{getattr(out, 'shape', type(out).__name__)}")
+    return out
+
+
 def _validity(s: ActiveSet, n: int) -> Validity:
     if not s.observable:
         return Validity.UNOBSERVABLE
@@ -187,7 +197,7 @@ class InstrumentPipeline:
         self.backend = resolve_backend(backend)
         kern = _kernels() if self.backend == "numba" else None
         self._kstep = None if kern is None else kern.project_one
-        self._kblock = None if kern is None else kern.project_block
+        self._bpath: Any = None  # the compiled block path (rimu.fusion._kernels.BlockPath), made on first use
         n = calibration.geometry.n
         #: True when the noise came from ``sigma`` or the calibration's ``noise_sigma``, False when 1.0 was assumed
         self.noise_given = sigma is not None or calibration.noise_sigma is not None
@@ -343,18 +353,26 @@ class InstrumentPipeline:
         return self.result
 
     # ------------------------------------------------------------------ blocks (replay)
-    def process(self, Y: np.ndarray, valid: np.ndarray | None = None) -> BlockResult:
-        """Process N samples at once, (N, n). Identical to calling :meth:`step` on each row."""
+    def process(self, Y: np.ndarray, valid: np.ndarray | None = None, out: np.ndarray | None = None
+                ) -> BlockResult:
+        """Process N samples at once, (N, n). Identical to calling :meth:`step` on each row.
+
+        ``out`` (N, 3 + r), float64, C-ordered: the buffer the estimates and parity are written into (a stream
+        that passes the same buffer every block allocates nothing; the result's ``x`` and ``parity`` are views of
+        it, and the result object itself is reused while the set, the length and the buffer stay the same)."""
         Y = np.asarray(Y, dtype=float)
         if Y.ndim != 2 or Y.shape[1] != self.n:
             raise ShapeError(f"a block of raw samples must have shape (N, {self.n}), got {Y.shape}")
         N = Y.shape[0]
         self.samples += N
         n, r, tab = self.n, self.r, self.table
-        out = np.empty((N, 3 + r))
-        if self._kblock is not None and N <= self._KERNEL_BLOCK_MAX:
+        kk = self._bkey
+        if out is None or kk is None or out is not kk[2] or kk[1] != N:  # (a buffer checked last block is fine)
+            out = _out_buffer(out, N, 3 + r)
+        bp = self._bpath if self._bpath is not None else self._block_path()
+        if bp:
             if N and (valid is None or np.all(valid)):
-                if self._kblock(np.ascontiguousarray(Y), self._Re, self._offe, self._range, out):
+                if bp.run((np.ascontiguousarray(Y),), (out,)):
                     return self._clean_block(out)
         else:
             in_range = self.range_raw is None or not N or bool(np.all(np.abs(Y) < self.range_raw))
@@ -401,18 +419,34 @@ class InstrumentPipeline:
         validity[(bad | sat).any(axis=1) & (validity == Validity.NOMINAL)] = Validity.DEGRADED
         return BlockResult(out[:, :3], out[:, 3:], entry, dof, active, bad, obs, tab, sat, validity, Ps)
 
+    def _block_path(self) -> Any:
+        """The compiled block path of this instrument (numba backend and at most ``UNROLL_MAX`` coefficients),
+        else False (numpy's chunked product)."""
+        self._bpath = False
+        if self._kstep is not None:
+            kern = _kernels()
+            if self.n * (3 + self.r) <= kern.UNROLL_MAX:
+                self._bpath = kern.BlockPath([self])
+        return self._bpath
+
     def _clean_block(self, out: np.ndarray) -> BlockResult:
         """The result of a block whose every sample took the common path on the current set (the per-sample
-        arrays are read-only broadcasts of the set's, kept while the set and the block length stay the same)."""
+        arrays are read-only broadcasts of the set's, kept while the set and the block length stay the same;
+        the result itself while the output buffer stays the same too)."""
         N, n, cur = out.shape[0], self.n, self._set
-        if self._bkey is None or self._bkey[0] is not cur or self._bkey[1] != N:
+        key = self._bkey
+        if key is None or key[0] is not cur or key[1] != N:
             self._bviews = (np.broadcast_to(np.int64(cur.entry), (N,)), np.broadcast_to(np.int64(cur.dof), (N,)),
                             np.broadcast_to(cur.active, (N, n)), np.broadcast_to(False, (N, n)),
                             np.broadcast_to(cur.observable, (N,)), np.broadcast_to(np.int8(_validity(cur, n)), (N,)))
-            self._bkey = (cur, N)
+            self._bkey = key = (cur, N, None, None)
+        elif key[2] is out:
+            return key[3]
         e, d, a, no, o, v = self._bviews
-        return BlockResult(out[:, :3], out[:, 3:], e, d, a, no, o, self.table, no, v,
-                           {cur.entry: cur.P if cur.observable else _INF_P})
+        res = BlockResult(out[:, :3], out[:, 3:], e, d, a, no, o, self.table, no, v,
+                          {cur.entry: cur.P if cur.observable else _INF_P})
+        self._bkey = (cur, N, out, res)
+        return res
 
     # ------------------------------------------------------------------ estimates without side effects
     def clipped(self, Y: np.ndarray) -> np.ndarray:
@@ -456,10 +490,6 @@ class InstrumentPipeline:
         return X
 
     _CHUNK = 8192
-    #: longest block the compiled backend projects sample by sample; longer clean blocks take the chunked BLAS
-    #: product below, which is faster there (the kernel does the C arithmetic of benchmarks/_ckernel.py, one
-    #: sample at a time, ~25 ns/sample on cone6; BLAS ~10 ns/sample past ~1000 samples, benchmarks/runtime.py)
-    _KERNEL_BLOCK_MAX = 512
 
     def _fast_block(self, Y: np.ndarray, out: np.ndarray) -> bool:
         """``out = Y @ R.T - off`` in cache-sized chunks; False as soon as a chunk is not finite.
@@ -583,6 +613,8 @@ class Pipeline:
                                          self._cyclic, self.cycle_rounds)
             self._epoch_step, self._epoch_block = kern.epoch_step, kern.epoch_block
             self._results = {k: p.result for k, p in self.instruments.items()}  # StepResults are reused
+        self._bpath: Any = None  # the compiled block path of a unit without compensation stage, made on first use
+        self._keys = tuple(self.instruments)
 
     def __getitem__(self, instrument: str) -> InstrumentPipeline:
         return self.instruments[instrument]
@@ -610,10 +642,11 @@ class Pipeline:
         raw, _ = self._compensate_block(block)
         return EpochBlock(block.t, raw, dict(block.valid), block.temperature, dict(block.meta))
 
-    def _compensate_block(self, block: EpochBlock, want_raw: bool = True
+    def _compensate_block(self, block: EpochBlock, want_raw: bool = True, out: dict[str, np.ndarray] | None = None
                           ) -> tuple[dict[str, np.ndarray], dict[str, BlockResult]]:
+        outb = out or {}  # output buffers (process's out=)
         if self._program is not None:
-            done = self._compensate_block_compiled(block, want_raw)
+            done = self._compensate_block_compiled(block, want_raw, outb)
             if done is not None:
                 return done
         out = dict(block.raw)
@@ -644,7 +677,7 @@ class Pipeline:
                                   ests[k])
                 if clipped[k].any():  # a clipped output stays clipped: the projection routes around it
                     out[k] = np.where(clipped[k], block.raw[k], out[k])
-            res = self.instruments[k].process(out[k], block.valid.get(k))
+            res = self.instruments[k].process(out[k], block.valid.get(k), outb.get(k))
             results[k] = res
             if k == "accel":
                 f = np.asarray(res.x)
@@ -660,7 +693,7 @@ class Pipeline:
             prog.refresh()
         return prog
 
-    def _compensate_block_compiled(self, block: EpochBlock, want_raw: bool
+    def _compensate_block_compiled(self, block: EpochBlock, want_raw: bool, outb: dict[str, np.ndarray]
                                    ) -> tuple[dict[str, np.ndarray], dict[str, BlockResult]] | None:
         """:meth:`_compensate_block` in one compiled call; None (nothing changed) when a sample is off the common
         path, for the numpy path to do the whole block."""
@@ -679,7 +712,7 @@ class Pipeline:
         Ys = [np.ascontiguousarray(block.raw[k], dtype=float) for k in order]
         if any(Y.ndim != 2 or Y.shape[1] != self.instruments[k].n for k, Y in zip(order, Ys)):
             return None
-        outs = [np.empty((N, 3 + self.instruments[k].r)) for k in order]
+        outs = [_out_buffer(outb.get(k), N, 3 + self.instruments[k].r) for k in order]
         raws = [np.empty((N, self.instruments[k].n) if want_raw else (1, 1)) for k in order]
         row = self._epoch_block(prog.F, prog.L, prog.W, Ys[0], Ys[-1], t, dT, outs[0], outs[-1], raws[0], raws[-1],
                                 want_raw)
@@ -825,9 +858,60 @@ class Pipeline:
                 w = r.x.tolist()
         return {k: res[k] for k in self.instruments}
 
-    def process(self, block: EpochBlock) -> dict[str, BlockResult]:
-        """N epochs at once; the same numbers as :meth:`step` on each epoch."""
+    def process(self, block: EpochBlock, out: dict[str, np.ndarray] | None = None) -> dict[str, BlockResult]:
+        """N epochs at once; the same numbers as :meth:`step` on each epoch.
+
+        ``out``: per instrument, the buffer of :meth:`InstrumentPipeline.process` (a stream that passes the same
+        buffers every block allocates nothing)."""
         if not self.compensation:
-            return {k: p.process(block.raw[k], block.valid.get(k)) for k, p in self.instruments.items()}
-        _, results = self._compensate_block(block, want_raw=False)
+            if self._bpath is not False:  # compiled: every instrument in one call
+                res = self._process_compiled(block, out)
+                if res is not None:
+                    return res
+            out = out or {}
+            return {k: p.process(block.raw[k], block.valid.get(k), out.get(k)) for k, p in self.instruments.items()}
+        _, results = self._compensate_block(block, want_raw=False, out=out)
         return {k: results[k] for k in self.instruments}
+
+    def _process_compiled(self, block: EpochBlock, out: dict[str, np.ndarray] | None
+                          ) -> dict[str, BlockResult] | None:
+        """:meth:`process` of a unit without a compensation stage in one compiled call
+        (:class:`rimu.fusion._kernels.BlockPath`); None when a sample is off the common path."""
+        bp = self._bpath
+        if bp is None:
+            bp = self._bpath = False
+            pipes = list(self.instruments.values())
+            if self.backend == "numba" and len(pipes) <= 2:
+                kern = _kernels()
+                if all(p.n * (3 + p.r) <= kern.UNROLL_MAX for p in pipes):
+                    bp = self._bpath = kern.BlockPath(pipes)
+            if not bp:
+                return None
+        if block.valid and not all(np.all(v) for v in block.valid.values()):
+            return None
+        raw = block.raw
+        Ys, outs, res = [], [], {}
+        N = -1
+        packed = True
+        for k, p, st in zip(self._keys, bp.pipes, bp.sets):
+            packed = packed and p._set is st
+            Y = raw[k]
+            if not Y.flags.c_contiguous:
+                Y = np.ascontiguousarray(Y)
+            N = Y.shape[0]
+            if not N or Y.shape[1] != p.n:
+                return None
+            Ys.append(Y)
+            o = None if out is None else out.get(k)
+            kk = p._bkey
+            if o is None or kk is None or o is not kk[2] or kk[1] != N:  # a buffer checked last block is fine
+                o = _out_buffer(o, N, 3 + p.r)
+            outs.append(o)
+        if not packed:
+            bp.pack()
+        if not (bp.kernel(Ys[0], bp.P, outs[0]) if len(Ys) == 1 else bp.kernel(Ys[0], Ys[1], bp.P, outs[0], outs[1])):
+            return None
+        for k, p, o in zip(self._keys, bp.pipes, outs):
+            p.samples += N
+            res[k] = p._clean_block(o)
+        return res

@@ -181,11 +181,15 @@ class Geometry:
 
     def nominal_rows(self) -> np.ndarray:
         """Nominal misalignment rows, shape (n, 3): each axis in its sub-unit's basis (unit vectors)."""
-        rows = np.empty((self.n, 3))
-        for su in self._subunits:
-            for i in su.members:
-                rows[i] = su.mat_sb_mb @ self._H[i]
-        return rows
+        rows = self.__dict__.get("_nominal_rows")
+        if rows is None:  # a constant of the geometry: computed once (calibration asks for it per sensor and fit)
+            rows = np.empty((self.n, 3))
+            for su in self._subunits:
+                for i in su.members:
+                    rows[i] = su.mat_sb_mb @ self._H[i]
+            rows.setflags(write=False)
+            self._nominal_rows = rows
+        return rows.copy()
 
     def off_axis_basis(self, i: int) -> tuple[np.ndarray, tuple[str, str]]:
         """Two unit vectors (in the sub-unit basis) orthogonal to sensor ``i``'s nominal row, and their names.
@@ -194,7 +198,16 @@ class Geometry:
         sensor (small angles, rad). Where the nominal row is a basis axis (a triad), they are the other two
         axes and are named after them, as in Cho & Park's ``m_xy``, ``m_xz``; otherwise ``mis_1, mis_2``.
         """
-        r = self.nominal_rows()[i]
+        cache = self.__dict__.setdefault("_off_axis", {})
+        if i not in cache:  # a constant of the geometry: computed once per sensor
+            E, names = self._off_axis_basis(i)
+            E.setflags(write=False)
+            cache[i] = (E, names)
+        return cache[i]
+
+    def _off_axis_basis(self, i: int) -> tuple[np.ndarray, tuple[str, str]]:
+        self.nominal_rows()  # (fills the cache)
+        r = self._nominal_rows[i]
         k = int(np.argmax(np.abs(r)))
         if abs(abs(r[k]) - 1.0) < 1e-9:
             others = [a for a in range(3) if a != k]

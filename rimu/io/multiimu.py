@@ -48,7 +48,7 @@ from ..epoch import Epoch, EpochBlock
 from ..errors import SessionFormatError, ShapeError, TransportError
 from ..units import DEG_TO_RAD, G0, MG_TO_MS2
 from .base import Source
-from .guard import COMPRESSED, reading
+from .guard import reading
 from .rawtext import csv_header
 
 __all__ = [
@@ -89,14 +89,14 @@ def _factor(unit: str | float, quantity: str) -> float:
 
 
 def open_text(path: str | os.PathLike[str]) -> io.TextIOBase:
-    """Open a text file, decompressing ``.xz``, ``.gz`` and ``.bz2`` on the fly."""
+    """Open a text file, decompressing ``.xz``, ``.gz``, ``.bz2`` and ``.zst`` on the fly
+    (:func:`rimu.io.formats._open.open_text`, by content)."""
+    from .formats._open import open_text as _open
+
     p = Path(path)
     if not p.exists():
         raise TransportError(f"no file at {p}")
-    opener = COMPRESSED.get(p.suffix.lower())
-    if opener is None:
-        return open(p, newline="", encoding="utf-8")
-    return opener(p, "rt", newline="", encoding="utf-8")  # type: ignore[operator,no-any-return]
+    return _open(p)
 
 
 @dataclass

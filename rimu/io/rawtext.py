@@ -108,7 +108,16 @@ def read_raw_text(source: str | Path | _io.TextIOBase, sample_rate: float | None
         path = Path(source)
         if not path.exists():
             raise SessionFormatError(f"{path} does not exist")
-        text = path.read_text(encoding="utf-8", errors="replace")
+        from .formats._open import head, is_text, open_text
+
+        if path.is_dir() or not is_text(head(path, 8192)):
+            raise SessionFormatError(f"{path} is not a text log (binary content); give a CSV/text file, or "
+                                     "'rimu import' it if it is a flight log (rimu import --help lists the formats)")
+        with open_text(path) as fh:
+            try:
+                text = fh.read()
+            except UnicodeDecodeError as exc:
+                raise SessionFormatError(f"{path}: byte {exc.start} is not UTF-8 text; give a CSV/text file") from None
         name = str(path)
     else:
         text = source.read()

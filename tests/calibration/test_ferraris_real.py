@@ -85,3 +85,35 @@ def test_agrees_with_imucal(cal):
             r = np.array(R[i]) / np.linalg.norm(R[i])
             ang = np.rad2deg(np.arccos(min(1.0, float(A[i] @ r))))
             assert ang < 0.5, (c.instrument, i, ang)
+
+
+def test_loader_parses_with_numpy_and_still_names_a_bad_cell(tmp_path, session):
+    """load_ferraris parses with numpy's reader (issue 28): the same numbers as Python's float() of every cell of
+    the real file; a file with one bad cell is refused with its row and column named, and one with a short row too."""
+    import csv
+    import shutil
+
+    from rimu.errors import SessionFormatError
+
+    folder = _folder()
+    with (folder / "example_ferraris_session.csv").open(newline="") as fh:
+        rows = list(csv.reader(fh))
+    cols = [rows[0].index(c) for c in ("gyr_x", "gyr_y", "gyr_z", "acc_x", "acc_y", "acc_z")]
+    ref = np.array([[float(r[c]) for c in cols] for r in rows[1:]])
+    got = np.concatenate([np.hstack([s.raw["gyro"], s.raw["accel"]]) for s in session.segments])
+    sections = {}
+    import json
+    for name, v in json.loads((folder / "example_ferraris_session_list.json").read_text()).items():
+        sections[name] = (int(v["start"]), int(v["end"]))
+    want = np.concatenate([ref[s:e] for s, e in (sections[k] for k in (s.label for s in session.segments))])
+    np.testing.assert_array_equal(got, want)
+    for bad_row, edit in ((7, lambda r: r.__setitem__(cols[4], "1.2.3")), (9, lambda r: r.__delitem__(slice(3, None)))):
+        d = tmp_path / f"bad{bad_row}"
+        d.mkdir()
+        shutil.copy(folder / "example_ferraris_session_list.json", d)
+        rr = [list(r) for r in rows]
+        edit(rr[bad_row - 1])
+        with (d / "example_ferraris_session.csv").open("w", newline="") as fh:
+            csv.writer(fh).writerows(rr)
+        with pytest.raises(SessionFormatError, match=f"row {bad_row}, column '(acc_y|gyr_z)' is missing or not a"):
+            load_ferraris(d)

@@ -125,6 +125,9 @@ MINIMAL = {
     "detect": ["{s}", "-o", "{dir}/detected.npz"],
     "array": ["{s}"],
     "noise": ["{s}", "--calibration", "{cal}", "-o", "{dir}/noise.json"],
+    "import": ["{s}", "-o", "{dir}/rec.npz"],
+    "setup": ["{s}", "-o", "{dir}/setupcal.json"],
+    "apply": ["{s}", "--calibration", "{cal}", "-o", "{dir}/applied.npz"],
 }
 
 _VALIDATORS = {common.positive_float: ["0", "-1", "nan", "abc"], common.finite_float: ["nan", "inf", "x"], common.nonnegative_float: ["-1", "inf", "x"],
@@ -191,6 +194,11 @@ def test_output_paths_are_checked_before_any_work(command, f, capsys):
 # ------------------------------------------------------------------ the table: malformed files and option values
 #: (command and arguments, exit status, words the one error line must contain)
 CASES = [
+    # logs (rimu.io.formats): not a log, a session given where a log is needed, counts never taken as SI
+    (["import", "{text}", "-o", "{dir}/r.npz"], 2, ["text.npz", "--format"]),
+    (["import", "{dir}/missing.bin", "-o", "{dir}/r.npz"], 2, ["missing.bin"]),
+    (["setup", "{s}", "-o", "{dir}/c.json"], 2, ["s.npz"]),
+    (["apply", "{s}", "--calibration", "{cal}", "-o", "{dir}/a.npz"], 2, ["s.npz", "counts"]),
     (["noise", "{dir}/missing.npz"], 2, ["missing.npz"]),
     (["noise", "{s}"], 2, ["scale factors", "--calibration"]),
     (["noise", "{s}", "--calibration", "{cal}", "--p-fa", "2"], 2, ["--p-fa"]),

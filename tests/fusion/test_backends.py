@@ -123,7 +123,7 @@ def _spy(pipe):
     done = []
     step, block = pipe._step_compiled, pipe._compensate_block_compiled
     pipe._step_compiled = lambda ep, f=step: _record(done, f(ep))
-    pipe._compensate_block_compiled = lambda b, w, f=block: _record(done, f(b, w))
+    pipe._compensate_block_compiled = lambda *a, f=block: _record(done, f(*a))
     return done
 
 
@@ -302,3 +302,102 @@ def test_cycle_rounds_changed_on_the_pipeline_are_followed():
             _same_step(a.step(ep), b.step(ep), f"rounds {rounds}")
         outs[rounds] = a.step(next(block.epochs()))["accel"].x.copy()
     assert np.abs(outs[1] - outs[2]).max() > 1e3 * REL * np.abs(outs[2]).max()
+
+
+# ---------------------------------------------------------------------------------------------- the block path (issue 28)
+def _spy_block(pipe):
+    """Record whether each call of the unit's compiled block path did the work (True) or handed it to numpy."""
+    done = []
+    f = pipe._process_compiled
+    pipe._process_compiled = lambda *a: _record(done, f(*a))
+    return done
+
+
+@pytest.mark.parametrize("N", [1, 7, 513, 20_000])
+def test_block_path_equals_numpy_for_every_block_length_and_writes_into_out(N):
+    """The compiled block path (every block length, sizes fixed per unit) gives the numpy path's numbers, did the
+    work, counts every sample once, and writes into the buffers ``out=`` gives it (the same result objects next
+    block); the numbers can differ: the other unit's estimates are off."""
+    cal = _unit(cone6(), seed=21, effects=False)
+    block = _stream(cal, N, seed=22)
+    a, b = _pair(cal)
+    done = _spy_block(a)
+    out = {k: np.empty((N, 6)) for k in INSTS}
+    ra = a.process(block, out)
+    _same_block(ra, b.process(block), f"N={N}")
+    assert done == [True]
+    for k in INSTS:
+        assert np.shares_memory(ra[k].x, out[k]) and np.shares_memory(ra[k].parity, out[k])
+        assert a[k].samples == b[k].samples == N
+    rb = a.process(block, out)
+    assert all(rb[k] is ra[k] for k in INSTS) and done == [True, True]
+    _same_block(a.process(block), b.process(block), f"N={N} fresh")  # and without out=: new arrays
+    other = Pipeline(_unit(cone6(), seed=23, effects=False), backend="numba").process(block)
+    assert np.abs(other["gyro"].x - ra["gyro"].x).max() > 1e3 * REL * np.abs(ra["gyro"].x).max()
+    ip, iq = InstrumentPipeline(cal["gyro"], backend="numba"), InstrumentPipeline(cal["gyro"], backend="numpy")
+    o = np.empty((N, 6))
+    r1 = ip.process(block.raw["gyro"], out=o)
+    _close(r1.x, iq.process(block.raw["gyro"]).x, "instrument x")
+    assert ip._bpath and np.shares_memory(r1.x, o) and ip.process(block.raw["gyro"], out=o) is r1
+
+
+@pytest.mark.parametrize("bad", ["nan", "inf", "range", "huge", "isolated"])
+def test_block_path_hands_off_what_it_cannot_do(bad):
+    """A long block with one value off the common path (non-finite, at its range limit, finite but large enough
+    to overflow the projection, or an isolation between blocks): the compiled path hands the block to numpy (or
+    repacks the new set) and the numbers, counters and flags equal the numpy path's."""
+    N = 3000
+    cal = _unit(cone6(), seed=24, effects=False)
+    block = _stream(cal, N, seed=25)
+    raw = {k: v.copy() for k, v in block.raw.items()}
+    lim = {k: float(np.abs(raw[k]).max()) * 1.01 for k in INSTS}
+    j = 2345  # far into the block: a kernel that tested only the start would pass it
+    if bad == "nan":
+        raw["gyro"][j, 3] = np.nan
+    elif bad == "inf":
+        raw["accel"][j, 0] = -np.inf
+    elif bad == "range":
+        raw["gyro"][j, 5] = -lim["gyro"]
+    elif bad == "huge":
+        raw["accel"][j, 2] = 1e306
+        lim = {}
+    blk = EpochBlock(block.t, raw)
+    a, b = _pair(cal, range_raw=lim or None)
+    done = _spy_block(a)
+    if bad == "isolated":
+        a.process(blk), b.process(blk)
+        for p in (a, b):
+            p["gyro"].isolate(2)
+    with np.errstate(over="ignore", invalid="ignore"):
+        _same_block(a.process(blk), b.process(blk), bad)
+    assert done[-1] is (bad == "isolated")
+    for k in INSTS:
+        np.testing.assert_array_equal(a[k].invalid_count, b[k].invalid_count)
+        np.testing.assert_array_equal(a[k].saturated_count, b[k].saturated_count)
+        assert a[k].samples == b[k].samples
+
+
+def test_block_stream_with_out_allocates_nothing_and_bad_buffers_are_refused():
+    """A stream of 1e5-sample blocks through out= buffers: no allocation of the size of a result (tracemalloc's
+    peak stays under 10 kB where one fresh result is 4.8 MB); a buffer of the wrong shape or layout is refused
+    with ShapeError."""
+    import tracemalloc
+
+    from rimu.errors import ShapeError
+
+    N = 100_000
+    cal = _unit(cone6(), seed=26, effects=False)
+    block = _stream(cal, N, seed=27)
+    for pipe in (Pipeline(cal, backend="numba"), Pipeline(cal, backend="numpy")):
+        out = {k: np.empty((N, 6)) for k in INSTS}
+        pipe.process(block, out)
+        tracemalloc.start()
+        for _ in range(3):
+            pipe.process(block, out)
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        if pipe.backend == "numba":
+            assert peak < 10_000, peak
+        for wrong in (np.empty((N, 5)), np.empty((6, N)).T, np.empty((N, 6), np.float32)):
+            with pytest.raises(ShapeError, match="C-ordered float64"):
+                pipe.process(block, {"gyro": wrong})

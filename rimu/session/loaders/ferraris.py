@@ -68,14 +68,23 @@ def load_ferraris(
         header = csv_header(reader, _COLUMNS, f"{path} is empty",
                             lambda missing, header: f"{path}: columns {missing} are missing; the header is {header}")
         cols = [header.index(c) for c in _COLUMNS]
-        rows = []
-        for r, line in enumerate(reader, start=2):
-            try:
-                rows.append([float(line[c]) for c in cols])
-            except (ValueError, IndexError):
-                bad = next((_COLUMNS[k] for k, c in enumerate(cols) if c >= len(line) or not is_number(line[c])), "?")
-                raise SessionFormatError(f"{path}: row {r}, column {bad!r} is missing or not a number") from None
-    data = np.array(rows, dtype=float)
+    try:  # numpy's parser (one pass in C); a malformed file is read again below, to name the row and column
+        data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=cols, dtype=float, ndmin=2)
+    except ValueError:
+        data = None
+    if data is None or (data.size == 0 and data.shape[1] != len(cols)):
+        with path.open(newline="") as fh:
+            reader = csv.reader(fh)
+            next(reader)
+            rows = []
+            for r, line in enumerate(reader, start=2):
+                try:
+                    rows.append([float(line[c]) for c in cols])
+                except (ValueError, IndexError):
+                    bad = next((_COLUMNS[k] for k, c in enumerate(cols) if c >= len(line) or not is_number(line[c])),
+                               "?")
+                    raise SessionFormatError(f"{path}: row {r}, column {bad!r} is missing or not a number") from None
+        data = np.array(rows, dtype=float).reshape(-1, len(cols))
     if not np.all(np.isfinite(data)):
         r, c = np.argwhere(~np.isfinite(data))[0]
         raise SessionFormatError(f"{path}: row {r + 2}, column {_COLUMNS[c]!r} is not finite")

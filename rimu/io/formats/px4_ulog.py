@@ -1,0 +1,112 @@
+"""PX4 ULog flight logs (``.ulg``; pyulog, extra ``ulog``): every ``sensor_gyro`` / ``sensor_accel`` instance, and
+the high-rate ``sensor_gyro_fifo`` / ``sensor_accel_fifo`` topics when the log holds them.
+
+Instance ``multi_id`` i is IMU ``imu<i>`` (fifo: ``fifo<i>``): gyro x, y, z [rad/s] and accelerometer x, y, z
+[m/s^2] as PX4 logs them (SI by uORB's definition; ``meta["units_from"]`` says so), time ``timestamp_sample``
+where logged, else ``timestamp`` [us -> s]. A gyro instance and an accelerometer instance of the same
+``multi_id`` are sampled on their own stamps: the accelerometer is interpolated at the gyro's stamps (within one
+period, else NaN: rejected as ``unmatched``). A fifo message holds ``samples`` values ``x[k] * scale`` spaced
+``dt`` us and ending at ``timestamp_sample``.
+
+>>> sniff("flight.ulg", b"ULog\\x01\\x12\\x35\\x01")
+True
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...errors import SessionFormatError
+from ..multiimu import ImuStream, MultiImuRecording, resample_stream
+from ._open import local_file
+
+__all__ = ["EXTRA", "NAME", "read", "sniff"]
+
+NAME = "ulog"
+EXTRA = "ulog"
+MAGIC = b"ULog\x01\x12\x35"
+TOPICS = ("sensor_gyro", "sensor_accel", "sensor_gyro_fifo", "sensor_accel_fifo")
+
+
+def sniff(name: str, head: bytes) -> bool:
+    """ULog files start with ``ULog`` 0x01 0x12 0x35."""
+    return head.startswith(MAGIC)
+
+
+def _series(d: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    f = d.data
+    if d.name.endswith("_fifo"):
+        n = f["samples"].astype(int)
+        m = int(n.max()) if len(n) else 0
+        if m == 0:
+            return np.zeros(0), np.zeros((0, 3)), None
+        k = np.arange(m)
+        ts = f["timestamp_sample"].astype(float)[:, None] - (n[:, None] - 1 - k) * f["dt"].astype(float)[:, None]
+        xyz = np.stack([np.column_stack([f[f"{a}[{j}]"] for j in range(m)]) for a in "xyz"], axis=-1).astype(float)
+        xyz = xyz * f["scale"].astype(float)[:, None, None]
+        use = k[None, :] < n[:, None]
+        return ts[use] * 1e-6, xyz[use], None
+    ts = f.get("timestamp_sample", f["timestamp"]).astype(np.float64) * 1e-6
+    xyz = np.column_stack([f["x"], f["y"], f["z"]]).astype(float)
+    return ts, xyz, (f["temperature"].astype(float) if "temperature" in f else None)
+
+
+def read(path: str | os.PathLike[str], **options: Any) -> MultiImuRecording:
+    """Every IMU instance of the log (see the module docstring).
+
+    Raises
+    ------
+    SessionFormatError
+        Not a readable ULog file, or no ``sensor_gyro`` / ``sensor_gyro_fifo`` data.
+    """
+    try:
+        from pyulog import ULog
+    except ImportError:
+        raise ImportError("reading ULog files needs pyulog: pip install 'rimu[ulog]'", name="pyulog") from None
+    p = Path(path)
+    with local_file(p, ".ulg") as f:
+        try:
+            ulog = ULog(os.fspath(f), list(TOPICS))
+        except Exception as exc:  # pyulog raises bare exceptions on damaged files
+            raise SessionFormatError(f"{p}: not a readable ULog file ({type(exc).__name__}); check that it is the "
+                                     ".ulg as logged, not truncated") from None
+    by: dict[tuple[str, int], dict[str, Any]] = {}
+    for d in ulog.data_list:
+        base = "fifo" if d.name.endswith("_fifo") else "imu"
+        inst = "gyro" if "gyro" in d.name else "accel"
+        by.setdefault((base, int(d.multi_id)), {})[inst] = d
+    units, rejected = [], {}
+    for (base, i), parts in sorted(by.items()):
+        if "gyro" not in parts:
+            continue
+        t, g, temp = _series(parts["gyro"])
+        order = np.argsort(t, kind="stable")
+        t, g = t[order], g[order]
+        temp = None if temp is None else temp[order]
+        keep = np.concatenate([[True], np.diff(t) > 0]) & np.isfinite(g).all(1)
+        rej = {"time_not_increasing_or_nonfinite": int((~keep).sum()), "unmatched": 0}
+        t, g = t[keep], g[keep]
+        temp = None if temp is None else temp[keep]
+        a = None
+        if "accel" in parts and len(t) > 1:
+            ta, ya, _ = _series(parts["accel"])
+            oa = np.argsort(ta, kind="stable")
+            ta, ya = ta[oa], ya[oa]
+            ka = np.concatenate([[True], np.diff(ta) > 0])
+            if ka.sum() > 1:
+                a, ok = resample_stream(ta[ka], ya[ka], t)
+                a[~ok] = np.nan
+                rej["unmatched"] = int((~ok).sum())
+        name = f"{base}{i}"
+        rejected[name] = rej
+        units.append(ImuStream(name, t, g, a, temp))
+    if not units:
+        raise SessionFormatError(f"{p}: no sensor_gyro or sensor_gyro_fifo data in the log; log the IMU topics "
+                                 "(SDLOG_PROFILE) to read it")
+    meta = {"format": NAME, "source": str(p), "rejected": rejected,
+            "units_from": {"gyro": "uORB sensor_gyro (rad/s)", "accel": "uORB sensor_accel (m/s^2)"}}
+    return MultiImuRecording(units, meta)
