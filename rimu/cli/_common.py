@@ -316,8 +316,11 @@ def _check_dir(opt: str, p: Path) -> None:
 def output_options(args: argparse.Namespace, files: Iterable[str] = OUTPUT_FILE_OPTIONS,
                    dirs: Iterable[str] = OUTPUT_DIR_OPTIONS) -> tuple[list[str], list[str]]:
     """The attributes of ``args`` that name output files and output folders: the convention's names, every
-    ``write_*`` option, and ``-o`` as a folder where the command says so (``output_is_dir``)."""
+    ``write_*`` option, the options a command names in ``set_defaults(extra_outputs=(...))`` (an output whose name
+    says input elsewhere: ``rimu setup --session``), and ``-o`` as a folder where the command says so
+    (``output_is_dir``)."""
     files = list(files) + sorted(k for k in vars(args) if k.startswith("write_") and k not in files)
+    files += [k for k in getattr(args, "extra_outputs", ()) if k not in files]  # set_defaults(extra_outputs=...)
     dirs = list(dirs)
     if getattr(args, "output_is_dir", False):  # a command whose main artifact is a folder (export-c)
         files.remove("output")

@@ -53,6 +53,9 @@ BASE: dict[str, list[str]] = {
     "array": ["{in}/arr.npz", "-o", "{out}/fit.json", "--report", "{out}/rep", "--json", "{out}/j.json"],
     "noise": ["{in}/s.npz", "--calibration", "{in}/cal.json", "-o", "{out}/noise.json", "--report", "{out}/rep",
               "--json", "{out}/j.json", "--write-calibration", "{out}/cn.json"],
+    "import": ["{in}/px.csv", "-o", "{out}/rec.npz", "--json", "{out}/i.json"],
+    "setup": ["{in}/px.csv", "-o", "{out}/cal.json", "--session", "{out}/unit.npz", "--json", "{out}/s.json"],
+    "apply": ["{in}/px.csv", "--calibration", "{in}/px-cal.json", "-o", "{out}/ap.npz", "--json", "{out}/a.json"],
 }
 
 
@@ -83,6 +86,18 @@ def make_inputs(d: Path) -> None:
     rec = simulate_array(random_array_truth(lay, seed=6, centre_gyro_common_mode=True), duration_s=1.0, seed=6)
     np.savez(d / "arr.npz", t=rec.t, gyro=rec.gyro, accel=rec.accel, rotations=lay.rotations,
              positions_m=lay.positions_m)
+    # a two-IMU autopilot log (the Pixhawk extraction's columns) and the calibration `rimu setup` makes of it
+    rng = np.random.default_rng(0)
+    t = np.arange(600) / 100.0
+    w = np.column_stack([np.sin(2 * t), np.cos(3 * t), 0.5 * np.sin(t)])
+    parts = [t]
+    for _ in range(2):
+        parts += [w + 0.01 * rng.standard_normal(w.shape), [0, 0, 9.81] + 0.05 * rng.standard_normal(w.shape),
+                  np.full(len(t), 30.0)]
+    cols = ["t_s"] + [f"imu{k}_{q}" for k in (0, 1) for q in ("gx", "gy", "gz", "ax", "ay", "az", "tempC")]
+    np.savetxt(d / "px.csv", np.column_stack(parts), delimiter=",", header=",".join(cols), comments="", fmt="%.6f")
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["setup", str(d / "px.csv"), "-o", str(d / "px-cal.json"), "-q"]) == 0
 
 
 def argv(command: str, inp: Path, out: Path, base: list[str] | None = None) -> list[str]:
