@@ -36,8 +36,8 @@ from typing import Any
 import numpy as np
 
 from ...errors import SessionFormatError
-from ..multiimu import ImuStream, MultiImuRecording
 from ..guard import reading
+from ..multiimu import ImuStream, MultiImuRecording
 from ._open import open_binary
 
 __all__ = ["EXTRA", "NAME", "iter_chunks", "read", "sniff"]
