@@ -39,6 +39,7 @@ COMMANDS = [
     "import_",
     "setup",
     "apply",
+    "selfcal",
 ]
 
 EXIT_OK = 0

@@ -128,6 +128,7 @@ MINIMAL = {
     "import": ["{s}", "-o", "{dir}/rec.npz"],
     "setup": ["{s}", "-o", "{dir}/setupcal.json"],
     "apply": ["{s}", "--calibration", "{cal}", "-o", "{dir}/applied.npz"],
+    "selfcal": ["{s}", "--calibration", "{cal}", "-o", "{dir}/selfcal.json"],
 }
 
 _VALIDATORS = {common.positive_float: ["0", "-1", "nan", "abc"], common.finite_float: ["nan", "inf", "x"], common.nonnegative_float: ["-1", "inf", "x"],
@@ -202,6 +203,9 @@ CASES = [
     (["noise", "{dir}/missing.npz"], 2, ["missing.npz"]),
     (["noise", "{s}"], 2, ["scale factors", "--calibration"]),
     (["noise", "{s}", "--calibration", "{cal}", "--p-fa", "2"], 2, ["--p-fa"]),
+    (["selfcal", "{dir}/missing.npz", "--calibration", "{cal}", "-o", "{dir}/o.json"], 2, ["missing.npz"]),
+    (["selfcal", "{s}", "--calibration", "{cal}", "-o", "{dir}/o.json"], 2, ["noise model", "--bias-rw"]),
+    (["selfcal", "{s}", "--calibration", "{cal}", "-o", "{dir}/o.json", "--gate", "1"], 2, ["--gate"]),
     # detect and array (raw recordings, array NPZ)
     (["detect", "{dir}/missing.csv", "-o", "{dir}/o.npz"], 2, ["missing.csv", "does not exist"]),
     (["detect", "{text}", "-o", "{dir}/o.npz"], 2, ["text.npz"]),

@@ -1,0 +1,229 @@
+"""``rimu selfcal LOG --calibration cal.json -o cal2.json``: fit the drift and temperature model of the in-flight
+tracker (:mod:`rimu.fdi.selfcal`) to a recording, from the parity of every sensor at once, and write the updated
+calibration with its covariance.
+
+LOG is a session file in rimu's format (``.npz``, or ``.csv`` with its ``.json`` sidecar; docs/session-format.md),
+read in chunks and run through the same Kalman filter as in flight: every effect of the calibration is compensated
+first, then per instrument the bias drift (random walk), the relative scale drift (where the motion excites it)
+and, when the log has a temperature column, the temperature coefficients of the bias are tracked. Windows whose
+innovation fails the chi-square gate are left out (a fault in the log is not absorbed). What the parity cannot see,
+the common mode (a drift every sensor shares as a true input would), is stated and left as it was.
+
+The output: scale ``SF / (1 + k)`` and bias ``(B + b) / (1 + k)`` at the end of the log, first- and second-order
+temperature coefficients added to the ``bias_temperature`` and ``bias_temperature2`` effects, and the covariance of
+the tracked terms in place of theirs (``x1.bias``, ``x1.scale``, ``x1.bias_tc1``...). A third-order coefficient
+(``--temperature-orders 3``) is tracked and reported but has no effect of rimu's to be written to (its covariance is).
+
+The drift rate: from the calibration's noise model (``rimu noise``: bias instability and rate random walk, times
+``--drift-factor``), or ``--bias-rw`` ((SI)^2/s). Figures are printed in the field's units (deg/h, micro-g, ppm).
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+import numpy as np
+
+from ._common import add_json_option, add_report_option, json_dump, positive_float, positive_int, probability
+
+_TC_DEFAULT = {"gyro": (1e-4, 1e-5, 1e-6), "accel": (1e-3, 1e-4, 1e-5)}
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("selfcal", help="fit the calibration's drift and temperature terms to a recording (parity)",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("data", metavar="LOG", help="session file (.npz, or .csv/.json with sidecar)")
+    p.add_argument("--calibration", required=True, help="calibration JSON file (the fixed calibration)")
+    p.add_argument("-o", "--output", required=True, help="updated calibration JSON file to write")
+    p.add_argument("--instrument", action="append", choices=["gyro", "accel"], default=None,
+                   help="instrument to track (repeatable; default every instrument of the calibration in the log)")
+    p.add_argument("--drift-factor", type=positive_float, default=1.0,
+                   help="bias drift rate relative to the noise model's bias instability (default %(default)s)")
+    p.add_argument("--horizon", type=positive_float, default=3600.0,
+                   help="time scale at which the bias random walk matches the bias instability, s (default %(default)s)")
+    p.add_argument("--bias-rw", type=positive_float, default=None,
+                   help="bias random-walk intensity, SI^2/s (instead of the noise model's)")
+    p.add_argument("--scale-rw", type=positive_float, default=(200e-6) ** 2 / 7200.0,
+                   help="relative scale random-walk intensity, 1/s (default: 200 ppm in 2 h)")
+    p.add_argument("--no-scale", action="store_true", help="do not track the scale")
+    p.add_argument("--temperature-orders", type=positive_int, default=2, choices=[1, 2, 3],
+                   help="orders of the bias temperature coefficients tracked when the log has a temperature "
+                        "(default %(default)s)")
+    p.add_argument("--temperature-sigma", default=None,
+                   help="prior 1-sigma of the coefficients, comma-separated per order, SI/K^k (default gyro "
+                        "1e-4,1e-5,1e-6 rad/s/K^k; accel 1e-3,1e-4,1e-5 m/s^2/K^k)")
+    p.add_argument("--window", type=positive_float, default=1.0, help="window of one measurement, s (default %(default)s)")
+    p.add_argument("--gate", type=probability, default=1e-4,
+                   help="innovation gate probability: windows beyond it are not absorbed (default %(default)s)")
+    add_json_option(p)
+    add_report_option(p, "selfcal-<instrument>.png: the tracked terms over the log with their 1-sigma band")
+    p.set_defaults(func=run)
+
+
+def _settings(args: argparse.Namespace, cal: Any, inst: str, has_temperature: bool) -> Any:
+    from ..errors import MissingNoiseError, OptionError
+    from ..fdi.selfcal import SelfCalSettings, bias_random_walk
+
+    if cal.noise_sigma is None and cal.noise is None:
+        raise MissingNoiseError(f"the {inst} calibration has neither noise_sigma nor a noise model: the tracker needs "
+                                "the sensors' noise; identify it first (rimu noise) or set noise_sigma in the file")
+    if args.bias_rw is not None:
+        q = args.bias_rw
+    elif cal.noise is not None:
+        q = bias_random_walk(cal.noise, args.drift_factor, args.horizon)
+    else:
+        raise MissingNoiseError(f"the {inst} calibration has no noise model: give the bias drift rate with --bias-rw "
+                                "(SI^2/s), or identify the noise first (rimu noise)")
+    tsig = None
+    if has_temperature:
+        if args.temperature_sigma is not None:
+            try:
+                vals = [float(x) for x in args.temperature_sigma.split(",")]
+            except ValueError:
+                raise OptionError(f"--temperature-sigma must be numbers separated by commas, got "
+                                  f"{args.temperature_sigma!r}") from None
+            if len(vals) < args.temperature_orders or any(not v > 0 for v in vals):
+                raise OptionError(f"--temperature-sigma needs {args.temperature_orders} positive values (one per "
+                                  f"order), got {args.temperature_sigma!r}")
+        else:
+            vals = list(_TC_DEFAULT[inst])
+        tsig = tuple(vals[:args.temperature_orders])
+    return SelfCalSettings(bias_rw=q, scale_rw=None if args.no_scale else args.scale_rw, scale_sigma0=0.0,
+                           temperature_sigma=tsig, window_s=args.window, gate_p=args.gate)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..calibration import Calibration
+    from ..errors import SessionFormatError
+    from ..fdi.selfcal import SelfCalTracker
+    from ..fusion import Pipeline
+    from ..session import iter_blocks
+    from ..units import MS2_TO_UG, PPM, RS_TO_DH
+
+    cal = Calibration.load(args.calibration)
+    pipe = Pipeline(cal)
+    trackers: dict[str, Any] = {}
+    states: dict[str, Any] = {}
+    counts: dict[str, list[int]] = {}
+    history: dict[str, list[tuple[float, np.ndarray, np.ndarray]]] = {}
+    n_samples, t_first, t_last, has_t = 0, None, None, None
+    for blk in iter_blocks(args.data):
+        if has_t is None:
+            has_t = blk.temperature is not None and bool(np.isfinite(blk.temperature).any())
+            insts = args.instrument or [k for k in cal.instruments if k in blk.raw]
+            missing = [k for k in insts if k not in blk.raw or k not in cal.instruments]
+            if missing or not insts:
+                raise SessionFormatError(f"{args.data}: no {missing or 'instrument'} data that the calibration "
+                                         f"{args.calibration} also has (log: {sorted(blk.raw)}, calibration: "
+                                         f"{list(cal.instruments)})")
+            for k in insts:
+                trackers[k] = SelfCalTracker(cal[k], _settings(args, cal[k], k, has_t))
+                states[k] = trackers[k].initial_state(float(blk.t[0]))
+                counts[k] = [0, 0]
+                history[k] = []
+            t_first = float(blk.t[0])
+        comp = pipe.compensate(blk)
+        n_samples += len(blk.t)
+        t_last = float(blk.t[-1])
+        fs = 1.0 / float(np.median(np.diff(blk.t))) if len(blk.t) > 1 else 1.0
+        for k, trk in trackers.items():
+            M = max(1, int(round(args.window * fs)))
+            raw = comp.raw[k]
+            ok = np.isfinite(raw) & blk.valid.get(k, np.ones(raw.shape, bool))
+            z = cal[k].compensate(np.where(ok, raw, 0.0))
+            T = blk.temperature if has_t else None
+            for a in range(0, len(z), M):
+                b = min(len(z), a + M)
+                rows = ok[a:b].all(axis=1)
+                if T is not None:
+                    rows &= np.isfinite(T[a:b])
+                if not rows.any():
+                    continue
+                zw = z[a:b][rows]
+                u = zw @ trk.G.T
+                g = trk.regressors(len(zw), u, None if T is None else T[a:b][rows])
+                st = trk.predict(states[k], float(blk.t[b - 1]))
+                states[k], info = trk.update(st, zw, g)
+                counts[k][0 if info.accepted else 1] += 1
+                if args.report:
+                    tm = trk.terms(states[k])
+                    history[k].append((float(blk.t[b - 1]), np.stack([tm[x][0] for x in trk.blocks]),
+                                       np.stack([tm[x][1] for x in trk.blocks])))
+    if not trackers:
+        raise SessionFormatError(f"{args.data}: the log holds no samples")
+    out = dict(cal.instruments_cal)
+    summary: dict[str, Any] = {"log": str(args.data), "samples": n_samples, "duration_s": t_last - t_first,
+                               "temperature": bool(has_t), "instruments": {}}
+    print(f"{args.data}: {n_samples} samples over {t_last - t_first:.1f} s"
+          + ("" if has_t else " (no temperature: temperature terms not tracked)"))
+    for k, trk in trackers.items():
+        out[k] = trk.calibration_at(states[k])
+        f, unit = (RS_TO_DH, "deg/h") if k == "gyro" else (MS2_TO_UG, "micro-g")
+        terms = trk.terms(states[k])
+        print(f"{k}: {counts[k][0]} windows absorbed, {counts[k][1]} gated out; tracked terms (common mode left as "
+              f"it was: only an external reference gives it), value +- 1 sigma:")
+        rows = []
+        for i, nm in enumerate(cal[k].geometry.names):
+            row = {"sensor": nm}
+            parts = []
+            for blk_name, (v, s) in terms.items():
+                if blk_name == "bias":
+                    parts.append(f"bias {v[i] * f:+9.2f} +- {s[i] * f:.2f} {unit}")
+                elif blk_name == "scale":
+                    parts.append(f"scale {v[i] / PPM:+8.1f} +- {s[i] / PPM:.1f} ppm")
+                else:
+                    o = int(blk_name[2])
+                    parts.append(f"{blk_name} {v[i] * f:+.3g} +- {s[i] * f:.2g} {unit}/K^{o}")
+                row[blk_name] = float(v[i])
+                row[blk_name + "_sigma"] = float(s[i])
+            print(f"  {nm:>8s}  " + ", ".join(parts))
+            rows.append(row)
+        summary["instruments"][k] = {"windows_absorbed": counts[k][0], "windows_gated": counts[k][1],
+                                     "blocks": list(trk.blocks), "units": "SI (rad/s or m/s^2, relative scale, "
+                                     "SI/K^k)", "sensors": rows}
+        if "tc3" in terms:
+            print(f"  note: the third-order coefficients of {k} have no calibration effect to go to; they are kept "
+                  "in the covariance (x.bias_tc3) only")
+    meta = dict(cal.metadata)
+    meta["selfcal"] = {"log": str(args.data), "duration_s": t_last - t_first,
+                       "tracked": {k: list(t.blocks) for k, t in trackers.items()}}
+    written = Calibration(out, cal.raw_unit, f"{cal.method}+selfcal", metadata=meta).save(args.output)
+    print(f"updated calibration written to {written}")
+    if args.report:
+        for k, trk in trackers.items():
+            print(f"report: {_plot(k, trk, history[k], args.report)}")
+    if args.json:
+        json_dump(summary, args.json)
+    return 0
+
+
+def _plot(inst: str, trk: Any, hist: list[tuple[float, np.ndarray, np.ndarray]], folder: str) -> Any:
+    """The tracked terms of every sensor over the log, each with its 1-sigma band, in the field's units."""
+    from pathlib import Path
+
+    from ..plotting import pyplot, save_figure
+    from ..units import MS2_TO_UG, PPM, RS_TO_DH
+
+    plt = pyplot()
+    f, unit = (RS_TO_DH, "deg/h") if inst == "gyro" else (MS2_TO_UG, "micro-g")
+    t = np.array([h[0] for h in hist])
+    v = np.array([h[1] for h in hist])
+    s = np.array([h[2] for h in hist])
+    fig, axes = plt.subplots(trk.m, 1, figsize=(9, 2.2 * trk.m), sharex=True, squeeze=False)
+    names = trk.calibration.geometry.names
+    for b, (name, ax) in enumerate(zip(trk.blocks, axes[:, 0])):
+        fb, ub = (1.0 / PPM, "ppm") if name == "scale" else (f, unit if name == "bias" else f"{unit}/K^{name[2]}")
+        for i in range(trk.n):
+            line, = ax.plot(t, v[:, b, i] * fb, lw=0.8, label=names[i] if trk.n <= 12 else None)
+            ax.fill_between(t, (v[:, b, i] - s[:, b, i]) * fb, (v[:, b, i] + s[:, b, i]) * fb,
+                            color=line.get_color(), alpha=0.15, lw=0)
+        ax.set_ylabel(f"{name} ({ub})")
+        ax.grid(alpha=0.3)
+    if trk.n <= 12:
+        axes[0, 0].legend(ncol=min(trk.n, 6), fontsize=7)
+    axes[-1, 0].set_xlabel("time (s)")
+    axes[0, 0].set_title(f"{inst}: tracked terms (without their common mode) with 1-sigma bands")
+    fig.tight_layout()
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    return save_figure(fig, Path(folder) / f"selfcal-{inst}.png")

@@ -1,0 +1,700 @@
+"""In-flight self-calibration: a Kalman filter on the parity keeps the observable part of the calibration true.
+
+A calibration is true on the day it was made. In flight the biases drift with time and temperature and the scale
+factors move a little; a fixed calibration turns that drift into parity. The part of every drift that breaks the
+sensors' agreement is observable in the parity space from ordinary flight, without any reference; the part that
+moves every sensor as one true input would (the range of the sensing matrix) is not, and only an external
+reference gives it.
+
+Model (per sensor i, on the compensated output ``z_i = SF_i y_i - B_i`` of Cho & Park 2005, Eq. 20)::
+
+    z_i = a_i . u + d_i + v_i,
+    d_i = b_i + k_i s_i + c1_i dT + c2_i dT^2 + c3_i dT^3,      s_i = a_i . u,   dT = T - T_ref
+
+with ``b_i`` a random walk (intensity ``q_b``: from the noise model's bias instability and rate random walk, or
+the user's), ``k_i`` the relative scale drift (a random walk of intensity ``q_k``; tracked where the motion
+excites it), ``c1..c3`` constant temperature coefficients (tracked where a temperature channel exists). The state
+``theta`` stacks the blocks ``bias, scale, tc1, tc2, tc3`` (each n values) and is estimated by a Kalman filter
+whose measurement is the window mean of the normalised parity of the active sensors (de Oliveira et al. 2012,
+Eq. 6-11: ``p = Vz z``, ``Vz A = 0``, ``Cov p = I`` per sample)::
+
+    p_bar = Vz Phi_bar theta + e,   Cov e = I / M,   Phi_bar = [diag(1), diag(s_bar), diag(dT_bar) ...]
+
+(M samples in the window; the regressors are window means, exact for a constant theta).
+
+**What is not observable.** ``Vz A = 0``: any drift ``d = A w`` (a common mode: it looks like a true input
+``w``) never reaches the parity. For the bias and temperature blocks this is ``theta_b in range(A)`` (three
+directions per block); for the scale block it is ``diag(k) A = A N`` for some 3 x 3 N (one direction, the common
+scale, for axes in general position; three for parallel triads). :func:`unobservable_basis` gives these
+directions. The tracker never moves the common mode: the correction it exposes is
+``c = Pi Phi theta`` with ``Pi = I - A (A^T W A)^-1 A^T W`` (W = diag(1 / sigma^2), the fusion's weights), so
+``A^T W c = 0``: the fused estimate of the full set is exactly unchanged, and the parity of ``c`` is that of
+``Phi theta`` (``Vz Pi = Vz``).
+
+**Fault-aware.** The filter absorbs what the drift model allows and nothing faster: a window whose innovation
+fails the chi-square gate (``gate_p``) is not absorbed; :class:`SelfCalibratingRun` applies a window only after
+``hold_s`` more seconds without any alarm of the detector (so the lead-up to an alarm is never absorbed), not at all
+while an alarm episode is open, and never to the states of isolated sensors (Schmidt's consider update: their
+gain rows are zero, the Joseph form keeps the covariance exact). Re-admission sees outputs corrected with the
+(frozen) tracked values of the isolated sensor.
+
+**The interface to the detector** (what a runtime adopts): subtract :meth:`SelfCalTracker.correction` (SI, per
+sample) from the compensated outputs before the parity, or ``correction / SF`` from the raw outputs; add
+:meth:`SelfCalTracker.parity_covariance` (the tracked terms' uncertainty in the parity) to the detector's noise
+covariance: :class:`TrackedGltWindow` whitens with ``L = chol(I + M Vz Sigma_c Vz^T)^-1`` for a window of M
+samples, and :func:`minimum_detectable_bias` gives what that costs in detection.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import optimize, stats
+
+from ..calibration.result import InstrumentCalibration
+from ..errors import MissingInputError, MissingNoiseError, ShapeError
+from ..geometry.base import null_space_rows
+from ..noise.model import FLICKER_AVAR
+from .glt import GltWindow, glt_threshold
+from .health import SensorState
+
+__all__ = ["BLOCKS", "SelfCalSettings", "SelfCalState", "SelfCalTracker", "SelfCalUpdate", "SelfCalibratingRun",
+           "SelfCalRunResult", "TrackedGltWindow", "bias_random_walk", "minimum_detectable_bias",
+           "unobservable_basis"]
+
+#: the state's blocks, in order (each holds one value per sensor)
+BLOCKS = ("bias", "scale", "tc1", "tc2", "tc3")
+_BIAS_LIKE = ("bias", "tc1", "tc2", "tc3")
+
+
+def bias_random_walk(noise: Any, factor: float = 1.0, horizon_s: float = 3600.0) -> np.ndarray:
+    """Random-walk intensity q (n,), SI^2/s, of a bias drifting ``factor`` times as fast as the noise model says.
+
+    The random walk with the Allan variance of the model's slow terms at ``horizon_s`` (IEEE Std 952, Annex C:
+    ``AVAR_rw(tau) = q tau / 3``; the flicker floor ``(2 ln 2 / pi) B^2``, the rate random walk ``K^2 tau / 3``)::
+
+        q = factor^2 (3 (2 ln 2 / pi) B^2 / horizon + K^2)
+
+    Parameters
+    ----------
+    noise : rimu.noise.InstrumentNoise
+        With ``terms["bias_instability"]`` (B) and ``terms["rate_random_walk"]`` (K), SI.
+    factor : float
+        Drift rate relative to the model (3: biases drifting at three times their bias instability).
+    horizon_s : float
+        Time scale at which the random walk matches the flicker, s (the mission length).
+
+    Examples
+    --------
+    >>> from rimu.noise import InstrumentNoise
+    >>> from rimu.units import DH_TO_RS
+    >>> m = InstrumentNoise.from_terms("gyro", ["x"], 100.0, bias_instability=10 * DH_TO_RS)
+    >>> q = bias_random_walk(m, 3.0, 3600.0)
+    >>> round(float(np.sqrt(q[0] * 3600.0) / DH_TO_RS), 2)      # 1-sigma wander after one hour, deg/h
+    34.52
+    """
+    B = np.asarray(noise.terms["bias_instability"], dtype=float)
+    K = np.asarray(noise.terms["rate_random_walk"], dtype=float)
+    if not horizon_s > 0:
+        raise ValueError(f"horizon_s must be positive, got {horizon_s}")
+    return float(factor) ** 2 * (3.0 * FLICKER_AVAR * B * B / float(horizon_s) + K * K)
+
+
+def _vec(v: Any, n: int, name: str) -> np.ndarray:
+    a = np.broadcast_to(np.asarray(v, dtype=float), (n,)).copy()
+    if np.any(~np.isfinite(a)) or np.any(a < 0):
+        raise ShapeError(f"{name} must be finite and non-negative, got {a.tolist()}")
+    return a
+
+
+@dataclass
+class SelfCalSettings:
+    """Everything the tracker is told (SI units; per-sensor values broadcast from scalars).
+
+    Attributes
+    ----------
+    bias_rw : float or ndarray (n,)
+        Random-walk intensity of each bias, SI^2/s ((rad/s)^2/s for gyros); see :func:`bias_random_walk`.
+    bias_sigma0 : float or ndarray (n,)
+        1-sigma of the bias change at the start (0: the calibration is true when tracking starts), SI.
+    scale_rw : float, ndarray (n,) or None
+        Random-walk intensity of the relative scale, 1/s; None: the scale is not tracked.
+    scale_sigma0 : float or ndarray (n,)
+        1-sigma of the relative scale change at the start.
+    temperature_sigma : sequence of float, or None
+        Prior 1-sigma of the first-, second-, third-order temperature coefficients of the bias (SI/K, SI/K^2,
+        SI/K^3; one value per order tracked, at most three; each a float or (n,)); None: no temperature terms.
+    reference_temperature : float
+        T_ref, degC (the calibration's; rimu's effects use 25 degC).
+    window_s : float
+        Length of the windows whose mean parity is one measurement, s.
+    gate_p : float
+        Probability of the innovation gate: a window whose innovation exceeds ``chi2_{1 - gate_p}(dof)`` is not
+        absorbed.
+    hold_s : float
+        :class:`SelfCalibratingRun` absorbs a window only after this many further seconds without an alarm.
+    watch_p : float
+        :class:`SelfCalibratingRun` treats a detector statistic above ``chi2_{1 - watch_p}(dof)`` like an alarm
+        for the tracker (a fault building up below the alarm threshold is not absorbed).
+    """
+
+    bias_rw: Any
+    bias_sigma0: Any = 0.0
+    scale_rw: Any = None
+    scale_sigma0: Any = 0.0
+    temperature_sigma: Sequence[Any] | None = None
+    reference_temperature: float = 25.0
+    window_s: float = 1.0
+    gate_p: float = 1e-4
+    hold_s: float = 10.0
+    watch_p: float = 0.01
+
+    def __post_init__(self) -> None:
+        if not (self.window_s > 0 and 0 < self.gate_p < 1 and self.hold_s >= 0 and 0 < self.watch_p < 1):
+            raise ValueError("window_s must be positive, gate_p and watch_p in (0, 1), hold_s >= 0")
+        if self.temperature_sigma is not None and not 1 <= len(self.temperature_sigma) <= 3:
+            raise ValueError("temperature_sigma holds one prior sigma per order, orders 1 to 3")
+
+    @property
+    def blocks(self) -> tuple[str, ...]:
+        """The blocks of the state these settings track, in :data:`BLOCKS` order."""
+        tc = () if self.temperature_sigma is None else BLOCKS[2:2 + len(self.temperature_sigma)]
+        return ("bias",) + (("scale",) if self.scale_rw is not None else ()) + tc
+
+
+@dataclass(frozen=True)
+class SelfCalState:
+    """The tracker's estimate: plain data, replaced (never mutated) by every step.
+
+    ``theta`` (m n,) the block-major state (``theta[b * n + i]``: block b of sensor i, SI; the scale block
+    relative), ``P`` its covariance, ``t`` the time it refers to (s), ``updates``/``rejected`` counts of absorbed
+    and gated windows.
+    """
+
+    theta: np.ndarray
+    P: np.ndarray
+    t: float
+    updates: int = 0
+    rejected: int = 0
+
+
+@dataclass(frozen=True)
+class SelfCalUpdate:
+    """What one window did: ``accepted``, the normalised innovation ``d2`` (chi-square, ``dof``) and its gate."""
+
+    accepted: bool
+    d2: float
+    gate: float
+    dof: int
+
+
+def unobservable_basis(axes: np.ndarray, blocks: Sequence[str]) -> np.ndarray:
+    """Orthonormal basis (m n, k) of the state directions the parity never sees, whatever the motion.
+
+    Bias and temperature blocks: ``theta_b in range(A)``; scale block: ``diag(k) A = A N`` for some 3 x 3 N
+    (the null space of that linear map in (k, N)).
+
+    >>> from rimu.geometry import cone6
+    >>> unobservable_basis(cone6().H, ["bias", "scale"]).shape     # 3 common-mode biases, 1 common scale
+    (12, 4)
+    >>> from rimu.geometry import triads
+    >>> unobservable_basis(triads(2).H, ["scale"]).shape            # parallel triads: a common scale per axis
+    (6, 3)
+    """
+    A = np.asarray(axes, dtype=float)
+    n = A.shape[0]
+    Q, _ = np.linalg.qr(A)
+    cols = []
+    for b, name in enumerate(blocks):
+        if name == "scale":
+            # unknowns (k (n), N (9, row-major)); equations diag(k) A - A N = 0, (n, 3)
+            Mmap = np.zeros((3 * n, n + 9))
+            for i in range(n):
+                for c in range(3):
+                    Mmap[3 * i + c, i] = A[i, c]
+                    Mmap[3 * i + c, n + 3 * np.arange(3) + c] = -A[i]
+            _, s, Vt = np.linalg.svd(Mmap)
+            rank = int(np.sum(s > 1e-9 * s[0]))
+            K = Vt[rank:, :n].T
+            if K.size:
+                U, sv, _ = np.linalg.svd(K, full_matrices=False)
+                U = U[:, sv > 1e-9]
+                blk = np.zeros((len(blocks) * n, U.shape[1]))
+                blk[b * n:(b + 1) * n] = U
+                cols.append(blk)
+        else:
+            blk = np.zeros((len(blocks) * n, 3))
+            blk[b * n:(b + 1) * n] = Q
+            cols.append(blk)
+    return np.concatenate(cols, axis=1) if cols else np.zeros((len(blocks) * n, 0))
+
+
+class SelfCalTracker:
+    """The Kalman filter on the parity of the compensated outputs (see the module docstring).
+
+    The tracker holds only its settings and constants of the geometry; the estimate is a :class:`SelfCalState`
+    that every step takes and returns (the runtime owns it).
+
+    Parameters
+    ----------
+    calibration : InstrumentCalibration
+        The fixed calibration (axes, scale, bias, noise).
+    settings : SelfCalSettings
+    sigma : float or ndarray (n,), optional
+        Per-sample white noise of the compensated outputs, SI; default the calibration's ``noise_sigma``, else
+        its noise model's per-sample sigma.
+
+    Examples
+    --------
+    >>> from rimu.geometry import cone6
+    >>> cal = InstrumentCalibration.nominal("gyro", cone6(), 1.0, noise_sigma=0.01)
+    >>> trk = SelfCalTracker(cal, SelfCalSettings(bias_rw=1e-6, bias_sigma0=0.01))
+    >>> st = trk.initial_state()
+    >>> rng = np.random.default_rng(0)
+    >>> drift = np.array([0.02, 0, 0, 0, 0, 0])                      # sensor x1 drifted by 2 sigma
+    >>> for k in range(20):
+    ...     z = drift + 0.01 * rng.standard_normal((100, 6))
+    ...     st, info = trk.update(trk.predict(st, k + 1.0), z, trk.regressors(100))
+    >>> c = trk.correction(st, trk.regressors(1))[0]
+    >>> bool(abs(c[0] - (drift - trk.common_mode(drift))[0]) < 3e-3), float(np.abs(cal.axes_mb().T @ c).max()) < 1e-15
+    (True, True)
+    """
+
+    def __init__(self, calibration: InstrumentCalibration, settings: SelfCalSettings,
+                 sigma: float | np.ndarray | None = None) -> None:
+        self.calibration = calibration
+        self.settings = settings
+        A = calibration.axes_mb()
+        n = A.shape[0]
+        if sigma is None:
+            if calibration.noise_sigma is not None:
+                sigma = calibration.noise_sigma
+            elif calibration.noise is not None:
+                sigma = calibration.noise.sample_sigma()
+            else:
+                raise MissingNoiseError("the tracker needs the sensors' noise: give sigma= or a calibration with "
+                                        "noise_sigma or a noise model")
+        self.sigma = np.broadcast_to(np.asarray(sigma, dtype=float), (n,)).copy()
+        self.n = n
+        self.axes = A
+        self.blocks = settings.blocks
+        self.m = len(self.blocks)
+        w2 = 1.0 / self.sigma ** 2
+        G = np.linalg.solve(A.T @ (A * w2[:, None]), (A * w2[:, None]).T)  # (3, n) weighted LS
+        #: the fusion's weighted least-squares solution for the full set, (3, n)
+        self.G = G
+        #: ``I - A G``: removes the common mode (``A^T W Pi = 0``)
+        self.Pi = np.eye(n) - A @ G
+        q, p0 = [], []
+        for b in self.blocks:
+            if b == "bias":
+                q.append(_vec(settings.bias_rw, n, "bias_rw"))
+                p0.append(_vec(settings.bias_sigma0, n, "bias_sigma0") ** 2)
+            elif b == "scale":
+                q.append(_vec(settings.scale_rw, n, "scale_rw"))
+                p0.append(_vec(settings.scale_sigma0, n, "scale_sigma0") ** 2)
+            else:
+                q.append(np.zeros(n))
+                order = int(b[2])
+                p0.append(_vec(settings.temperature_sigma[order - 1], n, f"temperature_sigma[{order - 1}]") ** 2)
+        self.q = np.concatenate(q)
+        self.p0 = np.concatenate(p0)
+        self._Vz: dict[bytes, np.ndarray] = {}
+        self._gates: dict[int, float] = {}
+
+    # ------------------------------------------------------------------ helpers
+    def block(self, name: str) -> slice:
+        """The slice of block ``name`` in ``theta``."""
+        b = self.blocks.index(name)
+        return slice(b * self.n, (b + 1) * self.n)
+
+    def common_mode(self, d: np.ndarray) -> np.ndarray:
+        """The part ``A G d`` of a sensor-space vector (..., n) that looks like a true input (not observable)."""
+        return np.asarray(d, dtype=float) @ (self.axes @ self.G).T
+
+    def parity_rows(self, active: np.ndarray | None = None) -> np.ndarray:
+        """``Vz`` (dof, n) of the active sensors: normalised parity rows, zero columns for the others."""
+        act = np.ones(self.n, bool) if active is None else np.asarray(active, bool)
+        key = act.tobytes()
+        if key not in self._Vz:
+            idx = np.flatnonzero(act)
+            w = 1.0 / self.sigma
+            Vz = np.zeros((0, self.n))
+            if len(idx) > 3:
+                Aw = self.axes[idx] * w[idx, None]
+                if np.linalg.matrix_rank(Aw, tol=1e-9) >= 3:
+                    Vw = null_space_rows(Aw)
+                    Vz = np.zeros((Vw.shape[0], self.n))
+                    Vz[:, idx] = Vw * w[idx][None, :]
+            self._Vz[key] = Vz
+        return self._Vz[key]
+
+    def regressors(self, N: int, u: np.ndarray | None = None, temperature: np.ndarray | None = None) -> np.ndarray:
+        """The regressors (N, m, n) of N samples: 1, ``s_i = a_i . u``, ``dT^k``.
+
+        ``u`` (N, 3): the input in MB (SI; needed when the scale is tracked), ``temperature`` (N,) degC (needed
+        for the temperature terms).
+        """
+        g = np.empty((N, self.m, self.n))
+        for b, name in enumerate(self.blocks):
+            if name == "bias":
+                g[:, b] = 1.0
+            elif name == "scale":
+                if u is None:
+                    raise MissingInputError("the scale is tracked: give the input u (N, 3) for the regressors")
+                g[:, b] = np.asarray(u, dtype=float).reshape(N, 3) @ self.axes.T
+            else:
+                if temperature is None:
+                    raise MissingInputError("temperature terms are tracked: give the temperature (degC) of the samples")
+                dT = np.asarray(temperature, dtype=float).reshape(N) - self.settings.reference_temperature
+                g[:, b] = (dT ** int(name[2]))[:, None]
+        return g
+
+    # ------------------------------------------------------------------ the filter
+    def initial_state(self, t: float = 0.0) -> SelfCalState:
+        """Zero drift (the calibration as given) with the prior covariance, at time ``t`` (s)."""
+        return SelfCalState(np.zeros(self.m * self.n), np.diag(self.p0), float(t))
+
+    def predict(self, state: SelfCalState, t: float) -> SelfCalState:
+        """The state at time ``t`` (s): the random walks' variance grows by ``q (t - state.t)``."""
+        dt = float(t) - state.t
+        if dt < 0:
+            raise ValueError(f"cannot predict backwards: state at {state.t} s, asked for {t} s")
+        P = state.P.copy()
+        P[np.diag_indices_from(P)] += self.q * dt
+        return SelfCalState(state.theta, P, float(t), state.updates, state.rejected)
+
+    def update(self, state: SelfCalState, z: np.ndarray, g: np.ndarray, active: np.ndarray | None = None,
+               frozen: np.ndarray | None = None) -> tuple[SelfCalState, SelfCalUpdate]:
+        """Absorb one window: ``z`` (M, n) compensated outputs (``SF y - B``, without the tracked correction),
+        ``g`` (M, m, n) their regressors; sensors not ``active`` are left out of the parity, the states of
+        ``frozen`` (and inactive) sensors are not moved (consider states). A window whose innovation fails the
+        gate is not absorbed.
+        """
+        z = np.asarray(z, dtype=float)
+        M = z.shape[0]
+        act = np.ones(self.n, bool) if active is None else np.asarray(active, bool)
+        Vz = self.parity_rows(act)
+        r = Vz.shape[0]
+        if M < 1 or r < 1:
+            return state, SelfCalUpdate(False, 0.0, float("inf"), r)
+        zbar = z.mean(axis=0)
+        gbar = g.mean(axis=0)                           # (m, n)
+        H = np.concatenate([Vz * gbar[b][None, :] for b in range(self.m)], axis=1)   # (r, m n)
+        nu = Vz @ zbar - H @ state.theta
+        PHt = state.P @ H.T
+        S = H @ PHt + np.eye(r) / M
+        Sinv_nu = np.linalg.solve(S, nu)
+        d2 = float(nu @ Sinv_nu)
+        gate = self._gates.get(r)
+        if gate is None:
+            gate = self._gates[r] = float(stats.chi2.isf(self.settings.gate_p, r))
+        if not d2 <= gate:
+            return (SelfCalState(state.theta, state.P, state.t, state.updates, state.rejected + 1),
+                    SelfCalUpdate(False, d2, gate, r))
+        K = np.linalg.solve(S, PHt.T).T                # (m n, r)
+        keep = act.copy()
+        if frozen is not None:
+            keep &= ~np.asarray(frozen, bool)
+        if keep.all():
+            theta = state.theta + K @ nu
+            P = state.P - K @ PHt.T                    # the optimal gain: P - K S K^T
+        else:
+            K[~np.tile(keep, self.m)] = 0.0            # Schmidt: frozen sensors' states are not moved
+            theta = state.theta + K @ nu
+            J = np.eye(self.m * self.n) - K @ H
+            P = J @ state.P @ J.T + (K @ K.T) / M      # Joseph form: exact for any gain
+        P = 0.5 * (P + P.T)
+        return SelfCalState(theta, P, state.t, state.updates + 1, state.rejected), SelfCalUpdate(True, d2, gate, r)
+
+    # ------------------------------------------------------------------ what the runtime uses
+    def correction(self, state: SelfCalState, g: np.ndarray) -> np.ndarray:
+        """The correction (N, n), SI, to subtract from the compensated outputs: ``Pi Phi theta`` per sample
+        (``A^T W c = 0``: the common mode is not touched)."""
+        th = state.theta.reshape(self.m, self.n)
+        d = np.einsum("kbn,bn->kn", g, th)
+        return d @ self.Pi.T
+
+    def correction_covariance(self, state: SelfCalState, g: np.ndarray) -> np.ndarray:
+        """Covariance (n, n), SI^2, of the correction's error for regressors ``g`` (m, n) (e.g. rms values)."""
+        Phi = np.concatenate([np.diag(g[b]) for b in range(self.m)], axis=1)
+        C = self.Pi @ Phi
+        return C @ state.P @ C.T
+
+    def parity_covariance(self, state: SelfCalState, g: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
+        """The tracked terms' uncertainty in the normalised parity, ``Vz Sigma_c Vz^T`` (dof, dof), per sample
+        of a persistent error: the covariance a detector adds to its own."""
+        Vz = self.parity_rows(active)
+        return Vz @ self.correction_covariance(state, g) @ Vz.T
+
+    def terms(self, state: SelfCalState) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """The tracked terms and their 1-sigma per block, SI: ``{block: (value (n,), sigma (n,))}``.
+
+        Bias and temperature blocks without their common mode (``Pi theta_b``: what the parity can tell), the
+        scale block as estimated (its common part, unobservable, stays at the prior).
+        """
+        out = {}
+        for b, name in enumerate(self.blocks):
+            s = slice(b * self.n, (b + 1) * self.n)
+            th, Pb = state.theta[s], state.P[s, s]
+            if name in _BIAS_LIKE:
+                th, Pb = self.Pi @ th, self.Pi @ Pb @ self.Pi.T
+            out[name] = (th.copy(), np.sqrt(np.clip(np.diag(Pb), 0.0, None)))
+        return out
+
+    def calibration_at(self, state: SelfCalState, temperature: float | None = None) -> InstrumentCalibration:
+        """The calibration with the tracked terms folded in, and their covariance.
+
+        Scale and bias: ``SF' = SF / (1 + k)``, ``B' = (B + b) / (1 + k)`` (so that ``SF' y - B'`` removes the
+        tracked bias and relative scale); temperature coefficients are added to the ``bias_temperature`` (order
+        1) and ``bias_temperature2`` (order 2) effects; a third-order term has no effect of rimu's to go to and
+        is kept in the covariance only (``x1.bias_tc3``). The covariance names ``x1.bias``, ``x1.scale`` (SI per raw
+        unit), ``x1.bias_tc1``... over the tracked blocks (the calibration's previous covariance is replaced).
+        """
+        cal = self.calibration
+        names = list(cal.geometry.names)
+        terms = self.terms(state)
+        b = terms["bias"][0]
+        k = terms["scale"][0] if "scale" in terms else np.zeros(self.n)
+        scale = cal.scale / (1.0 + k)
+        bias = (cal.bias + b) / (1.0 + k)
+        effects = {e: dict(v) for e, v in cal.effects.items()}
+        for name, eff in (("tc1", "bias_temperature"), ("tc2", "bias_temperature2")):
+            if name in terms:
+                d = effects.setdefault(eff, {})
+                for i, nm in enumerate(names):
+                    key = f"{nm}.bias_{name}"
+                    d[key] = float(d.get(key, 0.0) + terms[name][0][i])
+        # covariance: bias-like blocks without their common mode; the scale in SI per raw unit
+        J = np.zeros((self.m * self.n, self.m * self.n))
+        pnames = []
+        for bi, name in enumerate(self.blocks):
+            s = slice(bi * self.n, (bi + 1) * self.n)
+            J[s, s] = self.Pi if name in _BIAS_LIKE else np.diag(-cal.scale)
+            suffix = {"bias": "bias", "scale": "scale"}.get(name, f"bias_{name}")
+            pnames += [f"{nm}.{suffix}" for nm in names]
+        cov = J @ state.P @ J.T
+        # the calibration's other parameters keep their covariance; the tracked ones get the tracker's (no
+        # correlation between the two is known)
+        keep = [i for i, nm in enumerate(cal.param_names) if nm not in set(pnames)]
+        if keep and cal.covariance is not None:
+            old = cal.covariance[np.ix_(keep, keep)]
+            full = np.zeros((len(keep) + len(pnames),) * 2)
+            full[:len(keep), :len(keep)] = old
+            full[len(keep):, len(keep):] = cov
+            cov, pnames = full, [cal.param_names[i] for i in keep] + pnames
+        return InstrumentCalibration(cal.instrument, cal.geometry, scale, cal.misalignment.copy(), bias,
+                                     None if cal.noise_sigma is None else cal.noise_sigma.copy(), cov, pnames,
+                                     effects, None if cal.range_raw is None else cal.range_raw.copy(), cal.noise)
+
+
+class TrackedGltWindow(GltWindow):
+    """The window GLT with the tracker's uncertainty in its covariance (Daly, Gai & Harrison 1979, whitened).
+
+    The window sum S of M parity samples under no fault has covariance ``M (I + M Vz Sigma_c Vz^T)`` when the
+    compensation carries a persistent error of covariance Sigma_c (the tracked terms' uncertainty), so the
+    statistic ``|L S|^2 / M`` with ``L = chol(I + M Vz Sigma_c Vz^T)^-1`` is chi-square with dof degrees of
+    freedom again; isolation uses the whitened columns. :meth:`set_tracker_covariance` is called by whoever
+    owns the tracker (SI^2, sensor space, (n, n)); until then this is the plain window GLT.
+
+    >>> from rimu.geometry import cone6
+    >>> det = TrackedGltWindow(window=10)
+    >>> det.configure(cone6().parity_matrix() / 0.01, 3)
+    >>> det.set_tracker_covariance(np.eye(6) * 0.001 ** 2)        # 0.1 sigma per sensor, persistent
+    >>> L = det.whitening(cone6().parity_matrix() / 0.01, 3)
+    >>> np.round(np.linalg.inv(L @ L.T), 6).tolist()[0]               # I + 10 * 0.01 I (orthonormal rows)
+    [1.1, 0.0, 0.0]
+    """
+
+    name = "glt_window_tracked"
+
+    def __init__(self, window: int = 5, p_fa: float = 1e-3) -> None:
+        super().__init__(window, p_fa, None)
+        self._sigma_c: np.ndarray | None = None
+        self._Vraw = np.zeros((0, 0))
+
+    def whitening(self, Vz: np.ndarray, dof: int) -> np.ndarray | None:
+        if self._sigma_c is None or dof < 1:
+            return None
+        V = np.asarray(Vz, dtype=float)[:dof]
+        C = np.eye(dof) + self.window * (V @ self._sigma_c @ V.T)
+        return np.linalg.inv(np.linalg.cholesky(0.5 * (C + C.T)))
+
+    def configure(self, Vz: np.ndarray, dof: int) -> None:
+        self._Vraw = np.asarray(Vz, dtype=float)[:dof].copy()
+        super().configure(Vz, dof)
+
+    def set_tracker_covariance(self, sigma_c: np.ndarray | None) -> None:
+        """Use ``sigma_c`` (n, n), SI^2, from now on (None: none); the window's sums are kept."""
+        self._sigma_c = None if sigma_c is None else np.asarray(sigma_c, dtype=float)
+        self._L = self.whitening(self._Vraw, self._dof)
+        self._V = self._Vraw if self._L is None else self._L @ self._Vraw
+
+
+def minimum_detectable_bias(Vz: np.ndarray, window: int = 1, sigma_c: np.ndarray | None = None,
+                            p_fa: float = 1e-3, p_d: float = 0.5) -> np.ndarray:
+    """Smallest bias (n,), SI, on each sensor that the window GLT detects with probability ``p_d``.
+
+    A bias b on sensor j gives the window statistic the noncentrality ``lambda = M b^2 v_j^T C^-1 v_j``
+    (``C = I + M Vz Sigma_c Vz^T``, v_j the column of ``Vz``); b is where ``P(chi2(dof, lambda) > thr) = p_d``.
+
+    >>> from rimu.geometry import cone6
+    >>> mdb = minimum_detectable_bias(cone6().parity_matrix() / 0.01, window=1)
+    >>> round(float(mdb[0]), 4)          # in sigma = 0.01: sqrt(lambda_50% / |v_j|^2), |v_j|^2 = 1/2
+    0.0534
+    """
+    V = np.asarray(Vz, dtype=float)
+    dof = V.shape[0]
+    thr = glt_threshold(p_fa, dof)
+    lam = optimize.brentq(lambda x: stats.ncx2.sf(thr, dof, x) - p_d, 1e-9, 1e4)
+    C = np.eye(dof) if sigma_c is None else np.eye(dof) + window * (V @ sigma_c @ V.T)
+    info = np.einsum("ij,ij->j", V, np.linalg.solve(C, V))
+    with np.errstate(divide="ignore"):
+        return np.sqrt(lam / (window * info))
+
+
+@dataclass
+class SelfCalRunResult:
+    """What :meth:`SelfCalibratingRun.run` returns.
+
+    ``replay``: the manager's outputs over the whole run (:class:`rimu.fdi.ReplayResult`); ``t`` (W,) the end of
+    each window, s; ``values``/``sigmas`` (W, m, n) the tracked terms of :meth:`SelfCalTracker.terms` after
+    each window (SI); ``accepted``/``rejected``/``discarded`` windows absorbed, gated out, thrown away because of
+    an alarm; ``correction`` (N, n) the correction applied to each sample, SI; ``theta`` (W, m n) the state itself
+    after each window (per sensor, common mode included: what is frozen for an isolated sensor).
+    """
+
+    replay: Any
+    t: np.ndarray
+    values: np.ndarray
+    sigmas: np.ndarray
+    accepted: int
+    rejected: int
+    discarded: int
+    correction: np.ndarray
+    blocks: tuple[str, ...] = field(default_factory=tuple)
+    theta: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+
+    @property
+    def isolations(self) -> int:
+        """Isolation events (by the detector or by invalid data) over the run."""
+        return sum(1 for e in self.replay.events if e.kind in ("isolated", "invalid_isolated"))
+
+
+def _concat_replay(parts: list[Any]) -> Any:
+    first = parts[0]
+    kw = {}
+    for f in first.__dataclass_fields__:
+        v = getattr(first, f)
+        if f == "events":
+            kw[f] = [e for p in parts for e in p.events]
+        elif f == "names":
+            kw[f] = v
+        else:
+            kw[f] = np.concatenate([getattr(p, f) for p in parts], axis=0)
+    return type(first)(**kw)
+
+
+class SelfCalibratingRun:
+    """Drive a :class:`rimu.fdi.RedundancyManager` from the outside with a tracker (the adapter until the runtime
+    adopts the tracker; it touches only the manager's public API).
+
+    Per window of ``settings.window_s``: the raw outputs are corrected by ``correction / SF`` (scale terms from the
+    uncorrected fused estimate), the detector (a :class:`TrackedGltWindow`) gets the tracked terms' covariance,
+    the manager runs the window, and the window's compensated outputs wait ``hold_s`` before the tracker absorbs
+    them: any alarm meanwhile throws away every waiting window; isolated sensors are frozen; invalid sensors are
+    left out of that window.
+
+    Parameters
+    ----------
+    manager : RedundancyManager
+        Its pipeline's calibration is the fixed one; its detector, when a :class:`TrackedGltWindow`, is kept
+        informed of the tracker's covariance.
+    tracker : SelfCalTracker
+    state : SelfCalState, optional
+        Start from it (default the tracker's initial state at the first sample's time).
+    """
+
+    def __init__(self, manager: Any, tracker: SelfCalTracker, state: SelfCalState | None = None) -> None:
+        self.manager = manager
+        self.tracker = tracker
+        self.state = state
+        self._pending: list[tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        self._recent: list[np.ndarray] = []
+
+    def _watch(self, dof: np.ndarray) -> np.ndarray:
+        p = self.tracker.settings.watch_p
+        out = np.empty(len(dof))
+        for d in np.unique(dof):
+            out[dof == d] = glt_threshold(p, int(d))
+        return out
+
+    def _g_rms(self, g: np.ndarray) -> np.ndarray:
+        return np.sqrt(np.mean(g * g, axis=0)) * np.sign(np.mean(g, axis=0) + 1e-300)
+
+    def run(self, Y: np.ndarray, valid: np.ndarray | None = None, t: np.ndarray | None = None,
+            temperature: np.ndarray | None = None) -> SelfCalRunResult:
+        """Process N raw samples (N, n) with their times ``t`` (s) and temperature (degC) when tracked."""
+        mgr, trk = self.manager, self.tracker
+        cal = trk.calibration
+        Y = np.asarray(Y, dtype=float)
+        N = len(Y)
+        if t is None:
+            raise MissingInputError("give the sample times t (s)")
+        t = np.asarray(t, dtype=float)
+        fs = 1.0 / float(np.median(np.diff(t))) if N > 1 else 1.0
+        M = max(1, int(round(trk.settings.window_s * fs)))
+        if self.state is None:
+            self.state = trk.initial_state(float(t[0]))
+        det = mgr.detector if isinstance(mgr.detector, TrackedGltWindow) else None
+        parts, tw, vals, sigs, ths, corr = [], [], [], [], [], np.zeros((N, trk.n))
+        acc = rej = disc = 0
+        g_last = trk.regressors(1, np.zeros((1, 3)), None if temperature is None else np.asarray(temperature)[:1])[0]
+        span = 1 if det is None else int(math.ceil(det.window / M)) + 1
+        for a in range(0, N, M):
+            b = min(N, a + M)
+            Yw = Y[a:b]
+            vw = None if valid is None else np.asarray(valid[a:b], bool)
+            ok = np.isfinite(Yw) & (True if vw is None else vw)
+            z = cal.compensate(np.where(ok, Yw, 0.0))
+            u = np.where(ok.all(axis=1)[:, None], z, 0.0) @ trk.G.T
+            T = None if temperature is None else np.asarray(temperature[a:b], dtype=float)
+            g = trk.regressors(b - a, u, T)
+            st = trk.predict(self.state, float(t[b - 1]))
+            c = trk.correction(st, g)
+            corr[a:b] = c
+            if det is not None:
+                # the detector's window holds samples corrected by the last ``span`` windows' estimates: it gets the
+                # largest of their covariances (after an update the new, smaller one would not cover the old samples)
+                self._recent.append(trk.correction_covariance(st, self._g_rms(g) if b > a else g_last))
+                del self._recent[:-span]
+                det.set_tracker_covariance(max(self._recent, key=lambda c: float(np.trace(c))))
+            res = mgr.run(Yw - c / cal.scale, vw, t[a:b])
+            parts.append(res)
+            isolated = res.sensor_state[-1] >= SensorState.ISOLATED
+            dof = np.maximum(np.asarray(res.n_active) - 3, 1)
+            watch = res.statistic > self._watch(dof)
+            if res.alarm.any() or watch.any():
+                disc += len(self._pending) + 1
+                self._pending = []
+            else:
+                self._pending.append((float(t[b - 1]), z, g, ok.all(axis=0) & ~isolated, isolated))
+            while self._pending and self._pending[0][0] <= float(t[b - 1]) - trk.settings.hold_s:
+                tp, zp, gp, actp, frp = self._pending.pop(0)
+                s0 = trk.predict(self.state, max(tp, self.state.t))
+                s1, info = trk.update(s0, zp, gp, actp, frp | isolated)
+                acc += int(info.accepted)
+                rej += int(not info.accepted and info.gate < float("inf"))
+                self.state = s1
+            terms = trk.terms(trk.predict(self.state, max(float(t[b - 1]), self.state.t)))
+            tw.append(float(t[b - 1]))
+            vals.append(np.stack([terms[k][0] for k in trk.blocks]))
+            sigs.append(np.stack([terms[k][1] for k in trk.blocks]))
+            ths.append(self.state.theta)
+            g_last = self._g_rms(g)
+        return SelfCalRunResult(_concat_replay(parts), np.array(tw), np.array(vals), np.array(sigs), acc, rej, disc,
+                                corr, trk.blocks, np.array(ths))
