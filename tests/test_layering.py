@@ -16,7 +16,7 @@ PKG = ROOT / "rimu"
 
 #: stage of each top-level part of rimu on the data's path; a module may import its own stage or earlier ones
 STAGE = {
-    "errors": 0, "plotting": 0, "units": 0, "epoch": 0, "geometry": 0, "py.typed": 0,   # foundations
+    "errors": 0, "plotting": 0, "report": 0, "units": 0, "epoch": 0, "geometry": 0, "py.typed": 0,   # foundations
     "atomic": 0, "progress": 0,                                           # atomic writes, progress bars
     "_backend": 0,       # numpy or numba: the generic backend choice (runtime and calibration kernels)
     "io": 1,             # raw data in

@@ -195,10 +195,18 @@ class RelativeFit:
         """Standard deviation of every parameter, (k, P)."""
         return np.sqrt(np.einsum("kii->ki", self.covariance()))
 
-    def limiting_term(self) -> str:
-        """The candidate that explains most of what is left, or ``"noise"`` when none is significant."""
+    def limiting_term(self, min_share: float = 0.1) -> str:
+        """The candidate that explains most of what is left, or ``"noise"`` when none is significant.
+
+        A significant candidate that explains less than ``min_share`` of the residual does not limit anything
+        (with many samples a term explaining 0.1 % is significant): then ``"unexplained"`` with the share each
+        candidate explains."""
         sig = [c for c in self.candidates if c.significant]
-        return sig[0].name if sig else "noise"
+        if not sig:
+            return "noise"
+        if sig[0].explained >= min_share:
+            return sig[0].name
+        return "unexplained (" + ", ".join(f"{c.name} {100 * c.explained:.2g} %" for c in self.candidates) + ")"
 
     def apply(self, t: np.ndarray, gyro: np.ndarray, specific_force: "np.ndarray | None" = None) -> np.ndarray:
         """Compensate raw triad outputs (N, k, 3, own axes) -> body-frame rates with the relative errors removed.

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..errors import IdentifiabilityError, ShapeError
 from ..units import RAD_TO_DEG
+from .guards import choose_lowpass, worse
 from .layout import ArrayLayout
 from .positions import PositionFit, fit_positions
 from .relative import RelativeFit, fit_relative_gyro
@@ -52,12 +53,14 @@ class ArrayReport:
     gyro_fit: "RelativeFit | None" = None
     position_fit: "PositionFit | None" = None
     notes: list[str] = field(default_factory=list)
+    #: steps not applied because they made the agreement worse: step name -> the reason with the figures
+    refused: dict[str, str] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {"triads": list(self.names),
                 "gyro_parity_rms_deg_s": {k: v.tolist() for k, v in self.gyro_steps.items()},
                 "accel_parity_rms_m_s2": {k: v.tolist() for k, v in self.accel_steps.items()},
-                "limiting_term": self.limiting_term,
+                "limiting_term": self.limiting_term, "refused": dict(self.refused),
                 "candidates": [c.to_dict() for c in (self.gyro_fit.candidates if self.gyro_fit else [])],
                 "notes": self.notes}
 
@@ -78,47 +81,113 @@ class ArrayReport:
                 out.append(f"| {c.name} | {c.n_params} | {c.f_stat:.3g} | {c.log10_p:.1f} | {c.explained:.3f} |")
             out.append("")
         out += [f"- {n}" for n in self.notes]
+        out += [f"- **not applied**: {r}" for r in self.refused.values()]
         return "\n".join(out) + "\n"
 
-    def plot(self, path: "str | Path") -> Path:
-        """Bar chart per triad and step (PNG). Needs the ``plots`` extra (matplotlib)."""
-        from ..plotting import pyplot, save_figure
+    def figure(self):  # type: ignore[no-untyped-def]
+        """The bar chart per triad and step (a matplotlib Figure; the ``plots`` extra): linear axes from zero,
+        every axis with its unit, the legend beside the bars."""
+        from ..plotting import pyplot
 
         plt = pyplot()
-
         panels = [(s, u, t) for s, u, t in ((self.gyro_steps, "deg/s", "gyro"), (self.accel_steps, "m/s^2", "accel"))
                   if s]
-        fig, axes = plt.subplots(len(panels), 1, figsize=(max(6.0, 0.3 * len(self.names) + 3), 3.2 * len(panels)),
-                                 squeeze=False)
+        w = max(7.5, 0.35 * len(self.names) + 4.5)
+        fig, axes = plt.subplots(len(panels), 1, figsize=(w, 3.0 * len(panels) + 0.6), squeeze=False)
         for ax, (steps, unit, title) in zip(axes[:, 0], panels):
             x = np.arange(len(self.names))
             wbar = 0.8 / len(steps)
             for i, (name, v) in enumerate(steps.items()):
                 ax.bar(x + i * wbar - 0.4 + wbar / 2, v, wbar, label=name)
-            ax.set_yscale("log")
+            ax.set_ylim(0, None)
             ax.set_xticks(x, self.names, rotation=90 if len(self.names) > 12 else 0)
+            ax.set_xlabel("triad [name]")
             ax.set_ylabel(f"parity rms [{unit}]")
-            ax.set_title(f"{title}: each triad against the array, in motion")
-            ax.legend(fontsize=7)
+            ax.set_title(f"{title}: each triad against the array, in motion", fontsize=10)
+            ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
         if self.limiting_term:
-            fig.suptitle(f"gyro agreement now limited by: {self.limiting_term}", fontsize=9)
-        fig.subplots_adjust(left=0.1, right=0.98, top=0.93, bottom=0.12, hspace=0.45)
-        return save_figure(fig, path)
+            fig.suptitle(f"gyro agreement now limited by: {self.limiting_term}", fontsize=10)
+        h = 3.0 * len(panels) + 0.6
+        fig.subplots_adjust(left=0.9 / w, right=1 - 2.2 / w, top=1 - 0.75 / h, bottom=0.75 / h, hspace=0.7)
+        return fig
+
+    def plot(self, path: "str | Path") -> Path:
+        """The bar chart of :meth:`figure` as PNG. Needs the ``plots`` extra (matplotlib)."""
+        from ..plotting import save_figure
+
+        return save_figure(self.figure(), path)
+
+
+def _held_out(layout: ArrayLayout, t: np.ndarray, gyro: np.ndarray, terms: tuple[str, ...],
+              motion_threshold_deg_s: float, part: float = 0.7) -> tuple[np.ndarray, np.ndarray] | None:
+    """(parity rms before, after) in deg/s on the last 30 % of the recording, of a gyro fit on the first 70 %."""
+    n = int(part * len(t))
+    try:
+        f = fit_relative_gyro(layout, t[:n], gyro[:n], terms=terms, candidates=(),
+                              motion_threshold_deg_s=motion_threshold_deg_s)
+    except (IdentifiabilityError, ShapeError):
+        return None
+    z = layout.to_body(np.asarray(gyro[n:], dtype=float))
+    u = f.apply(t[n:], gyro[n:])
+    omega = u.mean(axis=1)
+
+    def rms(x: np.ndarray) -> np.ndarray:
+        moving = np.linalg.norm(omega, axis=1) > np.radians(motion_threshold_deg_s)
+        if moving.sum() < 10:
+            moving = np.ones(len(omega), bool)
+        y = x[moving] - x[moving].mean(axis=1, keepdims=True)
+        return np.sqrt(np.mean(y**2, axis=(0, 2))) * RAD_TO_DEG
+
+    return rms(z), rms(u)
+
+
+def _never_worse(steps: dict[str, np.ndarray], unit: str, what: str,
+                 held_out: "dict[str, tuple[np.ndarray, np.ndarray]] | None" = None
+                 ) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+    """The steps applied (each no worse than the last applied one, on the fitted data and, where given, on the
+    held-out part) and the refused ones with the reason."""
+    applied: dict[str, np.ndarray] = {}
+    refused: dict[str, str] = {}
+    last = None
+    for name, v in steps.items():
+        if last is not None and worse(applied[last], v):
+            refused[name] = (f"{what} step '{name}' not applied: it raises the parity rms in motion from "
+                             f"{applied[last].mean():.4g} to {v.mean():.4g} {unit} on the data it was fitted on")
+            continue
+        ho = (held_out or {}).get(name)
+        if last is not None and ho is not None and worse(*ho):
+            refused[name] = (f"{what} step '{name}' not applied: fitted on the first 70 % of the recording it raises "
+                             f"the parity rms on the last 30 % from {ho[0].mean():.4g} to {ho[1].mean():.4g} {unit}")
+            continue
+        applied[name] = v
+        last = name
+    return applied, refused
 
 
 def array_report(
     layout: ArrayLayout, t: np.ndarray, gyro: np.ndarray, accel: "np.ndarray | None" = None,
     nominal_positions_m: "np.ndarray | None" = None, motion_threshold_deg_s: float = 30.0,
-    lowpass_hz: "float | None" = None,
+    lowpass_hz: "float | str | None" = None, held_out: bool = True,
 ) -> ArrayReport:
     """Run the steps and collect the parity rms in motion after each, per triad.
 
     Parameters as :func:`fit_relative_gyro` and :func:`fit_positions`; ``accel`` may be None (gyros only).
-    ``lowpass_hz`` filters every triad alike first (:func:`lowpass`). A step the motion cannot identify is
-    skipped with a note naming the missing excitation.
+    ``lowpass_hz`` filters every triad alike first (:func:`lowpass`); ``"auto"`` chooses the cut-off from the
+    vibration spectrum (:func:`rimu.array.guards.choose_lowpass`). A step the motion cannot identify is
+    skipped with a note naming the missing excitation. A step that raises the parity rms in motion above its
+    input's, on the data or (gyros, ``held_out``) fitted on the first 70 % and checked on the rest, is not
+    applied: :attr:`ArrayReport.refused` says why, and the steps shown are the ones applied.
     """
     notes: list[str] = []
-    if lowpass_hz is not None:
+    if isinstance(lowpass_hz, str):
+        if lowpass_hz != "auto":
+            raise ShapeError(f"lowpass_hz must be a number of Hz, 'auto' or None, got {lowpass_hz!r}")
+        lowpass_hz, why = choose_lowpass(t, gyro, accel)
+        notes.append(why)
+        if lowpass_hz is not None:
+            gyro = lowpass(t, gyro, lowpass_hz)
+            accel = None if accel is None else lowpass(t, accel, lowpass_hz)
+    elif lowpass_hz is not None:
         gyro = lowpass(t, gyro, lowpass_hz)
         accel = None if accel is None else lowpass(t, accel, lowpass_hz)
         notes.append(f"every triad low-passed at {lowpass_hz:g} Hz (zero phase) before the fits")
@@ -126,51 +195,88 @@ def array_report(
     steps = {"raw": base.parity_rms_rad_s["before"] * RAD_TO_DEG,
              "relative gain+bias": base.parity_rms_rad_s["after"] * RAD_TO_DEG}
     fit = base
+    ho: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     try:
         fit = fit_relative_gyro(layout, t, gyro, terms=("scale_misalignment", "bias", "sampling_offset"),
                                 motion_threshold_deg_s=motion_threshold_deg_s)
         steps["+ sampling offsets"] = fit.parity_rms_rad_s["after"] * RAD_TO_DEG
     except IdentifiabilityError as exc:
         notes.append(f"sampling offsets skipped: {exc}")
+    if held_out:
+        for name, terms in (("relative gain+bias", ("scale_misalignment", "bias")),
+                            ("+ sampling offsets", ("scale_misalignment", "bias", "sampling_offset"))):
+            if name in steps:
+                r = _held_out(layout, t, gyro, terms, motion_threshold_deg_s)
+                if r is not None:
+                    ho[name] = r
     if not fit.converged:
         notes.append(f"the gyro fit stopped after {fit.iterations} iterations before converging")
-    rep = ArrayReport(layout.names, steps, limiting_term=fit.limiting_term(), gyro_fit=fit, notes=notes)
+    steps, refused = _never_worse(steps, "deg/s", "gyro", ho)
+    if "+ sampling offsets" not in steps:
+        fit = base
+    rep = ArrayReport(layout.names, steps, limiting_term=fit.limiting_term(), gyro_fit=fit, notes=notes,
+                      refused=refused)
     if accel is not None:
-        pf, gb = None, ""
-        align = True
+        best = None
         for mode, label in (("absolute", "+ gain+bias"), ("relative", "+ relative gain+bias"), ("none", "+ bias")):
-            try:
-                cand = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
-                                     motion_threshold_deg_s=motion_threshold_deg_s, gain=mode, align=align)
-            except IdentifiabilityError as exc:
-                notes.append(f"accelerometer gain={mode!r} skipped: {exc}")
+            cand = _accel_candidate(layout, t, accel, fit, gyro, nominal_positions_m, motion_threshold_deg_s, mode,
+                                    notes)
+            if cand is None:
                 continue
-            if align and cand.parity_rms_m_s2["aligned"].mean() > cand.parity_rms_m_s2["raw"].mean():
-                align = False
-                try:
-                    cand = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
-                                         motion_threshold_deg_s=motion_threshold_deg_s, gain=mode, align=False,
-                                         offsets=True)
-                    notes.append("the gyros' sampling offsets do not fit the accelerometers (separate chips?): "
-                                 "the accelerometers' own offsets were estimated")
-                except IdentifiabilityError as exc:
-                    notes.append("the gyros' sampling offsets do not fit the accelerometers (separate chips?) and "
-                                 f"their own cannot be estimated ({exc}): accelerometers left on their own time")
-                    cand = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
-                                         motion_threshold_deg_s=motion_threshold_deg_s, gain=mode, align=False)
-            pf, gb = cand, label
-            break
-        if pf is None:
+            pf, align = cand
+            a_steps, a_refused = _never_worse(_accel_steps(layout, pf, fit, align, nominal_positions_m, label),
+                                              "m/s^2", "accelerometer")
+            if best is None or list(a_steps.values())[-1].mean() < list(best[1].values())[-1].mean():
+                best = (pf, a_steps, a_refused, mode)
+            if not a_refused:
+                break
+            notes.append(f"accelerometer gain={mode!r}: " + "; ".join(a_refused.values()))
+        if best is None:
             return rep
-        p = pf.parity_rms_m_s2
-        steps = {"raw": p["raw"]}
-        if align and np.any(fit.sampling_offset_s != 0):
-            steps["+ gyro sampling offsets"] = p["aligned"]
-        nominal = layout.positions_m if nominal_positions_m is None else np.asarray(nominal_positions_m)
-        if np.ptp(nominal, axis=0).max() > 0:
-            steps["+ nominal lever arms"] = p["raw_nominal_lever_arms"]
-        steps[gb] = p["gain_bias_nominal_lever_arms"]
-        steps["+ positions"] = p["positions"]
-        rep.accel_steps = steps
-        rep.position_fit = pf
+        pf, a_steps, a_refused, mode = best
+        rep.accel_steps = a_steps
+        rep.refused.update(a_refused)
+        if any(k != "raw" for k in a_steps):
+            rep.position_fit = pf
     return rep
+
+
+def _accel_candidate(layout, t, accel, fit, gyro, nominal_positions_m, motion_threshold_deg_s, mode, notes):
+    """One accelerometer fit (gain ``mode``), on the gyros' time or, where their sampling offsets do not fit the
+    accelerometers, on its own; None when the motion cannot identify it."""
+    align = True
+    try:
+        cand = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
+                             motion_threshold_deg_s=motion_threshold_deg_s, gain=mode, align=align)
+    except IdentifiabilityError as exc:
+        notes.append(f"accelerometer gain={mode!r} skipped: {exc}")
+        return None
+    if align and cand.parity_rms_m_s2["aligned"].mean() > cand.parity_rms_m_s2["raw"].mean():
+        align = False
+        try:
+            cand = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
+                                 motion_threshold_deg_s=motion_threshold_deg_s, gain=mode, align=False,
+                                 offsets=True)
+            note = ("the gyros' sampling offsets do not fit the accelerometers (separate chips?): "
+                    "the accelerometers' own offsets were estimated")
+        except IdentifiabilityError as exc:
+            note = ("the gyros' sampling offsets do not fit the accelerometers (separate chips?) and "
+                    f"their own cannot be estimated ({exc}): accelerometers left on their own time")
+            cand = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
+                                 motion_threshold_deg_s=motion_threshold_deg_s, gain=mode, align=False)
+        if note not in notes:
+            notes.append(note)
+    return cand, align
+
+
+def _accel_steps(layout, pf, fit, align, nominal_positions_m, label) -> dict[str, np.ndarray]:
+    p = pf.parity_rms_m_s2
+    steps = {"raw": p["raw"]}
+    if align and np.any(fit.sampling_offset_s != 0):
+        steps["+ gyro sampling offsets"] = p["aligned"]
+    nominal = layout.positions_m if nominal_positions_m is None else np.asarray(nominal_positions_m)
+    if np.ptp(nominal, axis=0).max() > 0:
+        steps["+ nominal lever arms"] = p["raw_nominal_lever_arms"]
+    steps[label] = p["gain_bias_nominal_lever_arms"]
+    steps["+ positions"] = p["positions"]
+    return steps

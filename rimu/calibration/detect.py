@@ -319,7 +319,7 @@ def detect_session(t: np.ndarray, raw: dict[str, np.ndarray], sample_rate: float
         geometries = {}
         for k, y in raw.items():
             if np.asarray(y).shape[1] != 3:
-                raise ShapeError(f"{k} has {np.asarray(y).shape[1]} columns; give its geometry (a triad is assumed "
+                raise ShapeError(f"{k} has {np.asarray(y).shape[1]} columns; give its geometry (rimu detect --geometry; a triad is assumed "
                                  "only for three columns)")
             geometries[k] = triad3()
     det = detect_poses(raw, sample_rate, **kwargs)

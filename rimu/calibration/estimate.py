@@ -21,6 +21,7 @@ import numpy as np
 
 from ..errors import IdentifiabilityError
 from ..session import Segment, Session, SessionStatistics
+from ..units import raw_unit_for, scale_unit
 from .lsq import (
     LazyResiduals,
     LsqResult,
@@ -266,7 +267,8 @@ class CalibrationResult:
                     v, sd, unit = field_value(n, s.theta[i], np.sqrt(max(s.theta_cov[i, i], 0.0)), sp.report_unit,
                                               sp.to_report)
                     vs = f"{v:.8g}" if n.endswith(".scale") else f"{v:.4f}"
-                    unit_s = f"{sp.unit} (std ppm)" if n.endswith(".scale") else unit
+                    unit_s = (f"{scale_unit(inst, raw_unit_for(self.raw_unit, inst))} (std ppm)" if n.endswith(".scale")
+                              else unit)
                     lines.append(f"  {n:<16} {vs:>16} {sd:>12.4g}  {unit_s}")
         for note in self.notes:
             lines.append(f"note: {note}")

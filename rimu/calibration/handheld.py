@@ -1398,7 +1398,10 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         J = model_fun(pre)(theta)[1]
     else:
         J = jac(theta)
-    names = [f"{i}.w_{a}" for i in range(n) for a in "xyz"] + [f"{i}.bias" for i in range(n)]
+    gnames = session.geometries["gyro"].names
+    sn = [str(gnames[j]) if j < len(gnames) else str(i) for i, j in enumerate(idx)]
+    # named as the tables name the sensors (x.w_z: the z component of sensor x's raw-domain row, axis / scale)
+    names = [f"{sn[i]}.w_{a}" for i in range(n) for a in "xyz"] + [f"{sn[i]}.bias" for i in range(n)]
     _check_jacobian(J, typ, names, "gyro")
     Js = J * typ
     Ninv = np.linalg.pinv(Js.T @ Js) * np.outer(typ, typ)
@@ -1629,7 +1632,7 @@ class HandHeld:
                 gfits.append(gf)
                 if gf.weak:
                     extra.setdefault("weak_gyro", []).extend(gf.weak)
-                    notes.append("gyro: weakly determined by these motions (relative sd > 2 %): " + "; ".join(gf.weak)
+                    notes.append("gyro: weakly determined by these motions (relative sd > 2 %; s.w_a: the a component of sensor s's axis divided by its scale): " + "; ".join(gf.weak)
                                  + "; turn about every axis between poses")
                 angles.append(gf.angle)
                 for j, i in enumerate(grp):

@@ -7,11 +7,24 @@ IMUs) is set up from a stretch of its own data, fault-free by assumption:
    skipped where the recording has one clock), removed, all triads resampled to one time base;
 2. optionally, block averages over ``average_s`` (vibration above a few Hz is common to no two triads; the
    averaged parity is closer to the white noise the detectors assume) - the unit then runs at the lower rate;
-3. the rotation of each triad against the reference (:func:`rimu.calibration.alignment.align_triads`), with its
-   covariance, and the constant gyro bias difference; the reference triad defines MB;
-4. accelerometer bias differences (median of each triad's specific force minus the reference's, rotated);
-5. per-sensor noise levels from the residuals against the other triads (the flight's own disagreement, which
-   holds vibration and everything the model leaves out), for the pipeline's weights and the detectors.
+3. the spans at rest (:func:`still_epochs`: the imu_tk-style variance detector of
+   :func:`rimu.calibration.detect.detect_intervals` on every triad at once, with absolute guards);
+4. the rotation of each triad against the reference (:func:`rimu.calibration.alignment.align_triads`), with its
+   covariance, from the rates **in motion** (rates measured from the reference's bias at rest, so a gyro bias
+   above ``min_rate_rad_s`` is never taken for motion); with no motion, from gravity at rest when it was seen
+   in two directions at least, else refused (:class:`~rimu.errors.IdentifiabilityError` naming the reason);
+   the reference triad defines MB;
+5. gyro and accelerometer bias differences **from the spans at rest** (median of each triad minus the
+   reference, rotated; their 1-sigma from the spread and the effective sample count), or, without enough rest
+   (``min_still_s``), the gyro offset fitted with the rotation and the median of the accelerometers;
+6. per-sensor noise levels from the residuals against the other triads (at rest when there is enough rest,
+   else over the whole window: the flight's own disagreement), for the pipeline's weights and the detectors;
+   the motion terms are the business of :func:`rimu.fdi.fit_motion_detector`, on the moving spans.
+
+Samples that are not measurements are invalid before any averaging: a triad whose accelerometer vector is
+exactly zero (a placeholder record: impossible for a unit on Earth) is invalid in every instrument at that
+sample, as a clipped sample is (the readers mark those), and an average holding one is invalid
+(:func:`average_block`).
 
 The result holds the :class:`~rimu.calibration.result.Calibration` (geometry :func:`rimu.geometry.triads`
 with the fitted rotations), the averaged :class:`~rimu.epoch.EpochBlock` of the whole recording, and the
@@ -27,13 +40,14 @@ from typing import Any
 import numpy as np
 
 from ..epoch import EpochBlock
-from ..errors import ShapeError
-from ..units import RAD_TO_DEG
-from .alignment import AlignmentResult, align_triads
+from ..errors import IdentifiabilityError, ShapeError
+from ..units import G0, RAD_TO_DEG
+from .alignment import AlignmentResult, VectorSet, align_triads, effective_fraction, fit_rotation
+from .detect import _moving_var, detect_intervals
 from .result import Calibration, InstrumentCalibration
 from .timing import TimingResult, estimate_offsets
 
-__all__ = ["MultiImuSetup", "average_block", "setup_multi_imu", "triad_noise"]
+__all__ = ["MultiImuSetup", "average_block", "setup_multi_imu", "still_epochs", "triad_noise"]
 
 
 @dataclass
@@ -65,6 +79,9 @@ class MultiImuSetup:
     fit_window_s: tuple[float, float] = (float("-inf"), float("inf"))
     full_block: EpochBlock | None = None
     n_average: int = 1
+    still: np.ndarray | None = None
+    bias_sigma: dict[str, np.ndarray] = field(default_factory=dict)
+    spans: dict[str, float] = field(default_factory=dict)
     #: per unit with its own clock: offset and rate against the reference (rimu.calibration.timing.estimate_clocks)
     clocks: list = field(default_factory=list)
 
@@ -73,8 +90,12 @@ class MultiImuSetup:
         return average_block(full_block, self.n_average)
 
     def report(self) -> str:
-        """Human-readable summary: offsets (ms), clock rates (ppm), rotations (deg with 1-sigma), noise levels."""
+        """Human-readable summary: offsets (ms), rotations (deg with 1-sigma), noise levels."""
         lines = []
+        if self.spans:
+            sp = self.spans
+            lines.append(f"spans of the fit window: at rest {sp['still_s']:.1f} s (biases{', noise' if sp.get('noise_at_rest') else ''}), "
+                         f"in motion {sp['motion_s']:.1f} s (rotations{'' if sp['motion_s'] else ': from gravity'})")
         if self.timing is not None:
             lines.append(self.timing.table())
         if self.clocks:
@@ -88,6 +109,9 @@ class MultiImuSetup:
             s = cal.noise_sigma
             unit, f = ("deg/s", RAD_TO_DEG) if k == "gyro" else ("m/s^2", 1.0)
             lines.append(f"{k} noise per sensor ({unit}): " + " ".join(f"{v * f:.3g}" for v in s))
+            if k in self.bias_sigma:
+                lines.append(f"{k} bias difference 1-sigma ({unit}): "
+                             + " ".join(f"{v * f:.2g}" for v in self.bias_sigma[k]))
         return "\n".join(lines)
 
 
@@ -146,6 +170,104 @@ def triad_noise(Z: np.ndarray) -> np.ndarray:
     return out
 
 
+def still_epochs(block: EpochBlock, sample_rate: float | None = None, window_s: float = 1.0, factor: float = 6.0,
+                 min_still_s: float = 2.0, max_accel_std: float = 0.3, max_gravity_error: float = 0.1,
+                 max_gyro_std: float = 0.03) -> np.ndarray:
+    """Epochs at rest of a block of triads: every triad still at once.
+
+    The imu_tk-style detector (:func:`rimu.calibration.detect.detect_intervals`, Tedaldi et al. 2014) on the
+    magnitude of all accelerometers (and gyros) together marks windows whose variance is below ``factor`` times
+    its 10th percentile, in runs of at least ``min_still_s``; that threshold is relative, so two absolute
+    guards keep a recording that is never still (a flight) from calling its calmest part rest: every
+    accelerometer's moving standard deviation stays below ``max_accel_std`` (m/s^2) and its magnitude within
+    ``max_gravity_error`` (relative) of g, and every gyro's below ``max_gyro_std`` (rad/s). Invalid samples
+    are never still.
+
+    Parameters
+    ----------
+    block : EpochBlock
+        SI values (m/s^2, rad/s), ``3k`` columns per instrument; needs ``accel``.
+    sample_rate : float, optional
+        Hz (default: from the time stamps).
+
+    Returns
+    -------
+    ndarray (N,) of bool
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> n = 1000
+    >>> a = np.tile([0.0, 0.0, G0], (n, 2)) + 0.02 * rng.normal(size=(n, 6))
+    >>> a[400:600] += 3.0 * rng.normal(size=(200, 6))       # handled in the middle
+    >>> b = EpochBlock(np.arange(n) / 100.0, {"accel": a}, {"accel": np.ones((n, 6), bool)})
+    >>> m = still_epochs(b)
+    >>> bool(m[:350].all()), bool(m[420:580].any()), bool(m[700:].all())
+    (True, False, True)
+    """
+    if "accel" not in block.raw:
+        return np.zeros(len(block), bool)
+    fs = sample_rate or 1.0 / float(np.median(np.diff(block.t)))
+    A = block.raw["accel"]
+    ok = block.valid["accel"].all(axis=1)
+    G = None
+    if "gyro" in block.raw:
+        G = np.where(block.valid["gyro"], block.raw["gyro"], 0.0)
+        ok &= block.valid["gyro"].all(axis=1)
+    A0 = np.where(block.valid["accel"], A, 0.0)
+    if len(block) < 4 or not ok.any():
+        return np.zeros(len(block), bool)
+    det = detect_intervals(A0, fs, G, window_s=window_s, factor=factor, min_static_s=min_still_s)
+    still = np.zeros(len(block), bool)
+    for iv in det.static:
+        still[iv.start:iv.end] = True
+    w = max(2, round(window_s * fs))
+    k = A.shape[1] // 3
+    for j in range(k):
+        aj = A0[:, 3 * j:3 * j + 3]
+        nrm = np.linalg.norm(aj, axis=1)
+        sd = np.sqrt(sum(_moving_var(aj[:, c], w) for c in range(3)))
+        still &= (sd < max_accel_std) & (np.abs(nrm / G0 - 1.0) < max_gravity_error)
+        if G is not None:
+            gj = G[:, 3 * j:3 * j + 3]
+            still &= np.sqrt(sum(_moving_var(gj[:, c], w) for c in range(3))) < max_gyro_std
+    # an invalid sample, or one within half a window of it, is not rest
+    bad = np.convolve((~ok).astype(float), np.ones(w), mode="same") > 0
+    return still & ~bad
+
+
+def _median_sigma(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Median of each column of ``d`` (N, 3) and its 1-sigma: 1.2533 std / sqrt(n_eff) (the median's
+    efficiency for Gaussian samples; n_eff from the autocorrelation, Bartlett)."""
+    d = d[np.isfinite(d).all(axis=1)]
+    med = np.median(d, axis=0)
+    frac = effective_fraction(d - med) if len(d) > 20 else 1.0
+    return med, 1.2533 * d.std(axis=0) / np.sqrt(max(1.0, frac * len(d)))
+
+
+def _chi2_scale(Yc: np.ndarray, axes: np.ndarray, sig: np.ndarray, q: float = 0.999) -> float:
+    """Variance factor that makes the parity statistic at rest chi-square: the ``q`` quantile of
+    ``T = r^T W r`` (r the weighted least-squares residual of the compensated outputs ``Yc`` (N, n) on their
+    axes ``axes`` (n, 3), W = diag(sigma^-2), Cho & Park 2005, Eq. 13) over the chi-square quantile with
+    ``n - 3`` degrees of freedom; at least 1.
+
+    ``triad_noise`` gives each sensor's own variance; what it leaves out (noise correlated between sensors,
+    tails) shows in T, and the detectors' thresholds assume T is chi-square.
+    """
+    from scipy.stats import chi2
+
+    Z = Yc[np.isfinite(Yc).all(axis=1)]
+    n = Z.shape[1]
+    if len(Z) < 100 or n < 6:
+        return 1.0
+    w = 1.0 / sig**2
+    Aw = axes * w[:, None]
+    x = Z @ Aw @ np.linalg.inv(axes.T @ Aw)
+    r = Z - x @ axes.T
+    T = (r * r * w).sum(axis=1)
+    return float(max(1.0, np.quantile(T, q) / chi2.ppf(q, n - 3)))
+
+
 def _clocks(recording: Any, reference: int, max_lag_s: float, checks: str) -> list:
     import logging
 
@@ -165,7 +287,7 @@ def _clocks(recording: Any, reference: int, max_lag_s: float, checks: str) -> li
 def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: int = 0,
                     fit_window_s: Sequence[float] | None = None, estimate_clocks: bool | None = None,
                     max_lag_s: float = 0.5, min_rate_rad_s: float = 0.05, align_axes: bool | None = None,
-                    clock_checks: str = "strict") -> MultiImuSetup:
+                    min_still_s: float = 2.0, clock_checks: str = "strict") -> MultiImuSetup:
     """Set up a unit of triads from its own recording (see the module docstring).
 
     Parameters
@@ -193,6 +315,14 @@ def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: in
         (``meta["body_frame"]``, as an autopilot logs them). The gyro bias differences are fitted either way.
         Nearly parallel triads (rotations of a fraction of a degree) cannot isolate a fault in practice: keep
         them parallel rather than let a tiny fitted angle pretend they can.
+    min_still_s : float
+        Rest needed in the fit window (s) for the biases and the noise to come from the spans at rest.
+
+    Raises
+    ------
+    IdentifiabilityError
+        No motion and gravity in one direction only (units lying level): the rotation about the vertical is
+        not observed; the message says so and what to do.
     """
     names = recording.names
     k = len(names)
@@ -200,13 +330,21 @@ def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: in
     timing = estimate_offsets(recording, reference, max_lag_s) if (own and k > 1) else None
     # a rate as well as an offset: refused where the drift exceeds what resampling on one offset absorbs
     clocks = _clocks(recording, reference, max_lag_s, clock_checks) if (own and k > 1) else []
-    full = recording.to_block(offsets_s=None if timing is None else timing.offsets_s, reference=reference)
+    full = _placeholders_invalid(recording.to_block(offsets_s=None if timing is None else timing.offsets_s,
+                                                    reference=reference))
+    fs_full = 1.0 / float(np.median(np.diff(full.t)))
     n_avg = 1
     if average_s:
-        n_avg = max(1, round(average_s / float(np.median(np.diff(full.t)))))
+        n_avg = max(1, round(average_s * fs_full))
     block = average_block(full, n_avg)
+    still_full = still_epochs(full, fs_full)
+    m = (len(still_full) // n_avg) * n_avg
+    still = still_full[:m].reshape(-1, n_avg).all(axis=1) if n_avg > 1 else still_full
     lo, hi = (-np.inf, np.inf) if fit_window_s is None else (float(fit_window_s[0]), float(fit_window_s[1]))
     win = (block.t >= lo) & (block.t <= hi)
+    st = still[win]
+    dt_avg = n_avg / fs_full
+    use_rest = float(st.sum()) * dt_avg >= min_still_s
     insts = recording.instruments()
     from ..geometry import triads
 
@@ -215,43 +353,113 @@ def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: in
     rotations = [np.eye(3) for _ in range(k)]
     alignments: list[AlignmentResult] = []
     gyro_bias = np.zeros(3 * k)
+    bias_sigma: dict[str, np.ndarray] = {}
     ref_cols = slice(3 * reference, 3 * reference + 3)
     align = (not recording.meta.get("body_frame", False)) if align_axes is None else bool(align_axes)
+    motion_s = 0.0
     if "gyro" in insts:
         G = np.where(block.valid["gyro"], block.raw["gyro"], np.nan)[win]
+        # the reference's own bias at rest: rates are measured from it, so a large bias is never "motion"
+        b_ref = np.nanmedian(G[st][:, ref_cols], axis=0) if use_rest else np.zeros(3)
+        moving = (np.linalg.norm(np.nan_to_num(G[:, ref_cols] - b_ref), axis=1) >= min_rate_rad_s) & ~st
+        motion_s = float(moving.sum()) * dt_avg
+        # rates are informative about a rotation when they vary in two directions at least by more than the
+        # motion threshold (a constant rate, or a turn about one axis, leaves a rotation about it unobserved)
+        Rm = G[moving][:, ref_cols]
+        Rm = Rm[np.isfinite(Rm).all(axis=1)]
+        informative = len(Rm) >= 3 and float(np.sqrt(np.linalg.eigvalsh(np.cov(Rm.T))[1])) >= min_rate_rad_s
+        A = np.where(block.valid["accel"], block.raw["accel"], np.nan)[win] if "accel" in insts else None
         for j in range(k):
             if j == reference or names[j] not in delivering:
                 continue
+            cols = slice(3 * j, 3 * j + 3)
             if align:
-                a = align_triads(G[:, ref_cols], G[:, 3 * j:3 * j + 3], min_rate_rad_s=min_rate_rad_s,
-                                 name=names[j])
+                if informative:
+                    a = align_triads(G[:, ref_cols], G[:, cols], static=~moving, name=names[j])
+                else:
+                    a = _align_from_gravity(A, st, ref_cols, cols, names[j], min_rate_rad_s)
                 alignments.append(a)
                 rotations[j] = a.mat_unit_ref
-                gyro_bias[3 * j:3 * j + 3] = a.offsets["rate"]
-            else:
-                gyro_bias[3 * j:3 * j + 3] = np.nanmedian(G[:, 3 * j:3 * j + 3] - G[:, ref_cols], axis=0)
+                gyro_bias[cols] = a.offsets.get("rate", np.zeros(3))
+            elif not use_rest:
+                gyro_bias[cols] = np.nanmedian(G[:, cols] - G[:, ref_cols], axis=0)
+            if use_rest:
+                d = G[st][:, cols] - G[st][:, ref_cols] @ rotations[j].T
+                gyro_bias[cols], sg = _median_sigma(d)
+                bias_sigma.setdefault("gyro", np.zeros(3 * k))[cols] = sg
     geo = triads(rotations, None, names)
     cals = {}
+    noise_scale: dict[str, float] = {}
     for inst in insts:
         Y = np.where(block.valid[inst], block.raw[inst], np.nan)[win]
         bias = gyro_bias.copy() if inst == "gyro" else np.zeros(3 * k)
         if inst == "accel":
             for j in range(k):
                 if j != reference and names[j] in delivering:
-                    d = Y[:, 3 * j:3 * j + 3] - Y[:, ref_cols] @ rotations[j].T
-                    bias[3 * j:3 * j + 3] = np.nanmedian(d, axis=0)
+                    rows = st if use_rest else np.ones(len(Y), bool)
+                    d = Y[rows][:, 3 * j:3 * j + 3] - Y[rows][:, ref_cols] @ rotations[j].T
+                    if use_rest:
+                        bias[3 * j:3 * j + 3], sa = _median_sigma(d)
+                        bias_sigma.setdefault("accel", np.zeros(3 * k))[3 * j:3 * j + 3] = sa
+                    else:
+                        bias[3 * j:3 * j + 3] = np.nanmedian(d, axis=0)
         # compensated outputs expressed in MB (the reference's axes) for the disagreement
         live = [j for j in range(k) if names[j] in delivering]
-        Zmb = np.column_stack([(Y[:, 3 * j:3 * j + 3] - bias[3 * j:3 * j + 3]) @ rotations[j] for j in live])
+        rows = st if (use_rest and st.sum() >= 50) else np.ones(len(Y), bool)
+        Zmb = np.column_stack([(Y[rows][:, 3 * j:3 * j + 3] - bias[3 * j:3 * j + 3]) @ rotations[j] for j in live])
         sig = np.full(3 * k, np.nan)
         if len(live) >= 2:
-            s_live = triad_noise(Zmb)
+            s_live = triad_noise(Zmb)           # per MB axis of each triad: back to the triad's own axes
             for q, j in enumerate(live):
-                sig[3 * j:3 * j + 3] = s_live[3 * q:3 * q + 3]
+                sig[3 * j:3 * j + 3] = np.sqrt(rotations[j] ** 2 @ s_live[3 * q:3 * q + 3] ** 2)
         finite = sig[np.isfinite(sig)]
         sig[~np.isfinite(sig)] = finite.max() if finite.size else 1.0
+        if rows is st and len(live) >= 3:
+            cols = np.concatenate([np.arange(3 * j, 3 * j + 3) for j in live])
+            Yc = np.column_stack([Y[rows][:, 3 * j:3 * j + 3] - bias[3 * j:3 * j + 3] for j in live])
+            c = _chi2_scale(Yc, np.vstack([rotations[j] for j in live]), sig[cols])
+            sig *= np.sqrt(c)
+            noise_scale[inst] = c
         cals[inst] = InstrumentCalibration.nominal(inst, geo, scale=1.0, bias=bias, noise_sigma=sig)
+    spans = {"still_s": float(st.sum()) * dt_avg if use_rest else 0.0, "motion_s": motion_s,
+             "noise_at_rest": bool(use_rest and st.sum() >= 50), "noise_scale": noise_scale}
     meta: dict[str, Any] = {"source": recording.meta.get("source") or recording.meta.get("folder"),
                             "averaged": n_avg, "reference": names[reference]}
     cal = Calibration(cals, raw_unit="SI", method="multi-imu-setup", metadata=meta)
-    return MultiImuSetup(cal, block, timing, alignments, delivering, (lo, hi), full, n_avg, clocks)
+    meta["spans_s"] = spans
+    return MultiImuSetup(cal, block, timing, alignments, delivering, (lo, hi), full, n_avg, still, bias_sigma,
+                         spans, clocks)
+
+
+def _placeholders_invalid(block: EpochBlock) -> EpochBlock:
+    """A triad whose accelerometer vector is exactly zero is a placeholder record, not a measurement (a unit
+    on Earth at rest reads 1 g): invalid in every instrument at that sample."""
+    if "accel" not in block.raw:
+        return block
+    A = block.raw["accel"]
+    k = A.shape[1] // 3
+    zero = np.all(A.reshape(len(A), k, 3) == 0.0, axis=2) & block.valid["accel"].reshape(len(A), k, 3).all(axis=2)
+    if not zero.any():
+        return block
+    bad = np.repeat(zero, 3, axis=1)
+    valid = {name: v & ~bad if v.shape[1] == 3 * k else v for name, v in block.valid.items()}
+    meta = dict(block.meta)
+    meta["placeholder_samples"] = int(zero.sum())
+    return EpochBlock(block.t, block.raw, valid, block.temperature, meta)
+
+
+def _align_from_gravity(A: np.ndarray | None, still: np.ndarray, ref_cols: slice, cols: slice, name: str,
+                        min_rate_rad_s: float) -> AlignmentResult:
+    """The rotation from gravity alone (a recording without motion), or the reason it cannot be found."""
+    why = (f"no motion in the fit window that turns about two axes (the rates, measured from the bias at rest, "
+           f"vary by less than {min_rate_rad_s:g} rad/s in a second direction)")
+    if A is None or still.sum() < 3:
+        raise IdentifiabilityError(f"triad {name!r}: {why} and no accelerometers at rest: the rotation between "
+                                   "the triads cannot be found; give align_axes=False to keep them parallel, or "
+                                   "a recording with motion", ["rotation"])
+    try:
+        return fit_rotation([VectorSet("gravity", A[still][:, ref_cols], A[still][:, cols])], name=name)
+    except IdentifiabilityError as exc:
+        raise IdentifiabilityError(
+            f"triad {name!r}: {why}, and gravity was seen in one direction only ({exc}); rotate the unit, or "
+            "give align_axes=False to keep the triads parallel", ["rotation"]) from None

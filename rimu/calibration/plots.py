@@ -41,7 +41,12 @@ def plot_residuals(result: Any, path: str | None = None):
 
     plt = pyplot()
 
-    insts = list(result.instruments)
+    insts = []
+    for k in result.instruments:  # an instrument no segment's known input constrains (hand-held) has no panel
+        q = residual_table(result, k)[3]
+        if q.size and np.nanmax(np.nan_to_num(q)) > 1e-3:
+            insts.append(k)
+    insts = insts or list(result.instruments)
     fig, axes = plt.subplots(len(insts), 2, figsize=(13, 3.6 * len(insts)), squeeze=False)
     for row, inst in zip(axes, insts):
         segs, sensors, z, q = residual_table(result, inst)
@@ -54,6 +59,8 @@ def plot_residuals(result: Any, path: str | None = None):
             a.set_xticklabels(segs, rotation=90, fontsize=7)
             a.set_title(f"{inst}: {title}", fontsize=10)
             a.grid(alpha=0.3)
+        row[0].set_ylabel("mean / std. error [-]")
+        row[1].set_ylabel("rms / noise sigma [-]")
         row[0].axhspan(-3, 3, color="tab:green", alpha=0.1)
         row[1].axhline(1.0, color="k", lw=0.8, ls="--")
         row[1].legend(fontsize=7, ncol=3)

@@ -11,14 +11,16 @@ that ran and failed, 2 bad input or options, 3 an internal error (a bug: rerun w
 from __future__ import annotations
 
 import argparse
+import contextlib
 import errno
 import importlib
 import logging
 import os
 import sys
+import warnings
 
 from ..errors import RimuError
-from ._common import Parser, check_outputs, configure_logging
+from ._common import Parser, check_outputs, configure_logging, plain_text
 
 __all__ = ["main", "COMMANDS", "build_parser", "EXIT_OK", "EXIT_CHECK_FAILED", "EXIT_BAD_INPUT", "EXIT_INTERNAL",
            "EXIT_INTERRUPTED"]
@@ -80,7 +82,18 @@ def build_parser() -> argparse.ArgumentParser:
         importlib.import_module(f"{__name__}.{name}").register(sub)
     for p in sub.choices.values():
         _common_options(p, top=False)
+        _plain_help(p)
+    for a in sub._choices_actions:
+        a.help = plain_text(a.help)
     return parser
+
+
+def _plain_help(p: argparse.ArgumentParser) -> None:
+    """Help texts as a terminal shows them: the module docstrings' reST markup (``code``, :func:`x`) removed."""
+    p.description = plain_text(p.description)
+    p.epilog = plain_text(p.epilog)
+    for a in p._actions:
+        a.help = plain_text(a.help)
 
 
 def _describe(exc: BaseException) -> tuple[str, int]:
@@ -110,6 +123,24 @@ def _describe(exc: BaseException) -> tuple[str, int]:
             "traceback", EXIT_INTERNAL)
 
 
+@contextlib.contextmanager
+def _promises(args: argparse.Namespace):  # type: ignore[no-untyped-def]
+    """What ``-q`` promises (errors only: the results a command prints go nowhere, except a ``--json -`` asked
+    for on stdout), and Python warnings (matplotlib's, numpy's) as one log line each, none under ``-q``."""
+    wlog = logging.getLogger("rimu.warnings")
+
+    def show(message, category, filename, lineno, file=None, line=None):  # type: ignore[no-untyped-def]
+        wlog.warning("%s", str(message).splitlines()[0] if str(message) else category.__name__)
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        if getattr(args, "quiet", False) and getattr(args, "json", None) != "-":
+            with open(os.devnull, "w") as null, contextlib.redirect_stdout(null):
+                yield
+        else:
+            yield
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run ``rimu`` with ``argv`` (default ``sys.argv[1:]``) and return the exit status."""
     parser = build_parser()
@@ -130,7 +161,8 @@ def main(argv: list[str] | None = None) -> int:
         # every output of the run appears together at the end, or none (rimu.atomic): a refusal (exit 2), an
         # error or Ctrl-C removes the temporaries and whatever the run created
         group = OutputGroup(files, dirs).activate()
-        code = int(args.func(args) or 0)
+        with _promises(args):
+            code = int(args.func(args) or 0)
         if code >= EXIT_BAD_INPUT:
             group.abort()
         else:

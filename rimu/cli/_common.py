@@ -50,6 +50,7 @@ __all__ = [
     "OUTPUT_DIR_OPTIONS",
     "INPUT_OPTIONS",
     "json_dump",
+    "plain_text",
 ]
 
 log = logging.getLogger("rimu.cli")
@@ -284,9 +285,28 @@ def _json_default(o: Any) -> Any:
     return str(o)
 
 
+def plain_text(text: str | None) -> str | None:
+    """reST markup of a docstring as plain text for the terminal: ``x`` -> 'x', :func:`a.b` -> a.b, **x** -> x.
+
+    >>> plain_text("reads ``t`` with :func:`rimu.array.lowpass` (**zero phase**)")
+    "reads 't' with rimu.array.lowpass (zero phase)"
+    """
+    if not text:
+        return text
+    import re
+
+    text = re.sub(r":[a-z]+:`~?([^`]+)`", r"\1", text)
+    text = re.sub(r"``([^`]+)``", r"'\1'", text)
+    return text.replace("**", "")
+
+
 # ---------------------------------------------------------------- outputs checked before work
-def _sidecar(p: Path) -> list[Path]:
-    return [p, p.with_suffix(".json")] if p.suffix == ".csv" else [p]
+#: commands whose -o/--output CSV is a session with its .json sidecar (a monitor's CSV of epochs has none)
+SESSION_OUTPUT_COMMANDS = ("simulate", "detect")
+
+
+def _sidecar(p: Path, sidecar: bool = True) -> list[Path]:
+    return [p, p.with_suffix(".json")] if p.suffix == ".csv" and sidecar else [p]
 
 
 def _check_file(opt: str, p: Path) -> None:
@@ -399,7 +419,8 @@ def check_outputs(args: argparse.Namespace, files: Iterable[str] = OUTPUT_FILE_O
             _check_file(opt, p)  # (a file inside a --report folder about to be created is checked with it)
         elif p.is_dir():
             raise OutputPathError(f"--{opt} {p}: is a folder; give a file name")
-        for q in (_sidecar(p) if name == "output" else [p]):
+        session_out = name == "output" and getattr(args, "command", None) in SESSION_OUTPUT_COMMANDS
+        for q in _sidecar(p, session_out):
             r = q.resolve()
             what = f"{q} (the sidecar of --{opt} {p})" if q != p else f"--{opt} {q}"
             if r in seen:

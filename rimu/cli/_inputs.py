@@ -280,8 +280,25 @@ def open_array(path: str | os.PathLike[str], args: argparse.Namespace | None = N
     ok = np.all([block.valid[i].all(axis=1) for i in rec.instruments()], axis=0)
     gyro = block.raw["gyro"][ok].reshape(-1, k, 3)
     accel = block.raw["accel"][ok].reshape(-1, k, 3) if "accel" in block.raw else None
-    layout = ArrayLayout(np.repeat(np.eye(3)[None], k, axis=0), np.zeros((k, 3)), tuple(rec.names))
+    rot, pos = np.repeat(np.eye(3)[None], k, axis=0), np.zeros((k, 3))
+    geo = _format_geometry(rec, k)
+    if geo is not None:  # a device format that knows its board (mimu4444): rotations and nominal positions
+        rot = np.stack([su.mat_sb_mb.T for su in geo.subunits])
+        pos = np.stack([np.zeros(3) if su.position_mb_m is None else su.position_mb_m for su in geo.subunits])
+    layout = ArrayLayout(rot, pos, tuple(rec.names))
     return layout, block.t[ok], gyro, accel
+
+
+def _format_geometry(rec: Any, k: int) -> Any:
+    """The geometry a log format gives for its device (``geometry()`` of its module), when it has k triads."""
+    from ..io.formats import FORMATS, format_module
+
+    name = rec.meta.get("format")
+    if name not in FORMATS:
+        return None
+    mod = format_module(name)
+    geo = mod.geometry() if hasattr(mod, "geometry") else None
+    return geo if geo is not None and len(geo.subunits) == k else None
 
 
 class _LogSource:

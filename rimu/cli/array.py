@@ -1,9 +1,11 @@
 """``rimu array DATA.npz``: an array of k triads as one instrument: relative gyro calibration from the motion
 (gain, bias, sampling offset), the accelerometers' positions, gains and biases, the parity rms in motion after
-each step per triad, and the term that limits the agreement now (docs/array.md).
+each step per triad, and the term that limits the agreement now (docs/array.md). A step that raises the parity
+rms is not applied and the output says so; the low-pass cut-off is chosen from the vibration spectrum.
 
-DATA.npz holds ``t`` (N,) [s], ``gyro`` (N, k, 3) [rad/s] and optionally ``accel`` (N, k, 3) [m/s^2], each
-triad in its own axes; optionally ``rotations`` (k, 3, 3) (triad axes -> body, default identity),
+DATA.npz holds ``t`` (N,) [s], ``gyro`` (N, k, 3) [rad/s, or --gyro-unit] and optionally ``accel`` (N, k, 3)
+[m/s^2, or --accel-unit], each triad in its own axes (values far from these units are refused: rates beyond any
+full scale, an accelerometer norm far from one gravity); optionally ``rotations`` (k, 3, 3) (triad axes -> body, default identity),
 ``positions_m`` (k, 3) nominal positions, and ``names`` (k,).
 """
 
@@ -16,8 +18,43 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import positive_float
+from ..units import DEG_TO_RAD
+from ._common import add_accept_implausible, positive_float
 from ._inputs import add_log_options, open_array
+
+
+def _own_npz(path: str) -> bool:
+    """Whether ``path`` is an NPZ of rimu array's own shape (``t`` and ``gyro`` arrays)."""
+    if not str(path).endswith(".npz"):
+        return False
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return "t" in z.files and "gyro" in z.files
+    except (OSError, ValueError, EOFError):
+        return False
+
+
+def _factor(instrument: str, unit: "str | None") -> float:
+    """Factor to SI of a declared unit of the arrays: a name (deg/s, g, mg, ...) or SI per unit; SI when None."""
+    from ..errors import OptionError
+    from ..units import RAW_UNITS, raw_to_si
+
+    if unit is None:
+        return 1.0
+    try:
+        f = float(unit)
+    except ValueError:
+        f = raw_to_si(instrument, unit)  # type: ignore[assignment]
+    if f is None or not np.isfinite(f) or f <= 0:
+        names = ", ".join(RAW_UNITS[instrument])
+        raise OptionError(f"--{instrument}-unit {unit}: not a unit of {instrument} outputs ({names}, or SI per unit)")
+    return float(f)
+
+
+def _lowpass(text: str) -> "float | str | None":
+    if text.strip().lower() in ("auto", "none"):
+        return None if text.strip().lower() == "none" else "auto"
+    return positive_float(text)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -27,7 +64,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", default=None, help="JSON file for the fitted parameters (SI, body frame)")
     p.add_argument("--report", default=None, metavar="DIR", help="folder for array_report.md and array_report.png")
     p.add_argument("--json", default=None, metavar="FILE", help="machine-readable summary")
-    p.add_argument("--lowpass-hz", type=positive_float, default=None, help="low-pass every triad first (vehicles)")
+    p.add_argument("--lowpass-hz", type=_lowpass, default="auto",
+                   help="low-pass every triad first: a cut-off in Hz, 'auto' (default: chosen from the vibration "
+                        "spectrum, where the triads stop agreeing) or 'none'")
+    p.add_argument("--no-held-out", action="store_true",
+                   help="do not check the gyro steps on a held-out part (the last 30 %%) of the recording")
+    add_accept_implausible(p)
     p.add_argument("--motion-threshold-deg-s", type=positive_float, default=30.0,
                    help="samples faster than this count as 'in motion' for the parity figures")
     add_log_options(p)
@@ -39,7 +81,7 @@ def _load(path: str):
     from ..errors import ShapeError
     from ..io.guard import load_array
 
-    d = load_array(path, "NPZ file")
+    d = load_array(path, "NPZ file")  # garbage, truncated, empty, pickled: one line naming the file
     if not isinstance(d, dict):
         raise ShapeError(f"{path}: a single array; array needs an NPZ file with t (N,) and gyro (N, k, 3) [rad/s]")
     missing = [k for k in ("t", "gyro") if k not in d]
@@ -53,29 +95,7 @@ def _load(path: str):
     pos = d["positions_m"] if "positions_m" in d else np.zeros((k, 3))
     names = tuple(str(x) for x in d["names"]) if "names" in d else ()
     accel = np.asarray(d["accel"], dtype=float) if "accel" in d else None
-    _plausible(path, gyro, accel)
     return ArrayLayout(rot, pos, names), np.asarray(d["t"], dtype=float), gyro, accel
-
-
-#: no MEMS gyro measures beyond +-4000 deg/s, no accelerometer of an array beyond +-400 g
-_GYRO_MAX_RAD_S = 4000.0 * np.pi / 180.0
-_ACCEL_MAX_MS2 = 400 * 9.80665
-
-
-def _plausible(path: str, gyro: np.ndarray, accel: np.ndarray | None) -> None:
-    """Units: rates beyond any MEMS gyro's range are deg/s under the rad/s label (or counts); accelerations
-    likewise."""
-    from ..errors import PlausibilityError
-
-    for name, y, top, unit, likely in (("gyro", gyro, _GYRO_MAX_RAD_S, "rad/s", "deg/s or counts"),
-                                       ("accel", accel, _ACCEL_MAX_MS2, "m/s^2", "counts")):
-        if y is None:
-            continue
-        peak = float(np.nanmax(np.abs(y))) if np.isfinite(y).any() else 0.0
-        if peak > top:
-            raise PlausibilityError(f"{path}: {name} reaches {peak:.4g} {unit}, beyond the range of any MEMS "
-                                    f"{name} ({top:.4g} {unit}): the values look like {likely}; convert them to "
-                                    f"{unit}")
 
 
 def _check_options(args: argparse.Namespace, t: np.ndarray, gyro: np.ndarray) -> None:
@@ -85,7 +105,7 @@ def _check_options(args: argparse.Namespace, t: np.ndarray, gyro: np.ndarray) ->
     if len(t) < 10 or not np.all(np.diff(t) > 0):
         raise ShapeError(f"{args.data}: t must hold at least 10 increasing times, s")
     fs = 1.0 / float(np.median(np.diff(t)))
-    if args.lowpass_hz is not None and args.lowpass_hz >= fs / 2:
+    if isinstance(args.lowpass_hz, float) and args.lowpass_hz >= fs / 2:
         raise OptionError(f"--lowpass-hz {args.lowpass_hz:g}: must be below the Nyquist frequency of "
                           f"{args.data} ({fs / 2:.4g} Hz)")
     rate = np.degrees(np.linalg.norm(np.nanmean(gyro, axis=1), axis=1))
@@ -98,15 +118,25 @@ def _check_options(args: argparse.Namespace, t: np.ndarray, gyro: np.ndarray) ->
 
 def run(args: argparse.Namespace) -> int:
     from ..array import array_report
-    from ..atomic import write_text
-    from ..errors import RimuError
-    from ._common import json_dump
+    from ..array.guards import check_units
+    from ..errors import PlausibilityError, RimuError
 
     try:
-        layout, t, gyro, accel = open_array(args.data, args) or _load(args.data)
+        if _own_npz(args.data):  # rimu array's NPZ: its arrays in the units declared (--gyro-unit, --accel-unit; SI)
+            layout, t, gyro, accel = _load(args.data)
+            gyro = gyro * _factor("gyro", args.gyro_unit)
+            accel = None if accel is None else accel * _factor("accel", args.accel_unit)
+        else:  # a log: its reader converts to SI (the units options declare a text log's)
+            layout, t, gyro, accel = open_array(args.data, args) or _load(args.data)
         _check_options(args, t, gyro)
+        problems = check_units(gyro, accel)
+        if problems and not args.accept_implausible:
+            raise PlausibilityError(f"{args.data}: " + "; ".join(problems)
+                                    + " (--accept-implausible to run anyway)")
+        for p in problems:
+            print(f"rimu array: warning: {p}", file=sys.stderr)
         rep = array_report(layout, t, gyro, accel, motion_threshold_deg_s=args.motion_threshold_deg_s,
-                           lowpass_hz=args.lowpass_hz)
+                           lowpass_hz=args.lowpass_hz, held_out=not args.no_held_out)
     except RimuError as exc:
         where = "" if str(args.data) in str(exc) else f"{args.data}: "
         print(f"rimu array: error: {where}{exc}", file=sys.stderr)
@@ -114,21 +144,36 @@ def run(args: argparse.Namespace) -> int:
     if args.output:
         doc = {"gyro": rep.gyro_fit.to_dict() if rep.gyro_fit else None,
                "accel": rep.position_fit.to_dict() if rep.position_fit else None}
-        write_text(args.output, json.dumps(doc, indent=1))
+        Path(args.output).write_text(json.dumps(doc, indent=1))
     if args.report:
         out = Path(args.report)
         out.mkdir(parents=True, exist_ok=True)
-        write_text(out / "array_report.md", rep.to_markdown())
+        (out / "array_report.md").write_text(rep.to_markdown())
         try:
             rep.plot(out / "array_report.png")
         except ImportError as exc:
             print(f"rimu array: no plot: {exc}", file=sys.stderr)
+        else:  # the one report layout (HTML + PDF), as rimu calibrate and rimu diagnose write it
+            from ..report import Report
+
+            page = Report(f"rimu array: {layout.k} triads")
+            page.cautions([f"note: {n}" for n in rep.notes] + [f"not applied: {r}" for r in rep.refused.values()])
+            page.markdown(rep.to_markdown().split("\n", 1)[1].split("\n- ", 1)[0], out)
+            page.figure(rep.figure(), "parity rms in motion per triad and step (the steps applied)")
+            page.write(out, "array_report")
     if args.json:
-        json_dump(rep.to_dict(), args.json)
+        Path(args.json).write_text(json.dumps(rep.to_dict(), indent=1))
+    from ..units import fmt
+
     g = list(rep.gyro_steps.values())
-    line = (f"array of {layout.k} triads: gyro parity rms in motion {g[0].mean():.4g} -> {g[-1].mean():.4g} deg/s")
+    line = (f"array of {layout.k} triads: gyro parity rms in motion {fmt(g[0].mean() * DEG_TO_RAD, 'rate', 'deg/s')} "
+            f"-> {fmt(g[-1].mean() * DEG_TO_RAD, 'rate', 'deg/s')}")
     if rep.accel_steps:
         a = list(rep.accel_steps.values())
-        line += f", accelerometers {a[0].mean():.4g} -> {a[-1].mean():.4g} m/s^2"
-    print(line + f"; limited now by {rep.limiting_term}")
+        line += f", accelerometers {fmt(a[0].mean(), 'specific_force', 'm/s^2')} -> {fmt(a[-1].mean(), 'specific_force', 'm/s^2')}"
+    for n in rep.notes[:1] + [n for n in rep.notes[1:] if "not applied" in n] + [
+            f"not applied: {r}" for r in rep.refused.values()]:
+        print(f"note: {n}")
+    lim = rep.limiting_term
+    print(line + (f"; what is left is {lim}" if lim.startswith("unexplained") else f"; limited now by {lim}"))
     return 0

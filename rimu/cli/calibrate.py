@@ -26,7 +26,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--instruments", default=None, help="comma-separated subset of gyro,accel")
     p.add_argument("--wavelet", action="store_true", help="oliveira only: db4/8-level wavelet denoising")
     p.add_argument("-o", "--output", default="calibration.json", help="calibration file to write")
-    add_report_option(p, "the residual plot per segment (residuals.png)")
+    add_report_option(p, "the calibration report (calibration.html, calibration.pdf) and residuals.png")
+    p.add_argument("--reference", default=None, metavar="CAL",
+                   help="a calibration of the same unit to compare with in the report (e.g. the maker's)")
     add_json_option(p, "the coefficients, their standard deviations (SI) and chi2/dof")
     p.add_argument("--plot", action=Deprecated, new="--report DIR (writes DIR/residuals.png)", metavar="PNG")
     add_accept_implausible(p)
@@ -92,8 +94,14 @@ def bias_at_zero_input(res) -> dict[str, dict[str, tuple[float, float]]]:  # typ
 
 
 def _print_bias_note(zero: dict) -> None:
+    for line in _bias_note_lines(zero):
+        print(line)
+
+
+def _bias_note_lines(zero: dict) -> list[str]:
     from ..units import MS2_TO_UG, RS_TO_DH
 
+    out = []
     unit = {"gyro": ("deg/h", RS_TO_DH), "accel": ("ug", MS2_TO_UG)}
     for k, per in zero.items():
         u, f = unit.get(k, ("SI", 1.0))
@@ -101,10 +109,52 @@ def _print_bias_note(zero: dict) -> None:
         if ratio < 1.5:
             continue
         row = ", ".join(f"{n} {z * f:.3g}" for n, (z, _) in per.items())
-        print(f"note: {k} bias std at zero input (the error of SF*y - B at rest; what 'rimu design' predicts, Cho & Park"
+        out.append(f"note: {k} bias std at zero input (the error of SF*y - B at rest; what 'rimu design' predicts, Cho & Park"
               f" Eq. 19), {u}: {row}. The bias column above is the marginal std of B = SF x raw offset, up to "
               f"{ratio:.3g} times larger: it also carries the scale-factor uncertainty times the raw offset, which "
               "the correlation of B with SF cancels in the compensated output")
+    return out
+
+
+def _held_out_lines(session, effects: str | None, instruments) -> list[str]:  # type: ignore[no-untyped-def]
+    """lsq with effects beyond scale, misalignment and bias: the step that adds them compared with its input on
+    held-out segments (fitted on every other segment, checked on the rest; rimu.diagnose.Comparison.held_out)."""
+    from ..calibration.model import ErrorModel
+    from ..diagnose.api import compare
+    from ..diagnose.fitting import fit_model
+    from ..errors import IdentifiabilityError
+
+    if not effects:
+        return []
+    model = ErrorModel.from_names(effects)
+    base_names = [e.name for e in model if e.name in ("bias", "scale_misalignment")]
+    extra_effects = [e for e in model if e.name not in base_names]
+    if not extra_effects or set(base_names) != {"bias", "scale_misalignment"}:
+        return []
+    base = ErrorModel.from_names(",".join(base_names))
+    out = []
+    for k in instruments or session.instruments:
+        try:
+            before = fit_model(session, base, k)
+            extra = [e.name for e in extra_effects if any(e.applies_to(ctx) for ctx in before.contexts)]
+            if not extra:
+                continue
+            c = compare(session, before, model)
+        except (IdentifiabilityError, ValueError):
+            continue
+        h = c.held_out()
+        if h is None:
+            out.append(f"note: {k}: the effects {', '.join(extra)} could not be checked on held-out segments (half "
+                       "of the segments cannot identify the model)")
+            continue
+        b, a = float(h[1].mean()), float(h[2].mean())
+        line = (f"note: {k}: with {', '.join(extra)} the residual on held-out segments (fitted on every other "
+                f"segment, checked on the rest) goes {b:.4g} -> {a:.4g} {h[0]}")
+        if c.worse_held_out():
+            line = line.replace("note:", "caution:", 1) + (f"; they fit these segments, not the instrument: "
+                                                           f"calibrate without them (--effects {','.join(base_names)})")
+        out.append(line)
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
@@ -115,10 +165,18 @@ def run(args: argparse.Namespace) -> int:
         raise OptionError(f"--wavelet applies to --method oliveira only, not {args.method}")
     session = open_session(args.session, "warn" if args.accept_implausible else "strict", args=args)
     inst = _instruments(args.instruments, session)
+    ref = None
+    if args.reference:  # read before any work: a bad reference writes nothing
+        from ..calibration import Calibration
+
+        ref = Calibration.load(args.reference, session.geometries)
     res = estimator(args.method, inst, args.effects, args.wavelet).fit(session)
     print(res.table())
     zero = bias_at_zero_input(res)
     _print_bias_note(zero)
+    held = _held_out_lines(session, args.effects, inst) if args.method == "lsq" else []
+    for line in held:
+        print(line)
     out = res.to_calibration().save(Path(args.output))
     print(f"\ncalibration written to {out}")
     if args.json:
@@ -130,7 +188,16 @@ def run(args: argparse.Namespace) -> int:
                                    "bias_std_at_zero_input_si": {n: z for n, (z, _) in zero.get(k, {}).items()}}
                                for k in res.instruments}}
         print(f"summary written to {json_dump(doc, args.json)}")
-    png = Path(args.plot) if args.plot else (Path(args.report) / "residuals.png" if args.report else None)
+    if args.report:
+        from ..calibration.report import calibration_report
+
+        rep = calibration_report(res, session, ref, cautions=_bias_note_lines(zero) + held)
+        Path(args.report).mkdir(parents=True, exist_ok=True)
+        if not args.plot and rep.save_figure(0, Path(args.report) / "residuals.png"):
+            print(f"residual plot written to {Path(args.report) / 'residuals.png'}")
+        html, pdf = rep.write(args.report, "calibration")
+        print(f"calibration report written to {html} and {pdf}")
+    png = Path(args.plot) if args.plot else None
     if png is not None:
         from ..calibration.plots import plot_residuals
 

@@ -9,6 +9,7 @@ report (``--report DIR``) holds the signal with the detected poses and motions s
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 from ._common import bounded_float, nonnegative_float, positive_float
@@ -39,6 +40,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="trimmed from both ends of each pose, s (default: window/2; less than half of --min-static)")
     p.add_argument("--gravity", type=bounded_float(9.76, 9.84, "m/s^2", "local gravity anywhere on Earth's surface"),
                    default=None, help="local gravity, m/s^2 (default 9.80665)")
+    p.add_argument("--geometry", default=None, metavar="NAME|FILE.json",
+                   help="the unit's geometry for both instruments when the file has more than three columns each: a "
+                        "preset name (e.g. mimu4444, triads with k parallel triads as triads:K) or a geometry JSON "
+                        "file (Geometry.to_dict); default: one triad")
     p.add_argument("--report", metavar="DIR", help="write detection.png and detection.md here")
     p.add_argument("--json", metavar="FILE", help="write a machine-readable summary here")
     p.add_argument("--imu", default=None, help="the IMU of a multi-IMU log to read (default: the first)")
@@ -48,6 +53,26 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _cols(text: str | None):
     return None if text is None else [c.strip() for c in text.split(",") if c.strip()]
+
+
+def geometry_option(text: str) -> object:
+    """``NAME`` (a preset), ``triads:K`` (k parallel triads) or a geometry JSON file."""
+    import json as _json
+
+    from ..errors import GeometryError
+    from ..geometry import Geometry, preset
+
+    if text.endswith(".json"):
+        try:
+            return Geometry.from_dict(_json.loads(Path(text).read_text()))
+        except (OSError, ValueError) as exc:
+            raise GeometryError(f"cannot read the geometry file {text!r} ({exc})") from None
+    name, _, k = text.partition(":")
+    if k:
+        if not k.isdigit() or int(k) < 1:
+            raise GeometryError(f"--geometry {text!r}: give the number of triads as triads:K, K a positive integer")
+        return preset(name, rotations=int(k))
+    return preset(name)
 
 
 def _factor(text: str) -> float | str:
@@ -77,12 +102,12 @@ def _check_spans(args: argparse.Namespace, span: float) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..atomic import write_text
     from ..calibration.detect import detect_session, plot_detection
     from ..session import save_session
     from ..units import G0
-    from ._common import json_dump
 
+    if args.factor != "auto":
+        _factor(args.factor)  # refused before reading
     log = open_raw(args.raw, args.rate, _cols(args.accel), _cols(args.gyro), args.time, args, args.imu)
     _check_spans(args, len(log.t) / log.sample_rate)
     init = args.init_still
@@ -96,7 +121,16 @@ def run(args: argparse.Namespace) -> int:
 
         raise OptionError(f"--margin {args.margin:g} s: trimmed from both ends, it must leave some of the shortest pose "
                           f"(--min-static {args.min_static:g} s): give less than {args.min_static / 2:g} s")
-    session, det = detect_session(log.t, log.raw, log.sample_rate, gravity=args.gravity or G0,
+    geometries = None
+    if args.geometry:
+        geo = geometry_option(args.geometry)
+        geometries = {k: geo for k in log.raw}
+        bad = {k: y.shape[1] for k, y in log.raw.items() if y.shape[1] != geo.n}
+        if bad:
+            from ..errors import GeometryError
+
+            raise GeometryError(f"--geometry {args.geometry} has {geo.n} sensors; the file's {bad} columns differ")
+    session, det = detect_session(log.t, log.raw, log.sample_rate, geometries, gravity=args.gravity or G0,
                                   window_s=args.window, factor=factor, init_still_s=init,
                                   min_static_s=args.min_static, min_motion_s=args.min_motion, margin_s=args.margin)
     poses = [s for s in session.segments if s.kind == "static_unknown"]
@@ -125,9 +159,9 @@ def run(args: argparse.Namespace) -> int:
                  "![detection](detection.png)", "", "| segment | kind | start (s) | end (s) |", "|---|---|---|---|"]
         lines += [f"| {s['label']} | {s['kind']} | {s['start'] / fs:.2f} | {s['end'] / fs:.2f} |"
                   for s in summary["segments"]]
-        write_text(d / "detection.md", "\n".join(lines) + "\n")
+        (d / "detection.md").write_text("\n".join(lines) + "\n")
     if args.json:
-        json_dump(summary, args.json)
+        Path(args.json).write_text(json.dumps(summary, indent=1))
     out = save_session(session, args.output)
     print(f"session written to {out}: {len(poses)} poses, {len(motions)} motions")
     return 0

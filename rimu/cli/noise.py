@@ -1,9 +1,11 @@
 """``rimu noise RECORDING -o NOISE.json``: Allan deviation and IEEE Std 952 noise terms of every sensor.
 
 RECORDING is a static recording: a session file in rimu's format (``.npz``, or ``.csv`` with its ``.json``
-sidecar; the longest static segment, or ``--segment``), or a plain array of compensated outputs in SI
-(``.npy``, or a ``.csv`` without a sidecar: N rows, one column per sensor) with ``--sample-rate``. Counts need
-``--calibration`` for the scale factors. Writes the noise model (JSON, ``format: rimu.noise``); ``--report DIR``
+sidecar; the longest static segment, or ``--segment``); a raw log of counts with a header row naming its
+columns (``ax,ay,az,gx,gy,gz``, as rimu detect reads; ``--calibration`` required: its scale factors give the
+SI); or a plain array of compensated outputs in SI of one instrument (``.npy``, or a ``.csv`` without header
+or sidecar: N rows, one column per sensor) with ``--sample-rate``. Counts are never taken as SI: whole numbers
+in the hundreds, or an accelerometer at rest given as gyros, are refused. Writes the noise model (JSON, ``format: rimu.noise``); ``--report DIR``
 adds one log-log plot per instrument with the fitted slopes, the parity plot and a markdown summary;
 ``--json FILE`` a short machine-readable summary; ``--write-calibration OUT`` the calibration with the noise
 terms in its optional ``noise`` section (what the detectors of rimu.fdi read). See docs/noise.md.
@@ -49,12 +51,90 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _plain(args: argparse.Namespace, path: Path) -> Any:
-    from ..errors import SessionFormatError
+def _header_line(path: Path) -> bool:
+    """Whether a text file starts with a non-numeric line (a header or a metadata block: a raw log)."""
+    from ..io.rawtext import is_number
+
+    with open(path, encoding="utf-8", errors="replace") as f:
+        for line in f:
+            if line.strip() and not line.lstrip().startswith("#"):
+                return not all(is_number(p.strip()) for p in line.replace(";", ",").split(",") if p.strip())
+    return False
+
+
+def _raw_log(args: argparse.Namespace, path: Path) -> Any:
+    """A raw log of counts (a metadata block and a header naming the columns, as rimu detect reads): compensated
+    with the calibration, whose scale factors give the SI; refused without one."""
+    from ..calibration import Calibration
+    from ..errors import CalibrationFileError
+    from ..io.rawtext import read_raw_text
     from ..noise.api import identify
 
+    log = read_raw_text(path, args.sample_rate)
+    cols = "; ".join(f"{k} {','.join(v)}" for k, v in log.columns.items())
+    if not args.calibration:
+        raise CalibrationFileError(
+            f"{path} is a raw log ({cols}) of counts: the noise terms in SI need its scale factors; give the "
+            "unit's calibration: rimu noise FILE --calibration cal.json")
+    cal = Calibration.load(args.calibration)
+    insts = args.instrument or [k for k in log.raw if k in cal.instruments]
+    outputs, axes, names = {}, {}, {}
+    for k in insts:
+        if k not in log.raw:
+            raise CalibrationFileError(f"--instrument {k}: {path} has no {k} columns ({cols})")
+        if k not in cal.instruments:
+            raise CalibrationFileError(f"{args.calibration} has no {k} calibration (it has "
+                                       f"{', '.join(cal.instruments)}): calibrate the {k} too, or give --instrument "
+                                       f"{' --instrument '.join(i for i in log.raw if i in cal.instruments) or k}")
+        c = cal[k]
+        if c.geometry.n != log.raw[k].shape[1]:
+            raise CalibrationFileError(f"{path} has {log.raw[k].shape[1]} {k} columns, {args.calibration} "
+                                       f"calibrates {c.geometry.n} {k} sensors")
+        outputs[k], axes[k], names[k] = c.compensate(log.raw[k]), c.axes_mb(), list(log.columns[k])
+    if not outputs:
+        raise CalibrationFileError(f"{args.calibration} calibrates none of the instruments of {path} ({cols})")
+    return identify(outputs, log.sample_rate, axes, names, _terms(args), args.p_fa,
+                    meta={"recording": str(path), "plain": False, "calibrated": True, "raw_columns": log.columns})
+
+
+def _check_si(z: np.ndarray, inst: str, path: Path) -> None:
+    """Refuse a plain array that cannot be compensated outputs of ``inst`` in SI: raw counts (integers in the
+    hundreds), an accelerometer at rest read as gyros, accelerations in g or rates in deg/s."""
+    from ..errors import PlausibilityError
+    from ..units import G0
+
+    big = float(np.max(np.abs(z))) if z.size else 0.0
+    if big >= 100 and np.all(z == np.round(z)):
+        raise PlausibilityError(
+            f"{path}: whole numbers up to {big:.0f}: these look like raw counts, not {inst} outputs in SI; give the "
+            "file with its header (ax,ay,az,gx,gy,gz) and --calibration cal.json, or convert it to SI first")
+    m = np.abs(z.mean(axis=0))
+    triads = [np.linalg.norm(z[:, i:i + 3].mean(axis=0)) for i in range(0, z.shape[1] - 2, 3)]
+    if inst == "gyro" and (any(0.8 * G0 < x < 1.25 * G0 for x in triads) or np.any(m > 2.0)):
+        raise PlausibilityError(
+            f"{path}: column means up to {m.max():.3g} ({'a triad of norm ' + format(max(triads), '.3g') if triads else ''}"
+            "): not gyro outputs at rest in rad/s (an accelerometer at rest in m/s^2, or deg/s?); give "
+            "--instrument accel for accelerometers, or convert deg/s to rad/s")
+    if inst == "accel" and triads and 0.8 < max(triads) < 1.25:
+        raise PlausibilityError(f"{path}: accelerometer triad at rest of norm {max(triads):.3g}: these are in g, "
+                                "not m/s^2; multiply by 9.80665 first")
+
+
+def _plain(args: argparse.Namespace, path: Path) -> Any:
+    from ..errors import OptionError, SessionFormatError
+    from ..noise.api import identify
+
+    if path.suffix != ".npy" and _header_line(path):
+        return _raw_log(args, path)
     if args.sample_rate is None:
         raise SessionFormatError(f"{path} is a plain array: give its --sample-rate (Hz)")
+    if args.calibration:
+        raise OptionError(f"--calibration: {path} is a plain array without a header, read as compensated outputs in "
+                          "SI; a calibration would not apply. Give raw counts with their header row (ax,ay,az,gx,"
+                          "gy,gz) to apply it, or drop --calibration")
+    if args.instrument and len(args.instrument) > 1:
+        raise OptionError(f"{path} is a plain array of one instrument; give one --instrument, not "
+                          f"{', '.join(args.instrument)}")
     from ..io.guard import load_array, reading
 
     if path.suffix == ".npy":
@@ -80,6 +160,7 @@ def _plain(args: argparse.Namespace, path: Path) -> Any:
         raise SessionFormatError(f"{path}: column {int(flat[0]) + 1} is constant: not the output of a sensor (a "
                                  "disconnected channel?); remove it")
     inst = (args.instrument or ["gyro"])[0]
+    _check_si(z, inst, path)
     axes = names = None
     if args.geometry:
         from ..geometry import preset

@@ -374,6 +374,7 @@ def run(args: argparse.Namespace) -> int:
     from ..fusion import Pipeline
     from ..progress import bar
     from ..session import iter_blocks
+    from ..units import fmt  # the field's units, as rimu calibrate prints them
     from ._common import check_outputs
 
     if args.estimates:  # a CSV without a sidecar: checked alone, then against the other outputs and the inputs
@@ -505,8 +506,8 @@ def run(args: argparse.Namespace) -> int:
         err = errors[k].result()
         if err is not None:
             entry.update(err.to_dict())
-            print(f"    runtime error: segment_error_rms {err.segment_error_rms:.4g} {entry['unit']} over "
-                  f"{len(err.segments)} segments, sample_error_rms {err.sample_error_rms:.4g} {entry['unit']}")
+            print(f"    runtime error: segment_error_rms {fmt(err.segment_error_rms, k)} over "
+                  f"{len(err.segments)} segments, sample_error_rms {fmt(err.sample_error_rms, k)}")
         print(f"    alarms {entry['alarms']}, isolations {entry['isolations']}")
         summary[k] = entry
     if args.estimates:
@@ -531,7 +532,7 @@ def run(args: argparse.Namespace) -> int:
         write_text(out / "summary.json", json.dumps(summary, indent=1))
         print(f"  summary: {out / 'summary.json'}")
     n_iso = sum(v["isolations"] for v in summary.values())
-    errs = ", ".join(f"{k} segment_error_rms {v['segment_error_rms']:.3g} {v['unit']}"
+    errs = ", ".join(f"{k} segment_error_rms {fmt(v['segment_error_rms'], k, digits=3)}"
                      for k, v in summary.items() if "segment_error_rms" in v)
     print(f"replayed {scan.n} samples: {n_iso} isolation(s)" + (f"; {errs}" if errs else ""))
     return 0
@@ -574,6 +575,11 @@ def _motion_detector(cal, block, seconds: float, margin: float, p_fa: float, fs:
           f"scale {1e2 * float(np.median(model.scale_rel)):.2f} %, misalignment "
           f"{1e3 * float(np.median(model.misalignment_rad)):.2f} mrad, time offset "
           f"{1e3 * float(np.median(model.time_offset_s)):.2f} ms (medians)")
+    if det.envelope is not None:
+        print(f"  gyro thresholds assume the motion of the fit span: |rate| up to "
+              f"{np.degrees(det.envelope[0]):.4g} deg/s, |angular acceleration| up to "
+              f"{np.degrees(det.envelope[1]):.4g} deg/s^2; an alarm beyond is reported as model_exceeded "
+              "(output DEGRADED) and isolates nothing")
     return det
 
 
@@ -596,17 +602,19 @@ def _plot(path: Path, results: dict) -> Path | None:
                 ax.axvline(e.t, color="m" if e.kind != "readmitted" else "g", lw=0.8, ls=":")
                 ax.text(e.t, ax.get_ylim()[1], f"{e.kind[:3]} {e.sensor}", fontsize=7, rotation=90, va="top")
         ax.set_title(f"{k}: parity test statistic")
+        ax.set_ylabel("statistic [-]")
         ax.legend(fontsize=7, loc="upper left")
         ax = axes[1, c]
         for a, col in zip(range(3), "rgb"):
             ax.plot(r.t, r.x[:, a], col, lw=0.5, label="xyz"[a])
-        ax.set_title(f"{k}: MB-frame estimate (SI)")
+        ax.set_title(f"{k}: MB-frame estimate")
+        ax.set_ylabel("angular rate [rad/s]" if k == "gyro" else "specific force [m/s^2]")
         ax.legend(fontsize=7)
         ax = axes[2, c]
         ax.step(r.t, r.state, where="post")
         ax.set_yticks(range(len(HealthState)))
         ax.set_yticklabels([s.value for s in HealthState], fontsize=7)
-        ax.set_xlabel("time, s")
+        ax.set_xlabel("time [s]")
         ax.set_title(f"{k}: state")
     fig.tight_layout()
     from ..atomic import atomic_path

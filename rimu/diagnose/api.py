@@ -13,7 +13,6 @@ from typing import Any
 import numpy as np
 from scipy.special import chdtrc
 
-from ..calibration.effects._common import output_unit
 from ..calibration.model import EFFECTS, Effect, ErrorModel, effect
 from ..errors import IdentifiabilityError, ParameterNameError, SessionFormatError
 from ..session import Session
@@ -148,10 +147,12 @@ class InstrumentDiagnosis:
         """The diagnosis in plain language."""
         out = [f"{self.instrument}: model {self.model.label}; chi2/dof {self.fit.chi2_dof:.3g} over "
                f"{len(self.fit.sensors)} sensors and {len(self.fit.segment_labels)} segments"]
-        unit = output_unit(self.fit.contexts[0])
-        for st in self.stats:
-            out.append(f"  {st.name}: rms {st.rms_si * unit[2]:.4g} {unit[1]}, chi2/dof {st.chi2_dof:.3f}, "
+        unit, fac = self.fit.display()
+        calibrated = " of the calibrated output" if unit != self.fit.raw_unit else " (raw: no scale factor is known)"
+        for st, f in zip(self.stats, fac):
+            out.append(f"  {st.name}: rms {st.rms_raw * f:.4g} {unit}{calibrated}, chi2/dof {st.chi2_dof:.3f}, "
                        f"lag-1 autocorrelation {st.lag1:+.3f}, Ljung-Box p = {st.ljung_box_p:.2g}")
+            calibrated = ""
         p = max(s.n_par for s in self.fit.sensors)
         nseg = len(self.fit.segment_labels)
         if nseg - p < 5:
@@ -199,8 +200,11 @@ class InstrumentDiagnosis:
         return out
 
     def to_dict(self) -> dict[str, Any]:
+        unit, fac = self.fit.display()
         return {
             "instrument": self.instrument, "model": self.model.label, "chi2_dof": self.fit.chi2_dof,
+            "raw_unit": self.fit.raw_unit, "rms_unit": unit,
+            "rms": [float(s.rms_raw * f) for s, f in zip(self.stats, fac)],
             "bic": self.fit.bic, "nothing_missing": self.nothing_missing, "alpha": self.alpha,
             "sensors": [s.to_dict() for s in self.stats], "failures": json.loads(json.dumps(self.failures)),  # a plain copy
             "findings": [{"effects": f.effects, "confounded": f.confounded,
@@ -278,6 +282,7 @@ def diagnose(
     include_earth_rate: bool = True,
     reference_temperature: float = 25.0,
     method: str = "fast",
+    scale: Mapping[str, Any] | None = None,
 ) -> Diagnosis:
     """Compare ``model`` with the measurement in ``session`` and find which effect is missing.
 
@@ -298,6 +303,9 @@ def diagnose(
         Whether the gyro input includes the Earth rate; False makes ``earth_rate`` a candidate.
     reference_temperature : float
         T_ref of the temperature effects, degC.
+    scale : dict instrument -> float or (n,) array, optional
+        Known scale factor SI/raw per sensor (a calibration's) for models without a scale block, so that their
+        residuals print in SI. Default: the session's declared raw unit (deg/s, g); counts stay counts.
     method : {"fast", "refit"}
         How the candidates are tested (:func:`~rimu.diagnose.candidates.score_candidates`): in the small space
         of one shared design (default), or by the straightforward refit of each (the reference; same numbers).
@@ -313,7 +321,7 @@ def diagnose(
     for applies, special in SESSION_KINDS:  # e.g. hand-held poses: attitudes resolved by their calibration first
         if applies(session):
             return special(session, model, candidates, alpha, instruments=instruments, sigma=sigma,
-                           reference_temperature=reference_temperature)[1]
+                           reference_temperature=reference_temperature, scale=scale)[1]
     session = cached(session)
     models = _models(model, session, instruments)
     settings = {"alpha": alpha, "include_earth_rate": include_earth_rate,
@@ -323,7 +331,8 @@ def diagnose(
     errors: dict[str, str] = {}
     for k, m in models.items():
         try:
-            fit = fit_model(session, m, k, (sigma or {}).get(k), include_earth_rate, reference_temperature)
+            fit = fit_model(session, m, k, (sigma or {}).get(k), include_earth_rate, reference_temperature,
+                            scale=(scale or {}).get(k))
         except IdentifiabilityError as exc:
             errors[k] = str(exc)
             continue
@@ -390,23 +399,72 @@ class Comparison:
                                  "z": v / sd if sd > 0 else None})
         return rows
 
+    def rms(self) -> tuple[str, np.ndarray, np.ndarray]:
+        """(unit, rms before, rms after) per sensor, both in one unit (raw where a scale factor is unknown)."""
+        unit, fb = self.before.display()
+        ua, fa = self.after.display(unit)
+        if ua != unit:  # one side has no scale: both raw
+            unit, fb, fa = self.before.raw_unit, np.ones(len(fb)), np.ones(len(fa))
+        return unit, self.before.rms_raw() * fb, self.after.rms_raw() * fa
+
+    def held_out(self) -> tuple[str, np.ndarray, np.ndarray] | None:
+        """(unit, rms before, rms after) per sensor on held-out segments: both models fitted on every other
+        segment (in time order) and evaluated on the rest, and the other way round. None when half of the
+        segments cannot identify a model."""
+        unit, fb = self.before.display()
+        ua, fa = self.after.display(unit)
+        if ua != unit:
+            unit, fb, fa = self.before.raw_unit, np.ones(len(fb)), np.ones(len(fa))
+        out = []
+        for fit in (self.before, self.after):
+            rms = []
+            for s in fit.sensors:
+                segs = np.unique(s.seg_index)
+                if len(segs) < 4:
+                    return None
+                half = np.isin(s.seg_index, segs[::2])
+                sq, n = 0.0, 0
+                for train in (half, ~half):
+                    X, y = s.X[train], s.y[train]
+                    if np.linalg.matrix_rank(X) < X.shape[1]:
+                        return None
+                    beta = np.linalg.lstsq(X, y, rcond=None)[0]
+                    r = s.y[~train] - s.X[~train] @ beta
+                    sq, n = sq + float(r @ r), n + r.size
+                rms.append(np.sqrt(sq / n))
+            out.append(np.array(rms))
+        return unit, out[0] * fb, out[1] * fa
+
+    def worse_held_out(self) -> bool:
+        """Whether the added effects raise the held-out residual (mean over the sensors): they fit the noise of
+        these segments, not the instrument."""
+        h = self.held_out()
+        return h is not None and float(np.mean(h[2])) > float(np.mean(h[1])) * (1 + 1e-3)
+
     def lines(self) -> list[str]:
-        u = output_unit(self.before.contexts[0])
-        rb, ra = self.before.rms_si() * u[2], self.after.rms_si() * u[2]
+        unit, rb, ra = self.rms()
         out = [f"{self.instrument}: added {', '.join(self.added)}: chi2/dof {self.chi2_before:.4g} -> "
                f"{self.chi2_after:.4g}, BIC {self.dbic:+.1f}, AIC {self.daic:+.1f}"]
         for s, b, a in zip(self.before.sensors, rb, ra):
-            out.append(f"  {s.name}: rms {b:.4g} -> {a:.4g} {u[1]} ({100 * (a - b) / b:+.1f}%)")
+            out.append(f"  {s.name}: rms {b:.4g} -> {a:.4g} {unit} ({100 * (a - b) / b:+.1f}%)")
+        h = self.held_out()
+        if h is not None:
+            out.append(f"  held out (fitted on every other segment, checked on the rest): rms {np.mean(h[1]):.4g} -> "
+                       f"{np.mean(h[2]):.4g} {h[0]} (mean over the sensors)"
+                       + ("; caution: worse on held-out data: it fits these segments' noise, not the instrument"
+                          if self.worse_held_out() else ""))
         for r in self.new_parameters():
             out.append(f"  {r['sensor']}.{r['parameter']} = {r['value']:.4g} +- {r['std']:.2g} {r['report_unit']}")
         return out
 
     def to_dict(self) -> dict[str, Any]:
-        u = output_unit(self.before.contexts[0])
+        unit, rb, ra = self.rms()
         return {"instrument": self.instrument, "added": self.added, "chi2_before": self.chi2_before,
                 "chi2_after": self.chi2_after, "dbic": self.dbic, "daic": self.daic,
-                "rms_before": (self.before.rms_si() * u[2]).tolist(), "rms_after": (self.after.rms_si() * u[2]).tolist(),
-                "rms_unit": u[1], "parameters": self.new_parameters()}
+                "rms_before": rb.tolist(), "rms_after": ra.tolist(), "rms_unit": unit,
+                "held_out": (None if (h := self.held_out()) is None else
+                             {"rms_before": h[1].tolist(), "rms_after": h[2].tolist(), "rms_unit": h[0]}),
+                "parameters": self.new_parameters()}
 
 
 def compare(session: Session, before: ModelFit, model: ErrorModel, sigma: Any = None, include_earth_rate: bool = True,
@@ -500,9 +558,10 @@ def iterate(session: Session, model: Any = None, max_rounds: int = 6, **kwargs: 
     real is missing (or only confounded groups remain, or ``max_rounds``). Keyword arguments go to
     :func:`diagnose`.
 
-    An effect enters only when it is significant (Holm over the candidates) *and* lowers the BIC on the
-    sensors it names (Schwarz's criterion: its fit gain must pay ln(N) per parameter); a significant finding
-    that does not is reported in :attr:`Iteration.notes` and the iteration stops there. The candidates are
+    An effect enters only when it is significant (Holm over the candidates), lowers the BIC on the
+    sensors it names (Schwarz's criterion: its fit gain must pay ln(N) per parameter) *and* does not raise the
+    residual on held-out segments (:meth:`Comparison.worse_held_out`); a significant finding that does not is
+    reported in :attr:`Iteration.notes` and the iteration stops there. The candidates are
     evaluated on the calibrated axes (:func:`rimu.diagnose.fit_model`), so a nonlinearity on a misaligned
     sensor does not leave a cross-coupling-like residue."""
     rounds = []
@@ -521,7 +580,13 @@ def iterate(session: Session, model: Any = None, max_rounds: int = 6, **kwargs: 
                             "add it")
                 continue
             notes.pop(k, None)
-            comps.update(d.add(top, instrument=k))
+            for kk, c in d.add(top, instrument=k).items():
+                if c.worse_held_out():  # a step that makes the held-out answer worse is not taken
+                    h = c.held_out()
+                    notes[kk] = (f"{top} is not added: fitted on every other segment it raises the residual of the "
+                                 f"others from {np.mean(h[1]):.4g} to {np.mean(h[2]):.4g} {h[0]}")
+                    continue
+                comps[kk] = c
         if not comps:
             break
         rounds.append((d, comps))

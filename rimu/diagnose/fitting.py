@@ -166,6 +166,9 @@ class SensorFit:
     #: within-segment autocorrelations; 1 for white noise): coloured noise makes segment means noisier
     inflation: float = 1.0
     lag1_within: float = 0.0
+    #: scale factor SI/raw where the model has no scale block: from the declared raw unit (deg/s, g) or a
+    #: calibration; None for counts without one (their residual then has no SI value)
+    known_scale: float | None = None
 
     @property
     def name(self) -> str:
@@ -191,12 +194,13 @@ class SensorFit:
         return v
 
     @property
-    def scale(self) -> float:
-        """Scale factor SI/raw (1 when the model has no scale block, unless a calibration set ``scale_si``)."""
-        if "scale_si" in self.__dict__:
-            return float(self.__dict__["scale_si"])
+    def scale(self) -> float | None:
+        """Scale factor SI/raw: from the model's scale block, else :attr:`known_scale` (the declared raw unit or
+        a calibration), else None (raw counts: no SI value)."""
         k = [i for i, nm in enumerate(self.names) if nm.endswith((".w_x", ".w_y", ".w_z"))]
-        return 1.0 / float(np.linalg.norm(self.beta[k])) if len(k) == 3 else 1.0
+        if len(k) == 3:
+            return 1.0 / float(np.linalg.norm(self.beta[k]))
+        return self.known_scale
 
     @property
     def chi2_dof(self) -> float:
@@ -235,6 +239,8 @@ class ModelFit:
     #: the contexts are on the calibrated axes of the model's own first fit (not given by the caller): a refit
     #: of the model plus further effects would find the same axes
     own_axes: bool = False
+    #: the declared unit of the raw outputs ("count" unless the session says otherwise)
+    raw_unit: str = "count"
 
     @property
     def chi2_dof(self) -> float:
@@ -251,8 +257,28 @@ class ModelFit:
         return float(sum(s.aic() for s in self.sensors))
 
     def rms_si(self) -> np.ndarray:
-        """Residual rms per sensor in SI (raw residual times the scale factor)."""
-        return np.array([np.sqrt(s.rss / s.n_obs) * s.scale for s in self.sensors])
+        """Residual rms per sensor in SI (raw residual times the scale factor; NaN where the scale is unknown)."""
+        return np.array([np.sqrt(s.rss / s.n_obs) * (np.nan if s.scale is None else s.scale) for s in self.sensors])
+
+    def display(self, unit: str | None = None) -> tuple[str, np.ndarray]:
+        """(unit, factor per sensor from a raw residual to that unit) in which this fit's residuals are printed:
+        the field unit that reads best (``rimu.units.field_unit``) when every sensor's scale factor is known,
+        else the raw unit: counts are never shown as SI. ``unit`` forces a field unit (a comparison's)."""
+        from ..units import FIELD_UNITS, field_unit
+
+        scales = [s.scale for s in self.sensors]
+        if any(sc is None for sc in scales) or not scales:
+            return self.raw_unit, np.ones(len(scales))
+        sc = np.abs(np.array(scales, dtype=float))
+        if unit is None or unit == self.raw_unit:
+            unit, f = field_unit(self.instrument, float(np.max(self.rms_raw() * sc)))
+        else:
+            f = dict(FIELD_UNITS["rate" if self.instrument == "gyro" else "specific_force"])[unit]
+        return unit, sc * f
+
+    def rms_raw(self) -> np.ndarray:
+        """Residual rms per sensor in the raw unit (:attr:`raw_unit`)."""
+        return np.array([np.sqrt(s.rss / s.n_obs) for s in self.sensors])
 
     def sensor(self, name: str) -> SensorFit:
         for s in self.sensors:
@@ -279,6 +305,7 @@ def fit_model(
     reference_temperature: float = 25.0,
     ctxs: list[SensorContext] | None = None,
     _beta_only: bool = False,
+    scale: float | Sequence[float] | None = None,
 ) -> ModelFit:
     """Least-squares fit of ``model`` to one instrument, keeping what the diagnostics need.
 
@@ -293,6 +320,9 @@ def fit_model(
         its segment means (:func:`noise_level`).
     include_earth_rate : bool
         Whether the gyros' known input includes the Earth rate (False to test the ``earth_rate`` effect).
+    scale : float or sequence, optional
+        Known scale factor SI/raw per sensor for a model without a scale block (a calibration's). Default: the
+        factor of the session's declared raw unit (deg/s, g), none for counts (residuals then stay raw).
 
     Raises
     ------
@@ -314,7 +344,7 @@ def fit_model(
             # axes): the first fit is the fit, only seen from the calibrated axes
             only_base = len(base.effects) == len(model.effects)
             first = fit_model(session, base if not only_base else model, instrument, sigma, include_earth_rate,
-                              reference_temperature, ctxs, _beta_only=not only_base)
+                              reference_temperature, ctxs, _beta_only=not only_base, scale=scale)
             ctxs = contexts(session, instrument, reference_temperature, include_earth_rate, calibrated_axes_of(first))
             if only_base:
                 return _on_axes(session, first, ctxs)
@@ -381,7 +411,14 @@ def fit_model(
                               np.concatenate(ts), np.concatenate(Ts) if have_T and Ts else None,
                               np.concatenate(ss), s, known, infl, rho1))
         labels_used = labels
-    return ModelFit(instrument, model, fits, labels_used, skipped, list(ctxs), own_axes)
+    from ..session.checks import raw_unit_of
+    from ..units import raw_to_si
+
+    unit = raw_unit_of(session, instrument)
+    known = _sigma_vector(scale, len(ctxs)) if scale is not None else None
+    for s_fit in fits:
+        s_fit.known_scale = float(known[s_fit.ctx.index]) if known is not None else raw_to_si(instrument, unit)
+    return ModelFit(instrument, model, fits, labels_used, skipped, list(ctxs), own_axes, unit)
 
 
 def _on_axes(session: Session, fit: ModelFit, ctxs: list[SensorContext]) -> ModelFit:

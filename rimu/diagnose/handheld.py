@@ -246,11 +246,10 @@ def diagnose_handheld(session: Session, model: ErrorModel | str | Mapping[str, A
         names = [e.name for e in g.effects if e.name != "scale_misalignment"]
         models["gyro"] = ErrorModel.from_names(",".join(names) or "bias")
     kwargs.pop("include_earth_rate", None)
-    d = diagnose(resolved, models, candidates=candidates, alpha=alpha, include_earth_rate=False, **kwargs)
-    if "gyro" in d.instruments and "gyro" in hh.result.instruments:  # bias-only model: SI through the calibration
-        sf = hh.result.to_calibration()["gyro"].scale
-        for s in d["gyro"].fit.sensors:
-            s.__dict__["scale_si"] = float(sf[s.ctx.index])
+    scale = dict(kwargs.pop("scale", None) or {})
+    if "gyro" in hh.result.instruments:  # bias-only model at rest: residuals in SI through the calibration's scales
+        scale.setdefault("gyro", np.asarray(hh.result.to_calibration()["gyro"].scale, dtype=float))
+    d = diagnose(resolved, models, candidates=candidates, alpha=alpha, include_earth_rate=False, scale=scale, **kwargs)
     d.settings["preamble"] = hh.lines()
     d.settings["handheld"] = hh.to_dict()
     return hh, d

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..calibration.effects._common import input_unit, output_unit
+from ..calibration.effects._common import input_unit
 from ..plotting import pyplot
 from .candidates import candidate_bases
 from .residuals import input_bins
@@ -54,7 +54,9 @@ def _save(fig, path: str | Path, margins: tuple[float, float, float, float] | No
         fig.subplots_adjust(left=left / w, right=1 - right / w, bottom=bottom / h, top=1 - top / h,
                             hspace=hspace, wspace=wspace)
     from ..atomic import atomic_path
+    from ..report import check_figure
 
+    check_figure(fig)  # empty axes removed; unlabelled units and clipped titles reported to the report
     with atomic_path(path) as _tmp:  # fast zlib level: PNG compression took a fifth of a figure's time
         fig.savefig(_tmp, dpi=90, format="png", pil_kwargs={"compress_level": 1})
     import matplotlib.pyplot as plt
@@ -94,7 +96,7 @@ def plot_residual_time(fit: ModelFit, path: str | Path) -> Path:
         t1 = s.t[np.concatenate([edges - 1, [s.n_obs - 1]])]
         ax.hlines(means[s.seg_index[np.concatenate([[0], edges])]], t0, t1, color="C3", lw=1.5)
         ax.axhline(0, color="k", lw=0.5)
-        ax.set_ylabel(f"{s.name}\nr/sigma", fontsize=8)
+        ax.set_ylabel(f"{s.name}\nr/sigma [-]", fontsize=8)
         _few_ticks(ax)
     axes[-1].set_xlabel("time [s]")
     fig.suptitle(f"{fit.instrument}: residual of {fit.model.label} (red: segment means)")
@@ -110,21 +112,25 @@ def plot_segment_map(d: InstrumentDiagnosis, path: str | Path) -> Path:
         pos = {g.label: g.mean_z for g in st.segments}
         Z[i] = [pos.get(lab, 0.0) for lab in labels]
     lim = max(3.0, float(np.percentile(np.abs(Z), 98)))
-    fig, ax = plt.subplots(figsize=(min(18, 2 + 0.25 * len(labels)), 1 + 0.45 * len(d.stats)))
+    fig, ax = plt.subplots(figsize=(min(18, max(6.5, 2 + 0.25 * len(labels))), 1 + 0.45 * len(d.stats)))
     im = ax.imshow(Z, aspect="auto", cmap="RdBu_r", vmin=-lim, vmax=lim)
     ax.set_yticks(range(len(d.stats)), [s.name for s in d.stats])
     ax.set_xticks(range(len(labels)), labels, rotation=90, fontsize=6)
     fig.colorbar(im, ax=ax, label="segment mean / std. err.")
-    ax.set_title(f"{d.instrument}: where the model fails (threshold +-{d.failures['segment_threshold_z']:.1f})")
+    ax.set_title(f"{d.instrument}: where the model fails (threshold +-{d.failures['segment_threshold_z']:.1f})",
+                 fontsize=10)
     # margins from the longest labels (sensor names at 10 pt, segment labels turned upright at 6 pt)
     left = 0.3 + 0.085 * max(len(s.name) for s in d.stats)
     bottom = 0.3 + 0.052 * max((len(lab) for lab in labels), default=1)
     return _save(fig, path, (left, 1.45, bottom, 0.4))
 
 
-def plot_input(fit: ModelFit, path: str | Path) -> Path:
+def plot_input(fit: ModelFit, path: str | Path) -> Path | None:
     """Mean residual against the input along the sensing axis (magnitude and sign), one line per sensor on one
-    axes (one axes instead of one per sensor: a figure's time goes mostly into its axes' decorations)."""
+    axes (one axes instead of one per sensor: a figure's time goes mostly into its axes' decorations); None when
+    the input along the axes never changes (gyros at rest): no empty axes."""
+    if not any(input_bins(s, 12) for s in fit.sensors):
+        return None
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 3.6))
     _si, field, per = input_unit(fit.contexts[0])
@@ -135,7 +141,7 @@ def plot_input(fit: ModelFit, path: str | Path) -> Path:
             ax.errorbar(x / per, m, yerr=e, fmt="o-", ms=3, capsize=0, label=s.name)
     ax.axhline(0, color="k", lw=0.5)
     ax.set_xlabel(f"input along the sensor's axis [{field}]")
-    ax.set_ylabel("mean residual / sigma")
+    ax.set_ylabel("mean residual / sigma [-]")
     if 1 < len(fit.sensors) <= 12:
         ax.legend(fontsize=7, ncol=min(len(fit.sensors), 6), loc="upper center")
     ax.set_title(f"{fit.instrument}: residual against input", y=1.0)
@@ -159,7 +165,7 @@ def plot_temperature(fit: ModelFit, path: str | Path) -> Path | None:
         ax.plot(0.5 * (edges[:-1] + edges[1:])[ok], m[ok], "o-", ms=3, label=s.name)
     ax.axhline(0, color="k", lw=0.5)
     ax.set_xlabel("temperature [degC]")
-    ax.set_ylabel("mean residual / sigma")
+    ax.set_ylabel("mean residual / sigma [-]")
     ax.legend(fontsize=7, ncol=3)
     ax.set_title(f"{fit.instrument}: residual against temperature")
     return _save(fig, path)
@@ -181,8 +187,8 @@ def plot_candidate(fit: ModelFit, test: CandidateTest, path: str | Path) -> Path
         lo, hi = float(min(xm.min(), ym.min())), float(max(xm.max(), ym.max()))
         ax.plot([lo, hi], [lo, hi], "k--", lw=0.6)
         ax.set_title(s.name, fontsize=9, y=1.0)  # a fixed place: no measuring of the ticks
-        ax.set_xlabel(f"{test.name} part / sigma", fontsize=7)
-    axes[0][0].set_ylabel("segment mean residual / sigma")
+        ax.set_xlabel(f"{test.name} part / sigma [-]", fontsize=7)
+        ax.set_ylabel("segment mean residual / sigma [-]" if i == idx[0] else "residual / sigma [-]", fontsize=7)
     fig.suptitle(f"{fit.instrument}: {test.name} against the residual (red: sensors where it is significant)")
     return _save(fig, path, (0.6, 0.15, 0.5, 0.6), wspace=0.35)
 
@@ -215,8 +221,8 @@ def plot_regressors(fit: ModelFit, tests: list[CandidateTest], path: str | Path,
                     label=t.name + (" (significant)" if t.significant else ""))
     ax.axhline(0, color="k", lw=0.5)
     ax.set_xticks(range(1, 11))
-    ax.set_xlabel("decile of the candidate's regressor")
-    ax.set_ylabel("mean residual / sigma")
+    ax.set_xlabel("decile of the candidate's regressor [-]")
+    ax.set_ylabel("mean residual / sigma [-]")
     ax.legend(fontsize=6, ncol=1, loc="center left", bbox_to_anchor=(1.01, 0.5))
     ax.set_title(f"{fit.instrument} {s.name}: residual against each candidate's regressor", y=1.0)
     return _save(fig, path, (0.9, 2.1, 0.55, 0.35))
@@ -225,24 +231,24 @@ def plot_regressors(fit: ModelFit, tests: list[CandidateTest], path: str | Path,
 def plot_comparison(comp: Comparison, path: str | Path) -> Path:
     """Before and after: rms per sensor (field units) and the residual of the most improved sensor over time."""
     plt = pyplot()
-    u = output_unit(comp.before.contexts[0])
-    rb, ra = comp.before.rms_si() * u[2], comp.after.rms_si() * u[2]
+    unit, rb, ra = comp.rms()
+    fb, fa = rb / np.maximum(comp.before.rms_raw(), 1e-300), ra / np.maximum(comp.after.rms_raw(), 1e-300)
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 3.4), gridspec_kw={"width_ratios": [1, 2]})
     x = np.arange(len(rb))
     a1.bar(x - 0.2, rb, 0.4, label="before")
     a1.bar(x + 0.2, ra, 0.4, label="after")
     a1.set_xticks(x, [s.name for s in comp.before.sensors])
-    a1.set_ylabel(f"residual rms [{u[1]}]")
+    a1.set_ylabel(f"residual rms [{unit}]")
     a1.legend(fontsize=7)
     k = int(np.argmax(rb - ra))
     sb, sa = comp.before.sensors[k], comp.after.sensors[k]
     cnt = np.maximum(np.bincount(sb.seg_index), 1)
     tm = np.bincount(sb.seg_index, weights=sb.t) / cnt
-    a2.plot(tm, np.bincount(sb.seg_index, weights=sb.r) / cnt * sb.scale * u[2], "o-", ms=3, label="before")
-    a2.plot(tm, np.bincount(sa.seg_index, weights=sa.r) / cnt * sa.scale * u[2], "o-", ms=3, label="after")
+    a2.plot(tm, np.bincount(sb.seg_index, weights=sb.r) / cnt * fb[k], "o-", ms=3, label="before")
+    a2.plot(tm, np.bincount(sa.seg_index, weights=sa.r) / cnt * fa[k], "o-", ms=3, label="after")
     a2.axhline(0, color="k", lw=0.5)
     a2.set_xlabel("time [s]")
-    a2.set_ylabel(f"{sb.name} segment mean residual [{u[1]}]")
+    a2.set_ylabel(f"{sb.name} segment mean residual [{unit}]")
     a2.legend(fontsize=7)
     fig.suptitle(f"{comp.instrument}: + {', '.join(comp.added)}: chi2/dof {comp.chi2_before:.3g} -> {comp.chi2_after:.3g}")
     return _save(fig, path)

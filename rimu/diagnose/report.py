@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import html
 import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from ..atomic import atomic_files
-from ..calibration.effects._common import output_unit
+from ..report import Report, collect_problems
 from . import plots
 from .api import Comparison, Diagnosis, Iteration, format_p
 
@@ -35,16 +34,16 @@ def render_markdown(diagnosis: Diagnosis, directory: Path, comparisons: Sequence
     for k, why in diagnosis.errors.items():
         md += [f"> {k}: not diagnosed: {why}", ""]
     for inst, d in diagnosis.instruments.items():
-        u = output_unit(d.fit.contexts[0])
         md += [f"## {inst}: model `{d.model.label}`", ""]
         md += [f"chi2/dof {d.fit.chi2_dof:.4g}, BIC {d.fit.bic:.1f}, {len(d.fit.segment_labels)} segments used"
                + (f", {len(d.fit.skipped)} skipped ({'; '.join(sorted(set(d.fit.skipped.values())))})" if d.fit.skipped else ""), ""]
         md += ["### Residual statistics", ""]
-        md += _table(["sensor", f"rms [{u[1]}]", "noise sigma [raw]", "chi2/dof", "z(chi2)", "lag-1 rho",
+        unit, fac = d.fit.display()
+        md += _table(["sensor", f"rms [{unit}]", f"noise sigma [{d.fit.raw_unit}]", "chi2/dof", "z(chi2)", "lag-1 rho",
                       "Ljung-Box p", "white"],
-                     [(x.name, f"{x.rms_si * u[2]:.4g}", f"{x.sigma:.4g}{'' if x.sigma_known else ' (est.)'}",
+                     [(x.name, f"{x.rms_raw * f:.4g}", f"{x.sigma:.4g}{'' if x.sigma_known else ' (est.)'}",
                        f"{x.chi2_dof:.4f}", f"{x.chi2_z:+.1f}", f"{x.lag1:+.3f}", f"{x.ljung_box_p:.2g}",
-                       "yes" if x.white else "no") for x in d.stats])
+                       "yes" if x.white else "no") for x, f in zip(d.stats, fac)])
         md += [""]
         fl = d.failures
         md += ["### Where the model fails", ""]
@@ -68,7 +67,9 @@ def render_markdown(diagnosis: Diagnosis, directory: Path, comparisons: Sequence
             f3 = plots.plot_input(d.fit, fd / f"{inst}_input.png")
             f4 = plots.plot_temperature(d.fit, fd / f"{inst}_temperature.png")
             md += [f"![residual over time]({f1.relative_to(directory)})", "",
-                   f"![segments]({f2.relative_to(directory)})", "", f"![input]({f3.relative_to(directory)})", ""]
+                   f"![segments]({f2.relative_to(directory)})", ""]
+            if f3:
+                md += [f"![input]({f3.relative_to(directory)})", ""]
             if f4:
                 md += [f"![temperature]({f4.relative_to(directory)})", ""]
         md += ["### Which effect is missing", ""]
@@ -106,11 +107,10 @@ def render_markdown(diagnosis: Diagnosis, directory: Path, comparisons: Sequence
     if comparisons:
         md += ["## Add it and watch the error fall", ""]
         for n, c in enumerate(comparisons, start=1):
-            u = output_unit(c.before.contexts[0])
             md += [f"### {c.instrument}: + {', '.join(c.added)}", "",
                    f"chi2/dof {c.chi2_before:.4g} -> **{c.chi2_after:.4g}**, dBIC {c.dbic:+.1f}, dAIC {c.daic:+.1f}", ""]
-            rb, ra = c.before.rms_si() * u[2], c.after.rms_si() * u[2]
-            md += _table(["sensor", f"rms before [{u[1]}]", f"rms after [{u[1]}]", "change"],
+            unit, rb, ra = c.rms()
+            md += _table(["sensor", f"rms before [{unit}]", f"rms after [{unit}]", "change"],
                          [(s.name, f"{b:.4g}", f"{a:.4g}", f"{100 * (a - b) / b:+.1f}%")
                           for s, b, a in zip(c.before.sensors, rb, ra)])
             md += ["", "New parameters (1-sigma):", ""]
@@ -133,6 +133,24 @@ def write_report(diagnosis: Diagnosis | Iteration, directory: str | Path, compar
     """
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
+    with collect_problems() as problems:
+        text, data = _render(diagnosis, directory, comparisons, title, figures)
+    md = directory / "report.md"
+    rep = Report(title)
+    rep.cautions(cautions(diagnosis))
+    rep.markdown(text, directory)
+    rep.problems.extend(problems)
+    with atomic_files() as tx:  # the files appear together, whole
+        tx.path(md).write_text(text)
+        tx.path(directory / "diagnosis.json").write_text(json.dumps(data, indent=1, default=float))
+        if html_page:
+            tx.path(directory / "report.html").write_text(rep.html())
+            rep.write_pdf(tx.path(directory / "report.pdf"))
+    return md
+
+
+def _render(diagnosis: Diagnosis | Iteration, directory: Path, comparisons: Sequence[Comparison], title: str,
+            figures: bool) -> tuple[str, dict]:
     if isinstance(diagnosis, Iteration):
         first = diagnosis.rounds[0][0] if diagnosis.rounds else diagnosis.final
         comps = [c for _, cs in diagnosis.rounds for c in cs.values()]
@@ -145,51 +163,10 @@ def write_report(diagnosis: Diagnosis | Iteration, directory: str | Path, compar
     else:
         text = render_markdown(diagnosis, directory, comparisons, title, figures)
         data = {"diagnosis": diagnosis.to_dict(), "comparisons": [c.to_dict() for c in comparisons]}
-    md = directory / "report.md"
-    with atomic_files() as tx:  # the three files appear together, whole
-        tx.path(md).write_text(text)
-        tx.path(directory / "diagnosis.json").write_text(json.dumps(data, indent=1, default=float))
-        if html_page:
-            tx.path(directory / "report.html").write_text(_html(text, title))
-    return md
+    return text, data
 
 
-def _html(md: str, title: str) -> str:
-    """A minimal HTML rendering of the report's Markdown (headings, images, tables, paragraphs)."""
-    out = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
-           "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-collapse:collapse}"
-           "td,th{border:1px solid #ccc;padding:2px 6px;font-size:12px}img{max-width:100%}</style></head><body>"]
-    in_table = False
-    for line in md.splitlines():
-        if line.startswith("|"):
-            cells = [c.strip() for c in line.strip("|").split("|")]
-            if set("".join(cells)) <= set("-"):
-                continue
-            if not in_table:
-                out.append("<table>")
-                in_table = True
-            out.append("<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in cells) + "</tr>")
-            continue
-        if in_table:
-            out.append("</table>")
-            in_table = False
-        if line.startswith("#"):
-            n = len(line) - len(line.lstrip("#"))
-            out.append(f"<h{n}>{html.escape(line[n:].strip())}</h{n}>")
-        elif line.startswith("!["):
-            alt, src = line[2:].split("](", 1)
-            out.append(f"<img alt='{html.escape(alt)}' src='{html.escape(src.rstrip(')'))}'>")
-        elif line.strip():
-            out.append(f"<p>{_inline(line.lstrip('-> '))}</p>")
-    if in_table:
-        out.append("</table>")
-    out.append("</body></html>")
-    return "\n".join(out)
-
-
-def _inline(s: str) -> str:
-    s = html.escape(s)
-    parts = s.split("**")
-    s = "".join(f"<b>{p}</b>" if k % 2 else p for k, p in enumerate(parts))
-    parts = s.split("`")
-    return "".join(f"<code>{p}</code>" if k % 2 else p for k, p in enumerate(parts))
+def cautions(diagnosis: Diagnosis | Iteration) -> list[str]:
+    """The console's cautions and notes, word for word (the report shows them above everything else)."""
+    keys = ("caution", "note:", "not applied", "not testable", "warning")
+    return [ln.strip() for ln in diagnosis.summary().splitlines() if any(k in ln for k in keys)]

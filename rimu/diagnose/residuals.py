@@ -51,7 +51,8 @@ class SensorStats:
     sigma: float
     sigma_known: bool
     rms_raw: float
-    rms_si: float
+    #: SI (rad/s, m/s^2); None where the scale factor is unknown (raw counts and a model without a scale block)
+    rms_si: float | None
     chi2_dof: float
     chi2_z: float
     lag1: float
@@ -90,7 +91,8 @@ def sensor_statistics(s: SensorFit, labels: list[str], lags: int = 10) -> Sensor
         mean = sums[k] / m
         segs.append(SegmentStat(lab, int(m), float(mean), float(mean / (s.sigma * np.sqrt(s.inflation / m))),
                                 float(np.sqrt(sq[k] / m))))
-    return SensorStats(s.name, s.sigma, s.sigma_known, float(np.sqrt(np.mean(r**2))), float(np.sqrt(np.mean(r**2)) * s.scale),
+    rms = float(np.sqrt(np.mean(r**2)))
+    return SensorStats(s.name, s.sigma, s.sigma_known, rms, None if s.scale is None else rms * s.scale,
                        c, float((c - 1.0) / np.sqrt(var_c)), float(rho[0]) if lags else 0.0,
                        float(rho[0] * np.sqrt(n)) if lags else 0.0, q, p, s.inflation, segs)
 

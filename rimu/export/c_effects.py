@@ -118,7 +118,8 @@ def plan(cal: Calibration) -> EffectsPlan:
                 eff = c.effects_needing(need)[0]
                 raise ExportError(f"{k} effect {eff!r} needs the {need.replace('_', ' ')}, and the calibration has "
                                   f"no {'accelerometers' if need == 'specific_force' else 'gyros'} to give it; "
-                                  f"recalibrate without {eff!r}")
+                                  f"calibrate the {'accelerometers' if need == 'specific_force' else 'gyros'} too, "
+                                  f"so that {eff!r} is compensated")
     # the order of Pipeline.__init__ (accelerometers first unless only the size effect needs the other's input)
     acc, gyr = comps.get("accel"), comps.get("gyro")
     acc_needs_w = acc is not None and "angular_rate" in acc.needs

@@ -13,7 +13,11 @@
    (ambiguous, more faults than the parity space separates, or parity dimension below 2) the fault is
    reported as present but not isolable and every output is flagged DEGRADED until the alarms stop;
 4. isolates a sensor whose output stays invalid (non-finite, dropout) for ``invalid_persist`` samples
-   unless that would leave fewer sensors than span three dimensions;
+   unless that would leave fewer sensors than span three dimensions; with ``common_cause=True`` only the
+   samples where the invalidity is confined to one sub-unit count (:class:`rimu.fdi.common_cause.EvidenceGate`:
+   triads clipping together are a common cause, ``common_invalid`` event, nothing isolated); an alarm while the detector says its
+   motion model is exceeded (``detector.model_exceeded``) is logged as ``model_exceeded``, the output is
+   DEGRADED and nothing is isolated;
 5. re-admits an isolated sensor after its output agrees with the estimate of the others (each sample and
    the mean over the clean period pass a chi-square test), with a clean period that doubles with each
    isolation of that sensor and a FAILED state after ``fail_after`` isolations (no ping-pong; see
@@ -39,6 +43,7 @@ from ..errors import MissingNoiseError, ShapeError
 from ..fusion import InstrumentPipeline, StepResult
 from ..fusion.projection import bits_mask, mask_bits
 from ..fusion.validity import Validity
+from .common_cause import EvidenceGate
 from .glt import GltSnapshot, glt_threshold, isolate_argmax
 from .health import READMIT_AFTER, SensorHealth, SensorState
 from .kalman import ParityKalman
@@ -79,7 +84,7 @@ class FdiEvent:
 
     kind: ``isolated``, ``transient`` (alarm episode shorter than the confirmation), ``detected_not_isolable``,
     ``not_isolable_cleared``, ``invalid_isolated``, ``invalid_transient``, ``readmitted``, ``failed``,
-    ``state``.
+    ``state``, ``common_invalid``, ``model_exceeded`` (see :mod:`rimu.fdi.common_cause`).
 
     ``sample`` counts the manager's samples from its last :meth:`RedundancyManager.reset` (0-based); ``t`` is
     the sample's time in s: the ``t`` given to ``step``/``run``, else ``sample / sample_rate``; without
@@ -249,6 +254,10 @@ class RedundancyManager:
     episode_gap : int, optional
         An alarm episode, whose parity vectors are pooled as evidence for the set test, ends after this
         many consecutive alarm-free samples (default ``max(confirm, 5)``).
+    common_cause : bool
+        Count toward ``invalid_persist`` only the samples whose invalidity is confined to one sub-unit
+        (:class:`rimu.fdi.common_cause.EvidenceGate`): for units of triads that clip together in fast motion.
+        Off: every invalid sample counts (a dropout of several triads isolates them until they are clean).
 
     Examples
     --------
@@ -269,7 +278,7 @@ class RedundancyManager:
                  confirm: int = 3, invalid_persist: int = 10, readmit_after: int | None = READMIT_AFTER,
                  sample_rate: float | None = None, max_events: int = 10000,
                  isolator: FaultSetGlt | str | None = None, fail_after: int = 4, backoff: float = 2.0,
-                 clear_after: int = 50, episode_gap: int | None = None) -> None:
+                 clear_after: int = 50, episode_gap: int | None = None, common_cause: bool = False) -> None:
         if confirm < 1 or invalid_persist < 1:
             raise ValueError("confirm and invalid_persist must be at least 1 sample")
         if not getattr(pipeline, "noise_given", True):
@@ -288,6 +297,7 @@ class RedundancyManager:
         self.max_events = int(max_events)
         self.clear_after = int(clear_after)
         self.episode_gap = int(episode_gap) if episode_gap is not None else max(self.confirm, 5)
+        self.common_cause = bool(common_cause)
         if isolator is None:
             isolator = FaultSetGlt(alpha=1e-4) if _evidence_detector(self.detector) else "detector"
         if isinstance(isolator, str) and isolator != "detector":
@@ -349,6 +359,9 @@ class RedundancyManager:
         self._not_isolable = False
         self._quiet = 0
         self._invalid_run = np.zeros(n, dtype=np.int64)
+        self._alone_run = np.zeros(n, dtype=np.int64)
+        self._gate = EvidenceGate(self.pipeline.calibration.geometry)
+        self._exceeded = False
         self._invalid_pending = False
         self.events.clear()
         self.counts.clear()
@@ -489,6 +502,14 @@ class RedundancyManager:
         alarm = stat > thr
         h.alarm = alarm
         exclude: tuple[int, ...] = ()
+        if alarm and getattr(self.detector, "model_exceeded", False):  # evidence beyond the model: no isolation
+            if not self._exceeded:
+                self._log("model_exceeded", None, "alarm while the motion exceeds what the detector's model was "
+                          "fitted on: output DEGRADED, nothing isolated", t, stat)
+            self._exceeded = True
+            alarm = False           # reported (health.alarm, output DEGRADED), not evidence
+        else:
+            self._exceeded = self._exceeded and bool(getattr(self.detector, "model_exceeded", False))
         if alarm:
             self._quiet = 0
             exclude, changed2 = self._on_alarm(r, stat, t)
@@ -510,7 +531,7 @@ class RedundancyManager:
                 self.sensors.set_suspects(r.invalid)
                 self._suspects_on = bool(np.any(self.sensors.state == SensorState.SUSPECT))
         res = self._output(r, exclude if not changed else tuple(np.flatnonzero(self._iso & r.active)))
-        if self._n_iso and self.readmit_after is not None and res.observable and not alarm \
+        if self._n_iso and self.readmit_after is not None and res.observable and not h.alarm \
                 and not self._not_isolable and not self._ep_alarms:
             self._readmission(np.asarray(y, dtype=float), valid, res, t)
         return res
@@ -727,11 +748,20 @@ class RedundancyManager:
                 self._log("invalid_transient", int(i), f"{int(run[i])} invalid sample(s), routed around", t)
         run[ended] = 0
         run[inv] += 1
+        alone = self._alone_run
+        alone[~inv] = 0
+        was_common = self._gate.common
+        ev = self._gate.invalid_alone(inv) if self.common_cause else inv
+        if self._gate.common and not was_common:
+            self._log("common_invalid", None, f"{int(inv.sum())} sensors of several sub-units invalid at once "
+                      "(range or common cause): routed around, nothing isolated", t)
+        alone[ev] += 1
+        alone[inv & ~ev] = 0
         self._invalid_pending = bool(run.any())
         self.sensors.set_suspects(inv | (self.sensors.state == SensorState.SUSPECT))
         self._suspects_on = True
         changed = False
-        for i in np.flatnonzero((run >= self.invalid_persist) & ~self._iso):
+        for i in np.flatnonzero((alone >= self.invalid_persist) & ~self._iso):
             keep = ~self._iso
             keep[i] = False
             if self._state_of(mask_bits(keep)) is HealthState.UNOBSERVABLE:

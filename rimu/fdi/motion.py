@@ -229,6 +229,11 @@ class MotionAwareGlt:
         self._thr_cache: dict[int, float] = {}
         #: samples the motion terms were fitted on (set by :func:`fit_motion_detector`; 0: stated, not fitted)
         self.fit_samples = 0
+        #: (largest |rate| rad/s, largest |angular acceleration| rad/s^2) the terms hold for; None: no limit
+        self.envelope: tuple[float, float] | None = None
+        #: the last sample's motion was outside :attr:`envelope` (its alarm is no evidence against one sensor:
+        #: :mod:`rimu.fdi.common_cause`)
+        self.model_exceeded = False
 
     def configure(self, Vz: np.ndarray, dof: int) -> None:
         mdl = self.model
@@ -293,6 +298,9 @@ class MotionAwareGlt:
         return float(rb.reshape(-1) @ Sir.reshape(-1) - b @ Minv_b)
 
     def update(self, parity: np.ndarray) -> tuple[float, float]:
+        env = self.envelope
+        if env is not None and self.input_is_rate:
+            self.model_exceeded = bool(np.linalg.norm(self._u) > env[0] or np.linalg.norm(self._du) > env[1])
         if self._dof < 1:
             return 0.0, float("inf")
         return self._solve(parity), self._thr
@@ -459,7 +467,8 @@ def fit_motion_terms(model: MotionNoiseModel, residuals: np.ndarray, G: np.ndarr
 
 def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, valid: np.ndarray | None,
                         sample_rate: float, margin: float = 3.0, p_fa: float = 1e-3,
-                        terms: tuple[str, ...] = _FIT_TERMS[1:], min_samples: int = 50) -> MotionAwareGlt:
+                        terms: tuple[str, ...] = _FIT_TERMS[1:], min_samples: int = 50,
+                        envelope: float | None = 1.0) -> MotionAwareGlt:
     """A gyro :class:`MotionAwareGlt` whose motion terms are fitted on fault-free raw data of the unit.
 
     The data go through the runtime pipeline with every sensor active; the samples where every sensor is valid
@@ -475,9 +484,15 @@ def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, val
     margin : float
         Factor on the fitted variances (see :func:`fit_motion_terms`).
 
+    envelope : float or None
+        The detector's :attr:`MotionAwareGlt.envelope` is ``envelope`` times the largest |angular rate| and
+        |angular acceleration| of the fit samples: beyond it the fitted terms are an extrapolation and an alarm
+        is reported as ``model_exceeded`` (the unit DEGRADED, nothing isolated). None: no envelope.
+
     Returns
     -------
-    MotionAwareGlt, with ``fit_samples``: the number of samples (every sensor valid) the terms were fitted on.
+    MotionAwareGlt, with ``fit_samples``: the number of samples (every sensor valid) the terms were fitted on,
+    and ``envelope``.
 
     Raises
     ------
@@ -498,6 +513,9 @@ def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, val
                              blk.x[full], alpha[full], terms=terms, margin=margin)
     det = MotionAwareGlt(model, p_fa, sample_rate=sample_rate)
     det.fit_samples = int(full.sum())
+    if envelope is not None:
+        det.envelope = (float(envelope * np.linalg.norm(blk.x[full], axis=1).max()),
+                        float(envelope * np.linalg.norm(alpha[full], axis=1).max()))
     return det
 
 

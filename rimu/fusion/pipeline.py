@@ -595,9 +595,14 @@ class Pipeline:
                 why = {"temperature": "the stream carries no temperature channel",
                        "specific_force": "the calibration has no accelerometers to give it",
                        "angular_rate": "the calibration has no gyros to give it"}[need]
-                raise MissingInputError(
-                    f"{k} effect {eff!r} needs the {need.replace('_', ' ')}, and {why}; recalibrate without "
-                    f"{eff!r} or provide the input", eff, need)
+                fix = {"temperature": "record the temperature with the data (or recalibrate without "
+                                      f"{eff!r}, which drops the effect)",
+                       "specific_force": f"calibrate the accelerometers too (a calibration of gyro and accel, so "
+                                         f"that {eff!r} is compensated), or pass them the specific force",
+                       "angular_rate": f"calibrate the gyros too (a calibration of accel and gyro, so that "
+                                       f"{eff!r} is compensated), or pass them the angular rate"}[need]
+                raise MissingInputError(f"{k} effect {eff!r} needs the {need.replace('_', ' ')}, and {why}; {fix}",
+                                        eff, need)
         acc, gyr = self.compensation.get("accel"), self.compensation.get("gyro")
         acc_needs_w = bool(acc) and "angular_rate" in acc.needs
         gyr_needs_f = bool(gyr) and "specific_force" in gyr.needs
@@ -781,7 +786,8 @@ class Pipeline:
             if "temperature" in c.needs:
                 eff = c.effects_needing("temperature")[0]
                 raise MissingInputError(f"{k} effect {eff!r} needs the temperature, and the data carry none; "
-                                        "recalibrate without it or record the temperature", eff, "temperature")
+                                        "record the temperature with the data (recalibrating without it would drop the effect)",
+                                        eff, "temperature")
 
     # ------------------------------------------------------------------ run
     def step(self, epoch: Epoch) -> dict[str, StepResult]:

@@ -24,6 +24,8 @@ SOURCES: dict[str, str] = {
     "pixhawk-dual": "rimu.io.pixhawk_dual:PixhawkDualSource",
     "xsens-dot": "rimu.io.xsens_dot:XsensDotSource",
     "mpu6050-csv": "rimu.io.mpu6050_csv:Mpu6050CsvSource",
+    "mimu4444": "rimu.io.formats.mimu4444:Mimu4444SerialSource",
+    "mimu4444-file": "rimu.io.formats.mimu4444:Mimu4444FileSource",
 }
 
 

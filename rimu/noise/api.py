@@ -76,13 +76,23 @@ def static_segment(session: Any, label: str | None = None) -> Any:
     return max(cands, key=lambda s: s.n_samples)
 
 
+def _declared_factor(session: Any, instrument: str) -> float | None:
+    """Factor to SI of the unit the session declares for an instrument's outputs (None for counts)."""
+    from ..units import raw_to_si, raw_unit_for
+
+    per = session.meta.get("raw_units") if isinstance(getattr(session, "meta", None), dict) else None
+    unit = per[instrument] if isinstance(per, dict) and instrument in per else raw_unit_for(session.raw_unit, instrument)
+    return raw_to_si(instrument, unit)
+
+
 def identify_session(session: Any, calibration: Any = None, segment: str | None = None,
                      instruments: list[str] | None = None, terms: tuple[str, ...] = TERMS, p_fa: float = 1e-3,
                      per_decade: int = 8) -> NoiseModel:
     """:func:`identify` on one static segment of a :class:`rimu.session.Session`.
 
-    Raw outputs are compensated with the calibration (``SF y - b``); without one they must already be in SI
-    (``session.raw_unit`` ``"SI"``), otherwise an :class:`~rimu.errors.IdentifiabilityError` asks for it.
+    Raw outputs are compensated with the calibration (``SF y - b``); without one they must be declared in a
+    physical unit (``session.raw_unit`` ``"SI"``, ``"deg/s"``, ``"g"``, ...: converted to SI), otherwise (counts)
+    an :class:`~rimu.errors.IdentifiabilityError` asks for the calibration.
     The parity check uses the calibrated axes (nominal axes without a calibration).
     """
     seg = static_segment(session, segment)
@@ -94,12 +104,19 @@ def identify_session(session: Any, calibration: Any = None, segment: str | None 
         g = session.geometries[k]
         y = seg.raw[k]
         if calibration is not None and k in calibration:
+            unit = _declared_factor(session, k)
+            if unit is not None and str(getattr(calibration, "raw_unit", "count")).lower() in ("count", "counts"):
+                raise IdentifiabilityError(
+                    f"the {k} outputs of this recording are already in a physical unit (declared by the file or "
+                    "applied by its reader's nominal scale factors), and the calibration is one of raw counts: it "
+                    "would scale them twice. Drop --calibration to use the recording's own unit, or give the "
+                    "recording in counts", [f"{k}.scale"])
             c = calibration[k]
             calibration.check_geometry(k, g)
             outputs[k] = c.compensate(y)
             axes[k] = c.axes_mb()
-        elif str(session.raw_unit).lower() in ("si", "rad/s", "m/s^2"):
-            outputs[k] = y
+        elif _declared_factor(session, k) is not None:  # outputs declared in a physical unit: to SI
+            outputs[k] = np.asarray(y, dtype=float) * _declared_factor(session, k)
             axes[k] = g.H
         else:
             raise IdentifiabilityError(

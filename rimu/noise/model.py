@@ -232,10 +232,10 @@ class InstrumentNoise:
     def table(self) -> str:
         """Plain-text table in the field's units."""
         units = FIELD_UNITS[self.instrument]
-        head = f"{self.instrument:<6}" + "".join(f"{t.replace('_', ' ') + ' [' + units[t][0] + ']':>34}" for t in TERMS)
+        head = f"{self.instrument:<6}" + "".join(f"  {t.replace('_', ' ') + ' [' + units[t][0] + ']':>34}" for t in TERMS)
         lines = [head]
         for r in self.table_rows():
-            cells = "".join(f"{r[t]:>20.4g} +/- {r[t + '_sigma']:<9.2g}" for t in TERMS)
+            cells = "".join(f"  {r[t]:>20.4g} +/- {r[t + '_sigma']:<9.2g}" for t in TERMS)
             lines.append(f"{r['sensor']:<6}{cells}")
         return "\n".join(lines)
 

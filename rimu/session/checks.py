@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import PlausibilityError
-from ..units import DEG_TO_RAD, DH_TO_RS, G0
+from ..units import DEG_TO_RAD, RAW_UNITS, raw_unit_for
 from .model import Session
 
 __all__ = ["UNITS", "Finding", "check_session", "enforce", "raw_unit_of", "CHECK_MODES"]
@@ -53,10 +53,7 @@ __all__ = ["UNITS", "Finding", "check_session", "enforce", "raw_unit_of", "CHECK
 log = logging.getLogger("rimu.session.checks")
 
 #: physical raw units rimu can check, per instrument: name -> factor to SI
-UNITS: dict[str, dict[str, float]] = {
-    "accel": {"m/s^2": 1.0, "m/s2": 1.0, "g": G0, "mg": 1e-3 * G0, "ug": 1e-6 * G0},
-    "gyro": {"rad/s": 1.0, "deg/s": DEG_TO_RAD, "deg/h": DH_TO_RS, "mrad/s": 1e-3},
-}
+UNITS: dict[str, dict[str, float]] = RAW_UNITS
 #: the canonical name of each unit (for messages)
 _CANON = {"m/s2": "m/s^2"}
 #: the magnitude ratio (measured / expected) accepted without a word, and the one refused as an error
@@ -85,10 +82,7 @@ def raw_unit_of(session: Session, instrument: str) -> str:
     per = session.meta.get("raw_units") if isinstance(session.meta, dict) else None
     if isinstance(per, dict) and instrument in per:
         return str(per[instrument])
-    ru = session.raw_unit
-    if isinstance(ru, dict):
-        return str(ru.get(instrument, "count"))
-    return str(ru)
+    return raw_unit_for(session.raw_unit, instrument)
 
 
 def _unit_factor(instrument: str, unit: str) -> float | None:

@@ -7,9 +7,11 @@ Both recordings are from multicopters: rotor vibration is not rigid-body motion,
 
 from __future__ import annotations
 
+import json
 import lzma
 
 import numpy as np
+import pytest
 
 from rimu.array import ArrayLayout, array_report
 from tests.conftest import shared_data
@@ -45,7 +47,9 @@ def test_xsens_dot_parity_falls_and_positions_repeat_across_flights():
         g = _falls(rep.gyro_steps)
         a = _falls(rep.accel_steps)
         assert g[-1] < 0.3 * g[0] and a[-1] < 0.4 * a[0], rep.to_markdown()
-        assert rep.limiting_term in ("aa_sensitivity", "rate_nonlinearity", "g_sensitivity", "noise")
+        # a term is named limiting only when it explains at least 10 % of what is left (issue 32)
+        assert rep.limiting_term.split(" ")[0] in ("aa_sensitivity", "rate_nonlinearity", "g_sensitivity", "noise",
+                                                   "unexplained")
         positions.append(rep.position_fit.positions_m - rep.position_fit.positions_m[0])
         tau = rep.gyro_fit.sampling_offset_s
         assert 2e-3 < abs(tau[2] - tau[0]) < 7e-3 and 2e-3 < abs(tau[3] - tau[0]) < 7e-3, tau
@@ -63,3 +67,53 @@ def test_pixhawk_two_imus_parity_falls():
     a = _falls(rep.accel_steps)
     assert g[-1] < 0.6 * g[0] and a[-1] < 0.9 * a[0], rep.to_markdown()
     assert any("separate chips" in n for n in rep.notes)
+
+
+def _mimu(n_last: int = 2500):
+    """The MIMU4444 board, run 5: the last samples (the fast hand rotation), triads in the array frame."""
+    base = shared_data("mimu4444_array")
+    b = lzma.open(base / "exp_5.bin.xz").read()[4:]
+    a = np.frombuffer(b[:len(b) // 106 * 106], dtype=np.uint8).reshape(-1, 106)
+    a = a[(a[:, 0] == 0xAA) & (a[:, 3] == 100)]
+    t = np.unwrap(a[:, 4:8].copy().view(">u4").ravel().astype(float), period=2.0**32) / 64e6
+    v = a[:, 8:104].copy().view(">i2").reshape(-1, 8, 6).astype(float)
+    keep = np.concatenate([[True], np.diff(t) > 0])
+    t, v = t[keep][-n_last:], v[keep][-n_last:]
+    C = np.array([[0, -1, 0], [-1, 0, 0], [0, 0, -1]], float)
+    rot = np.array([np.eye(3) if j % 2 == 0 else C for j in range(8)])
+    pos = np.loadtxt(base / "IMU_positions.csv", delimiter=",", skiprows=1, usecols=range(1, 9)).T
+    return t - t[0], np.radians(v[:, :, 3:] / 16.4), v[:, :, :3] / 2048 * 9.80665, rot, pos
+
+
+@pytest.mark.parametrize("name", ["xsens-horizontal", "xsens-vertical", "pixhawk", "mimu4444"])
+def test_cli_array_defaults_never_worse_after_a_step(tmp_path, capsys, name):
+    """rimu array with its defaults on each shared multi-IMU recording: no step raises the parity rms in motion
+    (the Xsens DOT run used to go 2.293 -> 13.47 m/s^2); a refused step is named, not applied."""
+    from rimu.cli import main
+
+    extra = {}
+    if name.startswith("xsens"):
+        t, gyro, accel = _xsens("Horizontal/path_10" if name.endswith("horizontal") else "Vertical/path_1")
+    elif name == "pixhawk":
+        t, gyro, accel = _pixhawk()
+    else:
+        t, gyro, accel, rot, pos = _mimu()
+        extra = {"rotations": rot, "positions_m": pos}
+    f = tmp_path / "a.npz"
+    np.savez(f, t=t, gyro=gyro, accel=accel, **extra)
+    assert main(["array", str(f), "--json", str(tmp_path / "s.json")]) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    doc = json.loads((tmp_path / "s.json").read_text())
+    for key in ("gyro_parity_rms_deg_s", "accel_parity_rms_m_s2"):
+        means = [float(np.mean(v)) for v in doc[key].values()]
+        assert len(means) >= 2 and all(b <= a * (1 + 1e-3) for a, b in zip(means, means[1:])), (key, doc[key])
+    # what is printed is what the steps say, first and last applied
+    g = [float(np.mean(v)) for v in doc["gyro_parity_rms_deg_s"].values()]
+    assert f"{g[0]:.4g} deg/s -> {g[-1]:.4g} deg/s" in out[-1], out
+    assert any("low-pass" in n for n in doc["notes"])
+    # the same recording in deg/s, or in g, read as SI: refused by the plausibility checks, one line, exit 2
+    for g_f, a_f, opt in ((180 / np.pi, 1.0, "--gyro-unit deg/s"), (1.0, 1 / 9.80665, "--accel-unit g")):
+        np.savez(f, t=t, gyro=gyro * g_f, accel=accel * a_f, **extra)
+        assert main(["array", str(f)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and opt in err[0], err

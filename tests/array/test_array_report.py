@@ -54,7 +54,8 @@ def test_cli_array(tmp_path, capsys):
     rc = main(["array", str(f), "-o", str(tmp_path / "fit.json"), "--report", str(tmp_path / "rep"),
                "--json", str(tmp_path / "sum.json")])
     out = capsys.readouterr().out.strip().splitlines()
-    assert rc == 0 and len(out) == 1 and out[0].startswith("array of 4 triads: gyro parity rms in motion")
+    assert rc == 0 and out[-1].startswith("array of 4 triads: gyro parity rms in motion")
+    assert all(x.startswith("note: ") for x in out[:-1]), out
     fit = json.loads((tmp_path / "fit.json").read_text())
     np.testing.assert_allclose(np.mean(fit["gyro"]["gain"], axis=0), np.eye(3), atol=1e-12)
     assert json.loads((tmp_path / "sum.json").read_text())["triads"] == ["T1", "T2", "T3", "T4"]

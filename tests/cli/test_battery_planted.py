@@ -50,7 +50,7 @@ def test_planted_crash_on_nan(inp, out, capsys, monkeypatch):
 
 def test_planted_missing_unit_check(inp, out, capsys, monkeypatch):
     B.check_file_class("array", "units", inp / "arr.npz", inp, out, capsys)
-    monkeypatch.setattr("rimu.cli.array._plausible", lambda *a: None)
+    monkeypatch.setattr("rimu.array.guards.check_units", lambda *a, **k: [])
     monkeypatch.setattr("rimu.cli.array._check_options", lambda *a: None)
     _fails(B.check_file_class, "array", "units", inp / "arr.npz", inp, out, capsys)
 

@@ -40,7 +40,7 @@ def _run(exe, t, raw: dict, valid: dict | None = None, T=None):
             cells.append(repr(float(T[r])))
         rows.append(",".join(cells))
     del cols
-    res = subprocess.run([str(exe), "--stats"], input="t,raw\n" + "\n".join(rows) + "\n", capture_output=True, text=True,
+    res = subprocess.run([str(exe), "--stats"], input="\n".join(rows) + "\n", capture_output=True, text=True,
                          check=True)
     lines = res.stdout.strip().splitlines()
     head = lines[0].split(",")
@@ -167,3 +167,46 @@ def test_saturated_outputs_are_routed_around_as_in_python(unit, tmp_path, effect
         assert np.array_equal(c[f"{k}_dof"][obs].astype(int), py[k].dof[obs])
     rows = clipped.any(axis=1) & py["gyro"].observable
     assert np.all(c["gyro_dof"][rows] < 3)  # the clipped sensors were left out
+
+
+@needs_cc
+def test_filter_maps_columns_by_name_and_refuses_mismatches(unit, tmp_path):
+    """The generated filter reads its header: rimu's own session CSV (with its segment column) runs; columns in
+    another order give the same estimates; a file whose columns do not match the calibration is refused with one
+    line and exit 2 (it used to be processed by position with exit 0)."""
+    from rimu.session import save_session
+
+    run, cal = unit
+    exe = _build(cal, tmp_path)
+    sess = type(run.session)(run.session.segments[:3], run.session.geometries, run.session.sample_rate,
+                             run.session.latitude, run.session.gravity, run.session.raw_unit, run.session.meta)
+    save_session(sess, tmp_path / "s.csv")
+    text = (tmp_path / "s.csv").read_text()
+    header, *rows = text.strip().splitlines()
+    names = header.split(",")
+    raw_cols = [j for j, n in enumerate(names) if n.startswith(("gyro_", "accel_"))]
+    assert names[:2] == ["t", "segment"] and len(raw_cols) == 12
+    ref = subprocess.run([str(exe), "--stats"], input=text, capture_output=True, text=True)
+    assert ref.returncode == 0 and len(ref.stdout.splitlines()) == 1 + len(rows), ref.stderr
+    # the same data, headerless, in the calibration's order (t and the 12 raw columns): the same estimates
+    plain = "\n".join(",".join([c[0]] + [c[j] for j in raw_cols]) for c in (r.split(",") for r in rows)) + "\n"
+    same = subprocess.run([str(exe), "--stats"], input=plain, capture_output=True, text=True)
+    assert same.returncode == 0 and same.stdout == ref.stdout
+    # columns shuffled under their header: mapped by name, the same estimates
+    perm = np.random.default_rng(0).permutation(len(names))
+    shuffled = "\n".join(",".join(np.array(r.split(","))[perm]) for r in [header] + rows) + "\n"
+    out = subprocess.run([str(exe), "--stats"], input=shuffled, capture_output=True, text=True)
+    assert out.returncode == 0 and out.stdout == ref.stdout, out.stderr
+    bad = {
+        "7 columns, no header": ("\n".join(",".join(r.split(",")[:7]) for r in rows), "has 7 fields and no header"),
+        "a missing column": ("\n".join(",".join(c for j, c in enumerate(r.split(",")) if j != 5)
+                                       for r in [header] + rows), f"has no column {names[5]}"),
+        "a repeated column": (header + "," + names[3] + "\n" + "\n".join(r + ",0" for r in rows), "twice"),
+        "a short row": (header + "\n" + rows[0] + "\n" + ",".join(rows[1].split(",")[:-1]), f"row 3 has {len(names) - 1} fields"),
+        "a word in a sensor column": (header + "\n" + rows[0].replace(rows[0].split(",")[4], "abc", 1),
+                                      "not a number"),
+    }
+    for case, (data, msg) in bad.items():
+        r = subprocess.run([str(exe), "--stats"], input=data + "\n", capture_output=True, text=True)
+        err = r.stderr.strip().splitlines()
+        assert r.returncode == 2 and len(err) == 1 and msg in err[0], (case, r.returncode, err)

@@ -62,7 +62,7 @@ def _run(exe, t, raw: dict, valid: dict, *args, temperature=None):
         if temperature is not None:
             cells.append(repr(float(temperature[r])))
         rows.append(",".join(cells))
-    res = subprocess.run([str(exe), *args], input="t,raw\n" + "\n".join(rows) + "\n", capture_output=True,
+    res = subprocess.run([str(exe), *args], input="\n".join(rows) + "\n", capture_output=True,
                          text=True, check=True)
     return res.stdout
 

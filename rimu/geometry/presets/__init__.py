@@ -10,6 +10,7 @@ from ..base import Geometry
 from .cone import cone
 from .cone6 import cone6
 from .dodecahedron6 import dodecahedron6
+from .mimu4444 import mimu4444
 from .tetrad4 import tetrad4
 from .triad3 import triad3
 from .triads import triads
@@ -24,6 +25,7 @@ PRESETS: dict[str, Callable[..., Geometry]] = {
     "dodecahedron6": dodecahedron6,
     "cone": cone,
     "triads": triads,
+    "mimu4444": mimu4444,
 }
 
 

@@ -47,6 +47,7 @@ FORMATS: dict[str, str] = {
     "pixhawk-csv": f"{__name__}.pixhawk_csv",
     "mpu6050": f"{__name__}.mpu6050",
     "multiimu-csv": f"{__name__}.multiimu_csv",
+    "mimu4444": f"{__name__}.mimu4444",
 }
 #: asked last when sniffing (it accepts any numeric text)
 FALLBACK = {"text": f"{__name__}.text"}

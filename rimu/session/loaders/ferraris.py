@@ -108,5 +108,5 @@ def load_ferraris(
         else:
             seg = Segment(name, "angle", t, raw, angle_mb=ax * math.radians(turn_angle_deg), meta={"source": "ferraris"})
         segments.append(seg)
-    return Session(segments, {"gyro": geo, "accel": geo}, sample_rate, None, gravity, "file units",
+    return Session(segments, {"gyro": geo, "accel": geo}, sample_rate, None, gravity, "gyro: deg/s; accel: m/s^2",
                    {"raw_units": {"gyro": "deg/s", "accel": "m/s^2"}, "source": str(path)})

@@ -1,0 +1,112 @@
+"""What the array report decides from the data before and after its steps: the units of the input, the low-pass
+cut-off from the vibration spectrum, and whether a step made the agreement worse.
+
+* **Units.** The array works in SI (rad/s, m/s^2). Rates in deg/s read as rad/s are 57 times too large: beyond
+  any MEMS full scale, or triads disagreeing by far more than their noise at rest (:func:`check_units`).
+  Specific force in g or milli-g read as m/s^2 gives a norm near 1 or 1000 at rest instead of 9.8.
+* **Low-pass.** The rigid-body model holds where the triads agree: in the band where the array-mean (common)
+  signal dominates the triads' disagreement (parity). The cut-off is the lowest frequency at which the power of
+  the gyros' common signal falls below :data:`SNR_MIN` times their parity power per triad (Welch spectra); none
+  when the triads agree up to 0.4 of the sample rate.
+* **Never worse.** A step whose parity rms in motion (mean over triads) is above its input's is not applied; the
+  report names it and the figures.
+
+>>> import numpy as np
+>>> rng = np.random.default_rng(0)
+>>> w = np.radians(30) * rng.standard_normal((2000, 1, 3)) + 1e-3 * rng.standard_normal((2000, 4, 3))
+>>> check_units(w, None), bool(check_units(np.degrees(w), None))
+([], True)
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..units import G0, RAD_TO_DEG
+
+__all__ = ["SNR_MIN", "check_units", "choose_lowpass", "worse"]
+
+#: common-to-parity power ratio below which a frequency band is vibration, not rigid-body motion
+SNR_MIN = 10.0
+#: a step raising the mean parity rms by more than this fraction of it is refused
+WORSE_TOL = 1e-3
+
+
+def check_units(gyro: np.ndarray, accel: "np.ndarray | None") -> list[str]:
+    """Reasons the data cannot be rad/s and m/s^2 (empty when plausible). ``gyro``/``accel``: (N, k, 3).
+
+    Rates: a per-axis 99.9th percentile above 70 rad/s (4000 deg/s, beyond the full scale of MEMS gyros), or, in a
+    recording with quiet parts, triads that disagree by more than 0.5 rad/s rms while the array is quietest (the
+    10 % of samples of least rotation; white noise and quantisation of MEMS gyros are near 1e-3 rad/s). Specific
+    force: the median norm over those quiet samples outside 0.5 g to 2 g.
+    """
+    out = []
+    g = np.asarray(gyro, dtype=float)
+    ok = np.all(np.isfinite(g), axis=(1, 2))
+    g = g[ok]
+    quiet = None
+    if len(g):
+        p999 = float(np.percentile(np.abs(g), 99.9))
+        w = np.linalg.norm(g.mean(axis=1), axis=1)
+        quiet = w <= np.percentile(w, 10)
+        par = g[quiet] - g[quiet].mean(axis=1, keepdims=True)
+        spread = float(np.sqrt(np.mean(par**2))) if g.shape[1] > 1 else 0.0
+        if p999 > 70.0:
+            out.append(f"gyro outputs up to {p999:.4g} 'rad/s' on an axis (99.9th percentile; {p999 * RAD_TO_DEG:.4g} "
+                       "deg/s) are beyond the full scale of any MEMS gyro: the values look like deg/s; declare it with "
+                       "--gyro-unit deg/s (or convert to rad/s)")
+        elif float(np.median(w)) < 1.0 and spread > 0.5:
+            out.append(f"the gyro triads disagree by {spread:.3g} 'rad/s' rms while the array is quietest (MEMS noise "
+                       "is near 0.001 rad/s): the values look like deg/s; declare it with --gyro-unit deg/s")
+    if accel is not None:
+        a = np.asarray(accel, dtype=float)[ok]
+        f = np.linalg.norm(a[quiet] if quiet is not None and quiet.any() else a, axis=-1)
+        f = f[np.isfinite(f)]
+        if f.size:
+            med = float(np.median(f))
+            if not 0.5 * G0 < med < 2.0 * G0:
+                likely = "g" if 0.5 < med < 2.0 else "mg" if 500 < med < 2000 else None
+                out.append(f"accelerometer norm of median {med:.4g} 'm/s^2' while the array is quietest is not about "
+                           "one gravity (9.81 m/s^2)" + (f": the values look like {likely}; declare it with "
+                                                          f"--accel-unit {likely}" if likely else
+                                                          ": check the unit of the accelerometer columns"))
+    return out
+
+
+def choose_lowpass(t: np.ndarray, gyro: np.ndarray, accel: "np.ndarray | None" = None) -> tuple[float | None, str]:
+    """(cut-off in Hz or None, the reason) from the common and parity spectra (module docstring)."""
+    from scipy.signal import welch
+
+    t = np.asarray(t, dtype=float)
+    fs = 1.0 / float(np.median(np.diff(t)))
+    # the gyros: their triads differ by about 1 % before calibration, so the common-to-parity ratio is large
+    # wherever the motion is rigid; the accelerometers also differ by the lever arms and their gains, which
+    # would read as vibration at every frequency
+    x = np.asarray(gyro, dtype=float)
+    what = "gyros"
+    if x.shape[0] < 256 or x.shape[1] < 2:
+        return None, "too short or a single triad: no spectrum to choose a low-pass from"
+    x = np.where(np.isfinite(x), x, 0.0)
+    m = x.mean(axis=1)
+    nper = int(min(512, x.shape[0] // 4))
+    f, pm = welch(m, fs=fs, nperseg=nper, axis=0)
+    _, pp = welch(x - m[:, None], fs=fs, nperseg=nper, axis=0)
+    pm = pm.sum(axis=-1)
+    pp = pp.sum(axis=(-1, -2)) / x.shape[1]
+    k = np.ones(3) / 3
+    ratio = np.convolve(pm, k, "same") / np.maximum(np.convolve(pp, k, "same"), 1e-300)
+    band = (f >= 1.0) & (f <= 0.4 * fs)
+    low = np.flatnonzero(band & (ratio < SNR_MIN))
+    if low.size == 0:
+        return None, (f"the {what} agree up to {0.4 * fs:.3g} Hz (common power above {SNR_MIN:g} times the parity "
+                      "power per triad): no low-pass")
+    fc = float(max(f[low[0]], 1.0))
+    return fc, (f"every triad low-passed at {fc:.3g} Hz (zero phase), chosen from the spectrum: above it the {what}' "
+                f"common signal falls below {SNR_MIN:g} times their disagreement (vibration, not rigid-body motion); "
+                "--lowpass-hz overrides")
+
+
+def worse(before: np.ndarray, after: np.ndarray) -> bool:
+    """Whether a step raised the mean parity rms (by more than a relative 1e-3)."""
+    b, a = float(np.mean(before)), float(np.mean(after))
+    return bool(a > b * (1.0 + WORSE_TOL))
