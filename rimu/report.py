@@ -287,8 +287,9 @@ class Report:
     def write(self, directory: str | Path, stem: str = "report", pdf: bool = True) -> tuple[Path, Path | None]:
         """Write ``stem.html`` and ``stem.pdf`` into ``directory`` (created), whole or not at all; close the
         figures. Returns the two paths (PDF None when ``pdf`` is False)."""
-        from .atomic import atomic_files
+        from .atomic import atomic_files, flush_outputs
 
+        flush_outputs()  # the figures this command wrote before (held back by its output group) are read here
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
         h, p = directory / f"{stem}.html", directory / f"{stem}.pdf"
