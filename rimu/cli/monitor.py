@@ -235,12 +235,14 @@ def _restore_sigint(old: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..fusion import Pipeline
+    from ..io.accounting import Outages
     from ..io.recorded import CsvRecorder
 
     src, cal, extra = _open(args)
     pipe = Pipeline(cal)
     fdi = _Fdi(pipe, args.p_fa, args.confirm)
     rec = CsvRecorder(args.record) if args.record else None
+    outages = Outages()
     tty = sys.stdout.isatty()
     n = 0
     t0 = t_last = None
@@ -268,6 +270,7 @@ def run(args: argparse.Namespace) -> int:
                 t0 = ep.t
             t_last = ep.t
             n += 1
+            outages.update(ep)
             for ev in fdi.step(ep.t, pipe.step(ep)):
                 ev["sample"] = n - 1  # events carry the epoch index as well as the time
                 print(("\n" if tty else "") + f"  t = {ev['t']:.2f} s (epoch {n - 1}): {ev['instrument']} "
@@ -312,13 +315,15 @@ def run(args: argparse.Namespace) -> int:
                              "and that the source sends" + (f" within --idle-timeout {args.idle_timeout:g} s"
                                                            if (args.can or args.serial) else ""))
     summary = {"epochs": n, "data_span_s": (t_last - t0) if n else 0.0, "wall_s": wall,
-               "interrupted": interrupted, "accounting": a.as_dict(), "isolations": fdi.events,
+               "interrupted": interrupted, "accounting": a.as_dict(), "outages": outages.as_dict(),
+               "isolations": fdi.events,
                "record": args.record}
     if tty:
         print()
     print(f"rimu monitor: {'interrupted, ' if interrupted else ''}{n} epochs"
           + (f" over {summary['data_span_s']:.2f} s of data" if n else "") + f" in {wall:.1f} s")
     print(f"  {a.summary()}")
+    print(f"  outages (epochs without any valid sensor of an instrument): {outages.summary() or 'none'}")
     print(f"  accounting identity received = accepted + rejected + pending: "
           f"{'holds' if a.identity_holds() else 'BROKEN'}")
     for ev in fdi.events:
@@ -326,7 +331,7 @@ def run(args: argparse.Namespace) -> int:
     if not fdi.events:
         print("  no sensor isolated")
     if args.record:
-        print(f"  recording: {Path(args.record)}")
+        print(f"  recording: {Path(args.record)}" if n else "  no recording written (no epoch)")
     if args.json == "-":
         print(json.dumps(summary))
     elif args.json:

@@ -33,6 +33,7 @@ samples, ``chi2_{1 - alpha}(N (dof - k))``, has no bound on N and is computed on
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -43,6 +44,12 @@ from ..errors import ExportError
 from ..fdi.health import READMIT_AFTER
 
 __all__ = ["FdiSettings"]
+
+
+#: the largest count the generated code holds (a 32-bit C int)
+C_INT_MAX = 2**31 - 1
+#: the most isolations of one sensor the generated code tables (fail_after)
+MAX_ISOLATIONS = 1000
 
 
 @dataclass(frozen=True)
@@ -91,6 +98,20 @@ class FdiSettings:
         for ok, msg in checks:
             if not ok:
                 raise ExportError(msg)
+        # the generated code holds counts in C ints (32 bits) and one re-admission period per isolation in a table
+        for name in ("confirm", "invalid_persist", "readmit_after", "fail_after", "clear_after", "episode_gap"):
+            v = getattr(self, name)
+            if v is not None and v > C_INT_MAX:
+                raise ExportError(f"{name} must be at most {C_INT_MAX} (a C int of the generated code), got {v}")
+        if self.fail_after > MAX_ISOLATIONS:
+            raise ExportError(f"fail_after must be at most {MAX_ISOLATIONS} (one re-admission period per isolation is "
+                              f"tabled in the generated code), got {self.fail_after}")
+        if self.readmit_after is not None:
+            top = math.log(self.readmit_after) + max(self.fail_after - 2, 0) * math.log(self.backoff)
+            if top > math.log(C_INT_MAX):
+                raise ExportError(f"readmit_after x backoff^(fail_after - 2) = {self.readmit_after} x "
+                                  f"{self.backoff:g}^{max(self.fail_after - 2, 0)} exceeds {C_INT_MAX} samples (a C "
+                                  "int): lower readmit_after, backoff or fail_after")
 
     @property
     def gap(self) -> int:
