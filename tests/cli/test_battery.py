@@ -223,6 +223,17 @@ def _mpu(d: Path) -> Path:
     return d / "mpu.csv"
 
 
+def _mimu4444(d: Path) -> Path:
+    from rimu.io.formats import mimu4444 as m
+
+    rng = np.random.default_rng(0)
+    counts = np.zeros((200, 8, 6), dtype=int)
+    counts[:, :, 2] = 2048                                   # 1 g on every triad's z
+    counts += rng.integers(-20, 20, counts.shape)
+    (d / "board.bin").write_bytes(m.ACK + b"".join(m.encode_packet(k, k * 1_024_000, counts[k]) for k in range(200)))
+    return d / "board.bin"
+
+
 def _read(name: str) -> Callable[[Path], Any]:
     return lambda p: list(open_source(name, **_arg(name, p)))
 
@@ -249,11 +260,11 @@ SOURCE_FILES: dict[str, tuple[Callable[[Path], Path] | None, bool, bool]] = {
     "pixhawk-dual": (_pixhawk, True, True),
     "xsens-dot": (_xsens, True, True),
     "mpu6050-csv": (_mpu, True, True),
+    "mimu4444-file": (_mimu4444, False, False),
 }
 #: live sources: a device or an object, no file (the serial transports are tested in tests/io/test_io_serial.py)
 LIVE = {"can": "a CAN bus", "serial": "a serial port or pyserial URL", "block": "an EpochBlock in memory",
-        # (merged from main the day of the battery; not yet given a valid file here: a known gap)
-        "mimu4444": "NOT YET IN THE BATTERY", "mimu4444-file": "NOT YET IN THE BATTERY"}
+        "mimu4444": "the board's serial port (its file twin, mimu4444-file, is in SOURCE_FILES)"}
 
 
 def test_every_registered_source_is_in_the_battery():
