@@ -203,6 +203,10 @@ class Report:
 
     # ------------------------------------------------------------------ writing
     def html(self) -> str:
+
+        from .atomic import flush_outputs
+
+        flush_outputs()  # the figures its command wrote before (held back by the output group) are read here
         out = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(self.title)}</title>"
                f"<style>{_CSS}</style></head><body data-problems='{html.escape('; '.join(self.problems))}'>",
                f"<h1>{html.escape(self.title)}</h1>"]
@@ -235,6 +239,10 @@ class Report:
 
     def write_pdf(self, target: Any) -> None:
         """All pages into ``target`` (a path or a binary file)."""
+        from .atomic import flush_outputs
+
+        flush_outputs()  # the figures its command wrote before (held back by the output group) are read here
+
         from matplotlib.backends.backend_pdf import PdfPages
 
         from .plotting import pyplot
@@ -287,8 +295,9 @@ class Report:
     def write(self, directory: str | Path, stem: str = "report", pdf: bool = True) -> tuple[Path, Path | None]:
         """Write ``stem.html`` and ``stem.pdf`` into ``directory`` (created), whole or not at all; close the
         figures. Returns the two paths (PDF None when ``pdf`` is False)."""
-        from .atomic import atomic_files
+        from .atomic import atomic_files, flush_outputs
 
+        flush_outputs()  # the figures this command wrote before (held back by its output group) are read here
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
         h, p = directory / f"{stem}.html", directory / f"{stem}.pdf"

@@ -82,6 +82,8 @@ class MultiImuSetup:
     still: np.ndarray | None = None
     bias_sigma: dict[str, np.ndarray] = field(default_factory=dict)
     spans: dict[str, float] = field(default_factory=dict)
+    #: per unit with its own clock: offset and rate against the reference (rimu.calibration.timing.estimate_clocks)
+    clocks: list = field(default_factory=list)
 
     def average(self, full_block: EpochBlock) -> EpochBlock:
         """Average a block on the full-rate time base (e.g. one with injected faults) as :attr:`block` was."""
@@ -96,6 +98,10 @@ class MultiImuSetup:
                          f"in motion {sp['motion_s']:.1f} s (rotations{'' if sp['motion_s'] else ': from gravity'})")
         if self.timing is not None:
             lines.append(self.timing.table())
+        if self.clocks:
+            lines.append("clock rates against the reference (ppm; drift left at the ends after one offset, ms)")
+            lines += [f"  {c.name:>8}: {c.rate_ppm:+9.3g} +- {c.rate_sigma_ppm:.2g} ppm   (drift {1e3 * c.drift_s:.3g})"
+                      for c in self.clocks]
         for a in self.alignments:
             lines.append("rotation " + a.table())
         for k in self.calibration.instruments:
@@ -262,10 +268,26 @@ def _chi2_scale(Yc: np.ndarray, axes: np.ndarray, sig: np.ndarray, q: float = 0.
     return float(max(1.0, np.quantile(T, q) / chi2.ppf(q, n - 3)))
 
 
+def _clocks(recording: Any, reference: int, max_lag_s: float, checks: str) -> list:
+    import logging
+
+    from .timing import estimate_clocks
+
+    clocks = estimate_clocks(recording, reference, max_lag_s=max_lag_s, checks=checks)
+    log = logging.getLogger(__name__)
+    for c in clocks[:reference] + clocks[reference + 1:]:
+        log.info("clock of %s: offset %+.3f ms, rate %+.3g +- %.2g ppm (drift %.3g ms at the ends)", c.name,
+                 1e3 * c.offset_s, c.rate_ppm, c.rate_sigma_ppm, 1e3 * c.drift_s)
+        if checks != "strict" and c.drift_s > 0.5 * float(np.median(np.diff(recording.units[reference].t))):
+            log.warning("clock of %s runs %+.3g ppm fast: %.3g ms of drift that one offset does not remove",
+                        c.name, c.rate_ppm, 1e3 * c.drift_s)
+    return clocks
+
+
 def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: int = 0,
                     fit_window_s: Sequence[float] | None = None, estimate_clocks: bool | None = None,
                     max_lag_s: float = 0.5, min_rate_rad_s: float = 0.05, align_axes: bool | None = None,
-                    min_still_s: float = 2.0) -> MultiImuSetup:
+                    min_still_s: float = 2.0, clock_checks: str = "strict") -> MultiImuSetup:
     """Set up a unit of triads from its own recording (see the module docstring).
 
     Parameters
@@ -285,6 +307,9 @@ def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: in
         (``meta["own_clocks"]``).
     min_rate_rad_s : float
         Rates below this are not used for the axis alignment.
+    clock_checks : {"strict", "warn"}
+        A unit's clock rate (:func:`rimu.calibration.timing.estimate_clocks`, in ``clocks``) whose drift over the
+        record exceeds half a sample period after the offset is removed: refused, or logged as a warning.
     align_axes : bool, optional
         Fit the triads' rotations; default: unless the recording says its triads are already in one body frame
         (``meta["body_frame"]``, as an autopilot logs them). The gyro bias differences are fitted either way.
@@ -303,6 +328,8 @@ def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: in
     k = len(names)
     own = bool(recording.meta.get("own_clocks", False)) if estimate_clocks is None else bool(estimate_clocks)
     timing = estimate_offsets(recording, reference, max_lag_s) if (own and k > 1) else None
+    # a rate as well as an offset: refused where the drift exceeds what resampling on one offset absorbs
+    clocks = _clocks(recording, reference, max_lag_s, clock_checks) if (own and k > 1) else []
     full = _placeholders_invalid(recording.to_block(offsets_s=None if timing is None else timing.offsets_s,
                                                     reference=reference))
     fs_full = 1.0 / float(np.median(np.diff(full.t)))
@@ -401,7 +428,7 @@ def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: in
     cal = Calibration(cals, raw_unit="SI", method="multi-imu-setup", metadata=meta)
     meta["spans_s"] = spans
     return MultiImuSetup(cal, block, timing, alignments, delivering, (lo, hi), full, n_avg, still, bias_sigma,
-                         spans)
+                         spans, clocks)
 
 
 def _placeholders_invalid(block: EpochBlock) -> EpochBlock:

@@ -30,7 +30,7 @@ from scipy.interpolate import CubicSpline
 from ..errors import ShapeError
 from .alignment import effective_fraction
 
-__all__ = ["OffsetResult", "TimingResult", "estimate_offset", "estimate_offsets"]
+__all__ = ["ClockResult", "OffsetResult", "TimingResult", "estimate_clocks", "estimate_offset", "estimate_offsets"]
 
 
 @dataclass
@@ -206,3 +206,88 @@ def estimate_offsets(recording: Any, reference: int | str = 0, max_lag_s: float 
                                          name=u.name))
     return out
 
+
+
+@dataclass
+class ClockResult:
+    """Clock of one unit against the reference: offset at the middle of the record (s), rate (ppm: its clock runs
+    this much fast), their 1-sigma, and the drift over the record left after removing a constant offset (s)."""
+
+    name: str
+    offset_s: float
+    rate_ppm: float
+    offset_sigma_s: float
+    rate_sigma_ppm: float
+    drift_s: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+def estimate_clocks(recording: Any, reference: int | str = 0, windows: int = 4, max_lag_s: float = 0.5,
+                    tolerance_periods: float = 0.5, checks: str = "strict") -> list[ClockResult]:
+    """Offset and rate of every unit's clock against the reference: :func:`estimate_offset` in ``windows`` equal
+    spans of the record, a weighted straight line through them (offset at the middle, slope = rate).
+
+    A constant offset is what the resampling of :meth:`rimu.io.multiimu.MultiImuRecording.to_block` removes; a
+    rate leaves ``|rate| x span / 2`` at the ends. Where that exceeds ``tolerance_periods`` sample periods,
+    ``checks="strict"`` raises :class:`~rimu.errors.PlausibilityError` naming the unit and its rate (``"warn"``
+    returns the results only).
+
+    >>> import numpy as np
+    >>> from types import SimpleNamespace as U
+    >>> t = np.arange(0, 60, 0.01)
+    >>> w = np.column_stack([np.sin(1.3 * t) + np.sin(3.7 * t), np.cos(2.1 * t), 0 * t])
+    >>> fast = 1.01                                   # a clock 1 % fast: stamps t * 1.01
+    >>> rec = U(names=["a", "b"], units=[U(name="a", t=t, gyro=w), U(name="b", t=t * fast, gyro=w)])
+    >>> r = estimate_clocks(rec, checks="warn")[1]
+    >>> round(r.rate_ppm, -2), round(r.drift_s, 2)
+    (10000.0, 0.3)
+    >>> estimate_clocks(rec)
+    Traceback (most recent call last):
+    ...
+    rimu.errors.PlausibilityError: unit 'b': its clock runs +1e+04 ppm fast against 'a' ...
+    """
+    from ..errors import PlausibilityError
+
+    names = recording.names
+    ref = names.index(reference) if isinstance(reference, str) else int(reference)
+    u0 = recording.units[ref]
+    if u0.gyro is None:
+        raise ShapeError("clock rates are estimated from rate magnitudes; the recording has no gyros")
+    m0 = np.linalg.norm(u0.gyro, axis=1)
+    period = float(np.median(np.diff(u0.t)))
+    out = []
+    for j, u in enumerate(recording.units):
+        if j == ref:
+            out.append(ClockResult(u.name, 0.0, 0.0, 0.0, 0.0, 0.0))
+            continue
+        m = np.linalg.norm(u.gyro, axis=1)
+        edges = np.linspace(u.t[0], u.t[-1], windows + 1)
+        mids, offs, sig = [], [], []
+        for a, b in zip(edges[:-1], edges[1:]):
+            sel = (u.t >= a) & (u.t <= b)
+            if sel.sum() < 20:
+                continue
+            r = estimate_offset(u0.t, m0, u.t[sel], m[sel], max_lag_s + abs(b) * 0.02, name=u.name)
+            mids.append(0.5 * (a + b))
+            offs.append(r.offset_s)
+            sig.append(max(r.sigma_s, 1e-9))
+        if len(mids) < 2:
+            raise ShapeError(f"unit {u.name!r}: too few samples to estimate a clock rate")
+        x = np.asarray(mids) - np.mean(mids)
+        W = 1.0 / np.asarray(sig) ** 2
+        A = np.column_stack([np.ones_like(x), x])
+        cov = np.linalg.inv(A.T @ (W[:, None] * A))
+        off, rate = cov @ (A.T @ (W * np.asarray(offs)))
+        span = float(u.t[-1] - u.t[0])
+        out.append(ClockResult(u.name, float(off), float(rate) * 1e6, float(np.sqrt(cov[0, 0])),
+                               float(np.sqrt(cov[1, 1])) * 1e6, abs(float(rate)) * span / 2))
+        if checks == "strict" and abs(float(rate)) * span / 2 > tolerance_periods * period:
+            raise PlausibilityError(
+                f"unit {u.name!r}: its clock runs {float(rate) * 1e6:+.3g} ppm fast against {names[ref]!r} "
+                f"(+- {float(np.sqrt(cov[1, 1])) * 1e6:.2g} ppm); over the {span:.4g} s record its stamps drift "
+                f"{abs(float(rate)) * span / 2:.3g} s from a constant offset at the ends, more than the "
+                f"{tolerance_periods:g} sample period ({tolerance_periods * period:.3g} s) the resampling absorbs; "
+                "correct its time stamps by the rate first (t / (1 + rate)), or read with checks='warn'")
+    return out

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import importlib
 import logging
 import os
@@ -152,24 +153,66 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     configure_logging(args.command, args.verbose, args.quiet)
     log.debug("arguments: %s", {k: v for k, v in vars(args).items() if k != "func"})
+    from ..atomic import OutputGroup
+
+    group: OutputGroup | None = None
     try:
-        check_outputs(args)
+        files, dirs = check_outputs(args)
+        # every output of the run appears together at the end, or none (rimu.atomic): a refusal (exit 2), an
+        # error or Ctrl-C removes the temporaries and whatever the run created
+        group = OutputGroup(files, dirs).activate()
         with _promises(args):
-            return int(args.func(args) or 0)
+            code = int(args.func(args) or 0)
+        if code >= EXIT_BAD_INPUT:
+            group.abort()
+        else:
+            group.commit()
+        return code
     except BrokenPipeError:  # `rimu ... | head`: the reader left; nothing to say
+        _finish(group, ok=True)
         try:
             sys.stdout = open(os.devnull, "w")
         except OSError:
             pass
         return EXIT_OK
     except KeyboardInterrupt:
+        left = _finish(group, ok=False)
         if args.debug:
             raise
-        print(f"rimu {args.command}: interrupted; no partial output file was left behind", file=sys.stderr)
+        if left:
+            print(f"rimu {args.command}: interrupted; could not undo {', '.join(map(str, left))} (an existing file "
+                  "the run had already replaced, or one that could not be removed)", file=sys.stderr)
+        else:
+            print(f"rimu {args.command}: interrupted; no partial output file was left behind", file=sys.stderr)
         return EXIT_INTERRUPTED
     except Exception as exc:  # one line, the traceback only with --debug
+        left = _finish(group, ok=False)
         if args.debug:
             raise
         msg, code = _describe(exc)
+        if (isinstance(exc, OSError) and exc.errno in _FULL and not getattr(exc, "filename", None)
+                and group is not None and group.folders()):
+            # a write failed (a full disk): the file object does not know its name, the run knows its folders
+            where = ", ".join(map(str, group.folders()))
+            msg = f"{exc.strerror or exc} while writing the outputs in {where}; free some space or write elsewhere"
+        if left:
+            msg += f" (could not undo {', '.join(map(str, left))})"
         print(f"rimu {args.command}: error: {msg}", file=sys.stderr)
         return code
+    finally:  # SystemExit and the like: the run's outputs are undone too
+        if group is not None and not group.done:
+            group.abort()
+
+
+#: errno of a write that found no room (a full disk, a quota, a file too large)
+_FULL = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG}
+
+
+def _finish(group: object, ok: bool) -> list:
+    """Commit (``ok``) or abort the run's outputs; what could not be undone."""
+    if group is None:
+        return []
+    if ok:
+        group.commit()  # type: ignore[attr-defined]
+        return []
+    return list(group.abort())  # type: ignore[attr-defined]

@@ -34,6 +34,8 @@ __all__ = [
     "probability",
     "positive_int",
     "nonnegative_int",
+    "bounded_float",
+    "check_samples",
     "Deprecated",
     "add_old_out",
     "add_procedure_options",
@@ -42,6 +44,7 @@ __all__ = [
     "add_report_option",
     "add_accept_implausible",
     "check_outputs",
+    "output_options",
     "configure_logging",
     "OUTPUT_FILE_OPTIONS",
     "OUTPUT_DIR_OPTIONS",
@@ -54,7 +57,7 @@ log = logging.getLogger("rimu.cli")
 
 #: attributes of a parsed namespace that name output files / output folders / input files (checked by
 #: :func:`check_outputs` for every subcommand, including ones added later that follow the convention)
-OUTPUT_FILE_OPTIONS = ("output", "json", "truth", "record", "side_log", "plot", "kalibr")
+OUTPUT_FILE_OPTIONS = ("output", "json", "truth", "record", "side_log", "plot", "estimates", "kalibr")
 OUTPUT_DIR_OPTIONS = ("report",)
 INPUT_OPTIONS = ("session", "data", "calibration", "layout", "csv", "npz", "replay", "ulog")
 
@@ -94,13 +97,57 @@ def _validator(kind: Callable[[str], _N], ok: Callable[[_N], bool], rule: str, n
     return check
 
 
-positive_float = _validator(float, lambda v: v > 0, "> 0", "positive_float", "A finite number > 0.")
-finite_float = _validator(float, lambda v: True, "finite", "finite_float", "A finite number.")
-nonnegative_float = _validator(float, lambda v: v >= 0, ">= 0", "nonnegative_float", "A finite number >= 0.")
-probability = _validator(float, lambda v: 0 < v < 1, "a probability strictly between 0 and 1", "probability",
-                         "A probability strictly between 0 and 1 (a false-alarm probability, a significance level).")
-positive_int = _validator(int, lambda v: v >= 1, "an integer >= 1", "positive_int", "An integer >= 1.")
-nonnegative_int = _validator(int, lambda v: v >= 0, "an integer >= 0", "nonnegative_int", "An integer >= 0.")
+#: the extremes every numeric option takes: magnitudes beyond 1e12 or positive values below 1e-12 are typing
+#: mistakes for every quantity rimu takes (s, Hz, SI noise, factors), counts beyond a C int do not fit the
+#: exported code, and probabilities below 1e-15 are lost in the double precision of 1 - p (above 0.5 a test
+#: decides nothing)
+FLOAT_MAX = 1e12
+FLOAT_TINY = 1e-12
+INT_MAX = 2**31 - 1
+P_MIN = 1e-15
+
+positive_float = _validator(float, lambda v: FLOAT_TINY <= v <= FLOAT_MAX, f"> 0, between {FLOAT_TINY:g} and "
+                            f"{FLOAT_MAX:g}", "positive_float", "A finite number > 0 (between 1e-12 and 1e12).")
+finite_float = _validator(float, lambda v: abs(v) <= FLOAT_MAX, f"finite, at most {FLOAT_MAX:g} in magnitude",
+                          "finite_float", "A finite number (at most 1e12 in magnitude).")
+nonnegative_float = _validator(float, lambda v: v == 0 or FLOAT_TINY <= v <= FLOAT_MAX,
+                               f">= 0, 0 or between {FLOAT_TINY:g} and {FLOAT_MAX:g}", "nonnegative_float",
+                               "A finite number >= 0 (0, or between 1e-12 and 1e12).")
+probability = _validator(float, lambda v: P_MIN <= v <= 0.5, f"a probability strictly between 0 and 1 "
+                         f"(between {P_MIN:g} and 0.5: a false-alarm probability or significance level above one "
+                         "half decides nothing)", "probability",
+                         "A false-alarm probability or significance level, between 1e-15 and 0.5.")
+positive_int = _validator(int, lambda v: 1 <= v <= INT_MAX, f"an integer >= 1 (at most {INT_MAX})", "positive_int",
+                          "An integer >= 1 (at most 2**31 - 1).")
+nonnegative_int = _validator(int, lambda v: 0 <= v <= INT_MAX, f"an integer >= 0 (at most {INT_MAX})",
+                             "nonnegative_int", "An integer >= 0 (at most 2**31 - 1).")
+
+
+def bounded_float(lo: float, hi: float, unit: str = "", why: str = "") -> Callable[[str], float]:
+    """An argparse ``type=``: a finite number in ``[lo, hi]`` (``why`` says where the range comes from).
+
+    >>> bounded_float(9.7, 9.9, "m/s^2")("9.81")
+    9.81
+    """
+    rule = f"between {lo:g} and {hi:g}{' ' + unit if unit else ''}" + (f" ({why})" if why else "")
+    return _validator(float, lambda v: lo <= v <= hi, rule, "bounded_float", f"A finite number {rule}.")
+
+
+def check_samples(n: float, options: str, limit: float = 5e7, least: float = 2) -> None:
+    """Refuse options whose product asks for more than ``limit`` samples (the memory of the machine) or fewer
+    than ``least`` (nothing to compute).
+
+    >>> check_samples(1e12, "--duration 1e10 at --sample-rate 100")
+    Traceback (most recent call last):
+    ...
+    rimu.errors.OptionError: --duration 1e10 at --sample-rate 100: 1e+12 samples, more than the 5e+07 rimu holds in memory; shorten it
+    """
+    from ..errors import OptionError
+
+    if not n <= limit:
+        raise OptionError(f"{options}: {n:.3g} samples, more than the {limit:.3g} rimu holds in memory; shorten it")
+    if n < least:
+        raise OptionError(f"{options}: {n:.3g} samples, fewer than {least:g}; lengthen it")
 
 
 # ---------------------------------------------------------------- deprecated spellings
@@ -312,26 +359,82 @@ def _check_dir(opt: str, p: Path) -> None:
         raise OutputPathError(f"--{opt} {p}: {q} is not writable (permission denied); write elsewhere")
 
 
+def output_options(args: argparse.Namespace, files: Iterable[str] = OUTPUT_FILE_OPTIONS,
+                   dirs: Iterable[str] = OUTPUT_DIR_OPTIONS) -> tuple[list[str], list[str]]:
+    """The attributes of ``args`` that name output files and output folders: the convention's names, every
+    ``write_*`` option, the options a command names in ``set_defaults(extra_outputs=(...))`` (an output whose name
+    says input elsewhere: ``rimu setup --session``), and ``-o`` as a folder where the command says so
+    (``output_is_dir``)."""
+    files = list(files) + sorted(k for k in vars(args) if k.startswith("write_") and k not in files)
+    files += [k for k in getattr(args, "extra_outputs", ()) if k not in files]  # set_defaults(extra_outputs=...)
+    dirs = list(dirs)
+    if getattr(args, "output_is_dir", False):  # a command whose main artifact is a folder (export-c)
+        files.remove("output")
+        dirs.append("output")
+    return files, dirs
+
+
+def _inputs(args: argparse.Namespace, outputs: Iterable[str], inputs: Iterable[str] | None) -> list[tuple[str, Path]]:
+    """(option, path) of every input of the run: the named ``inputs``, or (None) every other string option or
+    argument that names an existing file, with the sidecar of a session (``.csv`` <-> ``.json``)."""
+    names = list(inputs) if inputs is not None else [k for k in vars(args) if k not in set(outputs)]
+    found = []
+    for name in names:
+        v = getattr(args, name, None)
+        if not v or v == "-" or not isinstance(v, (str, os.PathLike)):
+            continue
+        p = Path(v)
+        for q in _sidecar(p) + ([p.with_suffix(".csv")] if p.suffix == ".json" else []):
+            if q.is_file():
+                found.append((name.replace("_", "-"), q))
+    return found
+
+
+def _same(a: Path, b: Path) -> bool:
+    try:
+        return a.resolve() == b.resolve() or (a.exists() and b.exists() and os.path.samefile(a, b))
+    except OSError:
+        return False
+
+
 def check_outputs(args: argparse.Namespace, files: Iterable[str] = OUTPUT_FILE_OPTIONS,
-                  dirs: Iterable[str] = OUTPUT_DIR_OPTIONS, inputs: Iterable[str] = INPUT_OPTIONS) -> None:
-    """Refuse, before any work, output paths that cannot be written, that name the same file twice (including a
-    CSV's ``.json`` sidecar), or that would overwrite an input of the run.
+                  dirs: Iterable[str] = OUTPUT_DIR_OPTIONS, inputs: Iterable[str] | None = None
+                  ) -> tuple[list[Path], list[Path]]:
+    """Refuse, before any work, output paths that cannot be written, that name the same file twice (including the
+    ``.json`` sidecar of a ``-o`` session ``.csv``), or that resolve to an input of the run (symlinks, hard links
+    and relative paths included; by default every option and argument naming an existing file is an input).
+
+    The one input-protection check of every command (:func:`rimu.cli.main` calls it for all of them).
+
+    Returns
+    -------
+    files, dirs : list of Path
+        The planned output files (with sidecars) and folders: the :class:`rimu.atomic.OutputGroup` of the run.
 
     Raises
     ------
     OutputPathError
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> d = Path(tempfile.mkdtemp())
+    >>> _ = (d / "raw.csv").write_text("t,a\\n")
+    >>> os.symlink(d / "raw.csv", d / "link.csv")
+    >>> check_outputs(argparse.Namespace(raw=str(d / "raw.csv"), output=str(d / "link.csv")))
+    Traceback (most recent call last):
+    ...
+    rimu.errors.OutputPathError: --output ... would overwrite the input .../raw.csv (raw); write the output elsewhere
     """
-    files, dirs = list(files), list(dirs)
-    if getattr(args, "output_is_dir", False):  # a command whose main artifact is a folder (export-c)
-        files.remove("output")
-        dirs.append("output")
-    planned = []
+    files, dirs = output_options(args, files, dirs)
+    planned_dirs: list[Path] = []
     for name in dirs:
         v = getattr(args, name, None)
         if v and isinstance(v, (str, os.PathLike)):
             _check_dir(name.replace("_", "-"), Path(v))
-            planned.append(Path(v).resolve())
-    seen: dict[Path, tuple[str, str]] = {}
+            planned_dirs.append(Path(v))
+    planned = [d.resolve() for d in planned_dirs]
+    seen: dict[Path, tuple[str, str, Path]] = {}
     for name in files:
         v = getattr(args, name, None)
         if not v or v == "-" or not isinstance(v, (str, os.PathLike)):
@@ -348,16 +451,12 @@ def check_outputs(args: argparse.Namespace, files: Iterable[str] = OUTPUT_FILE_O
             what = f"{q} (the sidecar of --{opt} {p})" if q != p else f"--{opt} {q}"
             if r in seen:
                 raise OutputPathError(f"{what} would overwrite {seen[r][1]}; give them different names")
-            seen[r] = (opt, what)
-    for name in inputs:
-        v = getattr(args, name, None)
-        if not v or not isinstance(v, (str, os.PathLike)):
-            continue
-        p = Path(v)
-        for q in _sidecar(p) + ([p.with_suffix(".csv")] if p.suffix == ".json" else []):
-            r = q.resolve()
-            if r in seen and q.exists():
-                raise OutputPathError(f"{seen[r][1]} would overwrite the input {q}; write the output elsewhere")
+            seen[r] = (opt, what, q)
+    for name, q in _inputs(args, files + dirs, inputs):
+        for _opt, what, out in seen.values():
+            if _same(out, q):
+                raise OutputPathError(f"{what} would overwrite the input {q} ({name}); write the output elsewhere")
+    return [q for _, _, q in seen.values()], planned_dirs
 
 
 # ---------------------------------------------------------------- logging

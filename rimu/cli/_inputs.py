@@ -18,6 +18,7 @@ import logging
 import os
 import shutil
 import tempfile
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -269,7 +270,7 @@ def open_array(path: str | os.PathLike[str], args: argparse.Namespace | None = N
             with np.load(p, allow_pickle=False) as z:
                 if "gyro" in z.files and "t" in z.files:
                     return None
-        except (OSError, ValueError, EOFError):
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile):
             return None  # not an archive: rimu array's own reader names what is wrong
         if _not_a_log(p):
             return None

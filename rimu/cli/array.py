@@ -30,8 +30,8 @@ def _own_npz(path: str) -> bool:
     try:
         with np.load(path, allow_pickle=False) as z:
             return "t" in z.files and "gyro" in z.files
-    except (OSError, ValueError, EOFError):
-        return False
+    except Exception:  # an .npz numpy cannot open: rimu array's own (guarded) reader says what is wrong with it
+        return True
 
 
 def _factor(instrument: str, unit: "str | None") -> float:
@@ -79,23 +79,41 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _load(path: str):
     from ..array import ArrayLayout
     from ..errors import ShapeError
+    from ..io.guard import load_array
 
-    try:
-        d = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise ShapeError(f"cannot read {path!r} as NPZ ({exc}); write it with numpy.savez") from exc
-    missing = [k for k in ("t", "gyro") if k not in d.files]
+    d = load_array(path, "NPZ file")  # garbage, truncated, empty, pickled: one line naming the file
+    if not isinstance(d, dict):
+        raise ShapeError(f"{path}: a single array; array needs an NPZ file with t (N,) and gyro (N, k, 3) [rad/s]")
+    missing = [k for k in ("t", "gyro") if k not in d]
     if missing:
         raise ShapeError(f"{path!r} lacks {', '.join(missing)}: it needs t (N,) and gyro (N, k, 3) [rad/s]")
     gyro = np.asarray(d["gyro"], dtype=float)
     if gyro.ndim != 3 or gyro.shape[2] != 3:
-        raise ShapeError(f"gyro must have shape (N, k, 3), got {gyro.shape}")
+        raise ShapeError(f"{path}: gyro must have shape (N, k, 3), got {gyro.shape}")
     k = gyro.shape[1]
-    rot = d["rotations"] if "rotations" in d.files else np.repeat(np.eye(3)[None], k, axis=0)
-    pos = d["positions_m"] if "positions_m" in d.files else np.zeros((k, 3))
-    names = tuple(str(x) for x in d["names"]) if "names" in d.files else ()
-    accel = np.asarray(d["accel"], dtype=float) if "accel" in d.files else None
+    rot = d["rotations"] if "rotations" in d else np.repeat(np.eye(3)[None], k, axis=0)
+    pos = d["positions_m"] if "positions_m" in d else np.zeros((k, 3))
+    names = tuple(str(x) for x in d["names"]) if "names" in d else ()
+    accel = np.asarray(d["accel"], dtype=float) if "accel" in d else None
     return ArrayLayout(rot, pos, names), np.asarray(d["t"], dtype=float), gyro, accel
+
+
+def _check_options(args: argparse.Namespace, t: np.ndarray, gyro: np.ndarray) -> None:
+    """--lowpass-hz below the Nyquist frequency of the data; --motion-threshold-deg-s below the rates reached."""
+    from ..errors import OptionError, ShapeError
+
+    if len(t) < 10 or not np.all(np.diff(t) > 0):
+        raise ShapeError(f"{args.data}: t must hold at least 10 increasing times, s")
+    fs = 1.0 / float(np.median(np.diff(t)))
+    if isinstance(args.lowpass_hz, float) and args.lowpass_hz >= fs / 2:
+        raise OptionError(f"--lowpass-hz {args.lowpass_hz:g}: must be below the Nyquist frequency of "
+                          f"{args.data} ({fs / 2:.4g} Hz)")
+    rate = np.degrees(np.linalg.norm(np.nanmean(gyro, axis=1), axis=1))
+    fast = int(np.sum(rate > args.motion_threshold_deg_s))
+    if fast < 10:
+        raise OptionError(f"--motion-threshold-deg-s {args.motion_threshold_deg_s:g}: only {fast} samples of "
+                          f"{args.data} turn faster (peak {np.nanmax(rate):.4g} deg/s); give a threshold below the "
+                          "peak rate")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -110,6 +128,7 @@ def run(args: argparse.Namespace) -> int:
             accel = None if accel is None else accel * _factor("accel", args.accel_unit)
         else:  # a log: its reader converts to SI (the units options declare a text log's)
             layout, t, gyro, accel = open_array(args.data, args) or _load(args.data)
+        _check_options(args, t, gyro)
         problems = check_units(gyro, accel)
         if problems and not args.accept_implausible:
             raise PlausibilityError(f"{args.data}: " + "; ".join(problems)
@@ -119,7 +138,8 @@ def run(args: argparse.Namespace) -> int:
         rep = array_report(layout, t, gyro, accel, motion_threshold_deg_s=args.motion_threshold_deg_s,
                            lowpass_hz=args.lowpass_hz, held_out=not args.no_held_out)
     except RimuError as exc:
-        print(f"rimu array: error: {exc}", file=sys.stderr)
+        where = "" if str(args.data) in str(exc) else f"{args.data}: "
+        print(f"rimu array: error: {where}{exc}", file=sys.stderr)
         return 2
     if args.output:
         doc = {"gyro": rep.gyro_fit.to_dict() if rep.gyro_fit else None,

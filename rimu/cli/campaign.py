@@ -17,6 +17,7 @@ from ._common import (
     add_fdi_options,
     add_json_option,
     add_report_option,
+    check_samples,
     fdi_settings,
     nonnegative_int,
     positive_float,
@@ -82,6 +83,10 @@ def run(args: argparse.Namespace) -> int:
     if unknown or not faults:
         raise OptionError(f"--faults {args.faults}: unknown fault types {unknown}; known: {', '.join(sorted(FAULTS))} "
                           "or 'all'")
+    check_samples(args.duration * 100.0, f"--duration {args.duration:g} s at 100 Hz", limit=5e6, least=10)
+    if args.repetitions > 10_000 or (args.workers or 0) > 1024:
+        raise OptionError(f"--repetitions {args.repetitions} / --workers {args.workers}: at most 10000 repetitions "
+                          "and 1024 workers")
     if args.fault_start >= args.duration:
         raise OptionError(f"--fault-start {args.fault_start:g} s must lie inside the run (--duration {args.duration:g} s)")
     n = preset(args.geometry).n

@@ -43,6 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     t_start = time.perf_counter()
+    from ..atomic import flush_outputs
     from ..calibration import Calibration, ChoPark
     from ..calibration.effects import GSensitivity
     from ..diagnose import diagnose
@@ -55,7 +56,10 @@ def run(args: argparse.Namespace) -> int:
     from ..geometry import cone6
     from ..sim import Simulator, TruthEffect, cho_park_procedure, rotation
     from ..units import DS_TO_RS, G0, MS2_TO_UG, RS_TO_DH, RS_TO_DS
+    from ._common import check_samples
 
+    check_samples(args.segment_duration * 100.0, f"--segment-duration {args.segment_duration:g} s at 100 Hz",
+                  limit=5e6, least=10)
     out = Path(args.report)
     out.mkdir(parents=True, exist_ok=True)
     geo = cone6()
@@ -74,6 +78,7 @@ def run(args: argparse.Namespace) -> int:
     res = ChoPark().fit(cal_run.session)
     cal = res.to_calibration()
     path = cal.save(Path(args.output) if args.output else out / "calibration.json")
+    flush_outputs()  # read back below: in place now (removed again if the run fails)
     cal = Calibration.load(path, geometries={"gyro": geo, "accel": geo})
     print(f"  calibrated (Cho & Park Eq. 5-17), saved and reloaded (checksum verified): {path}")
     print("\n  errors against the truth, (3 sigma) as reported by the estimator:")

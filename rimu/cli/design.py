@@ -8,7 +8,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import PROCEDURES, Deprecated, add_json_option, add_procedure_options, add_report_option, positive_int
+from ._common import (
+    PROCEDURES,
+    Deprecated,
+    add_json_option,
+    add_procedure_options,
+    add_report_option,
+    check_samples,
+    positive_int,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -46,6 +54,8 @@ def run(args: argparse.Namespace) -> int:
         raise OptionError(f"--duration sets the segment length of the cho_park procedures; {args.procedure} has its "
                           "own fixed durations: leave --duration out")
     args.duration = 60.0 if args.duration is None else args.duration
+    check_samples(args.duration * args.sample_rate,
+                  f"--duration {args.duration:g} s at --sample-rate {args.sample_rate:g} Hz", limit=1e9)
     proc = PROCEDURES[args.procedure]()
     if args.procedure.startswith("cho_park"):
         proc = PROCEDURES[args.procedure](duration=args.duration)

@@ -12,7 +12,7 @@ import argparse
 import json
 from pathlib import Path
 
-from ._common import positive_float
+from ._common import bounded_float, nonnegative_float, positive_float
 from ._inputs import add_log_options, open_raw
 
 
@@ -36,8 +36,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--min-static", type=positive_float, default=1.0, help="shortest pose kept, s (default %(default)s)")
     p.add_argument("--min-motion", type=positive_float, default=0.2,
                    help="shorter motions between two poses are bumps, merged into the pose, s (default %(default)s)")
-    p.add_argument("--margin", type=float, default=None, help="trimmed from both ends of each pose, s (default: window/2)")
-    p.add_argument("--gravity", type=positive_float, default=None, help="local gravity, m/s^2 (default 9.80665)")
+    p.add_argument("--margin", type=nonnegative_float, default=None,
+                   help="trimmed from both ends of each pose, s (default: window/2; less than half of --min-static)")
+    p.add_argument("--gravity", type=bounded_float(9.76, 9.84, "m/s^2", "local gravity anywhere on Earth's surface"),
+                   default=None, help="local gravity, m/s^2 (default 9.80665)")
     p.add_argument("--geometry", default=None, metavar="NAME|FILE.json",
                    help="the unit's geometry for both instruments when the file has more than three columns each: a "
                         "preset name (e.g. mimu4444, triads with k parallel triads as triads:K) or a geometry JSON "
@@ -73,18 +75,52 @@ def geometry_option(text: str) -> object:
     return preset(name)
 
 
+def _factor(text: str) -> float | str:
+    from ..errors import OptionError
+
+    if text == "auto":
+        return text
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not (1.0 < v <= 1e6):
+        raise OptionError(f"--factor {text}: give 'auto' or a multiple of the noise floor above 1 (at most 1e6)")
+    return v
+
+
+def _check_spans(args: argparse.Namespace, span: float) -> None:
+    """The durations given as options against the record's length, s."""
+    from ..errors import OptionError
+
+    for opt, v, most in (("--window", args.window, span / 4), ("--min-static", args.min_static, span / 2),
+                         ("--min-motion", args.min_motion, span / 2), ("--init-still", args.init_still, span / 2)):
+        if v is not None and v > most:
+            rate = f"--rate {args.rate:g} Hz" if args.rate else "the sample rate of the file"
+            raise OptionError(f"{opt} {v:g} s: the record {args.raw} lasts {span:.4g} s at {rate}; give at most "
+                              f"{most:.4g} s")
+
+
 def run(args: argparse.Namespace) -> int:
     from ..calibration.detect import detect_session, plot_detection
     from ..session import save_session
     from ..units import G0
 
+    if args.factor != "auto":
+        _factor(args.factor)  # refused before reading
     log = open_raw(args.raw, args.rate, _cols(args.accel), _cols(args.gyro), args.time, args, args.imu)
+    _check_spans(args, len(log.t) / log.sample_rate)
     init = args.init_still
     if init is None:
         for k, v in log.meta.items():
             if "init" in str(k).lower() and isinstance(v, float) and v > 0:
                 init = v
-    factor: float | str = args.factor if args.factor == "auto" else float(args.factor)
+    factor = _factor(args.factor)
+    if args.margin is not None and 2 * args.margin >= args.min_static:
+        from ..errors import OptionError
+
+        raise OptionError(f"--margin {args.margin:g} s: trimmed from both ends, it must leave some of the shortest pose "
+                          f"(--min-static {args.min_static:g} s): give less than {args.min_static / 2:g} s")
     geometries = None
     if args.geometry:
         geo = geometry_option(args.geometry)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import add_readmit_options, positive_float, positive_int, probability, readmit_after
+from ._common import add_readmit_options, bounded_float, positive_int, probability, readmit_after
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,7 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_readmit_options(g, "rimu replay")
     g.add_argument("--fail-after", type=positive_int, default=None,
                    help="isolations of one sensor after which it is FAILED (not re-admitted)")
-    g.add_argument("--backoff", type=positive_float, default=None,
+    g.add_argument("--backoff", type=bounded_float(1.0, 100.0, why="the clean period never shrinks"), default=None,
                    help="factor on the clean period at each further isolation of a sensor (>= 1)")
     g.add_argument("--clear-after", type=positive_int, default=None,
                    help="alarm-free samples after which a 'not isolable' fault report is withdrawn")
@@ -58,7 +58,19 @@ def fdi_settings(args: argparse.Namespace):  # type: ignore[no-untyped-def]
              "clear_after": args.clear_after, "episode_gap": args.episode_gap, "alpha": args.set_alpha,
              "max_size": args.max_set_size}
     kw = {k: v for k, v in given.items() if v is not None}   # the others keep FdiSettings' defaults
-    return FdiSettings(**kw, readmit_after=readmit_after(args))
+    try:
+        return FdiSettings(**kw, readmit_after=readmit_after(args))
+    except ValueError as exc:  # a combination out of range: named by the options that set it
+        text = str(exc)
+        for field, opt in _OPTIONS.items():
+            text = text.replace(field, opt)
+        raise OptionError(text) from None
+
+
+#: FdiSettings field -> option (for its messages)
+_OPTIONS = {"readmit_after": "--readmit-after", "fail_after": "--fail-after", "invalid_persist": "--invalid-persist",
+            "clear_after": "--clear-after", "episode_gap": "--episode-gap", "confirm": "--confirm",
+            "backoff": "--backoff", "p_fa": "--p-fa", "alpha": "--set-alpha", "max_size": "--max-set-size"}
 
 
 def run(args: argparse.Namespace) -> int:

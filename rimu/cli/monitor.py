@@ -269,6 +269,7 @@ def run(args: argparse.Namespace) -> int:
     import contextlib
 
     from ..fusion import Pipeline
+    from ..io.accounting import Outages
     from ..io.recorded import CsvRecorder
     from ._common import fdi_settings, readmit_after
 
@@ -281,6 +282,7 @@ def run(args: argparse.Namespace) -> int:
     stack = contextlib.ExitStack()
     mon.open(stack)
     rec = CsvRecorder(args.record) if args.record else None
+    outages = Outages()
     tty = sys.stdout.isatty()
     n = 0
     t0 = t_last = None
@@ -308,6 +310,7 @@ def run(args: argparse.Namespace) -> int:
                 t0 = ep.t
             t_last = ep.t
             n += 1
+            outages.update(ep)
             for ev in mon.step(ep, n - 1):  # events carry the epoch index as well as the time
                 if ev["kind"] == "transient":
                     continue
@@ -358,14 +361,16 @@ def run(args: argparse.Namespace) -> int:
                              "and that the source sends" + (f" within --idle-timeout {args.idle_timeout:g} s"
                                                            if (args.can or args.serial) else ""))
     summary = {"epochs": n, "data_span_s": (t_last - t0) if n else 0.0, "wall_s": wall,
-               "interrupted": interrupted, "accounting": a.as_dict(), "isolations": mon.isolations,
-               "events": mon.events[:10000], "record": args.record, "estimates": args.estimates,
+               "interrupted": interrupted, "accounting": a.as_dict(), "outages": outages.as_dict(),
+               "isolations": mon.isolations, "events": mon.events[:10000], "record": args.record,
+               "estimates": args.estimates,
                "final_state": {k: m.health.state.value for k, m in mon.rt.managers.items()}}
     if tty:
         print()
     print(f"rimu monitor: {'interrupted, ' if interrupted else ''}{n} epochs"
           + (f" over {summary['data_span_s']:.2f} s of data" if n else "") + f" in {wall:.1f} s")
     print(f"  {a.summary()}")
+    print(f"  outages (epochs without any valid sensor of an instrument): {outages.summary() or 'none'}")
     print(f"  accounting identity received = accepted + rejected + pending: "
           f"{'holds' if a.identity_holds() else 'BROKEN'}")
     for ev in mon.isolations:
@@ -378,7 +383,7 @@ def run(args: argparse.Namespace) -> int:
     if args.estimates:
         print(f"  estimates: {Path(args.estimates)} ({mon.n_rows} rows)")
     if args.record:
-        print(f"  recording: {Path(args.record)}")
+        print(f"  recording: {Path(args.record)}" if n else "  no recording written (no epoch)")
     if args.json == "-":
         print(json.dumps(summary))
     elif args.json:

@@ -14,7 +14,6 @@ terms in its optional ``noise`` section (what the detectors of rimu.fdi read). S
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -136,10 +135,30 @@ def _plain(args: argparse.Namespace, path: Path) -> Any:
     if args.instrument and len(args.instrument) > 1:
         raise OptionError(f"{path} is a plain array of one instrument; give one --instrument, not "
                           f"{', '.join(args.instrument)}")
-    z = np.load(path) if path.suffix == ".npy" else np.loadtxt(path, delimiter=",", ndmin=2)
-    if z.ndim != 2 or not np.all(np.isfinite(z)):
-        raise SessionFormatError(f"{path}: a plain array must be N rows x sensors of finite numbers, got shape "
-                                 f"{z.shape}")
+    from ..io.guard import load_array, reading
+
+    if path.suffix == ".npy":
+        z = load_array(path, "NPY array")
+    else:
+        with reading(path, "CSV text"):
+            try:
+                z = np.loadtxt(path, delimiter=",", ndmin=2)
+            except ValueError as exc:
+                raise SessionFormatError(f"{path}: not a table of numbers ({exc}); a plain recording is N rows "
+                                         "of comma-separated numbers, one column per sensor") from None
+    if not isinstance(z, np.ndarray) or z.ndim != 2 or z.shape[0] < 2 or not np.issubdtype(z.dtype, np.number):
+        shape = getattr(z, "shape", None)
+        raise SessionFormatError(f"{path}: a plain recording is a numeric array of N rows and one column per sensor "
+                                 f"(N, n), got shape {shape}; reshape it (a single sensor: (N, 1))")
+    z = np.asarray(z, dtype=float)
+    if not np.all(np.isfinite(z)):
+        r, c = np.argwhere(~np.isfinite(z))[0]
+        raise SessionFormatError(f"{path}: {int((~np.isfinite(z)).sum())} values are not finite (first: row {r + 1}, "
+                                 f"column {c + 1}); noise identification needs an unbroken static recording")
+    flat = np.flatnonzero(np.ptp(z, axis=0) == 0)
+    if flat.size:
+        raise SessionFormatError(f"{path}: column {int(flat[0]) + 1} is constant: not the output of a sensor (a "
+                                 "disconnected channel?); remove it")
     inst = (args.instrument or ["gyro"])[0]
     _check_si(z, inst, path)
     axes = names = None
@@ -166,7 +185,15 @@ def _is_plain(path: Path) -> bool:
 
 
 def _terms(args: argparse.Namespace) -> tuple[str, ...]:
-    return tuple(t.strip() for t in args.terms.split(",") if t.strip())
+    from ..errors import OptionError
+    from ..noise.model import TERMS
+
+    terms = tuple(t.strip() for t in args.terms.split(",") if t.strip())
+    unknown = [t for t in terms if t not in TERMS]
+    if not terms or unknown:
+        raise OptionError(f"--terms {args.terms!r}: give one or more of {', '.join(TERMS)}, comma-separated"
+                          + (f" (unknown: {', '.join(unknown)})" if unknown else ""))
+    return terms
 
 
 def run(args: argparse.Namespace) -> int:
@@ -174,19 +201,25 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         return _run(args)
-    except (RimuError, OSError, ValueError) as exc:
+    except RimuError as exc:
         print(f"rimu noise: error: {exc}", file=sys.stderr)
         return 2
 
 
 def _run(args: argparse.Namespace) -> int:
     from ..noise.api import identify_session
+    from ._common import json_dump
 
     if args.from_kalibr:
         return _seed(args)
     path = Path(args.recording)
     if not path.exists():
         raise FileNotFoundError(f"no such recording: {path}")
+    _terms(args)  # the options first: a refusal before any work
+    if args.write_calibration and not args.calibration:
+        from ..errors import OptionError
+
+        raise OptionError("--write-calibration needs --calibration (the file to add the noise to)")
     cal = None
     if _is_plain(path):
         model = _plain(args, path)
@@ -211,7 +244,7 @@ def _run(args: argparse.Namespace) -> int:
         summary = {"output": str(out), "instruments": {k: m.table_rows() for k, m in model.instruments.items()},
                    "parity": {k: {"white": v["white"], "independent": v["independent"], "verdict": v["verdict"]}
                               for k, v in model.parity.items()}}
-        Path(args.json).write_text(json.dumps(summary, indent=1))
+        json_dump(summary, args.json)
         extra.append(f"summary {args.json}")
     if args.kalibr:
         extra.append(f"kalibr {_write_kalibr(model, args.kalibr)}")
@@ -284,6 +317,7 @@ def _write_kalibr(model: Any, path: str) -> str:
 
 
 def _report(model: Any, folder: Path) -> Path:
+    from ..atomic import write_text
     from ..noise.model import FIELD_UNITS, TERMS
     from ..noise.plots import plot_instrument, plot_parity
 
@@ -303,5 +337,5 @@ def _report(model: Any, folder: Path) -> Path:
             pp = plot_parity(model.parity[k], folder / f"parity-{k}.png")
             lines += [model.parity[k]["verdict"], "", f"![parity]({pp.name})", ""]
     md = folder / "noise.md"
-    md.write_text("\n".join(lines))
+    write_text(md, "\n".join(lines))
     return md

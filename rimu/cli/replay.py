@@ -568,13 +568,18 @@ def _first_seconds(blocks, t_stop: float):  # type: ignore[no-untyped-def]
 def _motion_detector(cal, block, seconds: float, margin: float, p_fa: float, fs: float):  # type: ignore[no-untyped-def]
     """Motion-aware GLT with the motion terms fitted on the first ``seconds`` of the gyro data (every sensor valid)."""
     from ..errors import ShapeError
-    from ..fdi.motion import fit_motion_detector
+    from ..fdi.motion import check_fit_span, fit_motion_detector
 
+    span = float(block.t[-1] - block.t[0])
+    if seconds > span:  # clamped to the data, said
+        print(f"  note: --motion-fit {seconds:g} s is longer than the data ({span:.4g} s): the motion terms are "
+              "fitted on all of it, and a fault anywhere in it would be absorbed (the check below looks for one)")
+        seconds = span + 1.0 / fs
     sel = block.t < block.t[0] + seconds
+    valid = None if block.valid.get("gyro") is None else block.valid["gyro"][sel]
     try:
-        det = fit_motion_detector(cal, block.raw["gyro"][sel],
-                                  None if block.valid.get("gyro") is None else block.valid["gyro"][sel], fs,
-                                  margin=margin, p_fa=p_fa)
+        det = fit_motion_detector(cal, block.raw["gyro"][sel], valid, fs, margin=margin, p_fa=p_fa)
+        check_fit_span(cal, det, block.t[sel], block.raw["gyro"][sel], valid, f"--motion-fit {seconds:g}")
     except ShapeError as exc:
         raise ShapeError(f"--motion-fit {seconds:g}: {exc}") from None
     model = det.model

@@ -47,7 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_json_option(p, "clock offsets (s) and rotation angles (deg) per triad")
     add_log_options(p)
     add_accept_implausible(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, extra_outputs=("session",))  # --session is written (rimu.cli._common.output_options)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -64,6 +64,12 @@ def run(args: argparse.Namespace) -> int:
         raise SessionFormatError(f"{args.log}: {len(rec.units)} IMU; a unit of triads needs two or more")
     t0 = float(rec.units[0].t[0])  # the window counts from the start of the log (the first IMU's first stamp)
     win = None if args.fit_window is None else (args.fit_window[0] + t0, args.fit_window[1] + t0)
+    span = max(float(u.t[-1] - u.t[0]) for u in rec.units if len(u.t))
+    if args.average and args.average > span / 10:
+        from ..errors import OptionError
+
+        raise OptionError(f"--average {args.average:g} s: the log spans {span:.4g} s; give at most {span / 10:.4g} s "
+                          "(ten averaged epochs)")
     su = setup_multi_imu(rec, average_s=args.average or None, fit_window_s=win)
     print(su.report())
     out = su.calibration.save(args.output)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import PROCEDURES, add_procedure_options, finite_float, nonnegative_float
+from ._common import PROCEDURES, add_procedure_options, check_samples, finite_float
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -16,7 +16,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--geometry", default=None, help="geometry preset for gyros and accelerometers "
                    "(default: cone6; tetrad4 gyros + triad3 accelerometers for oliveira_table1; triad3 for zhang)")
     p.add_argument("--seed", type=int, default=0)
-    add_procedure_options(p, nonnegative_float)
+    add_procedure_options(p)  # noise > 0: a noise-free unit has no calibration covariance
     p.add_argument("--latitude", type=finite_float, default=36.37, help="deg, in [-90, 90]")
     p.add_argument("-o", "--output", default="session.npz",
                    help="output file: .npz, or .csv (a .json sidecar is written beside it); see docs/session-format.md")
@@ -47,6 +47,8 @@ def run(args: argparse.Namespace) -> int:
     if args.duration is not None and not args.procedure.startswith("cho_park"):
         raise OptionError(f"--duration sets the segment length of the cho_park procedures; {args.procedure} has its "
                           "own fixed durations: leave --duration out")
+    check_samples((args.duration or 60.0) * args.sample_rate,
+                  f"--duration {args.duration or 60.0:g} s at --sample-rate {args.sample_rate:g} Hz", limit=5e6)
     if Path(args.output).suffix not in (".npz", ".csv"):
         raise OptionError(f"-o {args.output}: use a .csv (a .json sidecar is written beside it) or .npz file name")
     sim = Simulator(geometries_for(args.procedure, args.geometry), arw_deg_sqrt_h=args.arw, vrw_ug_sqrt_hz=args.vrw,

@@ -35,7 +35,6 @@ cross coupling, size effect) is compensated before the projection by code genera
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -54,7 +53,14 @@ _PREFIX = {"gyro": "RIMU_GYRO", "accel": "RIMU_ACCEL"}
 FDI_PARAMS = "rimu_fdi *{k}_m, const rimu_real *{k}_y, const unsigned char *{k}_valid, rimu_fdi_output *{k}_out"
 
 
+#: the largest finite C float (FLT_MAX)
+FLT_MAX = float(np.finfo(np.float32).max)
+
+
 def _num(v: float, real: str) -> str:
+    if real == "float" and abs(float(v)) > FLT_MAX:
+        raise ExportError(f"a coefficient of the calibration, {float(v):g}, is beyond the range of a C float "
+                          f"({FLT_MAX:.4g}): the generated code would not compile; export with --real double")
     s = repr(float(v))
     if "e" not in s and "." not in s and "inf" not in s and "nan" not in s:
         s += ".0"
@@ -566,21 +572,22 @@ def export_c(calibration: Calibration, directory: str | os.PathLike[str], real: 
                           "with common_cause=False")
     files = {"rimu_unit.h": _header(calibration, real, fdi), "rimu_unit.c": _source(calibration, real, fdi),
              "rimu_filter.c": _filter(calibration, real), "Makefile": _MAKEFILE}
-    out = []
-    for name, text in files.items():
-        fd, tmp = tempfile.mkstemp(dir=d, prefix=f".{name}.")
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, d / name)
-        out.append(d / name)
-    return out
+    from ..atomic import atomic_files
+
+    with atomic_files() as tx:  # the four files appear together or not at all
+        for name, text in files.items():
+            tx.path(d / name).write_text(text)
+    return [d / name for name in files]
 
 
 def build_filter(directory: str | os.PathLike[str]) -> tuple[str | None, Any]:
     """Build ``rimu_filter`` in an exported ``directory`` with the system C compiler (``cc``, ``gcc`` or
     ``clang``) and ``make``. Returns ``(compiler, completed make process)``, or ``(None, None)`` when no compiler
     or no ``make`` is installed."""
+    from ..atomic import flush_outputs
+
+    flush_outputs()  # the files of a command's output group, held back until its end, are built from: in place
+
     import shutil
     import subprocess
 

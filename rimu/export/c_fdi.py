@@ -38,9 +38,9 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2, norm
 
-from ..fdi.settings import FdiSettings
+from ..fdi.settings import C_INT_MAX, MAX_ISOLATIONS, FdiSettings  # noqa: F401  (re-exported)
 
-__all__ = ["FdiSettings"]  # the one settings object lives in rimu.fdi.settings
+__all__ = ["FdiSettings"]  # the one settings object lives in rimu.fdi.settings (with the C-int limits)
 
 
 def detection_variance(inst: Any) -> np.ndarray | None:

@@ -58,6 +58,10 @@ def misra_check(directory: str | Path, files: tuple[str, ...] = ("rimu_unit.c", 
 
     Returns ``{"misra": Counter(rule -> findings), "other": Counter(cppcheck id -> findings)}``. Raises
     :class:`ExportError` when cppcheck is not installed."""
+    from ..atomic import flush_outputs
+
+    flush_outputs()  # a command's held-back outputs are what this reads: in place
+
     exe = shutil.which("cppcheck")
     if exe is None:
         raise ExportError("cppcheck is not installed (Debian: apt-get install cppcheck)")

@@ -391,6 +391,10 @@ def write_target(calibration: Calibration, directory: str | os.PathLike[str],
 def build_target(directory: str | os.PathLike[str]) -> subprocess.CompletedProcess:
     """``make -f Makefile.cortex-m4`` in an exported ``directory``. Raises :class:`ExportError` naming the tools
     that are missing."""
+    from ..atomic import flush_outputs
+
+    flush_outputs()  # a command's held-back outputs are what this reads: in place
+
     miss = missing_tools()
     if miss:
         raise ExportError(f"the Cortex-M4 build needs {', '.join(miss)} (Debian: apt-get install gcc-arm-none-eabi "
@@ -423,6 +427,10 @@ def run_target(directory: str | os.PathLike[str], input_path: str | os.PathLike[
     mps2-an386 -icount shift=0`` with semihosting (or the desktop twin with ``host=True``), in a scratch folder
     beside ``directory``. ``stats_only``: the harness that runs ``rimu_step`` (projection and parity statistics,
     no fault management; only its instruction counts mean something)."""
+    from ..atomic import flush_outputs
+
+    flush_outputs()  # a command's held-back outputs are what this reads: in place
+
     d = Path(directory).resolve()
     with tempfile.TemporaryDirectory(dir=d) as w:
         wd = Path(w)

@@ -48,7 +48,8 @@ from ..fusion import InstrumentPipeline, Validity
 from .calaware import CalibrationCovariance
 from .glt import glt_threshold
 
-__all__ = ["MotionAwareGlt", "MotionNoiseModel", "fit_motion_detector", "fit_motion_terms"]
+__all__ = [
+    "check_fit_span", "MotionAwareGlt", "MotionNoiseModel", "fit_motion_detector", "fit_motion_terms"]
 
 _EYE3 = np.eye(3)
 
@@ -516,3 +517,53 @@ def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, val
         det.envelope = (float(envelope * np.linalg.norm(blk.x[full], axis=1).max()),
                         float(envelope * np.linalg.norm(alpha[full], axis=1).max()))
     return det
+
+
+#: what a fault-free fit span may need: extra white noise up to 4 times a sensor's calibrated variance (its noise
+#: at most sqrt(5) = 2.2 times what the calibration states), a scale-factor spread up to 5 %
+EXTRA_VAR_LIMIT = 4.0
+SCALE_LIMIT = 0.05
+
+
+def check_fit_span(calibration: InstrumentCalibration, detector: MotionAwareGlt, t: np.ndarray, raw: np.ndarray,
+                   valid: np.ndarray | None, what: str = "the fit span", confirm: int = 3) -> None:
+    """Refuse a motion fit whose span holds a fault: the fitted detector, run over the span it was fitted on,
+    must not isolate a sensor, and no sensor's residual may carry most of the fitted excess variance.
+
+    A step or drift inside the span is partly absorbed into the fitted terms (they grow until the statistic
+    fits), but what the terms cannot explain (a bias on one sensor is not a motion term of all) still alarms on
+    that span, and one sensor's residual then dominates.
+
+    Raises
+    ------
+    NotApplicableError
+        Naming the sensor, the time of the first isolation, and what to do.
+    """
+    import copy
+
+    from ..errors import NotApplicableError
+    from .manager import RedundancyManager
+
+    model = detector.model
+    ratio = np.asarray(model.extra_var, float) / np.asarray(model.sigma, float) ** 2
+    scale = np.atleast_1d(np.asarray(model.scale_rel, float))
+    if np.max(ratio) > EXTRA_VAR_LIMIT or np.max(np.abs(scale)) > SCALE_LIMIT:
+        i = int(np.argmax(ratio))
+        names = list(calibration.geometry.names)
+        raise NotApplicableError(
+            f"{what}: the span the motion terms are fitted on is not fault-free: the fit needs "
+            + (f"{ratio[i]:.3g} times the calibrated noise variance of {names[i]} as extra white noise (at most "
+               f"{EXTRA_VAR_LIMIT:g})" if np.max(ratio) > EXTRA_VAR_LIMIT else
+               f"a scale-factor spread of {100 * float(np.max(np.abs(scale))):.3g} % (at most {100 * SCALE_LIMIT:g} %)")
+            + "; a fault inside the span is absorbed by the fit: give a shorter --motion-fit that ends before it, or "
+            "fit on a fault-free recording")
+    pipe = InstrumentPipeline(calibration)
+    res = RedundancyManager(pipe, copy.deepcopy(detector), p_fa=detector.p_fa, confirm=confirm,
+                            readmit_after=None).run(np.asarray(raw, float), valid, np.asarray(t, float))
+    found = [ev for ev in res.events if ev.kind in ("isolated", "detected_not_isolable")]
+    if found:
+        ev = found[0]
+        raise NotApplicableError(f"{what}: the span the motion terms are fitted on is not fault-free (the fitted "
+                                 f"detector, run over it, {ev.kind.replace('_', ' ')} {ev.sensor or ''} at t = "
+                                 f"{ev.t:.4g} s); give a shorter --motion-fit that ends before the fault, or fit on "
+                                 "a fault-free recording")

@@ -26,7 +26,7 @@ from typing import Any, TextIO
 
 from ..errors import RimuError
 
-__all__ = ["Accounting", "AccountingError", "SideLog"]
+__all__ = ["Accounting", "AccountingError", "Outages", "SideLog"]
 
 
 class AccountingError(RimuError, AssertionError):
@@ -137,3 +137,60 @@ class Accounting:
         s = (f"{self.unit}s: received {self.received} = accepted {self.accepted} + rejected {self.rejected_total}"
              + (f" ({rej})" if rej else "") + f" + pending {self.pending}; epochs {self.epochs}")
         return s + (f"; events: {ev}" if ev else "")
+
+
+class Outages:
+    """Outages per instrument in a stream of epochs: runs of consecutive epochs in which none of an instrument's
+    sensors delivers a valid value (every gyro dropped out). What a live summary reports beside the accounting.
+
+    >>> import numpy as np
+    >>> from rimu.epoch import Epoch
+    >>> o = Outages()
+    >>> for k in range(10):
+    ...     o.update(Epoch(k * 0.01, {"gyro": np.zeros(3), "accel": np.zeros(3)},
+    ...                    {"gyro": np.full(3, not 3 <= k < 7)}))
+    >>> o.as_dict()["gyro"]
+    {'outages': 1, 'epochs': 4, 'longest_epochs': 4, 'longest_s': 0.03, 'first_t_s': 0.03}
+    >>> o.as_dict()["accel"]["outages"], o.summary()
+    (0, 'gyro: 1 outage (4 epochs, longest 4 epochs = 0.03 s, first at t = 0.03 s); accel: no outage')
+    """
+
+    def __init__(self) -> None:
+        self._stats: dict[str, dict[str, Any]] = {}
+        self._open: dict[str, tuple[float, int]] = {}
+        self._last_t: float | None = None
+
+    def update(self, ep: Any) -> None:
+        """Count one epoch."""
+        for k in ep.raw:
+            s = self._stats.setdefault(k, {"outages": 0, "epochs": 0, "longest_epochs": 0, "longest_s": 0.0,
+                                           "first_t_s": None})
+            out = not bool(ep.valid_mask(k).any())
+            if out:
+                s["epochs"] += 1
+                if k not in self._open:
+                    self._open[k] = (float(ep.t), 0)
+                    s["outages"] += 1
+                    if s["first_t_s"] is None:
+                        s["first_t_s"] = float(ep.t)
+                t0, n = self._open[k]
+                self._open[k] = (t0, n + 1)
+                if n + 1 > s["longest_epochs"]:
+                    s["longest_epochs"], s["longest_s"] = n + 1, round(float(ep.t) - t0, 9)
+            else:
+                self._open.pop(k, None)
+
+    def as_dict(self) -> dict[str, dict[str, Any]]:
+        """Per instrument: ``outages`` (runs), ``epochs`` (in all of them), the longest run in epochs and in s
+        (first to last epoch of the run), and the time of the first."""
+        return {k: dict(v) for k, v in self._stats.items()}
+
+    def summary(self) -> str:
+        parts = []
+        for k, s in self._stats.items():
+            if not s["outages"]:
+                parts.append(f"{k}: no outage")
+                continue
+            parts.append(f"{k}: {s['outages']} outage{'s' if s['outages'] > 1 else ''} ({s['epochs']} epochs, longest "
+                         f"{s['longest_epochs']} epochs = {s['longest_s']:.4g} s, first at t = {s['first_t_s']:.4g} s)")
+        return "; ".join(parts)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import operator
 import os
+import struct
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -485,6 +486,12 @@ class CanReplaySource(Source):
         yield self.proc.process_items(buf)
 
     def _epochs(self) -> Iterator[Epoch]:
+        from .guard import reading
+
+        with reading(self.path, "CAN log", (ValueError, IndexError, struct.error)):
+            yield from self._read_epochs()
+
+    def _read_epochs(self) -> Iterator[Epoch]:
         import can
 
         reader = None if self.native and not self.realtime else can.LogReader(self.path)
@@ -521,16 +528,19 @@ class CanReplaySource(Source):
             return super().read_block(max_epochs)
         import can
 
-        reader = None if self.native else can.LogReader(self.path)
+        from .guard import reading
+
         items: list = []
-        try:
-            for batch in self._batches(reader):
-                items.extend(batch)
-            items.extend(self.proc.flush())
-        finally:
-            stop = getattr(reader, "stop", None)
-            if stop is not None:
-                stop()
+        with reading(self.path, "CAN log", (ValueError, IndexError, struct.error)):
+            reader = None if self.native else can.LogReader(self.path)
+            try:
+                for batch in self._batches(reader):
+                    items.extend(batch)
+                items.extend(self.proc.flush())
+            finally:
+                stop = getattr(reader, "stop", None)
+                if stop is not None:
+                    stop()
         block = items_to_block(items, self.proc.codec.other_names)
         block.meta["accounting"] = self.accounting.as_dict()
         return block

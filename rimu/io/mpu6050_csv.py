@@ -19,6 +19,7 @@ import numpy as np
 
 from ..errors import SessionFormatError
 from ..units import DEG_TO_RAD, G0
+from .guard import reading
 from .multiimu import MultiImuCsvSource, MultiImuRecording, open_text, read_multi_imu_csv
 
 __all__ = ["INT16_LIMITS", "Mpu6050CsvSource", "read_mpu6050_csv"]
@@ -32,7 +33,7 @@ def read_mpu6050_csv(path: str | os.PathLike[str], accel_lsb_per_g: float = 1638
     p = Path(path)
     meta: dict[str, Any] = {}
     skip = 0
-    with open_text(p) as fh:
+    with reading(p, "CSV text"), open_text(p) as fh:
         for line in fh:
             cells = [c.strip() for c in line.strip().split(",")]
             if cells[:3] == ["ax", "ay", "az"]:

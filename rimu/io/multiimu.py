@@ -34,6 +34,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import logging
 import math
 import os
 from collections.abc import Iterator, Sequence
@@ -47,9 +48,12 @@ from ..epoch import Epoch, EpochBlock
 from ..errors import SessionFormatError, ShapeError, TransportError
 from ..units import DEG_TO_RAD, G0, MG_TO_MS2
 from .base import Source
+from .guard import reading
 from .rawtext import csv_header
 
 __all__ = [
+    "GYRO_RANGE_RAD_S",
+    "check_units",
     "UNIT_FACTORS",
     "ImuColumns",
     "ImuStream",
@@ -60,6 +64,8 @@ __all__ = [
     "read_multi_imu_csv",
     "resample_stream",
 ]
+
+log = logging.getLogger(__name__)
 
 #: declared unit -> factor to SI
 UNIT_FACTORS: dict[str, float] = {
@@ -162,9 +168,13 @@ class MultiImuMapping:
     def load(cls, path: str | os.PathLike[str]) -> MultiImuMapping:
         """Read a mapping JSON file."""
         try:
-            return cls.from_dict(json.loads(Path(path).read_text()))
+            with reading(path, "JSON text"):
+                doc = json.loads(Path(path).read_text(encoding="utf-8"))
         except json.JSONDecodeError as exc:
             raise SessionFormatError(f"{path}: not valid JSON ({exc})") from exc
+        if not isinstance(doc, dict):
+            raise SessionFormatError(f"{path}: a mapping must be a JSON object with 'imus', got {type(doc).__name__}")
+        return cls.from_dict(doc)
 
 
 @dataclass
@@ -328,7 +338,7 @@ def resample_stream(t: np.ndarray, y: np.ndarray, base: np.ndarray, gap_factor: 
 # ---------------------------------------------------------------------- reading
 def _read_table(path: Path, columns: list[str], skip_rows: int, delimiter: str) -> dict[str, np.ndarray]:
     """The named columns of a CSV file as float arrays (empty or non-finite cells -> NaN)."""
-    with open_text(path) as fh:
+    with reading(path, "CSV text"), open_text(path) as fh:
         for _ in range(skip_rows):
             fh.readline()
         rd = csv.reader(fh, delimiter=delimiter)
@@ -387,8 +397,65 @@ def _time(values: np.ndarray | None, n: int, unit: str | float, rate: float | No
     return t
 
 
+#: no MEMS gyro measures beyond +-4000 deg/s
+GYRO_RANGE_RAD_S = 4000.0 * DEG_TO_RAD
+
+
+def check_units(streams: Sequence[ImuStream], source: Any, declared: dict[str, dict[str, Any]] | None = None,
+                checks: str = "strict") -> list[str]:
+    """Per-IMU unit plausibility: each accelerometer's median specific force near 1 g (any vehicle averages
+    about 1 g over a record), each gyro within the range of a MEMS gyro and, when the vehicle turns, of the
+    same size as the other IMUs' (a factor near 57.3: deg/s under a rad/s label). Returns the findings;
+    ``checks="strict"`` raises :class:`~rimu.errors.PlausibilityError` naming the IMU, the file and the likely
+    unit, ``"warn"`` only returns them.
+
+    >>> t = np.arange(100) / 100.0
+    >>> ok = ImuStream("a", t, np.full((100, 3), 0.1), np.tile([0.0, 0.0, 9.81], (100, 1)))
+    >>> g = ImuStream("b", t, np.full((100, 3), 0.1), np.tile([0.0, 0.0, 1.0], (100, 1)))
+    >>> check_units([ok, g], "f.csv", checks="warn")
+    ["f.csv: IMU 'b' accel: median specific force 1 m/s^2, not about 1 g (9.807 m/s^2): the values look like g declared as m/s^2; fix accel_unit of 'b' in the mapping"]
+    """
+    from ..errors import PlausibilityError
+
+    declared = declared or {}
+    found = []
+    for u in streams:
+        if u.accel is not None and np.isfinite(u.accel).any():
+            norm = float(np.nanmedian(np.linalg.norm(u.accel, axis=1)))
+            if not (0.3 * G0 <= norm <= 3.0 * G0):
+                unit = declared.get(u.name, {}).get("accel", "m/s^2")
+                have = _factor(unit, "accel") if not isinstance(unit, (int, float)) else float(unit)
+                likely = [v for v in _QUANTITY_UNITS["accel"] if 0.5 * G0 <= norm / have * UNIT_FACTORS[v] <= 2 * G0]
+                cause = f"the values look like {likely[0]} declared as {unit}" if likely else "check the unit"
+                found.append(f"{source}: IMU {u.name!r} accel: median specific force {norm:.4g} m/s^2, not about 1 g "
+                             f"({G0:.4g} m/s^2): {cause}; fix accel_unit of {u.name!r} in the mapping")
+    gy = [u for u in streams if u.gyro is not None and np.isfinite(u.gyro).any()]
+    for u in gy:
+        peak = float(np.nanmax(np.abs(u.gyro)))
+        if peak > GYRO_RANGE_RAD_S:
+            found.append(f"{source}: IMU {u.name!r} gyro reaches {peak:.4g} rad/s, beyond any MEMS gyro's range "
+                         f"({GYRO_RANGE_RAD_S:.4g} rad/s = 4000 deg/s): the values look like deg/s declared as rad/s; "
+                         f"fix gyro_unit of {u.name!r} in the mapping")
+    if len(gy) >= 2:
+        rms = np.array([float(np.sqrt(np.nanmean(u.gyro ** 2))) for u in gy])
+        for j, u in enumerate(gy):
+            others = float(np.median(np.delete(rms, j)))
+            if others < 0.05 or rms[j] > GYRO_RANGE_RAD_S:  # a still vehicle tells nothing; range found above
+                continue
+            r = rms[j] / others
+            if 1 / DEG_TO_RAD / 1.5 <= r <= 1.5 / DEG_TO_RAD or DEG_TO_RAD / 1.5 <= r <= 1.5 * DEG_TO_RAD:
+                likely = "deg/s declared as rad/s" if r > 1 else "rad/s declared as deg/s"
+                found.append(f"{source}: IMU {u.name!r} gyro: rms rate {rms[j]:.4g} rad/s against {others:.4g} "
+                             f"rad/s of the other IMUs on the same vehicle ({r:.3g} times): the values look like "
+                             f"{likely}; fix gyro_unit of {u.name!r} in the mapping")
+    if found and checks == "strict":
+        raise PlausibilityError("; ".join(found) + " (or read with checks='warn')")
+    return found
+
+
 def read_multi_imu_csv(mapping: MultiImuMapping | dict[str, Any] | str | os.PathLike[str],
-                       path: str | os.PathLike[str] | None = None, on_bad_time: str = "raise") -> MultiImuRecording:
+                       path: str | os.PathLike[str] | None = None, on_bad_time: str = "raise",
+                       checks: str = "strict") -> MultiImuRecording:
     """Read a multi-IMU recording as described by ``mapping`` (object, dict or JSON file).
 
     Parameters
@@ -402,6 +469,9 @@ def read_multi_imu_csv(mapping: MultiImuMapping | dict[str, Any] | str | os.Path
         where the stamps are a regular grid ``t0 + k T`` (T the median period) except for at most one in a
         thousand isolated stamps (a repeated or slipped stamp, as in one quadrotor run), use the grid; the
         repaired rows are listed in ``meta["time_repairs"]`` per IMU. Anything worse is still refused.
+    checks : {"strict", "warn"}
+        The per-IMU unit checks (:func:`check_units`): refuse, or list the findings in ``meta["unit_findings"]``
+        with a warning.
 
     Raises
     ------
@@ -470,7 +540,16 @@ def read_multi_imu_csv(mapping: MultiImuMapping | dict[str, Any] | str | os.Path
             temp = data[m.temperature] if m.temperature else None
             streams[m.name] = ImuStream(m.name, t, g, a, temp)
     units = [streams[m.name] for m in mapping.imus]
+    if checks not in ("strict", "warn"):
+        raise ValueError(f"checks must be 'strict' or 'warn', got {checks!r}")
+    files = sorted({str(f) for f in by_file})
+    findings = check_units(units, files[0] if len(files) == 1 else ", ".join(files),
+                           {m.name: {"gyro": m.gyro_unit, "accel": m.accel_unit} for m in mapping.imus}, checks)
+    for f in findings:
+        log.warning(f)
     meta: dict[str, Any] = {"source": str(main) if main else None, "format": "multi-imu-csv"}
+    if findings:
+        meta["unit_findings"] = findings
     if repaired:
         meta["time_repairs"] = repaired
     return MultiImuRecording(units, meta)

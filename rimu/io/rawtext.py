@@ -197,6 +197,10 @@ def read_raw_text(source: str | Path | _io.TextIOBase, sample_rate: float | None
         ig = list(range(start + 3, start + 6)) if ncol >= start + 6 else []
     if header is None and tcol is None and ncol in (4, 7):
         tcol = 0
+    clash = (set(ia) & set(ig)) | ({tcol} & (set(ia) | set(ig)) if tcol is not None else set())
+    if clash:
+        raise SessionFormatError(f"{name}: column(s) {[names[k] for k in sorted(clash)]} serve as more than one of "
+                                 "time, accelerometer and gyro; name each column once (--time, --accel, --gyro)")
     if len(ia) < 3:
         raise SessionFormatError(f"{name}: found accelerometer columns {[names[k] for k in ia]}; give at least three "
                                  f"(--accel NAMES or indices); columns: {names}")

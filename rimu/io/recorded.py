@@ -25,6 +25,7 @@ import numpy as np
 from ..epoch import INSTRUMENTS, Epoch, EpochBlock
 from ..errors import SessionFormatError, TransportError
 from .base import Source
+from .guard import reading
 
 __all__ = ["CsvRecorder", "CsvSource", "NpzSource", "write_csv"]
 
@@ -61,7 +62,11 @@ class CsvRecorder:
         self.rows += 1
 
     def close(self) -> None:
-        """Finish the recording: the file appears under its name."""
+        """Finish the recording: the file appears under its name (no epoch written: no file, an empty file is
+        not a recording)."""
+        if self.rows == 0:
+            self.abort()
+            return
         if not self._fh.closed:
             self._fh.close()
             self._tx.commit()
@@ -110,7 +115,7 @@ class CsvSource(_FileSource):
 
     def _epochs(self) -> Iterator[Epoch]:
         acc = self.accounting
-        with open(self.path, newline="", encoding="utf-8") as fh:
+        with reading(self.path, "CSV text"), open(self.path, newline="", encoding="utf-8") as fh:
             first = fh.readline().strip()
             if first != CSV_MAGIC:
                 raise SessionFormatError(f"{self.path}: line 1 must be {CSV_MAGIC!r}, got {first[:40]!r}")

@@ -44,7 +44,7 @@ from .accounting import Accounting, SideLog
 from .base import ReconnectPolicy, Source
 from .checksum import crc16_ccitt
 
-__all__ = ["SYNC", "TYPE_SAMPLE", "encode_frame", "encode_sample", "encode_block", "SerialDecoder",
+__all__ = ["read_available", "SYNC", "TYPE_SAMPLE", "encode_frame", "encode_sample", "encode_block", "SerialDecoder",
            "cobs_encode", "cobs_decode", "encode_frame_cobs", "CobsDecoder", "make_decoder", "FRAMINGS",
            "SerialSource", "SerialFileSource"]
 
@@ -545,6 +545,35 @@ def make_decoder(framing: str, accounting: Accounting | None = None, max_payload
     raise FrameError(f"framing must be one of {FRAMINGS}, got {framing!r}")
 
 
+def read_available(ser: Any, size: int, timeout: float | None) -> bytes:
+    """What a pyserial port has for us, in one block of at most ``size`` bytes: waits up to the port's timeout for
+    the first byte, then takes everything that has arrived without waiting.
+
+    ``in_waiting`` is exact for local ports, ``loop://`` and ``rfc2217://`` but only 0 or 1 for ``socket://``
+    (a ``select`` poll): where it says at most one byte, the rest is drained with a zero-timeout read, so that
+    a socket is read in blocks too instead of one byte per call.
+
+    >>> import serial
+    >>> port = serial.serial_for_url("loop://", timeout=0.01)
+    >>> port.write(b"abcdef")
+    6
+    >>> read_available(port, 4, 0.01), read_available(port, 4, 0.01), read_available(port, 4, 0.01)
+    (b'abcd', b'ef', b'')
+    """
+    n = ser.in_waiting
+    if n > 1:
+        return bytes(ser.read(min(n, size)))
+    first = ser.read(1)
+    if not first or size <= 1:
+        return bytes(first)
+    ser.timeout = 0
+    try:
+        rest = ser.read(size - 1)
+    finally:
+        ser.timeout = timeout
+    return bytes(first) + bytes(rest)
+
+
 class SerialSource(Source):
     """Live serial port (any pyserial URL: ``/dev/ttyUSB0``, ``COM3``, ``loop://``, ``socket://host:port``).
 
@@ -603,8 +632,7 @@ class SerialSource(Source):
                     error = exc
                     continue
             try:
-                waiting = self.ser.in_waiting
-                data = self.ser.read(min(max(waiting, 1), self.read_size))
+                data = read_available(self.ser, self.read_size, self.read_timeout)
                 attempt = 0
             except (serial.SerialException, OSError) as exc:
                 self.accounting.event("port_error")

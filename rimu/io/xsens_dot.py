@@ -46,7 +46,7 @@ def read_xsens_dot_run(folder: str | os.PathLike[str]) -> MultiImuRecording:
     imus = [{"name": f"imu{k}", "file": f.name, "time": "time",
              "gyro": ["Gyr_X", "Gyr_Y", "Gyr_Z"], "gyro_unit": "deg/s",
              "accel": ["Acc_X", "Acc_Y", "Acc_Z"], "accel_unit": "m/s^2"} for k, f in files]
-    rec = read_multi_imu_csv({"imus": imus}, d / files[0][1], on_bad_time="grid")
+    rec = read_multi_imu_csv({"imus": imus}, files[0][1], on_bad_time="grid")  # (a path of d: not joined twice)
     rec.meta.update({"format": "xsens-dot", "run": d.name, "folder": str(d), "own_clocks": True})
     return rec
 

@@ -268,7 +268,7 @@ CASES = [
     (["replay", "{s}", "--calibration", "{cal}", "--estimates", "{afile}/x.csv"], 2, ["--estimates", "not a folder"]),
     (["replay", "{s}", "--calibration", "{cal}", "--estimates", "{dir}/missing/x.csv"], 2, ["--estimates", "does not exist"]),
     (["replay", "{s}", "--calibration", "{cal}", "--estimates", "{dir}"], 2, ["--estimates", "is a folder"]),
-    (["replay", "{s}", "--calibration", "{cal}", "--estimates", "{s}"], 2, ["--estimates", "would overwrite the data file"]),
+    (["replay", "{s}", "--calibration", "{cal}", "--estimates", "{s}"], 2, ["--estimates", "would overwrite the input"]),
     (["replay", "{s}", "--calibration", "{cal}", "--estimates", "{dir}/e.csv", "--json", "{dir}/e.csv"], 2,
      ["--estimates", "would overwrite --json"]),
     # simulate, design, campaign options
@@ -307,7 +307,7 @@ CASES = [
     (["export-c", "{dir}/nocal.json", "-o", "{dir}/x"], 2, ["nocal.json"]),
     (["export-c", "{cal}", "-o", "{afile}"], 2, ["--output", "not a folder"]),
     (["export-c", "{cal}", "-o", "{dir}/x", "--real", "half"], 2, ["--real", "half"]),
-    (["export-c", "{cal}", "-o", "{dir}/x", "--backoff", "0.5"], 2, ["--backoff", "at least 1"]),
+    (["export-c", "{cal}", "-o", "{dir}/x", "--backoff", "0.5"], 2, ["--backoff", "between 1 and 100"]),
     (["export-c", "{cal}", "-o", "{dir}/x", "--max-set-size", "3"], 2, ["--max-set-size", "3"]),
     # demo
     (["demo", "--report", "{afile}"], 2, ["--report", "not a folder"]),

@@ -293,3 +293,24 @@ def test_ulog_fifo_topics_unpacked_at_their_full_rate(tmp_path):
     np.testing.assert_allclose(u.gyro[:, 0], 0.001 * np.arange(200), atol=1e-9)
     np.testing.assert_allclose(u.accel[:, 2], 9.8, rtol=1e-6)
     np.testing.assert_allclose(u.t[:2], [1000e-6, 1250e-6])
+
+
+def test_text_log_of_several_triads_reads_one_imu_per_triad(tmp_path):
+    """A table of two triads side by side (g0x g0y g0z g1x ...) is two IMUs with their own columns, each converted
+    from the declared units; columns that do not form whole triads are refused with the way to map them."""
+    rng = np.random.default_rng(3)
+    t = np.arange(200) / 100.0
+    g = rng.normal(0, 5.0, (200, 6))        # deg/s
+    a = rng.normal(0, 0.01, (200, 6)) + np.tile([0, 0, 1.0], 2)   # g
+    head = "t," + ",".join(f"g{j}{x}" for j in range(2) for x in "xyz") + "," + \
+        ",".join(f"a{j}{x}" for j in range(2) for x in "xyz")
+    np.savetxt(tmp_path / "two.csv", np.column_stack([t, g, a]), delimiter=",", header=head, comments="", fmt="%.8f")
+    rec = read_log(tmp_path / "two.csv", gyro_unit="deg/s", accel_unit="g")
+    assert rec.names == ["imu0", "imu1"]
+    for j in range(2):
+        np.testing.assert_allclose(rec[f"imu{j}"].gyro, np.radians(g[:, 3 * j:3 * j + 3]), rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(rec[f"imu{j}"].accel, 9.80665 * a[:, 3 * j:3 * j + 3], rtol=1e-6, atol=1e-7)
+    np.savetxt(tmp_path / "odd.csv", np.column_stack([t, g[:, :4], a[:, :3]]), delimiter=",", comments="",
+               header="t,g0x,g0y,g0z,g1x,a0x,a0y,a0z", fmt="%.8f")
+    with pytest.raises(SessionFormatError, match="mapping"):
+        read_log(tmp_path / "odd.csv", gyro_unit="deg/s", accel_unit="g")

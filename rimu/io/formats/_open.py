@@ -18,6 +18,7 @@ import lzma
 import os
 import shutil
 import tempfile
+import zlib
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -134,7 +135,7 @@ def local_file(path: str | os.PathLike[str], suffix: str = "") -> Iterator[Path]
         with os.fdopen(fd, "wb") as out, open_binary(p) as src:
             try:
                 shutil.copyfileobj(src, out, 1 << 20)
-            except (EOFError, lzma.LZMAError, OSError, ValueError) as exc:
+            except (EOFError, lzma.LZMAError, OSError, ValueError, zlib.error) as exc:
                 if isinstance(exc, OSError) and not isinstance(exc, (gzip.BadGzipFile, EOFError)) \
                         and exc.errno is not None:
                     raise

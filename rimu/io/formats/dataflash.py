@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import SessionFormatError
+from ..guard import reading
 from ..multiimu import ImuStream, MultiImuRecording
 from ._open import open_binary
 
@@ -226,7 +227,7 @@ def iter_chunks(path: str | os.PathLike[str], block: int = BLOCK, **options: Any
     flavour_seen: set[str] = set()
     units_from: dict[str, str] = {}
     rest = b""
-    with open_binary(p) as fh:
+    with reading(p, "DataFlash log"), open_binary(p) as fh:  # damaged compression: one line naming the file
         while True:
             try:
                 data = fh.read(block)

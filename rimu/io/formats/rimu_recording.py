@@ -126,7 +126,7 @@ def read(path: str | os.PathLike[str], **options: Any) -> MultiImuRecording:
     try:
         z = np.load(p, allow_pickle=False)
         head = json.loads(str(z["rimu_recording"]))
-    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:  # (EOFError: an empty file)
         raise SessionFormatError(f"{p}: not a readable rimu recording ({type(exc).__name__}); write it with "
                                  "'rimu import LOG -o REC.npz'") from None
     if head.get("format") != FORMAT or head.get("version") != VERSION:

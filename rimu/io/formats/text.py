@@ -38,7 +38,8 @@ def sniff(name: str, head: bytes) -> bool:
 
 def read(path: str | os.PathLike[str], gyro_unit: Any = None, accel_unit: Any = None,
          sample_rate_hz: float | None = None, **options: Any) -> MultiImuRecording:
-    """The one IMU ``imu0`` in SI, with the declared units."""
+    """Every IMU of the table in SI, with the declared units: ``imu0`` (and ``imu1`` ... when the columns hold
+    several triads side by side, in the order of their columns)."""
     from ..rawtext import read_raw_text
 
     log = read_raw_text(path, sample_rate_hz)
@@ -49,8 +50,21 @@ def read(path: str | os.PathLike[str], gyro_unit: Any = None, accel_unit: Any = 
                                  "--gyro-unit 1.332e-4)")
     g = log.raw.get("gyro")
     a = log.raw.get("accel")
-    u = ImuStream("imu0", np.asarray(log.t, float), None if g is None else g * _factor(gyro_unit, "gyro"),
-                  None if a is None else a * _factor(accel_unit, "accel"))
-    return MultiImuRecording([u], {"format": NAME, "source": str(path), "header": dict(log.meta),
+    # several triads side by side (g0x g0y g0z g1x ...): one IMU per three columns, never one stream of 3k columns
+    widths = {k: v.shape[1] for k, v in (("gyro", g), ("accel", a)) if v is not None}
+    k_imu = {w // 3 for w in widths.values()}
+    if any(w % 3 for w in widths.values()) or len(k_imu) != 1:
+        cols = {k: log.columns.get(k) for k in widths}
+        raise SessionFormatError(f"{path}: the gyro and accelerometer columns {cols} do not form whole triads of "
+                                 "one IMU each; name the IMUs' columns with a mapping (rimu import LOG --format "
+                                 "multiimu-csv --mapping MAP.json, docs/io.md)")
+    k = k_imu.pop()
+    t = np.asarray(log.t, float)
+    units = []
+    for j in range(k):
+        gj = None if g is None else g[:, 3 * j:3 * j + 3] * _factor(gyro_unit, "gyro")
+        aj = None if a is None else a[:, 3 * j:3 * j + 3] * _factor(accel_unit, "accel")
+        units.append(ImuStream(f"imu{j}", t, gj, aj))
+    return MultiImuRecording(units, {"format": NAME, "source": str(path), "header": dict(log.meta),
                                    "units_from": {"gyro": f"declared ({gyro_unit})",
                                                   "accel": f"declared ({accel_unit})"}})
