@@ -259,9 +259,16 @@ def add_fdi_options(p: Any) -> None:
 def fdi_settings(args: argparse.Namespace, **more: Any) -> Any:
     """The :class:`rimu.fdi.FdiSettings` of the options (an option not given keeps the one default); the
     namespace's ``p_fa`` and ``confirm`` are set to the values in use."""
+    from ..errors import ExportError, OptionError
     from ..fdi.settings import DEFAULTS
 
-    st = DEFAULTS.replace(p_fa=getattr(args, "p_fa", None), confirm=getattr(args, "confirm", None), **more)
+    try:
+        st = DEFAULTS.replace(p_fa=getattr(args, "p_fa", None), confirm=getattr(args, "confirm", None), **more)
+    except ExportError as exc:  # a setting out of range: name the option
+        msg = str(exc)
+        for name in ("readmit_after", "p_fa", "confirm", "invalid_persist", "fail_after", "clear_after"):
+            msg = msg.replace(name, "--" + name.replace("_", "-"))
+        raise OptionError(msg) from None
     args.p_fa, args.confirm = st.p_fa, st.confirm
     return st
 
