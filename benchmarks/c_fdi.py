@@ -113,7 +113,7 @@ def main() -> int:
             for faulty in (False, True):
                 Y = _stream(cal, args.samples, faulty)
                 np.ascontiguousarray(Y, dtype="<f8").tofile(Path(d) / "y.bin")
-                mgr = s.manager(cal)
+                mgr = _manager(s, cal)
 
                 def py(mgr=mgr, Y=Y):
                     mgr.reset()
@@ -145,3 +145,11 @@ def main() -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+def _manager(settings, inst):
+    """The Python manager of one instrument calibration with these settings (the C's decisions)."""
+    from rimu.fdi import RedundancyManager
+    from rimu.fusion import InstrumentPipeline
+
+    return RedundancyManager(InstrumentPipeline(inst), **settings.manager_kwargs())

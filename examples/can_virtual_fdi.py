@@ -4,8 +4,9 @@
 
 The simulated device (rimu.io.CanDevice) sends 20 s of a 30 deg/s manoeuvre as CAN frames of the shipped
 ``cone6_rimu`` layout, with a 10-sigma step bias on gyro y2 from t = 10 s. rimu's CanSource assembles the
-frames into epochs, the runtime pipeline compensates and projects them, and the GLT on the parity vector with
-5 confirmations isolates the faulty gyro (Cho & Park 2005, Eq. 21).
+frames into epochs, and the unit's runtime (rimu.fdi.Runtime: compensation, projection, the GLT on the parity
+vector, the set test and its confirmation) isolates the faulty gyro (Cho & Park 2005, Eq. 21): the decisions
+``rimu monitor`` and ``rimu replay`` make on the same samples.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import can
 import numpy as np
 
 from rimu.epoch import EpochBlock
-from rimu.fdi import glt_snapshot
+from rimu.fdi import Runtime
 from rimu.fusion import Pipeline
 from rimu.io import CanDevice, CanSource
 from rimu.sim import Simulator, rotation
@@ -35,21 +36,17 @@ def main() -> None:
     tx = can.Bus(interface="virtual", channel="rimu-example")
     src = CanSource("cone6_rimu", bus=rx, idle_timeout=1.0, timeout=1.0)
     sender = CanDevice("cone6_rimu", fault=fault).start(tx, run.block)          # as fast as possible
-    pipe = Pipeline(run.truth)
-    streak = {k: (-1, 0) for k in pipe.instruments}
+    rt = Runtime(Pipeline(run.truth))          # the runtime of rimu monitor, rimu replay and the exported C
+    seen = {k: 0 for k in rt.managers}
     n = 0
     for ep in src:
         n += 1
-        for k, r in pipe.step(ep).items():
-            ip = pipe[k]
-            d = glt_snapshot(r.parity, ip.table.Vz[r.entry], r.dof, 1e-3, r.active)
-            last, count = streak[k]
-            count = count + 1 if (d.detected and d.isolated == last) else int(d.detected and d.isolated >= 0)
-            streak[k] = (d.isolated if d.detected else -1, count)
-            if count >= 5:
-                ip.isolate(d.isolated)
-                print(f"t = {ep.t:6.2f} s: {k} {ip.calibration.geometry.names[d.isolated]} isolated")
-                streak[k] = (-1, 0)
+        rt.step(ep)
+        for k, m in rt.managers.items():
+            for e in m.events[seen[k]:]:
+                if e.kind == "isolated":
+                    print(f"t = {e.t:6.2f} s: {k} {e.sensor} isolated ({e.message})")
+            seen[k] = len(m.events)
         if n == len(run.block):
             break
     sender.join()

@@ -80,8 +80,9 @@ def test_cho_park_fault_scenario_std_grows_as_predicted():
         Y[k][t >= tf, i] += 1e4  # a gross fault; its detection is the FDI module's business, here we isolate at tf
     for k, (i, tf) in faults.items():
         before = pipe[k].process(Y[k][t < tf])
-        pipe[k].isolate(i)
-        after = pipe[k].process(Y[k][t >= tf])
+        keep = np.ones(6, bool)
+        keep[i] = False
+        after = pipe[k].process(Y[k][t >= tf], active=keep)
         e_b = before.x - run.truth_inputs[k][t < tf]
         e_a = after.x - run.truth_inputs[k][t >= tf]
         sd_a = np.sqrt(np.diagonal(after.covariance()[0]))
@@ -108,17 +109,17 @@ def test_step_and_block_are_identical():
     Y[100, :4] = np.inf  # unobservable sample
     Y[200, 2] = -np.inf
     a, b = InstrumentPipeline(cal), InstrumentPipeline(cal)
-    a.isolate(5)
-    b.isolate(5)
-    blk = b.process(Y)
+    keep = np.array([1, 1, 1, 1, 1, 0], bool)
+    blk = b.process(Y, active=keep)
     xs, ps = np.empty((len(Y), 3)), np.empty((len(Y), 3))
     for n, y in enumerate(Y):
-        r = a.step(y)
+        r = a.step(y, active=keep)
         xs[n], ps[n] = r.x, r.parity
         assert r.observable == blk.observable[n] and r.dof == blk.dof[n]
         assert np.array_equal(r.active, blk.active[n]) and np.array_equal(r.invalid, blk.invalid[n])
         assert np.array_equal(np.isinf(np.diag(r.P)), np.isinf(np.diag(blk.covariance()[n])))
-    assert np.abs(xs - blk.x).max() < 1e-12 * max(1.0, np.abs(blk.x).max())
+    assert np.array_equal(np.isnan(xs), np.isnan(blk.x)) and np.isnan(xs[100]).all()
+    assert np.nanmax(np.abs(xs - blk.x)) < 1e-12 * max(1.0, np.nanmax(np.abs(blk.x)))
     assert np.abs(ps - blk.parity).max() < 1e-9
     assert np.array_equal(a.invalid_count, b.invalid_count)
     assert a.invalid_count.sum() == np.isnan(Y).sum() + np.isinf(Y).sum()
@@ -136,20 +137,21 @@ def test_non_finite_never_reaches_an_output():
     y2 = np.full(6, np.nan)
     y2[0] = y[0]
     r = p.step(y2)
-    assert not r.observable and np.all(r.x == 0) and np.all(np.isinf(np.diag(r.P))) and not np.any(np.isnan(r.x))
+    assert not r.observable and np.all(np.isnan(r.x)) and np.all(np.isinf(np.diag(r.P)))  # no estimate: NaN
     r = p.step(y)
     assert r.observable and not r.invalid.any() and np.allclose(r.x, u) and r.dof == 3
     assert p.invalid_count.tolist() == [0, 1, 2, 1, 1, 1]
     blk = p.process(np.vstack([y, y2, y1]))
-    assert not np.isnan(blk.x).any() and not np.isnan(blk.parity).any()
+    assert not np.isnan(blk.parity).any()
     assert blk.observable.tolist() == [True, False, True]
+    assert np.isnan(blk.x).any(axis=1).tolist() == [False, True, False]  # no estimate is NaN, never a number
     with pytest.raises(ShapeError):
         p.step(np.ones(5) * np.nan)
     with pytest.raises(ShapeError):
         p.process(np.ones((3, 5)))
-    for bad in (-1, 6, 2.0, True):
-        with pytest.raises(IndexError):
-            p.isolate(bad)
+    for bad in (-1, 64, np.ones(5, bool)):
+        with pytest.raises(ShapeError):
+            p.step(y, active=bad)
 
 
 def test_valid_mask_from_a_source_is_honoured():
@@ -181,8 +183,7 @@ def test_eq20_literal_agrees_and_isolation_is_exact_only_by_row_removal():
     x_eq20 = np.linalg.pinv(Hr) @ _minv(cal) @ z
     leak = np.abs(x_eq20 - u).max()
     assert 1e-4 < leak < 0.05  # of the order of the misalignment times the input
-    p.isolate(4)
-    assert np.allclose(p.step(y).x, u, atol=1e-12)  # row removal on the calibrated axes is exact
+    assert np.allclose(p.step(y, active=np.arange(6) != 4).x, u, atol=1e-12)  # row removal on the calibrated axes is exact
 
 
 def _minv(cal):

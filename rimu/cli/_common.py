@@ -240,6 +240,39 @@ def add_readmit_options(p: Any, other: str) -> None:
     p.add_argument("--no-readmit", action="store_true", help="never re-admit an isolated sensor automatically")
 
 
+#: the fault management's defaults as the help texts state them (tests/fdi/test_settings_defaults.py checks them
+#: against rimu.fdi.settings.DEFAULTS, which the options resolve to: the parsers stay free of heavy imports)
+FDI_HELP_DEFAULTS = {"p_fa": "0.001", "confirm": "3"}
+
+
+def add_fdi_options(p: Any) -> None:
+    """``--p-fa`` and ``--confirm`` of every command that runs the fault management; an option not given takes
+    the one default of :class:`rimu.fdi.FdiSettings` (read them with :func:`fdi_settings`)."""
+    p.add_argument("--p-fa", type=probability, default=None,
+                   help=f"per-sample false-alarm probability of the detector (default {FDI_HELP_DEFAULTS['p_fa']}, "
+                        "rimu.fdi.FdiSettings)")
+    p.add_argument("--confirm", type=positive_int, default=None,
+                   help="consecutive alarms naming the same sensor set before it is isolated (default "
+                        f"{FDI_HELP_DEFAULTS['confirm']}, rimu.fdi.FdiSettings)")
+
+
+def fdi_settings(args: argparse.Namespace, **more: Any) -> Any:
+    """The :class:`rimu.fdi.FdiSettings` of the options (an option not given keeps the one default); the
+    namespace's ``p_fa`` and ``confirm`` are set to the values in use."""
+    from ..errors import ExportError, OptionError
+    from ..fdi.settings import DEFAULTS
+
+    try:
+        st = DEFAULTS.replace(p_fa=getattr(args, "p_fa", None), confirm=getattr(args, "confirm", None), **more)
+    except ExportError as exc:  # a setting out of range: name the option
+        msg = str(exc)
+        for name in ("readmit_after", "p_fa", "confirm", "invalid_persist", "fail_after", "clear_after"):
+            msg = msg.replace(name, "--" + name.replace("_", "-"))
+        raise OptionError(msg) from None
+    args.p_fa, args.confirm = st.p_fa, st.confirm
+    return st
+
+
 def readmit_after(args: argparse.Namespace) -> int | None:
     """Clean samples before re-admission: ``--readmit-after``, else the default of every entry point
     (:data:`rimu.fdi.health.READMIT_AFTER`); None with ``--no-readmit``."""
@@ -434,6 +467,10 @@ def check_outputs(args: argparse.Namespace, files: Iterable[str] = OUTPUT_FILE_O
 
 
 # ---------------------------------------------------------------- logging
+class _CliHandler(logging.StreamHandler):
+    """The command line's handler (a class of its own, so that a second configuration replaces it)."""
+
+
 def configure_logging(command: str, verbose: int = 0, quiet: bool = False) -> None:
     """Standard ``logging`` for the ``rimu`` logger tree: warnings by default, ``-v`` info, ``-vv`` debug, ``-q``
     errors only. One line per record on stderr, prefixed with the command."""
@@ -442,11 +479,10 @@ def configure_logging(command: str, verbose: int = 0, quiet: bool = False) -> No
     level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
     root = logging.getLogger("rimu")
     for h in list(root.handlers):
-        if getattr(h, "_rimu_cli", False):
+        if isinstance(h, _CliHandler):
             root.removeHandler(h)
-    h = logging.StreamHandler(sys.stderr)
+    h = _CliHandler(sys.stderr)
     h.setFormatter(_Formatter(f"rimu {command}".strip()))
-    h._rimu_cli = True  # type: ignore[attr-defined]
     root.addHandler(h)
     root.setLevel(level)
     progress.set_enabled(not quiet)

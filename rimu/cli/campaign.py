@@ -14,13 +14,14 @@ from pathlib import Path
 
 from ._common import (
     Deprecated,
+    add_fdi_options,
     add_json_option,
     add_report_option,
     check_samples,
+    fdi_settings,
     nonnegative_int,
     positive_float,
     positive_int,
-    probability,
 )
 
 
@@ -36,9 +37,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--repetitions", type=positive_int, default=5, help="seeds per (fault, sensor, size)")
     p.add_argument("--detector", default="glt", choices=["glt", "glt_window", "cusum", "kalman", "baseline"])
     p.add_argument("--window", type=positive_int, default=5)
-    p.add_argument("--p-fa", type=probability, default=1e-3)
+    add_fdi_options(p)
     p.add_argument("--arl0", type=positive_float, default=1e5)
-    p.add_argument("--confirm", type=positive_int, default=3)
     p.add_argument("--duration", type=positive_float, default=10.0, help="s per task")
     p.add_argument("--fault-start", type=positive_float, default=5.0, help="s, inside --duration")
     p.add_argument("--open-loop-only", action="store_true", help="skip the closed-loop manager run (faster)")
@@ -71,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
     from ..experiments.faults import FAULTS
     from ..geometry import preset
 
+    fdi_settings(args)  # --p-fa and --confirm not given: the one default
     if args.scheduler:  # the extra, before any work
         try:
             import distributed  # noqa: F401

@@ -28,7 +28,7 @@ import numpy as np
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="simulate, calibrate, fuse, inject faults, isolate them; report and plot",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    from ._common import Deprecated, nonnegative_int, positive_float, positive_int, probability
+    from ._common import Deprecated, add_fdi_options, nonnegative_int, positive_float
 
     p.add_argument("--report", default="rimu-demo", metavar="DIR",
                    help="folder for the plot (demo.png), and by default the calibration file and report.json")
@@ -37,8 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", action=Deprecated, new="--report DIR", dest="report", metavar="DIR")
     p.add_argument("--seed", type=nonnegative_int, default=7)
     p.add_argument("--segment-duration", type=positive_float, default=20.0, help="s per calibration segment")
-    p.add_argument("--p-fa", type=probability, default=1e-3, help="per-sample false-alarm probability of the test")
-    p.add_argument("--confirm", type=positive_int, default=5, help="consecutive alarms on one sensor to isolate it")
+    add_fdi_options(p)
     p.set_defaults(func=run)
 
 
@@ -48,7 +47,11 @@ def run(args: argparse.Namespace) -> int:
     from ..calibration import Calibration, ChoPark
     from ..calibration.effects import GSensitivity
     from ..diagnose import diagnose
-    from ..fdi import RedundancyManager
+    from ..epoch import EpochBlock
+    from ..fdi import Runtime
+    from ._common import fdi_settings
+
+    settings = fdi_settings(args)  # --p-fa and --confirm not given: the one default
     from ..fusion import Pipeline
     from ..geometry import cone6
     from ..sim import Simulator, TruthEffect, cho_park_procedure, rotation
@@ -160,8 +163,9 @@ def run(args: argparse.Namespace) -> int:
 
     # 5. runtime pipeline and redundancy management (GLT, confirmation, Cho & Park Eq. 21 isolation) --------
     pipe = Pipeline(cal)
-    managers = RedundancyManager.for_unit(pipe, p_fa=args.p_fa, confirm=args.confirm, sample_rate=sim.sample_rate)
-    runs = {k: m.run(Y[k], None, t) for k, m in managers.items()}
+    rt = Runtime(pipe, settings)   # the runtime of rimu monitor, rimu replay and the exported C
+    runs = rt.run(EpochBlock(t, Y))
+    managers = rt.managers
     events = []
     for k, r in runs.items():
         for e in r.events:
@@ -230,10 +234,11 @@ def _flight_code(cal, t, Y, runs, out: Path, args: argparse.Namespace) -> dict: 
     compiler."""
     import subprocess
 
-    from ..export import Estimates, FdiSettings, build_filter, export_c, read_estimates
+    from ..export import Estimates, build_filter, export_c, read_estimates
+    from ._common import fdi_settings
 
     d = out / "flight_code"
-    export_c(cal, d, fdi=FdiSettings(p_fa=args.p_fa, confirm=args.confirm))
+    export_c(cal, d, fdi=fdi_settings(args))
     cc, build = build_filter(d)
     if cc is None:
         print("\n  flight code: no C compiler (or make) here; `rimu export-c CAL -o DIR --build` needs one")
@@ -254,10 +259,11 @@ def _flight_code(cal, t, Y, runs, out: Path, args: argparse.Namespace) -> dict: 
 
     c_est = read_estimates(_io.StringIO(res.stdout), cal)
     py = Estimates.from_replay(t, {k: runs[k] for k in insts})
-    rel = max(float(np.max(np.abs(c_est.x[k] - py.x[k])) / max(float(np.max(np.abs(py.x[k]))), 1e-300))
-              for k in insts)
-    same = all(np.array_equal(c_est.validity[k], py.validity[k]) and np.array_equal(c_est.isolated[k], py.isolated[k])
-               for k in insts)
+    rel = max(float(np.nanmax(np.abs(c_est.x[k] - py.x[k]), initial=0.0)) / max(float(np.nanmax(np.abs(py.x[k]))),
+                                                                                   1e-300) for k in insts)
+    same_nan = all(np.array_equal(np.isnan(c_est.x[k]), np.isnan(py.x[k])) for k in insts)
+    same = same_nan and all(np.array_equal(c_est.validity[k], py.validity[k])
+                            and np.array_equal(c_est.isolated[k], py.isolated[k]) for k in insts)
     print(f"\n  flight code: C99 exported and built with {cc} ({d}); {len(t)} samples through the C filter: "
           f"decisions {'equal to Python on every sample' if same else 'DIFFER from Python'}, estimates within "
           f"{rel:.1e} relative")

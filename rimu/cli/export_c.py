@@ -23,7 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--target", choices=("host", "cortex-m4"), default="host",
                    help="cortex-m4: single precision for a Cortex-M4F, plus its QEMU harness, flight image and "
                         "Makefile.cortex-m4 (--build builds them with arm-none-eabi-gcc; docs/flight-target.md)")
-    g = p.add_argument_group("fault management (baked into the code; an option not given keeps rimu.export.FdiSettings' default, which is rimu.fdi.RedundancyManager's)")
+    g = p.add_argument_group("fault management (baked into the code; an option not given keeps the one default of rimu.fdi.FdiSettings)")
     g.add_argument("--p-fa", type=probability, default=None,
                    help="per-sample false-alarm probability of the detection test (and of the re-admission test)")
     g.add_argument("--confirm", type=positive_int, default=None,

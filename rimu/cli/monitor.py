@@ -9,10 +9,12 @@ Sources (one of)::
     --csv rec.csv | --npz run.npz | --ulog flight.ulg
     --simulate                                    a simulated cone6 device on a virtual CAN bus (no hardware)
 
-Each epoch goes through the runtime pipeline (Cho & Park Eq. 20 compensation and projection) and the GLT on
-the parity vector; a sensor flagged ``--confirm`` times in a row is isolated (Eq. 21). A status line shows the
-epoch rate, frame counters and the health of each instrument; ``--record`` writes the epochs as CSV. Ctrl-C
-ends cleanly with a summary (epochs, accounting identity, rejections by reason, isolations).
+Each epoch goes through the unit's runtime (:class:`rimu.fdi.Runtime`: compensation of every effect, Cho & Park
+Eq. 20 projection, the GLT on the parity vector, the set test, confirmation, Eq. 21 isolation, re-admission,
+validity): the decisions of ``rimu replay`` and of the exported C filter on the same samples. A status line
+shows the epoch rate, frame counters and the health of each instrument; ``-o`` records the epochs as CSV,
+``--estimates`` writes the estimates and decisions per epoch. Ctrl-C ends cleanly with a summary (epochs,
+accounting identity, rejections by reason, isolations).
 """
 
 from __future__ import annotations
@@ -38,14 +40,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--ulog", metavar="FILE", help="PX4 ULog flight log (extra 'ulog')")
     src.add_argument("--simulate", action="store_true", help="simulated cone6 device on a virtual CAN bus")
     p.add_argument("--layout", default="cone6_rimu", help="CAN layout file or shipped name (default cone6_rimu)")
-    from ._common import Deprecated, add_json_option, positive_float, positive_int, probability
+    from ._common import Deprecated, add_fdi_options, add_json_option, add_readmit_options, positive_float, positive_int
 
     p.add_argument("--baud", type=positive_int, default=921600, help="serial baud rate")
     p.add_argument("--calibration", help="calibration file (rimu.calibration JSON); --simulate uses the truth")
     p.add_argument("--geometry", default=None, help="geometry preset of gyros and accelerometers "
                    "(default: the layout's, or cone6)")
-    p.add_argument("--p-fa", type=probability, default=1e-3, help="per-sample false-alarm probability of the GLT")
-    p.add_argument("--confirm", type=positive_int, default=5, help="consecutive alarms on one sensor to isolate it")
+    add_fdi_options(p)
+    add_readmit_options(p, "rimu replay and rimu export-c")
+    p.add_argument("--estimates", default=None, metavar="FILE.csv",
+                   help="write per epoch the estimates and decisions, the columns of rimu replay --estimates and of "
+                        "the exported C filter")
     p.add_argument("-o", "--output", dest="record", metavar="CSV", help="record every epoch to this CSV file")
     p.add_argument("--record", action=Deprecated, new="-o/--output CSV", metavar="CSV")
     p.add_argument("--side-log", metavar="JSONL", help="keep rejected raw data in this file")
@@ -171,48 +176,75 @@ def _open(args: argparse.Namespace) -> tuple[Any, Any, dict]:
     return src, Calibration.load(args.calibration, geometries=geos), extra
 
 
-class _Fdi:
-    """GLT on the normalised parity vector + confirmation + isolation (as rimu demo does)."""
+class _Monitor:
+    """The runtime (:class:`rimu.fdi.Runtime`: the decisions of ``rimu replay`` and of the exported C) on a live
+    stream: its new events per epoch, and the estimates file."""
 
-    def __init__(self, pipe: Any, p_fa: float, confirm: int) -> None:
-        from ..fdi import glt_snapshot
+    def __init__(self, pipe: Any, settings: Any, estimates: str | None) -> None:
+        from ..fdi import Runtime
 
-        self.glt = glt_snapshot
-        self.pipe, self.p_fa, self.confirm = pipe, p_fa, confirm
-        self.streak = {k: (-1, 0) for k in pipe.instruments}
-        self.stat = {k: 0.0 for k in pipe.instruments}
-        self.thr = {k: float("inf") for k in pipe.instruments}
+        self.rt = Runtime(pipe, settings)
+        self.seen = {k: 0 for k in self.rt.managers}
         self.events: list[dict] = []
+        self.isolations: list[dict] = []
+        self.est = estimates
+        self.rows: list[tuple] = []
+        self.fh: Any = None
+        self.n_rows = 0
 
-    def step(self, t: float, res: dict) -> list[dict]:
+    def step(self, ep: Any, n: int) -> list[dict]:
+        res = self.rt.step(ep)
         new = []
-        for k, r in res.items():
-            ip = self.pipe[k]
-            d = self.glt(r.parity, ip.table.Vz[r.entry], r.dof, self.p_fa, r.active)
-            self.stat[k], self.thr[k] = d.statistic, d.threshold
-            last, count = self.streak[k]
-            if d.detected and d.isolated >= 0:
-                count = count + 1 if d.isolated == last else 1
-                self.streak[k] = (d.isolated, count)
-                if count >= self.confirm:
-                    ip.isolate(d.isolated)
-                    ev = {"t": t, "instrument": k, "sensor": ip.calibration.geometry.names[d.isolated]}
-                    self.events.append(ev)
-                    new.append(ev)
-                    self.streak[k] = (-1, 0)
-            else:
-                self.streak[k] = (-1, 0)
+        for k, m in self.rt.managers.items():
+            evs = m.events[self.seen[k]:]
+            self.seen[k] = len(m.events)
+            for e in evs:
+                d = {"t": e.t, "sample": n, "instrument": k, "kind": e.kind, "sensor": e.sensor, "message": e.message}
+                new.append(d)
+                self.events.append(d)
+                if e.kind in ("isolated", "invalid_isolated"):
+                    self.isolations.append(d)
+        if self.est is not None:
+            self.rows.append((float(ep.t), {k: (r.x.copy(), int(r.validity), self.rt.managers[k].isolated)
+                                            for k, r in res.items()}))
+            if len(self.rows) >= 1000:
+                self.flush()
         return new
 
+    def open(self, stack: Any) -> None:
+        if self.est is None:
+            return
+        from ..atomic import atomic_path
+        from ..export.estimates import estimate_columns
 
-def _status(t: float, rate: float, src: Any, pipe: Any, fdi: _Fdi) -> str:
+        self.fh = stack.enter_context(stack.enter_context(atomic_path(self.est)).open("w"))
+        self.fh.write(",".join(estimate_columns({k: m.n for k, m in self.rt.managers.items()})) + "\n")
+
+    def flush(self) -> None:
+        if self.fh is None or not self.rows:
+            return
+        import numpy as np
+
+        from ..export.estimates import Estimates, write_estimates
+
+        ks = list(self.rt.managers)
+        est = Estimates(np.array([t for t, _ in self.rows]),
+                        {k: np.array([d[k][0] for _, d in self.rows]) for k in ks},
+                        {k: np.array([d[k][1] for _, d in self.rows]) for k in ks},
+                        {k: np.array([d[k][2] for _, d in self.rows]) for k in ks})
+        write_estimates(self.fh, est, header=False)
+        self.n_rows += len(self.rows)
+        self.rows = []
+
+
+def _status(t: float, rate: float, src: Any, mon: _Monitor) -> str:
     a = src.accounting
     parts = [f"t {t:9.2f} s", f"{rate:6.1f} Hz", f"{a.unit}s {a.received} ok {a.accepted} rej {a.rejected_total}"]
-    for k, ip in pipe.instruments.items():
-        iso = [ip.calibration.geometry.names[i] for i in range(ip.n) if ip.isolated[i]]
-        inv = int(ip.result.invalid.sum())
-        parts.append(f"{k} {ip.n - len(iso) - inv}/{ip.n} ok FD {fdi.stat[k]:6.1f}/{fdi.thr[k]:.1f}"
-                     + (f" isolated {','.join(iso)}" if iso else ""))
+    for k, m in mon.rt.managers.items():
+        r = m.result
+        h = m.health
+        parts.append(f"{k} {int(r.active.sum()) if r.observable else 0}/{m.n} ok {h.state.value} FD "
+                     f"{h.statistic:6.1f}/{h.threshold:.1f}" + (f" isolated {','.join(h.isolated)}" if h.isolated else ""))
     return " | ".join(parts)
 
 
@@ -234,13 +266,21 @@ def _restore_sigint(old: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import contextlib
+
     from ..fusion import Pipeline
     from ..io.accounting import Outages
     from ..io.recorded import CsvRecorder
+    from ._common import fdi_settings, readmit_after
 
+    settings = fdi_settings(args, readmit_after=readmit_after(args))
+    if args.no_readmit:
+        settings = type(settings)(**{**settings.as_dict(), "readmit_after": None})
     src, cal, extra = _open(args)
     pipe = Pipeline(cal)
-    fdi = _Fdi(pipe, args.p_fa, args.confirm)
+    mon = _Monitor(pipe, settings, args.estimates)
+    stack = contextlib.ExitStack()
+    mon.open(stack)
     rec = CsvRecorder(args.record) if args.record else None
     outages = Outages()
     tty = sys.stdout.isatty()
@@ -271,16 +311,17 @@ def run(args: argparse.Namespace) -> int:
             t_last = ep.t
             n += 1
             outages.update(ep)
-            for ev in fdi.step(ep.t, pipe.step(ep)):
-                ev["sample"] = n - 1  # events carry the epoch index as well as the time
+            for ev in mon.step(ep, n - 1):  # events carry the epoch index as well as the time
+                if ev["kind"] == "transient":
+                    continue
                 print(("\n" if tty else "") + f"  t = {ev['t']:.2f} s (epoch {n - 1}): {ev['instrument']} "
-                      f"{ev['sensor']} isolated", flush=True)
+                      f"{ev['kind']} {ev['sensor'] or ''} {ev['message']}", flush=True)
             if rec is not None:
                 rec.write(ep)
             now = time.monotonic()
             if now - w_status >= args.status_interval:
                 rate = (n - n_status) / (now - w_status)
-                line = _status(ep.t, rate, src, pipe, fdi)
+                line = _status(ep.t, rate, src, mon)
                 print(("\r" + line) if tty else line, end="" if tty else "\n", flush=True)
                 w_status, n_status = now, n
             if args.duration is not None and ep.t - t0 >= args.duration:
@@ -289,6 +330,9 @@ def run(args: argparse.Namespace) -> int:
                 break
     except KeyboardInterrupt:
         interrupted = True
+    except BaseException:
+        stack.close()  # a half-written estimates file is removed
+        raise
     finally:
         _restore_sigint(old_handler)
         interrupted = interrupted or bool(stop_requested)
@@ -304,8 +348,10 @@ def run(args: argparse.Namespace) -> int:
     if n:  # the last status line, so that the final state is always shown
         now = time.monotonic()
         rate = (n - n_status) / max(now - w_status, 1e-9)
-        line = _status(t_last, rate, src, pipe, fdi)
+        line = _status(t_last, rate, src, mon)
         print(("\r" + line) if tty else line, end="" if tty else "\n", flush=True)
+    mon.flush()
+    stack.close()
     a = src.accounting
     wall = time.monotonic() - w0
     if n == 0 and not interrupted:
@@ -316,8 +362,9 @@ def run(args: argparse.Namespace) -> int:
                                                            if (args.can or args.serial) else ""))
     summary = {"epochs": n, "data_span_s": (t_last - t0) if n else 0.0, "wall_s": wall,
                "interrupted": interrupted, "accounting": a.as_dict(), "outages": outages.as_dict(),
-               "isolations": fdi.events,
-               "record": args.record}
+               "isolations": mon.isolations, "events": mon.events[:10000], "record": args.record,
+               "estimates": args.estimates,
+               "final_state": {k: m.health.state.value for k, m in mon.rt.managers.items()}}
     if tty:
         print()
     print(f"rimu monitor: {'interrupted, ' if interrupted else ''}{n} epochs"
@@ -326,10 +373,15 @@ def run(args: argparse.Namespace) -> int:
     print(f"  outages (epochs without any valid sensor of an instrument): {outages.summary() or 'none'}")
     print(f"  accounting identity received = accepted + rejected + pending: "
           f"{'holds' if a.identity_holds() else 'BROKEN'}")
-    for ev in fdi.events:
+    for ev in mon.isolations:
         print(f"  isolated: {ev['instrument']} {ev['sensor']} at t = {ev['t']:.2f} s (epoch {ev.get('sample')})")
-    if not fdi.events:
+    if not mon.isolations:
         print("  no sensor isolated")
+    for k, m in mon.rt.managers.items():
+        print(f"  {k}: final state {m.health.state.value}" + (f", isolated {', '.join(m.health.isolated)}"
+                                                            if m.health.isolated else ""))
+    if args.estimates:
+        print(f"  estimates: {Path(args.estimates)} ({mon.n_rows} rows)")
     if args.record:
         print(f"  recording: {Path(args.record)}" if n else "  no recording written (no epoch)")
     if args.json == "-":

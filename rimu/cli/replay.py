@@ -38,13 +38,13 @@ import numpy as np
 from ._common import (
     Deprecated,
     add_accept_implausible,
+    add_fdi_options,
     add_json_option,
     add_readmit_options,
     add_report_option,
     nonnegative_int,
     positive_float,
     positive_int,
-    probability,
     readmit_after,
 )
 from ._inputs import add_log_options
@@ -60,9 +60,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--inject", action="append", default=[], metavar="SPEC", help="fault to inject (repeatable)")
     p.add_argument("--detector", default="glt", choices=DETECTORS)
     p.add_argument("--window", type=positive_int, default=5, help="samples of the window GLT")
-    p.add_argument("--p-fa", type=probability, default=1e-3, help="per-sample false-alarm probability")
+    add_fdi_options(p)
     p.add_argument("--arl0", type=positive_float, default=1e5, help="mean samples between false alarms (cusum, baseline)")
-    p.add_argument("--confirm", type=positive_int, default=3, help="consecutive alarms before isolation")
     add_readmit_options(p, "rimu export-c")
     p.add_argument("--noise", type=positive_float, default=None, help="per-sample noise (SI) if the calibration has none")
     p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of random fault types")
@@ -154,6 +153,7 @@ class _SegmentStats:
         self.first: dict[str, np.ndarray] = {}
         self.last: dict[str, np.ndarray] = {}
         self.sum: dict[str, np.ndarray] = {}
+        self.count: dict[str, np.ndarray] = {}  # finite values per column (invalid samples are NaN)
         self.lo: dict[str, np.ndarray] = {}
         self.hi: dict[str, np.ndarray] = {}
         self.trap: dict[str, np.ndarray] = {}  # sum of 0.5 (y[k] + y[k+1]) dt_k (angle segments)
@@ -167,17 +167,24 @@ class _SegmentStats:
             within.add(np.concatenate(self.steps + [d]))
             self.steps = []
         for k, y in raw.items():
+            ok = np.isfinite(y)
             if self.n == 0:
-                self.first[k] = y[0].copy()
+                self.first[k] = np.full(y.shape[1], np.nan)
                 self.sum[k] = np.zeros(y.shape[1])
-                self.lo[k], self.hi[k] = y[0].copy(), y[0].copy()
+                self.count[k] = np.zeros(y.shape[1], np.int64)
+                self.lo[k], self.hi[k] = np.full(y.shape[1], np.nan), np.full(y.shape[1], np.nan)
                 self.trap[k] = np.zeros(y.shape[1])
-            self.sum[k] += y.sum(axis=0)
-            np.minimum(self.lo[k], y.min(axis=0), out=self.lo[k])
-            np.maximum(self.hi[k], y.max(axis=0), out=self.hi[k])
-            if self.angle:
+            miss = np.isnan(self.first[k]) & ok.any(axis=0)  # the first usable value of each column
+            if miss.any():
+                self.first[k][miss] = y[ok.argmax(axis=0), np.arange(y.shape[1])][miss]
+            self.sum[k] += np.where(ok, y, 0.0).sum(axis=0)
+            self.count[k] += ok.sum(axis=0)
+            with np.errstate(invalid="ignore"):
+                np.fmin(self.lo[k], np.fmin.reduce(y, axis=0), out=self.lo[k])
+                np.fmax(self.hi[k], np.fmax.reduce(y, axis=0), out=self.hi[k])
+            if self.angle:  # an invalid sample adds nothing to the integral (its intervals are left out)
                 yy = y if self.n == 0 else np.vstack([self.last[k], y])
-                self.trap[k] += (0.5 * (yy[1:] + yy[:-1]) * d[:, None]).sum(axis=0)
+                self.trap[k] += np.nan_to_num(0.5 * (yy[1:] + yy[:-1]) * d[:, None]).sum(axis=0)
             self.last[k] = y[-1].copy()
         if self.n == 0:
             self.t0 = float(t[0])
@@ -193,7 +200,7 @@ class _SegmentStats:
         if self.angle:
             r3 = 2.0 * (3.0 * self.trap[k] / T - 0.5 * r0 - r1 - r2)
         else:
-            r3 = 4.0 * self.sum[k] / self.n - r0 - r1 - r2
+            r3 = 4.0 * self.sum[k] / np.maximum(self.count[k], 1) - r0 - r1 - r2
         r3 = np.where(r1 == r2, r0, r3)  # a constant column stays constant
         return t, np.vstack([r0, r1, r2, r3])
 
@@ -215,7 +222,7 @@ class _Scan:
         side: dict = {}
         last_t, last_seg = None, -1
         self.has_temp = False
-        for blk in iter_blocks(path, _CHUNK):
+        for blk in iter_blocks(path, _CHUNK, invalid=True):
             seg = blk.meta["segment"]
             if not stats:
                 side = blk.meta["sidecar"]
@@ -342,12 +349,13 @@ class _Errors:
                 continue
             u = u[1:]
             d = x[a:b] - u
+            d = d[np.isfinite(d).all(axis=1)]  # samples without an estimate (unobservable) have no error
             self.sq += float(np.sum(d * d))
             self.count += d.size
             if i not in self.n:
                 self.sd[i], self.n[i] = np.zeros(3), 0
             self.sd[i] += d.sum(axis=0)
-            self.n[i] += b - a
+            self.n[i] += len(d)
 
     def result(self):  # type: ignore[no-untyped-def]
         """:class:`rimu.fusion.validation.InstrumentErrors`, or None when no segment has a known input."""
@@ -367,16 +375,18 @@ def run(args: argparse.Namespace) -> int:
     from ..calibration import Calibration
     from ..epoch import EpochBlock
     from ..errors import CalibrationFileError, OptionError, RimuError, SessionFormatError
-    from ..experiments.campaign import CampaignSpec, make_detector
     from ..experiments.faults import inject, parse_injection
     from ..export.estimates import Estimates, estimate_columns, write_estimates
-    from ..fdi import RedundancyManager, UnitManager
+    from ..fdi import RedundancyManager, Runtime
+    from ..fdi.detectors import make_detector
+    from ..fdi.settings import DEFAULTS
     from ..fusion import Pipeline
     from ..progress import bar
     from ..session import iter_blocks
     from ..units import fmt  # the field's units, as rimu calibrate prints them
-    from ._common import check_outputs
+    from ._common import check_outputs, fdi_settings
 
+    fdi_settings(args)  # --p-fa and --confirm not given: the one default
     if args.estimates:  # a CSV without a sidecar: checked alone, then against the other outputs and the inputs
         from ..errors import OutputPathError
 
@@ -441,7 +451,7 @@ def run(args: argparse.Namespace) -> int:
     def blocks(pipe=None):  # type: ignore[no-untyped-def]
         """pass 2 (and the motion fit): the file again, chunk by chunk, faults injected (and, given a pipeline,
         effects compensated: the motion fit's fault-free start)"""
-        for blk in iter_blocks(path, chunk):
+        for blk in iter_blocks(path, chunk, invalid=True):  # empty and NaN cells: invalid samples
             if injections:
                 blk = inject(blk, injections, cal, seed=args.seed)
             yield blk if pipe is None else pipe.compensate(blk)
@@ -449,15 +459,16 @@ def run(args: argparse.Namespace) -> int:
     managers = {}
     for k in insts:
         pipe = unit[k]
-        spec = CampaignSpec(detector=args.detector, window=args.window, p_fa=args.p_fa, arl0=args.arl0)
-        det = make_detector(spec, pipe.table.sigma)
+        det = make_detector(args.detector, pipe.table.sigma, window=args.window, p_fa=args.p_fa, arl0=args.arl0)
         if args.motion_fit is not None and k == "gyro":
             det = _motion_detector(cal[k], _first_seconds(blocks(Pipeline(sub, temperature=scan.has_temp)),
                                                           t0 + args.motion_fit),
                                    args.motion_fit, args.motion_margin, args.p_fa, fs)
-        managers[k] = (RedundancyManager(pipe, det, p_fa=args.p_fa,
-                                         confirm=1 if args.detector == "cusum" else args.confirm,
-                                         readmit_after=readmit_after(args), sample_rate=fs), det)
+        kw = DEFAULTS.replace(p_fa=args.p_fa, confirm=1 if args.detector == "cusum" else args.confirm).manager_kwargs()
+        kw.update(readmit_after=readmit_after(args), sample_rate=fs)
+        if args.detector != "glt" or args.motion_fit is not None:
+            kw.pop("isolator")  # the manager picks the isolator that fits the detector
+        managers[k] = (RedundancyManager(pipe, det, **kw), det)
     alarms = dict.fromkeys(insts, 0)
     events: dict[str, list] = {k: [] for k in insts}
     finite = dict.fromkeys(insts, True)
@@ -474,14 +485,15 @@ def run(args: argparse.Namespace) -> int:
             est.write(",".join(estimate_columns(insts)) + "\n")
         # the managers closed loop with the compensation of further effects (rimu.fdi.UnitManager: the decisions
         # of the exported C filter, sample by sample)
-        um = UnitManager(unit, {k: managers[k][0] for k in insts})
+        um = Runtime(unit, managers={k: managers[k][0] for k in insts})
         for blk in bar(blocks(), total=n_chunks, desc="replay", unit="chunk", enabled=None if n_chunks > 1 else False):
             results = um.run(blk)
             for k in insts:
                 r = results[k]
                 alarms[k] += int(np.count_nonzero(r.alarm))
                 events[k] += r.events
-                finite[k] = finite[k] and bool(np.isfinite(r.x).all())
+                # a number wherever there is an estimate; NaN exactly where there is none (unobservable)
+                finite[k] = finite[k] and bool(np.array_equal(np.isfinite(r.x).all(axis=1), r.validity != 2))
                 last_state[k] = r.state_names()[-1]
                 errors[k].add(np.asarray(r.x), blk.t, blk.meta["segment"])
                 if plots:

@@ -33,18 +33,17 @@ import numpy as np
 from scipy.stats import beta as _beta
 from scipy.stats import ncx2
 
-from ..fdi.baseline import MeanDisagreement
-from ..fdi.cusum import CusumBank
-from ..fdi.glt import GltSnapshot, GltWindow, glt_threshold
-from ..fdi.kalman import ParityKalman
+from ..fdi.detectors import DETECTORS  # the runtime's names, re-exported here
+from ..fdi.detectors import make_detector as _make_detector
+from ..fdi.glt import glt_threshold
 from ..fdi.manager import HealthState, RedundancyManager
+from ..fdi.settings import DEFAULTS as _D
 from ..fusion import InstrumentPipeline
 from .faults import FAULTS
 
 __all__ = ["CampaignSpec", "CampaignResult", "run_campaign", "run_task", "run_tasks", "clopper_pearson", "make_detector",
            "simulated_truth", "campaign_unit"]
 
-DETECTORS = ("glt", "glt_window", "cusum", "kalman", "baseline")
 
 
 def clopper_pearson(k: int, n: int, level: float = 0.99) -> tuple[float, float]:
@@ -103,12 +102,12 @@ class CampaignSpec:
     repetitions: int = 5
     detector: str = "glt"
     window: int = 5
-    p_fa: float = 1e-3
+    p_fa: float = _D.p_fa
     arl0: float = 1e5
     cusum_bias: float = 1.0
     tau: float = 20.0
     dead_band: float = 2.0
-    confirm: int = 3
+    confirm: int = _D.confirm
     duration: float = 10.0
     fault_start: float = 5.0
     sample_rate: float = 100.0
@@ -183,16 +182,10 @@ def simulated_truth(geometry: str, instrument: str, sample_rate: float, seed: in
 
 
 def make_detector(spec: CampaignSpec, sigma: float | np.ndarray) -> Any:
-    """The detector a spec names, with its design settings."""
-    if spec.detector == "glt":
-        return GltSnapshot(spec.p_fa)
-    if spec.detector == "glt_window":
-        return GltWindow(spec.window, spec.p_fa)
-    if spec.detector == "cusum":
-        return CusumBank(spec.cusum_bias * np.asarray(sigma), spec.arl0)
-    if spec.detector == "kalman":
-        return ParityKalman(spec.tau, spec.p_fa)
-    return MeanDisagreement(sigma, spec.dead_band, spec.arl0)
+    """The detector a spec names, with its design settings (the runtime's factory,
+    :func:`rimu.fdi.detectors.make_detector`)."""
+    return _make_detector(spec.detector, sigma, p_fa=spec.p_fa, window=spec.window, arl0=spec.arl0,
+                          cusum_bias=spec.cusum_bias, tau=spec.tau, dead_band=spec.dead_band)
 
 
 def task_seed(spec: CampaignSpec, task: Sequence[int]) -> int:
@@ -222,7 +215,6 @@ def run_task(spec: CampaignSpec, task: Sequence[int]) -> dict[str, Any]:
 
     # open loop: one active set (the full one), samples the pipeline had to route around are left out
     det = make_detector(spec, pipe.table.sigma)
-    pipe.set_isolated(np.zeros(pipe.n, bool))
     res = pipe.process(Y, V)
     e0 = pipe.table.lookup(pipe.table.full_code)
     full = res.entry == e0
@@ -268,9 +260,11 @@ def run_task(spec: CampaignSpec, task: Sequence[int]) -> dict[str, Any]:
         out["transient_events"] = sum(1 for e in rr.events if e.t >= spec.fault_start
                                       and e.kind in ("transient", "invalid_transient") and e.sensor == name)
         out["final_state"] = mgr.state.value
-        out["finite"] = bool(np.all(np.isfinite(rr.x)) and np.all(np.isfinite(rr.statistic)))
+        # an estimate is a finite number wherever there is one (NaN exactly where the set is unobservable)
+        obs = rr.validity != 2
+        out["finite"] = bool(np.all(np.isfinite(rr.x[obs])) and np.all(np.isnan(rr.x[~obs]))
+                             and np.all(np.isfinite(rr.statistic)))
         mgr.reset()
-    pipe.set_isolated(np.zeros(pipe.n, bool))
     return out
 
 

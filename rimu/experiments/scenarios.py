@@ -30,8 +30,8 @@ import numpy as np
 from scipy.optimize import brentq
 from scipy.stats import chi2, ncx2
 
-from ..fdi.health import READMIT_AFTER
 from ..fdi.manager import RedundancyManager
+from ..fdi.settings import DEFAULTS as _D
 from ..fusion import InstrumentPipeline
 from ..fusion.validity import Validity
 from .campaign import check_spec, run_tasks, split_isolations
@@ -67,11 +67,11 @@ class ScenarioSpec:
     """Step of each ``intermittent`` burst, sigma."""
     ramp_sigma_per_s: float = 0.5
     """Slope of ``ramp``, sigma/s."""
-    p_fa: float = 1e-3
+    p_fa: float = _D.p_fa
     """False-alarm probability per sample of the manager's detection test."""
-    confirm: int = 3
+    confirm: int = _D.confirm
     """Alarms in a row before the manager isolates."""
-    readmit_after: int = READMIT_AFTER
+    readmit_after: int | None = _D.readmit_after
     """Clean samples before an isolated sensor is re-admitted."""
     base_seed: int = 14
     """Seed of the whole campaign (each run's seed derives from it)."""
@@ -190,7 +190,9 @@ def _one_run(spec: ScenarioSpec, geometry: str, kind: str, run: int, cal: Any, m
         "readmitted_at_end": not end_iso, "isolations": len(after),
         "biased_while_nominal": biased, "undetectable_samples": int(undetectable.size),
         "undetectable_max_bias": float(undetectable.max()) if undetectable.size else 0.0,
-        "finite": bool(np.all(np.isfinite(res.x))),
+        # a number wherever there is an estimate, NaN exactly where there is none (unobservable)
+        "finite": bool(np.array_equal(np.isfinite(res.x).all(axis=1), res.validity != 2)
+                       and not np.isinf(res.x).any()),
     }
 
 

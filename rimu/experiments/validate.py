@@ -16,9 +16,10 @@ from typing import Any
 import numpy as np
 
 from ..calibration.result import Calibration
-from ..fdi.health import READMIT_AFTER
-from ..fdi.manager import RedundancyManager, ReplayResult
-from ..fdi.unit import UnitManager
+from ..fdi.manager import ReplayResult
+from ..fdi.settings import DEFAULTS as _D
+from ..fdi.settings import FdiSettings
+from ..fdi.unit import Runtime
 from ..fusion import Pipeline
 from ..fusion.validation import InstrumentErrors, segment_errors, session_block
 from ..session import Session
@@ -41,9 +42,10 @@ class InstrumentValidation:
         return {**self.errors.to_dict(), "alarms": self.alarms, "isolations": self.isolations}
 
 
-def validate(session: Session, calibration: Calibration, p_fa: float = 1e-3, confirm: int = 5,
-             injections: Sequence[Any] = (), seed: int = 0, readmit_after: int | None = READMIT_AFTER,
-             detector: Callable[[Any], Any] | None = None) -> dict[str, InstrumentValidation]:
+def validate(session: Session, calibration: Calibration, p_fa: float = _D.p_fa, confirm: int = _D.confirm,
+             injections: Sequence[Any] = (), seed: int = 0, readmit_after: int | None = _D.readmit_after,
+             detector: Callable[[Any], Any] | None = None,
+             settings: FdiSettings | None = None) -> dict[str, InstrumentValidation]:
     """Replay ``session`` with ``calibration`` through the pipeline and the FDI (snapshot GLT at ``p_fa`` per
     sample, ``confirm`` consecutive alarms to isolate; further effects compensated with the managers in the loop,
     :class:`rimu.fdi.UnitManager`); per instrument the runtime errors, the samples that alarmed and the
@@ -52,6 +54,8 @@ def validate(session: Session, calibration: Calibration, p_fa: float = 1e-3, con
 
     ``injections`` (:class:`rimu.experiments.faults.Injection`, drawn with ``seed``) are injected into the raw data
     first; ``detector(instrument_pipeline)`` makes each manager's detector (default: the manager's own).
+    ``settings`` (:class:`rimu.fdi.FdiSettings`) gives every other setting; ``p_fa``, ``confirm`` and
+    ``readmit_after`` override it. The defaults are the runtime's (:data:`rimu.fdi.settings.DEFAULTS`).
 
     Examples
     --------
@@ -70,8 +74,9 @@ def validate(session: Session, calibration: Calibration, p_fa: float = 1e-3, con
     sub = Calibration({k: calibration[k] for k in insts}, calibration.raw_unit, calibration.method,
                       calibration.created, dict(calibration.metadata))
     pipe = Pipeline(sub, temperature=block.temperature is not None)
-    um = UnitManager(pipe, {k: RedundancyManager(pipe[k], None if detector is None else detector(pipe[k]), p_fa=p_fa,
-                                                 confirm=confirm, readmit_after=readmit_after) for k in insts})
+    st = FdiSettings(**{**(settings or _D).as_dict(), "p_fa": p_fa, "confirm": confirm,
+                        "readmit_after": readmit_after})
+    um = Runtime(pipe, st, detector_factory=detector)
     results = um.run(block)  # closed loop with the compensation of further effects (rimu.fdi.unit)
     out: dict[str, InstrumentValidation] = {}
     for k in insts:

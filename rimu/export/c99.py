@@ -196,6 +196,7 @@ static void rimu_solve(int n, const rimu_real *sf, const rimu_real *b, const rim
         const rimu_real Nv[6] = {N00, N01, N02, N11, N12, N22}, hv[3] = {h0, h1, h2};
         if (!rimu_inverse3(Nv, scale, m, hv, out->P, out->x)) {
             out->observable = 0;
+            out->x[0] = out->x[1] = out->x[2] = NAN;  /* no estimate: not a number */
             return;
         }
     }
@@ -566,6 +567,9 @@ def export_c(calibration: Calibration, directory: str | os.PathLike[str], real: 
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
     fdi = fdi if fdi is not None else FdiSettings()
+    if fdi.common_cause:
+        raise ExportError("common_cause (the evidence gate of units of triads) is not in the generated code; export "
+                          "with common_cause=False")
     files = {"rimu_unit.h": _header(calibration, real, fdi), "rimu_unit.c": _source(calibration, real, fdi),
              "rimu_filter.c": _filter(calibration, real), "Makefile": _MAKEFILE}
     from ..atomic import atomic_files

@@ -503,7 +503,8 @@ def unit_step(cal: Calibration, name: str, params: str, iso: str, call: str, x: 
                 b += ["    " + call.format(k=k, y=f"{k}_y")]
             if k != p.order[-1]:  # the estimate of the epoch feeds the next instrument
                 v, xk = ("f" if k == "accel" else "w"), x.format(k=k)
-                b += [f"    {v}[0] = {xk}[0]; {v}[1] = {xk}[1]; {v}[2] = {xk}[2];"]
+                b += [f"    if (isfinite({xk}[0])) {{ {v}[0] = {xk}[0]; {v}[1] = {xk}[1]; {v}[2] = {xk}[2]; }}"
+                      "  /* no estimate (NaN): no input */"]
     else:
         b += ["    (void)t; (void)temperature;"]
         b += ["    " + call.format(k=k, y=f"{k}_y") for k in p.instruments]

@@ -33,131 +33,14 @@ samples, ``chi2_{1 - alpha}(N (dof - k))``, has no bound on N and is computed on
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from scipy.stats import chi2, norm
 
-from ..errors import ExportError
-from ..fdi.health import READMIT_AFTER
+from ..fdi.settings import C_INT_MAX, MAX_ISOLATIONS, FdiSettings  # noqa: F401  (re-exported)
 
-__all__ = ["FdiSettings"]
-
-
-#: the largest count the generated code holds (a 32-bit C int)
-C_INT_MAX = 2**31 - 1
-#: the most isolations of one sensor the generated code tables (fail_after)
-MAX_ISOLATIONS = 1000
-
-
-@dataclass(frozen=True)
-class FdiSettings:
-    """The redundancy manager's configuration baked into the generated code (defaults: the manager's).
-
-    ``p_fa``, ``confirm``, ``invalid_persist``, ``readmit_after`` (None: never automatically), ``fail_after``,
-    ``backoff``, ``clear_after``, ``episode_gap`` (None: ``max(confirm, 5)``) as in
-    :class:`rimu.fdi.RedundancyManager`; ``alpha``, ``max_size`` (1 or 2), ``max_sets``, ``collinear_tol`` as in
-    :class:`rimu.fdi.multiple.FaultSetGlt` (the manager's default isolator has ``alpha=1e-4``).
-
-    >>> FdiSettings(confirm=5).manager_kwargs()["confirm"]
-    5
-    """
-
-    p_fa: float = 1e-3
-    confirm: int = 3
-    invalid_persist: int = 10
-    readmit_after: int | None = READMIT_AFTER
-    fail_after: int = 4
-    backoff: float = 2.0
-    clear_after: int = 50
-    episode_gap: int | None = None
-    alpha: float = 1e-4
-    max_size: int = 2
-    max_sets: int = 20000
-    collinear_tol: float = 1e-3
-
-    def __post_init__(self) -> None:
-        checks = [
-            (0 < self.p_fa < 1, f"p_fa must be in (0, 1), got {self.p_fa}"),
-            (0 < self.alpha < 1, f"alpha must be in (0, 1), got {self.alpha}"),
-            (self.confirm >= 1, f"confirm must be at least 1 sample, got {self.confirm}"),
-            (self.invalid_persist >= 1, f"invalid_persist must be at least 1 sample, got {self.invalid_persist}"),
-            (self.readmit_after is None or self.readmit_after >= 1,
-             f"readmit_after must be at least 1 sample (or None), got {self.readmit_after}"),
-            (self.fail_after >= 1, f"fail_after must be at least 1, got {self.fail_after}"),
-            (self.backoff >= 1.0, f"backoff must be at least 1, got {self.backoff}"),
-            (self.clear_after >= 1, f"clear_after must be at least 1 sample, got {self.clear_after}"),
-            (self.episode_gap is None or self.episode_gap >= 1,
-             f"episode_gap must be at least 1 sample, got {self.episode_gap}"),
-            (self.max_size in (1, 2), f"the C export tests sets of 1 or 2 sensors (max_size), got {self.max_size}"),
-            (self.max_sets >= 1, f"max_sets must be at least 1, got {self.max_sets}"),
-            (0 <= self.collinear_tol < 1, f"collinear_tol must be in [0, 1), got {self.collinear_tol}"),
-        ]
-        for ok, msg in checks:
-            if not ok:
-                raise ExportError(msg)
-        # the generated code holds counts in C ints (32 bits) and one re-admission period per isolation in a table
-        for name in ("confirm", "invalid_persist", "readmit_after", "fail_after", "clear_after", "episode_gap"):
-            v = getattr(self, name)
-            if v is not None and v > C_INT_MAX:
-                raise ExportError(f"{name} must be at most {C_INT_MAX} (a C int of the generated code), got {v}")
-        if self.fail_after > MAX_ISOLATIONS:
-            raise ExportError(f"fail_after must be at most {MAX_ISOLATIONS} (one re-admission period per isolation is "
-                              f"tabled in the generated code), got {self.fail_after}")
-        if self.readmit_after is not None:
-            top = math.log(self.readmit_after) + max(self.fail_after - 2, 0) * math.log(self.backoff)
-            if top > math.log(C_INT_MAX):
-                raise ExportError(f"readmit_after x backoff^(fail_after - 2) = {self.readmit_after} x "
-                                  f"{self.backoff:g}^{max(self.fail_after - 2, 0)} exceeds {C_INT_MAX} samples (a C "
-                                  "int): lower readmit_after, backoff or fail_after")
-
-    @property
-    def gap(self) -> int:
-        return int(self.episode_gap) if self.episode_gap is not None else max(self.confirm, 5)
-
-    def manager_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments of :class:`rimu.fdi.RedundancyManager` that make the same decisions."""
-        from ..fdi.multiple import FaultSetGlt
-
-        return {"p_fa": self.p_fa, "confirm": self.confirm, "invalid_persist": self.invalid_persist,
-                "readmit_after": self.readmit_after, "fail_after": self.fail_after, "backoff": self.backoff,
-                "clear_after": self.clear_after, "episode_gap": self.episode_gap,
-                "isolator": FaultSetGlt(alpha=self.alpha, max_size=self.max_size, max_sets=self.max_sets,
-                                        collinear_tol=self.collinear_tol)}
-
-    def manager(self, inst: Any) -> Any:
-        """The Python :class:`rimu.fdi.RedundancyManager` of one instrument calibration with these settings."""
-        from ..fdi import RedundancyManager
-        from ..fusion import InstrumentPipeline
-
-        return RedundancyManager(InstrumentPipeline(inst), **self.manager_kwargs())
-
-    def unit_manager(self, cal: Any, **pipeline_kwargs: Any) -> Any:
-        """The Python :class:`rimu.fdi.UnitManager` of a whole calibration with these settings: what the generated
-        ``rimu_fdi_step`` does per epoch, every further effect compensated with the managers in the loop
-        (``pipeline_kwargs`` go to :class:`rimu.fusion.Pipeline`)."""
-        from ..fdi import RedundancyManager, UnitManager
-        from ..fusion import Pipeline
-
-        pipe = Pipeline(cal, **pipeline_kwargs)
-        return UnitManager(pipe, {k: RedundancyManager(pipe[k], **self.manager_kwargs()) for k in pipe.instruments})
-
-    # ---------------------------------------------------------------- tables
-    def required(self) -> list[int]:
-        """Clean samples before re-admission after the 1st, 2nd, ... isolation (rimu.fdi.health.SensorHealth)."""
-        if self.readmit_after is None:
-            return [0]
-        return [round(self.readmit_after * self.backoff ** k) for k in range(max(self.fail_after - 1, 1))]
-
-    def mean_threshold(self) -> float:
-        return float(chi2.isf(self.p_fa, 1))
-
-    def energy(self) -> list[float]:
-        """chi2(N) quantile at the mean test's probability for each clean period N (SensorHealth._energy_threshold)."""
-        p = chi2.sf(self.mean_threshold(), 1)
-        return [float(chi2.isf(p, max(N, 1))) for N in self.required()]
+__all__ = ["FdiSettings"]  # the one settings object lives in rimu.fdi.settings (with the C-int limits)
 
 
 def detection_variance(inst: Any) -> np.ndarray | None:
@@ -216,7 +99,7 @@ typedef struct {{
 
 /* One instrument's output for one sample, with the manager's decisions. */
 typedef struct {{
-    rimu_real x[3];             /* estimate in the master-body frame, SI (0 when validity is RIMU_UNOBSERVABLE) */
+    rimu_real x[3];             /* estimate in the master-body frame, SI (NaN when validity is RIMU_UNOBSERVABLE) */
     rimu_real P[9];             /* its covariance (zeros when unobservable) */
     int validity;               /* RIMU_NOMINAL, RIMU_DEGRADED or RIMU_UNOBSERVABLE */
     int state;                  /* HealthState of the sample's sensor set (RIMU_STATE_...) */
@@ -819,7 +702,7 @@ static void rimu_fdi_run(const rimu_fdi_unit *u, rimu_fdi *m, const rimu_real *y
         o = &g;
         for (i = 0; i < n; ++i) out->active[i] = act1[i];
     }
-    for (i = 0; i < 3; ++i) out->x[i] = o->x[i];
+    for (i = 0; i < 3; ++i) out->x[i] = o->observable ? o->x[i] : NAN;  /* no estimate: not a number */
     for (i = 0; i < 9; ++i) out->P[i] = o->P[i];
     out->dof = o->dof;
     out->alarm = alarm;
@@ -830,7 +713,7 @@ static void rimu_fdi_run(const rimu_fdi_unit *u, rimu_fdi *m, const rimu_real *y
         out->validity = RIMU_UNOBSERVABLE;
         out->state = RIMU_STATE_UNOBSERVABLE;
     } else {
-        state = rimu_state_of(u, m, use);
+        state = rimu_state_of(u, m, out->active);  /* the state of the set in x, P and dof */
         out->state = state;
         out->validity = (code_full && !nex && !alarm && !m->not_isolable && !m->ep_alarms) ? RIMU_NOMINAL
                                                                                            : RIMU_DEGRADED;

@@ -1,5 +1,9 @@
 """Fault detection and isolation on the parity vector.
 
+* :class:`Runtime`: the one object that owns a unit's runtime state (compensation of every effect, projection,
+  parity, detection, isolation, health, re-admission, validity); ``rimu monitor``, ``rimu replay``, the demo,
+  the campaigns and the exported C decide through it. :class:`FdiSettings`: its settings, with the one set of
+  defaults every consumer reads.
 * :class:`RedundancyManager` wraps an :class:`rimu.fusion.InstrumentPipeline`: detection, isolation of one or
   several sensors (:class:`FaultSetGlt`, the GLT over sensor sets; Cho & Park 2005, Eq. 21), reconfiguration,
   per-sensor health with re-admission (:mod:`rimu.fdi.health`), a validity flag per output, explicit
@@ -16,57 +20,102 @@ above the runtime in :mod:`rimu.experiments`; the runtime never imports it.
 """
 
 from .baseline import MeanDisagreement
-from .calaware import CalibrationAwareGlt, CalibrationCovariance, stated_covariance
-from .cusum import CusumBank, cusum_threshold, markov_arl, siegmund_arl
-from .glt import GltDecision, GltSnapshot, GltWindow, glt_snapshot, glt_threshold
-from .health import SensorHealth, SensorState
+from .calaware import (
+    CalibrationAwareGlt,
+)
+from .calaware import (
+    CalibrationCovariance as CalibrationCovariance,
+)
+from .calaware import (
+    stated_covariance as stated_covariance,
+)
+from .cusum import (
+    CusumBank,
+)
+from .cusum import (
+    cusum_threshold as cusum_threshold,
+)
+from .cusum import (
+    markov_arl as markov_arl,
+)
+from .cusum import (
+    siegmund_arl as siegmund_arl,
+)
+from .detectors import make_detector
+from .glt import GltDecision as GltDecision
+from .glt import GltSnapshot, GltWindow, glt_threshold
+from .glt import glt_snapshot as glt_snapshot
+from .health import SensorHealth as SensorHealth
+from .health import SensorState
 from .kalman import ParityKalman
 from .manager import FdiEvent, FdiResult, Health, HealthState, RedundancyManager, ReplayResult, unisolated_alarm_runs
-from .motion import MotionAwareGlt, MotionNoiseModel, fit_motion_detector, fit_motion_terms
-from .multiple import FaultSetGlt, SetDecision, set_fault_rates, single_fault_rates
-from .noise import NoiseEstimator
-from .parity import IsolabilityReport, detection_probability, isolability, wrong_isolation_bounds
-from .px4_selector import Px4GyroSelector, Px4SelectorResult
-from .unit import UnitManager
+from .motion import (
+    MotionAwareGlt,
+    fit_motion_detector,
+)
+from .motion import (
+    MotionNoiseModel as MotionNoiseModel,
+)
+from .motion import (
+    fit_motion_terms as fit_motion_terms,
+)
+from .multiple import (
+    FaultSetGlt,
+)
+from .multiple import (
+    SetDecision as SetDecision,
+)
+from .multiple import (
+    set_fault_rates as set_fault_rates,
+)
+from .multiple import (
+    single_fault_rates as single_fault_rates,
+)
+from .noise import NoiseEstimator as NoiseEstimator
+from .parity import (
+    IsolabilityReport as IsolabilityReport,
+)
+from .parity import (
+    detection_probability as detection_probability,
+)
+from .parity import (
+    isolability,
+)
+from .parity import (
+    wrong_isolation_bounds as wrong_isolation_bounds,
+)
+from .px4_selector import Px4GyroSelector
+from .px4_selector import Px4SelectorResult as Px4SelectorResult
+from .settings import FdiSettings
+from .unit import Runtime
+from .unit import UnitManager as UnitManager
 
+#: the runtime's public API (the other names above stay importable here and from their modules)
 __all__ = [
-    "glt_threshold",
-    "glt_snapshot",
-    "GltDecision",
+    # the one runtime, its settings and its outputs
+    "Runtime",
+    "FdiSettings",
+    "RedundancyManager",
+    "FdiResult",
+    "ReplayResult",
+    "FdiEvent",
+    "Health",
+    "HealthState",
+    "SensorState",
+    "unisolated_alarm_runs",
+    # detectors and the set test
+    "make_detector",
     "GltSnapshot",
     "GltWindow",
     "CusumBank",
-    "cusum_threshold",
-    "siegmund_arl",
-    "markov_arl",
     "ParityKalman",
     "MeanDisagreement",
     "Px4GyroSelector",
-    "Px4SelectorResult",
     "CalibrationAwareGlt",
     "MotionAwareGlt",
-    "MotionNoiseModel",
     "fit_motion_detector",
-    "fit_motion_terms",
-    "CalibrationCovariance",
-    "stated_covariance",
-    "NoiseEstimator",
-    "RedundancyManager",
-    "UnitManager",
-    "HealthState",
-    "Health",
-    "FdiEvent",
-    "ReplayResult",
-    "unisolated_alarm_runs",
-    "FdiResult",
-    "SensorState",
-    "SensorHealth",
     "FaultSetGlt",
-    "SetDecision",
-    "single_fault_rates",
-    "set_fault_rates",
-    "IsolabilityReport",
+    "glt_threshold",
+    # what a geometry can detect and isolate
     "isolability",
-    "detection_probability",
-    "wrong_isolation_bounds",
 ]

@@ -45,10 +45,11 @@ from ..fusion.projection import bits_mask, mask_bits
 from ..fusion.validity import Validity
 from .common_cause import EvidenceGate
 from .glt import GltSnapshot, glt_threshold, isolate_argmax
-from .health import READMIT_AFTER, SensorHealth, SensorState
+from .health import SensorHealth, SensorState
 from .kalman import ParityKalman
 from .multiple import FaultSetGlt, SetDecision
 from .parity import column_correlations
+from .settings import DEFAULTS as _D
 
 __all__ = ["Detector", "FdiEvent", "FdiResult", "Health", "HealthState", "RedundancyManager", "ReplayResult",
            "SensorState", "Validity", "unisolated_alarm_runs"]
@@ -125,8 +126,8 @@ class FdiResult(StepResult):
 
     ``x``, ``P``, ``parity``, ``dof``, ``active`` and ``entry`` describe the same sensor set: the isolation set
     minus the sensors invalid in this sample, minus (on an alarm sample) the set the isolation test names.
-    ``observable`` is False exactly when there is no estimate (``x`` is then zero and not to be used,
-    ``P`` infinite, ``validity`` UNOBSERVABLE). ``statistic``/``threshold``/``alarm`` are the detector's on the
+    ``observable`` is False exactly when there is no estimate (``x`` is then NaN, ``P`` infinite, ``validity``
+    UNOBSERVABLE). ``statistic``/``threshold``/``alarm`` are the detector's on the
     pipeline's set of the sample.
     """
 
@@ -243,7 +244,8 @@ class RedundancyManager:
         Events kept (counts in :attr:`counts` are always complete).
     isolator : FaultSetGlt, "detector" or None
         How an alarm is attributed: the set GLT (default for the GLT and Kalman detectors:
-        ``FaultSetGlt(alpha=1e-6)``, up to two simultaneous faults where the parity dimension allows; the
+        ``FaultSetGlt(alpha=1e-4)``, :meth:`rimu.fdi.FdiSettings.isolator`, up to two simultaneous faults where the
+        parity dimension allows; the
         small alpha keeps the true set from being rejected by chance while evidence accumulates), or
         ``"detector"`` (the detector's own single-sensor choice; default for the CUSUM bank and the
         baselines).
@@ -274,11 +276,13 @@ class RedundancyManager:
     ('fault_isolated', ['y2'], 'DEGRADED', False)
     """
 
-    def __init__(self, pipeline: InstrumentPipeline, detector: Detector | None = None, *, p_fa: float = 1e-3,
-                 confirm: int = 3, invalid_persist: int = 10, readmit_after: int | None = READMIT_AFTER,
+    def __init__(self, pipeline: InstrumentPipeline, detector: Detector | None = None, *, p_fa: float = _D.p_fa,
+                 confirm: int = _D.confirm, invalid_persist: int = _D.invalid_persist,
+                 readmit_after: int | None = _D.readmit_after,
                  sample_rate: float | None = None, max_events: int = 10000,
-                 isolator: FaultSetGlt | str | None = None, fail_after: int = 4, backoff: float = 2.0,
-                 clear_after: int = 50, episode_gap: int | None = None, common_cause: bool = False) -> None:
+                 isolator: FaultSetGlt | str | None = None, fail_after: int = _D.fail_after,
+                 backoff: float = _D.backoff, clear_after: int = _D.clear_after,
+                 episode_gap: int | None = _D.episode_gap, common_cause: bool = _D.common_cause) -> None:
         if confirm < 1 or invalid_persist < 1:
             raise ValueError("confirm and invalid_persist must be at least 1 sample")
         if not getattr(pipeline, "noise_given", True):
@@ -299,7 +303,7 @@ class RedundancyManager:
         self.episode_gap = int(episode_gap) if episode_gap is not None else max(self.confirm, 5)
         self.common_cause = bool(common_cause)
         if isolator is None:
-            isolator = FaultSetGlt(alpha=1e-4) if _evidence_detector(self.detector) else "detector"
+            isolator = _D.isolator() if _evidence_detector(self.detector) else "detector"
         if isinstance(isolator, str) and isolator != "detector":
             raise ValueError(f"isolator must be a FaultSetGlt or 'detector', got {isolator!r}")
         self.isolator = isolator
@@ -326,25 +330,6 @@ class RedundancyManager:
                                 False, -1)
         self.reset()
 
-    @classmethod
-    def for_unit(cls, pipeline: Any, **kwargs: Any) -> dict[str, RedundancyManager]:
-        """One manager per instrument of a :class:`rimu.fusion.Pipeline` (same settings for each; a detector
-        object cannot be shared, so pass ``detector_factory=lambda instrument_pipeline: ...`` instead).
-
-        Each manager decides on what it is given (``SF y - B``): where the calibration holds further effects, run
-        them through :class:`rimu.fdi.UnitManager`, which compensates every effect with the managers in the loop.
-
-        >>> from rimu.calibration import Calibration, InstrumentCalibration
-        >>> from rimu.fusion import Pipeline
-        >>> from rimu.geometry import cone6
-        >>> cal = Calibration({k: InstrumentCalibration.nominal(k, cone6(), 1.0, noise_sigma=0.01)
-        ...                    for k in ("gyro", "accel")})
-        >>> sorted(RedundancyManager.for_unit(Pipeline(cal), confirm=3))
-        ['accel', 'gyro']
-        """
-        factory = kwargs.pop("detector_factory", None)
-        return {k: cls(ip, factory(ip) if factory else None, **kwargs) for k, ip in pipeline.instruments.items()}
-
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
         """Start over: every sensor healthy and in the estimate, counters, episode and events cleared."""
@@ -352,9 +337,10 @@ class RedundancyManager:
         self.sensors.reset()
         self._suspects_on = False
         self._apply()
-        self.pipeline.set_isolated(self._iso)
         self.samples = 0
-        self._entry = -2
+        self._cur = -2  # the set code of the previous sample
+        self._observable = True
+        self._r: StepResult | None = None
         self._new_episode()
         self._not_isolable = False
         self._quiet = 0
@@ -372,7 +358,7 @@ class RedundancyManager:
         h.state = self._state_of(self.pipeline.table.full_code)
 
     def _new_episode(self) -> None:
-        self._ep_entry = -1
+        self._ep_code = -1
         self._ep_n = 0          # samples of the episode (alarms and the quiet gaps between them)
         self._ep_alarms = 0     # alarm samples of the episode
         self._ep_quiet = 0      # consecutive quiet samples at its end
@@ -385,6 +371,11 @@ class RedundancyManager:
     @property
     def state(self) -> HealthState:
         return self.health.state
+
+    @property
+    def active_code(self) -> int:
+        """The set the manager keeps in, as a set code (bit i = sensor i): what each step hands the pipeline."""
+        return self._iso_code
 
     @property
     def isolated(self) -> np.ndarray:
@@ -401,7 +392,10 @@ class RedundancyManager:
             if sensor not in self.names:
                 raise ShapeError(f"no sensor named {sensor!r}; sensors: {self.names}")
             return self.names.index(sensor)
-        return self.pipeline._check_index(sensor)
+        if isinstance(sensor, (bool, np.bool_)) or not isinstance(sensor, (int, np.integer)) \
+                or not 0 <= sensor < self.n:
+            raise IndexError(f"sensor index must be an integer in 0..{self.n - 1}, got {sensor!r}")
+        return int(sensor)
 
     def isolate(self, sensor: str | int) -> None:
         """Take a sensor out by command (logged; counts as an isolation of that sensor)."""
@@ -422,13 +416,12 @@ class RedundancyManager:
     _t_last = float("nan")
 
     def _apply(self) -> None:
-        """Take the sensor states' isolation set; the pipeline gets it at the start of the next step (changing it
-        now would rewrite the pipeline's result of the current sample behind this sample's output)."""
+        """Take the sensor states' isolation set; the pipeline gets it with the next step (the pipeline holds no
+        isolation set of its own: the set is an argument of each of its calls)."""
         self._iso = self.sensors.out.copy()
         self._iso_bytes = self._iso.tobytes()
         self._n_iso = int(self._iso.sum())
         self._iso_code = mask_bits(~self._iso)
-        self._iso_entry = self.pipeline.table.lookup(self._iso_code)
         self.health.state = self._state_of(self._iso_code)
         self.health.isolated = [self.names[i] for i in np.flatnonzero(self._iso)]
 
@@ -443,18 +436,18 @@ class RedundancyManager:
         st = self._set_state.get(code)
         if st is None:
             tab = self.pipeline.table
-            e = tab.lookup(code)
+            s = tab.get(code)
             n_act = int(code).bit_count()
-            if e < 0 or not tab.observable[e]:
+            if not s.observable:
                 st = HealthState.UNOBSERVABLE
-            elif n_act == 3 or tab.dof[e] == 0:
+            elif n_act == 3 or s.dof == 0:
                 st = HealthState.NO_REDUNDANCY
             else:
-                d = int(tab.dof[e])
+                d = int(s.dof)
                 act = bits_mask(code, self.n)
                 ok = d >= 2
                 if ok:
-                    rho = column_correlations(tab.Vz[e][:d])[np.ix_(act, act)]
+                    rho = column_correlations(s.Vz[:d])[np.ix_(act, act)]
                     ok = bool(np.all(np.abs(rho[~np.eye(len(rho), dtype=bool)]) < 1 - 1e-6))
                 if not ok:
                     st = HealthState.DETECTION_ONLY
@@ -465,9 +458,6 @@ class RedundancyManager:
             self._set_state[code] = st
         return st
 
-    def _code(self, e: int) -> int:
-        return int(self.pipeline.table.codes[e]) if e >= 0 else 0
-
     # ------------------------------------------------------------------ per sample
     def step(self, y: np.ndarray, valid: np.ndarray | None = None, t: float | None = None) -> FdiResult:
         """Process one raw sample; returns the manager's (reused) :class:`FdiResult`.
@@ -475,21 +465,21 @@ class RedundancyManager:
         :attr:`health` holds the state, alarm and statistic after this sample.
         """
         pipe = self.pipeline
-        self.sync_pipeline()
-        r = pipe.step(y, valid)
+        r = pipe.step(y, valid, self._iso_code)
+        self._r = r
         self.samples += 1
         h = self.health
         if t is None:
             t = (self.samples - 1) / self.sample_rate if self.sample_rate else float(self.samples - 1)
         self._t_last = t
-        e = r.entry
-        if e != self._entry:
-            self._entry = e
-            self.detector.configure(pipe.table.Vz[e] if e >= 0 else np.zeros((max(self.n - 3, 0), self.n)), r.dof)
+        c = r.code
+        if c != self._cur:
+            self._cur = c
+            self.detector.configure(pipe.table.get(c).Vz, r.dof)
             if self._ep_n:
                 self._end_episode(t)
         changed = False
-        if e != self._iso_entry or self._invalid_pending:  # the pipeline left a sensor out: invalid data
+        if c != self._iso_code or self._invalid_pending:  # the pipeline left a sensor out: invalid data
             changed = self._invalid(r.invalid, t)
         if r.dof >= 1:
             if self._uses_input:
@@ -531,18 +521,19 @@ class RedundancyManager:
                 self.sensors.set_suspects(r.invalid)
                 self._suspects_on = bool(np.any(self.sensors.state == SensorState.SUSPECT))
         res = self._output(r, exclude if not changed else tuple(np.flatnonzero(self._iso & r.active)))
+        if res.observable != self._observable:  # nothing to estimate from, or an estimate again: say so
+            self._observable = res.observable
+            st = self._state_of(self._iso_code)
+            if res.observable:
+                self._log("state", None, f"state unobservable -> {res.state.value} ({self._usable(r)} sensors "
+                          "delivering usable data)", t)
+            else:
+                self._log("state", None, f"state {st.value if st is not HealthState.UNOBSERVABLE else 'nominal'} "
+                          f"-> unobservable ({self._usable(r)} sensors delivering usable data): no estimate", t)
         if self._n_iso and self.readmit_after is not None and res.observable and not h.alarm \
                 and not self._not_isolable and not self._ep_alarms:
             self._readmission(np.asarray(y, dtype=float), valid, res, t)
         return res
-
-    def sync_pipeline(self) -> None:
-        """Give the pipeline the manager's isolation set (done at the start of every :meth:`step`; a compensation
-        stage that estimates on the pipeline's sensors before the step, :class:`rimu.fdi.UnitManager`, calls it
-        first). The set changes only here: a decision of a sample takes effect at the next one."""
-        pipe = self.pipeline
-        if pipe._isolated.tobytes() != self._iso_bytes:  # someone changed the pipeline: the manager's set rules
-            pipe.set_isolated(self._iso)
 
     def _output(self, r: StepResult, exclude: tuple[int, ...]) -> FdiResult:
         """Fill the result: the pipeline's sample, or the same sample without ``exclude`` (x, P, parity together)."""
@@ -557,29 +548,32 @@ class RedundancyManager:
         if exclude and r.observable:
             act = r.active.copy()
             act[list(exclude)] = False
-            code = self._code(r.entry)  # the state is the sample's set; suspects left out show in active/validity
+            code = mask_bits(act)  # state, active, x, P and parity: one set, the one the estimate uses
             tab = self.pipeline.table
-            e1 = tab.lookup(mask_bits(act))
+            s1 = tab.get(code)
+            e1 = s1.entry
             res.active = act
             res.invalid = r.invalid
-            if e1 >= 0 and tab.observable[e1]:
-                A, B = self._remap_of(r.entry, e1, r.active)
+            res.code = code
+            if s1.observable:
+                A, B = self._remap_of(tab.get(r.code), s1, r.active)
                 d0 = r.dof
                 zin = np.concatenate([r.x, r.parity[:d0]])
                 self._x[:] = A @ zin
                 self._p[:] = 0.0
                 self._p[:B.shape[0]] = B @ zin
-                res.x, res.parity, res.P = self._x, self._p, tab.P[e1]
-                res.dof, res.entry, res.observable = int(tab.dof[e1]), e1, True
+                res.x, res.parity, res.P = self._x, self._p, s1.P
+                res.dof, res.entry, res.observable = int(s1.dof), e1, True
             else:
-                self._x[:] = 0.0
+                self._x[:] = np.nan
                 self._p[:] = 0.0
                 res.x, res.parity, res.P = self._x, self._p, np.diag([np.inf] * 3)
                 res.dof, res.entry, res.observable = 0, e1, False
         else:
             res.x, res.P, res.parity, res.dof = r.x, r.P, r.parity, r.dof
             res.active, res.invalid, res.observable, res.entry = r.active, r.invalid, r.observable, r.entry
-            code = self._code(r.entry) if r.observable else -1
+            res.code = r.code
+            code = r.code if r.observable else -1
         res.alarm, res.statistic, res.threshold = h.alarm, h.statistic, h.threshold
         res.fault_not_isolable = self._not_isolable
         if not res.observable:
@@ -598,7 +592,7 @@ class RedundancyManager:
         h.fault_not_isolable = self._not_isolable
         return res
 
-    def _remap_of(self, e0: int, e1: int, act0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _remap_of(self, s0: Any, s1: Any, act0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Linear maps from (x, parity) of set e0 to x and parity of its subset e1.
 
         On the active sensors of e0 the compensated outputs are recovered exactly from the pipeline's outputs,
@@ -606,17 +600,17 @@ class RedundancyManager:
         with the subset's G and Vz.
         """
         tab = self.pipeline.table
-        key = (int(tab.codes[e0]), int(tab.codes[e1]))  # by sensor set, not by entry (a table may renumber)
+        key = (s0.code, s1.code)  # by sensor set, not by entry (a table may renumber)
         m = self._remap.get(key)
         if m is None:
-            d0 = int(tab.dof[e0])
+            d0 = int(s0.dof)
             n = self.n
             Z = np.zeros((n, 3 + d0))
             a = act0
             Z[a, :3] = tab.axes[a]
-            Z[a, 3:] = (tab.sigma[a] ** 2)[:, None] * tab.Vz[e0][:d0, a].T
-            d1 = int(tab.dof[e1])
-            m = (tab.G[e1] @ Z, tab.Vz[e1][:d1] @ Z)
+            Z[a, 3:] = (tab.sigma[a] ** 2)[:, None] * s0.Vz[:d0, a].T
+            d1 = int(s1.dof)
+            m = (s1.G @ Z, s1.Vz[:d1] @ Z)
             if len(self._remap) > 1024:
                 self._remap.clear()
             self._remap[key] = m
@@ -633,7 +627,7 @@ class RedundancyManager:
         self._ep_sum += p
         self._ep_M += np.outer(p, p)
         self._ep_n += 1
-        self._ep_entry = r.entry
+        self._ep_code = r.code
 
     def _decide(self, r: StepResult) -> SetDecision:
         d = r.dof
@@ -644,12 +638,12 @@ class RedundancyManager:
             return last  # an unresolved fault: re-decide every 10th alarm (the evidence changes slowly)
         if self.isolator == "detector":
             j, _ = self.detector.isolate(r.parity)
-            st = self._state_of(self._code(r.entry))
+            st = self._state_of(r.code)
             if j < 0 or st not in (HealthState.NOMINAL, HealthState.FAULT_ISOLATED):
                 return SetDecision("not_isolable")
             return SetDecision("isolated", (int(j),), (int(j),))
         iso = self.isolator
-        Vz = self.pipeline.table.Vz[r.entry]
+        Vz = self.pipeline.table.get(r.code).Vz
         mean = self._ep_sum / np.sqrt(N)
         dec = iso.decide(mean, Vz, d)
         if dec.kind != "isolated" and N > 1:
@@ -722,8 +716,8 @@ class RedundancyManager:
     def _end_episode(self, t: float) -> None:
         if self._ep_alarms:
             who = self._cand
-            if not who and self._ep_sum is not None and self._ep_entry >= 0:
-                j, _ = isolate_argmax(self._ep_sum, self.pipeline.table.Vz[self._ep_entry][:len(self._ep_sum)])
+            if not who and self._ep_sum is not None and self._ep_code >= 0:
+                j, _ = isolate_argmax(self._ep_sum, self.pipeline.table.get(self._ep_code).Vz[:len(self._ep_sum)])
                 who = (j,) if j >= 0 else ()
             for i in who:
                 self._log("transient", i, f"alarm episode of {self._ep_alarms} alarm(s), not confirmed"
@@ -735,10 +729,20 @@ class RedundancyManager:
         self._quiet = 0
         self._log("not_isolable_cleared", None, f"fault no longer reported: {why}", t)
 
+    def _usable(self, r: StepResult | None) -> int:
+        """Sensors in the isolation set that delivered usable data (finite, valid, inside the range) on ``r``."""
+        keep = ~self._iso
+        if r is not None:
+            keep &= ~r.invalid
+            if r.saturated.shape == keep.shape:
+                keep &= ~r.saturated
+        return int(np.count_nonzero(keep))
+
     def _log_state(self, old: HealthState, t: float) -> None:
         new = self._state_of(mask_bits(~self._iso))
         if new != old:
-            self._log("state", None, f"state {old.value} -> {new.value} ({int((~self._iso).sum())} sensors active)", t)
+            self._log("state", None, f"state {old.value} -> {new.value} ({self._usable(self._r)} sensors "
+                      "active, delivering usable data)", t)
 
     def _invalid(self, inv: np.ndarray, t: float) -> bool:
         run = self._invalid_run

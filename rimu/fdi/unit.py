@@ -27,50 +27,83 @@ import numpy as np
 from ..epoch import Epoch, EpochBlock
 from ..errors import ShapeError
 from ..fusion import Pipeline
-from .manager import FdiResult, RedundancyManager, ReplayResult, _Collector
+from .manager import FdiEvent, FdiResult, RedundancyManager, ReplayResult, _Collector
+from .multiple import FaultSetGlt
+from .settings import DEFAULTS, NAMES, FdiSettings
 
-__all__ = ["UnitManager"]
+__all__ = ["Runtime", "UnitManager"]
 
 #: epochs of the first run after an isolation set changed (runs then double up to ``chunk``)
 _RESTART = 64
 
 
-class UnitManager:
-    """One :class:`RedundancyManager` per instrument of a :class:`rimu.fusion.Pipeline`, run epoch by epoch through
-    the pipeline's compensation of further effects (see the module docstring).
+class Runtime:
+    """The runtime of a unit: the one object that owns its state (see the module docstring).
+
+    It holds the unit's :class:`rimu.fusion.Pipeline` (compensation of every effect, projection, parity: pure
+    with respect to isolation, the sets are arguments of its calls) and one :class:`RedundancyManager` per
+    instrument (detection, isolation, health, re-admission, validity), and steps them epoch by epoch with the
+    instruments' effects coupled. ``rimu monitor``, ``rimu replay``, ``rimu demo``, the campaigns, the scenarios,
+    :func:`rimu.experiments.validate.validate` and the exported C (``rimu_fdi_step``, checked decision for
+    decision) all decide through it.
 
     Parameters
     ----------
-    pipeline : Pipeline
-        The unit's runtime (its calibration, compensation stage and instrument pipelines).
+    pipeline : Pipeline or Calibration
+        The unit's pipeline, or its calibration (a default :class:`rimu.fusion.Pipeline` is built).
+    settings : FdiSettings, optional
+        The fault management's settings (default :data:`rimu.fdi.settings.DEFAULTS`).
+    detector_factory : callable, optional
+        ``factory(instrument_pipeline) -> detector``: another detector than the GLT snapshot, per instrument.
     managers : dict[str, RedundancyManager], optional
-        Managers built on ``pipeline``'s own instrument pipelines (``pipeline[k]``); default
-        :meth:`RedundancyManager.for_unit` with ``**settings``.
-    **settings
-        Keyword arguments of :class:`RedundancyManager` for the default managers.
+        Managers built on ``pipeline``'s own instrument pipelines (``pipeline[k]``), instead of ``settings``.
+    **options
+        Further keyword arguments of :class:`RedundancyManager` (``sample_rate``, ``max_events``, ``isolator``;
+        or any setting, which then overrides ``settings``).
 
     Examples
     --------
     >>> from rimu.calibration import Calibration, InstrumentCalibration
     >>> from rimu.geometry import cone6
     >>> cal = Calibration({"gyro": InstrumentCalibration.nominal("gyro", cone6(), 1.0, noise_sigma=0.01)})
-    >>> um = UnitManager(Pipeline(cal), confirm=3)
+    >>> rt = Runtime(Pipeline(cal))
     >>> y = cal["gyro"].raw_output(np.array([0.1, 0.2, 0.3]))
     >>> for k in range(6):
     ...     y_k = y.copy()
     ...     y_k[4] += 0.5 if k >= 2 else 0.0      # 50 sigma on y2 from the third epoch
-    ...     r = um.step(Epoch(0.01 * k, {"gyro": y_k}))
-    >>> um.managers["gyro"].health.isolated, r["gyro"].validity.name
+    ...     r = rt.step(Epoch(0.01 * k, {"gyro": y_k}))
+    >>> rt.managers["gyro"].health.isolated, r["gyro"].validity.name
     (['y2'], 'DEGRADED')
     """
 
-    def __init__(self, pipeline: Pipeline, managers: dict[str, RedundancyManager] | None = None,
-                 **settings: Any) -> None:
+    def __init__(self, pipeline: Pipeline | Any, settings: FdiSettings | None = None, *,
+                 detector_factory: Any = None, managers: dict[str, RedundancyManager] | None = None,
+                 **options: Any) -> None:
+        if not isinstance(pipeline, Pipeline):
+            pipeline = Pipeline(pipeline)
+        if isinstance(settings, dict):  # Runtime(pipeline, managers)
+            managers, settings = settings, None
         if managers is None:
-            managers = RedundancyManager.for_unit(pipeline, **settings)
-        elif settings:
-            raise TypeError(f"settings {sorted(settings)} are for the default managers; the given managers have "
-                            "their own")
+            st = settings if settings is not None else DEFAULTS
+            own = {k: options.pop(k) for k in list(options) if k in NAMES}
+            if own:
+                st = FdiSettings(**{**st.as_dict(), **own})
+            kw = st.manager_kwargs()
+            if detector_factory is not None and "isolator" not in options:
+                kw.pop("isolator")  # the manager picks the isolator that fits the detector
+            kw.update(options)
+            managers = {}
+            for k, ip in pipeline.instruments.items():
+                kk = dict(kw)
+                if isinstance(kk.get("isolator"), FaultSetGlt):
+                    kk["isolator"] = st.isolator()  # one isolator object per manager
+                managers[k] = RedundancyManager(ip, detector_factory(ip) if detector_factory else None, **kk)
+            self.settings = st
+        else:
+            if options or settings is not None or detector_factory is not None:
+                raise TypeError("settings, detector_factory and options are for the default managers; the given "
+                                "managers have their own")
+            self.settings = None
         if set(managers) != set(pipeline.instruments):
             raise ShapeError(f"one manager per instrument of the pipeline ({sorted(pipeline.instruments)}), got "
                              f"{sorted(managers)}")
@@ -81,6 +114,16 @@ class UnitManager:
         self.pipeline = pipeline
         self.managers = managers
 
+    def active_sets(self) -> dict[str, int]:
+        """Each instrument's set in use (set codes; bit i = sensor i): what the next epoch is computed on."""
+        return {k: m.active_code for k, m in self.managers.items()}
+
+    @property
+    def events(self) -> list[tuple[str, FdiEvent]]:
+        """Every instrument's events, ``(instrument, event)`` in time order."""
+        ev = [(k, e) for k, m in self.managers.items() for e in m.events]
+        return sorted(ev, key=lambda ke: (ke[1].sample, ke[1].t))
+
     def reset(self) -> None:
         """Every manager starts over (see :meth:`RedundancyManager.reset`); the drift's time origin is kept."""
         for m in self.managers.values():
@@ -89,11 +132,36 @@ class UnitManager:
     def step(self, epoch: Epoch) -> dict[str, FdiResult]:
         """One epoch: compensation with each manager's isolation set, then each manager's step on its
         instrument's compensated outputs, in the pipeline's order. Returns the managers' (reused) results."""
-        for m in self.managers.values():
-            m.sync_pipeline()
         t = float(epoch.t)
         mgrs = self.managers
-        return self.pipeline.step_through(epoch, lambda k, y, valid: mgrs[k].step(y, valid, t))
+        pipe = self.pipeline
+        if pipe.compiled:  # the compiled compensation stage: the epoch as a block of one, as run() does
+            return self._step_compiled(epoch, t)
+        return pipe.step_through(epoch, lambda k, y, valid: mgrs[k].step(y, valid, t), self.active_sets())
+
+    def _step_compiled(self, epoch: Epoch, t: float) -> dict[str, FdiResult]:
+        """:meth:`step` with the compensation computed by the compiled block path (one epoch; the managers'
+        sets), each manager stepping on its instrument's compensated outputs in order; closed loop through
+        :meth:`rimu.fusion.Pipeline.step_through` on an epoch where the first instrument's manager estimate is not
+        the compensation's (an alarm leaving suspects out: the next instrument's effects take the manager's)."""
+        pipe, mgrs = self.pipeline, self.managers
+        valid = epoch.valid
+        sub = EpochBlock(np.array([t]), {k: np.asarray(y, dtype=float)[None] for k, y in epoch.raw.items()},
+                         {k: np.asarray(v, dtype=bool)[None] for k, v in valid.items()},
+                         None if epoch.temperature is None else np.array([float(epoch.temperature)]))
+        active = self.active_sets()
+        ycomp, xcomp = pipe.compensate_block(sub, active)
+        order = pipe.order
+        done: dict[str, FdiResult] = {}
+        for n_k, k in enumerate(order):
+            r = mgrs[k].step(ycomp[k][0], valid.get(k), t)
+            done[k] = r
+            if n_k + 1 < len(order) and k in xcomp and not np.array_equal(r.x, xcomp[k][0], equal_nan=True):
+                def rest(kk: str, y: np.ndarray, vv: Any, done: dict = done) -> Any:
+                    return done[kk] if kk in done else mgrs[kk].step(y, vv, t)
+
+                return dict(pipe.step_through(epoch, rest, active))
+        return {k: done[k] for k in pipe.instruments}
 
     def run(self, block: EpochBlock, chunk: int = 4096) -> dict[str, ReplayResult]:
         """N epochs one by one (closed loop); continues from the current state, as
@@ -114,7 +182,7 @@ class UnitManager:
         if chunk < 1:
             raise ValueError(f"chunk must be >= 1 epochs, got {chunk}")
         pipe = self.pipeline
-        order = pipe._order
+        order = pipe.order
         mgrs = self.managers
         out = {k: _Collector(m, N) for k, m in mgrs.items()}
         raw = {k: np.asarray(block.raw[k], dtype=float) for k in mgrs}
@@ -131,48 +199,36 @@ class UnitManager:
         #               that ends whole, up to chunk
         with np.errstate(invalid="ignore", over="ignore"):  # non-finite raw values are routed around, not warned
             while i < N:
-                for m in mgrs.values():
-                    m.sync_pipeline()
                 j1 = min(N, i + size)
                 sub = EpochBlock(t[i:j1], {k: y[i:j1] for k, y in raw.items()},
                                  {k: v[i:j1] for k, v in valid.items()}, None if T is None else T[i:j1])
-                ycomp, xcomp = self._open_loop(sub)
+                ycomp, xcomp = pipe.compensate_block(sub, self.active_sets())
                 j = 0
                 while j < j1 - i:
                     g = i + j
-                    before = [m._iso_bytes for m in mgrs.values()]
+                    before = [m.active_code for m in mgrs.values()]
                     done: dict[str, FdiResult] = {}
                     for n_k, k in enumerate(order):
                         v = valid.get(k)
                         r = mgrs[k].step(ycomp[k][j], None if v is None else v[g], float(t[g]))
                         done[k] = r
-                        if n_k + 1 < len(order) and k in xcomp and not np.array_equal(r.x, xcomp[k][j]):
+                        if n_k + 1 < len(order) and k in xcomp and not np.array_equal(r.x, xcomp[k][j],
+                                                                                      equal_nan=True):
                             # the next instrument's effects take this estimate: that epoch, closed loop
                             def rest(kk: str, y: np.ndarray, vv: Any, done: dict = done, tg: float = float(t[g])):
                                 return done[kk] if kk in done else mgrs[kk].step(y, vv, tg)
 
-                            done = dict(pipe.step_through(epoch(g), rest))
+                            done = dict(pipe.step_through(epoch(g), rest, self.active_sets()))
                             break
                     for k in order:
                         out[k].add(g, done[k])
                     j += 1
-                    if [m._iso_bytes for m in mgrs.values()] != before:
+                    if [m.active_code for m in mgrs.values()] != before:
                         break  # the next epoch's compensation uses the new sets
                 size = min(chunk, 2 * size) if i + j == j1 else min(chunk, _RESTART)
                 i += j
         return {k: c.result(t) for k, c in out.items()}
 
-    def _open_loop(self, sub: EpochBlock) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-        """The compensated raw outputs of ``sub`` with the current isolation sets and each instrument's estimate
-        (what fed the next instrument's effects); the instrument pipelines' counters are left as they were (the
-        managers' steps count the samples). Clipped and invalid outputs are left out of the compensation's
-        estimates and a clipped one is handed on as it came, in the block path as epoch by epoch."""
-        pipe = self.pipeline
-        saved = {k: (p.samples, p.invalid_count.copy(), p.saturated_count.copy()) for k, p in pipe.instruments.items()}
-        try:
-            ycomp, res = pipe._compensate_block(sub)
-        finally:
-            for k, (s, inv, sat) in saved.items():
-                p = pipe.instruments[k]
-                p.samples, p.invalid_count, p.saturated_count = s, inv, sat
-        return ycomp, {k: np.asarray(r.x) for k, r in res.items()}
+
+#: the former name of :class:`Runtime`
+UnitManager = Runtime

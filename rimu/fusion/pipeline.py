@@ -20,9 +20,11 @@ one never is (saturation is reported in ``saturated``, not ``invalid``).
 
 Validity (:class:`~rimu.fusion.validity.Validity`) of each output: ``NOMINAL`` when every sensor is used,
 ``DEGRADED`` when some are isolated, invalid or saturated, ``UNOBSERVABLE`` when the sensors in use do not span
-three dimensions. Outputs never contain NaN: an unobservable sample reports ``x = 0`` as a placeholder with
-``P = inf`` (diagonal), ``observable = False`` and validity ``UNOBSERVABLE``; that x is not an estimate and
-must not be used (test the validity, or P, never x).
+three dimensions. When nothing can be estimated there is no number: an unobservable sample reports ``x = NaN``
+with ``P = inf`` (diagonal), ``observable = False`` and validity ``UNOBSERVABLE`` (the parity is zero, dof 0).
+
+The pipeline holds no isolation decision: the set of sensors to use is an argument of every call
+(``step(y, valid, active)``, ``process(Y, valid, active)``); the runtime (:class:`rimu.fdi.Runtime`) owns it.
 
 Equivalence with Cho & Park Eq. 20. Where every sub-unit is a full triad, Eq. 20 reads
 ``x = (H^T H)^-1 H^T M^-1 (SF Y - B)``. Both that matrix and G here are left inverses of A = M H, so both
@@ -64,7 +66,7 @@ class StepResult:
     Attributes
     ----------
     x : ndarray (3,)
-        Estimate in MB, SI units. A placeholder 0 when ``validity`` is ``UNOBSERVABLE`` (not an estimate).
+        Estimate in MB, SI units. NaN when ``validity`` is ``UNOBSERVABLE`` (no estimate).
     P : ndarray (3, 3)
         Its covariance (``inf`` on the diagonal when unobservable).
     parity : ndarray (n - 3,)
@@ -83,6 +85,9 @@ class StepResult:
         Sensors whose raw value was at their range limit in this sample (routed around, not faulty).
     validity : Validity
         NOMINAL (every sensor used), DEGRADED (some isolated, invalid or saturated), UNOBSERVABLE.
+    code : int
+        The set code of ``active`` (bit i = sensor i): the key of the set in the projection table, which
+        recomputes a set it no longer holds (``table.get(code)``; an entry number may be evicted).
     """
 
     x: np.ndarray
@@ -95,13 +100,14 @@ class StepResult:
     entry: int
     saturated: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     validity: Validity = Validity.NOMINAL
+    code: int = -1
 
 
 @dataclass
 class BlockResult:
     """Output of :meth:`InstrumentPipeline.process` for N samples.
 
-    ``x`` is a placeholder 0 where ``validity == Validity.UNOBSERVABLE`` (see the module docstring).
+    ``x`` is NaN where ``validity == Validity.UNOBSERVABLE`` (see the module docstring).
     """
 
     x: np.ndarray
@@ -225,7 +231,8 @@ class InstrumentPipeline:
         self.invalid_count = np.zeros(n, dtype=np.int64)
         self.saturated_count = np.zeros(n, dtype=np.int64)
         self.samples = 0
-        self._isolated = np.zeros(n, dtype=bool)
+        self._code = -1
+        self._full = self.table.full_code
         self._out = np.zeros(3 + self.r)
         self._y0 = np.zeros(n)
         self._invalid = np.zeros(n, dtype=bool)
@@ -236,48 +243,48 @@ class InstrumentPipeline:
                                  self._invalid, True, 0, self._saturated, Validity.NOMINAL)
         self._select(self.table.full_code)
 
-    # ------------------------------------------------------------------ isolation (Cho & Park Eq. 21)
-    @property
-    def isolated(self) -> np.ndarray:
-        """Sensors currently excluded (copy)."""
-        return self._isolated.copy()
-
+    # ------------------------------------------------------------------ the active set (Cho & Park Eq. 21)
     def _check_index(self, i: int) -> int:
         if isinstance(i, (bool, np.bool_)) or not isinstance(i, (int, np.integer)) or not 0 <= i < self.n:
             raise IndexError(f"sensor index must be an integer in 0..{self.n - 1}, got {i!r}")
         return int(i)
 
-    def isolate(self, i: int) -> None:
-        """Exclude sensor ``i`` from now on (Cho & Park Eq. 21: its row of H and its output set to zero)."""
-        i = self._check_index(i)
-        self._isolated[i] = True
-        self._select(mask_bits(~self._isolated))
-
-    def readmit(self, i: int) -> None:
-        """Bring sensor ``i`` back."""
-        i = self._check_index(i)
-        self._isolated[i] = False
-        self._select(mask_bits(~self._isolated))
-
-    def set_isolated(self, mask: np.ndarray) -> None:
-        m = np.asarray(mask, dtype=bool)
-        if m.shape != (self.n,):
-            raise ShapeError(f"isolation mask must have shape ({self.n},), got {m.shape}")
-        self._isolated[:] = m
-        self._select(mask_bits(~m))
+    def _use(self, active: np.ndarray | int | None) -> None:
+        """Make the set ``active`` current: a boolean mask (n,) of the sensors the caller keeps in, a set code
+        (bit i = sensor i, :func:`rimu.fusion.projection.mask_bits`), or None for every sensor. The pipeline holds
+        no isolation decision: the set is an argument of each call (the runtime, :class:`rimu.fdi.Runtime`, owns
+        it); the matrices of the last set used are kept so that an unchanged set costs one comparison."""
+        if active is None:
+            code = self.table.full_code
+        elif isinstance(active, (int, np.integer)) and not isinstance(active, (bool, np.bool_)):
+            code = int(active)
+            if not 0 <= code <= self.table.full_code:
+                raise ShapeError(f"an active-set code must be in 0..{self.table.full_code}, got {code}")
+        else:
+            m = np.asarray(active, dtype=bool)
+            if m.shape != (self.n,):
+                raise ShapeError(f"active-set mask must have shape ({self.n},), got {m.shape}")
+            code = mask_bits(m)
+        if code != self._code:
+            self._select(code)
 
     def _select(self, code: int) -> None:
-        """Make the set of the non-isolated sensors current (computed now if it is new: not per sample)."""
+        """Make the set ``code`` current (computed now if it is new: not per sample)."""
         s = self.table.get(code)
+        self._code = code
         self._set = s
         self._entry = s.entry
         self._Re = s.R
         self._offe = s.off
+        if not s.observable:  # no estimate on this set: NaN, which also sends every sample to the careful path
+            self._offe = s.off.copy()
+            self._offe[:3] = np.nan
         self._point_result(s)
 
     def _point_result(self, s: ActiveSet) -> None:
         res = self.result
         res.entry = s.entry
+        res.code = s.code
         res.P = s.P if s.observable else _INF_P
         res.dof = s.dof
         res.observable = s.observable
@@ -292,8 +299,13 @@ class InstrumentPipeline:
         self._point_result(self._set)
         self._dirty = False
 
-    def step(self, y: np.ndarray, valid: np.ndarray | None = None) -> StepResult:
-        """Process one raw sample ``y`` (n,). Returns :attr:`result` (reused; copy what you keep)."""
+    def step(self, y: np.ndarray, valid: np.ndarray | None = None, active: np.ndarray | int | None = None
+             ) -> StepResult:
+        """Process one raw sample ``y`` (n,) on the sensors ``active`` (a mask (n,), a set code, or None: all;
+        invalid and clipped values are left out of the sample on top). Returns :attr:`result` (reused; copy
+        what you keep)."""
+        if active is not None or self._code != self._full:
+            self._use(active)
         self.samples += 1
         k = self._kstep
         if k is not None:  # compiled: range, R y - off and finiteness in one call
@@ -339,12 +351,13 @@ class InstrumentPipeline:
         self._invalid[:] = bad
         self._saturated[:] = sat
         self._dirty = True
-        s = self.table.get(mask_bits(use & ~self._isolated))
+        s = self.table.get(mask_bits(use & self._set.active))
         self._point_result(s)
         if (bad.any() or sat.any()) and self.result.validity == Validity.NOMINAL:
             self.result.validity = Validity.DEGRADED
         if not s.observable:
-            self._out[:] = 0.0
+            self._out[:3] = np.nan  # no estimate: the sensors in use do not span 3-D
+            self._out[3:] = 0.0
             return self.result
         np.copyto(self._y0, y)
         self._y0[~use] = 0.0
@@ -353,13 +366,15 @@ class InstrumentPipeline:
         return self.result
 
     # ------------------------------------------------------------------ blocks (replay)
-    def process(self, Y: np.ndarray, valid: np.ndarray | None = None, out: np.ndarray | None = None
-                ) -> BlockResult:
-        """Process N samples at once, (N, n). Identical to calling :meth:`step` on each row.
+    def process(self, Y: np.ndarray, valid: np.ndarray | None = None, out: np.ndarray | None = None, *,
+                active: np.ndarray | int | None = None) -> BlockResult:
+        """Process N samples at once, (N, n), on the sensors ``active`` (as :meth:`step`). Identical to calling
+        :meth:`step` on each row.
 
         ``out`` (N, 3 + r), float64, C-ordered: the buffer the estimates and parity are written into (a stream
         that passes the same buffer every block allocates nothing; the result's ``x`` and ``parity`` are views of
         it, and the result object itself is reused while the set, the length and the buffer stay the same)."""
+        self._use(active)
         Y = np.asarray(Y, dtype=float)
         if Y.ndim != 2 or Y.shape[1] != self.n:
             raise ShapeError(f"a block of raw samples must have shape (N, {self.n}), got {Y.shape}")
@@ -392,7 +407,7 @@ class InstrumentPipeline:
         use = good & ~sat
         self.invalid_count += bad.sum(axis=0)
         self.saturated_count += sat.sum(axis=0)
-        rows_use = use & ~self._isolated
+        rows_use = use & self._set.active
         keys = np.packbits(rows_use, axis=1, bitorder="little")
         uniq, inv = np.unique(keys, axis=0, return_inverse=True)
         inv = inv.reshape(-1)
@@ -413,7 +428,8 @@ class InstrumentPipeline:
             validity[rows] = _validity(s, n)
             Ps[s.entry] = s.P if s.observable else _INF_P
             if not s.observable:
-                out[rows] = 0.0
+                out[rows, :3] = np.nan
+                out[rows, 3:] = 0.0
             else:
                 out[rows] = Y0[rows] @ s.R.T - s.off
         validity[(bad | sat).any(axis=1) & (validity == Validity.NOMINAL)] = Validity.DEGRADED
@@ -477,7 +493,7 @@ class InstrumentPipeline:
         tab = self.table
         if good.all() and self._set.observable:
             return Z @ self._set.G.T
-        keys = np.packbits(good & ~self._isolated, axis=1, bitorder="little")
+        keys = np.packbits(good & self._set.active, axis=1, bitorder="little")
         uniq, inv = np.unique(keys, axis=0, return_inverse=True)
         inv = inv.reshape(-1)
         Z0 = np.where(good, Z, 0.0)
@@ -640,12 +656,46 @@ class Pipeline:
             w = solve("gyro", f, None)
         return w
 
-    def compensate(self, block: EpochBlock) -> EpochBlock:
+    @property
+    def compiled(self) -> bool:
+        """Whether the compensation stage runs compiled (numba backend, every effect with a compiled form)."""
+        return self._program is not None
+
+    @property
+    def order(self) -> list[str]:
+        """The instruments in the order the compensation stage steps them (the first one's estimate feeds the
+        second one's effects)."""
+        return list(self._order)
+
+    def _use(self, active: dict[str, Any] | None) -> None:
+        """Each instrument pipeline on its set of ``active`` (instrument -> mask or set code; absent: every
+        sensor)."""
+        for k, ip in self.instruments.items():
+            a = None if active is None else active.get(k)
+            if a is not None or ip._code != ip._full:
+                ip._use(a)
+
+    def compensate(self, block: EpochBlock, active: dict[str, Any] | None = None) -> EpochBlock:
         """The block with every further effect removed from the raw outputs (an ideal SF/M/B unit's raw data),
         for FDI managers and anything else built on :class:`InstrumentPipeline`. Equal to what
-        :meth:`process` feeds its instrument pipelines."""
-        raw, _ = self._compensate_block(block)
+        :meth:`process` feeds its instrument pipelines. No counter changes."""
+        raw, _ = self.compensate_block(block, active)
         return EpochBlock(block.t, raw, dict(block.valid), block.temperature, dict(block.meta))
+
+    def compensate_block(self, block: EpochBlock, active: dict[str, Any] | None = None
+                         ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+        """The compensated raw outputs of ``block`` on the sets ``active`` and each compensated instrument's
+        estimate (what fed the next instrument's effects), without touching any counter: a look ahead for
+        :class:`rimu.fdi.Runtime`, which steps the epochs through its managers afterwards."""
+        self._use(active)
+        saved = {k: (p.samples, p.invalid_count.copy(), p.saturated_count.copy()) for k, p in self.instruments.items()}
+        try:
+            raw, res = self._compensate_block(block, True)
+        finally:  # a look ahead: the counters count the samples stepped, not the ones looked at
+            for k, (n, inv, sat) in saved.items():
+                p = self.instruments[k]
+                p.samples, p.invalid_count, p.saturated_count = n, inv, sat
+        return raw, {k: np.asarray(r.x) for k, r in res.items()}
 
     def _compensate_block(self, block: EpochBlock, want_raw: bool = True, out: dict[str, np.ndarray] | None = None
                           ) -> tuple[dict[str, np.ndarray], dict[str, BlockResult]]:
@@ -682,12 +732,15 @@ class Pipeline:
                                   ests[k])
                 if clipped[k].any():  # a clipped output stays clipped: the projection routes around it
                     out[k] = np.where(clipped[k], block.raw[k], out[k])
-            res = self.instruments[k].process(out[k], block.valid.get(k), outb.get(k))
+            res = self.instruments[k].process(out[k], block.valid.get(k), outb.get(k), active=self.instruments[k]._code)
             results[k] = res
+            # the next instrument's effects take the estimate; where there is none, zero (no input)
+            x_feed = np.asarray(res.x) if np.all(res.observable) else np.where(
+                np.asarray(res.observable)[:, None], res.x, 0.0)
             if k == "accel":
-                f = np.asarray(res.x)
+                f = x_feed
             else:
-                w = np.asarray(res.x)
+                w = x_feed
         return out, results
 
     def _program_ready(self) -> Any:
@@ -790,17 +843,20 @@ class Pipeline:
                                         eff, "temperature")
 
     # ------------------------------------------------------------------ run
-    def step(self, epoch: Epoch) -> dict[str, StepResult]:
-        """One epoch through the compensation stage and every instrument's pipeline."""
+    def step(self, epoch: Epoch, active: dict[str, Any] | None = None) -> dict[str, StepResult]:
+        """One epoch through the compensation stage and every instrument's pipeline, on the sensor sets
+        ``active`` (instrument -> mask or set code; absent: every sensor)."""
+        self._use(active)
         if not self.compensation:
-            return {k: p.step(epoch.raw[k], epoch.valid.get(k)) for k, p in self.instruments.items()}
+            return {k: p.step(epoch.raw[k], epoch.valid.get(k), p._code) for k, p in self.instruments.items()}
         if self._program is not None:
             res_c = self._step_compiled(epoch)
             if res_c is not None:
                 return res_c
-        return self._step_numpy(epoch, lambda k, y, valid: self.instruments[k].step(y, valid))
+        ins = self.instruments
+        return self._step_numpy(epoch, lambda k, y, valid: ins[k].step(y, valid, ins[k]._code))
 
-    def step_through(self, epoch: Epoch, step: Any) -> dict[str, Any]:
+    def step_through(self, epoch: Epoch, step: Any, active: dict[str, Any] | None = None) -> dict[str, Any]:
         """One epoch through the compensation stage, each instrument's step done by ``step``.
 
         ``step(instrument, y, valid)`` gets the instrument's raw outputs with every further effect removed
@@ -811,8 +867,10 @@ class Pipeline:
         sensors of each instrument pipeline. :meth:`step` is ``step_through`` with the instrument pipelines'
         own steps; :class:`rimu.fdi.UnitManager` passes its redundancy managers' steps, so that the
         compensation, the isolation set and the estimate feeding the other instrument are those of the
-        managers (as the exported C's ``rimu_fdi_step``). Returns ``{instrument: step's result}``.
+        managers (as the exported C's ``rimu_fdi_step``). ``active`` as in :meth:`step`: the sets the
+        compensation's estimates use. Returns ``{instrument: step's result}``.
         """
+        self._use(active)
         if not self.compensation:
             return {k: step(k, epoch.raw[k], epoch.valid.get(k)) for k in self.instruments}
         return self._step_numpy(epoch, step)
@@ -858,24 +916,29 @@ class Pipeline:
                 y = np.where(clips[k], np.asarray(epoch.raw[k], dtype=float), y)
             r = step(k, y, epoch.valid.get(k))
             res[k] = r
+            x_feed = r.x.tolist() if r.observable else [0.0, 0.0, 0.0]  # no estimate: no input to the effects
             if k == "accel":
-                f = r.x.tolist()
+                f = x_feed
             else:
-                w = r.x.tolist()
+                w = x_feed
         return {k: res[k] for k in self.instruments}
 
-    def process(self, block: EpochBlock, out: dict[str, np.ndarray] | None = None) -> dict[str, BlockResult]:
-        """N epochs at once; the same numbers as :meth:`step` on each epoch.
+    def process(self, block: EpochBlock, out: dict[str, np.ndarray] | None = None, *,
+                active: dict[str, Any] | None = None) -> dict[str, BlockResult]:
+        """N epochs at once on the sets ``active`` (as :meth:`step`); the same numbers as :meth:`step` on each
+        epoch.
 
         ``out``: per instrument, the buffer of :meth:`InstrumentPipeline.process` (a stream that passes the same
         buffers every block allocates nothing)."""
+        self._use(active)
         if not self.compensation:
             if self._bpath is not False:  # compiled: every instrument in one call
                 res = self._process_compiled(block, out)
                 if res is not None:
                     return res
             out = out or {}
-            return {k: p.process(block.raw[k], block.valid.get(k), out.get(k)) for k, p in self.instruments.items()}
+            return {k: p.process(block.raw[k], block.valid.get(k), out.get(k), active=p._code)
+                    for k, p in self.instruments.items()}
         _, results = self._compensate_block(block, want_raw=False, out=out)
         return {k: results[k] for k in self.instruments}
 

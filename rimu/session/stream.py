@@ -35,7 +35,7 @@ from .native import _check_sidecar, _columns, _read_sidecar, npz_layout, read_he
 __all__ = ["iter_blocks"]
 
 
-def iter_blocks(path: str | Path, chunk: int = 65536) -> Iterator[EpochBlock]:
+def iter_blocks(path: str | Path, chunk: int = 65536, invalid: bool = False) -> Iterator[EpochBlock]:
     """The samples of a session file as blocks of at most ``chunk`` samples (see the module docstring).
 
     Parameters
@@ -44,6 +44,10 @@ def iter_blocks(path: str | Path, chunk: int = 65536) -> Iterator[EpochBlock]:
         ``.csv`` (with its ``.json`` sidecar beside it), the ``.json`` sidecar, or ``.npz``.
     chunk : int
         Samples per block (>= 1).
+    invalid : bool
+        False (calibration): a raw value that is not a finite number is refused. True (the runtime: ``rimu
+        replay``, as ``rimu monitor`` and the live sources): an empty, NaN or infinite raw cell, or a False in an
+        NPZ's ``valid_<instrument>`` array, is an invalid sample of that sensor (``valid`` False, value NaN).
 
     Yields
     ------
@@ -58,19 +62,19 @@ def iter_blocks(path: str | Path, chunk: int = 65536) -> Iterator[EpochBlock]:
     if not path.exists():
         raise SessionFormatError(f"{path} does not exist")
     if path.suffix == ".npz":
-        yield from _iter_npz(path, int(chunk))
+        yield from _iter_npz(path, int(chunk), invalid)
         return
     if path.suffix == ".json":
         side = _read_sidecar(path)
         if "data" not in side:
             raise SessionFormatError(f"{path}: the sidecar has no 'data' key naming its CSV file")
-        yield from _iter_csv(path.parent / side["data"], side, path, int(chunk))
+        yield from _iter_csv(path.parent / side["data"], side, path, int(chunk), invalid)
         return
     if path.suffix == ".csv":
         sp = path.with_suffix(".json")
         if not sp.exists():
             raise SessionFormatError(f"{path}: its sidecar {sp.name} is missing (geometry, sample rate, segments)")
-        yield from _iter_csv(path, _read_sidecar(sp), sp, int(chunk))
+        yield from _iter_csv(path, _read_sidecar(sp), sp, int(chunk), invalid)
         return
     raise SessionFormatError(f"{path}: unknown session file type {path.suffix!r}; use .csv/.json or .npz")
 
@@ -80,7 +84,7 @@ def _meta(side: dict, seg: np.ndarray) -> dict:
             "sample_rate_hz": float(side["sample_rate_hz"]), "sidecar": side}
 
 
-def _iter_csv(path: Path, side: dict, src: Path, chunk: int) -> Iterator[EpochBlock]:
+def _iter_csv(path: Path, side: dict, src: Path, chunk: int, invalid: bool = False) -> Iterator[EpochBlock]:
     _check_sidecar(side, str(src))
     geoms = sidecar_geometries(side, str(src))
     need = ["t", "segment"] + _columns(geoms)
@@ -104,19 +108,22 @@ def _iter_csv(path: Path, side: dict, src: Path, chunk: int) -> Iterator[EpochBl
                 raise SessionFormatError(f"{path}: row {row} has {len(line)} fields, the header has {nh}")
             rows.append(line)
             if len(rows) == chunk:
-                blk = _csv_block(rows, row - len(rows) + 1, path, ci, si, num_cols, labels, geoms, has_temp, side)
+                blk = _csv_block(rows, row - len(rows) + 1, path, ci, si, num_cols, labels, geoms, has_temp, side,
+                                 invalid)
                 last_t, last_seg = _check_time(blk, last_t, last_seg, row - len(rows) + 1, path, side)
                 yield blk
                 rows = []
         if rows:
-            blk = _csv_block(rows, row - len(rows) + 1, path, ci, si, num_cols, labels, geoms, has_temp, side)
+            blk = _csv_block(rows, row - len(rows) + 1, path, ci, si, num_cols, labels, geoms, has_temp, side,
+                             invalid)
             _check_time(blk, last_t, last_seg, row - len(rows) + 1, path, side)
             yield blk
         elif row == 1:
             raise SessionFormatError(f"{path}: no data rows")
 
 
-def _csv_block(rows, first_row, path, ci, si, num_cols, labels, geoms, has_temp, side) -> EpochBlock:
+def _csv_block(rows, first_row, path, ci, si, num_cols, labels, geoms, has_temp, side,  # type: ignore[no-untyped-def]
+               invalid=False) -> EpochBlock:
     seg = np.empty(len(rows), dtype=np.int64)
     for r, line in enumerate(rows):
         k = labels.get(line[si].strip())
@@ -124,13 +131,22 @@ def _csv_block(rows, first_row, path, ci, si, num_cols, labels, geoms, has_temp,
             raise SessionFormatError(f"{path}: row {first_row + r}, column 'segment': label {line[si].strip()!r} is "
                                      f"not a segment of the sidecar ({sorted(labels)})")
         seg[r] = k
+    raw_cols = set(_columns(geoms)) if invalid else set()
     try:
         vals = np.array([[line[c] for c in ci] for line in rows], dtype=float)
     except ValueError:
         vals = None
+    if invalid and vals is None:  # empty raw cells: invalid samples (NaN)
+        try:
+            vals = np.array([[(line[c] if line[c].strip() or name not in raw_cols else "nan")
+                              for name, c in zip(num_cols, ci)] for line in rows], dtype=float)
+        except ValueError:
+            vals = None
     if vals is None or not np.all(np.isfinite(vals)):
         for r, line in enumerate(rows):
             for name, c in zip(num_cols, ci):
+                if name in raw_cols and (not line[c].strip() or line[c].strip().lower() in ("nan", "inf", "-inf")):
+                    continue  # an invalid sample of that sensor
                 try:
                     v = float(line[c])
                 except ValueError:
@@ -143,7 +159,11 @@ def _csv_block(rows, first_row, path, ci, si, num_cols, labels, geoms, has_temp,
         if k in geoms:
             raw[k] = vals[:, c0:c0 + geoms[k].n]
             c0 += geoms[k].n
-    return EpochBlock(vals[:, 0], raw, temperature=vals[:, c0] if has_temp else None, meta=_meta(side, seg))
+    valid = {k: np.isfinite(y) for k, y in raw.items()} if invalid else {}
+    if invalid:
+        for k, y in raw.items():
+            y[~valid[k]] = np.nan
+    return EpochBlock(vals[:, 0], raw, valid, temperature=vals[:, c0] if has_temp else None, meta=_meta(side, seg))
 
 
 def _check_time(blk: EpochBlock, last_t: float, last_seg: int, first_row: int, path: Path,
@@ -189,7 +209,7 @@ class _NpyStream:
         self.fh.close()
 
 
-def _iter_npz(path: Path, chunk: int) -> Iterator[EpochBlock]:
+def _iter_npz(path: Path, chunk: int, invalid: bool = False) -> Iterator[EpochBlock]:
     try:
         zf = zipfile.ZipFile(path)
     except (OSError, zipfile.BadZipFile) as exc:
@@ -205,6 +225,8 @@ def _iter_npz(path: Path, chunk: int) -> Iterator[EpochBlock]:
             raise SessionFormatError(f"{path}: 'meta' is not valid JSON ({exc})") from exc
         geoms, need = npz_layout(side, sorted(names), path)
         keys = need + (["temperature"] if "temperature" in names else [])
+        if invalid:
+            keys += [f"valid_{k}" for k in geoms if f"valid_{k}" in names]
         streams = {k: _NpyStream(zf, f"{k}.npy", path) for k in keys}
         try:
             N = streams["t"].shape[0]
@@ -224,15 +246,22 @@ def _iter_npz(path: Path, chunk: int) -> Iterator[EpochBlock]:
                 if seg.size and (seg.min() < 0 or seg.max() >= nseg):
                     raise SessionFormatError(f"{path}: 'segment' must hold indices into the {nseg} segments of meta "
                                              f"(rows {a}..{a + m - 1})")
-                raw = {}
+                raw, valid = {}, {}
                 for k, g in geoms.items():
                     y = streams[f"raw_{k}"].read(m).astype(float)
+                    if invalid:  # non-finite values and the valid_<instrument> flags: invalid samples
+                        v = np.isfinite(y)
+                        if f"valid_{k}" in streams:
+                            v &= streams[f"valid_{k}"].read(m).astype(bool).reshape(y.shape)
+                        y[~v] = np.nan
+                        raw[k], valid[k] = y, v
+                        continue
                     if not np.all(np.isfinite(y)):
                         r, c = np.argwhere(~np.isfinite(y))[0]
                         raise SessionFormatError(f"{path}: raw_{k} row {a + r}, column {g.names[c]!r} is not finite")
                     raw[k] = y
                 temp = streams["temperature"].read(m).astype(float) if "temperature" in streams else None
-                blk = EpochBlock(t, raw, temperature=temp, meta=_meta(side, seg))
+                blk = EpochBlock(t, raw, valid, temperature=temp, meta=_meta(side, seg))
                 last_t, last_seg = _check_time(blk, last_t, last_seg, a, path, side)
                 yield blk
         finally:

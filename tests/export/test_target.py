@@ -23,6 +23,7 @@ from rimu.export import FdiSettings
 from rimu.export.misra import DEVIATIONS, misra_check
 from rimu.export.target import missing_tools, run_target, write_input, write_target
 from rimu.export.target_budget import measure, stack_graph
+from rimu.fdi import Runtime
 from rimu.fdi.health import SensorState
 from rimu.geometry import cone, cone6
 
@@ -89,7 +90,7 @@ def _agreement(cal, tmp_path, t, raw, valid):
     host = run_target(d, tmp_path / "in.bin", host=True)
     # the same float inputs for Python, in double
     r32 = {k: np.where(valid[k], raw[k], 0.0).astype(np.float32).astype(float) for k in cal.instruments}
-    py = SETTINGS.unit_manager(cal).run(EpochBlock(t, r32, {k: v.copy() for k, v in valid.items()}))
+    py = Runtime(cal, SETTINGS).run(EpochBlock(t, r32, {k: v.copy() for k, v in valid.items()}))
     c = _table(tgt.detail)
     out = {"target": tgt, "host": host, "py": py, "near": 0, "differ": 0, "unexplained": 0}
     for k in cal.instruments:

@@ -46,7 +46,11 @@ def test_dropout_on_four_channels_all_readmitted():
     assert len(back) == 3 and all(e.sample < 320 + 100 + 5 for e in back)
     assert not mgr.isolated.any() and mgr.sensor_states == {n: "healthy" for n in mgr.names}
     assert (res.validity[450:] == Validity.NOMINAL).mean() > 0.98
-    assert np.all(np.isfinite(res.x))
+    # no estimate while nothing spans 3-D: NaN there, and a state event that says so; numbers everywhere else
+    assert np.array_equal(np.isnan(res.x).any(axis=1), res.validity == Validity.UNOBSERVABLE)
+    assert np.all(np.isfinite(res.x[res.validity != Validity.UNOBSERVABLE]))
+    gone = [e for e in res.events if e.kind == "state" and "-> unobservable" in e.message]
+    assert [e.sample for e in gone] == [300] and "(2 sensors delivering usable data)" in gone[0].message
 
 
 def test_all_nan_samples_are_unobservable_not_nominal():
@@ -56,7 +60,11 @@ def test_all_nan_samples_are_unobservable_not_nominal():
     res = mgr.run(Y)
     assert (res.validity[200:260] == Validity.UNOBSERVABLE).all()
     assert "nominal" not in res.state_names()[200:260]
-    assert np.all(np.isfinite(res.x)) and np.all(res.x[200:260] == 0.0)
+    # no estimate is NaN, never a plausible 0 rad/s; an event names it when it starts and when it ends
+    assert np.all(np.isnan(res.x[200:260])) and np.all(np.isfinite(np.delete(res.x, np.s_[200:260], 0)))
+    st = [(e.sample, e.message.split(" (")[0]) for e in res.events if e.kind == "state"]
+    assert (200, "state nominal -> unobservable") in st and any(s == 260 and "unobservable ->" in m for s, m in st)
+    assert "(0 sensors delivering usable data)" in res.first("state").message
     assert (res.n_active[200:260] == 0).all()
     assert not mgr.isolated.any()                     # everything re-admitted afterwards
     assert res.validity[-1] == Validity.NOMINAL

@@ -82,9 +82,10 @@ def test_no_redundancy_and_unobservable_states():
         r = mgr.step(y)
         assert mgr.state.value == want and r.state.value == want and int(r.validity) == val
         assert r.active.sum() == 5 - i and not mgr.pipeline.result.active[i]
-    assert not r.observable and np.all(np.isfinite(r.x)) and np.all(np.isinf(np.diag(r.P)))
-    mgr.pipeline.readmit(0)                              # behind the manager's back: the manager's set rules
-    assert not mgr.step(y).active[0]
+    assert not r.observable and np.all(np.isnan(r.x)) and np.all(np.isinf(np.diag(r.P)))
+    mgr.pipeline.step(y)                                 # the pipeline alone, on every sensor: no isolation state
+    assert mgr.pipeline.result.active.all()
+    assert not mgr.step(y).active[0]                     # the manager's set is an argument of each of its steps
     mgr.reset()
     r = mgr.step(y)
     assert r.active.all() and r.validity == 0 and mgr.state.value == "nominal"
@@ -181,3 +182,31 @@ def test_any_fault_sequence_keeps_the_invariants(faults, seed):
     expect = {6: {"nominal", "fault_isolated"}, 5: {"fault_isolated"}, 4: {"detection_only"},
               3: {"no_redundancy"}}.get(n_act, {"unobservable"})
     assert mgr.state.value in expect
+
+
+def test_the_state_changes_on_the_isolation_sample():
+    """Cho & Park's scenario (gyro y2 fails, 10 sigma step): on the sample of the ``isolated`` event the state, the
+    active set, x, P and the parity already describe the set without y2, and the ``state`` event carries that
+    sample (before: the state changed one sample after the isolation that caused it)."""
+    from rimu.sim import Simulator, rotation
+    from rimu.units import DS_TO_RS
+
+    sim = Simulator(seed=4)
+    run = sim.run([rotation("M", [0, 30 * DS_TO_RS, 0], duration=6.0)])
+    cal = run.truth["gyro"]
+    Y = run.block.raw["gyro"].copy()
+    i = cal.geometry.index("y2")
+    Y[run.block.t >= 3.0, i] += 10 * sim.noise_sigma("gyro") / cal.scale[i]
+    mgr = RedundancyManager(InstrumentPipeline(cal), sample_rate=sim.sample_rate)
+    res = mgr.run(Y)
+    iso = res.first("isolated", "y2")
+    k = iso.sample
+    assert res.state_names()[k] == "fault_isolated" and not res.active[k, i]
+    # on every sample the state is the state of the set the estimate used (all six: nominal; five: fault_isolated,
+    # on the alarm samples before the confirmation too, where y2 is already left out as the suspect)
+    names = np.array(res.state_names())
+    five = res.active.sum(axis=1) == 5
+    assert set(names[five]) == {"fault_isolated"} and set(names[res.active.all(axis=1)]) == {"nominal"}
+    assert five[:k].any() and not five[:int(3.0 * sim.sample_rate)].any()
+    assert res.first("state").sample == k and "-> fault_isolated" in res.first("state").message
+    assert np.allclose(res.P_diag[k], np.diag(mgr.pipeline.table.get(mgr.pipeline.table.full_code & ~(1 << i)).P))

@@ -16,7 +16,7 @@ from rimu.calibration import Calibration, InstrumentCalibration
 from rimu.epoch import Epoch, EpochBlock
 from rimu.fdi import RedundancyManager, UnitManager
 from rimu.fusion import InstrumentPipeline, Pipeline
-from rimu.geometry import cone6
+from rimu.geometry import cone, cone6
 
 N, K0, K_CLEAR, R = 900, 200, 500, 100
 SIG = 0.002          # rad/s per sample
@@ -218,3 +218,32 @@ def test_run_in_blocks_is_the_closed_loop_epoch_by_epoch():
             assert np.array_equal(res[k].alarm, [r[2] for r in ref[k]]), (chunk, k)
             assert np.array_equal(res[k].validity, [int(r[1]) for r in ref[k]]), (chunk, k)
             assert [(e.kind, e.t) for e in res[k].events] == [(e.kind, e.t) for e in um.managers[k].events]
+
+
+def test_a_projection_cache_of_one_set_recomputes_for_every_caller():
+    """Random set changes (invalid sensors, faults that get isolated and re-admitted) through the runtime with a
+    projection cache of one set besides the full one: every caller (pipeline, detector, set test, remap, state)
+    gets its set again when it was evicted, and the outputs are those of the default cache (issue 32 item 1:
+    once ``KeyError: entry 39 is not in the projection cache``)."""
+    from rimu.fdi import Runtime
+
+    rng = np.random.default_rng(32)
+    cal = Calibration({"gyro": InstrumentCalibration.nominal("gyro", cone(8, 50.0), 1.0, noise_sigma=0.01)})
+    N = 1500
+    u = 0.3 * np.sin(np.arange(N)[:, None] / np.array([70.0, 50.0, 110.0]))
+    Y = cal["gyro"].raw_output(u) + 0.01 * rng.standard_normal((N, 8))
+    valid = rng.random((N, 8)) > 0.03                     # scattered invalid samples: a new set almost every sample
+    valid[600:640, 2] = False                             # one sensor out long enough to be isolated
+    for a in range(200, N, 400):                          # faults on random sensors, isolated and re-admitted
+        Y[a:a + 60, rng.integers(8)] += 0.3
+    block = EpochBlock(np.arange(N) / 100.0, {"gyro": Y}, {"gyro": valid})
+    small = Runtime(Pipeline(cal, cache_size=1), readmit_after=40).run(block)["gyro"]
+    ref = Runtime(Pipeline(cal), readmit_after=40).run(block)["gyro"]
+    assert Pipeline(cal, cache_size=1)["gyro"].table.cache_size == 1
+    np.testing.assert_array_equal(small.validity, ref.validity)
+    np.testing.assert_array_equal(small.sensor_state, ref.sensor_state)
+    np.testing.assert_array_equal(small.active, ref.active)
+    np.testing.assert_allclose(small.x, ref.x, rtol=0, atol=1e-12)
+    assert [(e.kind, e.sensor, e.sample) for e in small.events] == [(e.kind, e.sensor, e.sample) for e in ref.events]
+    kinds = {e.kind for e in ref.events}
+    assert {"isolated", "readmitted", "invalid_isolated"} <= kinds, kinds
