@@ -397,7 +397,9 @@ def run(args: argparse.Namespace) -> int:
                 raise OutputPathError(f"--estimates {args.estimates} would overwrite {what} {v}; give another name")
     from ._inputs import session_file
 
-    path = session_file(args.data, "warn" if args.accept_implausible else "strict", args=args)
+    path = _epochs_recording_session(args.data, args.calibration)
+    if path is None:
+        path = session_file(args.data, "warn" if args.accept_implausible else "strict", args=args)
     try:  # pass 1: every format and plausibility check, the sample count, time span and rate; constant memory
         scan = _Scan(path, "warn" if args.accept_implausible else "strict")
     except RimuError:
@@ -635,3 +637,51 @@ def _plot(path: Path, results: dict) -> Path | None:
         fig.savefig(tmp, dpi=110)
     plt.close(fig)
     return path
+
+
+def _epochs_recording_session(data: str, calibration: str) -> Path | None:
+    """A recording of ``rimu monitor -o`` (``# rimu epochs v1`` CSV, no sidecar) as a one-segment session file in
+    a scratch folder, the geometries taken from the calibration, invalid samples as NaN (so replay decides on
+    them as monitor did); None for any other input."""
+    import atexit
+    import shutil
+    import tempfile
+
+    from ..calibration.result import Calibration
+    from ..epoch import EpochBlock
+    from ..errors import SessionFormatError
+    from ..io.recorded import CSV_MAGIC, CsvSource
+    from ..session import Segment, Session, save_session
+
+    p = Path(data)
+    if p.suffix.lower() != ".csv" or not p.is_file() or p.with_suffix(".json").exists():
+        return None
+    with open(p, "rb") as fh:
+        if fh.readline().rstrip(b"\r\n").decode("utf-8", "replace") != CSV_MAGIC:
+            return None
+    cal = Calibration.load(calibration)
+    epochs = list(CsvSource(path=p))
+    if len(epochs) < 2:
+        raise SessionFormatError(f"{p}: fewer than 2 epochs in the recording; nothing to replay")
+    block = EpochBlock.from_epochs(epochs)
+    raw = {}
+    for k in cal.instruments:
+        if k in block.raw:
+            y = np.array(block.raw[k], dtype=float)
+            v = block.valid.get(k) if block.valid else None
+            if v is not None:
+                y[~np.asarray(v, dtype=bool)] = np.nan
+            raw[k] = y
+    if not raw:
+        raise SessionFormatError(f"{p}: the recording and the calibration {calibration} share no instrument")
+    rate = 1.0 / float(np.median(np.diff(block.t)))
+    seg = Segment("recording", "motion", np.asarray(block.t, float), raw, block.temperature)
+    session = Session([seg], {k: cal[k].geometry for k in raw}, rate, meta={"recording": str(p)})
+    tmp = tempfile.mkdtemp(prefix="rimu-rec-")
+    atexit.register(shutil.rmtree, tmp, True)
+    out = Path(save_session(session, Path(tmp) / (p.stem + ".npz")))
+    from ..atomic import flush_outputs
+
+    flush_outputs()  # a scratch input, read back at once: not held back with the command's outputs
+    return out
+

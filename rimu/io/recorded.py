@@ -158,8 +158,11 @@ class CsvSource(_FileSource):
             return None
         if not math.isfinite(t) or (temp is not None and not math.isfinite(temp)):
             return None
-        if any(not np.all(np.isfinite(y)) for y in raw.values()):
-            return None
+        for k, y in raw.items():  # a NaN or infinite cell is an invalid sample, as an empty one (and as in NPZ)
+            nf = ~np.isfinite(y)
+            if nf.any():
+                y[nf] = 0.0
+                valid[k] = valid[k] & ~nf
         return Epoch(t, raw, valid, temp)
 
 
