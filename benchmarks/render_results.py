@@ -56,7 +56,8 @@ def render() -> str:
         if rec.get("summary"):
             body += [rec["summary"], ""]
         body += [f"Command: `{rec['command']}`  ", f"Run: {rec['date']} on {rec['machine']}, "
-                 f"{rec['seconds']:.0f} s, exit status {rec['exit_status']}", ""]
+                 + (f"{rec['seconds']:.0f} s" if rec.get("seconds") is not None else "run time not recorded")
+                 + f", exit status {rec['exit_status']}", ""]
         out = rec.get("output", "").rstrip()
         if out:
             body += ["```", out, "```", ""]
