@@ -182,6 +182,16 @@ def estimate_offset(t_ref: np.ndarray, m_ref: np.ndarray, t: np.ndarray, m: np.n
     return OffsetResult(name, float(tau), float(np.sqrt(cov[0, 0])), float(coarse), peak, int(sel.sum()), infl)
 
 
+def _reference(recording: Any, reference: int | str, what: str) -> tuple[int, Any, np.ndarray]:
+    """The reference unit's index, the unit, and its rate magnitudes (what the clock estimates correlate)."""
+    names = recording.names
+    ref = names.index(reference) if isinstance(reference, str) else int(reference)
+    u0 = recording.units[ref]
+    if u0.gyro is None:
+        raise ShapeError(f"clock {what} are estimated from rate magnitudes; the recording has no gyros")
+    return ref, u0, np.linalg.norm(u0.gyro, axis=1)
+
+
 def estimate_offsets(recording: Any, reference: int | str = 0, max_lag_s: float = 0.5,
                      correlated: bool = True) -> TimingResult:
     """Clock offset of every unit of a multi-IMU recording against the reference unit, from rate magnitudes.
@@ -192,11 +202,7 @@ def estimate_offsets(recording: Any, reference: int | str = 0, max_lag_s: float 
     Pass ``result.offsets_s`` to :meth:`MultiImuRecording.to_block` to put the units on one time base.
     """
     names = recording.names
-    ref = names.index(reference) if isinstance(reference, str) else int(reference)
-    u0 = recording.units[ref]
-    if u0.gyro is None:
-        raise ShapeError("clock offsets are estimated from rate magnitudes; the recording has no gyros")
-    m0 = np.linalg.norm(u0.gyro, axis=1)
+    ref, u0, m0 = _reference(recording, reference, "offsets")
     out = TimingResult(names[ref])
     for j, u in enumerate(recording.units):
         if j == ref:
@@ -251,11 +257,7 @@ def estimate_clocks(recording: Any, reference: int | str = 0, windows: int = 4, 
     from ..errors import PlausibilityError
 
     names = recording.names
-    ref = names.index(reference) if isinstance(reference, str) else int(reference)
-    u0 = recording.units[ref]
-    if u0.gyro is None:
-        raise ShapeError("clock rates are estimated from rate magnitudes; the recording has no gyros")
-    m0 = np.linalg.norm(u0.gyro, axis=1)
+    ref, u0, m0 = _reference(recording, reference, "rates")
     period = float(np.median(np.diff(u0.t)))
     out = []
     for j, u in enumerate(recording.units):
