@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -338,6 +339,11 @@ class LeastSquares:
             ctxs = contexts(session, inst, axes=axes)
             if base:
                 stats = self._base_statistics(session, segs, inst, ctxs[0], skipped, sstats, tuple(insts))
+            if base:  # every sensor of the instrument at once (one G, array operations)
+                out[inst] = self._base_fit(model, ctxs, stats, sig, self.sigma is not None, inst, segs, skipped)
+                if skipped:
+                    notes.append(f"{inst}: segments not used: {sorted(skipped)}")
+                continue
             fits = []
             for ctx in ctxs:
                 names = model.parameter_names(ctx)
@@ -371,6 +377,68 @@ class LeastSquares:
 
 
     @staticmethod
+    def _base_fit(model: ErrorModel, ctxs: list[SensorContext], stats: tuple, sig: np.ndarray, sigma_known: bool,
+                  inst: str, segs: list[Segment], skipped: dict[str, str]) -> LsqResult:
+        """The base model (scale/misalignment + bias) of every sensor of ``inst`` from the shared statistics, as
+        array operations over the sensors: ``B = G^-1 H`` (4, n), the residual sums of squares from the statistics,
+        and the physical values with their Jacobian (:func:`~rimu.calibration.lsq.physical_from_beta` and
+        :meth:`~rimu.calibration.effects.scale_misalignment.ScaleMisalignment.physical`, Cho & Park 2005, Eq. 10:
+        ``SF = 1/|w|``, ``m = C w/|w|``, ``b = c SF``) for all sensors at once. The same numbers as the per-sensor
+        path (:func:`make_sensor_fit`, to rounding; tested to 1e-12)."""
+        G, H, q, n_obs, labels, parts = stats
+        ctx0 = ctxs[0]
+        if not labels:
+            raise IdentifiabilityError(f"{inst}: no segment carries the inputs the model {model.label} needs",
+                                       model.parameter_names(ctx0))
+        try:
+            check_identifiable_gram(G, n_obs, model.parameter_names(ctx0), inst)
+        except IdentifiabilityError as exc:
+            raise IdentifiabilityError(str(exc), _physical_names(model, ctx0, exc.parameters)) from None
+        Ginv = np.linalg.inv(G)
+        B = Ginv @ H  # (4, n): w_x, w_y, w_z, c of every sensor
+        rss = np.maximum(q - 2.0 * np.einsum("pn,pn->n", B, H) + np.einsum("pn,pn->n", B, G @ B), 0.0)
+        W = np.ascontiguousarray(B[:3].T)
+        nw = np.sqrt(np.einsum("ni,ni->n", W, W))
+        if not np.all(nw > 0):
+            raise IdentifiabilityError("a sensor's output does not respond to its input (zero scale-misalignment "
+                                       "vector): a dead sensor or an unconnected channel; remove it from the geometry")
+        geo = ctx0.geometry
+        EC = geo.off_axis_projections()  # (n, 2, 3): E_i C_i, a constant of the geometry
+        U = W / nw[:, None]
+        sf = 1.0 / nw
+        p = len(ctxs)
+        J = np.zeros((p, 4, 4))
+        d_sf = -W * (sf**3)[:, None]
+        J[:, 0, :3] = d_sf
+        d_u = (np.eye(3)[None] - U[:, :, None] * U[:, None, :]) * sf[:, None, None]
+        J[:, 1:3, :3] = EC @ d_u
+        J[:, 3, 3] = sf
+        J[:, 3, :3] = B[3][:, None] * d_sf
+        theta = np.empty((p, 4))
+        theta[:, 0] = sf
+        theta[:, 1:3] = np.einsum("nij,nj->ni", EC, U)
+        theta[:, 3] = B[3] * sf
+        s2 = sig**2
+        tcov = (J @ Ginv @ J.transpose(0, 2, 1)) * s2[:, None, None]
+        chi2 = rss / s2
+        effs = model.effects_for(ctx0)
+        by_label = {lab: (seg, u) for lab, seg, u in parts}
+        fits = []
+        for ctx in ctxs:
+            i = ctx.index
+            r = float(rss[i])
+            res = LazyResiduals(labels=by_label, compute=partial(_base_residual_of, by_label, inst, ctx, B[:, i]))
+            if r < 1e-8 * q[i]:  # cancellation in the statistics: an exact second pass
+                r = sum(float(np.sum(res[lab] ** 2)) for lab in res)
+                chi2[i] = r / s2[i]
+            names = [f"{ctx.name}.{x.name}" for e in effs for x in e.parameters(ctx)]
+            specs = [x for e in effs for x in e.physical_parameters(ctx)]
+            fits.append(SensorFit(ctx, names, B[:, i].copy(), s2[i] * Ginv, [f"{ctx.name}.{x.name}" for x in specs],
+                                  specs, theta[i], tcov[i], float(sig[i]), sigma_known, int(n_obs),
+                                  float(chi2[i]) * float(s2[i]), res))
+        return LsqResult(inst, model, fits, [x.label for x in segs if x.label not in skipped], skipped)
+
+    @staticmethod
     def _base_statistics(session: Session, segs: list[Segment], inst: str, ctx0: SensorContext,
                          skipped: dict[str, str], sstats: SessionStatistics | None = None,
                          instruments: tuple[str, ...] = ()) -> tuple:
@@ -386,6 +454,7 @@ class LeastSquares:
         H = np.zeros((4, session.geometries[inst].n))
         q = np.zeros(session.geometries[inst].n)
         n_obs, labels, parts = 0, [], []
+        rows, weights, totals = [], [], []  # rows of one input for all samples (static positions) and angle rows
         for seg in segs:
             st = sstats.sums(seg, inst)
             kind, u = _input_form(ctx0, seg)
@@ -393,8 +462,9 @@ class LeastSquares:
                 if seg.kind == "angle" and inst == "gyro" and seg.n_samples > 1:
                     x = _angle_row(seg, ErrorModel.base(), ctx0)[0]
                     yv = st.total / np.sqrt(seg.n_samples)
-                    G += np.outer(x, x)
-                    H += np.outer(x, yv)
+                    rows.append(x)
+                    weights.append(1.0)
+                    totals.append(yv)
                     q += yv**2
                     n_obs += 1
                     labels.append(seg.label)
@@ -403,10 +473,10 @@ class LeastSquares:
                     skipped[seg.label] = "the segment lacks inputs an effect needs (known rate, attitude or angle)"
                 continue
             N = seg.n_samples
-            if kind == "constant":  # one input for every sample (a static position)
-                x = np.append(u, 1.0)
-                G += N * np.outer(x, x)
-                H += np.outer(x, st.total)
+            if kind == "constant":  # one input for every sample (a static position): N x x^T, x total^T
+                rows.append((u[0], u[1], u[2], 1.0))
+                weights.append(N)
+                totals.append(st.total)
             elif kind == "basis":  # u = B P on a turning segment: from the moments of its angle
                 rm = sstats.rotation(seg)
                 Q = np.zeros((3, 4))
@@ -422,6 +492,10 @@ class LeastSquares:
             n_obs += N
             labels.append(seg.label)
             parts.append((seg.label, seg, None))
+        if rows:  # every such segment's terms in two products
+            X = np.array(rows, dtype=float)
+            G += (X.T * np.array(weights, dtype=float)) @ X
+            H += X.T @ np.array(totals)
         return G, H, q, n_obs, labels, parts
 
     @staticmethod
@@ -462,6 +536,15 @@ def _base_residual(seg: Segment, inst: str, ctx: SensorContext, u: Any) -> Any:
         return seg.raw[inst][:, ctx.index] - (uu @ beta[:3] + beta[3])
 
     return make
+
+
+def _base_residual_of(parts: dict[str, tuple[Segment, Any]], inst: str, ctx: SensorContext, beta: np.ndarray,
+                      label: str) -> np.ndarray:
+    """The base model's residual of sensor ``ctx`` on the segment ``label`` (:func:`_base_residual`, bound)."""
+    seg, u = parts[label]
+    if isinstance(u, tuple):  # an angle row: its one integrated value
+        return np.array([float(float(u[2][ctx.index]) - u[1] @ beta)])
+    return seg.raw[inst][:, ctx.index] - (_known_input(ctx, seg) @ beta[:3] + beta[3])
 
 
 def _model_residual(seg: Segment, inst: str, ctx: SensorContext, model: ErrorModel) -> Any:

@@ -400,3 +400,37 @@ def test_block_stream_with_out_allocates_nothing_and_bad_buffers_are_refused():
         for wrong in (np.empty((N, 5)), np.empty((6, N)).T, np.empty((N, 6), np.float32)):
             with pytest.raises(ShapeError, match="C-ordered float64"):
                 pipe.process(block, {"gyro": wrong})
+
+
+def test_block_path_takes_any_layout_and_keeps_no_fresh_result():
+    """Blocks that are not C-ordered writable float64 (Fortran order, read-only, a strided view) go through the
+    compiled path as copies, with the numpy path's numbers; a buffer the stream used before, now of the wrong
+    length, is refused with ShapeError (the kernel's shape check); and a result made without out= is the caller's
+    alone: the pipeline keeps no reference to its arrays once the caller lets go."""
+    import gc
+    import weakref
+
+    from rimu.errors import ShapeError
+
+    N = 257
+    cal = _unit(cone6(), seed=28, effects=False)
+    block = _stream(cal, 2 * N, seed=29)
+    a, b = _pair(cal)
+    done = _spy_block(a)
+    ro = block.raw["accel"][:N].copy()
+    ro.setflags(write=False)
+    kinds = {"fortran": {"gyro": np.asfortranarray(block.raw["gyro"][:N]), "accel": block.raw["accel"][:N]},
+             "read-only": {"gyro": block.raw["gyro"][:N], "accel": ro},
+             "strided": {k: block.raw[k][::2] for k in INSTS}}
+    out = {k: np.empty((N, 6)) for k in INSTS}
+    for name, raw in kinds.items():
+        blk = EpochBlock(block.t[:N], raw)
+        _same_block(a.process(blk, out), b.process(blk), name)
+        assert done[-1] is True, name
+    with pytest.raises(ShapeError, match="C-ordered float64"):
+        a.process(EpochBlock(block.t[:N - 1], {k: block.raw[k][:N - 1] for k in INSTS}), out)
+    r = a.process(EpochBlock(block.t, block.raw))
+    ref = weakref.ref(r["gyro"].x.base)
+    del r
+    gc.collect()
+    assert ref() is None
