@@ -456,10 +456,10 @@ class LeastSquares:
         n_obs, labels, parts = 0, [], []
         rows, weights, totals = [], [], []  # rows of one input for all samples (static positions) and angle rows
         for seg in segs:
-            st = sstats.sums(seg, inst)
             kind, u = _input_form(ctx0, seg)
             if kind is None:
                 if seg.kind == "angle" and inst == "gyro" and seg.n_samples > 1:
+                    st = sstats.sums(seg, inst)
                     x = _angle_row(seg, ErrorModel.base(), ctx0)[0]
                     yv = st.total / np.sqrt(seg.n_samples)
                     rows.append(x)
@@ -472,6 +472,7 @@ class LeastSquares:
                 else:
                     skipped[seg.label] = "the segment lacks inputs an effect needs (known rate, attitude or angle)"
                 continue
+            st = sstats.sums(seg, inst)
             N = seg.n_samples
             if kind == "constant":  # one input for every sample (a static position): N x x^T, x total^T
                 rows.append((u[0], u[1], u[2], 1.0))

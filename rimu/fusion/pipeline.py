@@ -304,7 +304,10 @@ class InstrumentPipeline:
         """Process one raw sample ``y`` (n,) on the sensors ``active`` (a mask (n,), a set code, or None: all;
         invalid and clipped values are left out of the sample on top). Returns :attr:`result` (reused; copy
         what you keep)."""
-        if active is not None or self._code != self._full:
+        if active is None:
+            if self._code != self._full:
+                self._use(None)
+        elif type(active) is not int or active != self._code:  # (an unchanged set code costs one comparison)
             self._use(active)
         self.samples += 1
         k = self._kstep
