@@ -57,6 +57,7 @@ _INF_P = np.diag([np.inf] * 3)
 _INF_P.setflags(write=False)
 _NDARRAY = np.ndarray
 _F8 = np.dtype(np.float64)
+_B1 = np.dtype(bool)
 
 
 @dataclass
@@ -310,31 +311,34 @@ class InstrumentPipeline:
         elif type(active) is not int or active != self._code:  # (an unchanged set code costs one comparison)
             self._use(active)
         self.samples += 1
+        if valid is not None:  # every sensor flagged valid? (a bool array's bytes are 0 or 1: no zero byte)
+            clean = (0 not in valid.tobytes()) if type(valid) is _NDARRAY and valid.dtype is _B1 else bool(np.all(valid))
+            if not clean:
+                return self._step_slow(np.asarray(y, dtype=float), valid)
         k = self._kstep
         if k is not None:  # compiled: range, R y - off and finiteness in one call
-            if (valid is None or valid.all()) and type(y) is _NDARRAY and y.dtype is _F8 and y.ndim == 1:
+            if type(y) is _NDARRAY and y.dtype is _F8 and y.ndim == 1:
                 if k(y, self._Re, self._offe, self._range, self._out):
                     if self._dirty:
                         self._clean()
                     return self.result
             return self._step_slow(np.asarray(y, dtype=float), valid)
-        if valid is None or valid.all():
-            try:
-                yl = y.tolist()
-            except AttributeError:  # not an ndarray: the careful path converts and checks it
-                yl = None
-            if yl is not None and len(yl) == self.n:
-                s = sum(yl)  # Python floats: inf and nan propagate without floating-point warnings
-                lim = self._range_min
-                if s - s == 0.0 and max(yl) < lim and min(yl) > -lim:
-                    out = self._out
-                    np.dot(self._Re, y, out=out)
-                    out -= self._offe
-                    s = sum(out.tolist())
-                    if s - s == 0.0:  # finite: the common path
-                        if self._dirty:
-                            self._clean()
-                        return self.result
+        try:
+            yl = y.tolist()
+        except AttributeError:  # not an ndarray: the careful path converts and checks it
+            yl = None
+        if yl is not None and len(yl) == self.n:
+            s = sum(yl)  # Python floats: inf and nan propagate without floating-point warnings
+            lim = self._range_min
+            if s - s == 0.0 and max(yl) < lim and min(yl) > -lim:
+                out = self._out
+                np.dot(self._Re, y, out=out)
+                out -= self._offe
+                s = sum(out.tolist())
+                if s - s == 0.0:  # finite: the common path
+                    if self._dirty:
+                        self._clean()
+                    return self.result
         return self._step_slow(np.asarray(y, dtype=float), valid)
 
     def _step_slow(self, y: np.ndarray, valid: np.ndarray | None) -> StepResult:
