@@ -9,10 +9,10 @@ and, when the log has a temperature column, the temperature coefficients of the 
 innovation fails the chi-square gate are left out (a fault in the log is not absorbed). What the parity cannot see,
 the common mode (a drift every sensor shares as a true input would), is stated and left as it was.
 
-The output: scale ``SF / (1 + k)`` and bias ``(B + b) / (1 + k)`` at the end of the log, first- and second-order
-temperature coefficients added to the ``bias_temperature`` and ``bias_temperature2`` effects, and the covariance of
-the tracked terms in place of theirs (``x1.bias``, ``x1.scale``, ``x1.bias_tc1``...). A third-order coefficient
-(``--temperature-orders 3``) is tracked and reported but has no effect of rimu's to be written to (its covariance is).
+The output: scale ``SF / (1 + k)`` and bias ``(B + b) / (1 + k)`` at the end of the log, first- to third-order
+temperature coefficients added to the ``bias_temperature``, ``bias_temperature2`` and ``bias_temperature3`` effects
+(``--temperature-orders``), and the covariance of the tracked terms in place of theirs (``x1.bias``, ``x1.scale``,
+``x1.bias_tc1``...).
 
 The drift rate: from the calibration's noise model (``rimu noise``: bias instability and rate random walk, times
 ``--drift-factor``), or ``--bias-rw`` ((SI)^2/s). Figures are printed in the field's units (deg/h, micro-g, ppm).
@@ -182,9 +182,6 @@ def run(args: argparse.Namespace) -> int:
         summary["instruments"][k] = {"windows_absorbed": counts[k][0], "windows_gated": counts[k][1],
                                      "blocks": list(trk.blocks), "units": "SI (rad/s or m/s^2, relative scale, "
                                      "SI/K^k)", "sensors": rows}
-        if "tc3" in terms:
-            print(f"  note: the third-order coefficients of {k} have no calibration effect to go to; they are kept "
-                  "in the covariance (x.bias_tc3) only")
     meta = dict(cal.metadata)
     meta["selfcal"] = {"log": str(args.data), "duration_s": t_last - t_first,
                        "tracked": {k: list(t.blocks) for k, t in trackers.items()}}

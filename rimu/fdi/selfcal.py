@@ -451,8 +451,7 @@ class SelfCalTracker:
 
         Scale and bias: ``SF' = SF / (1 + k)``, ``B' = (B + b) / (1 + k)`` (so that ``SF' y - B'`` removes the
         tracked bias and relative scale); temperature coefficients are added to the ``bias_temperature`` (order
-        1) and ``bias_temperature2`` (order 2) effects; a third-order term has no effect of rimu's to go to and
-        is kept in the covariance only (``x1.bias_tc3``). The covariance names ``x1.bias``, ``x1.scale`` (SI per raw
+        1), ``bias_temperature2`` (order 2) and ``bias_temperature3`` (order 3) effects. The covariance names ``x1.bias``, ``x1.scale`` (SI per raw
         unit), ``x1.bias_tc1``... over the tracked blocks (the calibration's previous covariance is replaced).
         """
         cal = self.calibration
@@ -463,7 +462,7 @@ class SelfCalTracker:
         scale = cal.scale / (1.0 + k)
         bias = (cal.bias + b) / (1.0 + k)
         effects = {e: dict(v) for e, v in cal.effects.items()}
-        for name, eff in (("tc1", "bias_temperature"), ("tc2", "bias_temperature2")):
+        for name, eff in (("tc1", "bias_temperature"), ("tc2", "bias_temperature2"), ("tc3", "bias_temperature3")):
             if name in terms:
                 d = effects.setdefault(eff, {})
                 for i, nm in enumerate(names):
