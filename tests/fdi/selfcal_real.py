@@ -82,4 +82,24 @@ def compare(rec, p_fa: float = 1e-3, confirm: int = 3) -> dict:
             "invalid_isolations_tracked": sum(e.kind == "invalid_isolated" for e in iso),
             "invalid_isolations_fixed": sum(e.kind == "invalid_isolated" for e in iso0),
             "alarms_tracked": float(res.replay.alarm.mean()), "alarms_fixed": float(res0.alarm.mean()),
-            "result": res, "tracker": trk, "t": t, "second": second}
+            "result": res, "tracker": trk, "t": t, "second": second, "z_second": cal.compensate(
+                np.where(np.isfinite(Y), Y, 0.0))[second]}
+
+
+def hindsight(c: dict, scale: bool = True) -> dict:
+    """What the drift model could do at best on the second half, with hindsight: constant biases (and relative
+    scales) of every gyro fitted by least squares to the second half's own parity. Returns the parity rms left
+    (sigma; ``dof_corrected``: divided by the observations minus the parameters fitted) and the sampling standard
+    error of the fixed calibration's rms (``rms / sqrt(2 N)`` for N parity values)."""
+    trk, z = c["tracker"], c["z_second"]
+    Vz = trk.parity_rows()
+    p = z @ Vz.T
+    s = (z @ trk.G.T) @ trk.axes.T
+    cols = [np.ones_like(s)] + ([s] if scale else [])
+    K, r = p.shape
+    X = np.concatenate([(Vz[None] * g[:, None, :]).reshape(K * r, -1) for g in cols], axis=1)
+    th, *_ = np.linalg.lstsq(X, p.reshape(-1), rcond=None)
+    res = p.reshape(-1) - X @ th
+    dof = K * r - np.linalg.matrix_rank(X)
+    return {"rms": float(np.sqrt(np.mean(res**2))), "dof_corrected": float(np.sqrt(np.sum(res**2) / dof)),
+            "se": float(np.sqrt(np.mean(p**2)) / np.sqrt(2 * K * r))}
