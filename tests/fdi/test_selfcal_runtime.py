@@ -89,3 +89,21 @@ def test_step_equals_run_and_backends_agree(data):
     assert np.array_equal(c.alarm, a.alarm)
     np.testing.assert_allclose(rt_c.selfcal["gyro"].state.theta, rt_run.selfcal["gyro"].state.theta, rtol=0,
                                atol=1e-12 * np.abs(rt_run.selfcal["gyro"].state.theta).max())
+
+
+def test_default_managers_get_thresholds_with_the_tracker_covariance(data):
+    """Runtime(pipeline, sample_rate=..., selfcal={...}): the default manager's detector is the window GLT of the
+    tracker's window whose thresholds carry its covariance (a persistent uncertainty lowers the whitened statistic);
+    without the sample rate the runtime says what it needs."""
+    F, cal, Y = data
+    pipe = Pipeline(cal, temperature=True)
+    rt = Runtime(pipe, sample_rate=FS, p_fa=1e-6, selfcal={"gyro": SelfCalTracker(cal["gyro"], _settings())})
+    det = rt.managers["gyro"].detector
+    assert isinstance(det, TrackedGltWindow) and det.window == 20 and rt.selfcal["gyro"].detector is det
+    r = rt.run(EpochBlock(F.t[:1200], {"gyro": Y[:1200]}, temperature=F.temperature[:1200]))["gyro"]
+    assert not r.alarm.any() and rt.selfcal["gyro"].accepted > 40
+    # the thresholds hold the covariance: whitening L with L L^T = (I + M Vz Sigma_c Vz^T)^-1, not the identity
+    L = det.whitening(pipe["gyro"].table.get(63).Vz, 3)
+    assert L is not None and np.linalg.eigvalsh(L @ L.T).min() < 1.0
+    with pytest.raises(ValueError, match="sample_rate"):
+        Runtime(Pipeline(cal, temperature=True), selfcal={"gyro": SelfCalTracker(cal["gyro"], _settings())})
