@@ -481,6 +481,9 @@ def run(args: argparse.Namespace) -> int:
             raise OptionError("--selfcal runs the window GLT whose thresholds carry the tracker's covariance: use it "
                               f"with --detector glt or glt_window and without --motion-fit (got --detector "
                               f"{args.detector}{' --motion-fit' if args.motion_fit is not None else ''})")
+        if args.selfcal_window * fs > scan.n:
+            raise OptionError(f"--selfcal-window {args.selfcal_window:g} s is longer than the data ({scan.n} samples at "
+                              f"{fs:g} Hz): the tracker would never absorb a window")
         trackers = {k: SelfCalTracker(cal[k], tracker_settings(args, cal[k], k, scan.has_temp, "selfcal-"))
                     for k in insts}
     managers = {}

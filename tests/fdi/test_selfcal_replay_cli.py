@@ -87,3 +87,10 @@ def test_replay_selfcal_refuses_a_detector_without_the_tracker_covariance(log, c
     rc = main(_args(d, F, "--detector", "cusum"))
     err = capsys.readouterr().err
     assert rc == 2 and "--selfcal" in err and "cusum" in err and len(err.strip().splitlines()) == 1
+
+
+def test_replay_selfcal_refuses_a_window_longer_than_the_data(log, capsys):
+    d, F = log
+    rc = main(_args(d, F)[:-4] + ["--selfcal-window", "1e6"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--selfcal-window" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
