@@ -32,17 +32,18 @@ directions. The tracker never moves the common mode: the correction it exposes i
 ``Phi theta`` (``Vz Pi = Vz``).
 
 **Fault-aware.** The filter absorbs what the drift model allows and nothing faster: a window whose innovation
-fails the chi-square gate (``gate_p``) is not absorbed; :class:`SelfCalibratingRun` applies a window only after
+fails the chi-square gate (``gate_p``) is not absorbed; :class:`SelfCalLoop` applies a window only after
 ``hold_s`` more seconds without any alarm of the detector (so the lead-up to an alarm is never absorbed), not at all
 while an alarm episode is open, and never to the states of isolated sensors (Schmidt's consider update: their
 gain rows are zero, the Joseph form keeps the covariance exact). Re-admission sees outputs corrected with the
 (frozen) tracked values of the isolated sensor.
 
-**The interface to the detector** (what a runtime adopts): subtract :meth:`SelfCalTracker.correction` (SI, per
-sample) from the compensated outputs before the parity, or ``correction / SF`` from the raw outputs; add
-:meth:`SelfCalTracker.parity_covariance` (the tracked terms' uncertainty in the parity) to the detector's noise
-covariance: :class:`TrackedGltWindow` whitens with ``L = chol(I + M Vz Sigma_c Vz^T)^-1`` for a window of M
-samples, and :func:`minimum_detectable_bias` gives what that costs in detection.
+**In the runtime.** :class:`rimu.fdi.Runtime` (``selfcal=``) holds one :class:`SelfCalLoop` per tracked
+instrument, the one definition of the loop: every epoch's compensated outputs are corrected by
+``correction / SF`` before the manager's step; :class:`TrackedGltWindow` whitens the detector's window sum with
+``L = chol(I + M Vz Sigma_c Vz^T)^-1`` for a window of M samples (:func:`minimum_detectable_bias` gives what that
+costs in detection); the windows are absorbed as above. :class:`SelfCalibratingRun` runs the same loop around a bare
+manager.
 """
 
 from __future__ import annotations
@@ -136,9 +137,9 @@ class SelfCalSettings:
         Probability of the innovation gate: a window whose innovation exceeds ``chi2_{1 - gate_p}(dof)`` is not
         absorbed.
     hold_s : float
-        :class:`SelfCalibratingRun` absorbs a window only after this many further seconds without an alarm.
+        :class:`SelfCalLoop` (the runtime's) absorbs a window only after this many further seconds without an alarm.
     watch_p : float
-        :class:`SelfCalibratingRun` treats a detector statistic above ``chi2_{1 - watch_p}(dof)`` like an alarm
+        :class:`SelfCalLoop` treats a detector statistic above ``chi2_{1 - watch_p}(dof)`` like an alarm
         for the tracker (a fault building up below the alarm threshold is not absorbed).
     """
 
