@@ -173,7 +173,8 @@ class Runtime:
         return sorted(ev, key=lambda ke: (ke[1].sample, ke[1].t))
 
     def reset(self) -> None:
-        """Every manager starts over (see :meth:`RedundancyManager.reset`); the drift's time origin is kept."""
+        """Every manager starts over (see :meth:`RedundancyManager.reset`); the drift's time origin and the
+        tracked terms of the self-calibration (calibration knowledge, :attr:`selfcal`) are kept."""
         for m in self.managers.values():
             m.reset()
 
