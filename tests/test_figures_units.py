@@ -70,35 +70,37 @@ def _log_geometries(path: Path) -> dict:
 
 def test_noise_of_counts_applies_the_calibration_and_prints_the_truth(tmp_path, capsys):
     fs, n = 100.0, 30000
-    # the MPU-6050's scales (131 LSB per deg/s, 16384 LSB per g): its log format knows them as nominal ones
-    scale_g, scale_a, sg, sa = DEG_TO_RAD / 131, G0 / 16384, 0.02, 0.05   # noise 150 and 84 counts
+    # the MPU-6050's nominal scales (131 LSB per deg/s, 16384 LSB per g): its log format knows them
+    nom_g, nom_a, sg, sa = DEG_TO_RAD / 131, G0 / 16384, 0.02, 0.05   # noise 150 and 84 counts
+    # the unit's true scales differ from the nominal ones by +7 % and -4 %: counts of a known scale
+    scale_g, scale_a = 1.07 * nom_g, 0.96 * nom_a
     _raw_log(tmp_path / "static.csv", n, fs, 1, scale_g, scale_a, sg, sa)
     geo = _log_geometries(tmp_path / "static.csv")
     cal = Calibration({"gyro": InstrumentCalibration.nominal("gyro", geo["gyro"], scale=scale_g, bias=0.0),
                        "accel": InstrumentCalibration.nominal("accel", geo["accel"], scale=scale_a, bias=0.0)})
     cal.save(tmp_path / "cal.json")
-    # the log's reader applies the MPU-6050's nominal scale factors: a calibration of counts on top would scale
-    # twice, and is refused with one line; without it the figures are the truth
-    rc, out, err = _cli(capsys, "noise", tmp_path / "static.csv", "--calibration", tmp_path / "cal.json",
-                        "-o", tmp_path / "n.json")
-    assert rc == 2 and len(err) == 1 and "scale them twice" in err[0], err
-    rc, out, err = _cli(capsys, "noise", tmp_path / "static.csv", "--terms", "white", "-o", tmp_path / "n.json",
-                        "--json", tmp_path / "s.json")
-    assert rc == 0 and err == [], err
-    rows = json.loads((tmp_path / "s.json").read_text())["instruments"]
-    # truth: ARW = sigma / sqrt(fs) [rad/sqrt(s)] -> deg/sqrt(h) = * RAD_TO_DEG * 60; VRW -> m/s/sqrt(h) = * 60
-    arw = sg / math.sqrt(fs) * RAD_TO_DEG * 60
-    vrw = sa / math.sqrt(fs) * 60
-    head = {ln.split()[0]: ln for ln in out if ln.split() and ln.split()[0] in ("gyro", "accel")}
-    assert "[deg/sqrt(h)]" in head["gyro"] and "[m/s/sqrt(h)]" in head["accel"], head
-    for inst, truth in (("gyro", arw), ("accel", vrw)):
-        for r in rows[inst]:
-            # within 4 of its stated 1-sigma and 3 %: the stated uncertainty is honest
-            assert abs(r["white"] - truth) < max(4 * r["white_sigma"], 0.03 * truth), (inst, r, truth)
-    # the printed table carries the same figures
-    first = rows["gyro"][0]
-    gx = next(ln for ln in out if ln.startswith(first["sensor"])).split()   # name, quantization +/- sd, white ...
-    assert abs(float(gx[4]) - first["white"]) < 1e-3 * first["white"], gx
+    arw = sg / math.sqrt(fs) * RAD_TO_DEG * 60          # truth: deg/sqrt(h)
+    vrw = sa / math.sqrt(fs) * 60                        # m/s/sqrt(h)
+    # with the calibration of counts: applied once, to the counts (not on top of the reader's nominal scales)
+    for argv, f_g, f_a in ((["--calibration", tmp_path / "cal.json"], 1.0, 1.0),
+                           ([], nom_g / scale_g, nom_a / scale_a)):   # without: the nominal scales, as the reader says
+        rc, out, err = _cli(capsys, "noise", tmp_path / "static.csv", "--terms", "white", "-o", tmp_path / "n.json",
+                            "--json", tmp_path / "s.json", *argv)
+        assert rc == 0 and err == [], err
+        rows = json.loads((tmp_path / "s.json").read_text())["instruments"]
+        head = {ln.split()[0]: ln for ln in out if ln.split() and ln.split()[0] in ("gyro", "accel")}
+        # the unit each table states, parsed: the white noise column's
+        ug = re.search(r"white[^\[]*\[([^\]]+)\]", head["gyro"]).group(1)
+        ua = re.search(r"white[^\[]*\[([^\]]+)\]", head["accel"]).group(1)
+        assert (ug, ua) == ("deg/sqrt(h)", "m/s/sqrt(h)"), head
+        for inst, truth in (("gyro", arw * f_g), ("accel", vrw * f_a)):
+            for r in rows[inst]:
+                # within 4 of its stated 1-sigma and 3 %: the stated uncertainty is honest
+                assert abs(r["white"] - truth) < max(4 * r["white_sigma"], 0.03 * truth), (argv, inst, r, truth)
+        # the printed table carries the same figures
+        first = rows["gyro"][0]
+        gx = next(ln for ln in out if ln.startswith(first["sensor"])).split()   # name, quantization +/- sd, white
+        assert abs(float(gx[4]) - first["white"]) < 1e-3 * first["white"], gx
 
 
 @pytest.mark.parametrize("case, match", [
@@ -313,17 +315,16 @@ def test_bad_input_of_the_new_paths(tmp_path, capsys):
     """Every new path ends bad input in one line and exit status 2, and writes nothing."""
     fs, n = 100.0, 600
     _raw_log(tmp_path / "log.csv", n, fs, 3, DEG_TO_RAD / 131, G0 / 16384, 0.02, 0.05)
-    g = _log_geometries(tmp_path / "log.csv")["gyro"]
-    Calibration({"gyro": InstrumentCalibration.nominal("gyro", g, scale=1e-4)}).save(tmp_path / "gyro_only.json")
     from rimu.geometry import tetrad4
 
     Calibration({"gyro": InstrumentCalibration.nominal("gyro", tetrad4(), scale=1e-4),
                  "accel": InstrumentCalibration.nominal("accel", tetrad4(), scale=1e-3)}).save(tmp_path / "four.json")
     arr = _array_npz(tmp_path, "arr.npz", 1.0, 1.0)
     session, _ = _bias_session(tmp_path, "rad/s", 1.0, 0.004)
+    Calibration({"gyro": InstrumentCalibration.nominal("gyro", triad3(), scale=1e-4)}).save(tmp_path / "t3.json")
     cases = [
-        # a log already in SI (its reader's nominal scales) with a calibration of counts: it would scale twice
-        (["noise", tmp_path / "log.csv", "--calibration", tmp_path / "gyro_only.json"], "scale them twice"),
+        # a session declared in rad/s with a calibration of counts: it would scale twice
+        (["noise", session, "--calibration", tmp_path / "t3.json"], "scale them twice"),
         # a calibration of another unit (4 sensors) for a 3-axis log
         (["noise", tmp_path / "log.csv", "--calibration", tmp_path / "four.json"], "calibrate this unit"),
         (["noise", tmp_path / "log.csv", "--calibration", tmp_path / "nope.json"], "nope.json"),
