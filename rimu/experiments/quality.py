@@ -194,8 +194,8 @@ class QualityReport(ParityCheckReport, rows="pairs"):
                 f"{'pair':>10} {'rate direction (MB)':>24} | {'|v g_w|/|w|':>16} {'|v_c g_w|/|w|':>16} | "
                 f"{'chi2':>9} {'limit':>7}"]
         rows = [f"{p.labels[0] + '/' + p.labels[1]:>10} {vector_text(p.direction):>24} | "
-                f"{fmt(p.nominal_arcsec * ARCSEC_TO_RAD, 'angle', unit, decimals=1, width=9):>16} "
-                f"{fmt(p.misalignment_arcsec * ARCSEC_TO_RAD, 'angle', unit, decimals=1, width=9):>16} | "
+                f"{fmt(p.nominal_arcsec * ARCSEC_TO_RAD, 'angle', unit, digits=4, width=9):>16} "
+                f"{fmt(p.misalignment_arcsec * ARCSEC_TO_RAD, 'angle', unit, digits=4, width=9):>16} | "
                 f"{p.statistic:9.1f} {p.threshold:7.1f}" for p in self.pairs]
         w = self.worst()
         return self._summary(head, rows, f"largest misfit for rates along MB {vector_text(w.direction)}"

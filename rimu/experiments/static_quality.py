@@ -73,7 +73,7 @@ class StaticQualityReport(ParityCheckReport, rows="segments"):
         head = [f"parity calibration check at rest ({self.instrument}): v_c (SF y - B), chi2({self.dof}) per segment",
                 f"{'segment':>10} {'f (MB), g':>24} | {'|v_c z|':>14} | {'chi2':>9} {'limit':>7}"]
         rows = [f"{s.label:>10} {vector_text(s.specific_force_mb / G0):>24} | "
-                f"{fmt(s.misfit_ug * UG_TO_MS2, 'specific_force', unit, decimals=1, width=8):>14} | "
+                f"{fmt(s.misfit_ug * UG_TO_MS2, 'specific_force', unit, digits=4, width=8):>14} | "
                 f"{s.statistic:9.1f} {s.threshold:7.1f}" for s in self.segments]
         w = max(self.segments, key=lambda s: s.statistic)
         return self._summary(head, rows, f"largest misfit in segment {w.label!r}, about "
