@@ -40,6 +40,7 @@ __all__ = [
     "CalibrationResult",
     "LeastSquares",
     "estimate_noise_sigma",
+    "bias_magnitudes",
     "field_value",
     "make_sensor_fit",
     "segment_residuals",
@@ -167,12 +168,41 @@ def make_sensor_fit(model: ErrorModel, ctx: SensorContext, beta: np.ndarray, bet
                      sigma_known, int(n_obs), float(chi2) * float(sigma) ** 2, residuals)
 
 
-def field_value(name: str, value: float, std: float, spec_unit: str, to_report: float) -> tuple[float, float, str]:
+#: report units of a parameter that are a rate or a specific force: the one formatter's field unit is chosen by the
+#: magnitude of the table (deg/h for a tactical gyro bias, deg/s for a MEMS one; ug, mg or m/s^2)
+_MAGNITUDE_UNITS = {"deg/h": "rate", "ug": "specific_force"}
+
+
+def field_value(name: str, value: float, std: float, spec_unit: str, to_report: float,
+                magnitude: float | None = None) -> tuple[float, float, str]:
     """(value, std, unit) in the field's units. Scale factors are reported as a value in SI and a relative
-    standard deviation in ppm."""
+    standard deviation in ppm. A bias (rate or specific force) reads in the field unit the ``magnitude`` (SI, the
+    largest of its table; :func:`rimu.units.field_unit`) calls for, or in its parameter's report unit without it.
+
+    >>> field_value("x.bias", 3.33, 0.01, "deg/h", 1.0, magnitude=3.33)[2]     # a MEMS gyro bias: deg/s
+    'deg/s'
+    >>> field_value("x.bias", 3e-5, 1e-6, "deg/h", 1.0, magnitude=3e-5)[2]     # a tactical one: deg/h
+    'deg/h'
+    """
     if name.endswith(".scale"):
         return value, abs(std / value) * 1e6, "ppm"
+    if magnitude is not None and spec_unit in _MAGNITUDE_UNITS:
+        from ..units import field_unit
+
+        unit, f = field_unit(_MAGNITUDE_UNITS[spec_unit], magnitude)
+        return value * f, std * f, unit
     return value * to_report, std * to_report, spec_unit
+
+
+def bias_magnitudes(result: "LsqResult") -> dict[str, float]:
+    """Per report unit that is a rate or a specific force (:data:`_MAGNITUDE_UNITS`): the largest magnitude (SI)
+    of the parameters of one instrument in that unit, so that one table reads in one unit."""
+    out: dict[str, float] = {}
+    for s in result.sensors:
+        for v, sp in zip(s.theta, s.theta_specs):
+            if sp.report_unit in _MAGNITUDE_UNITS and np.isfinite(v):
+                out[sp.report_unit] = max(out.get(sp.report_unit, 0.0), abs(float(v)))
+    return out
 
 
 @dataclass
@@ -231,10 +261,11 @@ class CalibrationResult:
     def std_field(self, instrument: str) -> dict[str, tuple[float, str]]:
         """Standard deviations in the field's units: ppm (scale, relative), arcsec, micro-g, deg/h."""
         out = {}
+        mag = bias_magnitudes(self.instruments[instrument])
         for s in self.instruments[instrument].sensors:
             for i, (n, sp) in enumerate(zip(s.theta_names, s.theta_specs)):
                 _, sd, unit = field_value(n, s.theta[i], np.sqrt(max(s.theta_cov[i, i], 0.0)), sp.report_unit,
-                                          sp.to_report)
+                                          sp.to_report, mag.get(sp.report_unit))
                 out[n] = (sd, unit)
         return out
 
@@ -263,10 +294,11 @@ class CalibrationResult:
         for inst, r in self.instruments.items():
             lines.append(f"\n{inst}: chi2/dof = {r.chi2_dof:.3f}")
             lines.append(f"  {'parameter':<16} {'value':>16} {'std':>12}  unit")
+            mag = bias_magnitudes(r)
             for s in r.sensors:
                 for i, (n, sp) in enumerate(zip(s.theta_names, s.theta_specs)):
                     v, sd, unit = field_value(n, s.theta[i], np.sqrt(max(s.theta_cov[i, i], 0.0)), sp.report_unit,
-                                              sp.to_report)
+                                              sp.to_report, mag.get(sp.report_unit))
                     vs = f"{v:.8g}" if n.endswith(".scale") else f"{v:.4f}"
                     unit_s = (f"{scale_unit(inst, raw_unit_for(self.raw_unit, inst))} (std ppm)" if n.endswith(".scale")
                               else unit)
