@@ -134,3 +134,23 @@ def test_zhang_applies_the_steps_of_a_misaligned_triad_and_refuses_them_on_a_nom
     paper = Zhang().fit(Simulator(geo, arw_deg_sqrt_h=0.01, seed=2).run(
         zhang_scheme(static_duration=5.0, rotation_duration=36.0)).session)
     assert sum(n.endswith("leaves it unidentifiable); applied") for n in paper.notes) == 2
+
+
+def test_the_console_and_the_report_say_the_same(tmp_path, capsys):
+    """`rimu calibrate --method oliveira` on the nominal tetrad: the refusal note, word for word, on the console and
+    in the report's cautions."""
+    import html
+
+    from rimu.cli import main
+    from rimu.session import save_session
+
+    geo = {"gyro": tetrad4(), "accel": triad3()}
+    run = Simulator(geo, truth=_nominal(default_truth(geo, 1), geo), seed=1).run(oliveira_table1(turns=1))
+    save_session(run.session, tmp_path / "s.npz")
+    assert main(["calibrate", str(tmp_path / "s.npz"), "--method", "oliveira", "-o", str(tmp_path / "c.json"),
+                 "--report", str(tmp_path / "rep")]) == 0
+    out = capsys.readouterr().out
+    line = next(x.strip() for x in out.splitlines() if "gyro: the misalignment step" in x)
+    assert "not applied" in line
+    page = next((tmp_path / "rep").glob("*.html")).read_text()
+    assert html.escape(line.removeprefix("note: ")) in page or line.removeprefix("note: ") in page
