@@ -35,8 +35,8 @@ class StepCheck:
     False
     >>> print(c.note())  # doctest: +NORMALIZE_WHITESPACE
     gyro: the misalignment step (against scale and bias alone) takes the residual on the +/- rate pairs it was
-    fitted on 0.05730 deg/s -> 0.05157 deg/s, on held-out +/- rate pairs (each left out in turn) 0.06303 deg/s ->
-    0.07448 deg/s; not applied: it raises the residual on held-out +/- rate pairs (it fits these +/- rate pairs, not
+    fitted on 206.3 deg/h -> 185.6 deg/h, on held-out +/- rate pairs (each left out in turn) 226.9 deg/h ->
+    268.1 deg/h; not applied: it raises the residual on held-out +/- rate pairs (it fits these +/- rate pairs, not
     the sensor): scale and bias alone, axes nominal
     """
 
