@@ -38,7 +38,9 @@ def _pymavlink_imus(path) -> dict:
             break
         if m.get_type() in ("IMU", "IMU2", "IMU3"):
             key = (m.get_type(), getattr(m, "I", 0))
-            out.setdefault(key, []).append([m.TimeUS * 1e-6, m.GyrX, m.GyrY, m.GyrZ, m.AccX, m.AccY, m.AccZ, m.T])
+            t = m.TimeUS * 1e-6 if "TimeUS" in m._fieldnames else m.TimeMS * 1e-3
+            temp = m.T if "T" in m._fieldnames else np.nan
+            out.setdefault(key, []).append([t, m.GyrX, m.GyrY, m.GyrZ, m.AccX, m.AccY, m.AccZ, temp])
     return {k: np.array(v) for k, v in out.items()}
 
 
@@ -61,6 +63,33 @@ def test_dataflash_every_instance_as_pymavlink_reads_it(tmp_path, old_names):
         assert 1.0 / u.period_s == pytest.approx(400.0, rel=1e-9)
     assert rec.meta["units_from"] == {"gyro": "log (FMTU)", "accel": "log (FMTU)"}
     assert rec.meta["garbage_bytes"] == 0 and rec.meta["truncated"] == 0
+
+
+@pytest.mark.parametrize("layout", ["multiplier", "time_ms"])
+def test_dataflash_multipliers_and_the_pre_3_3_time_field(tmp_path, layout):
+    """``multiplier``: FMTU states the gyro fields in rad/s times multiplier ``C``, and the log's MULT message gives
+    C = 1e-3: pymavlink shows the stored numbers in 'mrad/s' and rimu scales them to rad/s. ``time_ms``: ArduPilot
+    before 3.3 (IMU/IMU2/IMU3 stamped TimeMS, no units): every instance read, ms to s, at its rate."""
+    p = tmp_path / "flight.bin"
+    write_dataflash(p, 3, 200.0, 2.0, _motion, **({"gyro_mult": "C"} if layout == "multiplier" else {"time_ms": True}))
+    rec = read_log(p)
+    ref = _pymavlink_imus(p)
+    assert rec.names == ["imu0", "imu1", "imu2"] and len(ref) == 3
+    for i, (u, key) in enumerate(zip(rec.units, sorted(ref))):
+        m = ref[key]
+        assert len(u) == len(m) == 400 and 1.0 / u.period_s == pytest.approx(200.0, rel=1e-9)
+        np.testing.assert_array_equal(u.t, m[:, 0])
+        np.testing.assert_array_equal(u.accel, m[:, 4:7])
+        gyro_si = m[:, 1:4] * (1e-3 if layout == "multiplier" else 1.0)
+        np.testing.assert_allclose(u.gyro, gyro_si, rtol=1e-12)
+        # and it is the signal written, in rad/s (to float32 of the log)
+        np.testing.assert_allclose(u.gyro, _motion(u.t, i)[0], rtol=1e-6, atol=1e-7)
+    if layout == "multiplier":
+        fmt = next(f for f in pymavlink.DFReader_binary(str(p)).formats.values() if f.name == "IMU")
+        assert fmt.units[fmt.columns.index("GyrX")] == "mrad/s"
+        assert rec.meta["units_from"]["gyro"] == "log (FMTU: rad/s x 0.001)"
+    else:
+        assert rec.meta["units_from"]["gyro"] == "ArduPilot convention (SI)"
 
 
 def test_dataflash_garbage_and_truncation_counted_never_guessed(tmp_path):
@@ -135,8 +164,10 @@ def _ros_msg(store, t: float, w: float):
         linear_acceleration_covariance=np.zeros(9))
 
 
-@pytest.mark.parametrize("kind", ["ros1", "sqlite3", "mcap"])
+@pytest.mark.parametrize("kind", ["ros1", "sqlite3", "mcap", "bare_mcap"])
 def test_ros_bags_one_imu_per_topic(tmp_path, kind):
+    """Every Imu topic at its own rate, from each container rosbags writes; ``bare_mcap``: the MCAP file taken out
+    of its bag folder (no metadata.yaml), its channels and schemas read from the file itself."""
     pytest.importorskip("rosbags")
     from rosbags.typesys import Stores, get_typestore
 
@@ -162,6 +193,9 @@ def test_ros_bags_one_imu_per_topic(tmp_path, kind):
             conns = {t: w.add_connection(t, "sensor_msgs/msg/Imu", typestore=store) for t in rates}
             for t, topic, v in msgs:
                 w.write(conns[topic], int(t * 1e9), store.serialize_cdr(_ros_msg(store, t, v), "sensor_msgs/msg/Imu"))
+        if kind == "bare_mcap":
+            (tmp_path / "alone").mkdir()
+            path = (path / "run2.mcap").rename(tmp_path / "alone" / "run.mcap")
     assert find_format(path) == "rosbag"
     rec = read_log(path)
     assert rec.names == ["imu0_data", "imu1_data"]
@@ -171,30 +205,32 @@ def test_ros_bags_one_imu_per_topic(tmp_path, kind):
         np.testing.assert_allclose(u.accel[:, 2], 9.81)
 
 
-def _ulog_bytes(instances: int, n: int, rate: float) -> bytes:
-    """A ULog file as its documentation lays it out: header, flag bits, formats, subscriptions, data."""
+def _ulog(*sections: tuple[str, bytes]) -> bytes:
+    """A ULog file as its documentation lays it out: header (version 1, timestamp 0), the flag-bits message, then
+    ``(kind, payload)`` messages in order (``F`` format, ``A`` subscription, ``D`` data)."""
     out = bytearray(b"ULog\x01\x12\x35\x01" + struct.pack("<Q", 0))
+    for kind, payload in (("B", bytes(40)), *sections):
+        out.extend(struct.pack("<HB", len(payload), ord(kind)) + payload)
+    return bytes(out)
 
-    def msg(kind: bytes, payload: bytes) -> None:
-        out.extend(struct.pack("<HB", len(payload), kind[0]) + payload)
 
-    msg(b"B", bytes(40))
-    for topic in ("sensor_gyro", "sensor_accel"):
-        msg(b"F", f"{topic}:uint64_t timestamp;uint64_t timestamp_sample;uint32_t device_id;float x;float y;float z;"
-                  "float temperature;".encode())
+def _ulog_bytes(instances: int, n: int, rate: float) -> bytes:
+    """``instances`` sensor_gyro / sensor_accel pairs, ``n`` samples each at ``rate``."""
+    msgs = [("F", f"{topic}:uint64_t timestamp;uint64_t timestamp_sample;uint32_t device_id;float x;float y;float z;"
+                  "float temperature;".encode()) for topic in ("sensor_gyro", "sensor_accel")]
     ids = {}
     for i in range(instances):
         for j, topic in enumerate(("sensor_gyro", "sensor_accel")):
             ids[(topic, i)] = mid = 2 * i + j
-            msg(b"A", struct.pack("<BH", i, mid) + topic.encode())
+            msgs.append(("A", struct.pack("<BH", i, mid) + topic.encode()))
     for k in range(n):
         for i in range(instances):
             ts = int(round(1e6 * k / rate)) + 50 * i
-            msg(b"D", struct.pack("<HQQIffff", ids[("sensor_gyro", i)], ts + 100, ts, 7 + i, 0.1 * i, 0.01 * k, -0.2,
-                                  30.0 + i))
-            msg(b"D", struct.pack("<HQQIffff", ids[("sensor_accel", i)], ts + 100, ts, 9 + i, 0.0, 0.1 * i, 9.8,
-                                  31.0))
-    return bytes(out)
+            msgs.append(("D", struct.pack("<HQQIffff", ids[("sensor_gyro", i)], ts + 100, ts, 7 + i, 0.1 * i, 0.01 * k,
+                                          -0.2, 30.0 + i)))
+            msgs.append(("D", struct.pack("<HQQIffff", ids[("sensor_accel", i)], ts + 100, ts, 9 + i, 0.0, 0.1 * i,
+                                          9.8, 31.0)))
+    return _ulog(*msgs)
 
 
 def test_ulog_every_instance(tmp_path):
@@ -266,17 +302,10 @@ def test_ulog_fifo_topics_unpacked_at_their_full_rate(tmp_path):
     """sensor_gyro_fifo / sensor_accel_fifo: ``samples`` int16 values times ``scale``, ``dt`` us apart, the last at
     ``timestamp_sample`` (PX4's message definition)."""
     pytest.importorskip("pyulog")
-    out = bytearray(b"ULog\x01\x12\x35\x01" + struct.pack("<Q", 0))
-
-    def msg(kind: bytes, payload: bytes) -> None:
-        out.extend(struct.pack("<HB", len(payload), kind[0]) + payload)
-
-    msg(b"B", bytes(40))
-    for topic in ("sensor_gyro_fifo", "sensor_accel_fifo"):
-        msg(b"F", f"{topic}:uint64_t timestamp;uint64_t timestamp_sample;uint32_t device_id;float dt;float scale;"
+    msgs = [("F", f"{topic}:uint64_t timestamp;uint64_t timestamp_sample;uint32_t device_id;float dt;float scale;"
                   "uint8_t samples;int16_t[32] x;int16_t[32] y;int16_t[32] z;".encode())
-    msg(b"A", struct.pack("<BH", 0, 0) + b"sensor_gyro_fifo")
-    msg(b"A", struct.pack("<BH", 0, 1) + b"sensor_accel_fifo")
+            for topic in ("sensor_gyro_fifo", "sensor_accel_fifo")]
+    msgs += [("A", struct.pack("<BH", 0, 0) + b"sensor_gyro_fifo"), ("A", struct.pack("<BH", 0, 1) + b"sensor_accel_fifo")]
     per, dt = 4, 250.0
     for k in range(50):
         ts = 1000 + int(k * per * dt)
@@ -284,9 +313,9 @@ def test_ulog_fifo_topics_unpacked_at_their_full_rate(tmp_path):
             body = struct.pack("<HQQIffB", mid, ts + 5, ts + int((per - 1) * dt), 3, dt, scale, per)
             body += struct.pack("<32h", *([k * per + j for j in range(per)] + [0] * (32 - per)))
             body += struct.pack("<32h", *([1] * 32)) + struct.pack("<32h", *([980] * 32))
-            msg(b"D", body)
+            msgs.append(("D", body))
     p = tmp_path / "fifo.ulg"
-    p.write_bytes(bytes(out))
+    p.write_bytes(_ulog(*msgs))
     rec = read_log(p)
     u = rec["fifo0"]
     assert len(u) == 200 and 1.0 / u.period_s == pytest.approx(4000.0)

@@ -10,9 +10,11 @@ IMUs read:
 
 * ArduPilot, current: ``IMU`` with the instance field ``I`` -> ``imu<I>``;
 * ArduPilot, older: ``IMU``, ``IMU2``, ``IMU3`` -> ``imu0``, ``imu1``, ``imu2``;
-  fields ``TimeUS`` [us], ``GyrX/Y/Z`` [rad/s], ``AccX/Y/Z`` [m/s^2], ``T`` [degC]. Where the log states units
-  (``FMTU``/``UNIT`` messages) they are read and must be rad/s and m/s/s; otherwise ArduPilot's convention (SI)
-  is taken and ``meta["units_from"]`` says so;
+  fields ``TimeUS`` [us] (``TimeMS`` [ms] in logs before ArduPilot 3.3), ``GyrX/Y/Z`` [rad/s], ``AccX/Y/Z``
+  [m/s^2], ``T`` (older: ``Temp``) [degC]. Where the log states units (``FMTU``/``UNIT`` messages) they are read
+  and must be rad/s and m/s/s, each times its multiplier (``FMTU.MultIds``, the values of the log's ``MULT``
+  messages or ArduPilot's table :data:`MULTIPLIERS`), which is applied; otherwise ArduPilot's convention (SI) is
+  taken; ``meta["units_from"]`` says which;
 * PX4 sdlog2: ``IMU``, ``IMU1``, ``IMU2`` (``GyroX/Y/Z`` [rad/s], ``AccX/Y/Z`` [m/s^2], ``tG`` [degC]), stamped with
   the ``TIME.StartTime`` [us] record logged before them (one TIME per logging cycle).
 
@@ -40,7 +42,7 @@ from ..guard import reading
 from ..multiimu import ImuStream, MultiImuRecording
 from ._open import open_binary
 
-__all__ = ["EXTRA", "NAME", "iter_chunks", "read", "sniff"]
+__all__ = ["EXTRA", "MULTIPLIERS", "NAME", "iter_chunks", "read", "sniff"]
 
 NAME = "dataflash"
 EXTRA = "logs"
@@ -56,6 +58,13 @@ _NP = {"b": "i1", "B": "u1", "h": "<i2", "H": "<u2", "i": "<i4", "I": "<u4", "f"
        "n": "S4", "N": "S16", "Z": "S64", "a": "S64"}
 _IMU_NAMES = {"IMU": 0, "IMU1": 1, "IMU2": 1, "IMU3": 2}
 _UNITS_OK = {"gyro": ("rad/s",), "accel": ("m/s/s", "m/s^2", "m/s2")}
+#: ArduPilot's multipliers by id (``AP_Logger/LogStructure.h``, ``log_Multipliers``): a field's value times its
+#: multiplier is in the field's unit; ``-`` (0) marks a field without one (a string), ``?`` one not worked out (1).
+#: The log restates them in ``MULT`` messages, which take precedence.
+MULTIPLIERS = {"-": 0.0, "?": 1.0, "2": 1e2, "1": 1e1, "0": 1e0, "A": 1e-1, "B": 1e-2, "C": 1e-3, "D": 1e-4,
+               "E": 1e-5, "F": 1e-6, "G": 1e-7, "I": 1e-9, "!": 3.6, "/": 3600.0}
+#: the time fields of ArduPilot's IMU messages and their scale to s (``TimeMS`` before ArduPilot 3.3)
+_TIME_FIELDS = {"TimeUS": 1e-6, "TimeMS": 1e-3}
 
 
 def sniff(name: str, head: bytes) -> bool:
@@ -107,6 +116,8 @@ class _Parser:
         self.fmts: dict[int, _Fmt] = {}
         self.units: dict[str, str] = {}
         self.fmtu: dict[int, str] = {}
+        self.fmtu_mult: dict[int, str] = {}
+        self.mults: dict[str, float] = dict(MULTIPLIERS)
         self.garbage = 0
         self.truncated = 0
         self.offset = 0  # bytes before the current block
@@ -201,7 +212,7 @@ def _imu_types(fmts: dict[int, _Fmt]) -> dict[int, tuple[str, str]]:
     for t, f in fmts.items():
         if f.name not in _IMU_NAMES:
             continue
-        if {"TimeUS", "GyrX", "AccX"} <= set(f.columns):
+        if {"GyrX", "AccX"} <= set(f.columns) and any(c in f.columns for c in _TIME_FIELDS):
             out[t] = ("ardupilot", f.name)
         elif {"GyroX", "AccX"} <= set(f.columns):
             out[t] = ("sdlog2", f.name)
@@ -214,6 +225,16 @@ def _unit_of(parser: _Parser, f: _Fmt, col: str) -> str | None:
         return None
     k = f.columns.index(col)
     return parser.units.get(spec[k]) if k < len(spec) else None
+
+
+def _mult_of(parser: _Parser, f: _Fmt, col: str) -> float:
+    """The multiplier ``FMTU`` states for a field (1 where none, or ``-``/``?``)."""
+    spec = parser.fmtu_mult.get(f.type)
+    k = f.columns.index(col)
+    if spec is None or k >= len(spec) or spec[k] in "-?":
+        return 1.0
+    m = parser.mults.get(spec[k])
+    return 1.0 if m is None or m == 0.0 else m
 
 
 def iter_chunks(path: str | os.PathLike[str], block: int = BLOCK, **options: Any) -> Iterator[MultiImuRecording]:
@@ -238,20 +259,28 @@ def iter_chunks(path: str | os.PathLike[str], block: int = BLOCK, **options: Any
             final = not data
             buf = rest + data
             starts, used = parser.walk(buf, final)
-            # FMTU / UNIT (units of the fields, ArduPilot)
-            for t, pos in starts.items():
-                f = parser.fmts.get(t)
-                if f is None or f.name not in ("UNIT", "FMTU"):
-                    continue
+            # FMTU / UNIT / MULT (units and multipliers of the fields, ArduPilot), the tables before their uses
+            decl = {"UNIT": 0, "MULT": 1, "FMTU": 2}
+            for t, pos in sorted(((t, pos) for t, pos in starts.items()
+                                  if t in parser.fmts and parser.fmts[t].name in decl),
+                                 key=lambda tp: decl[parser.fmts[tp[0]].name]):
+                f = parser.fmts[t]
                 rec = parser.decode(buf, t, pos)
                 if rec is None:
                     continue
                 if f.name == "UNIT" and {"Id", "Label"} <= set(f.columns):
                     for i, lab in zip(rec[f"f{f.columns.index('Id')}"], rec[f"f{f.columns.index('Label')}"]):
                         parser.units[chr(int(i))] = _cstr(bytes(lab))
+                elif f.name == "MULT" and {"Id", "Mult"} <= set(f.columns):
+                    for i, m in zip(rec[f"f{f.columns.index('Id')}"], f.field(rec, "Mult")):
+                        parser.mults[chr(int(i))] = float(m)
                 elif f.name == "FMTU" and {"FmtType", "UnitIds"} <= set(f.columns):
                     for ft, u in zip(rec[f"f{f.columns.index('FmtType')}"], rec[f"f{f.columns.index('UnitIds')}"]):
                         parser.fmtu[int(ft)] = _cstr(bytes(u))
+                    if "MultIds" in f.columns:
+                        for ft, m in zip(rec[f"f{f.columns.index('FmtType')}"],
+                                         rec[f"f{f.columns.index('MultIds')}"]):
+                            parser.fmtu_mult[int(ft)] = _cstr(bytes(m))
             imu_types = _imu_types(parser.fmts)
             time_type = next((t for t, f in parser.fmts.items() if f.name == "TIME" and "StartTime" in f.columns), None)
             pieces: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]]] = {}
@@ -270,19 +299,28 @@ def iter_chunks(path: str | os.PathLike[str], block: int = BLOCK, **options: Any
                     continue
                 flavour_seen.add(flavour)
                 if flavour == "ardupilot":
-                    ts = f.field(rec, "TimeUS") * 1e-6
-                    g = np.column_stack([f.field(rec, c) for c in ("GyrX", "GyrY", "GyrZ")])
-                    a = np.column_stack([f.field(rec, c) for c in ("AccX", "AccY", "AccZ")])
-                    temp = f.field(rec, "T") if "T" in f.columns else None
-                    inst = (rec[f"f{f.columns.index('I')}"].astype(int) if "I" in f.columns
-                            else np.full(len(rec), _IMU_NAMES[base]))
+                    tcol = next(c for c in _TIME_FIELDS if c in f.columns)
+                    ts = f.field(rec, tcol) * _TIME_FIELDS[tcol]
+                    scale = {}
                     for col, q in (("GyrX", "gyro"), ("AccX", "accel")):
                         u = _unit_of(parser, f, col)
                         if u is not None and u not in _UNITS_OK[q]:
                             raise SessionFormatError(f"{p}: {f.name}.{col} is logged in {u!r}, not "
                                                      f"{_UNITS_OK[q][0]}; this reader knows ArduPilot's SI IMU "
                                                      "messages only")
-                        units_from[q] = "log (FMTU)" if u is not None else "ArduPilot convention (SI)"
+                        scale[q] = _mult_of(parser, f, col) if u is not None else 1.0
+                        units_from[q] = ("ArduPilot convention (SI)" if u is None else "log (FMTU)" if scale[q] == 1.0
+                                         else f"log (FMTU: {u} x {scale[q]:g})")
+                    g = np.column_stack([f.field(rec, c) for c in ("GyrX", "GyrY", "GyrZ")])
+                    a = np.column_stack([f.field(rec, c) for c in ("AccX", "AccY", "AccZ")])
+                    if scale["gyro"] != 1.0:
+                        g *= scale["gyro"]
+                    if scale["accel"] != 1.0:
+                        a *= scale["accel"]
+                    tc = next((c for c in ("T", "Temp") if c in f.columns), None)
+                    temp = f.field(rec, tc) if tc is not None else None
+                    inst = (rec[f"f{f.columns.index('I')}"].astype(int) if "I" in f.columns
+                            else np.full(len(rec), _IMU_NAMES[base]))
                 else:
                     pos_a = np.asarray(pos, np.int64)
                     if tval is not None:

@@ -1,5 +1,5 @@
-"""ROS 1 bags, ROS 2 bags (sqlite3 or MCAP storage) and bare MCAP files (rosbags, extra ``logs``):
-``sensor_msgs/Imu`` messages, one IMU per topic.
+"""ROS 1 bags, ROS 2 bags (sqlite3 or MCAP storage) and bare MCAP files (without the bag folder's
+``metadata.yaml``; rosbags, extra ``logs``): ``sensor_msgs/Imu`` messages, one IMU per topic.
 
 Each topic of type ``sensor_msgs/msg/Imu`` (ROS 1: ``sensor_msgs/Imu``) is one IMU, named after the topic
 (``/imu0/data`` -> ``imu0_data``): ``angular_velocity`` [rad/s], ``linear_acceleration`` [m/s^2] (SI by the
@@ -63,11 +63,45 @@ def iter_chunks(path: str | os.PathLike[str], chunk: int = 100_000, topics: list
     except ImportError:
         raise ImportError("reading ROS bags needs rosbags: pip install 'rimu[logs]'", name="rosbags") from None
     p = Path(path)
+    store = get_typestore(Stores.ROS2_HUMBLE)
     if p.is_file() and p.suffix == ".mcap" and not (p.parent / "metadata.yaml").exists():
-        raise SessionFormatError(f"{p}: an MCAP file without its ROS 2 metadata.yaml; give the bag folder that holds "
-                                 "both (ros2 bag reindex writes metadata.yaml)")
+        yield from _iter_bare_mcap(p, chunk, topics, store)
+        return
     with local_file(p, ".bag") if p.is_file() and p.suffix not in (".db3", ".mcap") else nullcontext(p) as lp:
-        yield from _iter_bag(p, Path(lp), chunk, topics, AnyReader, get_typestore(Stores.ROS2_HUMBLE))
+        yield from _iter_bag(p, Path(lp), chunk, topics, AnyReader, store)
+
+
+def _iter_bare_mcap(p: Path, chunk: int, topics: list[str] | None, store: Any) -> Iterator[MultiImuRecording]:
+    """An MCAP file alone (no ``metadata.yaml``: copied out of its bag folder, or written by another MCAP writer):
+    channels and schemas from the file itself (rosbags' MCAP storage reader), messages decoded by their encoding
+    (``cdr`` or ``ros1``) with the ROS 2 type store."""
+    from rosbags.rosbag2.storage_mcap import McapReader
+
+    reader = McapReader(p)
+    try:
+        reader.open()
+    except Exception as exc:  # rosbags' errors have no common base with OSError
+        raise SessionFormatError(f"{p}: not a readable MCAP file ({type(exc).__name__}: {str(exc)[:120]}); give the "
+                                 "file as recorded, or its ROS 2 bag folder (with metadata.yaml)") from None
+    try:
+        conns = [c for c in reader.connections if c.msgtype in IMU_TYPES and (topics is None or c.topic in topics)]
+        if not conns:
+            found = sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})[:20]
+            raise SessionFormatError(f"{p}: no sensor_msgs/Imu channel in the MCAP file; it holds {found}")
+
+        def decode(c: Any, raw: bytes) -> Any:
+            fmt = getattr(c.ext, "serialization_format", "cdr")
+            msgtype = "sensor_msgs/msg/Imu"
+            return store.deserialize_ros1(raw, msgtype) if fmt == "ros1" else store.deserialize_cdr(raw, msgtype)
+
+        yield from _collect(p, ((c.topic, ts, decode(c, raw)) for c, ts, raw in reader.messages(conns)), chunk)
+    except SessionFormatError:
+        raise
+    except Exception as exc:
+        raise SessionFormatError(f"{p}: a message could not be read ({type(exc).__name__}: {str(exc)[:120]}); the "
+                                 "file may be truncated: recover it (mcap recover)") from None
+    finally:
+        reader.close()
 
 
 def _iter_bag(p: Path, lp: Path, chunk: int, topics: list[str] | None, AnyReader: Any, store: Any
