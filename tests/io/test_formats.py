@@ -199,6 +199,7 @@ def test_ros_bags_one_imu_per_topic(tmp_path, kind):
     assert find_format(path) == "rosbag"
     rec = read_log(path)
     assert rec.names == ["imu0_data", "imu1_data"]
+    assert rec.meta["frames"] == {"imu0_data": "header.frame_id 'imu'", "imu1_data": "header.frame_id 'imu'"}
     for i, (u, r) in enumerate(zip(rec.units, rates.values())):
         assert len(u) == int(r) and 1.0 / u.period_s == pytest.approx(r, rel=1e-6)
         np.testing.assert_allclose(u.gyro[:, 0], 0.01 * np.arange(int(r)) + i)
@@ -233,8 +234,13 @@ def _ulog_bytes(instances: int, n: int, rate: float) -> bytes:
     return _ulog(*msgs)
 
 
-def test_ulog_every_instance(tmp_path):
+def test_ulog_every_instance(tmp_path, capsys):
     pytest.importorskip("pyulog")
+    import json
+
+    from rimu.cli import main
+    from rimu.io.formats.px4_ulog import FRAME
+
     p = tmp_path / "flight.ulg"
     p.write_bytes(_ulog_bytes(3, 250, 250.0))
     assert find_format(p) == "ulog"
@@ -245,6 +251,14 @@ def test_ulog_every_instance(tmp_path):
         np.testing.assert_allclose(u.gyro[:, 0], 0.1 * i, rtol=1e-6)
         np.testing.assert_allclose(u.gyro[:, 1], 0.01 * np.arange(250), rtol=1e-6)
         np.testing.assert_allclose(u.accel[:, 2], 9.8, rtol=1e-6)
+    # the axes as PX4's message definitions state them, in the recording and in rimu import's summary
+    assert rec.meta["frame"] == FRAME and FRAME.startswith("FRD board frame") and rec.meta["body_frame"] is True
+    assert main(["import", str(p), "-o", str(tmp_path / "rec.npz"), "--json", str(tmp_path / "s.json"),
+                 "--accept-implausible"]) == 0
+    assert f"axes: {FRAME}" in capsys.readouterr().out
+    doc = json.loads((tmp_path / "s.json").read_text())
+    assert [imu["frame"] for imu in doc["imus"]] == [FRAME] * 3
+    assert read_log(tmp_path / "rec.npz").meta["frame"] == FRAME
 
 
 def test_text_log_without_units_is_refused_with_units_converted(tmp_path):

@@ -42,7 +42,7 @@ from ..guard import reading
 from ..multiimu import ImuStream, MultiImuRecording
 from ._open import open_binary
 
-__all__ = ["EXTRA", "MULTIPLIERS", "NAME", "iter_chunks", "read", "sniff"]
+__all__ = ["EXTRA", "FRAMES", "MULTIPLIERS", "NAME", "iter_chunks", "read", "sniff"]
 
 NAME = "dataflash"
 EXTRA = "logs"
@@ -65,6 +65,9 @@ MULTIPLIERS = {"-": 0.0, "?": 1.0, "2": 1e2, "1": 1e1, "0": 1e0, "A": 1e-1, "B":
                "E": 1e-5, "F": 1e-6, "G": 1e-7, "I": 1e-9, "!": 3.6, "/": 3600.0}
 #: the time fields of ArduPilot's IMU messages and their scale to s (``TimeMS`` before ArduPilot 3.3)
 _TIME_FIELDS = {"TimeUS": 1e-6, "TimeMS": 1e-3}
+#: the axes of the IMUs read, per flavour (``meta["frame"]``)
+FRAMES = {"ardupilot": "vehicle body frame (ArduPilot IMU messages: sensor and board orientation applied)",
+          "sdlog2": "vehicle body frame (PX4 sdlog2 IMU messages)"}
 
 
 def sniff(name: str, head: bytes) -> bool:
@@ -377,6 +380,7 @@ def iter_chunks(path: str | os.PathLike[str], block: int = BLOCK, **options: Any
                 meta.update({"records": parser.records, "garbage_bytes": parser.garbage,
                              "truncated": parser.truncated, "rejected": rejected,
                              "flavour": sorted(flavour_seen), "units_from": units_from, "body_frame": True,
+                             "frame": FRAMES["ardupilot" if "ardupilot" in flavour_seen else "sdlog2"],
                              "first_garbage_byte": parser.first_garbage})
             yield MultiImuRecording(units, meta)
             if final:

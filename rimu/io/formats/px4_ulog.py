@@ -8,6 +8,11 @@ where logged, else ``timestamp`` [us -> s]. A gyro instance and an accelerometer
 period, else NaN: rejected as ``unmatched``). A fifo message holds ``samples`` values ``x[k] * scale`` spaced
 ``dt`` us and ending at ``timestamp_sample``.
 
+Axes: PX4 states these topics in the FRD board frame (uORB ``SensorGyro``, ``SensorAccel`` and their fifo
+messages: each sensor's mounting rotation applied by its driver; the board's ``SENS_BOARD_ROT`` and the sensor
+calibration are not). Every instance is in that one frame: ``meta["frame"]`` says so and ``meta["body_frame"]``
+is set (a unit set up from the log keeps its triads parallel, as for the autopilots' DataFlash logs).
+
 >>> sniff("flight.ulg", b"ULog\\x01\\x12\\x35\\x01")
 True
 """
@@ -24,12 +29,15 @@ from ...errors import SessionFormatError
 from ..multiimu import ImuStream, MultiImuRecording, resample_stream
 from ._open import local_file
 
-__all__ = ["EXTRA", "NAME", "read", "sniff"]
+__all__ = ["EXTRA", "FRAME", "NAME", "read", "sniff"]
 
 NAME = "ulog"
 EXTRA = "ulog"
 MAGIC = b"ULog\x01\x12\x35"
 TOPICS = ("sensor_gyro", "sensor_accel", "sensor_gyro_fifo", "sensor_accel_fifo")
+#: the axes of every IMU read (PX4's message definitions)
+FRAME = ("FRD board frame (PX4 uORB sensor_gyro/sensor_accel: sensor mounting rotation applied, SENS_BOARD_ROT "
+         "and calibration not)")
 
 
 def sniff(name: str, head: bytes) -> bool:
@@ -108,5 +116,6 @@ def read(path: str | os.PathLike[str], **options: Any) -> MultiImuRecording:
         raise SessionFormatError(f"{p}: no sensor_gyro or sensor_gyro_fifo data in the log; log the IMU topics "
                                  "(SDLOG_PROFILE) to read it")
     meta = {"format": NAME, "source": str(p), "rejected": rejected,
-            "units_from": {"gyro": "uORB sensor_gyro (rad/s)", "accel": "uORB sensor_accel (m/s^2)"}}
+            "units_from": {"gyro": "uORB sensor_gyro (rad/s)", "accel": "uORB sensor_accel (m/s^2)"},
+            "frame": FRAME, "body_frame": True}
     return MultiImuRecording(units, meta)

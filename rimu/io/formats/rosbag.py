@@ -4,7 +4,7 @@
 Each topic of type ``sensor_msgs/msg/Imu`` (ROS 1: ``sensor_msgs/Imu``) is one IMU, named after the topic
 (``/imu0/data`` -> ``imu0_data``): ``angular_velocity`` [rad/s], ``linear_acceleration`` [m/s^2] (SI by the
 message's definition, REP 103; ``meta["units_from"]`` says so), time ``header.stamp`` [s] (the bag's receive time
-where the stamp is zero). Messages are read in bag order and handed on in pieces (:func:`iter_chunks`): a long
+where the stamp is zero), axes: the ``header.frame_id`` each topic states (``meta["frames"]``, per IMU). Messages are read in bag order and handed on in pieces (:func:`iter_chunks`): a long
 bag never has to fit in memory. Rejected, counted per IMU: ``nonfinite``, ``time_not_increasing``.
 
 >>> sniff("run.bag", b"#ROSBAG V2.0\\n"), sniff("run.mcap", b"\\x89MCAP0\\r\\n")
@@ -132,6 +132,7 @@ def _collect(p: Path, msgs: Iterator[tuple[str, int, Any]], chunk: int) -> Itera
     last: dict[str, float] = {}
     rejected: dict[str, dict[str, int]] = {}
     buf: dict[str, list[list[float]]] = {}
+    frames: dict[str, str] = {}
     count = 0
 
     def flush(final: bool) -> MultiImuRecording:
@@ -144,6 +145,7 @@ def _collect(p: Path, msgs: Iterator[tuple[str, int, Any]], chunk: int) -> Itera
         meta: dict[str, Any] = {"format": NAME, "source": str(p)}
         if final:
             meta.update({"rejected": {_name(k): v for k, v in rejected.items()}, "records": count,
+                         "frames": {_name(k): f"header.frame_id {v!r}" for k, v in frames.items()},
                          "units_from": {"gyro": "sensor_msgs/Imu (rad/s)", "accel": "sensor_msgs/Imu (m/s^2)"}})
         return MultiImuRecording(units, meta)
 
@@ -151,6 +153,8 @@ def _collect(p: Path, msgs: Iterator[tuple[str, int, Any]], chunk: int) -> Itera
         count += 1
         st = m.header.stamp
         t = st.sec + st.nanosec * 1e-9 if (st.sec or st.nanosec) else ts * 1e-9
+        if topic not in frames:
+            frames[topic] = str(m.header.frame_id)
         w, f = m.angular_velocity, m.linear_acceleration
         row = [t, w.x, w.y, w.z, f.x, f.y, f.z]
         rej = rejected.setdefault(topic, {"nonfinite": 0, "time_not_increasing": 0})
