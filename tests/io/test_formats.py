@@ -261,6 +261,34 @@ def test_ulog_every_instance(tmp_path, capsys):
     assert read_log(tmp_path / "rec.npz").meta["frame"] == FRAME
 
 
+def test_ulog_without_per_sensor_topics_reads_sensor_combined(tmp_path):
+    """Older PX4 logs hold only sensor_combined: one IMU ``combined`` in PX4's FRD body frame, the accelerometer at
+    ``timestamp + accelerometer_timestamp_relative``; a gap in the log (here 40 ms) costs no sample around it."""
+    pytest.importorskip("pyulog")
+    from rimu.io.formats.px4_ulog import FRAME_COMBINED, RELATIVE_TIMESTAMP_INVALID
+
+    msgs = [("F", b"sensor_combined:uint64_t timestamp;float[3] gyro_rad;uint32_t gyro_integral_dt;"
+                  b"int32_t accelerometer_timestamp_relative;float[3] accelerometer_m_s2;"
+                  b"uint32_t accelerometer_integral_dt;"),
+            ("A", struct.pack("<BH", 0, 0) + b"sensor_combined")]
+    stamps = [1_000_000 + 4000 * k for k in range(100)] + [1_440_000 + 4000 * k for k in range(100)]
+    for k, ts in enumerate(stamps):
+        rel = RELATIVE_TIMESTAMP_INVALID if k == 150 else 0
+        msgs.append(("D", struct.pack("<HQfffIifffI", 0, ts, 0.001 * k, 0.0, -0.01, 4000, rel, 0.1, 0.0, 9.8, 4000)))
+    p = tmp_path / "old.ulg"
+    p.write_bytes(_ulog(*msgs))
+    rec = read_log(p)
+    assert rec.names == ["combined"] and rec.meta["frame"] == FRAME_COMBINED
+    u = rec["combined"]
+    assert len(u) == 200
+    np.testing.assert_allclose(u.t, np.array(stamps) * 1e-6)
+    np.testing.assert_allclose(u.gyro[:, 0], 0.001 * np.arange(200), rtol=1e-6)
+    valid = np.isfinite(u.accel).all(axis=1)
+    # every accelerometer sample kept but the one PX4 marked invalid (interpolated across it: within 2.5 periods)
+    assert valid.sum() == 200 and u.accel[150, 2] == pytest.approx(9.8, rel=1e-6)
+    np.testing.assert_allclose(u.accel[valid, 2], 9.8, rtol=1e-6)
+
+
 def test_text_log_without_units_is_refused_with_units_converted(tmp_path):
     p = tmp_path / "log.txt"
     p.write_text("t ax ay az gx gy gz\n" + "".join(f"{k / 100} 0 0 1 0 0 {k}\n" for k in range(50)))
@@ -357,3 +385,19 @@ def test_text_log_of_several_triads_reads_one_imu_per_triad(tmp_path):
                header="t,g0x,g0y,g0z,g1x,a0x,a0y,a0z", fmt="%.8f")
     with pytest.raises(SessionFormatError, match="mapping"):
         read_log(tmp_path / "odd.csv", gyro_unit="deg/s", accel_unit="g")
+
+
+def test_plausibility_check_skips_invalid_samples_at_rest():
+    """A NaN accelerometer row is an invalid sample: the gravity check at the door measures the rest, not NaN (it
+    refused a whole ULog with 'magnitude nan m/s^2'); counts taken as m/s^2 are still refused."""
+    from rimu.cli._inputs import check_recording
+    from rimu.io.multiimu import ImuStream, MultiImuRecording
+
+    rng = np.random.default_rng(1)
+    t = np.arange(2000) / 200.0
+    g = 1e-3 * rng.standard_normal((2000, 3))
+    a = np.array([0.0, 0.0, 9.81]) + 0.01 * rng.standard_normal((2000, 3))
+    a[::37] = np.nan
+    assert check_recording(MultiImuRecording([ImuStream("imu0", t, g, a)]), "x") == []
+    found = check_recording(MultiImuRecording([ImuStream("imu0", t, g, a * 1000 / 9.81)]), "x")
+    assert found and "imu0: accel" in found[0].message
