@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
+import shutil
 import sys
 import tempfile
 import time
@@ -97,14 +97,14 @@ def main(argv: list[str] | None = None) -> dict:
     times = interleaved_times({"rimu": cpu_timed("rimu", run_rimu), "pymavlink": cpu_timed("pymavlink", run_pymavlink)},
                               args.rounds)
     ratio = round_ratio(times, "pymavlink", "rimu")
-    z = np.load(out)
-    got = {n_: int(z[f"{k}.t"].shape[0]) for k, n_ in enumerate(json.loads(str(z["rimu_recording"]))["imus"])}
+    with np.load(out) as z:
+        got = {n_: int(z[f"{k}.t"].shape[0]) for k, n_ in enumerate(json.loads(str(z["rimu_recording"]))["imus"])}
     tracemalloc.start()
     for _ in iter_log(log):
         pass
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
-    os.unlink(log)
+    shutil.rmtree(d)  # the log and the recording (1.4 GB for the hour)
     import pymavlink
     from pymavlink import dfindexer
     res = {"pymavlink": pymavlink.__version__, "pymavlink_c_indexer": bool(dfindexer.available),
