@@ -204,6 +204,12 @@ def test_ros_bags_one_imu_per_topic(tmp_path, kind):
         assert len(u) == int(r) and 1.0 / u.period_s == pytest.approx(r, rel=1e-6)
         np.testing.assert_allclose(u.gyro[:, 0], 0.01 * np.arange(int(r)) + i)
         np.testing.assert_allclose(u.accel[:, 2], 9.81)
+    if kind == "bare_mcap":  # compressed as well: decompressed to a temporary file, read alike
+        xz = path.with_name("run.mcap.xz")
+        xz.write_bytes(lzma.compress(path.read_bytes()))
+        for u, v in zip(rec.units, read_log(xz).units):
+            np.testing.assert_array_equal(u.t, v.t)
+            np.testing.assert_array_equal(u.gyro, v.gyro)
 
 
 def _ulog(*sections: tuple[str, bytes]) -> bytes:

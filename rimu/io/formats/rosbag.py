@@ -24,7 +24,7 @@ import numpy as np
 from ...errors import SessionFormatError
 from ..multiimu import ImuStream, MultiImuRecording
 from ._join import join_chunks
-from ._open import local_file
+from ._open import local_file, plain_name
 
 __all__ = ["EXTRA", "NAME", "iter_chunks", "read", "sniff"]
 
@@ -64,20 +64,22 @@ def iter_chunks(path: str | os.PathLike[str], chunk: int = 100_000, topics: list
         raise ImportError("reading ROS bags needs rosbags: pip install 'rimu[logs]'", name="rosbags") from None
     p = Path(path)
     store = get_typestore(Stores.ROS2_HUMBLE)
-    if p.is_file() and p.suffix == ".mcap" and not (p.parent / "metadata.yaml").exists():
-        yield from _iter_bare_mcap(p, chunk, topics, store)
+    if p.is_file() and Path(plain_name(p)).suffix == ".mcap" and not (p.parent / "metadata.yaml").exists():
+        with local_file(p, ".mcap") as lp:  # compressed: decompressed to a temporary file first
+            yield from _iter_bare_mcap(p, Path(lp), chunk, topics, store)
         return
     with local_file(p, ".bag") if p.is_file() and p.suffix not in (".db3", ".mcap") else nullcontext(p) as lp:
         yield from _iter_bag(p, Path(lp), chunk, topics, AnyReader, store)
 
 
-def _iter_bare_mcap(p: Path, chunk: int, topics: list[str] | None, store: Any) -> Iterator[MultiImuRecording]:
+def _iter_bare_mcap(p: Path, lp: Path, chunk: int, topics: list[str] | None, store: Any
+                    ) -> Iterator[MultiImuRecording]:
     """An MCAP file alone (no ``metadata.yaml``: copied out of its bag folder, or written by another MCAP writer):
     channels and schemas from the file itself (rosbags' MCAP storage reader), messages decoded by their encoding
     (``cdr`` or ``ros1``) with the ROS 2 type store."""
     from rosbags.rosbag2.storage_mcap import McapReader
 
-    reader = McapReader(p)
+    reader = McapReader(lp)
     try:
         reader.open()
     except Exception as exc:  # rosbags' errors have no common base with OSError
