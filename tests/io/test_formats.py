@@ -267,22 +267,30 @@ def test_ulog_every_instance(tmp_path, capsys):
     assert read_log(tmp_path / "rec.npz").meta["frame"] == FRAME
 
 
-def test_ulog_without_per_sensor_topics_reads_sensor_combined(tmp_path):
-    """Older PX4 logs hold only sensor_combined: one IMU ``combined`` in PX4's FRD body frame, the accelerometer at
-    ``timestamp + accelerometer_timestamp_relative``; a gap in the log (here 40 ms) costs no sample around it."""
-    pytest.importorskip("pyulog")
-    from rimu.io.formats.px4_ulog import FRAME_COMBINED, RELATIVE_TIMESTAMP_INVALID
+def _ulog_combined_bytes(stamps: list[int], invalid: tuple[int, ...] = ()) -> bytes:
+    """A ULog holding only ``sensor_combined`` at ``stamps`` [us] (gyro x = 0.001 k rad/s, accel z = 9.8 m/s^2;
+    the records ``invalid`` mark their accelerometer sample invalid, as PX4 does)."""
+    from rimu.io.formats.px4_ulog import RELATIVE_TIMESTAMP_INVALID
 
     msgs = [("F", b"sensor_combined:uint64_t timestamp;float[3] gyro_rad;uint32_t gyro_integral_dt;"
                   b"int32_t accelerometer_timestamp_relative;float[3] accelerometer_m_s2;"
                   b"uint32_t accelerometer_integral_dt;"),
             ("A", struct.pack("<BH", 0, 0) + b"sensor_combined")]
-    stamps = [1_000_000 + 4000 * k for k in range(100)] + [1_440_000 + 4000 * k for k in range(100)]
     for k, ts in enumerate(stamps):
-        rel = RELATIVE_TIMESTAMP_INVALID if k == 150 else 0
+        rel = RELATIVE_TIMESTAMP_INVALID if k in invalid else 0
         msgs.append(("D", struct.pack("<HQfffIifffI", 0, ts, 0.001 * k, 0.0, -0.01, 4000, rel, 0.1, 0.0, 9.8, 4000)))
+    return _ulog(*msgs)
+
+
+def test_ulog_without_per_sensor_topics_reads_sensor_combined(tmp_path):
+    """Older PX4 logs hold only sensor_combined: one IMU ``combined`` in PX4's FRD body frame, the accelerometer at
+    ``timestamp + accelerometer_timestamp_relative``; a gap in the log (here 40 ms) costs no sample around it."""
+    pytest.importorskip("pyulog")
+    from rimu.io.formats.px4_ulog import FRAME_COMBINED
+
+    stamps = [1_000_000 + 4000 * k for k in range(100)] + [1_440_000 + 4000 * k for k in range(100)]
     p = tmp_path / "old.ulg"
-    p.write_bytes(_ulog(*msgs))
+    p.write_bytes(_ulog_combined_bytes(stamps, invalid=(150,)))
     rec = read_log(p)
     assert rec.names == ["combined"] and rec.meta["frame"] == FRAME_COMBINED
     u = rec["combined"]
