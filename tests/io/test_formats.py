@@ -92,6 +92,38 @@ def test_dataflash_multipliers_and_the_pre_3_3_time_field(tmp_path, layout):
         assert rec.meta["units_from"]["gyro"] == "ArduPilot convention (SI)"
 
 
+def test_dataflash_raw_gyr_acc_messages_at_their_rate(tmp_path):
+    """ArduPilot's raw IMU messages (INS_RAW_LOG_OPT): GYR at 1 kHz and ACC at 500 Hz per instance, beside IMU at
+    200 Hz. Each instance is read again as raw<I> on the GYR stamps: the gyro as pymavlink reads it, the
+    accelerometer as numpy's interp of pymavlink's ACC values at those stamps; the same for any block size (the join
+    carries waiting samples across blocks); a gyro sample after the last ACC one keeps its gyro and is counted."""
+    from pymavlink import mavutil
+
+    p = tmp_path / "raw.bin"
+    write_dataflash(p, 3, 200.0, 2.0, _motion, raw_rate_hz=1000.0)
+    rec = read_log(p)
+    assert rec.names == ["imu0", "imu1", "imu2", "raw0", "raw1", "raw2"]
+    ref: dict = {}
+    conn = mavutil.mavlink_connection(str(p))
+    while (m := conn.recv_match(type=["GYR", "ACC"])) is not None:
+        x = (m.GyrX, m.GyrY, m.GyrZ) if m.get_type() == "GYR" else (m.AccX, m.AccY, m.AccZ)
+        ref.setdefault((m.get_type(), m.I), []).append([m.SampleUS * 1e-6, *x])
+    small = read_log(p, block=4096)
+    for i in range(3):
+        u, g, a = rec[f"raw{i}"], np.array(ref[("GYR", i)]), np.array(ref[("ACC", i)])
+        assert len(u) == len(g) == 2000 and 1.0 / u.period_s == pytest.approx(1000.0, rel=1e-9)
+        np.testing.assert_array_equal(u.t, g[:, 0])
+        np.testing.assert_array_equal(u.gyro, g[:, 1:])
+        inside = u.t <= a[-1, 0]
+        want = np.column_stack([np.interp(u.t[inside], a[:, 0], a[:, j]) for j in (1, 2, 3)])
+        np.testing.assert_allclose(u.accel[inside], want, rtol=0, atol=1e-9)
+        assert np.isnan(u.accel[~inside]).all()
+        assert rec.meta["rejected"][f"raw{i}"]["accel_unmatched"] == int((~inside).sum()) == 1
+        v = small[f"raw{i}"]
+        np.testing.assert_array_equal(u.t, v.t)
+        np.testing.assert_array_equal(u.accel[inside], v.accel[inside])
+
+
 def test_dataflash_garbage_and_truncation_counted_never_guessed(tmp_path):
     p = tmp_path / "flight.bin"
     write_dataflash(p, 2, 200.0, 1.0)

@@ -45,9 +45,11 @@ def _valid() -> dict[str, tuple[str, bytes]]:
     write_dataflash(d / "b.bin", 2, 100.0, 1.0, old_names=True)
     write_dataflash(d / "c.bin", 2, 100.0, 1.0, time_ms=True)
     write_dataflash(d / "m.bin", 2, 100.0, 1.0, gyro_mult="C")
+    write_dataflash(d / "r.bin", 2, 100.0, 0.5, raw_rate_hz=400.0)
     out = {"dataflash": (".bin", (d / "a.bin").read_bytes()), "dataflash-old": (".bin", (d / "b.bin").read_bytes()),
            "dataflash-timems": (".bin", (d / "c.bin").read_bytes()),
            "dataflash-mult": (".bin", (d / "m.bin").read_bytes()),
+           "dataflash-raw": (".bin", (d / "r.bin").read_bytes()),
            "ulog": (".ulg", _ulog_bytes(2, 120, 100.0)), "mpu6050": (".csv", MPU.encode()),
            "ulog-combined": (".ulg", _ulog_combined_bytes([10_000 + 4000 * k for k in range(300)])),
            "pixhawk": (".csv", PIXHAWK.encode()), "text": (".txt", b"t ax ay az\n" + b"".join(

@@ -30,7 +30,8 @@ def _fmt_msg(t: int, name: str, fmt: str, cols: str) -> bytes:
 def write_dataflash(path: str | os.PathLike[str], n_imus: int, rate_hz: float, duration_s: float,
                     signal: Callable[[np.ndarray, int], tuple[np.ndarray, np.ndarray]] | None = None,
                     old_names: bool = False, units: bool = True, block: int = 20_000,
-                    opener: Callable[..., IO[bytes]] = open, gyro_mult: str = "0", time_ms: bool = False) -> int:
+                    opener: Callable[..., IO[bytes]] = open, gyro_mult: str = "0", time_ms: bool = False,
+                    raw_rate_hz: float | None = None) -> int:
     """Write a log of ``n_imus`` IMUs at ``rate_hz`` for ``duration_s``; returns the number of IMU records.
 
     ``signal(t, i) -> (gyro (N,3) rad/s, accel (N,3) m/s^2)`` of IMU i at times t (default: at rest, z up, a
@@ -38,6 +39,9 @@ def write_dataflash(path: str | os.PathLike[str], n_imus: int, rate_hz: float, d
     ``gyro_mult``: the multiplier id ``FMTU`` states for the gyro fields (ArduPilot writes ``0``, times 1); the
     values are written divided by it. ``time_ms``: the layout of logs before ArduPilot 3.3 (``IMU``/``IMU2``/
     ``IMU3`` stamped ``TimeMS`` [ms], no units declared; implies ``old_names`` and ``units=False``).
+    ``raw_rate_hz``: also ArduPilot's raw messages (``INS_RAW_LOG_OPT``): ``GYR`` of every instance at that rate and
+    ``ACC`` at half of it, stamped ``SampleUS`` (instance i's offset by ``11 us * i``), written after the ``IMU``
+    records of the same span.
     """
     from .dataflash import MULTIPLIERS
 
@@ -67,6 +71,9 @@ def write_dataflash(path: str | os.PathLike[str], n_imus: int, rate_hz: float, d
         for t, name in types:
             fh.write(_fmt_msg(t, name, old_fmt if old_names else _IMU_FMT, old_cols if old_names else _IMU_COLS))
         fh.write(_fmt_msg(30, "ATT", "Qfff", "TimeUS,Roll,Pitch,Yaw"))
+        if raw_rate_hz:
+            fh.write(_fmt_msg(70, "GYR", "QBQfff", "TimeUS,I,SampleUS,GyrX,GyrY,GyrZ"))
+            fh.write(_fmt_msg(71, "ACC", "QBQfff", "TimeUS,I,SampleUS,AccX,AccY,AccZ"))
         if units:
             for uid, label in (("s", "s"), ("#", "instance"), ("E", "rad/s"), ("o", "m/s/s"), ("O", "degC"),
                                ("z", "Hz"), ("-", "")):
@@ -77,6 +84,9 @@ def write_dataflash(path: str | os.PathLike[str], n_imus: int, rate_hz: float, d
                 ids = ("s" if old_names else "s#") + "EEEooo--O--zz"
                 mults = ("F" if old_names else "F-") + 3 * gyro_mult + "000-----00"
                 fh.write(struct.pack("<BBBQB16s16s", 0xA3, 0x95, 178, 0, t, ids.encode(), mults.encode()))
+            if raw_rate_hz:
+                for t, ids, mults in ((70, "s#sEEE", "F-F" + 3 * gyro_mult), (71, "s#sooo", "F-F000")):
+                    fh.write(struct.pack("<BBBQB16s16s", 0xA3, 0x95, 178, 0, t, ids.encode(), mults.encode()))
         for k0 in range(0, n, block):
             k = np.arange(k0, min(n, k0 + block))
             m = len(k)
@@ -106,4 +116,27 @@ def write_dataflash(path: str | os.PathLike[str], n_imus: int, rate_hz: float, d
             att["TimeUS"] = np.round(k / rate_hz * 1e6).astype(np.uint64)
             rows = np.concatenate(recs + [att.view(np.uint8).reshape(m, -1)], axis=1)
             fh.write(rows.tobytes())
+            if raw_rate_hz:
+                fh.write(_raw_records(k0 / rate_hz, (k0 + m) / rate_hz, n_imus, raw_rate_hz, signal, gyro_mult))
     return n * n_imus
+
+
+def _raw_records(t0: float, t1: float, n_imus: int, rate_hz: float,
+                 signal: Callable[[np.ndarray, int], tuple[np.ndarray, np.ndarray]], gyro_mult: str) -> bytes:
+    """``GYR`` (at ``rate_hz``) and ``ACC`` (at half of it) records of every instance sampled in ``[t0, t1)``."""
+    from .dataflash import MULTIPLIERS
+
+    dt = np.dtype([("h0", "u1"), ("h1", "u1"), ("ty", "u1"), ("TimeUS", "<u8"), ("I", "u1"), ("SampleUS", "<u8"),
+                   ("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
+    out = []
+    for ty, r, pick, scale in ((70, rate_hz, 0, MULTIPLIERS[gyro_mult]), (71, rate_hz / 2, 1, 1.0)):
+        k = np.arange(int(np.ceil(t0 * r - 1e-9)), int(np.ceil(t1 * r - 1e-9)))
+        for i in range(n_imus):
+            su = np.round(k / r * 1e6).astype(np.uint64) + np.uint64(11 * i)
+            v = signal(su * 1e-6, i)[pick] / scale
+            rec = np.zeros(len(k), dt)
+            rec["h0"], rec["h1"], rec["ty"], rec["I"] = 0xA3, 0x95, ty, i
+            rec["SampleUS"], rec["TimeUS"] = su, su + np.uint64(100)
+            rec["x"], rec["y"], rec["z"] = v[:, 0], v[:, 1], v[:, 2]
+            out.append(rec.tobytes())
+    return b"".join(out)

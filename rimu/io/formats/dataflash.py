@@ -15,6 +15,9 @@ IMUs read:
   and must be rad/s and m/s/s, each times its multiplier (``FMTU.MultIds``, the values of the log's ``MULT``
   messages or ArduPilot's table :data:`MULTIPLIERS`), which is applied; otherwise ArduPilot's convention (SI) is
   taken; ``meta["units_from"]`` says which;
+* ArduPilot's raw IMU messages (``INS_RAW_LOG_OPT``): ``GYR`` and ``ACC`` of instance ``I`` -> ``raw<I>`` at the
+  gyro's ``SampleUS`` stamps and rate, the accelerometer interpolated to them (within 2.5 of its periods, else NaN:
+  counted ``accel_unmatched``), across blocks;
 * PX4 sdlog2: ``IMU``, ``IMU1``, ``IMU2`` (``GyroX/Y/Z`` [rad/s], ``AccX/Y/Z`` [m/s^2], ``tG`` [degC]), stamped with
   the ``TIME.StartTime`` [us] record logged before them (one TIME per logging cycle).
 
@@ -65,6 +68,9 @@ MULTIPLIERS = {"-": 0.0, "?": 1.0, "2": 1e2, "1": 1e1, "0": 1e0, "A": 1e-1, "B":
                "E": 1e-5, "F": 1e-6, "G": 1e-7, "I": 1e-9, "!": 3.6, "/": 3600.0}
 #: the time fields of ArduPilot's IMU messages and their scale to s (``TimeMS`` before ArduPilot 3.3)
 _TIME_FIELDS = {"TimeUS": 1e-6, "TimeMS": 1e-3}
+#: ArduPilot's raw IMU messages (``INS_RAW_LOG_OPT``): gyro and accelerometer samples of instance ``I`` apart, each
+#: stamped ``SampleUS``, at the sensors' own rates
+_RAW = {"GYR": ("GyrX", "GyrY", "GyrZ"), "ACC": ("AccX", "AccY", "AccZ")}
 #: the axes of the IMUs read, per flavour (``meta["frame"]``)
 FRAMES = {"ardupilot": "vehicle body frame (ArduPilot IMU messages: sensor and board orientation applied)",
           "sdlog2": "vehicle body frame (PX4 sdlog2 IMU messages)"}
@@ -222,6 +228,51 @@ def _imu_types(fmts: dict[int, _Fmt]) -> dict[int, tuple[str, str]]:
     return out
 
 
+def _raw_types(fmts: dict[int, _Fmt]) -> dict[int, str]:
+    """type -> ``GYR`` / ``ACC`` of ArduPilot's raw IMU messages."""
+    return {t: f.name for t, f in fmts.items()
+            if f.name in _RAW and {"I", "SampleUS", *_RAW[f.name]} <= set(f.columns)}
+
+
+class _RawJoin:
+    """Each instance's ``GYR`` samples with its ``ACC`` samples interpolated at their stamps, across blocks: a gyro
+    sample waits until an accelerometer sample at or after it has been read (or the log ends: then the ones after
+    the last accelerometer sample have none, NaN)."""
+
+    def __init__(self) -> None:
+        self.gyro: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self.acc: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    def add(self, kind: str, i: int, t: np.ndarray, v: np.ndarray) -> None:
+        store = self.gyro if kind == "GYR" else self.acc
+        t0, v0 = store.get(i, (np.zeros(0), np.zeros((0, 3))))
+        store[i] = (np.concatenate([t0, t]), np.concatenate([v0, v]))
+
+    def take(self, final: bool) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        from ..multiimu import resample_stream
+
+        out = {}
+        for i, (tg, g) in list(self.gyro.items()):
+            ta, a = self.acc.get(i, (np.zeros(0), np.zeros((0, 3))))
+            order = np.argsort(ta, kind="stable")
+            ta, a = ta[order], a[order]
+            keep = np.concatenate([[True], np.diff(ta) > 0]) if len(ta) else np.zeros(0, bool)
+            ta, a = ta[keep], a[keep]
+            ready = np.ones(len(tg), bool) if final else (tg <= ta[-1] if len(ta) else np.zeros(len(tg), bool))
+            if ready.any():
+                acc = np.full((int(ready.sum()), 3), np.nan)
+                if len(ta) > 1:
+                    acc, ok = resample_stream(ta, a, tg[ready])
+                    acc[~ok] = np.nan
+                out[i] = (tg[ready], g[ready], acc)
+            self.gyro[i] = (tg[~ready], g[~ready])
+            # the accelerometer samples a waiting gyro sample may need: from the one before the earliest on
+            first = tg[~ready].min() if (~ready).any() else (ta[-1] if len(ta) else 0.0)
+            j = max(0, int(np.searchsorted(ta, first)) - 1)
+            self.acc[i] = (ta[j:], a[j:])
+        return out
+
+
 def _unit_of(parser: _Parser, f: _Fmt, col: str) -> str | None:
     spec = parser.fmtu.get(f.type)
     if spec is None or col not in f.columns:
@@ -250,6 +301,8 @@ def iter_chunks(path: str | os.PathLike[str], block: int = BLOCK, **options: Any
     time_us = None  # sdlog2: the current TIME.StartTime
     flavour_seen: set[str] = set()
     units_from: dict[str, str] = {}
+    join = _RawJoin()
+    raw_seen = False
     rest = b""
     with reading(p, "DataFlash log"), open_binary(p) as fh:  # damaged compression: one line naming the file
         while True:
@@ -344,6 +397,31 @@ def iter_chunks(path: str | os.PathLike[str], block: int = BLOCK, **options: Any
                     pieces.setdefault(f"imu{int(i)}", []).append(
                         (np.asarray(pos, np.int64)[sel], ts[sel], np.column_stack([g[sel], a[sel]]),
                          None if temp is None else temp[sel]))
+            for t, kind in _raw_types(parser.fmts).items():
+                pos = starts.get(t)
+                rec = parser.decode(buf, t, pos)
+                if rec is None:
+                    continue
+                f = parser.fmts[t]
+                cols = _RAW[kind]
+                q = "gyro" if kind == "GYR" else "accel"
+                u = _unit_of(parser, f, cols[0])
+                if u is not None and u not in _UNITS_OK[q]:
+                    raise SessionFormatError(f"{p}: {f.name}.{cols[0]} is logged in {u!r}, not {_UNITS_OK[q][0]}; "
+                                             "this reader knows ArduPilot's SI IMU messages only")
+                scale = _mult_of(parser, f, cols[0]) if u is not None else 1.0
+                units_from.setdefault(q, "ArduPilot convention (SI)" if u is None else "log (FMTU)" if scale == 1.0
+                                      else f"log (FMTU: {u} x {scale:g})")
+                v = np.column_stack([f.field(rec, c) for c in cols]) * scale
+                ts = f.field(rec, "SampleUS") * 1e-6
+                inst = rec[f"f{f.columns.index('I')}"].astype(int)
+                for i in np.unique(inst):
+                    join.add(kind, int(i), ts[inst == i], v[inst == i])
+                raw_seen = True
+                flavour_seen.add("ardupilot")
+            for i, (ts, g, a) in join.take(final).items():
+                if len(ts):
+                    pieces.setdefault(f"raw{i}", []).append((np.arange(len(ts)), ts, np.column_stack([g, a]), None))
             if tval is not None and len(tval):
                 time_us = float(tval[-1])
             units = []
@@ -354,7 +432,12 @@ def iter_chunks(path: str | os.PathLike[str], block: int = BLOCK, **options: Any
                 ga = np.concatenate([q[2] for q in parts])[order]
                 temps = None if any(q[3] is None for q in parts) else np.concatenate([q[3] for q in parts])[order]
                 rej = rejected.setdefault(name, {"nonfinite": 0, "time_not_increasing": 0})
-                fin = np.isfinite(ga).all(axis=1) & np.isfinite(ts)
+                # a raw gyro sample without an accelerometer sample around it keeps its gyro (accel NaN: invalid)
+                fin = (np.isfinite(ga[:, :3]).all(axis=1) if name.startswith("raw")
+                       else np.isfinite(ga).all(axis=1)) & np.isfinite(ts)
+                if name.startswith("raw"):
+                    rej.setdefault("accel_unmatched", 0)
+                    rej["accel_unmatched"] += int((fin & ~np.isfinite(ga[:, 3:]).all(axis=1)).sum())
                 rej["nonfinite"] += int((~fin).sum())
                 ts, ga = ts[fin], ga[fin]
                 temps = None if temps is None else temps[fin]
@@ -373,10 +456,10 @@ def iter_chunks(path: str | os.PathLike[str], block: int = BLOCK, **options: Any
                 if not parser.fmts:
                     raise SessionFormatError(f"{p}: no FMT message: not a DataFlash/px4log file, or its start is "
                                              "missing; check that this is the .bin/.px4log as logged")
-                if not imu_types:
+                if not imu_types and not raw_seen:
                     names = sorted({f.name for f in parser.fmts.values()})[:20]
-                    raise SessionFormatError(f"{p}: no IMU messages (IMU, IMU2, IMU3; sdlog2 IMU, IMU1) in the log; "
-                                             f"it declares {names}")
+                    raise SessionFormatError(f"{p}: no IMU messages (IMU, IMU2, IMU3, GYR/ACC; sdlog2 IMU, IMU1) in "
+                                             f"the log; it declares {names}")
                 meta.update({"records": parser.records, "garbage_bytes": parser.garbage,
                              "truncated": parser.truncated, "rejected": rejected,
                              "flavour": sorted(flavour_seen), "units_from": units_from, "body_frame": True,
