@@ -2,8 +2,9 @@
 runtime pipeline with fault detection and isolation, optionally with injected faults.
 
 Prints the events (isolations, transients, re-admissions, state changes) and the final state per instrument;
-``--report DIR`` writes a plot of the parity statistic against its threshold, the estimates and the states over
-time, ``--json FILE`` the events (time in s and sample index) and final states.
+``--report DIR`` writes the replay report (``replay_report.html`` and ``.pdf``, rimu's one report layout, and the
+plot ``replay.png``): the parity statistic against its threshold with the alarms, the estimate, its validity, the
+sensors in use with the isolations, on one time axis, ``--json FILE`` the events (time in s and sample index) and final states.
 
 Injection: ``TYPE:INSTRUMENT:SENSOR:START[:SIZE[:DURATION]]``, SIZE in SI or as ``10sigma``; types: bias, ramp,
 stuck, scale, noise, spikes, dropout, zero, saturation, nonfinite. Example: ``--inject bias:gyro:y2:15:10sigma``.
@@ -19,6 +20,15 @@ error against the known input; ``sample_error_rms``; SI) with the number of alar
 written to ``OUT/summary.json``: how a calibration is validated on a held-out session.
 ``--estimates FILE.csv`` writes the estimates of every sample (the columns the exported C filter writes;
 floats in Python's shortest round-trip form).
+
+``--selfcal`` replays with the in-flight self-calibration (:mod:`rimu.fdi.selfcal`, docs/selfcal.md): the runtime
+tracks the drift of every sensor's bias (and scale, and the temperature coefficients when the data have a
+temperature) from the parity, compensates with the tracked terms, and its window GLT's thresholds carry the
+tracker's covariance (``--detector glt_window``, of ``--window`` samples; without it the detector's window is the
+tracker's, ``--selfcal-window`` s). The drift rate comes from the calibration's noise model
+(``--selfcal-drift-factor``, ``--selfcal-horizon``) or ``--selfcal-bias-rw``. The summary, ``--json``, ``--report``
+(``selfcal-<instrument>.png``) and ``--estimates`` (columns ``{k}_{term}_{sensor}`` and ``..._sigma``, SI) show the
+tracked terms over time with their 1-sigma.
 
 The replay streams: the file is read twice in chunks (:func:`rimu.session.iter_blocks`), once for the format
 and plausibility checks, the time span and the sample rate, once through the runtime; the summary figures are
@@ -48,6 +58,7 @@ from ._common import (
     readmit_after,
 )
 from ._inputs import add_log_options
+from .selfcal import add_tracker_options
 
 DETECTORS = ["glt", "glt_window", "cusum", "kalman", "baseline"]
 
@@ -73,12 +84,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", default=None, metavar="DIR",
                    help="folder for summary.json: the runtime error against the segments' known inputs, alarms and "
                         "isolations per instrument (docs/runtime.md)")
-    add_report_option(p, "the plot (replay.png)")
+    add_report_option(p, "the report (replay_report.html, .pdf) and its plot (replay.png)")
     add_json_option(p, "the events (time in s and sample index) and final states")
     p.add_argument("--estimates", default=None, metavar="FILE.csv",
                    help="write per sample t, then per instrument {k}_x/_y/_z (SI, master-body frame), {k}_validity "
                         "(rimu.fusion.Validity code) and {k}_isolated (0-based indices of the isolated sensors joined "
                         "by ';'): the columns the exported C filter writes")
+    p.add_argument("--selfcal", action="store_true",
+                   help="track the calibration's drift in flight and compensate with it (docs/selfcal.md); the "
+                        "tracker's settings: --selfcal-*")
+    add_tracker_options(p, "selfcal-")
     p.add_argument("--out", action=Deprecated, new="--report DIR and --json FILE", convert=_old_out, metavar="DIR")
     add_accept_implausible(p)
     add_log_options(p)
@@ -301,14 +316,24 @@ class _Plot:
 
     def __init__(self) -> None:
         self.stride, self.seen = 1, 0
-        self.parts: dict[str, list[np.ndarray]] = {f: [] for f in ("t", "statistic", "threshold", "x", "state")}
+        self.parts: dict[str, list[np.ndarray]] = {f: [] for f in ("t", "statistic", "threshold", "x", "state",
+                                                                   "validity", "n_active")}
         self.events: list = []
+        #: times and statistics of the alarm samples (every one, up to _PLOT_POINTS: decimation would drop them)
+        self.alarm_t: list[np.ndarray] = []
+        self.alarm_s: list[np.ndarray] = []
+        self.names: list[str] = []
 
     def add(self, r) -> None:  # type: ignore[no-untyped-def]
         sel = slice((-self.seen) % self.stride, None, self.stride)
         self.seen += len(r.t)
+        self.names = list(r.names)
         for f, v in self.parts.items():
             v.append(np.asarray(getattr(r, f))[sel])
+        a = np.flatnonzero(np.asarray(r.alarm, bool))
+        if a.size and sum(len(x) for x in self.alarm_t) < _PLOT_POINTS:
+            self.alarm_t.append(np.asarray(r.t)[a])
+            self.alarm_s.append(np.asarray(r.statistic)[a])
         self.events += [e for e in r.events if e.kind in ("isolated", "invalid_isolated", "readmitted")][:1000]
         if sum(len(p) for p in self.parts["t"]) > 2 * _PLOT_POINTS:
             for f, v in self.parts.items():
@@ -318,7 +343,9 @@ class _Plot:
     def series(self):  # type: ignore[no-untyped-def]
         from types import SimpleNamespace
 
-        return SimpleNamespace(events=self.events, **{f: np.concatenate(v) for f, v in self.parts.items()})
+        cat = (lambda v: np.concatenate(v) if v else np.zeros(0))  # noqa: E731
+        return SimpleNamespace(events=self.events, names=self.names, alarm_t=cat(self.alarm_t),
+                               alarm_s=cat(self.alarm_s), **{f: np.concatenate(v) for f, v in self.parts.items()})
 
 
 class _Errors:
@@ -369,7 +396,35 @@ class _Errors:
                                 [self.session.segments[i].label for i in order], E)
 
 
+class _Tee:
+    """stdout that also keeps every line (the console's notes and cautions go into the report word for word)."""
+
+    def __init__(self, out, lines: list[str]) -> None:  # type: ignore[no-untyped-def]
+        self.out, self.lines, self.part = out, lines, ""
+
+    def write(self, text: str) -> int:
+        self.part += text
+        *done, self.part = self.part.split("\n")
+        self.lines += done
+        return self.out.write(text)
+
+    def flush(self) -> None:
+        self.out.flush()
+
+    def __getattr__(self, name: str):  # type: ignore[no-untyped-def]
+        return getattr(self.out, name)
+
+
 def run(args: argparse.Namespace) -> int:
+    import contextlib
+    import sys
+
+    console: list[str] = []
+    with contextlib.redirect_stdout(_Tee(sys.stdout, console)) if args.report else contextlib.nullcontext():
+        return _run(args, console)
+
+
+def _run(args: argparse.Namespace, console: list[str]) -> int:
     import contextlib
 
     from ..calibration import Calibration
@@ -458,17 +513,36 @@ def run(args: argparse.Namespace) -> int:
                 blk = inject(blk, injections, cal, seed=args.seed)
             yield blk if pipe is None else pipe.compensate(blk)
 
+    trackers = {}
+    if args.selfcal:
+        from ..fdi.selfcal import SelfCalTracker
+        from .selfcal import tracker_settings
+
+        if args.detector not in ("glt", "glt_window") or args.motion_fit is not None:
+            raise OptionError("--selfcal runs the window GLT whose thresholds carry the tracker's covariance: use it "
+                              f"with --detector glt or glt_window and without --motion-fit (got --detector "
+                              f"{args.detector}{' --motion-fit' if args.motion_fit is not None else ''})")
+        if args.selfcal_window * fs > scan.n:
+            raise OptionError(f"--selfcal-window {args.selfcal_window:g} s is longer than the data ({scan.n} samples at "
+                              f"{fs:g} Hz): the tracker would never absorb a window")
+        trackers = {k: SelfCalTracker(cal[k], tracker_settings(args, cal[k], k, scan.has_temp, "selfcal-"))
+                    for k in insts}
     managers = {}
     for k in insts:
         pipe = unit[k]
         det = make_detector(args.detector, pipe.table.sigma, window=args.window, p_fa=args.p_fa, arl0=args.arl0)
+        if k in trackers:
+            from ..fdi.selfcal import TrackedGltWindow
+
+            win = args.window if args.detector == "glt_window" else max(1, int(round(args.selfcal_window * fs)))
+            det = TrackedGltWindow(win, args.p_fa)
         if args.motion_fit is not None and k == "gyro":
             det = _motion_detector(cal[k], _first_seconds(blocks(Pipeline(sub, temperature=scan.has_temp)),
                                                           t0 + args.motion_fit),
                                    args.motion_fit, args.motion_margin, args.p_fa, fs)
         kw = DEFAULTS.replace(p_fa=args.p_fa, confirm=1 if args.detector == "cusum" else args.confirm).manager_kwargs()
         kw.update(readmit_after=readmit_after(args), sample_rate=fs)
-        if args.detector != "glt" or args.motion_fit is not None:
+        if args.detector != "glt" or args.motion_fit is not None or k in trackers:
             kw.pop("isolator")  # the manager picks the isolator that fits the detector
         managers[k] = (RedundancyManager(pipe, det, **kw), det)
     alarms = dict.fromkeys(insts, 0)
@@ -484,10 +558,14 @@ def run(args: argparse.Namespace) -> int:
             from ..atomic import atomic_path
 
             est = stack.enter_context(stack.enter_context(atomic_path(args.estimates)).open("w"))
-            est.write(",".join(estimate_columns(insts)) + "\n")
+            est.write(",".join(estimate_columns(insts) + _tracked_columns(trackers)) + "\n")
         # the managers closed loop with the compensation of further effects (rimu.fdi.UnitManager: the decisions
         # of the exported C filter, sample by sample)
-        um = Runtime(unit, managers={k: managers[k][0] for k in insts})
+        from ..fdi.selfcal import SelfCalLoop
+
+        um = Runtime(unit, managers={k: managers[k][0] for k in insts},
+                     selfcal={k: SelfCalLoop(trk, fs, managers[k][1], history=True) for k, trk in trackers.items()})
+        tracked = {k: _Tracked(um.selfcal[k]) for k in trackers}
         for blk in bar(blocks(), total=n_chunks, desc="replay", unit="chunk", enabled=None if n_chunks > 1 else False):
             results = um.run(blk)
             for k in insts:
@@ -500,8 +578,13 @@ def run(args: argparse.Namespace) -> int:
                 errors[k].add(np.asarray(r.x), blk.t, blk.meta["segment"])
                 if plots:
                     plots[k].add(r)
+            extra = {}
+            for tr in tracked.values():
+                extra.update(tr.add(blk.t))
             if est is not None:
-                write_estimates(est, Estimates.from_replay(blk.t, results), header=False)
+                e = Estimates.from_replay(blk.t, results)
+                e.extra = extra or None
+                write_estimates(est, e, header=False)
     summary: dict = {}
     for k in insts:
         mgr, det = managers[k]
@@ -523,6 +606,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"    runtime error: segment_error_rms {fmt(err.segment_error_rms, k)} over "
                   f"{len(err.segments)} segments, sample_error_rms {fmt(err.sample_error_rms, k)}")
         print(f"    alarms {entry['alarms']}, isolations {entry['isolations']}")
+        if k in tracked:
+            entry["selfcal"] = tracked[k].summary(k)
         summary[k] = entry
     if args.estimates:
         print(f"\n  estimates: {args.estimates} ({scan.n} rows)")
@@ -530,12 +615,22 @@ def run(args: argparse.Namespace) -> int:
         from ._common import json_dump
 
         doc = {k: {"events": [e.to_dict() for e in events[k]], "final_state": last_state[k]} for k in insts}
+        for k in tracked:
+            doc[k]["selfcal"] = summary[k]["selfcal"]
         print(f"\n  events: {json_dump(doc, args.json)}")
     if args.report:
         out = Path(args.report)
         out.mkdir(parents=True, exist_ok=True)
-        png = _plot(out / "replay.png", {k: p.series() for k, p in plots.items()})
-        print(f"  plot:   {png}" if png else "  (matplotlib not installed: no plot; pip install 'rimu[plots]')")
+        series = {k: p.series() for k, p in plots.items()}
+        page = _report(series, summary, events, args, console, fmt)
+        if page is None:
+            print("  (matplotlib not installed: no plot; pip install 'rimu[plots]')")
+        else:
+            png = page.save_figure(0, out / "replay.png", dpi=90)
+            html, pdf = page.write(out, "replay_report")
+            print(f"  plot:   {png}\n  report: {html} and {pdf}")
+            for k, tr in tracked.items():
+                print(f"  plot:   {tr.plot(k, out)}")
     if args.output:
         import json
 
@@ -550,6 +645,72 @@ def run(args: argparse.Namespace) -> int:
                      for k, v in summary.items() if "segment_error_rms" in v)
     print(f"replayed {scan.n} samples: {n_iso} isolation(s)" + (f"; {errs}" if errs else ""))
     return 0
+
+
+def _tracked_columns(trackers: dict) -> list[str]:
+    """The estimates file's columns of the tracked terms: ``{k}_{term}_{sensor}`` and ``..._sigma`` (SI)."""
+    cols = []
+    for k, trk in trackers.items():
+        for b in trk.blocks:
+            for nm in trk.calibration.geometry.names:
+                cols += [f"{k}_{b}_{nm}", f"{k}_{b}_{nm}_sigma"]
+    return cols
+
+
+class _Tracked:
+    """One instrument's tracked terms over the replay: per sample for the estimates file (the terms of the last
+    window absorbed or predicted), decimated for the plot, the last ones for the summary."""
+
+    def __init__(self, loop) -> None:  # type: ignore[no-untyped-def]
+        self.loop = loop
+        trk = loop.tracker
+        terms = loop.terms()
+        self.last = (float("-inf"), np.stack([terms[b][0] for b in trk.blocks]),
+                     np.stack([terms[b][1] for b in trk.blocks]))
+        self.series: list[tuple[float, np.ndarray, np.ndarray]] = []
+        self.stride = 1
+        self.seen = 0
+
+    def add(self, t: np.ndarray) -> dict[str, np.ndarray]:
+        trk = self.loop.tracker
+        hist = [(h[0], h[1], h[2]) for h in self.loop.take_history()]
+        T = np.array([self.last[0]] + [h[0] for h in hist])
+        V = np.stack([self.last[1]] + [h[1] for h in hist])
+        S = np.stack([self.last[2]] + [h[2] for h in hist])
+        # a sample takes the terms of the last window that ended before it (a window's terms apply after it)
+        idx = np.searchsorted(T, np.asarray(t, float), side="left") - 1
+        idx = np.clip(idx, 0, len(T) - 1)
+        out = {}
+        for b, name in enumerate(trk.blocks):
+            for i, nm in enumerate(trk.calibration.geometry.names):
+                out[f"{trk.calibration.instrument}_{name}_{nm}"] = V[idx, b, i]
+                out[f"{trk.calibration.instrument}_{name}_{nm}_sigma"] = S[idx, b, i]
+        for h in hist:
+            if self.seen % self.stride == 0:
+                self.series.append(h)
+            self.seen += 1
+            if len(self.series) > 20000:  # at most 20 000 points: every other one, twice the stride
+                self.series = self.series[::2]
+                self.stride *= 2
+        if hist:
+            self.last = hist[-1]
+        return out
+
+    def summary(self, inst: str) -> dict:
+        from .selfcal import print_terms
+
+        loop = self.loop
+        print(f"    self-calibration: {loop.accepted} windows absorbed, {loop.rejected} gated out, {loop.discarded} "
+              "thrown away (alarms); tracked terms at the end (common mode left as it was), value +- 1 sigma:")
+        rows = print_terms(inst, loop.tracker, loop.terms(), indent="    ")
+        return {"windows_absorbed": loop.accepted, "windows_gated": loop.rejected, "windows_discarded": loop.discarded,
+                "blocks": list(loop.tracker.blocks), "units": "SI (rad/s or m/s^2, relative scale, SI/K^k)",
+                "sensors": rows}
+
+    def plot(self, inst: str, folder: Path):  # type: ignore[no-untyped-def]
+        from .selfcal import _plot
+
+        return _plot(inst, self.loop.tracker, self.series, str(folder))
 
 
 def _first_seconds(blocks, t_stop: float):  # type: ignore[no-untyped-def]
@@ -597,46 +758,86 @@ def _motion_detector(cal, block, seconds: float, margin: float, p_fa: float, fs:
     return det
 
 
-def _plot(path: Path, results: dict) -> Path | None:
+def _report(results: dict, summary: dict, events: dict, args: argparse.Namespace, console: list[str],
+            fmt):  # type: ignore[no-untyped-def]
+    """The replay report in rimu's one layout (:class:`rimu.report.Report`): the console's notes and cautions,
+    the summary per instrument in the field's units, and per instrument one column of panels on one time axis, as
+    a flight-review page shows a flight: the parity statistic against its threshold with every alarm sample, the
+    estimate, its validity, the sensors in the estimate with every isolation and readmission. None without
+    matplotlib."""
     from ..plotting import pyplot
 
     plt = pyplot(optional=True)
     if plt is None:
         return None
     from ..fdi.manager import HealthState
+    from ..fusion.validity import Validity
+    from ..report import Report
+    from ..units import field_unit
 
+    page = Report(f"rimu replay: {Path(args.data).name} with {Path(args.calibration).name}")
+    page.cautions([ln.strip() for ln in console if ln.strip().startswith(("note:", "caution", "warning"))])
+    rows = []
+    for k, e in summary.items():
+        rows.append([k, e["samples"], e["alarms"], e["isolations"], e["final_state"],
+                     fmt(e.get("segment_error_rms"), k), fmt(e.get("sample_error_rms"), k)])
+    page.table(["instrument", "samples", "alarm samples", "isolations", "final state", "segment_error_rms",
+                "sample_error_rms"], rows, "against the known inputs of the segments (docs/runtime.md)")
+    names = {i: h.value for i, h in enumerate(HealthState)}
+    page.text("States the unit went through: " + "; ".join(
+        f"{k}: {', '.join(names[int(v)] for v in np.unique(r.state))}" for k, r in results.items()))
+    shown = [(k, e) for k in events for e in events[k] if e.kind != "transient"][:200]
+    if shown:
+        page.heading("Events")
+        page.table(["instrument", "t [s]", "sample", "event", "sensor", "message"],
+                   [[k, f"{e.t:.3f}", e.sample, e.kind, e.sensor or "", e.message] for k, e in shown])
     k_n = len(results)
-    fig, axes = plt.subplots(3, k_n, figsize=(6 * k_n, 8), sharex=True, squeeze=False)
+    fig, axes = plt.subplots(4, k_n, figsize=(6.2 * k_n, 10), sharex="col", squeeze=False)
     for c, (k, r) in enumerate(results.items()):
+        iso = [e for e in r.events if e.kind in ("isolated", "invalid_isolated", "readmitted")]
         ax = axes[0, c]
-        ax.semilogy(r.t, np.maximum(r.statistic, 1e-3), lw=0.5, label="statistic")
+        ln, = ax.semilogy(r.t, np.maximum(r.statistic, 1e-3), lw=0.5, label="parity statistic")
+        ln.set_gid("data")
         ax.semilogy(r.t, np.where(np.isfinite(r.threshold), r.threshold, np.nan), "k--", lw=1, label="threshold")
-        for e in r.events:
-            if e.kind in ("isolated", "invalid_isolated", "readmitted"):
-                ax.axvline(e.t, color="m" if e.kind != "readmitted" else "g", lw=0.8, ls=":")
-                ax.text(e.t, ax.get_ylim()[1], f"{e.kind[:3]} {e.sensor}", fontsize=7, rotation=90, va="top")
-        ax.set_title(f"{k}: parity test statistic")
+        if r.alarm_t.size:
+            ax.semilogy(r.alarm_t, np.maximum(r.alarm_s, 1e-3), "r.", ms=2, label="alarm samples")
+        ax.set_title(f"{k}: parity statistic and alarms", fontsize=10)
         ax.set_ylabel("statistic [-]")
-        ax.legend(fontsize=7, loc="upper left")
         ax = axes[1, c]
-        for a, col in zip(range(3), "rgb"):
-            ax.plot(r.t, r.x[:, a], col, lw=0.5, label="xyz"[a])
-        ax.set_title(f"{k}: MB-frame estimate")
-        ax.set_ylabel("angular rate [rad/s]" if k == "gyro" else "specific force [m/s^2]")
-        ax.legend(fontsize=7)
+        x = np.asarray(r.x, float)
+        unit, f = field_unit(k, float(np.nanmax(np.abs(x))) if np.isfinite(x).any() else None)
+        for a, col in zip(range(3), ("C3", "C2", "C0")):
+            ax.plot(r.t, x[:, a] * f, color=col, lw=0.5, label="xyz"[a])
+        ax.set_title(f"{k}: estimate (master-body frame)", fontsize=10)
+        ax.set_ylabel(("angular rate" if k == "gyro" else "specific force") + f" [{unit}]")
         ax = axes[2, c]
-        ax.step(r.t, r.state, where="post")
-        ax.set_yticks(range(len(HealthState)))
-        ax.set_yticklabels([s.value for s in HealthState], fontsize=7)
+        ln, = ax.step(r.t, r.validity, where="post", color="C1", lw=1)
+        ln.set_gid("data")
+        ax.set_yticks([v.value for v in Validity], [v.name.lower() for v in Validity], fontsize=7)
+        ax.set_ylim(-0.3, len(Validity) - 0.7)
+        ax.set_title(f"{k}: validity of the estimate", fontsize=10)
+        ax = axes[3, c]
+        ln, = ax.step(r.t, r.n_active, where="post", color="C0", lw=1, label="sensors in the estimate")
+        ln.set_gid("data")
+        for e in iso:
+            ax.axvline(e.t, color="C3" if e.kind != "readmitted" else "C2", lw=0.8, ls=":")
+        n_max = max(len(r.names), int(np.max(r.n_active)) if r.n_active.size else 0)
+        for e in iso[:30]:
+            ax.annotate(f"{'readmit' if e.kind == 'readmitted' else 'isolate'} {e.sensor}", (e.t, n_max),
+                        fontsize=7, rotation=90, va="top", ha="right")
+        ax.set_ylim(-0.2, n_max + 0.5)
+        ax.set_ylabel("sensors [count]")
         ax.set_xlabel("time [s]")
-        ax.set_title(f"{k}: state")
+        ax.set_title(f"{k}: sensors in use and isolations", fontsize=10)
+        for ax in axes[:, c]:
+            ax.grid(alpha=0.3)
+            if ax.get_legend_handles_labels()[0]:
+                ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     fig.tight_layout()
-    from ..atomic import atomic_path
-
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    return path
+    page.heading("Parity, validity, alarms and isolations on one time axis")
+    page.figure(fig, "Per instrument: the parity test statistic against its threshold (red: alarm samples), the "
+                     "estimate, its validity and the sensors in it (dotted: isolation in red, readmission in green).")
+    return page
 
 
 def _epochs_recording_session(data: str, calibration: str) -> Path | None:
