@@ -1,0 +1,202 @@
+"""The generated C of the self-calibration tracker's Kalman filter (rimu.export.c_selfcal) against
+rimu.fdi.selfcal.SelfCalTracker, window by window: cone6 with bias, scale and three temperature orders tracked
+(30 states) and three parallel triads with the bias only; biases drifting, a temperature ramp, flight-like motion, a
+window with a sensor inactive, windows with a frozen sensor (Schmidt, Joseph form) and a step the gate rejects.
+The state, its covariance, the innovation's chi-square, the gate decision, the correction, its covariance and
+the tracked terms with their sigmas agree to 1e-12 (relative to each quantity's scale). Skips without a C
+compiler.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from rimu.calibration import InstrumentCalibration
+from rimu.export.c_selfcal import selfcal_c
+from rimu.fdi.selfcal import SelfCalSettings, SelfCalTracker
+from rimu.geometry import cone6, triads
+
+CC = shutil.which("cc") or shutil.which("gcc")
+needs_cc = pytest.mark.skipif(CC is None, reason="no C compiler on this machine")
+CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
+
+_MAIN = r"""
+#include <stdio.h>
+#include <stdlib.h>
+#include "rimu_sc.h"
+
+static rimu_sc s;
+static double z[4000 * RIMU_SC_N], g[4000 * RIMU_SC_S];
+
+static void dump(const double *v, int k)
+{
+    int i;
+    for (i = 0; i < k; ++i) {
+        printf("%.17g ", v[i]);
+    }
+}
+
+int main(void)
+{
+    char cmd;
+    double t, vals[RIMU_SC_S], sig[RIMU_SC_S], c[RIMU_SC_N], C[RIMU_SC_N * RIMU_SC_N], gg[RIMU_SC_S];
+    rimu_sc_init(&s, 0.0);
+    while (scanf(" %c", &cmd) == 1) {
+        if (cmd == 'P') {
+            if (scanf("%lf", &t) != 1) return 1;
+            printf("%d\n", rimu_sc_predict(&s, t));
+        } else if (cmd == 'U') {
+            long M, k;
+            int i, a;
+            unsigned char act[RIMU_SC_N], fr[RIMU_SC_N];
+            rimu_sc_update_info info;
+            if (scanf("%ld", &M) != 1) return 1;
+            for (i = 0; i < RIMU_SC_N; ++i) { if (scanf("%d", &a) != 1) return 1; act[i] = (unsigned char)a; }
+            for (i = 0; i < RIMU_SC_N; ++i) { if (scanf("%d", &a) != 1) return 1; fr[i] = (unsigned char)a; }
+            for (k = 0; k < M * RIMU_SC_N; ++k) { if (scanf("%lf", &z[k]) != 1) return 1; }
+            for (k = 0; k < M * RIMU_SC_S; ++k) { if (scanf("%lf", &g[k]) != 1) return 1; }
+            rimu_sc_update(&s, z, g, M, act, fr, &info);
+            printf("%d %.17g %.17g %d\n", info.accepted, info.d2, info.gate, info.dof);
+        } else if (cmd == 'R') {
+            double u[3], T;
+            if (scanf("%lf %lf %lf %lf", &u[0], &u[1], &u[2], &T) != 4) return 1;
+            rimu_sc_regressors(u, T, gg);
+            dump(gg, RIMU_SC_S);
+            rimu_sc_correction(&s, gg, c);
+            dump(c, RIMU_SC_N);
+            rimu_sc_correction_covariance(&s, gg, C);
+            dump(C, RIMU_SC_N * RIMU_SC_N);
+            rimu_sc_terms(&s, vals, sig);
+            dump(vals, RIMU_SC_S);
+            dump(sig, RIMU_SC_S);
+            dump(s.theta, RIMU_SC_S);
+            dump(s.P, RIMU_SC_S * RIMU_SC_S);
+            printf("%ld %ld\n", s.updates, s.rejected);
+        } else {
+            return 2;
+        }
+    }
+    return 0;
+}
+"""
+
+
+def _build(trk: SelfCalTracker, d) -> str:
+    h, c = selfcal_c(trk, "rimu_sc")
+    (d / "rimu_sc.h").write_text(h)
+    (d / "rimu_sc.c").write_text(c)
+    (d / "main.c").write_text(_MAIN)
+    res = subprocess.run([CC, *CFLAGS, "-o", str(d / "sc"), str(d / "main.c"), str(d / "rimu_sc.c"), "-lm"],
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr  # -Wall -Wextra -Werror -pedantic clean
+    return str(d / "sc")
+
+
+def _f(v) -> str:
+    return " ".join(repr(float(x)) for x in np.ravel(v))
+
+
+def _script(trk: SelfCalTracker, seed: int, n_win: int = 40, M: int = 25):
+    """Windows of a drifting unit (the tracker's own model, plus noise): (commands, Python's answers)."""
+    rng = np.random.default_rng(seed)
+    n, m = trk.n, trk.m
+    A = trk.axes
+    theta = rng.standard_normal(n * m) * np.sqrt(trk.p0)   # the truth: drawn from the tracker's own model
+    st = trk.initial_state(0.0)
+    cmds, ref = [], []
+    t, dt = 0.0, M * 0.01
+    for w in range(n_win):
+        t += dt
+        theta = theta + rng.standard_normal(n * m) * np.sqrt(trk.q * dt)
+        tt = t - dt + 0.01 * np.arange(M)
+        u = np.column_stack([np.sin(3 * tt + i) for i in range(3)]) * 2.0
+        T = 10.0 + 30.0 * tt / (n_win * dt)                              # a 30 K ramp
+        g = trk.regressors(M, u, T)
+        z = u @ A.T + np.einsum("kbn,bn->kn", g, theta.reshape(m, n))
+        z += rng.standard_normal((M, n)) * trk.sigma
+        act = np.ones(n, bool)
+        fr = np.zeros(n, bool)
+        if w in (12, 13):
+            act[1] = False
+        if 20 <= w < 26:
+            fr[n - 2] = True
+        if w == 30:
+            z[:, 0] += 50 * trk.sigma[0]                     # a step: the gate refuses it
+        st = trk.predict(st, t)
+        cmds.append(f"P {float(t)!r}")
+        ref.append(("predict",))
+        st, info = trk.update(st, z, g, act, fr)
+        cmds.append(f"U {M} {' '.join(str(int(a)) for a in act)} {' '.join(str(int(f)) for f in fr)} {_f(z)} {_f(g)}")
+        ref.append(("update", info))
+        ui, Ti = u[-1], T[-1]
+        gi = trk.regressors(1, ui[None], np.array([Ti]))[0]
+        cmds.append(f"R {_f(ui)} {float(Ti)!r}")
+        terms = trk.terms(st)
+        ref.append(("state", gi, trk.correction(st, gi[None])[0], trk.correction_covariance(st, gi),
+                    np.concatenate([terms[b][0] for b in trk.blocks]),
+                    np.concatenate([terms[b][1] for b in trk.blocks]), st.theta, st.P, st.updates, st.rejected))
+    return cmds, ref
+
+
+def _close(c: np.ndarray, p: np.ndarray, what: str, rel: float = 1e-12) -> float:
+    p = np.asarray(p, dtype=float).ravel()
+    scale = max(float(np.abs(p).max()), 1e-300)
+    err = float(np.abs(c - p).max()) / scale
+    assert err <= rel, f"{what}: C and Python differ by {err:.3g} of the largest value"
+    return err
+
+
+def _compare(trk: SelfCalTracker, exe: str, seed: int) -> dict:
+    cmds, ref = _script(trk, seed)
+    out = subprocess.run([exe], input="\n".join(cmds) + "\n", capture_output=True, text=True, check=True)
+    lines = out.stdout.strip().splitlines()
+    assert len(lines) == len(ref)
+    n, S = trk.n, trk.n * trk.m
+    worst = {"accepted": 0, "rejected": 0, "frozen_windows": 0, "err": 0.0}
+    for line, r in zip(lines, ref, strict=True):
+        v = line.split()
+        if r[0] == "predict":
+            assert v == ["0"]
+        elif r[0] == "update":
+            info = r[1]
+            assert int(v[0]) == int(info.accepted) and int(v[3]) == info.dof
+            if info.dof >= 1:
+                worst["err"] = max(worst["err"], _close(np.array([float(v[1])]), [info.d2], "d2"))
+                assert float(v[2]) == pytest.approx(info.gate, rel=1e-14)
+            worst["accepted" if info.accepted else "rejected"] += 1
+        else:
+            x = np.array([float(s) for s in v[:-2]])
+            parts = np.split(x, np.cumsum([S, n, n * n, S, S, S]))
+            names = ("regressors", "correction", "correction covariance", "terms", "sigmas", "theta", "P")
+            for name, c, p in zip(names, parts, r[1:8], strict=True):
+                if name in ("terms", "sigmas"):  # per block: each block's own scale (SI/K^3 is tiny beside SI)
+                    for b in range(trk.m):
+                        worst["err"] = max(worst["err"], _close(c[b * n:(b + 1) * n], p[b * n:(b + 1) * n],
+                                                                f"{name}[{trk.blocks[b]}]"))
+                else:
+                    worst["err"] = max(worst["err"], _close(c, p, name))
+            assert (int(v[-2]), int(v[-1])) == (r[8], r[9])
+    return worst
+
+
+@needs_cc
+def test_tracker_c_matches_python_cone6_full_model(tmp_path):
+    cal = InstrumentCalibration.nominal("gyro", cone6(), 1.0, noise_sigma=np.linspace(0.01, 0.015, 6))
+    st = SelfCalSettings(bias_rw=1e-6, bias_sigma0=0.005, scale_rw=1e-8, scale_sigma0=1e-3,
+                         temperature_sigma=[1e-4, 1e-5, 1e-6], reference_temperature=25.0)
+    trk = SelfCalTracker(cal, st)
+    w = _compare(trk, _build(trk, tmp_path), seed=1)
+    assert w["accepted"] >= 35 and w["rejected"] >= 1   # the step was gated out, the rest absorbed
+    assert w["err"] <= 1e-12
+
+
+@needs_cc
+def test_tracker_c_matches_python_triads_bias_only(tmp_path):
+    cal = InstrumentCalibration.nominal("accel", triads(3), 1.0, noise_sigma=0.02)
+    trk = SelfCalTracker(cal, SelfCalSettings(bias_rw=1e-5, bias_sigma0=0.01, gate_p=1e-3))
+    w = _compare(trk, _build(trk, tmp_path), seed=2)
+    assert w["accepted"] >= 35 and w["rejected"] >= 1
