@@ -22,9 +22,18 @@ axes of the active sensors (modified Gram-Schmidt, twice, on the columns of the 
 ``I - Aw (Aw^T Aw)^-1 Aw^T``) rather than the SVD basis of :func:`rimu.geometry.base.null_space_rows`; the two
 agree to rounding (tests/export/test_c_selfcal.py: 1e-12).
 
-This is the tracker's kernel only: the runtime's loop around it (:class:`rimu.fdi.selfcal.SelfCalLoop`: the held
-windows, the correction of every epoch, the window GLT with the tracker's covariance in its thresholds) is not
-generated yet, and :func:`rimu.export.export_c` does not include it.
+With ``sample_rate`` the runtime's loop around the tracker is generated too (``<p>_loop_correct``,
+``<p>_loop_observe``: :class:`rimu.fdi.selfcal.SelfCalLoop` step for step): the correction of every epoch's
+compensated outputs by the terms of the state at the window's start, the covariance handed to the window GLT at
+every window's start (the state predicted to the window's end, the previous window's rms regressors, the largest
+trace of the windows the detector's sum spans), the windows thrown away on an alarm or a statistic above the watch
+level, the others held ``hold_s`` and then absorbed with the sensors isolated then frozen. The held windows keep
+only their means (all the update uses), in a ring of ``ceil(hold_s * rate / M) + 2`` (with regular sampling never
+full; full, the oldest is absorbed early).
+
+Not generated yet: the window GLT with the tracker's covariance in the exported manager (rimu_fdi_run has the
+snapshot GLT), and :func:`rimu.export.export_c` does not include the tracker: the loop is fed the manager's
+decisions by its caller (tests/export/test_c_selfcal.py feeds it Python's).
 """
 
 from __future__ import annotations
@@ -83,6 +92,8 @@ int {p}_predict({p} *s, double t);
 void {p}_regressors(const double *u, double temperature, double *g);
 void {p}_update({p} *s, const double *z, const double *g, long M, const unsigned char *active,
                 const unsigned char *frozen, {p}_update_info *info);
+void {p}_update_mean({p} *s, const double *zbar, const double *gbar, long M, const unsigned char *active,
+                     const unsigned char *frozen, {p}_update_info *info);
 void {p}_correction(const {p} *s, const double *g, double *c);
 void {p}_correction_covariance(const {p} *s, const double *g, double *C);
 void {p}_terms(const {p} *s, double *values, double *sigmas);
@@ -305,12 +316,35 @@ static void {p}_cholsolve(const double *L, int r, double *x)
 void {p}_update({p} *s, const double *z, const double *g, long M, const unsigned char *active,
                 const unsigned char *frozen, {p}_update_info *info)
 {{
-    double V[R * N], zbar[N], gbar[S], H[R * S], nu[R], Sm[R * R], y[R];
+    double zbar[N], gbar[S];
+    int i;
+    long t;
+    for (i = 0; i < N; ++i) {{
+        double v = 0.0;
+        for (t = 0L; t < M; ++t) {{
+            v += z[(t * N) + i];
+        }}
+        zbar[i] = (M > 0L) ? (v / (double)M) : 0.0;
+    }}
+    for (i = 0; i < S; ++i) {{
+        double v = 0.0;
+        for (t = 0L; t < M; ++t) {{
+            v += g[(t * S) + i];
+        }}
+        gbar[i] = (M > 0L) ? (v / (double)M) : 0.0;
+    }}
+    {p}_update_mean(s, zbar, gbar, M, active, frozen, info);
+}}
+
+/* the update on the window's means zbar (N), gbar (NB x N) of M samples */
+void {p}_update_mean({p} *s, const double *zbar, const double *gbar, long M, const unsigned char *active,
+                     const unsigned char *frozen, {p}_update_info *info)
+{{
+    double V[R * N], H[R * S], nu[R], Sm[R * R], y[R];
     double *PHt = s->work[0];  /* S x R, row stride R */
     double *K = s->work[1];    /* S x R, row stride R */
     double *J = s->work[2];
     int i, j, k, l, r, all = 1;
-    long t;
     r = {p}_parity(active, V);
     info->accepted = 0;
     info->d2 = 0.0;
@@ -318,20 +352,6 @@ void {p}_update({p} *s, const double *z, const double *g, long M, const unsigned
     info->gate = HUGE_VAL;
     if ((M < 1L) || (r < 1)) {{
         return;
-    }}
-    for (i = 0; i < N; ++i) {{
-        double v = 0.0;
-        for (t = 0L; t < M; ++t) {{
-            v += z[(t * N) + i];
-        }}
-        zbar[i] = v / (double)M;
-    }}
-    for (i = 0; i < S; ++i) {{
-        double v = 0.0;
-        for (t = 0L; t < M; ++t) {{
-            v += g[(t * S) + i];
-        }}
-        gbar[i] = v / (double)M;
     }}
     /* H = Vz diag(gbar_b) per block, Vz = V diag(1 / sigma); nu = Vz zbar - H theta */
     for (k = 0; k < r; ++k) {{
@@ -546,7 +566,268 @@ void {p}_terms(const {p} *s, double *values, double *sigmas)
 """
 
 
-def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc") -> tuple[str, str]:
+_LOOP_HEADER = """
+/* ---- the runtime's loop around the tracker (rimu.fdi.selfcal.SelfCalLoop), {rate} Hz */
+#define {P}_WIN {M}L      /* samples per window (window_s * sample_rate) */
+#define {P}_SPAN {span}   /* windows the detector's sum spans, + 1 */
+#define {P}_NPEND {npend}  /* the most windows held (hold_s): a full hold absorbs its oldest early */
+
+typedef struct {{
+    double t, z[{P}_N], g[{P}_S];   /* the window's end, its mean outputs and regressors */
+    unsigned char act[{P}_N];
+}} {p}_window;
+
+/* The loop's state. Zero-initialise it (or call {p}_loop_reset). */
+typedef struct {{
+    {p} s;                          /* the tracker's state (valid once started) */
+    int started;
+    long k;                         /* samples in the current window */
+    int flag;                       /* the window saw an alarm or a statistic above the watch level */
+    double t_end, th[{P}_S];        /* the last sample's time; the state's terms the window corrects with */
+    double zs[{P}_N], gs[{P}_S], g2[{P}_S];  /* sums over the window */
+    unsigned char ok[{P}_N];        /* valid on every sample of the window */
+    double g_last[{P}_S];           /* the previous window's rms regressors (signed) */
+    int have_last;
+    double recent[{P}_SPAN][{P}_N * {P}_N];  /* correction covariances of the windows the detector spans */
+    int nrecent, next_recent;
+    {p}_window pend[{P}_NPEND];
+    int npend, first;
+    long accepted, rejected, discarded;
+    double last_correction[{P}_N];
+}} {p}_loop;
+
+void {p}_loop_reset({p}_loop *L);
+int {p}_loop_correct({p}_loop *L, const double *y, const unsigned char *valid, double t, const double *temperature,
+                     double *out, double *sigma_c);
+void {p}_loop_observe({p}_loop *L, int alarm, double statistic, int dof, const unsigned char *isolated);
+"""
+
+_LOOP_SOURCE = r"""
+/* ======================================================================== the loop (SelfCalLoop) */
+void {p}_loop_reset({p}_loop *L)
+{{
+    unsigned char *b = (unsigned char *)L;
+    size_t i;
+    for (i = 0; i < sizeof *L; ++i) {{
+        b[i] = 0u;
+    }}
+}}
+
+/* the correction covariance of regressors g with the state predicted dt ahead (without changing the state) */
+static void {p}_cov_ahead(const {p} *s, const double *g, double dt, double *C)
+{{
+    double B[N * S], T[N * S];
+    int i, j, l;
+    for (i = 0; i < N; ++i) {{
+        for (j = 0; j < S; ++j) {{
+            B[(i * S) + j] = {p}_Pi[(i * N) + (j % N)] * g[j];
+        }}
+    }}
+    for (i = 0; i < N; ++i) {{
+        for (j = 0; j < S; ++j) {{
+            double v = 0.0;
+            for (l = 0; l < S; ++l) {{
+                double p = AT(s->P, l, j);
+                if (l == j) {{
+                    p += {p}_q[l] * dt;
+                }}
+                v += B[(i * S) + l] * p;
+            }}
+            T[(i * S) + j] = v;
+        }}
+    }}
+    for (i = 0; i < N; ++i) {{
+        for (j = 0; j < N; ++j) {{
+            double v = 0.0;
+            for (l = 0; l < S; ++l) {{
+                v += T[(i * S) + l] * B[(j * S) + l];
+            }}
+            C[(i * N) + j] = v;
+        }}
+    }}
+}}
+
+/* SelfCalLoop.correct: the compensated raw outputs y (N) of one epoch corrected by the tracked terms, out = y - c / SF
+ * (valid: NULL all; temperature, degC: NULL when there is none; NaN invalidates the epoch). At a window's
+ * first sample it returns 1 and writes sigma_c (N x N, SI^2): the covariance the detector's thresholds carry from
+ * now on (TrackedGltWindow.set_tracker_covariance); else 0. */
+int {p}_loop_correct({p}_loop *L, const double *y, const unsigned char *valid, double t, const double *temperature,
+                     double *out, double *sigma_c)
+{{
+    double z[N], u[3] = {{0.0, 0.0, 0.0}}, g[S], c[N], T = (temperature != NULL) ? *temperature : {p}_tref;
+    unsigned char ok[N];
+    int i, j, all = 1, fresh = 0;
+    if (L->started == 0) {{
+        {p}_init(&L->s, t);
+        L->started = 1;
+    }}
+    for (i = 0; i < N; ++i) {{
+        ok[i] = (((valid == NULL) || (valid[i] != 0u)) && (isfinite(y[i]) != 0)) ? 1u : 0u;
+    }}
+    if (temperature != NULL) {{
+        if (isfinite(T) == 0) {{
+            for (i = 0; i < N; ++i) {{
+                ok[i] = 0u;
+            }}
+            T = {p}_tref;
+        }}
+    }}
+    for (i = 0; i < N; ++i) {{
+        z[i] = (ok[i] != 0u) ? ((y[i] * {p}_sf[i]) - {p}_b[i]) : 0.0;
+        if (ok[i] == 0u) {{
+            all = 0;
+        }}
+    }}
+    if (all != 0) {{
+        for (j = 0; j < 3; ++j) {{
+            double v = 0.0;
+            for (i = 0; i < N; ++i) {{
+                v += z[i] * {p}_G[(j * N) + i];
+            }}
+            u[j] = v;
+        }}
+    }}
+    {p}_regressors(u, T, g);
+    if (L->k == 0L) {{  /* a new window: the state's terms, and the detector's covariance */
+        for (i = 0; i < S; ++i) {{
+            L->th[i] = L->s.theta[i];
+            L->zs[i % N] = 0.0;
+            L->gs[i] = 0.0;
+            L->g2[i] = 0.0;
+        }}
+        for (i = 0; i < N; ++i) {{
+            L->ok[i] = 1u;
+        }}
+        if ({p}_detector != 0) {{
+            double ahead = t + {p}_window_s, dt;
+            int best = 0, r;
+            double tbest = -1.0;
+            if (ahead < L->s.t) {{
+                ahead = L->s.t;
+            }}
+            dt = ahead - L->s.t;
+            {p}_cov_ahead(&L->s, (L->have_last != 0) ? L->g_last : g, dt, L->recent[L->next_recent]);
+            L->next_recent = (L->next_recent + 1) % {P}_SPAN;
+            if (L->nrecent < {P}_SPAN) {{
+                L->nrecent += 1;
+            }}
+            /* the largest trace, the oldest first on a tie (Python's max over the list, oldest first) */
+            for (r = 0; r < L->nrecent; ++r) {{
+                int idx = (L->next_recent - L->nrecent + r + (2 * {P}_SPAN)) % {P}_SPAN;
+                double tr = 0.0;
+                for (i = 0; i < N; ++i) {{
+                    tr += L->recent[idx][(i * N) + i];
+                }}
+                if ((r == 0) || (tr > tbest)) {{
+                    tbest = tr;
+                    best = idx;
+                }}
+            }}
+            for (i = 0; i < (N * N); ++i) {{
+                sigma_c[i] = L->recent[best][i];
+            }}
+            fresh = 1;
+        }}
+        L->flag = 0;
+    }}
+    for (i = 0; i < N; ++i) {{
+        double v = 0.0;
+        int b;
+        for (b = 0; b < NB; ++b) {{
+            v += g[(b * N) + i] * L->th[(b * N) + i];
+        }}
+        c[i] = v;
+    }}
+    for (i = 0; i < N; ++i) {{
+        double v = 0.0;
+        for (j = 0; j < N; ++j) {{
+            v += {p}_Pi[(i * N) + j] * c[j];
+        }}
+        L->last_correction[i] = v;
+        out[i] = y[i] - (v / {p}_sf[i]);
+        L->zs[i] += z[i];
+        if (ok[i] == 0u) {{
+            L->ok[i] = 0u;
+        }}
+    }}
+    for (i = 0; i < S; ++i) {{
+        L->gs[i] += g[i];
+        L->g2[i] += g[i] * g[i];
+    }}
+    L->t_end = t;
+    return fresh;
+}}
+
+/* absorb the oldest held window: predicted to its end, its sensors not active or isolated now frozen (Schmidt) */
+static void {p}_absorb({p}_loop *L, const unsigned char *isolated)
+{{
+    const {p}_window *w = &L->pend[L->first];
+    unsigned char frozen[N];
+    {p}_update_info info;
+    int i;
+    for (i = 0; i < N; ++i) {{
+        frozen[i] = ((w->act[i] == 0u) || (isolated[i] != 0u)) ? 1u : 0u;
+    }}
+    if (w->t > L->s.t) {{
+        (void){p}_predict(&L->s, w->t);
+    }}
+    {p}_update_mean(&L->s, w->z, w->g, {P}_WIN, w->act, frozen, &info);
+    L->accepted += (long)info.accepted;
+    if ((info.accepted == 0) && (info.gate < HUGE_VAL)) {{
+        L->rejected += 1L;
+    }}
+    L->first = (L->first + 1) % {P}_NPEND;
+    L->npend -= 1;
+}}
+
+/* SelfCalLoop.observe: after the manager's step on the corrected outputs, its alarm, statistic and parity dof,
+ * and the sensors it keeps isolated (N) */
+void {p}_loop_observe({p}_loop *L, int alarm, double statistic, int dof, const unsigned char *isolated)
+{{
+    double t = L->t_end, Md = (double){P}_WIN;
+    int i;
+    if ((alarm != 0) || ((dof >= 1) && (statistic > {p}_watch[(dof < {P}_NWATCH) ? dof : ({P}_NWATCH - 1)]))) {{
+        L->flag = 1;
+    }}
+    L->k += 1L;
+    if (L->k < {P}_WIN) {{
+        return;
+    }}
+    L->k = 0L;
+    for (i = 0; i < S; ++i) {{
+        double mean = L->gs[i] / Md, rms = sqrt(L->g2[i] / Md), sg = mean + 1e-300;
+        L->g_last[i] = (sg > 0.0) ? rms : ((sg < 0.0) ? -rms : 0.0);
+    }}
+    L->have_last = 1;
+    if (L->flag != 0) {{
+        L->discarded += (long)L->npend + 1L;
+        L->npend = 0;
+        L->first = 0;
+    }} else {{
+        {p}_window *w;
+        if (L->npend == {P}_NPEND) {{  /* more held than hold_s allows at the nominal rate: absorb the oldest now */
+            {p}_absorb(L, isolated);
+        }}
+        w = &L->pend[(L->first + L->npend) % {P}_NPEND];
+        w->t = t;
+        for (i = 0; i < N; ++i) {{
+            w->z[i] = L->zs[i] / Md;
+            w->act[i] = ((L->ok[i] != 0u) && (isolated[i] == 0u)) ? 1u : 0u;
+        }}
+        for (i = 0; i < S; ++i) {{
+            w->g[i] = L->gs[i] / Md;
+        }}
+        L->npend += 1;
+    }}
+    while ((L->npend > 0) && (L->pend[L->first].t <= (t - {p}_hold_s))) {{
+        {p}_absorb(L, isolated);
+    }}
+}}
+"""
+
+
+def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc", sample_rate: float | None = None,
+              detector_window: int | None = None) -> tuple[str, str]:
     """The header and the source (C99, double) of ``tracker``'s Kalman filter, functions named ``prefix_*``.
 
     Parameters
@@ -554,6 +835,11 @@ def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc") -> tuple[str, st
     tracker : rimu.fdi.selfcal.SelfCalTracker
     prefix : str
         A C identifier: the functions' and types' prefix (``RIMU_SC_N``... for the sizes: its upper case).
+    sample_rate : float, optional
+        Hz: with it, the runtime's loop around the tracker too (``prefix_loop_*``, :class:`SelfCalLoop`).
+    detector_window : int, optional
+        The loop's detector is a :class:`rimu.fdi.selfcal.TrackedGltWindow` of this many samples (it gets the
+        tracker's covariance at every window's start); None: no detector to inform.
 
     Returns
     -------
@@ -566,21 +852,22 @@ def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc") -> tuple[str, st
     >>> from rimu.fdi.selfcal import SelfCalSettings
     >>> from rimu.geometry import cone6
     >>> cal = InstrumentCalibration.nominal("gyro", cone6(), 1.0, noise_sigma=0.01)
-    >>> h, c = selfcal_c(SelfCalTracker(cal, SelfCalSettings(bias_rw=1e-6, scale_rw=1e-8)))
-    >>> "#define RIMU_SC_S (RIMU_SC_N * RIMU_SC_M)" in h, "rimu_sc_update" in c
-    (True, True)
+    >>> h, c = selfcal_c(SelfCalTracker(cal, SelfCalSettings(bias_rw=1e-6, scale_rw=1e-8)), sample_rate=100.0)
+    >>> "#define RIMU_SC_S (RIMU_SC_N * RIMU_SC_M)" in h, "rimu_sc_update" in c, "#define RIMU_SC_WIN 100L" in h
+    (True, True, True)
     """
     if not prefix.isidentifier():
         raise ExportError(f"the prefix must be a C identifier, got {prefix!r}")
     trk = tracker
+    st = trk.settings
     n, m = trk.n, trk.m
     P = prefix.upper()
     order = [-1 if b == "scale" else (0 if b == "bias" else int(b[2])) for b in trk.blocks]
     assert set(trk.blocks) <= set(BLOCKS)
-    gates = [0.0] + [float(stats.chi2.isf(trk.settings.gate_p, r)) for r in range(1, max(n - 3, 1) + 1)]
+    gates = [0.0] + [float(stats.chi2.isf(st.gate_p, r)) for r in range(1, max(n - 3, 1) + 1)]
     header = _HEADER.format(guard=f"{P}_H", P=P, p=prefix, n=n, m=m, blocks=", ".join(trk.blocks),
-                            what=f"{trk.calibration.instrument}, {n} sensors, gate_p={trk.settings.gate_p!r}")
-    consts = "\n".join([
+                            what=f"{trk.calibration.instrument}, {n} sensors, gate_p={st.gate_p!r}")
+    consts = [
         f'#include "{prefix}.h"',
         "#include <math.h>",
         "#include <stddef.h>",
@@ -594,8 +881,32 @@ def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc") -> tuple[str, st
         f"static const double {prefix}_p0[{n * m}] = {_array(trk.p0)};",
         f"/* per block: -1 scale, 0 bias, k temperature order k */\n"
         f"static const int {prefix}_order[{m}] = {{{', '.join(str(o) for o in order)}}};",
-        f"static const double {prefix}_tref = {_num(trk.settings.reference_temperature)};  /* degC */",
+        f"static const double {prefix}_tref = {_num(st.reference_temperature)};  /* degC */",
         f"/* the gate chi2_(1 - gate_p)(r) by parity dimension r (entry 0 unused) */\n"
         f"static const double {prefix}_gate[{len(gates)}] = {_array(gates)};",
-    ])
-    return header, consts + _SOURCE.format(p=prefix, P=P)
+    ]
+    source = _SOURCE.format(p=prefix, P=P)
+    if sample_rate is not None:
+        if not (sample_rate > 0 and np.isfinite(sample_rate)):
+            raise ExportError(f"sample_rate must be positive (Hz), got {sample_rate}")
+        M = max(1, int(round(st.window_s * float(sample_rate))))
+        span = 1 if detector_window is None else int(np.ceil(int(detector_window) / M)) + 1
+        npend = int(np.ceil(st.hold_s * float(sample_rate) / M)) + 2
+        watch = [0.0] + [float(stats.chi2.isf(st.watch_p, d)) for d in range(1, max(n - 3, 1) + 1)]
+        cal = trk.calibration
+        header = header.replace("\n#endif\n", _LOOP_HEADER.format(P=P, p=prefix, M=M, span=span, npend=npend,
+                                                                   rate=f"{float(sample_rate)!r}") + "\n#endif\n")
+        consts += [
+            "/* the loop: the fusion's weighted least squares G (3 x N), scale factor (SI per raw unit), bias (SI) */",
+            f"static const double {prefix}_G[3 * {n}] = {_array(trk.G)};",
+            f"static const double {prefix}_sf[{n}] = {_array(cal.scale)};",
+            f"static const double {prefix}_b[{n}] = {_array(cal.bias)};",
+            f"static const double {prefix}_window_s = {_num(st.window_s)};  /* s */",
+            f"static const double {prefix}_hold_s = {_num(st.hold_s)};  /* s */",
+            f"static const int {prefix}_detector = {0 if detector_window is None else 1};",
+            f"#define {P}_NWATCH {len(watch)}",
+            f"/* the watch level chi2_(1 - watch_p)(dof) by dof (entry 0 unused) */\n"
+            f"static const double {prefix}_watch[{P}_NWATCH] = {_array(watch)};",
+        ]
+        source += _LOOP_SOURCE.format(P=P, p=prefix)
+    return header, "\n".join(consts) + source

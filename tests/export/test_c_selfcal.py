@@ -17,7 +17,10 @@ import pytest
 
 from rimu.calibration import InstrumentCalibration
 from rimu.export.c_selfcal import selfcal_c
-from rimu.fdi.selfcal import SelfCalSettings, SelfCalTracker
+from rimu.fdi import RedundancyManager
+from rimu.fdi.health import SensorState
+from rimu.fdi.selfcal import SelfCalLoop, SelfCalSettings, SelfCalTracker, TrackedGltWindow
+from rimu.fusion import InstrumentPipeline
 from rimu.geometry import cone6, triads
 
 CC = shutil.which("cc") or shutil.which("gcc")
@@ -200,3 +203,140 @@ def test_tracker_c_matches_python_triads_bias_only(tmp_path):
     trk = SelfCalTracker(cal, SelfCalSettings(bias_rw=1e-5, bias_sigma0=0.01, gate_p=1e-3))
     w = _compare(trk, _build(trk, tmp_path), seed=2)
     assert w["accepted"] >= 35 and w["rejected"] >= 1
+
+
+_LOOP_MAIN = r"""
+#include <stdio.h>
+#include <string.h>
+#include "rimu_sc.h"
+
+static rimu_sc_loop L;
+static rimu_sc ahead;
+
+static void dump(const double *v, int k)
+{
+    int i;
+    for (i = 0; i < k; ++i) {
+        printf("%.17g ", v[i]);
+    }
+}
+
+int main(void)
+{
+    double t, T, y[RIMU_SC_N], out[RIMU_SC_N], C[RIMU_SC_N * RIMU_SC_N], stat, vals[RIMU_SC_S], sig[RIMU_SC_S];
+    int i, a, alarm, dof;
+    unsigned char valid[RIMU_SC_N], iso[RIMU_SC_N];
+    rimu_sc_loop_reset(&L);
+    while (scanf("%lf %lf", &t, &T) == 2) {
+        for (i = 0; i < RIMU_SC_N; ++i) { if (scanf("%lf", &y[i]) != 1) return 1; }
+        for (i = 0; i < RIMU_SC_N; ++i) { if (scanf("%d", &a) != 1) return 1; valid[i] = (unsigned char)a; }
+        if (scanf("%d %lf %d", &alarm, &stat, &dof) != 3) return 1;
+        for (i = 0; i < RIMU_SC_N; ++i) { if (scanf("%d", &a) != 1) return 1; iso[i] = (unsigned char)a; }
+        if (rimu_sc_loop_correct(&L, y, valid, t, &T, out, C) != 0) {
+            printf("C ");
+            dump(C, RIMU_SC_N * RIMU_SC_N);
+            printf("\n");
+        }
+        printf("Y ");
+        dump(out, RIMU_SC_N);
+        printf("\n");
+        rimu_sc_loop_observe(&L, alarm, stat, dof, iso);
+        if (L.k == 0L) {
+            memcpy(&ahead, &L.s, sizeof ahead);
+            if (t > ahead.t) {
+                (void)rimu_sc_predict(&ahead, t);
+            }
+            rimu_sc_terms(&ahead, vals, sig);
+            printf("W ");
+            dump(vals, RIMU_SC_S);
+            dump(sig, RIMU_SC_S);
+            dump(L.s.theta, RIMU_SC_S);
+            printf("%ld %ld %ld\n", L.accepted, L.rejected, L.discarded);
+        }
+    }
+    return 0;
+}
+"""
+
+
+class _Spy(TrackedGltWindow):
+    """The runtime's detector, remembering the tracker covariances it is given."""
+
+    def __init__(self, *a, **k) -> None:
+        super().__init__(*a, **k)
+        self.given: list[np.ndarray] = []
+
+    def set_tracker_covariance(self, sigma_c):
+        self.given.append(np.array(sigma_c, dtype=float))
+        super().set_tracker_covariance(sigma_c)
+
+
+@needs_cc
+def test_loop_c_matches_selfcalloop_with_a_step_fault(tmp_path):
+    """SelfCalLoop around a real manager (window GLT with the tracker's covariance) on a cone6 flight: drifting
+    biases, a 30 K ramp with first- to third-order coefficients, a step on sensor 3 at 40 s (alarm, windows thrown
+    away, isolation, the sensor frozen). The C loop is fed the manager's decisions and must give the same corrected
+    outputs, the same covariance to the detector at every window's start, the same held/absorbed/discarded windows
+    and the same tracked terms, sigmas and state after every window (1e-12)."""
+    fs, N, n = 100.0, 6000, 6
+    sig = np.full(n, 0.01)
+    cal = InstrumentCalibration.nominal("gyro", cone6(), 1.0, noise_sigma=sig)
+    st = SelfCalSettings(bias_rw=4e-7, bias_sigma0=0.004, scale_rw=1e-9, scale_sigma0=5e-4,
+                         temperature_sigma=[1e-4, 5e-6, 2e-7], window_s=0.5, hold_s=2.0)
+    trk = SelfCalTracker(cal, st)
+    M = int(round(st.window_s * fs))
+    det = _Spy(M, 1e-4)
+    mgr = RedundancyManager(InstrumentPipeline(cal), det, p_fa=1e-4, sample_rate=fs)
+    loop = SelfCalLoop(trk, fs, det, history=True)
+    rng = np.random.default_rng(5)
+    t = np.arange(N) / fs
+    T = 10.0 + 30.0 * t / t[-1]
+    u = np.column_stack([0.5 * np.sin(0.7 * t + i) for i in range(3)])
+    drift = np.cumsum(rng.standard_normal((N, n)) * np.sqrt(3 * 4e-7 / fs), axis=0) + rng.normal(0, 0.004, n)
+    coef = np.array([rng.normal(0, s, n) for s in st.temperature_sigma])
+    Y = u @ cal.axes_mb().T + drift + sum(((T - 25.0) ** (k + 1))[:, None] * coef[k] for k in range(3))
+    Y += rng.standard_normal((N, n)) * sig
+    Y[t >= 40.0, 2] += 0.08                                           # the step fault, 8 sigma
+    valid = np.ones((N, n), bool)
+    valid[1000:1003, 4] = False                                       # a glitch: invalid for 3 samples
+    lines, ref_y, ref_c, ref_w = [], [], [], []
+    for k in range(N):
+        given = len(det.given)
+        yk = loop.correct(Y[k], valid[k], float(t[k]), float(T[k]))
+        if len(det.given) > given:
+            ref_c.append(det.given[-1])
+        r = mgr.step(yk, valid[k], float(t[k]))
+        iso = mgr.sensors.state >= SensorState.ISOLATED
+        h0 = len(loop.history)
+        loop.observe(r, iso)
+        ref_y.append(yk)
+        if len(loop.history) > h0:
+            ref_w.append(loop.history[-1])
+        lines.append(f"{float(t[k])!r} {float(T[k])!r} {_f(Y[k])} {' '.join(str(int(v)) for v in valid[k])} "
+                     f"{int(r.alarm)} {float(r.statistic)!r} {int(r.dof)} {' '.join(str(int(v)) for v in iso)}")
+    assert np.flatnonzero(mgr.sensors.state >= SensorState.ISOLATED).tolist() == [2] and loop.discarded >= 1 and loop.accepted >= 50
+    h, c = selfcal_c(trk, "rimu_sc", fs, M)
+    (tmp_path / "rimu_sc.h").write_text(h)
+    (tmp_path / "rimu_sc.c").write_text(c)
+    (tmp_path / "main.c").write_text(_LOOP_MAIN)
+    res = subprocess.run([CC, *CFLAGS, "-o", str(tmp_path / "loop"), str(tmp_path / "main.c"),
+                          str(tmp_path / "rimu_sc.c"), "-lm"], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    out = subprocess.run([str(tmp_path / "loop")], input="\n".join(lines) + "\n", capture_output=True, text=True,
+                         check=True).stdout.splitlines()
+    got = {"Y": [], "C": [], "W": []}
+    for line in out:
+        got[line[0]].append(np.array([float(v) for v in line[2:].split()]))
+    assert len(got["Y"]) == N and len(got["C"]) == len(ref_c) == N // M and len(got["W"]) == len(ref_w) == N // M
+    err_y = max(float(np.abs(a - b).max()) for a, b in zip(got["Y"], ref_y, strict=True))
+    assert err_y <= 1e-12 * 0.01                                      # SI (rad/s): 1e-12 of the noise
+    for a, b in zip(got["C"], ref_c, strict=True):
+        _close(a, b, "the detector's covariance")
+    S = trk.m * n
+    for a, (_, vals, sigs, theta) in zip(got["W"], ref_w, strict=True):
+        for b in range(trk.m):
+            blk = slice(b * n, (b + 1) * n)
+            _close(a[:S][blk], vals[b], f"terms[{trk.blocks[b]}]")
+            _close(a[S:2 * S][blk], sigs[b], f"sigmas[{trk.blocks[b]}]")
+            _close(a[2 * S:3 * S][blk], theta[blk], f"theta[{trk.blocks[b]}]")
+    assert tuple(int(v) for v in a[3 * S:]) == (loop.accepted, loop.rejected, loop.discarded)
