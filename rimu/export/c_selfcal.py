@@ -31,9 +31,13 @@ level, the others held ``hold_s`` and then absorbed with the sensors isolated th
 only their means (all the update uses), in a ring of ``ceil(hold_s * rate / M) + 2`` (with regular sampling never
 full; full, the oldest is absorbed early).
 
-Not generated yet: the window GLT with the tracker's covariance in the exported manager (rimu_fdi_run has the
-snapshot GLT), and :func:`rimu.export.export_c` does not include the tracker: the loop is fed the manager's
-decisions by its caller (tests/export/test_c_selfcal.py feeds it Python's).
+With ``detector_window`` and ``p_fa`` the loop's detector too (``<p>_glt_*``, :class:`TrackedGltWindow`): the
+window sum of the normalised parity and its statistic ``S^T (I + W Vz Sigma_c Vz^T)^-1 S / count`` (``|L S|^2 /
+count`` in Python, the same in any orthonormal parity basis), thresholds ``chi2_{1-p_fa}(dof)`` tabulated.
+
+Not done yet: :func:`rimu.export.export_c` does not include any of this (the exported manager, rimu_fdi_run, runs
+the snapshot GLT, and its filter has no tracker); the kernels are fed the manager's decisions by their caller
+(tests/export/test_c_selfcal.py feeds them Python's).
 """
 
 from __future__ import annotations
@@ -826,8 +830,132 @@ void {p}_loop_observe({p}_loop *L, int alarm, double statistic, int dof, const u
 """
 
 
+_GLT_HEADER = '''
+/* ---- the window GLT with the tracker's covariance in its thresholds (rimu.fdi.selfcal.TrackedGltWindow) */
+#define {P}_GLT_WINDOW {W}
+typedef struct {{
+    double V[{P}_N * {P}_N];        /* orthonormal parity rows of the active set (whitened), r of them */
+    int r;
+    double buf[{P}_GLT_WINDOW][{P}_N], sum[{P}_N];
+    int k, count, have_cov;
+    double sigma_c[{P}_N * {P}_N];   /* the tracker's correction covariance, SI^2 */
+}} {p}_glt;
+
+void {p}_glt_configure({p}_glt *G, const unsigned char *active);
+void {p}_glt_set_covariance({p}_glt *G, const double *sigma_c);
+double {p}_glt_update({p}_glt *G, const double *z, double *threshold);
+'''
+
+_GLT_SOURCE = r'''
+/* ======================================================================== the window GLT (TrackedGltWindow) */
+/* a new active set: its parity rows, the window forgotten (GltWindow.configure) */
+void {p}_glt_configure({p}_glt *G, const unsigned char *active)
+{{
+    int i, j;
+    G->r = {p}_parity(active, G->V);
+    for (i = 0; i < {P}_GLT_WINDOW; ++i) {{
+        for (j = 0; j < N; ++j) {{
+            G->buf[i][j] = 0.0;
+        }}
+    }}
+    for (j = 0; j < N; ++j) {{
+        G->sum[j] = 0.0;
+    }}
+    G->k = 0;
+    G->count = 0;
+}}
+
+/* the tracker's covariance from now on (the window's sums are kept) */
+void {p}_glt_set_covariance({p}_glt *G, const double *sigma_c)
+{{
+    int i;
+    for (i = 0; i < (N * N); ++i) {{
+        G->sigma_c[i] = sigma_c[i];
+    }}
+    G->have_cov = 1;
+}}
+
+/* one sample's compensated outputs z (N, SI; those of inactive sensors ignored): the statistic
+ * S^T (I + W Vz Sigma_c Vz^T)^-1 S / count of the window sum S of the normalised parity (= |L S|^2 / count, L the
+ * inverse Cholesky factor: the same in any orthonormal parity basis), and its threshold chi2_(1-p_fa)(r)
+ * (HUGE_VAL and 0 without parity) */
+double {p}_glt_update({p}_glt *G, const double *z, double *threshold)
+{{
+    double p[R], old[R], C[R * R], x[R], stat = 0.0;
+    int i, j, l, d = G->r, k = G->k;
+    *threshold = HUGE_VAL;
+    if (d < 1) {{
+        return 0.0;
+    }}
+    for (i = 0; i < d; ++i) {{
+        double v = 0.0;
+        for (j = 0; j < N; ++j) {{
+            v += G->V[(i * N) + j] * {p}_w[j] * z[j];
+        }}
+        p[i] = v;
+        old[i] = G->buf[k][i];
+        G->buf[k][i] = v;
+        G->sum[i] += p[i] - old[i];
+    }}
+    k += 1;
+    if (k == {P}_GLT_WINDOW) {{  /* refresh the running sum once per turn (no drift) */
+        k = 0;
+        for (i = 0; i < d; ++i) {{
+            double v = 0.0;
+            for (j = 0; j < {P}_GLT_WINDOW; ++j) {{
+                v += G->buf[j][i];
+            }}
+            G->sum[i] = v;
+        }}
+    }}
+    G->k = k;
+    if (G->count < {P}_GLT_WINDOW) {{
+        G->count += 1;
+    }}
+    *threshold = {p}_thr_det[d];
+    if (G->have_cov == 0) {{
+        for (i = 0; i < d; ++i) {{
+            stat += G->sum[i] * G->sum[i];
+        }}
+        return stat / (double)G->count;
+    }}
+    /* C = I + W (V D) Sigma_c (V D)^T, D = diag(1 / sigma) */
+    for (i = 0; i < d; ++i) {{
+        for (j = 0; j <= i; ++j) {{
+            double v = 0.0;
+            int a;
+            for (a = 0; a < N; ++a) {{
+                double row = 0.0;
+                for (l = 0; l < N; ++l) {{
+                    row += G->sigma_c[(a * N) + l] * G->V[(j * N) + l] * {p}_w[l];
+                }}
+                v += G->V[(i * N) + a] * {p}_w[a] * row;
+            }}
+            v *= (double){P}_GLT_WINDOW;
+            if (i == j) {{
+                v += 1.0;
+            }}
+            C[(i * R) + j] = v;
+            C[(j * R) + i] = v;
+        }}
+    }}
+    if ({p}_chol(C, d) == 0) {{
+        return HUGE_VAL;
+    }}
+    for (i = 0; i < d; ++i) {{
+        x[i] = G->sum[i];
+    }}
+    {p}_cholsolve(C, d, x);
+    for (i = 0; i < d; ++i) {{
+        stat += G->sum[i] * x[i];
+    }}
+    return stat / (double)G->count;
+}}
+'''
+
+
 def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc", sample_rate: float | None = None,
-              detector_window: int | None = None) -> tuple[str, str]:
+              detector_window: int | None = None, p_fa: float | None = None) -> tuple[str, str]:
     """The header and the source (C99, double) of ``tracker``'s Kalman filter, functions named ``prefix_*``.
 
     Parameters
@@ -840,6 +968,8 @@ def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc", sample_rate: flo
     detector_window : int, optional
         The loop's detector is a :class:`rimu.fdi.selfcal.TrackedGltWindow` of this many samples (it gets the
         tracker's covariance at every window's start); None: no detector to inform.
+    p_fa : float, optional
+        With ``detector_window``: that detector as C too (``prefix_glt_*``), thresholds ``chi2_{1-p_fa}(dof)``.
 
     Returns
     -------
@@ -909,4 +1039,10 @@ def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc", sample_rate: flo
             f"static const double {prefix}_watch[{P}_NWATCH] = {_array(watch)};",
         ]
         source += _LOOP_SOURCE.format(P=P, p=prefix)
+    if detector_window is not None and p_fa is not None:
+        thr = [0.0] + [float(stats.chi2.isf(p_fa, d)) for d in range(1, max(n - 3, 1) + 1)]
+        header = header.replace("\n#endif\n", _GLT_HEADER.format(P=P, p=prefix, W=int(detector_window)) + "\n#endif\n")
+        consts += [f"/* the detector's thresholds chi2_(1 - p_fa)(dof), p_fa = {p_fa!r} (entry 0 unused) */\n"
+                   f"static const double {prefix}_thr_det[{len(thr)}] = {_array(thr)};"]
+        source += _GLT_SOURCE.format(P=P, p=prefix)
     return header, "\n".join(consts) + source

@@ -212,6 +212,7 @@ _LOOP_MAIN = r"""
 
 static rimu_sc_loop L;
 static rimu_sc ahead;
+static rimu_sc_glt G;
 
 static void dump(const double *v, int k)
 {
@@ -224,18 +225,32 @@ static void dump(const double *v, int k)
 int main(void)
 {
     double t, T, y[RIMU_SC_N], out[RIMU_SC_N], C[RIMU_SC_N * RIMU_SC_N], stat, vals[RIMU_SC_S], sig[RIMU_SC_S];
-    int i, a, alarm, dof;
-    unsigned char valid[RIMU_SC_N], iso[RIMU_SC_N];
+    int i, a, alarm, dof, cfg;
+    unsigned char valid[RIMU_SC_N], iso[RIMU_SC_N], act[RIMU_SC_N];
     rimu_sc_loop_reset(&L);
     while (scanf("%lf %lf", &t, &T) == 2) {
         for (i = 0; i < RIMU_SC_N; ++i) { if (scanf("%lf", &y[i]) != 1) return 1; }
         for (i = 0; i < RIMU_SC_N; ++i) { if (scanf("%d", &a) != 1) return 1; valid[i] = (unsigned char)a; }
         if (scanf("%d %lf %d", &alarm, &stat, &dof) != 3) return 1;
         for (i = 0; i < RIMU_SC_N; ++i) { if (scanf("%d", &a) != 1) return 1; iso[i] = (unsigned char)a; }
+        if (scanf("%d", &cfg) != 1) return 1;
+        for (i = 0; i < RIMU_SC_N; ++i) { if (scanf("%d", &a) != 1) return 1; act[i] = (unsigned char)a; }
         if (rimu_sc_loop_correct(&L, y, valid, t, &T, out, C) != 0) {
             printf("C ");
             dump(C, RIMU_SC_N * RIMU_SC_N);
             printf("\n");
+            rimu_sc_glt_set_covariance(&G, C);
+        }
+        if (cfg != 0) {
+            rimu_sc_glt_configure(&G, act);
+        }
+        {
+            double zz[RIMU_SC_N], thr, st;
+            for (i = 0; i < RIMU_SC_N; ++i) {
+                zz[i] = (act[i] != 0u) ? out[i] : 0.0;  /* nominal calibration: SF = 1, B = 0 */
+            }
+            st = rimu_sc_glt_update(&G, zz, &thr);
+            printf("S %.17g %.17g\n", st, thr);
         }
         printf("Y ");
         dump(out, RIMU_SC_N);
@@ -270,6 +285,14 @@ class _Spy(TrackedGltWindow):
         self.given.append(np.array(sigma_c, dtype=float))
         super().set_tracker_covariance(sigma_c)
 
+    def configure(self, Vz, dof):
+        self.configured = np.abs(np.asarray(Vz)[:max(dof, 0)]).sum(axis=0) > 0
+        super().configure(Vz, dof)
+
+    def update(self, parity):
+        self.last = super().update(parity)
+        return self.last
+
 
 @needs_cc
 def test_loop_c_matches_selfcalloop_with_a_step_fault(tmp_path):
@@ -299,13 +322,20 @@ def test_loop_c_matches_selfcalloop_with_a_step_fault(tmp_path):
     Y[t >= 40.0, 2] += 0.08                                           # the step fault, 8 sigma
     valid = np.ones((N, n), bool)
     valid[1000:1003, 4] = False                                       # a glitch: invalid for 3 samples
-    lines, ref_y, ref_c, ref_w = [], [], [], []
+    lines, ref_y, ref_c, ref_w, ref_s = [], [], [], [], []
+    det.configured = None
+    act = np.zeros(n, bool)
     for k in range(N):
         given = len(det.given)
         yk = loop.correct(Y[k], valid[k], float(t[k]), float(T[k]))
         if len(det.given) > given:
             ref_c.append(det.given[-1])
+        det.last = None
         r = mgr.step(yk, valid[k], float(t[k]))
+        cfg, det.configured = det.configured, None
+        if cfg is not None:
+            act = cfg
+        ref_s.append(det.last)
         iso = mgr.sensors.state >= SensorState.ISOLATED
         h0 = len(loop.history)
         loop.observe(r, iso)
@@ -313,9 +343,10 @@ def test_loop_c_matches_selfcalloop_with_a_step_fault(tmp_path):
         if len(loop.history) > h0:
             ref_w.append(loop.history[-1])
         lines.append(f"{float(t[k])!r} {float(T[k])!r} {_f(Y[k])} {' '.join(str(int(v)) for v in valid[k])} "
-                     f"{int(r.alarm)} {float(r.statistic)!r} {int(r.dof)} {' '.join(str(int(v)) for v in iso)}")
+                     f"{int(r.alarm)} {float(r.statistic)!r} {int(r.dof)} {' '.join(str(int(v)) for v in iso)} "
+                     f"{int(cfg is not None)} {' '.join(str(int(v)) for v in act)}")
     assert np.flatnonzero(mgr.sensors.state >= SensorState.ISOLATED).tolist() == [2] and loop.discarded >= 1 and loop.accepted >= 50
-    h, c = selfcal_c(trk, "rimu_sc", fs, M)
+    h, c = selfcal_c(trk, "rimu_sc", fs, M, 1e-4)
     (tmp_path / "rimu_sc.h").write_text(h)
     (tmp_path / "rimu_sc.c").write_text(c)
     (tmp_path / "main.c").write_text(_LOOP_MAIN)
@@ -324,9 +355,19 @@ def test_loop_c_matches_selfcalloop_with_a_step_fault(tmp_path):
     assert res.returncode == 0, res.stderr
     out = subprocess.run([str(tmp_path / "loop")], input="\n".join(lines) + "\n", capture_output=True, text=True,
                          check=True).stdout.splitlines()
-    got = {"Y": [], "C": [], "W": []}
+    got = {"Y": [], "C": [], "W": [], "S": []}
     for line in out:
         got[line[0]].append(np.array([float(v) for v in line[2:].split()]))
+    # the window GLT: the same statistic (1e-12 relative) and threshold, so the same alarms, on every sample
+    n_stat = alarms = 0
+    for (stat_c, thr_c), ref in zip(got["S"], ref_s, strict=True):
+        if ref is None:
+            continue
+        n_stat += 1
+        assert abs(stat_c - ref[0]) <= 1e-12 * max(1.0, abs(ref[0])) and thr_c == pytest.approx(ref[1], rel=1e-14)
+        assert (stat_c > thr_c) == (ref[0] > ref[1])
+        alarms += ref[0] > ref[1]
+    assert n_stat >= N - 10 and alarms >= 3
     assert len(got["Y"]) == N and len(got["C"]) == len(ref_c) == N // M and len(got["W"]) == len(ref_w) == N // M
     err_y = max(float(np.abs(a - b).max()) for a, b in zip(got["Y"], ref_y, strict=True))
     assert err_y <= 1e-12 * 0.01                                      # SI (rad/s): 1e-12 of the noise
