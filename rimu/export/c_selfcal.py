@@ -172,7 +172,8 @@ void {p}_regressors(const double *u, double temperature, double *g)
  * sensors (zero columns for the others); r = 0 when fewer than 4 are active or they do not span 3-D */
 static int {p}_parity(const unsigned char *act, double *V)
 {{
-    double Nm[9] = {{0.0}}, L[9] = {{0.0}}, Q[N * N], Aw[N * 3];
+    double Nm[9] = {{0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0}}, L[9] = {{0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0}};
+    double Q[N * N], Aw[N * 3];
     int i, j, k, c, na = 0, r = 0;
     for (i = 0; i < N; ++i) {{
         for (c = 0; c < 3; ++c) {{
@@ -212,7 +213,7 @@ static int {p}_parity(const unsigned char *act, double *V)
     }}
     /* Q = I - Aw (L L^T)^-1 Aw^T: with Y = Aw L^-T, Q = I - Y Y^T */
     for (i = 0; i < N; ++i) {{
-        double y[3];
+        double y[3] = {{0.0, 0.0, 0.0}};
         for (j = 0; j < 3; ++j) {{
             double v = Aw[(3 * i) + j];
             for (k = 0; k < j; ++k) {{
@@ -415,8 +416,11 @@ void {p}_update_mean({p} *s, const double *zbar, const double *gbar, long M, con
     /* K = P H^T S^-1: rows of PHt solved; the rows of frozen or inactive sensors zero (Schmidt) */
     for (i = 0; i < S; ++i) {{
         int sensor = i % N;
-        int keep = ((active[sensor] != 0u) && ((frozen == NULL) || (frozen[sensor] == 0u))) ? 1 : 0;
+        int keep = 1;
         double row[R];
+        if ((active[sensor] == 0u) || ((frozen != NULL) && (frozen[sensor] != 0u))) {{
+            keep = 0;
+        }}
         for (k = 0; k < r; ++k) {{
             row[k] = PHt[(i * R) + k];
         }}

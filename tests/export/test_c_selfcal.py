@@ -9,6 +9,7 @@ compiler.
 
 from __future__ import annotations
 
+import re
 import shutil
 import subprocess
 
@@ -381,3 +382,46 @@ def test_loop_c_matches_selfcalloop_with_a_step_fault(tmp_path):
             _close(a[S:2 * S][blk], sigs[b], f"sigmas[{trk.blocks[b]}]")
             _close(a[2 * S:3 * S][blk], theta[blk], f"theta[{trk.blocks[b]}]")
     assert tuple(int(v) for v in a[3 * S:]) == (loop.accepted, loop.rejected, loop.discarded)
+
+
+def _full_kernel() -> tuple[str, str]:
+    cal = InstrumentCalibration.nominal("gyro", cone6(), 1.0, noise_sigma=0.01)
+    trk = SelfCalTracker(cal, SelfCalSettings(bias_rw=4e-7, scale_rw=1e-9, temperature_sigma=[1e-4, 5e-6, 2e-7],
+                                              window_s=0.5, hold_s=2.0))
+    return selfcal_c(trk, "rimu_sc", 100.0, 50, 1e-4)
+
+
+def test_kernel_has_no_dynamic_memory_and_no_recursion():
+    h, c = _full_kernel()
+    assert not re.search(r"\b(malloc|calloc|realloc|free|alloca)\s*\(", c + h)
+    bodies = re.split(r"\n(?=(?:static )?(?:void|int|double) rimu_sc_\w+\()", c)
+    names = 0
+    for body in bodies[1:]:
+        name = re.match(r"(?:static )?(?:void|int|double) (rimu_sc_\w+)\(", body).group(1)
+        names += 1
+        assert not re.search(rf"\b{name}\(", body.split("{", 1)[1]), f"{name} calls itself"
+    assert names >= 14
+
+
+@pytest.mark.skipif(shutil.which("cppcheck") is None, reason="cppcheck is not installed")
+def test_kernel_misra_nothing_outside_the_documented_deviations(tmp_path):
+    from rimu.export.misra import DEVIATIONS, misra_check
+
+    h, c = _full_kernel()
+    (tmp_path / "rimu_sc.h").write_text(h)
+    (tmp_path / "rimu_sc.c").write_text(c)
+    found = misra_check(tmp_path, files=("rimu_sc.c", "rimu_sc.h"))
+    assert sum(found["misra"].values()) > 0   # the addon ran and read the code
+    assert set(found["misra"]) <= set(DEVIATIONS), set(found["misra"]) - set(DEVIATIONS)
+    assert not found["other"], found["other"]
+
+
+@pytest.mark.skipif(shutil.which("arm-none-eabi-gcc") is None, reason="arm-none-eabi-gcc is not installed")
+def test_kernel_builds_for_cortex_m4(tmp_path):
+    h, c = _full_kernel()
+    (tmp_path / "rimu_sc.h").write_text(h)
+    (tmp_path / "rimu_sc.c").write_text(c)
+    res = subprocess.run(["arm-none-eabi-gcc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-Os",
+                          "-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16", "-c", "rimu_sc.c"],
+                         cwd=tmp_path, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
