@@ -659,8 +659,9 @@ class _Tracked:
         g = loop.guard()
         if g["enabled"]:
             print(f"    held-out check (docs/selfcal.md): parity rms {g['heldout_rms_fixed']:.3f} sigma with the fixed "
-                  f"calibration, {g['heldout_rms_applied']:.3f} sigma with the terms applied; innovations "
-                  f"{g['nis_per_dof']:.2f} per dof (1: the model fits)")
+                  f"calibration, {g['heldout_rms_applied']:.3f} sigma with the terms applied"
+                  + ("" if g["nis_per_dof"] is None else
+                     f"; innovations {g['nis_per_dof']:.2f} per dof (1: the model fits)"))
             for name, v in g["groups"].items():
                 print(f"      {name}: {'applied' if v['applied'] else 'SUSPENDED'} at the end; suspended "
                       f"{v['suspended_windows']} windows ({v['suspensions']} times switched off); held-out gain "

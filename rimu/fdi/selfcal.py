@@ -668,7 +668,9 @@ class SelfCalLoop:
     >>> c = loop.terms()["bias"][0]                   # what the parity tells: the drift without its common mode
     >>> d = np.array([0.02, 0, 0, 0, 0, 0])
     >>> bool(np.abs(c - (d - trk.common_mode(d))).max() < 3e-3), loop.accepted, mgr.health.isolated
-    (True, 29, [])
+    (True, 26, [])
+    >>> loop.guard()["groups"]["bias"]["applied"]      # the held-out check: the bias lowers the parity, applied
+    True
     """
 
     def __init__(self, tracker: SelfCalTracker, sample_rate: float, detector: Any = None,
@@ -787,7 +789,7 @@ class SelfCalLoop:
         squares of the normalised parity it removed on held-out windows, sigma^2, with every window; negative: it
         made them worse); overall ``heldout_rms_fixed`` / ``heldout_rms_applied`` (normalised parity rms of the
         windows with the fixed calibration and with the terms applied, sigma), ``nis_per_dof`` (the
-        filter's normalised innovations per degree of freedom, 1 when its model fits; NaN before any window)."""
+        filter's normalised innovations per degree of freedom, 1 when its model fits; None before any window)."""
         npar = max(self._n_par, 1)
         return {"enabled": self._guard,
                 "groups": {g: {"applied": bool(a), "suspended_windows": int(sw), "suspensions": int(sn),
@@ -797,7 +799,7 @@ class SelfCalLoop:
                 "heldout_windows_parity_values": int(self._n_par),
                 "heldout_rms_fixed": float(math.sqrt(self._ss[0] / npar)),
                 "heldout_rms_applied": float(math.sqrt(self._ss[1] / npar)),
-                "nis_per_dof": float(self._nis[0] / self._nis[1]) if self._nis[1] > 0 else float("nan")}
+                "nis_per_dof": float(self._nis[0] / self._nis[1]) if self._nis[1] > 0 else None}
 
     def take_history(self) -> list[tuple[float, np.ndarray, np.ndarray, np.ndarray]]:
         """The windows' entries of :attr:`history` since the last call (and forget them: a long replay's memory
