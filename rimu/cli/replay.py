@@ -703,9 +703,20 @@ class _Tracked:
         print(f"    self-calibration: {loop.accepted} windows absorbed, {loop.rejected} gated out, {loop.discarded} "
               "thrown away (alarms); tracked terms at the end (common mode left as it was), value +- 1 sigma:")
         rows = print_terms(inst, loop.tracker, loop.terms(), indent="    ")
+        g = loop.guard()
+        if g["enabled"]:
+            print(f"    held-out check (docs/selfcal.md): parity rms {g['heldout_rms_fixed']:.3f} sigma with the fixed "
+                  f"calibration, {g['heldout_rms_applied']:.3f} sigma with the terms applied"
+                  + ("" if g["nis_per_dof"] is None else
+                     f"; innovations {g['nis_per_dof']:.2f} per dof (1: the model fits)"))
+            for name, v in g["groups"].items():
+                print(f"      {name}: {'applied' if v['applied'] else 'SUSPENDED'} at the end; suspended "
+                      f"{v['suspended_windows']} windows ({v['suspensions']} times switched off); held-out gain "
+                      f"{v['heldout_gain']:+.4g} sigma^2" + ("" if v["heldout_gain"] > 0 else
+                                                             " (it would have made the parity worse)"))
         return {"windows_absorbed": loop.accepted, "windows_gated": loop.rejected, "windows_discarded": loop.discarded,
                 "blocks": list(loop.tracker.blocks), "units": "SI (rad/s or m/s^2, relative scale, SI/K^k)",
-                "sensors": rows}
+                "sensors": rows, "guard": g}
 
     def plot(self, inst: str, folder: Path):  # type: ignore[no-untyped-def]
         from .selfcal import _plot
