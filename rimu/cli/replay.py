@@ -495,6 +495,7 @@ def run(args: argparse.Namespace) -> int:
     errors = {k: _Errors(session, k) for k in insts}
     plots = {k: _Plot() for k in insts} if args.report else {}
     at_rest = {k: [0, 0] for k in insts}  # alarms and samples in the segments at rest (kind static*)
+    per_seg = {k: np.zeros((len(session.segments), 2), np.int64) for k in insts}  # alarms, samples per segment
     rest_kind = np.array([str(seg.kind).startswith("static") for seg in session.segments])
     px4 = _Px4(cal["gyro"]) if args.px4 and "gyro" in insts else None
     n_chunks = -(-scan.n // chunk)
@@ -516,6 +517,8 @@ def run(args: argparse.Namespace) -> int:
                 rest = rest_kind[blk.meta["segment"]]
                 at_rest[k][0] += int(np.count_nonzero(np.asarray(r.alarm)[rest]))
                 at_rest[k][1] += int(rest.sum())
+                np.add.at(per_seg[k], (blk.meta["segment"], 0), np.asarray(r.alarm, np.int64))
+                np.add.at(per_seg[k], (blk.meta["segment"], 1), 1)
                 events[k] += r.events
                 # a number wherever there is an estimate; NaN exactly where there is none (unobservable)
                 finite[k] = finite[k] and bool(np.array_equal(np.isfinite(r.x).all(axis=1), r.validity != 2))
@@ -551,6 +554,9 @@ def run(args: argparse.Namespace) -> int:
         if at_rest[k][1]:
             a, n = at_rest[k]
             entry["rest_alarms"], entry["rest_samples"] = a, n
+            entry["segments"] = [{"label": seg.label, "kind": seg.kind, "t_start_s": st.t0, "t_end_s": st.t_last,
+                                  "alarms": int(per_seg[k][i, 0]), "samples": int(per_seg[k][i, 1])}
+                                 for i, (seg, st) in enumerate(zip(session.segments, scan.stats))]
             print(f"    alarm rate at rest (the session's static segments): {fmt(a / n, 'ratio', '%', digits=3)} of {n} "
                   f"samples (design: --p-fa {fmt(args.p_fa, 'ratio', '%', digits=3)})")
         summary[k] = entry

@@ -14,21 +14,40 @@ LOG is anything ``rimu import`` reads, or its recording file.
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 from ._common import add_accept_implausible, add_json_option, nonnegative_float, positive_float
 from ._inputs import add_log_options
 
 
-def _window(text: str) -> tuple[float, float]:
-    try:
-        a, b = (float(x) if x.strip() else float("nan") for x in text.split(":"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not START:END in seconds (e.g. 0:30)") from None
+def _window(text: str) -> tuple[Any, Any]:
+    """``START:END``, each in s from the start of the log or as a percentage of its span (``:50%``: the first
+    half); an empty bound is open."""
     import math
 
-    a = -math.inf if math.isnan(a) else a
-    b = math.inf if math.isnan(b) else b
-    if not a < b:
+    def bound(x: str, open_: float) -> Any:
+        x = x.strip()
+        if not x:
+            return open_
+        if x.endswith("%"):
+            v = float(x[:-1])
+            if not 0.0 <= v <= 100.0:
+                raise ValueError
+            return ("%", v / 100.0)
+        v = float(x)
+        if math.isnan(v):
+            raise ValueError
+        return v
+
+    try:
+        a_txt, b_txt = text.split(":")
+        a, b = bound(a_txt, -math.inf), bound(b_txt, math.inf)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not START:END in seconds or percent of the log (e.g. 0:30, "
+                                         ":50%)") from None
+    if not isinstance(a, tuple) and not isinstance(b, tuple) and not a < b:
+        raise argparse.ArgumentTypeError(f"{text!r}: START must be before END")
+    if isinstance(a, tuple) and isinstance(b, tuple) and not a[1] < b[1]:
         raise argparse.ArgumentTypeError(f"{text!r}: START must be before END")
     return a, b
 
@@ -41,7 +60,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", required=True, help="calibration file to write")
     p.add_argument("--session", default=None, metavar="FILE.npz", help="write the unit's samples on one time base")
     p.add_argument("--fit-window", type=_window, default=None, metavar="START:END",
-                   help="fit on this span, s from the start of the log (default: the whole log)")
+                   help="fit on this span, s from the start of the log or %% of its span (e.g. :50%%: the first "
+                        "half; default: the whole log)")
     p.add_argument("--average", type=nonnegative_float, default=0.1,
                    help="block-average length, s (0: none; default %(default)s)")
     p.add_argument("--motion-fit", action="store_true",
@@ -55,6 +75,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the motion-aware test decides on the mean of its last SECONDS of samples (at least one; "
                         "default %(default)s s: at the full rate of a fast-sampled unit the sensitivity of 0.1 s "
                         "averages, deciding at every sample)")
+    p.add_argument("--bias-track", type=nonnegative_float, default=60.0, metavar="SECONDS",
+                   help="time constant of the motion-aware test's tracker of the triads' relative bias drift at rest "
+                        "(0: none; default %(default)s s)")
     add_json_option(p, "clock offsets (s), rotation angles (deg), spans at rest (s) per triad")
     add_log_options(p)
     add_accept_implausible(p)
@@ -74,8 +97,14 @@ def run(args: argparse.Namespace) -> int:
     if len(rec.units) < 2:
         raise SessionFormatError(f"{args.log}: {len(rec.units)} IMU; a unit of triads needs two or more")
     t0 = float(rec.units[0].t[0])  # the window counts from the start of the log (the first IMU's first stamp)
-    win = None if args.fit_window is None else (args.fit_window[0] + t0, args.fit_window[1] + t0)
     span = max(float(u.t[-1] - u.t[0]) for u in rec.units if len(u.t))
+    win = None
+    if args.fit_window is not None:
+        win = tuple(t0 + (w[1] * span if isinstance(w, tuple) else w) for w in args.fit_window)
+        if not win[0] < win[1]:
+            from ..errors import OptionError
+
+            raise OptionError(f"--fit-window: the span {win[0] - t0:.4g} .. {win[1] - t0:.4g} s is empty")
     if args.average and args.average > span / 10:
         from ..errors import OptionError
 
@@ -84,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
     su = setup_multi_imu(rec, average_s=args.average or None, fit_window_s=win)
     print(su.report())
     if args.motion_fit:
-        _fit_motion(su, args.motion_margin, args.motion_window)
+        _fit_motion(su, args.motion_margin, args.motion_window, args.bias_track or None)
     out = su.calibration.save(args.output)
     print(f"calibration written to {out}")
     b = su.block
@@ -140,7 +169,7 @@ def _session(su, insts: list[str], names: list[str], t0: float, source: str):  #
                    raw_unit="SI", meta={"raw_units": {"gyro": "rad/s", "accel": "m/s^2"}, "source": source, "t0_s": t0})
 
 
-def _fit_motion(su, margin: float, window_s: float) -> None:  # type: ignore[no-untyped-def]
+def _fit_motion(su, margin: float, window_s: float, track_s: float | None) -> None:  # type: ignore[no-untyped-def]
     """The gyros' motion terms on the fit window (taken as fault-free), stored in the calibration's metadata
     (``motion_terms``), with what they assume printed."""
     import numpy as np
@@ -156,7 +185,8 @@ def _fit_motion(su, margin: float, window_s: float) -> None:  # type: ignore[no-
     fs = 1.0 / float(np.median(np.diff(b.t)))
     try:
         det = fit_motion_detector(su.calibration["gyro"], b.raw["gyro"][win], b.valid["gyro"][win], fs, margin=margin,
-                                  window=max(1, round(window_s * fs)))
+                                  window=max(1, round(window_s * fs)), bias_track_s=track_s,
+                                  still=np.asarray(su.still, bool)[win])
     except ShapeError as exc:
         raise ShapeError(f"--motion-fit: {exc}") from None
     su.calibration.metadata["motion_terms"] = {"gyro": motion_detector_to_dict(det)}
