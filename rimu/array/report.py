@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import IdentifiabilityError, ShapeError
-from ..units import RAD_TO_DEG
+from ..units import RAD_TO_DEG, fmt
 from .guards import choose_lowpass, worse
 from .layout import ArrayLayout
 from .positions import PositionFit, fit_positions
@@ -253,15 +253,19 @@ def _accel_candidate(layout, t, accel, fit, gyro, nominal_positions_m, motion_th
         return None
     if align and cand.parity_rms_m_s2["aligned"].mean() > cand.parity_rms_m_s2["raw"].mean():
         align = False
+        # what was seen, not a guess about the hardware: a single-chip IMU (one die, one sampling instant for
+        # both) shows it too when the gyro offsets hold something else (the paths' different filter delays)
+        seen = (f"the gyros' sampling offsets do not fit the accelerometers (moved by them, the accelerometer "
+                f"parity rises from {fmt(cand.parity_rms_m_s2['raw'].mean(), 'accel', 'm/s^2')} to "
+                f"{fmt(cand.parity_rms_m_s2['aligned'].mean(), 'accel', 'm/s^2')}: the accelerometers are not sampled "
+                "at the gyros' instants, or the gyro paths delay differently from the accelerometer paths)")
         try:
             cand = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
                                  motion_threshold_deg_s=motion_threshold_deg_s, gain=mode, align=False,
                                  offsets=True)
-            note = ("the gyros' sampling offsets do not fit the accelerometers (separate chips?): "
-                    "the accelerometers' own offsets were estimated")
+            note = f"{seen}: the accelerometers' own offsets were estimated"
         except IdentifiabilityError as exc:
-            note = ("the gyros' sampling offsets do not fit the accelerometers (separate chips?) and "
-                    f"their own cannot be estimated ({exc}): accelerometers left on their own time")
+            note = f"{seen}, and their own cannot be estimated ({exc}): accelerometers left on their own time"
             cand = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
                                  motion_threshold_deg_s=motion_threshold_deg_s, gain=mode, align=False)
         if note not in notes:

@@ -566,7 +566,9 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         from ._common import json_dump
 
-        doc = {k: {"events": [e.to_dict() for e in events[k]], "final_state": last_state[k], **summary[k]} for k in insts}
+        keep = ("alarms", "isolations", "rest_alarms", "rest_samples", "segments")
+        doc = {k: {"events": [e.to_dict() for e in events[k]], "final_state": last_state[k],
+                   **{f: v for f, v in summary[k].items() if f in keep}} for k in insts}
         if px4_doc is not None:
             doc["px4"] = px4_doc
         print(f"\n  events: {json_dump(doc, args.json)}")
