@@ -16,7 +16,9 @@ term would explain it. :func:`remainder_analysis` answers with figures, on the s
   whether it rises towards the Nyquist frequency (a property of a filter or delay difference, or of motion
   above what the sampling resolves);
 * **where it sits**: the share of the residual energy within ``halo`` samples of a gap in the samples (the
-  opener keeps only samples where every triad is valid: a gap is a clipped or invalid sample).
+  opener keeps only samples where every triad is valid: a gap is a clipped or invalid sample), and the rms left
+  without the samples within 1, 2 and ``halo`` samples of a gap (what invalidating a clipping "halo" would give:
+  a chip's digital low-pass smears a clip over the next samples).
 
 The verdict (:attr:`RemainderAnalysis.verdict`) names a term only if it explains at least ``min_share`` (10 %) of
 the held-out residual; otherwise it says "not explained by a deterministic term" with the largest share, and
@@ -77,6 +79,8 @@ class RemainderAnalysis:
     rises_with_frequency: bool = False
     near_gap_share: float = float("nan")
     halo: int = 8
+    #: residual rms in motion (deg/s) without the samples within h samples of a gap, h -> rms (a clipping halo)
+    rms_beyond_deg_s: dict[int, float] = field(default_factory=dict)
     min_share: float = 0.1
 
     @property
@@ -105,12 +109,14 @@ class RemainderAnalysis:
         return {"rms_deg_s": self.rms_deg_s, "shares_held_out": dict(self.shares), "whiteness_p": self.whiteness_p,
                 "not_white_fraction": self.not_white_fraction, "lag1": self.lag1,
                 "spectrum_ratio": [[f, r] for f, r in self.spectrum], "rises_with_frequency": self.rises_with_frequency,
-                "near_gap_share": self.near_gap_share, "halo_samples": self.halo, "verdict": self.verdict}
+                "near_gap_share": self.near_gap_share, "halo_samples": self.halo,
+                "rms_beyond_gap_deg_s": {str(h): v for h, v in self.rms_beyond_deg_s.items()}, "verdict": self.verdict}
 
     def to_markdown(self) -> str:
         out = ["## What remains of the gyro disagreement", "", f"**{self.verdict}**", "",
                f"Residual in motion {self.rms_deg_s:.3g} deg/s rms; within {self.halo} samples of a gap (clipped "
-               f"samples) {100 * self.near_gap_share:.3g} % of its energy.", "",
+               f"samples) {100 * self.near_gap_share:.3g} % of its energy; without the samples within h samples of a gap: "
+               + ", ".join(f"h = {h}: {v:.3g} deg/s" for h, v in self.rms_beyond_deg_s.items()) + ".", "",
                "| candidate (fitted on the first half, judged on the second) | share of the residual |", "|---|---|"]
         out += [f"| {k} | {100 * v:+.3g} % |" for k, v in self.shares.items()]
         out += ["", f"Whiteness (Ljung-Box, 10 lags): median p {self.whiteness_p:.2g}, "
@@ -202,9 +208,12 @@ def remainder_analysis(t: np.ndarray, u: np.ndarray, motion_threshold_deg_s: flo
         rises = bool(hi > 2.0 * lo)
     e2 = (E**2).sum(axis=(1, 2))
     near = float(e2[idx][dist[idx] <= halo].sum() / max(e2[idx].sum(), 1e-300))
+    beyond = {h: float(np.sqrt((E[idx][dist[idx] > h] ** 2).mean()) * RAD_TO_DEG) for h in (1, 2, halo)
+              if (dist[idx] > h).sum() > 10}
     return RemainderAnalysis(
         rms_deg_s=float(np.sqrt((E[idx] ** 2).mean()) * RAD_TO_DEG), shares=shares,
         whiteness_p=float(np.median(p_vals)) if p_vals else float("nan"),
         not_white_fraction=float(np.mean(np.array(p_vals) < 1e-3)) if p_vals else float("nan"),
         lag1=float(np.median(np.concatenate(lag1))) if lag1 else float("nan"), spectrum=spectrum,
-        rises_with_frequency=rises, near_gap_share=near, halo=int(halo), min_share=float(min_share))
+        rises_with_frequency=rises, near_gap_share=near, halo=int(halo), min_share=float(min_share),
+        rms_beyond_deg_s=beyond)
