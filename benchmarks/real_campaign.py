@@ -40,10 +40,10 @@ from typing import Any
 
 import numpy as np
 
+from rimu.calibration import Calibration
 from rimu.calibration.multi_imu import MultiImuSetup, setup_multi_imu
 from rimu.experiments.faults import Injection, inject
 from rimu.fdi import Px4GyroSelector, Runtime, fit_motion_detector, unisolated_alarm_runs
-from rimu.calibration import Calibration
 from rimu.io.pixhawk_dual import read_pixhawk_dual
 from rimu.io.xsens_dot import read_xsens_dot_run
 from rimu.units import DEG_TO_RAD

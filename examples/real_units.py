@@ -18,9 +18,9 @@ from typing import Any
 
 import numpy as np
 
+from rimu.calibration import Calibration
 from rimu.calibration.multi_imu import MultiImuSetup, setup_multi_imu
 from rimu.experiments.faults import Injection, inject
-from rimu.calibration import Calibration
 from rimu.fdi import Runtime
 from rimu.fdi.manager import STATE_CODES
 from rimu.io.pixhawk_dual import read_pixhawk_dual
