@@ -43,6 +43,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="level of the consistency test of a sensor set (the isolation test)")
     g.add_argument("--max-set-size", type=int, choices=(1, 2), default=None,
                    help="largest number of sensors one isolation names")
+    g.add_argument("--scatter-window", type=positive_int, default=None,
+                   help="most samples of an alarm episode the set test pools (even; its thresholds are a table of "
+                        "this many times n - 4 numbers in the code)")
     p.set_defaults(func=run, output_is_dir=True)  # -o names a folder (rimu.cli._common.check_outputs)
 
 
@@ -56,7 +59,7 @@ def fdi_settings(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     given = {"p_fa": args.p_fa, "confirm": args.confirm, "invalid_persist": args.invalid_persist,
              "fail_after": args.fail_after, "backoff": args.backoff,
              "clear_after": args.clear_after, "episode_gap": args.episode_gap, "alpha": args.set_alpha,
-             "max_size": args.max_set_size}
+             "max_size": args.max_set_size, "scatter_window": args.scatter_window}
     kw = {k: v for k, v in given.items() if v is not None}   # the others keep FdiSettings' defaults
     try:
         return FdiSettings(**kw, readmit_after=readmit_after(args))
@@ -70,57 +73,58 @@ def fdi_settings(args: argparse.Namespace):  # type: ignore[no-untyped-def]
 #: FdiSettings field -> option (for its messages)
 _OPTIONS = {"readmit_after": "--readmit-after", "fail_after": "--fail-after", "invalid_persist": "--invalid-persist",
             "clear_after": "--clear-after", "episode_gap": "--episode-gap", "confirm": "--confirm",
-            "backoff": "--backoff", "p_fa": "--p-fa", "alpha": "--set-alpha", "max_size": "--max-set-size"}
+            "backoff": "--backoff", "p_fa": "--p-fa", "alpha": "--set-alpha", "max_size": "--max-set-size",
+            "scatter_window": "--scatter-window"}
 
 
 def run(args: argparse.Namespace) -> int:
     from ..calibration.result import Calibration
-    from ..export import build_filter, export_c
+    from ..errors import OptionError
+    from ..export import export_c
 
     fdi = fdi_settings(args)
     cal = Calibration.load(args.calibration)
-    if args.target == "cortex-m4":
-        return _run_target(args, cal, fdi)
-    real = args.real or "double"
-    files = export_c(cal, args.output, real=real, fdi=fdi)
-    msg = f"wrote {', '.join(f.name for f in files)} to {Path(args.output)} ({real}; fault management " \
-          f"p_fa {fdi.p_fa:g}, confirm {fdi.confirm})"
+    out = Path(args.output)
+    settings = f"fault management p_fa {fdi.p_fa:g}, confirm {fdi.confirm}"
+    target = args.target == "cortex-m4"
+    if target:  # single precision with the Cortex-M4 harness (rimu.export.target)
+        from ..export.target import write_target
+
+        if args.real == "double":
+            raise OptionError("--target cortex-m4 builds in single precision: drop --real double")
+        files = write_target(cal, args.output, fdi)
+        msg = f"wrote {len(files)} files to {out} (float, Cortex-M4F; {settings})"
+    else:
+        real = args.real or "double"
+        files = export_c(cal, args.output, real=real, fdi=fdi)
+        msg = f"wrote {', '.join(f.name for f in files)} to {out} ({real}; {settings})"
     if args.build:
-        cc, res = build_filter(args.output)
-        if cc is None:
-            print(f"{msg}; not built: no C compiler or make found (install gcc or clang and make, then run make in "
-                  f"{args.output})")
+        why, res, built = _build(out, target)
+        if why:
+            print(f"{msg}; not built: {why}")
             return 1
         if res.returncode != 0:
             print(res.stderr.strip())
             print(f"{msg}; the build failed (above)")
             return 1
-        msg += f"; built {Path(args.output) / 'rimu_filter'}"
+        msg += f"; built {built}"
     print(msg)
     return 0
 
 
-def _run_target(args: argparse.Namespace, cal, fdi) -> int:  # type: ignore[no-untyped-def]
-    """``--target cortex-m4``: the single-precision export with the Cortex-M4 harness (rimu.export.target)."""
-    from ..errors import OptionError
-    from ..export.target import build_target, missing_tools, write_target
+def _build(out: Path, target: bool):  # type: ignore[no-untyped-def]
+    """Build what was written: (why it could not be built or None, the build's result, what was built)."""
+    if target:
+        from ..export.target import build_target, missing_tools
 
-    if args.real == "double":
-        raise OptionError("--target cortex-m4 builds in single precision: drop --real double")
-    files = write_target(cal, args.output, fdi)
-    msg = f"wrote {len(files)} files to {Path(args.output)} (float, Cortex-M4F; fault management p_fa {fdi.p_fa:g}, " \
-          f"confirm {fdi.confirm})"
-    if args.build:
         miss = missing_tools()
         if miss:
-            print(f"{msg}; not built: {', '.join(miss)} not installed (Debian: apt-get install gcc-arm-none-eabi "
-                  "libnewlib-arm-none-eabi qemu-system-arm make gcc)")
-            return 1
-        res = build_target(args.output)
-        if res.returncode != 0:
-            print(res.stderr.strip())
-            print(f"{msg}; the build failed (above)")
-            return 1
-        msg += f"; built rimu_target.elf, rimu_flight.elf and rimu_target_host in {Path(args.output)}"
-    print(msg)
-    return 0
+            return (f"{', '.join(miss)} not installed (Debian: apt-get install gcc-arm-none-eabi "
+                    "libnewlib-arm-none-eabi qemu-system-arm make gcc)"), None, ""
+        return None, build_target(out), f"rimu_target.elf, rimu_flight.elf and rimu_target_host in {out}"
+    from ..export import build_filter
+
+    cc, res = build_filter(out)
+    if cc is None:
+        return f"no C compiler or make found (install gcc or clang and make, then run make in {out})", None, ""
+    return None, res, f"{out / 'rimu_filter'}"

@@ -43,6 +43,7 @@ import numpy as np
 from ..calibration.result import Calibration, InstrumentCalibration
 from ..errors import ExportError
 from . import c_effects
+from .c_effects import reals
 from .c_fdi import _FDI_SOURCE, FdiSettings, detection_variance, fdi_defines, fdi_header, fdi_tables
 
 __all__ = ["REALS", "build_filter", "export_c"]
@@ -148,9 +149,10 @@ static int rimu_inverse3(const rimu_real *N, rimu_real scale, int m, const rimu_
     rimu_real P02 = N[1] * N[4] - N[2] * N[3];
     rimu_real det = N[0] * P00 + N[1] * P01 + N[2] * P02;
     rimu_real id, P11, P12, P22;
-    if (m < 3 || !(det > RIMU_RANK_TOL * scale * scale * scale))
+    if ((m < 3) || !(det > (RIMU_RANK_TOL * scale * scale * scale))) {
         return 0;
-    id = 1 / det;
+    }
+    id = 1.0 / det;
     P11 = (N[0] * N[5] - N[2] * N[2]) * id;
     P12 = (N[1] * N[2] - N[0] * N[4]) * id;
     P22 = (N[0] * N[3] - N[1] * N[1]) * id;
@@ -169,14 +171,15 @@ static void rimu_solve(int n, const rimu_real *sf, const rimu_real *b, const rim
 {
     rimu_real z[RIMU_NMAX];
     unsigned char use[RIMU_NMAX];
-    rimu_real N00 = 0, N01 = 0, N02 = 0, N11 = 0, N12 = 0, N22 = 0, h0 = 0, h1 = 0, h2 = 0;
-    rimu_real scale = 0, P00, P01, P02, P11, P12, P22;
+    rimu_real N00 = 0.0, N01 = 0.0, N02 = 0.0, N11 = 0.0, N12 = 0.0, N22 = 0.0, h0 = 0.0, h1 = 0.0, h2 = 0.0;
+    rimu_real scale = 0.0, P00, P01, P02, P11, P12, P22;
     int i, m = 0;
     for (i = 0; i < n; ++i) {
         const rimu_real *a = ax + 3 * i;
-        use[i] = (unsigned char)(!st->isolated[i] && (valid == 0 || valid[i]) && isfinite(y[i]));
-        if (!use[i]) {
-            z[i] = 0;
+        use[i] = ((st->isolated[i] == 0u) && ((valid == NULL) || (valid[i] != 0u)) && (isfinite(y[i]) != 0)) ? 1u
+                                                                                                         : 0u;
+        if (use[i] == 0u) {
+            z[i] = 0.0;
             continue;
         }
         z[i] = sf[i] * y[i] - b[i];
@@ -186,12 +189,16 @@ static void rimu_solve(int n, const rimu_real *sf, const rimu_real *b, const rim
         scale += w[i];
         ++m;
     }
-    for (i = 0; i < n; ++i) out->iso[i] = 0;
-    for (i = 0; i < 9; ++i) out->P[i] = 0;
-    out->x[0] = out->x[1] = out->x[2] = 0;
-    out->chi2 = 0;
+    for (i = 0; i < n; ++i) {
+        out->iso[i] = 0.0;
+    }
+    for (i = 0; i < 9; ++i) {
+        out->P[i] = 0.0;
+    }
+    out->x[0] = out->x[1] = out->x[2] = 0.0;
+    out->chi2 = 0.0;
     out->used = m;
-    out->dof = m > 3 ? m - 3 : 0;
+    out->dof = (m > 3) ? (m - 3) : 0;
     {
         const rimu_real Nv[6] = {N00, N01, N02, N11, N12, N22}, hv[3] = {h0, h1, h2};
         if (!rimu_inverse3(Nv, scale, m, hv, out->P, out->x)) {
@@ -205,12 +212,14 @@ static void rimu_solve(int n, const rimu_real *sf, const rimu_real *b, const rim
     for (i = 0; i < n; ++i) {
         const rimu_real *a = ax + 3 * i;
         rimu_real r, q;
-        if (!use[i]) continue;
+        if (use[i] == 0u) {
+            continue;
+        }
         r = z[i] - (a[0] * out->x[0] + a[1] * out->x[1] + a[2] * out->x[2]);
         out->chi2 += w[i] * r * r;
-        q = 1 - w[i] * (a[0] * (P00 * a[0] + P01 * a[1] + P02 * a[2]) + a[1] * (P01 * a[0] + P11 * a[1] + P12 * a[2])
-                        + a[2] * (P02 * a[0] + P12 * a[1] + P22 * a[2]));
-        out->iso[i] = q > RIMU_Q_TOL ? w[i] * r * r / q : 0;
+        q = 1.0 - w[i] * (a[0] * (P00 * a[0] + P01 * a[1] + P02 * a[2]) + a[1] * (P01 * a[0] + P11 * a[1] + P12 * a[2])
+                          + a[2] * (P02 * a[0] + P12 * a[1] + P22 * a[2]));
+        out->iso[i] = (q > RIMU_Q_TOL) ? (w[i] * r * r / q) : 0.0;
     }
 }
 """
@@ -223,7 +232,8 @@ def _source(cal: Calibration, real: str, fdi: FdiSettings) -> str:
            f"#define RIMU_FABS {'fabsf' if real == 'float' else 'fabs'}",
            f"#define RIMU_RANK_TOL {_num(1e-9, real)}  /* det(N) / trace(N)^3 below this: not observable */",
            f"#define RIMU_Q_TOL {_num(1e-9, real)}  /* a sensor whose fault the others cannot see (q_j ~ 0) */",
-           _STEP, fdi_defines(fdi, lambda v: _num(v, real)), _FDI_SOURCE]
+           _STEP, fdi_defines(fdi, lambda v: _num(v, real), max(cal[k].geometry.n for k in cal.instruments)),
+           _FDI_SOURCE]
     for k in cal.instruments:
         inst = cal[k]
         P, lc, n = _PREFIX[k], k.lower(), inst.geometry.n
@@ -249,9 +259,10 @@ def _source(cal: Calibration, real: str, fdi: FdiSettings) -> str:
         else:  # InstrumentPipeline.usable: flagged valid and inside the range
             out += [f"    unsigned char use[{P}_N];",
                     "    int i;",
-                    f"    for (i = 0; i < {P}_N; ++i)  /* a saturated output is no measurement: routed around */",
-                    "        use[i] = (unsigned char)((valid == NULL || valid[i]) && !(RIMU_FABS(y[i]) >= "
-                    f"{lc}_range[i]));",
+                    f"    for (i = 0; i < {P}_N; ++i) {{  /* a saturated output is no measurement: routed around */",
+                    "        use[i] = (((valid == NULL) || (valid[i] != 0u)) && !(RIMU_FABS(y[i]) >= "
+                    f"{lc}_range[i])) ? 1u : 0u;",
+                    "    }",
                     f"    rimu_solve({n}, {lc}_sf, {lc}_b, {lc}_axes, {lc}_w, st, y, use, out);"]
         out += ["}", ""]
         out += _fdi_unit(k, inst, real, fdi, max(cal[j].geometry.n for j in cal.instruments),
@@ -259,22 +270,20 @@ def _source(cal: Calibration, real: str, fdi: FdiSettings) -> str:
     out.append(c_effects.source(cal, real))
     out.append(c_effects.unit_step(cal, "rimu_fdi_step", FDI_PARAMS, "{k}_m->iso",
                                    "rimu_{k}_fdi_step({k}_m, {y}, {k}_valid, {k}_out);", "{k}_out->x", clip=True))
-    return "\n".join(out)
+    return reals("\n".join(out), real)  # floating constants of the templates in the precision of rimu_real
 
 
 def _fdi_unit(k: str, inst: InstrumentCalibration, real: str, fdi: FdiSettings, nmax: int,
               public: bool = True) -> list[str]:
     """The constants of one instrument's redundancy manager and its step function (tables sized for nmax)."""
     P, lc, n = _PREFIX[k], k.lower(), inst.geometry.n
-    det, st = fdi_tables(fdi, nmax)
+    det = fdi_tables(fdi, nmax)
     v = detection_variance(inst)
     rr = getattr(inst, "range_raw", None)
     out = [
-        f"/* {k}: noise variance (SI^2 per sample), detection thresholds chi2_(1-p_fa)(dof) by dof, consistency "
-        "thresholds of a sensor set chi2_(1-alpha)(dof - k) at [dof][k] */",
+        f"/* {k}: noise variance (SI^2 per sample), detection thresholds chi2_(1-p_fa)(dof) by dof */",
         f"static const rimu_real {lc}_sig2[{P}_N] = {_array(inst.noise_sigma ** 2, real)};",
         f"static const rimu_real {lc}_thr_det[{len(det)}] = {_array(det, real)};",
-        f"static const rimu_real {lc}_thr_set[{st.size}] = {_array(st, real, st.shape[1])};",
     ]
     if v is not None:
         out += [f"/* {k}: detection weights 1 / v_i of the calibration's noise model (the whitened GLT) */",
@@ -282,7 +291,7 @@ def _fdi_unit(k: str, inst: InstrumentCalibration, real: str, fdi: FdiSettings, 
     wdet = f"{lc}_wdet" if v is not None else f"{lc}_w"
     out += [
         f"static const rimu_fdi_unit {lc}_unit = {{{n}, {lc}_sf, {lc}_b, {lc}_axes, {lc}_w, {lc}_sig2, {wdet}, "
-        f"{lc + '_range' if rr is not None else 'NULL'}, {lc}_thr_det, {lc}_thr_set}};",
+        f"{lc + '_range' if rr is not None else 'NULL'}, {lc}_thr_det}};",
         "",
         f"{'' if public else 'static '}void rimu_{lc}_fdi_step(rimu_fdi *m, const rimu_real *y, "
         "const unsigned char *valid, rimu_fdi_output *out)",

@@ -30,6 +30,7 @@ saturated.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -130,6 +131,19 @@ def plan(cal: Calibration) -> EffectsPlan:
 
 
 # ---------------------------------------------------------------------------------------------------- C text
+_REAL_LITERAL = re.compile(r"(?<![\w.])(\d+\.\d+(?:e[-+]?\d+)?)(?![\w.])")
+
+
+def reals(text: str, real: str) -> str:
+    """C text whose floating constants (written ``1.0``, ``0.5``) are of type ``real``: suffixed ``f`` for a float
+    build, so that no double constant meets a float (MISRA C:2012's essential types, rules 10.3 and 10.4).
+
+    >>> reals("x = 1.0 / d + 2.5e-3; y[2] = 0;", "float")
+    'x = 1.0f / d + 2.5e-3f; y[2] = 0;'
+    """
+    return text if real != "float" else _REAL_LITERAL.sub(r"\1f", text)
+
+
 _FLT_MIN, _FLT_MAX = 1.1754943508222875e-38, 3.4028234663852886e+38
 
 
@@ -229,19 +243,26 @@ typedef struct {
 static void rimu_wls_setup(int n, const rimu_real *ax, const rimu_real *w, const rimu_real *G,
                            const unsigned char *iso, const unsigned char *valid, const rimu_real *z, rimu_wls_set *s)
 {
-    rimu_real N00 = 0, N01 = 0, N02 = 0, N11 = 0, N12 = 0, N22 = 0, scale = 0, det, id;
+    rimu_real N00 = 0.0, N01 = 0.0, N02 = 0.0, N11 = 0.0, N12 = 0.0, N22 = 0.0, scale = 0.0, det, id;
     int i, m = 0;
     for (i = 0; i < n; ++i) {
-        s->use[i] = (unsigned char)(!iso[i] && (valid == 0 || valid[i]) && isfinite(z[i]));
-        m += s->use[i];
+        s->use[i] = ((iso[i] == 0u) && ((valid == NULL) || (valid[i] != 0u)) && (isfinite(z[i]) != 0)) ? 1u : 0u;
+        if (s->use[i] != 0u) {
+            ++m;
+        }
     }
-    s->G = m == n ? G : NULL;
-    s->observable = s->G != NULL;
-    if (s->G != NULL) return;
+    s->G = (m == n) ? G : NULL;
+    s->observable = 0;
+    if (s->G != NULL) {
+        s->observable = 1;
+        return;
+    }
     m = 0;
     for (i = 0; i < n; ++i) {
         const rimu_real *a = ax + 3 * i;
-        if (!s->use[i]) continue;
+        if (s->use[i] == 0u) {
+            continue;
+        }
         N00 += w[i] * a[0] * a[0]; N01 += w[i] * a[0] * a[1]; N02 += w[i] * a[0] * a[2];
         N11 += w[i] * a[1] * a[1]; N12 += w[i] * a[1] * a[2]; N22 += w[i] * a[2] * a[2];
         scale += w[i];
@@ -251,9 +272,11 @@ static void rimu_wls_setup(int n, const rimu_real *ax, const rimu_real *w, const
     s->P01 = N02 * N12 - N01 * N22;
     s->P02 = N01 * N12 - N02 * N11;
     det = N00 * s->P00 + N01 * s->P01 + N02 * s->P02;
-    s->observable = m >= 3 && det > RIMU_RANK_TOL * scale * scale * scale;
-    if (!s->observable) return;
-    id = 1 / det;
+    if ((m < 3) || !(det > (RIMU_RANK_TOL * scale * scale * scale))) {
+        return;  /* not observable */
+    }
+    s->observable = 1;
+    id = 1.0 / det;
     s->P11 = (N00 * N22 - N02 * N02) * id;
     s->P12 = (N01 * N02 - N00 * N12) * id;
     s->P22 = (N00 * N11 - N01 * N01) * id;
@@ -264,12 +287,14 @@ static void rimu_wls_setup(int n, const rimu_real *ax, const rimu_real *w, const
 static int rimu_wls_apply(int n, const rimu_real *ax, const rimu_real *w, const rimu_wls_set *s,
                           const rimu_real *z, rimu_real *x)
 {
-    rimu_real h0 = 0, h1 = 0, h2 = 0;
+    rimu_real h0 = 0.0, h1 = 0.0, h2 = 0.0;
     int i;
     if (s->G != NULL) {
         const rimu_real *G = s->G;
         for (i = 0; i < n; ++i) {
-            if (!isfinite(z[i])) return 0;
+            if (isfinite(z[i]) == 0) {
+                return 0;
+            }
             h0 += G[i] * z[i]; h1 += G[n + i] * z[i]; h2 += G[2 * n + i] * z[i];
         }
         x[0] = h0; x[1] = h1; x[2] = h2;
@@ -277,12 +302,18 @@ static int rimu_wls_apply(int n, const rimu_real *ax, const rimu_real *w, const 
     }
     for (i = 0; i < n; ++i) {
         const rimu_real *a = ax + 3 * i;
-        if (!s->use[i]) continue;
-        if (!isfinite(z[i])) return 0;
+        if (s->use[i] == 0u) {
+            continue;
+        }
+        if (isfinite(z[i]) == 0) {
+            return 0;
+        }
         h0 += w[i] * z[i] * a[0]; h1 += w[i] * z[i] * a[1]; h2 += w[i] * z[i] * a[2];
     }
-    x[0] = x[1] = x[2] = 0;
-    if (!s->observable) return 1;
+    x[0] = x[1] = x[2] = 0.0;
+    if (s->observable == 0) {
+        return 1;
+    }
     x[0] = s->P00 * h0 + s->P01 * h1 + s->P02 * h2;
     x[1] = s->P01 * h0 + s->P11 * h1 + s->P12 * h2;
     x[2] = s->P02 * h0 + s->P12 * h1 + s->P22 * h2;
@@ -295,7 +326,9 @@ static void rimu_wls_next(int n, const rimu_real *ax, const rimu_real *w, const 
                           const unsigned char *iso, const unsigned char *valid, rimu_wls_set *s, const rimu_real *z,
                           rimu_real *x)
 {
-    if (rimu_wls_apply(n, ax, w, s, z, x)) return;
+    if (rimu_wls_apply(n, ax, w, s, z, x) != 0) {
+        return;
+    }
     rimu_wls_setup(n, ax, w, G, iso, valid, z, s);  /* the sensors in use changed */
     (void)rimu_wls_apply(n, ax, w, s, z, x);
 }
@@ -335,7 +368,7 @@ def _instrument(k: str, c: EffectCompensation, real: str, with_q: bool) -> str:
         out.append(f"static const rimu_real {k}_{_NAMES[key]}[{P}] = {_arr(c._const[key], real)};")
     if c._needs_u or with_q:
         G = _full_set_estimator(c)
-        out.append(f"static const rimu_real *const {k}_G = 0;  /* the full set does not span 3-D */" if G is None
+        out.append(f"static const rimu_real *const {k}_G = NULL;  /* the full set does not span 3-D */" if G is None
                    else f"static const rimu_real {k}_G[3 * {P}] = {_arr(G, real)};  /* full set: x = G q */")
     if c._Hx is not None:
         out.append(f"static const rimu_real {k}_hnom[3 * {P}] = {_arr(c._H, real)};  /* nominal axes */")
@@ -366,10 +399,10 @@ def _instrument(k: str, c: EffectCompensation, real: str, with_q: bool) -> str:
             body.append(f"    {_NAMES[key]}[{i}] = {_dot(D[i], 'm', real)};")
     zt = f" - {ref['exo']}" if "exo" in ref else ""
     dst = "z" if c.output_side else "q"
-    body.append(f"    for (i = 0; i < {P}; ++i) {dst}[i] = {k}_sf[i] * y[i] - {k}_b[i]{zt};")
+    body += [f"    for (i = 0; i < {P}; ++i) {{", f"        {dst}[i] = {k}_sf[i] * y[i] - {k}_b[i]{zt};", "    }"]
     if c.output_side:
         k1, k2, k3, ka = (ref.get(x) for x in (1, 2, 3, "abs"))
-        body += ["    for (i = 0; i < " + P + "; ++i) q[i] = z[i];"]
+        body += [f"    for (i = 0; i < {P}; ++i) {{", "        q[i] = z[i];", "    }"]
         if c._Hx is not None:
             body.append(f"    rimu_wls_setup({P}, {k}_axes, {k}_w, {k}_G, iso, valid, z, &ws);  /* the sensors in use */")
         body += [
@@ -381,12 +414,12 @@ def _instrument(k: str, c: EffectCompensation, real: str, with_q: bool) -> str:
         # the arithmetic of EffectCompensation._output_poly, term by term
         if k3 is not None:
             quad = f"({k3} * s + {k2})" if k2 is not None else f"{k3} * s"
-            slope2 = f"(2 * {k2} + 3 * ({k3} * s))" if k2 is not None else f"3 * ({k3} * s)"
+            slope2 = f"(2.0 * {k2} + 3.0 * ({k3} * s))" if k2 is not None else f"3.0 * ({k3} * s)"
         elif k2 is not None:
-            quad, slope2 = k2, f"2 * {k2}"
+            quad, slope2 = k2, f"2.0 * {k2}"
         else:
             quad = slope2 = None
-        lin_s = lin if lin is not None else "0"
+        lin_s = lin if lin is not None else "0.0"
         if quad is not None:
             body.append(f"            cc = ({lin_s} + {quad} * s) * s;")
             body.append(f"            dc = {lin_s} + {slope2} * s;")
@@ -395,13 +428,13 @@ def _instrument(k: str, c: EffectCompensation, real: str, with_q: bool) -> str:
             body.append(f"            dc = {lin_s};")
         if ka is not None:
             body.append(f"            cc += {ka} * {'fabsf' if real == 'float' else 'fabs'}(s);")
-            body.append(f"            dc += {ka} * (rimu_real)((s > 0) - (s < 0));")
+            body.append(f"            dc += {ka} * ((s > 0.0) ? 1.0 : ((s < 0.0) ? -1.0 : 0.0));  /* sign(s) */")
         if c._Hx is not None:
             h, x = f"{k}_hnom + 3 * i", f"{k}_hx + 3 * i"
             body.append(f"            {{ const rimu_real *h = {h}, *g = {x};")
             body.append("              cc += (h[0] * u[0] + h[1] * u[1] + h[2] * u[2]) "
                         "* (g[0] * u[0] + g[1] * u[1] + g[2] * u[2]); }")
-        body += ["            q[i] = s - (s + cc - z[i]) / (1 + dc);", "        }", "    }"]
+        body += ["            q[i] = s - (s + cc - z[i]) / (1.0 + dc);", "        }", "    }"]
     body.append("}")
     # the raw outputs handed to the projection
     raw = [f"static void {k}_raw(const unsigned char *iso, const unsigned char *valid, const rimu_real *y, "
@@ -413,7 +446,7 @@ def _instrument(k: str, c: EffectCompensation, real: str, with_q: bool) -> str:
         raw += [f"    yr[{i}] = y[{i}] - ({_dot(c._raw_exo[i], 'm', real)});" for i in range(n)]
     else:
         raw += ["    int i;", f"    {k}_q(iso, valid, y, m, yr);",
-                f"    for (i = 0; i < {P}; ++i) yr[i] = (yr[i] + {k}_b[i]) / {k}_sf[i];"]
+                f"    for (i = 0; i < {P}; ++i) {{", f"        yr[i] = (yr[i] + {k}_b[i]) / {k}_sf[i];", "    }"]
     raw.append("}")
     if c._raw_exo is not None and not with_q:
         body = []  # the raw path does not use q (and C warns about unused static functions)
@@ -463,9 +496,9 @@ def unit_step(cal: Calibration, name: str, params: str, iso: str, call: str, x: 
             b += ["    int i;"]
             b += [f"    unsigned char {k}_use[RIMU_{k.upper()}_N];" for k in ranged]
             for k in ranged:
-                b += [f"    for (i = 0; i < RIMU_{k.upper()}_N; ++i)  /* usable: flagged valid and inside the range */",
-                      f"        {k}_use[i] = (unsigned char)(({k}_valid == 0 || {k}_valid[i]) "
-                      f"&& !(RIMU_FABS({k}_y[i]) >= {k}_range[i]));"]
+                b += [f"    for (i = 0; i < RIMU_{k.upper()}_N; ++i) {{  /* usable: flagged valid and inside the range */",
+                      f"        {k}_use[i] = ((({k}_valid == NULL) || ({k}_valid[i] != 0u)) "
+                      f"&& !(RIMU_FABS({k}_y[i]) >= {k}_range[i])) ? 1u : 0u;", "    }"]
         b += [f"    dT = {'temperature - RIMU_REFERENCE_TEMPERATURE' if p.needs_temperature else '0'};"]
         if not p.needs_time:
             b += ["    t = 0;  /* no drift term: the time is not read */"]
@@ -496,14 +529,15 @@ def unit_step(cal: Calibration, name: str, params: str, iso: str, call: str, x: 
                 b += ["    rimu_monomials(t, dT, f, w, m);",
                       f"    {k}_raw({iso.format(k=k)}, {vname[k]}, {k}_y, m, yr);"]
                 if k in ranged:
-                    b += [f"    for (i = 0; i < RIMU_{k.upper()}_N; ++i)  /* a clipped output stays clipped */",
-                          f"        if (RIMU_FABS({k}_y[i]) >= {k}_range[i]) yr[i] = {k}_y[i];"]
+                    b += [f"    for (i = 0; i < RIMU_{k.upper()}_N; ++i) {{  /* a clipped output stays clipped */",
+                          f"        if (RIMU_FABS({k}_y[i]) >= {k}_range[i]) {{", f"            yr[i] = {k}_y[i];",
+                          "        }", "    }"]
                 b += ["    " + call.format(k=k, y="yr")]
             else:
                 b += ["    " + call.format(k=k, y=f"{k}_y")]
             if k != p.order[-1]:  # the estimate of the epoch feeds the next instrument
                 v, xk = ("f" if k == "accel" else "w"), x.format(k=k)
-                b += [f"    if (isfinite({xk}[0])) {{ {v}[0] = {xk}[0]; {v}[1] = {xk}[1]; {v}[2] = {xk}[2]; }}"
+                b += [f"    if (isfinite({xk}[0]) != 0) {{ {v}[0] = {xk}[0]; {v}[1] = {xk}[1]; {v}[2] = {xk}[2]; }}"
                       "  /* no estimate (NaN): no input */"]
     else:
         b += ["    (void)t; (void)temperature;"]

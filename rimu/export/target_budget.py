@@ -3,8 +3,8 @@ the worst-case stack of ``rimu_fdi_step`` over its whole call graph, and the che
 and no dynamic memory.
 
 Stack: each function's frame is its ``-fstack-usage`` figure for the generated code (``rimu_unit.su``; a frame
-GCC reports as ``dynamic`` is refused) and, for the C library and libgcc functions the flight image links (the
-double-precision math of ``rimu_chi2_isf``), the sum of its prologue's ``push``/``vpush``/``sub sp`` in the
+GCC reports as ``dynamic`` is refused) and, for the C library and libgcc functions the flight image links, the
+sum of its prologue's ``push``/``vpush``/``sub sp`` in the
 disassembly. The call graph is every ``bl``/``b`` to a function symbol in ``arm-none-eabi-objdump -d`` of the
 flight image; the worst case is the deepest path from ``rimu_fdi_step`` (a tail call counted as a call, so the
 bound is safe). An indirect call (``blx rN``) reachable from ``rimu_fdi_step`` makes the bound unknown, and is

@@ -256,6 +256,10 @@ class RedundancyManager:
     episode_gap : int, optional
         An alarm episode, whose parity vectors are pooled as evidence for the set test, ends after this
         many consecutive alarm-free samples (default ``max(confirm, 5)``).
+    scatter_window : int
+        The most samples of an episode the set test pools in its scatter (two blocks of half as many; the
+        older is dropped when the newer is full): every threshold it needs is in a finite table
+        (:attr:`rimu.fdi.FdiSettings.scatter_window`).
     common_cause : bool
         Count toward ``invalid_persist`` only the samples whose invalidity is confined to one sub-unit
         (:class:`rimu.fdi.common_cause.EvidenceGate`): for units of triads that clip together in fast motion.
@@ -282,7 +286,8 @@ class RedundancyManager:
                  sample_rate: float | None = None, max_events: int = 10000,
                  isolator: FaultSetGlt | str | None = None, fail_after: int = _D.fail_after,
                  backoff: float = _D.backoff, clear_after: int = _D.clear_after,
-                 episode_gap: int | None = _D.episode_gap, common_cause: bool = _D.common_cause) -> None:
+                 episode_gap: int | None = _D.episode_gap, common_cause: bool = _D.common_cause,
+                 scatter_window: int = _D.scatter_window) -> None:
         if confirm < 1 or invalid_persist < 1:
             raise ValueError("confirm and invalid_persist must be at least 1 sample")
         if not getattr(pipeline, "noise_given", True):
@@ -302,6 +307,9 @@ class RedundancyManager:
         self.clear_after = int(clear_after)
         self.episode_gap = int(episode_gap) if episode_gap is not None else max(self.confirm, 5)
         self.common_cause = bool(common_cause)
+        if int(scatter_window) < 2 or int(scatter_window) % 2:
+            raise ValueError(f"scatter_window must be an even number of samples (at least 2), got {scatter_window}")
+        self.scatter_window = int(scatter_window)
         if isolator is None:
             isolator = _D.isolator() if _evidence_detector(self.detector) else "detector"
         if isinstance(isolator, str) and isolator != "detector":
@@ -363,7 +371,9 @@ class RedundancyManager:
         self._ep_alarms = 0     # alarm samples of the episode
         self._ep_quiet = 0      # consecutive quiet samples at its end
         self._ep_sum: np.ndarray | None = None
-        self._ep_M: np.ndarray | None = None
+        self._ep_M: np.ndarray | None = None      # the scatter's newer block (its samples: _ep_mn)
+        self._ep_M_old: np.ndarray | None = None  # the older, full block (scatter_window / 2 samples), or None
+        self._ep_mn = 0
         self._cand: tuple[int, ...] = ()
         self._streak = 0
         self._last_dec: SetDecision | None = None
@@ -623,9 +633,12 @@ class RedundancyManager:
         p = r.parity[:d]
         if self._ep_sum is None or self._ep_sum.shape[0] != d:
             self._ep_sum = np.zeros(d)
-            self._ep_M = np.zeros((d, d))
+            self._ep_M, self._ep_M_old, self._ep_mn = np.zeros((d, d)), None, 0
+        if self._ep_mn >= self.scatter_window // 2:  # the newer block is full: it becomes the older, the oldest goes
+            self._ep_M_old, self._ep_M, self._ep_mn = self._ep_M, np.zeros((d, d)), 0
         self._ep_sum += p
         self._ep_M += np.outer(p, p)
+        self._ep_mn += 1
         self._ep_n += 1
         self._ep_code = r.code
 
@@ -648,7 +661,11 @@ class RedundancyManager:
         dec = iso.decide(mean, Vz, d)
         if dec.kind != "isolated" and N > 1:
             # a fault whose size changes (sign) has little mean: the scatter of the episode may name it
-            dec2 = iso.decide_scatter(self._ep_M, N, Vz, d)
+            # over the last scatter_window / 2 + 1 .. scatter_window samples: a threshold of the finite table
+            M, Ns = self._ep_M, self._ep_mn
+            if self._ep_M_old is not None:
+                M, Ns = M + self._ep_M_old, Ns + self.scatter_window // 2
+            dec2 = iso.decide_scatter(M, Ns, Vz, d)
             if dec2.kind == "isolated" or float(mean @ mean) < iso.threshold(d, 0):
                 dec = dec2
         return dec

@@ -12,6 +12,8 @@ import math
 from dataclasses import asdict, dataclass, fields
 from typing import Any
 
+import numpy as np
+
 from ..errors import ExportError
 from .health import READMIT_AFTER
 
@@ -21,6 +23,8 @@ __all__ = ["DEFAULTS", "FdiSettings"]
 C_INT_MAX = 2**31 - 1
 #: the most isolations of one sensor the generated code tables (fail_after)
 MAX_ISOLATIONS = 1000
+#: the longest scatter window of the set test (its thresholds are a table of scatter_window (n - 4) numbers)
+MAX_SCATTER_WINDOW = 1000
 
 
 @dataclass(frozen=True)
@@ -44,6 +48,13 @@ class FdiSettings:
         Alarm-free samples after which a "not isolable" report is withdrawn.
     episode_gap : int or None
         Alarm-free samples that end an alarm episode (None: ``max(confirm, 5)``).
+    scatter_window : int
+        The most samples of an alarm episode the set test pools in its scatter (an even number): the scatter is
+        kept in two blocks of ``scatter_window / 2`` samples and, when the newer block is full, the older one is
+        dropped, so the test sees the episode's last ``scatter_window / 2 + 1`` to ``scatter_window`` samples.
+        Every consistency threshold the set test can need is then one of a finite table,
+        ``chi2_{1 - alpha}(nu)`` for ``nu`` up to ``scatter_window (n - 4)`` (:meth:`set_thresholds`), computed
+        once (at export time for the generated code): no chi-square quantile at run time.
     common_cause : bool
         Count toward ``invalid_persist`` only invalid samples confined to one sub-unit
         (:class:`rimu.fdi.common_cause.EvidenceGate`; units of triads that clip together). Not in the generated
@@ -68,6 +79,7 @@ class FdiSettings:
     backoff: float = 2.0
     clear_after: int = 50
     episode_gap: int | None = None
+    scatter_window: int = 64
     alpha: float = 1e-4
     max_size: int = 2
     max_sets: int = 20000
@@ -87,6 +99,9 @@ class FdiSettings:
             (self.clear_after >= 1, f"clear_after must be at least 1 sample, got {self.clear_after}"),
             (self.episode_gap is None or self.episode_gap >= 1,
              f"episode_gap must be at least 1 sample, got {self.episode_gap}"),
+            (2 <= self.scatter_window <= MAX_SCATTER_WINDOW and self.scatter_window % 2 == 0,
+             f"scatter_window must be an even number of samples from 2 to {MAX_SCATTER_WINDOW}, got "
+             f"{self.scatter_window}"),
             (self.max_size in (1, 2), f"the set test names sets of 1 or 2 sensors (max_size), got {self.max_size}"),
             (self.max_sets >= 1, f"max_sets must be at least 1, got {self.max_sets}"),
             (0 <= self.collinear_tol < 1, f"collinear_tol must be in [0, 1), got {self.collinear_tol}"),
@@ -135,7 +150,7 @@ class FdiSettings:
         return {"p_fa": self.p_fa, "confirm": self.confirm, "invalid_persist": self.invalid_persist,
                 "readmit_after": self.readmit_after, "fail_after": self.fail_after, "backoff": self.backoff,
                 "clear_after": self.clear_after, "episode_gap": self.episode_gap, "isolator": self.isolator(),
-                "common_cause": self.common_cause}
+                "common_cause": self.common_cause, "scatter_window": self.scatter_window}
 
     # ---------------------------------------------------------------- tables of the generated code
     def required(self) -> list[int]:
@@ -143,6 +158,27 @@ class FdiSettings:
         if self.readmit_after is None:
             return [0]
         return [round(self.readmit_after * self.backoff ** k) for k in range(max(self.fail_after - 1, 1))]
+
+    def set_top(self, nmax: int) -> int:
+        """The largest ``nu`` of :meth:`set_thresholds` for units of up to ``nmax`` sensors: the scatter over
+        ``scatter_window`` samples of a set of ``nmax - 3`` parity dimensions less one suspect sensor, and at least
+        the parity dimension itself (the test of the episode's mean, ``chi2(dof)``)."""
+        return max(self.scatter_window * max(nmax - 4, 0), nmax - 3, 1)
+
+    def set_thresholds(self, nmax: int) -> np.ndarray:
+        """``chi2_{1 - alpha}(nu)`` for ``nu = 0 .. set_top(nmax)`` (entry 0 unused): every consistency threshold of
+        the set test, ``c = chi2_{1 - alpha}(samples (dof - size))`` with ``samples <= scatter_window``, for units of
+        up to ``nmax`` sensors (Daly, Gai & Harrison 1979, extended to sets). The same scipy quantile as
+        :meth:`rimu.fdi.multiple.FaultSetGlt.threshold`, which the Python runtime decides with, entry for entry.
+
+        >>> t = FdiSettings(scatter_window=4).set_thresholds(6)
+        >>> len(t), round(float(t[3]), 3)          # nu = 0 .. 4 x (6 - 4); chi2_(1 - 1e-4)(3)
+        (9, 21.108)
+        """
+        from scipy.stats import chi2
+
+        nu = np.arange(self.set_top(nmax) + 1)
+        return np.where(nu > 0, chi2.isf(self.alpha, np.maximum(nu, 1)), 0.0)
 
     def mean_threshold(self) -> float:
         from scipy.stats import chi2

@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from rimu.calibration.result import Calibration, InstrumentCalibration
 from rimu.errors import ExportError, SessionFormatError
 from rimu.experiments.scenarios import ScenarioSpec, _inject
 from rimu.export import Estimates, FdiSettings, estimate_columns, export_c, read_estimates, write_estimates
+from rimu.export.target import synthetic_unit
 from rimu.fdi import Runtime
 from rimu.fdi.health import SensorState
 from rimu.fdi.manager import STATE_CODES
@@ -112,17 +112,7 @@ def _scenario(cal, kind, seed, clean=None):
 
 
 def _unit(geom, instruments=("gyro",), seed=0):
-    cals = {}
-    for k in instruments:
-        rng = np.random.default_rng([seed, geom.n, ("gyro", "accel").index(k)])
-        scale = 0.01 * (1 + 0.01 * rng.standard_normal(geom.n))
-        bias = 0.3 * rng.standard_normal(geom.n)
-        sigma = (0.002 if k == "gyro" else 0.02) * (1 + 0.2 * rng.random(geom.n))
-        c = InstrumentCalibration.nominal(k, geom, scale=1.0, noise_sigma=sigma)
-        c.scale = scale
-        c.bias = bias
-        cals[k] = c
-    return Calibration(cals)
+    return synthetic_unit(geom, instruments, seed)  # rimu.export.target's one definition (with the target's tests)
 
 
 class _Counting:
@@ -353,26 +343,40 @@ def test_estimates_file_rejects_a_wrong_header_and_bad_cells(tmp_path):
         read_estimates(f, {"gyro": 6})
 
 
-@needs_cc
-def test_chi2_quantile_on_the_target_matches_scipy(tmp_path):
-    """rimu_chi2_isf (the scatter test's threshold over N samples) against scipy, 1e-12 relative."""
+def test_the_set_tests_thresholds_are_one_table_written_at_export(tmp_path):
+    """The set test's consistency thresholds over an episode, chi2_{1-alpha}(N (dof - k)), are a finite table: the
+    scatter pools at most scatter_window samples, the exported table holds scatter_window (n - 4) numbers, each
+    scipy's quantile (the double export's literal is the same binary64 number), and the Python manager, on
+    unresolved episodes of up to 15 samples (three ramps at once on cone6) with a window of 4, asks for no N
+    beyond 4, reaches it, and gets the table's numbers. No chi-square quantile is left in the generated code."""
+    import re
+
+    st = FdiSettings(scatter_window=4)
     cal = _unit(cone6())
-    d = tmp_path / "c"
-    export_c(cal, d)
-    nus = [1, 2, 3, 4, 7, 10, 33, 100, 457, 1000, 4000, 25000, 100000]
-    alphas = [1e-4, 1e-3, 1e-6, 0.05]
-    (d / "q.c").write_text('#include <stdio.h>\n#include "rimu_unit.h"\nint main(void) {\n'
-                           f"    static const long nu[] = {{{', '.join(map(str, nus))}}};\n"
-                           f"    static const double al[] = {{{', '.join(map(repr, alphas))}}};\n"
-                           "    int i, j;\n"
-                           f"    for (j = 0; j < {len(alphas)}; ++j) for (i = 0; i < {len(nus)}; ++i)\n"
-                           '        printf("%.17g\\n", rimu_chi2_isf(al[j], nu[i]));\n    return 0;\n}\n')
-    subprocess.run([CC, "-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-pedantic", "-o", "q", "q.c",
-                    "rimu_unit.c", "-lm"], cwd=d, check=True, capture_output=True, text=True)
-    got = np.array([float(v) for v in subprocess.run([str(d / "q")], capture_output=True, text=True,
-                                                     check=True).stdout.split()])
-    want = np.array([chi2.isf(a, nu) for a in alphas for nu in nus])
-    assert np.allclose(got, want, rtol=1e-12, atol=0)
+    export_c(cal, tmp_path, fdi=st)
+    src = (tmp_path / "rimu_unit.c").read_text()
+    cells = re.search(r"rimu_fdi_chi2\[RIMU_FDI_NU \+ 1\] = \{([^}]*)\}", src).group(1).split(",")
+    table = np.array([float(v) for v in cells])
+    assert len(table) == 4 * (6 - 4) + 1 == len(st.set_thresholds(6))
+    assert np.array_equal(table[1:], chi2.isf(st.alpha, np.arange(1, len(table))))
+    assert not re.search(r"rimu_chi2_isf|lgamma|log1p|\bexp\(|\blog\(", src)
+    mgr = _manager(st, cal["gyro"])
+    asked = []
+    orig = mgr.isolator.threshold
+
+    def threshold(dof, size, samples=1):
+        asked.append((dof, size, samples))
+        return orig(dof, size, samples)
+
+    mgr.isolator.threshold = threshold
+    Y, valid = _scenario(cal["gyro"], "triple", 5)
+    mgr.run(Y, valid)
+    assert mgr.counts["detected_not_isolable"] >= 1   # the episodes stayed unresolved
+    samples = np.array([a[2] for a in asked])
+    assert samples.max() == 4 and samples.min() >= 1 and np.sum(samples == 4) >= 2
+    assert all(orig(d, k, n) == table[n * (d - k)] for d, k, n in set(asked))
+    with pytest.raises(ExportError, match="scatter_window"):
+        FdiSettings(scatter_window=7)
 
 
 @needs_cc
