@@ -20,6 +20,15 @@ written to ``OUT/summary.json``: how a calibration is validated on a held-out se
 ``--estimates FILE.csv`` writes the estimates of every sample (the columns the exported C filter writes;
 floats in Python's shortest round-trip form).
 
+``--selfcal`` replays with the in-flight self-calibration (:mod:`rimu.fdi.selfcal`, docs/selfcal.md): the runtime
+tracks the drift of every sensor's bias (and scale, and the temperature coefficients when the data have a
+temperature) from the parity, compensates with the tracked terms, and its window GLT's thresholds carry the
+tracker's covariance (``--detector glt_window``, of ``--window`` samples; without it the detector's window is the
+tracker's, ``--selfcal-window`` s). The drift rate comes from the calibration's noise model
+(``--selfcal-drift-factor``, ``--selfcal-horizon``) or ``--selfcal-bias-rw``. The summary, ``--json``, ``--report``
+(``selfcal-<instrument>.png``) and ``--estimates`` (columns ``{k}_{term}_{sensor}`` and ``..._sigma``, SI) show the
+tracked terms over time with their 1-sigma.
+
 The replay streams: the file is read twice in chunks (:func:`rimu.session.iter_blocks`), once for the format
 and plausibility checks, the time span and the sample rate, once through the runtime; the summary figures are
 accumulated and the estimates written chunk by chunk, so a replay of 1e8 samples runs in the memory of one
@@ -48,6 +57,7 @@ from ._common import (
     readmit_after,
 )
 from ._inputs import add_log_options
+from .selfcal import add_tracker_options
 
 DETECTORS = ["glt", "glt_window", "cusum", "kalman", "baseline"]
 
@@ -88,6 +98,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="write per sample t, then per instrument {k}_x/_y/_z (SI, master-body frame), {k}_validity "
                         "(rimu.fusion.Validity code) and {k}_isolated (0-based indices of the isolated sensors joined "
                         "by ';'): the columns the exported C filter writes")
+    p.add_argument("--selfcal", action="store_true",
+                   help="track the calibration's drift in flight and compensate with it (docs/selfcal.md); the "
+                        "tracker's settings: --selfcal-*")
+    add_tracker_options(p, "selfcal-")
     p.add_argument("--out", action=Deprecated, new="--report DIR and --json FILE", convert=_old_out, metavar="DIR")
     add_accept_implausible(p)
     add_log_options(p)
@@ -472,11 +486,31 @@ def run(args: argparse.Namespace) -> int:
                 blk = inject(blk, injections, cal, seed=args.seed)
             yield blk if pipe is None else pipe.compensate(blk)
 
+    trackers = {}
+    if args.selfcal:
+        from ..fdi.selfcal import SelfCalTracker
+        from .selfcal import tracker_settings
+
+        if args.detector not in ("glt", "glt_window") or args.motion_fit is not None:
+            raise OptionError("--selfcal runs the window GLT whose thresholds carry the tracker's covariance: use it "
+                              f"with --detector glt or glt_window and without --motion-fit (got --detector "
+                              f"{args.detector}{' --motion-fit' if args.motion_fit is not None else ''})")
+        if args.selfcal_window * fs > scan.n:
+            raise OptionError(f"--selfcal-window {args.selfcal_window:g} s is longer than the data ({scan.n} samples at "
+                              f"{fs:g} Hz): the tracker would never absorb a window")
+        trackers = {k: SelfCalTracker(cal[k], tracker_settings(args, cal[k], k, scan.has_temp, "selfcal-"))
+                    for k in insts}
     managers = {}
     for k in insts:
         pipe = unit[k]
         det = make_detector(args.detector, pipe.table.sigma, window=args.window, p_fa=args.p_fa, arl0=args.arl0)
-        stored = (cal.metadata.get("motion_terms") or {}).get(k) if args.detector == "glt" else None
+        stored = (cal.metadata.get("motion_terms") or {}).get(k) if args.detector == "glt" and k not in trackers \
+            else None
+        if k in trackers:
+            from ..fdi.selfcal import TrackedGltWindow
+
+            win = args.window if args.detector == "glt_window" else max(1, int(round(args.selfcal_window * fs)))
+            det = TrackedGltWindow(win, args.p_fa)
         if args.motion_fit is not None and k == "gyro":
             det = _motion_detector(cal[k], _first_seconds(blocks(Pipeline(sub, temperature=scan.has_temp)),
                                                           t0 + args.motion_fit),
@@ -485,7 +519,7 @@ def run(args: argparse.Namespace) -> int:
             det = _stored_motion_detector(cal[k], stored, args.p_fa, fs, k)
         kw = settings.replace(confirm=1 if args.detector == "cusum" else None).manager_kwargs()
         kw.update(readmit_after=readmit_after(args), sample_rate=fs)
-        if args.detector != "glt" or args.motion_fit is not None or stored is not None:
+        if args.detector != "glt" or args.motion_fit is not None or stored is not None or k in trackers:
             kw.pop("isolator")  # the manager picks the isolator that fits the detector
         managers[k] = (RedundancyManager(pipe, det, **kw), det)
     alarms = dict.fromkeys(insts, 0)
@@ -505,10 +539,14 @@ def run(args: argparse.Namespace) -> int:
             from ..atomic import atomic_path
 
             est = stack.enter_context(stack.enter_context(atomic_path(args.estimates)).open("w"))
-            est.write(",".join(estimate_columns(insts)) + "\n")
+            est.write(",".join(estimate_columns(insts) + _tracked_columns(trackers)) + "\n")
         # the managers closed loop with the compensation of further effects (rimu.fdi.UnitManager: the decisions
         # of the exported C filter, sample by sample)
-        um = Runtime(unit, managers={k: managers[k][0] for k in insts})
+        from ..fdi.selfcal import SelfCalLoop
+
+        um = Runtime(unit, managers={k: managers[k][0] for k in insts},
+                     selfcal={k: SelfCalLoop(trk, fs, managers[k][1], history=True) for k, trk in trackers.items()})
+        tracked = {k: _Tracked(um.selfcal[k]) for k in trackers}
         for blk in bar(blocks(), total=n_chunks, desc="replay", unit="chunk", enabled=None if n_chunks > 1 else False):
             results = um.run(blk)
             for k in insts:
@@ -526,8 +564,13 @@ def run(args: argparse.Namespace) -> int:
                 errors[k].add(np.asarray(r.x), blk.t, blk.meta["segment"])
                 if plots:
                     plots[k].add(r)
+            extra = {}
+            for tr in tracked.values():
+                extra.update(tr.add(blk.t))
             if est is not None:
-                write_estimates(est, Estimates.from_replay(blk.t, results), header=False)
+                e = Estimates.from_replay(blk.t, results)
+                e.extra = extra or None
+                write_estimates(est, e, header=False)
             if px4 is not None:
                 px4.add(blk)
     summary: dict = {}
@@ -559,6 +602,8 @@ def run(args: argparse.Namespace) -> int:
                                  for i, (seg, st) in enumerate(zip(session.segments, scan.stats))]
             print(f"    alarm rate at rest (the session's static segments): {fmt(a / n, 'ratio', '%', digits=3)} of {n} "
                   f"samples (design: --p-fa {fmt(args.p_fa, 'ratio', '%', digits=3)})")
+        if k in tracked:
+            entry["selfcal"] = tracked[k].summary(k)
         summary[k] = entry
     px4_doc = px4.report() if px4 is not None else None
     if args.estimates:
@@ -566,7 +611,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         from ._common import json_dump
 
-        keep = ("alarms", "isolations", "rest_alarms", "rest_samples", "segments")
+        keep = ("alarms", "isolations", "rest_alarms", "rest_samples", "segments", "selfcal")
         doc = {k: {"events": [e.to_dict() for e in events[k]], "final_state": last_state[k],
                    **{f: v for f, v in summary[k].items() if f in keep}} for k in insts}
         if px4_doc is not None:
@@ -577,6 +622,8 @@ def run(args: argparse.Namespace) -> int:
         out.mkdir(parents=True, exist_ok=True)
         png = _plot(out / "replay.png", {k: p.series() for k, p in plots.items()})
         print(f"  plot:   {png}" if png else "  (matplotlib not installed: no plot; pip install 'rimu[plots]')")
+        for k, tr in tracked.items():
+            print(f"  plot:   {tr.plot(k, out)}")
     if args.output:
         import json
 
@@ -648,6 +695,72 @@ def _stored_motion_detector(cal, stored: dict, p_fa: float, fs: float, k: str): 
              f"up to {np.degrees(det.envelope[1]):.4g} deg/s^2: an alarm beyond is model_exceeded (output DEGRADED), "
              "nothing isolated"))
     return det
+
+
+def _tracked_columns(trackers: dict) -> list[str]:
+    """The estimates file's columns of the tracked terms: ``{k}_{term}_{sensor}`` and ``..._sigma`` (SI)."""
+    cols = []
+    for k, trk in trackers.items():
+        for b in trk.blocks:
+            for nm in trk.calibration.geometry.names:
+                cols += [f"{k}_{b}_{nm}", f"{k}_{b}_{nm}_sigma"]
+    return cols
+
+
+class _Tracked:
+    """One instrument's tracked terms over the replay: per sample for the estimates file (the terms of the last
+    window absorbed or predicted), decimated for the plot, the last ones for the summary."""
+
+    def __init__(self, loop) -> None:  # type: ignore[no-untyped-def]
+        self.loop = loop
+        trk = loop.tracker
+        terms = loop.terms()
+        self.last = (float("-inf"), np.stack([terms[b][0] for b in trk.blocks]),
+                     np.stack([terms[b][1] for b in trk.blocks]))
+        self.series: list[tuple[float, np.ndarray, np.ndarray]] = []
+        self.stride = 1
+        self.seen = 0
+
+    def add(self, t: np.ndarray) -> dict[str, np.ndarray]:
+        trk = self.loop.tracker
+        hist = [(h[0], h[1], h[2]) for h in self.loop.take_history()]
+        T = np.array([self.last[0]] + [h[0] for h in hist])
+        V = np.stack([self.last[1]] + [h[1] for h in hist])
+        S = np.stack([self.last[2]] + [h[2] for h in hist])
+        # a sample takes the terms of the last window that ended before it (a window's terms apply after it)
+        idx = np.searchsorted(T, np.asarray(t, float), side="left") - 1
+        idx = np.clip(idx, 0, len(T) - 1)
+        out = {}
+        for b, name in enumerate(trk.blocks):
+            for i, nm in enumerate(trk.calibration.geometry.names):
+                out[f"{trk.calibration.instrument}_{name}_{nm}"] = V[idx, b, i]
+                out[f"{trk.calibration.instrument}_{name}_{nm}_sigma"] = S[idx, b, i]
+        for h in hist:
+            if self.seen % self.stride == 0:
+                self.series.append(h)
+            self.seen += 1
+            if len(self.series) > 20000:  # at most 20 000 points: every other one, twice the stride
+                self.series = self.series[::2]
+                self.stride *= 2
+        if hist:
+            self.last = hist[-1]
+        return out
+
+    def summary(self, inst: str) -> dict:
+        from .selfcal import print_terms
+
+        loop = self.loop
+        print(f"    self-calibration: {loop.accepted} windows absorbed, {loop.rejected} gated out, {loop.discarded} "
+              "thrown away (alarms); tracked terms at the end (common mode left as it was), value +- 1 sigma:")
+        rows = print_terms(inst, loop.tracker, loop.terms(), indent="    ")
+        return {"windows_absorbed": loop.accepted, "windows_gated": loop.rejected, "windows_discarded": loop.discarded,
+                "blocks": list(loop.tracker.blocks), "units": "SI (rad/s or m/s^2, relative scale, SI/K^k)",
+                "sensors": rows}
+
+    def plot(self, inst: str, folder: Path):  # type: ignore[no-untyped-def]
+        from .selfcal import _plot
+
+        return _plot(inst, self.loop.tracker, self.series, str(folder))
 
 
 def _first_seconds(blocks, t_stop: float):  # type: ignore[no-untyped-def]

@@ -9,10 +9,10 @@ and, when the log has a temperature column, the temperature coefficients of the 
 innovation fails the chi-square gate are left out (a fault in the log is not absorbed). What the parity cannot see,
 the common mode (a drift every sensor shares as a true input would), is stated and left as it was.
 
-The output: scale ``SF / (1 + k)`` and bias ``(B + b) / (1 + k)`` at the end of the log, first- and second-order
-temperature coefficients added to the ``bias_temperature`` and ``bias_temperature2`` effects, and the covariance of
-the tracked terms in place of theirs (``x1.bias``, ``x1.scale``, ``x1.bias_tc1``...). A third-order coefficient
-(``--temperature-orders 3``) is tracked and reported but has no effect of rimu's to be written to (its covariance is).
+The output: scale ``SF / (1 + k)`` and bias ``(B + b) / (1 + k)`` at the end of the log, first- to third-order
+temperature coefficients added to the ``bias_temperature``, ``bias_temperature2`` and ``bias_temperature3`` effects
+(``--temperature-orders``), and the covariance of the tracked terms in place of theirs (``x1.bias``, ``x1.scale``,
+``x1.bias_tc1``...).
 
 The drift rate: from the calibration's noise model (``rimu noise``: bias instability and rate random walk, times
 ``--drift-factor``), or ``--bias-rw`` ((SI)^2/s). Figures are printed in the field's units (deg/h, micro-g, ppm).
@@ -25,7 +25,15 @@ from typing import Any
 
 import numpy as np
 
-from ._common import add_json_option, add_report_option, json_dump, positive_float, positive_int, probability
+from ._common import (
+    add_json_option,
+    add_report_option,
+    json_dump,
+    nonnegative_float,
+    positive_float,
+    positive_int,
+    probability,
+)
 
 _TC_DEFAULT = {"gyro": (1e-4, 1e-5, 1e-6), "accel": (1e-3, 1e-4, 1e-5)}
 
@@ -38,59 +46,104 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", required=True, help="updated calibration JSON file to write")
     p.add_argument("--instrument", action="append", choices=["gyro", "accel"], default=None,
                    help="instrument to track (repeatable; default every instrument of the calibration in the log)")
-    p.add_argument("--drift-factor", type=positive_float, default=1.0,
-                   help="bias drift rate relative to the noise model's bias instability (default %(default)s)")
-    p.add_argument("--horizon", type=positive_float, default=3600.0,
-                   help="time scale at which the bias random walk matches the bias instability, s (default %(default)s)")
-    p.add_argument("--bias-rw", type=positive_float, default=None,
-                   help="bias random-walk intensity, SI^2/s (instead of the noise model's)")
-    p.add_argument("--scale-rw", type=positive_float, default=(200e-6) ** 2 / 7200.0,
-                   help="relative scale random-walk intensity, 1/s (default: 200 ppm in 2 h)")
-    p.add_argument("--no-scale", action="store_true", help="do not track the scale")
-    p.add_argument("--temperature-orders", type=positive_int, default=2, choices=[1, 2, 3],
-                   help="orders of the bias temperature coefficients tracked when the log has a temperature "
-                        "(default %(default)s)")
-    p.add_argument("--temperature-sigma", default=None,
-                   help="prior 1-sigma of the coefficients, comma-separated per order, SI/K^k (default gyro "
-                        "1e-4,1e-5,1e-6 rad/s/K^k; accel 1e-3,1e-4,1e-5 m/s^2/K^k)")
-    p.add_argument("--window", type=positive_float, default=1.0, help="window of one measurement, s (default %(default)s)")
-    p.add_argument("--gate", type=probability, default=1e-4,
-                   help="innovation gate probability: windows beyond it are not absorbed (default %(default)s)")
+    add_tracker_options(p)
     add_json_option(p)
     add_report_option(p, "selfcal-<instrument>.png: the tracked terms over the log with their 1-sigma band")
     p.set_defaults(func=run)
 
 
-def _settings(args: argparse.Namespace, cal: Any, inst: str, has_temperature: bool) -> Any:
+def add_tracker_options(p: argparse.ArgumentParser, prefix: str = "") -> None:
+    """The tracker's settings (:class:`rimu.fdi.selfcal.SelfCalSettings`) as options, ``--{prefix}drift-factor``...
+    (``rimu selfcal``: no prefix; ``rimu replay --selfcal``: ``selfcal-``)."""
+    p.add_argument(f"--{prefix}drift-factor", type=positive_float, default=1.0,
+                   help="bias drift rate relative to the noise model's bias instability (default %(default)s)")
+    p.add_argument(f"--{prefix}horizon", type=positive_float, default=3600.0,
+                   help="time scale at which the bias random walk matches the bias instability, s (default %(default)s)")
+    p.add_argument(f"--{prefix}bias-rw", type=positive_float, default=None,
+                   help="bias random-walk intensity, SI^2/s (instead of the noise model's)")
+    p.add_argument(f"--{prefix}scale-rw", type=positive_float, default=(200e-6) ** 2 / 7200.0,
+                   help="relative scale random-walk intensity, 1/s (default: 200 ppm in 2 h)")
+    p.add_argument(f"--{prefix}no-scale", action="store_true", help="do not track the scale")
+    p.add_argument(f"--{prefix}temperature-orders", type=positive_int, default=2, choices=[1, 2, 3],
+                   help="orders of the bias temperature coefficients tracked when the data have a temperature "
+                        "(default %(default)s)")
+    p.add_argument(f"--{prefix}temperature-sigma", default=None,
+                   help="prior 1-sigma of the coefficients, comma-separated per order, SI/K^k (default gyro "
+                        "1e-4,1e-5,1e-6 rad/s/K^k; accel 1e-3,1e-4,1e-5 m/s^2/K^k)")
+    p.add_argument(f"--{prefix}window", type=positive_float, default=1.0,
+                   help="window of one measurement of the tracker, s (default %(default)s)")
+    p.add_argument(f"--{prefix}gate", type=probability, default=1e-4,
+                   help="innovation gate probability: windows beyond it are not absorbed (default %(default)s)")
+    if prefix:  # in flight: the detector's alarms hold the tracker
+        p.add_argument(f"--{prefix}hold", type=nonnegative_float, default=3.0,
+                       help="seconds without an alarm before a window is absorbed (default %(default)s; at least the "
+                            "detector's window plus its confirmations)")
+
+
+def tracker_settings(args: argparse.Namespace, cal: Any, inst: str, has_temperature: bool, prefix: str = "") -> Any:
+    """:class:`rimu.fdi.selfcal.SelfCalSettings` of instrument ``inst`` from the options of
+    :func:`add_tracker_options`; one clear line when the drift rate or the noise cannot be known."""
     from ..errors import MissingNoiseError, OptionError
     from ..fdi.selfcal import SelfCalSettings, bias_random_walk
 
+    def opt(name: str) -> Any:
+        return getattr(args, (prefix + name).replace("-", "_"))
+
+    flag = f"--{prefix}bias-rw"
     if cal.noise_sigma is None and cal.noise is None:
         raise MissingNoiseError(f"the {inst} calibration has neither noise_sigma nor a noise model: the tracker needs "
                                 "the sensors' noise; identify it first (rimu noise) or set noise_sigma in the file")
-    if args.bias_rw is not None:
-        q = args.bias_rw
+    if opt("bias-rw") is not None:
+        q = opt("bias-rw")
     elif cal.noise is not None:
-        q = bias_random_walk(cal.noise, args.drift_factor, args.horizon)
+        q = bias_random_walk(cal.noise, opt("drift-factor"), opt("horizon"))
     else:
-        raise MissingNoiseError(f"the {inst} calibration has no noise model: give the bias drift rate with --bias-rw "
+        raise MissingNoiseError(f"the {inst} calibration has no noise model: give the bias drift rate with {flag} "
                                 "(SI^2/s), or identify the noise first (rimu noise)")
     tsig = None
+    orders = opt("temperature-orders")
     if has_temperature:
-        if args.temperature_sigma is not None:
+        if opt("temperature-sigma") is not None:
             try:
-                vals = [float(x) for x in args.temperature_sigma.split(",")]
+                vals = [float(x) for x in opt("temperature-sigma").split(",")]
             except ValueError:
-                raise OptionError(f"--temperature-sigma must be numbers separated by commas, got "
-                                  f"{args.temperature_sigma!r}") from None
-            if len(vals) < args.temperature_orders or any(not v > 0 for v in vals):
-                raise OptionError(f"--temperature-sigma needs {args.temperature_orders} positive values (one per "
-                                  f"order), got {args.temperature_sigma!r}")
+                raise OptionError(f"--{prefix}temperature-sigma must be numbers separated by commas, got "
+                                  f"{opt('temperature-sigma')!r}") from None
+            if len(vals) < orders or any(not v > 0 for v in vals):
+                raise OptionError(f"--{prefix}temperature-sigma needs {orders} positive values (one per "
+                                  f"order), got {opt('temperature-sigma')!r}")
         else:
             vals = list(_TC_DEFAULT[inst])
-        tsig = tuple(vals[:args.temperature_orders])
-    return SelfCalSettings(bias_rw=q, scale_rw=None if args.no_scale else args.scale_rw, scale_sigma0=0.0,
-                           temperature_sigma=tsig, window_s=args.window, gate_p=args.gate)
+        tsig = tuple(vals[:orders])
+    extra = {"hold_s": opt("hold")} if prefix else {}
+    return SelfCalSettings(bias_rw=q, scale_rw=None if opt("no-scale") else opt("scale-rw"), scale_sigma0=0.0,
+                           temperature_sigma=tsig, window_s=opt("window"), gate_p=opt("gate"), **extra)
+
+
+def print_terms(inst: str, trk: Any, terms: dict[str, tuple[np.ndarray, np.ndarray]], indent: str = "  "
+                ) -> list[dict[str, Any]]:
+    """Print the tracked terms of every sensor in the field's units (deg/h, micro-g, ppm, per K^k); returns them
+    per sensor in SI (for the JSON summaries)."""
+    from ..units import MS2_TO_UG, PPM, RS_TO_DH
+
+    f, unit = (RS_TO_DH, "deg/h") if inst == "gyro" else (MS2_TO_UG, "micro-g")
+    rows = []
+    for i, nm in enumerate(trk.calibration.geometry.names):
+        row: dict[str, Any] = {"sensor": nm}
+        parts = []
+        for blk_name, (v, s) in terms.items():
+            if blk_name == "bias":
+                parts.append(f"bias {v[i] * f:+9.2f} +- {s[i] * f:.2f} {unit}")
+            elif blk_name == "scale":
+                parts.append(f"scale {v[i] / PPM:+8.1f} +- {s[i] / PPM:.1f} ppm")
+            else:
+                o = int(blk_name[2])
+                parts.append(f"{blk_name} {v[i] * f:+.3g} +- {s[i] * f:.2g} {unit}/K^{o}")
+            row[blk_name] = float(v[i])
+            row[blk_name + "_sigma"] = float(s[i])
+        print(f"{indent}{nm:>8s}  " + ", ".join(parts))
+        rows.append(row)
+    return rows
 
 
 def run(args: argparse.Namespace) -> int:
@@ -99,8 +152,6 @@ def run(args: argparse.Namespace) -> int:
     from ..fdi.selfcal import SelfCalTracker
     from ..fusion import Pipeline
     from ..session import iter_blocks
-    from ..units import MS2_TO_UG, PPM, RS_TO_DH
-
     cal = Calibration.load(args.calibration)
     pipe = Pipeline(cal)
     trackers: dict[str, Any] = {}
@@ -118,7 +169,7 @@ def run(args: argparse.Namespace) -> int:
                                          f"{args.calibration} also has (log: {sorted(blk.raw)}, calibration: "
                                          f"{list(cal.instruments)})")
             for k in insts:
-                trackers[k] = SelfCalTracker(cal[k], _settings(args, cal[k], k, has_t))
+                trackers[k] = SelfCalTracker(cal[k], tracker_settings(args, cal[k], k, has_t))
                 states[k] = trackers[k].initial_state(float(blk.t[0]))
                 counts[k] = [0, 0]
                 history[k] = []
@@ -159,32 +210,13 @@ def run(args: argparse.Namespace) -> int:
           + ("" if has_t else " (no temperature: temperature terms not tracked)"))
     for k, trk in trackers.items():
         out[k] = trk.calibration_at(states[k])
-        f, unit = (RS_TO_DH, "deg/h") if k == "gyro" else (MS2_TO_UG, "micro-g")
         terms = trk.terms(states[k])
         print(f"{k}: {counts[k][0]} windows absorbed, {counts[k][1]} gated out; tracked terms (common mode left as "
               f"it was: only an external reference gives it), value +- 1 sigma:")
-        rows = []
-        for i, nm in enumerate(cal[k].geometry.names):
-            row = {"sensor": nm}
-            parts = []
-            for blk_name, (v, s) in terms.items():
-                if blk_name == "bias":
-                    parts.append(f"bias {v[i] * f:+9.2f} +- {s[i] * f:.2f} {unit}")
-                elif blk_name == "scale":
-                    parts.append(f"scale {v[i] / PPM:+8.1f} +- {s[i] / PPM:.1f} ppm")
-                else:
-                    o = int(blk_name[2])
-                    parts.append(f"{blk_name} {v[i] * f:+.3g} +- {s[i] * f:.2g} {unit}/K^{o}")
-                row[blk_name] = float(v[i])
-                row[blk_name + "_sigma"] = float(s[i])
-            print(f"  {nm:>8s}  " + ", ".join(parts))
-            rows.append(row)
+        rows = print_terms(k, trk, terms)
         summary["instruments"][k] = {"windows_absorbed": counts[k][0], "windows_gated": counts[k][1],
                                      "blocks": list(trk.blocks), "units": "SI (rad/s or m/s^2, relative scale, "
                                      "SI/K^k)", "sensors": rows}
-        if "tc3" in terms:
-            print(f"  note: the third-order coefficients of {k} have no calibration effect to go to; they are kept "
-                  "in the covariance (x.bias_tc3) only")
     meta = dict(cal.metadata)
     meta["selfcal"] = {"log": str(args.data), "duration_s": t_last - t_first,
                        "tracked": {k: list(t.blocks) for k, t in trackers.items()}}

@@ -5,7 +5,9 @@ One CSV row per sample: ``t``, then per instrument in the calibration's order (g
 :class:`rimu.fusion.validity.Validity`: 0 nominal, 1 degraded, 2 unobservable) and ``{k}_isolated`` (0-based
 indices of the sensors the redundancy manager keeps out of the estimate after that sample -- isolated,
 recovering or failed -- joined by ``;``, empty when none). Numbers are written with 17 significant digits, so
-a file read back gives the same doubles.
+a file read back gives the same doubles. Further named columns may follow (``Estimates.extra``: ``rimu replay
+--selfcal`` writes the tracked terms of every sensor and their 1-sigma, ``gyro_bias_x1``, ``gyro_bias_x1_sigma``...,
+SI); :func:`read_estimates` reads them back into ``extra``.
 
 >>> import io
 >>> import numpy as np
@@ -68,12 +70,13 @@ ESTIMATE_COLUMNS = estimate_columns
 @dataclass
 class Estimates:
     """The content of an estimates file: ``t`` (N,), and per instrument ``x`` (N, 3) SI, ``validity`` (N,) int,
-    ``isolated`` (N, n) bool."""
+    ``isolated`` (N, n) bool; ``extra`` further named columns (N,) after those, in order."""
 
     t: np.ndarray
     x: dict[str, np.ndarray]
     validity: dict[str, np.ndarray]
     isolated: dict[str, np.ndarray]
+    extra: dict[str, np.ndarray] | None = None
 
     @classmethod
     def from_replay(cls, t: np.ndarray, results: Mapping[str, Any]) -> Estimates:
@@ -102,9 +105,14 @@ def write_estimates(dest: str | os.PathLike[str] | TextIO, est: Estimates, heade
         cols += [list(map(repr, x[:, a].tolist())) for a in range(3)]
         cols += [list(map(str, np.asarray(est.validity[k], int).tolist())),
                  [names[i] for i in np.asarray(inv).reshape(-1).tolist()]]
+    for name, v in (est.extra or {}).items():
+        if np.shape(v) != (N,):
+            raise ShapeError(f"extra column {name}: (N,) values with N = {N} samples, got {np.shape(v)}")
+        cols.append(list(map(repr, np.asarray(v, float).tolist())))
     text = "".join(",".join(row) + "\n" for row in zip(*cols))
     if header:
-        text = ",".join(estimate_columns({k: est.isolated[k].shape[1] for k in est.x})) + "\n" + text
+        text = ",".join(estimate_columns({k: est.isolated[k].shape[1] for k in est.x}) + list(est.extra or {})) \
+            + "\n" + text
     own = not hasattr(dest, "write")
     fh: Any = open(dest, "w", newline="") if own else dest
     try:
@@ -125,18 +133,24 @@ def read_estimates(src: str | os.PathLike[str] | TextIO, cal: Any) -> Estimates:
     text = Path(src).read_text() if not hasattr(src, "read") else src.read()
     rows = list(csv.reader(io.StringIO(text)))
     name = str(src) if not hasattr(src, "read") else "the estimates stream"
-    if not rows or rows[0] != want:
+    if not rows or rows[0][:len(want)] != want:
         raise SessionFormatError(f"{name}: the header is {rows[0] if rows else 'missing'}, expected {want} "
                                  "(an estimates file of this calibration's instruments)")
+    names_extra = rows[0][len(want):]
+    if any(nm.rsplit("_", 1)[-1] in ("x", "y", "z", "validity", "isolated") for nm in names_extra):
+        raise SessionFormatError(f"{name}: the header is {rows[0]}, expected {want} (an estimates file of this "
+                                 "calibration's instruments)")
     body = [r for r in rows[1:] if r]
     N = len(body)
+    extra = {nm: np.zeros(N) for nm in names_extra}
     t = np.zeros(N)
     x = {k: np.zeros((N, 3)) for k in sizes}
     val = {k: np.zeros(N, int) for k in sizes}
     iso = {k: np.zeros((N, n), bool) for k, n in sizes.items()}
     for r, row in enumerate(body):
-        if len(row) != len(want):
-            raise SessionFormatError(f"{name}: row {r + 2} has {len(row)} fields, expected {len(want)}")
+        if len(row) != len(want) + len(names_extra):
+            raise SessionFormatError(f"{name}: row {r + 2} has {len(row)} fields, expected "
+                                     f"{len(want) + len(names_extra)}")
         try:
             t[r] = float(row[0])
             c = 1
@@ -150,6 +164,8 @@ def read_estimates(src: str | os.PathLike[str] | TextIO, cal: Any) -> Estimates:
                     raise ValueError(f"sensor index out of 0..{n - 1}: {idx}")
                 iso[k][r, idx] = True
                 c += 5
+            for j, nm in enumerate(names_extra):
+                extra[nm][r] = float(row[c + j])
         except ValueError as exc:
             raise SessionFormatError(f"{name}: row {r + 2}: {exc}") from None
-    return Estimates(t, x, val, iso)
+    return Estimates(t, x, val, iso, extra or None)

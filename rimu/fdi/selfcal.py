@@ -32,17 +32,18 @@ directions. The tracker never moves the common mode: the correction it exposes i
 ``Phi theta`` (``Vz Pi = Vz``).
 
 **Fault-aware.** The filter absorbs what the drift model allows and nothing faster: a window whose innovation
-fails the chi-square gate (``gate_p``) is not absorbed; :class:`SelfCalibratingRun` applies a window only after
+fails the chi-square gate (``gate_p``) is not absorbed; :class:`SelfCalLoop` applies a window only after
 ``hold_s`` more seconds without any alarm of the detector (so the lead-up to an alarm is never absorbed), not at all
 while an alarm episode is open, and never to the states of isolated sensors (Schmidt's consider update: their
 gain rows are zero, the Joseph form keeps the covariance exact). Re-admission sees outputs corrected with the
 (frozen) tracked values of the isolated sensor.
 
-**The interface to the detector** (what a runtime adopts): subtract :meth:`SelfCalTracker.correction` (SI, per
-sample) from the compensated outputs before the parity, or ``correction / SF`` from the raw outputs; add
-:meth:`SelfCalTracker.parity_covariance` (the tracked terms' uncertainty in the parity) to the detector's noise
-covariance: :class:`TrackedGltWindow` whitens with ``L = chol(I + M Vz Sigma_c Vz^T)^-1`` for a window of M
-samples, and :func:`minimum_detectable_bias` gives what that costs in detection.
+**In the runtime.** :class:`rimu.fdi.Runtime` (``selfcal=``) holds one :class:`SelfCalLoop` per tracked
+instrument, the one definition of the loop: every epoch's compensated outputs are corrected by
+``correction / SF`` before the manager's step; :class:`TrackedGltWindow` whitens the detector's window sum with
+``L = chol(I + M Vz Sigma_c Vz^T)^-1`` for a window of M samples (:func:`minimum_detectable_bias` gives what that
+costs in detection); the windows are absorbed as above. :class:`SelfCalibratingRun` runs the same loop around a bare
+manager.
 """
 
 from __future__ import annotations
@@ -62,7 +63,7 @@ from ..noise.model import FLICKER_AVAR
 from .glt import GltWindow, glt_threshold
 from .health import SensorState
 
-__all__ = ["BLOCKS", "SelfCalSettings", "SelfCalState", "SelfCalTracker", "SelfCalUpdate", "SelfCalibratingRun",
+__all__ = ["BLOCKS", "SelfCalLoop", "SelfCalSettings", "SelfCalState", "SelfCalTracker", "SelfCalUpdate", "SelfCalibratingRun",
            "SelfCalRunResult", "TrackedGltWindow", "bias_random_walk", "minimum_detectable_bias",
            "unobservable_basis"]
 
@@ -136,9 +137,9 @@ class SelfCalSettings:
         Probability of the innovation gate: a window whose innovation exceeds ``chi2_{1 - gate_p}(dof)`` is not
         absorbed.
     hold_s : float
-        :class:`SelfCalibratingRun` absorbs a window only after this many further seconds without an alarm.
+        :class:`SelfCalLoop` (the runtime's) absorbs a window only after this many further seconds without an alarm.
     watch_p : float
-        :class:`SelfCalibratingRun` treats a detector statistic above ``chi2_{1 - watch_p}(dof)`` like an alarm
+        :class:`SelfCalLoop` treats a detector statistic above ``chi2_{1 - watch_p}(dof)`` like an alarm
         for the tracker (a fault building up below the alarm threshold is not absorbed).
     """
 
@@ -451,8 +452,7 @@ class SelfCalTracker:
 
         Scale and bias: ``SF' = SF / (1 + k)``, ``B' = (B + b) / (1 + k)`` (so that ``SF' y - B'`` removes the
         tracked bias and relative scale); temperature coefficients are added to the ``bias_temperature`` (order
-        1) and ``bias_temperature2`` (order 2) effects; a third-order term has no effect of rimu's to go to and
-        is kept in the covariance only (``x1.bias_tc3``). The covariance names ``x1.bias``, ``x1.scale`` (SI per raw
+        1), ``bias_temperature2`` (order 2) and ``bias_temperature3`` (order 3) effects. The covariance names ``x1.bias``, ``x1.scale`` (SI per raw
         unit), ``x1.bias_tc1``... over the tracked blocks (the calibration's previous covariance is replaced).
         """
         cal = self.calibration
@@ -463,7 +463,7 @@ class SelfCalTracker:
         scale = cal.scale / (1.0 + k)
         bias = (cal.bias + b) / (1.0 + k)
         effects = {e: dict(v) for e, v in cal.effects.items()}
-        for name, eff in (("tc1", "bias_temperature"), ("tc2", "bias_temperature2")):
+        for name, eff in (("tc1", "bias_temperature"), ("tc2", "bias_temperature2"), ("tc3", "bias_temperature3")):
             if name in terms:
                 d = effects.setdefault(eff, {})
                 for i, nm in enumerate(names):
@@ -585,29 +585,175 @@ class SelfCalRunResult:
         return sum(1 for e in self.replay.events if e.kind in ("isolated", "invalid_isolated"))
 
 
-def _concat_replay(parts: list[Any]) -> Any:
-    first = parts[0]
-    kw = {}
-    for f in first.__dataclass_fields__:
-        v = getattr(first, f)
-        if f == "events":
-            kw[f] = [e for p in parts for e in p.events]
-        elif f == "names":
-            kw[f] = v
+class SelfCalLoop:
+    """The tracker in the runtime's loop for one instrument: the one definition of what the runtime does with it.
+
+    :class:`rimu.fdi.Runtime` holds one per tracked instrument (``Runtime(..., selfcal={"gyro": loop})``) and calls,
+    for every epoch, :meth:`correct` on the instrument's compensated raw outputs before its manager's step and
+    :meth:`observe` after it; :class:`SelfCalibratingRun` does the same around a bare manager. The loop owns the
+    tracker's state (:attr:`state`, a :class:`SelfCalState`), the windows waiting to be absorbed and the counts.
+
+    Per window of ``M = round(window_s * sample_rate)`` samples:
+
+    * **compensation with the tracked values**: every sample's outputs are corrected by ``c / SF``
+      (:meth:`SelfCalTracker.correction`, regressors from the uncorrected fused estimate and the temperature), so
+      the detector, the estimate and the re-admission test see the tracked terms taken out;
+    * **thresholds with the tracker's covariance**: at the window's first sample the detector (when a
+      :class:`TrackedGltWindow`) gets the largest correction covariance of the windows its sum spans (the state
+      predicted to the window's end, the previous window's rms regressors);
+    * **fault-aware absorption**: a window in which the manager alarmed, or its statistic exceeded the ``watch_p``
+      level, throws away itself and every window still waiting (an open alarm episode and its lead-up are never
+      absorbed); the others are absorbed ``hold_s`` later, the sensors isolated then frozen (Schmidt), the sensors
+      invalid in the window left out.
+
+    Parameters
+    ----------
+    tracker : SelfCalTracker
+    sample_rate : float
+        Hz (the windows are counted in samples).
+    detector : optional
+        The manager's detector; kept informed of the tracker's covariance when it is a :class:`TrackedGltWindow`.
+    state : SelfCalState, optional
+        Start from it (default the tracker's initial state at the first sample's time).
+    history : bool
+        Keep the tracked terms after every window (:attr:`history`: ``(t, values (m, n), sigmas (m, n), theta)``,
+        SI), for reports and estimates files; off, the loop's memory does not grow with the run.
+
+    Examples
+    --------
+    >>> from rimu.calibration import InstrumentCalibration
+    >>> from rimu.fusion import InstrumentPipeline
+    >>> from rimu.fdi import RedundancyManager
+    >>> from rimu.geometry import cone6
+    >>> cal = InstrumentCalibration.nominal("gyro", cone6(), 1.0, noise_sigma=0.01)
+    >>> trk = SelfCalTracker(cal, SelfCalSettings(bias_rw=1e-6, bias_sigma0=0.01, window_s=1.0, hold_s=1.0))
+    >>> det = TrackedGltWindow(10, 1e-4)
+    >>> mgr = RedundancyManager(InstrumentPipeline(cal), det, p_fa=1e-4)
+    >>> loop = SelfCalLoop(trk, 10.0, det)
+    >>> rng = np.random.default_rng(0)
+    >>> for k in range(300):                      # 30 s; x1 drifted by 2 sigma
+    ...     y = 0.01 * rng.standard_normal(6) + np.array([0.02, 0, 0, 0, 0, 0])
+    ...     r = mgr.step(loop.correct(y, None, 0.1 * k), None, 0.1 * k)
+    ...     loop.observe(r, mgr.sensors.state >= SensorState.ISOLATED)
+    >>> c = loop.terms()["bias"][0]                   # what the parity tells: the drift without its common mode
+    >>> d = np.array([0.02, 0, 0, 0, 0, 0])
+    >>> bool(np.abs(c - (d - trk.common_mode(d))).max() < 3e-3), loop.accepted, mgr.health.isolated
+    (True, 29, [])
+    """
+
+    def __init__(self, tracker: SelfCalTracker, sample_rate: float, detector: Any = None,
+                 state: SelfCalState | None = None, history: bool = False) -> None:
+        if not (sample_rate > 0 and math.isfinite(sample_rate)):
+            raise ValueError(f"sample_rate must be positive (Hz), got {sample_rate}")
+        self.tracker = tracker
+        st = tracker.settings
+        self.M = max(1, int(round(st.window_s * float(sample_rate))))
+        self.sample_rate = float(sample_rate)
+        self.detector = detector if isinstance(detector, TrackedGltWindow) else None
+        self.span = 1 if self.detector is None else int(math.ceil(self.detector.window / self.M)) + 1
+        self.state = state
+        self.keep_history = bool(history)
+        self.history: list[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = []
+        self.accepted = self.rejected = self.discarded = 0
+        n, m = tracker.n, tracker.m
+        self._z = np.zeros((self.M, n))
+        self._g = np.zeros((self.M, m, n))
+        self._ok = np.ones((self.M, n), bool)
+        self._k = 0
+        self._flag = False
+        self._t_end = 0.0
+        self._th = np.zeros((m, n))
+        self._g_last: np.ndarray | None = None
+        self._pending: list[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = []
+        self._recent: list[np.ndarray] = []
+        self._watch: dict[int, float] = {}
+        self._scale = tracker.calibration.scale
+        self.last_correction = np.zeros(n)
+
+    def _watch_level(self, dof: int) -> float:
+        v = self._watch.get(dof)
+        if v is None:
+            v = self._watch[dof] = glt_threshold(self.tracker.settings.watch_p, max(int(dof), 1))
+        return v
+
+    def take_history(self) -> list[tuple[float, np.ndarray, np.ndarray, np.ndarray]]:
+        """The windows' entries of :attr:`history` since the last call (and forget them: a long replay's memory
+        stays that of one chunk)."""
+        out, self.history = self.history, []
+        return out
+
+    def terms(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """The tracked terms now (:meth:`SelfCalTracker.terms` of the current state), SI."""
+        trk = self.tracker
+        return trk.terms(self.state if self.state is not None else trk.initial_state())
+
+    def correct(self, y: np.ndarray, valid: np.ndarray | None, t: float, temperature: float | None = None
+                ) -> np.ndarray:
+        """The compensated raw outputs ``y`` (n,) of one epoch corrected by the tracked terms, ``y - c / SF``."""
+        trk = self.tracker
+        y = np.asarray(y, dtype=float)
+        ok = np.isfinite(y) if valid is None else (np.isfinite(y) & np.asarray(valid, bool))
+        if self.state is None:
+            self.state = trk.initial_state(float(t))
+        k = self._k
+        z = np.where(ok, y * self._scale - trk.calibration.bias, 0.0)
+        u = z @ trk.G.T if ok.all() else np.zeros(3)
+        T = None if temperature is None else np.array([float(temperature)])
+        if T is not None and not np.isfinite(T[0]):
+            ok = np.zeros_like(ok)
+            T = np.array([trk.settings.reference_temperature])
+        g = trk.regressors(1, u[None], T)[0]
+        if k == 0:  # a new window: the state's terms, and the detector's covariance for the windows its sum spans
+            self._th = self.state.theta.reshape(trk.m, trk.n)
+            if self.detector is not None:
+                st = trk.predict(self.state, max(float(t) + trk.settings.window_s, self.state.t))
+                self._recent.append(trk.correction_covariance(st, g if self._g_last is None else self._g_last))
+                del self._recent[:-self.span]
+                self.detector.set_tracker_covariance(max(self._recent, key=lambda c: float(np.trace(c))))
+            self._flag = False
+        c = trk.Pi @ np.einsum("bn,bn->n", g, self._th)
+        self._z[k] = z
+        self._g[k] = g
+        self._ok[k] = ok
+        self._t_end = float(t)
+        self.last_correction = c
+        return y - c / self._scale
+
+    def observe(self, result: Any, isolated: np.ndarray) -> None:
+        """After the manager's step on :meth:`correct`'s outputs: its alarm and statistic (``result``, an
+        :class:`rimu.fdi.FdiResult`) and the sensors it keeps isolated (n,) bool."""
+        if result.alarm or (result.dof >= 1 and result.statistic > self._watch_level(result.dof)):
+            self._flag = True
+        self._k += 1
+        if self._k < self.M:
+            return
+        self._k = 0
+        trk = self.tracker
+        t = self._t_end
+        iso = np.asarray(isolated, bool)
+        g_rms = np.sqrt(np.mean(self._g * self._g, axis=0)) * np.sign(np.mean(self._g, axis=0) + 1e-300)
+        self._g_last = g_rms
+        if self._flag:
+            self.discarded += len(self._pending) + 1
+            self._pending = []
         else:
-            kw[f] = np.concatenate([getattr(p, f) for p in parts], axis=0)
-    return type(first)(**kw)
+            self._pending.append((t, self._z.copy(), self._g.copy(), self._ok.all(axis=0) & ~iso))
+        while self._pending and self._pending[0][0] <= t - trk.settings.hold_s:
+            tp, zp, gp, actp = self._pending.pop(0)
+            s0 = trk.predict(self.state, max(tp, self.state.t))
+            s1, info = trk.update(s0, zp, gp, actp, ~actp | iso)
+            self.accepted += int(info.accepted)
+            self.rejected += int(not info.accepted and info.gate < float("inf"))
+            self.state = s1
+        if self.keep_history:
+            terms = trk.terms(trk.predict(self.state, max(t, self.state.t)))
+            self.history.append((t, np.stack([terms[b][0] for b in trk.blocks]),
+                                 np.stack([terms[b][1] for b in trk.blocks]), self.state.theta))
 
 
 class SelfCalibratingRun:
-    """Drive a :class:`rimu.fdi.RedundancyManager` from the outside with a tracker (the adapter until the runtime
-    adopts the tracker; it touches only the manager's public API).
-
-    Per window of ``settings.window_s``: the raw outputs are corrected by ``correction / SF`` (scale terms from the
-    uncorrected fused estimate), the detector (a :class:`TrackedGltWindow`) gets the tracked terms' covariance,
-    the manager runs the window, and the window's compensated outputs wait ``hold_s`` before the tracker absorbs
-    them: any alarm meanwhile throws away every waiting window; isolated sensors are frozen; invalid sensors are
-    left out of that window.
+    """A :class:`rimu.fdi.RedundancyManager` stepped with a :class:`SelfCalLoop` (what :class:`rimu.fdi.Runtime`
+    does per instrument, around a bare manager: tests and studies of one instrument).
 
     Parameters
     ----------
@@ -622,79 +768,47 @@ class SelfCalibratingRun:
     def __init__(self, manager: Any, tracker: SelfCalTracker, state: SelfCalState | None = None) -> None:
         self.manager = manager
         self.tracker = tracker
-        self.state = state
-        self._pending: list[tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
-        self._recent: list[np.ndarray] = []
+        self._state0 = state
+        self.loop: SelfCalLoop | None = None
 
-    def _watch(self, dof: np.ndarray) -> np.ndarray:
-        p = self.tracker.settings.watch_p
-        out = np.empty(len(dof))
-        for d in np.unique(dof):
-            out[dof == d] = glt_threshold(p, int(d))
-        return out
-
-    def _g_rms(self, g: np.ndarray) -> np.ndarray:
-        return np.sqrt(np.mean(g * g, axis=0)) * np.sign(np.mean(g, axis=0) + 1e-300)
+    @property
+    def state(self) -> SelfCalState | None:
+        """The tracker's state now (the loop's)."""
+        return self._state0 if self.loop is None else self.loop.state
 
     def run(self, Y: np.ndarray, valid: np.ndarray | None = None, t: np.ndarray | None = None,
             temperature: np.ndarray | None = None) -> SelfCalRunResult:
-        """Process N raw samples (N, n) with their times ``t`` (s) and temperature (degC) when tracked."""
+        """Process N raw samples (N, n) with their times ``t`` (s) and temperature (degC) when tracked; continues
+        from the previous call."""
+        from .manager import _Collector
+
         mgr, trk = self.manager, self.tracker
-        cal = trk.calibration
         Y = np.asarray(Y, dtype=float)
         N = len(Y)
         if t is None:
             raise MissingInputError("give the sample times t (s)")
         t = np.asarray(t, dtype=float)
-        fs = 1.0 / float(np.median(np.diff(t))) if N > 1 else 1.0
-        M = max(1, int(round(trk.settings.window_s * fs)))
-        if self.state is None:
-            self.state = trk.initial_state(float(t[0]))
-        det = mgr.detector if isinstance(mgr.detector, TrackedGltWindow) else None
-        parts, tw, vals, sigs, ths, corr = [], [], [], [], [], np.zeros((N, trk.n))
-        acc = rej = disc = 0
-        g_last = trk.regressors(1, np.zeros((1, 3)), None if temperature is None else np.asarray(temperature)[:1])[0]
-        span = 1 if det is None else int(math.ceil(det.window / M)) + 1
-        for a in range(0, N, M):
-            b = min(N, a + M)
-            Yw = Y[a:b]
-            vw = None if valid is None else np.asarray(valid[a:b], bool)
-            ok = np.isfinite(Yw) & (True if vw is None else vw)
-            z = cal.compensate(np.where(ok, Yw, 0.0))
-            u = np.where(ok.all(axis=1)[:, None], z, 0.0) @ trk.G.T
-            T = None if temperature is None else np.asarray(temperature[a:b], dtype=float)
-            g = trk.regressors(b - a, u, T)
-            st = trk.predict(self.state, float(t[b - 1]))
-            c = trk.correction(st, g)
-            corr[a:b] = c
-            if det is not None:
-                # the detector's window holds samples corrected by the last ``span`` windows' estimates: it gets the
-                # largest of their covariances (after an update the new, smaller one would not cover the old samples)
-                self._recent.append(trk.correction_covariance(st, self._g_rms(g) if b > a else g_last))
-                del self._recent[:-span]
-                det.set_tracker_covariance(max(self._recent, key=lambda c: float(np.trace(c))))
-            res = mgr.run(Yw - c / cal.scale, vw, t[a:b])
-            parts.append(res)
-            isolated = res.sensor_state[-1] >= SensorState.ISOLATED
-            dof = np.maximum(np.asarray(res.n_active) - 3, 1)
-            watch = res.statistic > self._watch(dof)
-            if res.alarm.any() or watch.any():
-                disc += len(self._pending) + 1
-                self._pending = []
-            else:
-                self._pending.append((float(t[b - 1]), z, g, ok.all(axis=0) & ~isolated, isolated))
-            while self._pending and self._pending[0][0] <= float(t[b - 1]) - trk.settings.hold_s:
-                tp, zp, gp, actp, frp = self._pending.pop(0)
-                s0 = trk.predict(self.state, max(tp, self.state.t))
-                s1, info = trk.update(s0, zp, gp, actp, frp | isolated)
-                acc += int(info.accepted)
-                rej += int(not info.accepted and info.gate < float("inf"))
-                self.state = s1
-            terms = trk.terms(trk.predict(self.state, max(float(t[b - 1]), self.state.t)))
-            tw.append(float(t[b - 1]))
-            vals.append(np.stack([terms[k][0] for k in trk.blocks]))
-            sigs.append(np.stack([terms[k][1] for k in trk.blocks]))
-            ths.append(self.state.theta)
-            g_last = self._g_rms(g)
-        return SelfCalRunResult(_concat_replay(parts), np.array(tw), np.array(vals), np.array(sigs), acc, rej, disc,
-                                corr, trk.blocks, np.array(ths))
+        if self.loop is None:
+            fs = 1.0 / float(np.median(np.diff(t))) if N > 1 else 1.0
+            self.loop = SelfCalLoop(trk, fs, mgr.detector, self._state0, history=True)
+        loop = self.loop
+        h0 = len(loop.history)
+        a0, r0, d0 = loop.accepted, loop.rejected, loop.discarded
+        out = _Collector(mgr, N)
+        corr = np.zeros((N, trk.n))
+        T = None if temperature is None else np.asarray(temperature, dtype=float)
+        with np.errstate(invalid="ignore", over="ignore"):
+            for k in range(N):
+                v = None if valid is None else valid[k]
+                yk = loop.correct(Y[k], v, float(t[k]), None if T is None else float(T[k]))
+                r = mgr.step(yk, v, float(t[k]))
+                loop.observe(r, mgr.sensors.state >= SensorState.ISOLATED)
+                out.add(k, r)
+                corr[k] = loop.last_correction
+        hist = loop.history[h0:]
+        m, n = trk.m, trk.n
+        return SelfCalRunResult(out.result(t), np.array([h[0] for h in hist]),
+                                np.array([h[1] for h in hist]).reshape(-1, m, n),
+                                np.array([h[2] for h in hist]).reshape(-1, m, n), loop.accepted - a0,
+                                loop.rejected - r0, loop.discarded - d0, corr, trk.blocks,
+                                np.array([h[3] for h in hist]).reshape(-1, m * n))

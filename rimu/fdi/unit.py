@@ -27,8 +27,11 @@ import numpy as np
 from ..epoch import Epoch, EpochBlock
 from ..errors import ShapeError
 from ..fusion import Pipeline
+from .glt import GltSnapshot
+from .health import SensorState
 from .manager import FdiEvent, FdiResult, RedundancyManager, ReplayResult, _Collector
 from .multiple import FaultSetGlt
+from .selfcal import SelfCalLoop, SelfCalTracker, TrackedGltWindow
 from .settings import DEFAULTS, NAMES, FdiSettings
 
 __all__ = ["Runtime", "UnitManager"]
@@ -57,6 +60,14 @@ class Runtime:
         ``factory(instrument_pipeline) -> detector``: another detector than the GLT snapshot, per instrument.
     managers : dict[str, RedundancyManager], optional
         Managers built on ``pipeline``'s own instrument pipelines (``pipeline[k]``), instead of ``settings``.
+    selfcal : dict[str, SelfCalTracker or SelfCalLoop], optional
+        In-flight self-calibration (:mod:`rimu.fdi.selfcal`, docs/selfcal.md) of these instruments: the runtime
+        holds one :class:`rimu.fdi.selfcal.SelfCalLoop` per instrument (the tracker's state, :attr:`selfcal`), every
+        epoch's compensated outputs are corrected by the tracked terms before the manager's step (estimate,
+        detection and re-admission see them taken out), the detector's thresholds carry the tracker's covariance
+        (a :class:`rimu.fdi.selfcal.TrackedGltWindow`; the default managers get one, of the tracker's window), and
+        the tracker absorbs a window only ``hold_s`` after it without any alarm, never for isolated sensors. A
+        tracker needs the managers' ``sample_rate`` (Hz).
     **options
         Further keyword arguments of :class:`RedundancyManager` (``sample_rate``, ``max_events``, ``isolator``;
         or any setting, which then overrides ``settings``).
@@ -78,7 +89,7 @@ class Runtime:
 
     def __init__(self, pipeline: Pipeline | Any, settings: FdiSettings | None = None, *,
                  detector_factory: Any = None, managers: dict[str, RedundancyManager] | None = None,
-                 **options: Any) -> None:
+                 selfcal: dict[str, Any] | None = None, **options: Any) -> None:
         if not isinstance(pipeline, Pipeline):
             pipeline = Pipeline(pipeline)
         if isinstance(settings, dict):  # Runtime(pipeline, managers)
@@ -91,6 +102,15 @@ class Runtime:
             kw = st.manager_kwargs()
             if detector_factory is not None and "isolator" not in options:
                 kw.pop("isolator")  # the manager picks the isolator that fits the detector
+            if selfcal and detector_factory is None:  # thresholds that carry the tracker's covariance
+                rate = options.get("sample_rate")
+                win = {k: max(1, int(round(_tracker(v).settings.window_s * rate))) if rate else 1
+                       for k, v in selfcal.items()}
+
+                def detector_factory(ip: Any, st: FdiSettings = st) -> Any:
+                    k = ip.calibration.instrument
+                    return TrackedGltWindow(win[k], st.p_fa) if k in win else GltSnapshot(
+                        st.p_fa, getattr(ip.calibration, "noise", None))
             kw.update(options)
             managers = {}
             for k, ip in pipeline.instruments.items():
@@ -113,6 +133,34 @@ class Runtime:
                                  f"(RedundancyManager(pipeline[{k!r}], ...)): the compensation estimates on it")
         self.pipeline = pipeline
         self.managers = managers
+        #: the in-flight self-calibration of each tracked instrument (its state: ``selfcal[k].state``)
+        self.selfcal: dict[str, SelfCalLoop] = {}
+        for k, v in (selfcal or {}).items():
+            if k not in managers:
+                raise ShapeError(f"selfcal names {k!r}, not an instrument of the pipeline ({sorted(managers)})")
+            if isinstance(v, SelfCalLoop):
+                self.selfcal[k] = v
+            else:
+                rate = managers[k].sample_rate
+                if not rate:
+                    raise ValueError("a self-calibrating runtime needs the sample rate (sample_rate=, Hz): the "
+                                     "tracker's windows are counted in samples")
+                self.selfcal[k] = SelfCalLoop(v, rate, managers[k].detector)
+
+    def _mstep(self, k: str, y: np.ndarray, valid: Any, t: float, temperature: float | None) -> FdiResult:
+        """Instrument ``k``'s manager on one epoch's compensated outputs, corrected by its tracked terms first."""
+        loop = self.selfcal.get(k)
+        m = self.managers[k]
+        if loop is None:
+            return m.step(y, valid, t)
+        r = m.step(loop.correct(y, valid, t, temperature), valid, t)
+        loop.observe(r, m.sensors.state >= SensorState.ISOLATED)
+        return r
+
+    def selfcal_terms(self) -> dict[str, dict[str, tuple[np.ndarray, np.ndarray]]]:
+        """The tracked terms of every tracked instrument now, with their 1-sigma (SI; see
+        :meth:`rimu.fdi.selfcal.SelfCalTracker.terms`)."""
+        return {k: loop.terms() for k, loop in self.selfcal.items()}
 
     def active_sets(self) -> dict[str, int]:
         """Each instrument's set in use (set codes; bit i = sensor i): what the next epoch is computed on."""
@@ -125,7 +173,8 @@ class Runtime:
         return sorted(ev, key=lambda ke: (ke[1].sample, ke[1].t))
 
     def reset(self) -> None:
-        """Every manager starts over (see :meth:`RedundancyManager.reset`); the drift's time origin is kept."""
+        """Every manager starts over (see :meth:`RedundancyManager.reset`); the drift's time origin and the
+        tracked terms of the self-calibration (calibration knowledge, :attr:`selfcal`) are kept."""
         for m in self.managers.values():
             m.reset()
 
@@ -133,19 +182,20 @@ class Runtime:
         """One epoch: compensation with each manager's isolation set, then each manager's step on its
         instrument's compensated outputs, in the pipeline's order. Returns the managers' (reused) results."""
         t = float(epoch.t)
-        mgrs = self.managers
         pipe = self.pipeline
         if pipe.compiled:  # the compiled compensation stage: the epoch as a block of one, as run() does
             return self._step_compiled(epoch, t)
-        return pipe.step_through(epoch, lambda k, y, valid: mgrs[k].step(y, valid, t), self.active_sets())
+        T = epoch.temperature
+        return pipe.step_through(epoch, lambda k, y, valid: self._mstep(k, y, valid, t, T), self.active_sets())
 
     def _step_compiled(self, epoch: Epoch, t: float) -> dict[str, FdiResult]:
         """:meth:`step` with the compensation computed by the compiled block path (one epoch; the managers'
         sets), each manager stepping on its instrument's compensated outputs in order; closed loop through
         :meth:`rimu.fusion.Pipeline.step_through` on an epoch where the first instrument's manager estimate is not
         the compensation's (an alarm leaving suspects out: the next instrument's effects take the manager's)."""
-        pipe, mgrs = self.pipeline, self.managers
+        pipe = self.pipeline
         valid = epoch.valid
+        T = epoch.temperature
         sub = EpochBlock(np.array([t]), {k: np.asarray(y, dtype=float)[None] for k, y in epoch.raw.items()},
                          {k: np.asarray(v, dtype=bool)[None] for k, v in valid.items()},
                          None if epoch.temperature is None else np.array([float(epoch.temperature)]))
@@ -154,11 +204,11 @@ class Runtime:
         order = pipe.order
         done: dict[str, FdiResult] = {}
         for n_k, k in enumerate(order):
-            r = mgrs[k].step(ycomp[k][0], valid.get(k), t)
+            r = self._mstep(k, ycomp[k][0], valid.get(k), t, T)
             done[k] = r
             if n_k + 1 < len(order) and k in xcomp and not np.array_equal(r.x, xcomp[k][0], equal_nan=True):
                 def rest(kk: str, y: np.ndarray, vv: Any, done: dict = done) -> Any:
-                    return done[kk] if kk in done else mgrs[kk].step(y, vv, t)
+                    return done[kk] if kk in done else self._mstep(kk, y, vv, t, T)
 
                 return dict(pipe.step_through(epoch, rest, active))
         return {k: done[k] for k in pipe.instruments}
@@ -177,7 +227,7 @@ class Runtime:
         epochs and doubles, so that sets changing often do not each waste a chunk's compensation."""
         N = len(block)
         t = np.asarray(block.t, dtype=float)
-        if not self.pipeline.compensation:  # nothing couples the instruments: each manager runs on its own
+        if not self.pipeline.compensation and not self.selfcal:  # nothing couples the instruments: each manager alone
             return {k: m.run(block.raw[k], block.valid.get(k), t) for k, m in self.managers.items()}
         if chunk < 1:
             raise ValueError(f"chunk must be >= 1 epochs, got {chunk}")
@@ -210,13 +260,15 @@ class Runtime:
                     done: dict[str, FdiResult] = {}
                     for n_k, k in enumerate(order):
                         v = valid.get(k)
-                        r = mgrs[k].step(ycomp[k][j], None if v is None else v[g], float(t[g]))
+                        r = self._mstep(k, ycomp[k][j], None if v is None else v[g], float(t[g]),
+                                        None if T is None else float(T[g]))
                         done[k] = r
                         if n_k + 1 < len(order) and k in xcomp and not np.array_equal(r.x, xcomp[k][j],
                                                                                       equal_nan=True):
                             # the next instrument's effects take this estimate: that epoch, closed loop
-                            def rest(kk: str, y: np.ndarray, vv: Any, done: dict = done, tg: float = float(t[g])):
-                                return done[kk] if kk in done else mgrs[kk].step(y, vv, tg)
+                            def rest(kk: str, y: np.ndarray, vv: Any, done: dict = done, tg: float = float(t[g]),
+                                     Tg: float | None = None if T is None else float(T[g])):
+                                return done[kk] if kk in done else self._mstep(kk, y, vv, tg, Tg)
 
                             done = dict(pipe.step_through(epoch(g), rest, self.active_sets()))
                             break
@@ -228,6 +280,10 @@ class Runtime:
                 size = min(chunk, 2 * size) if i + j == j1 else min(chunk, _RESTART)
                 i += j
         return {k: c.result(t) for k, c in out.items()}
+
+
+def _tracker(v: Any) -> SelfCalTracker:
+    return v.tracker if isinstance(v, SelfCalLoop) else v
 
 
 #: the former name of :class:`Runtime`

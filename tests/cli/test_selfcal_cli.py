@@ -37,29 +37,30 @@ def test_selfcal_writes_the_fitted_terms_with_their_covariance(log, capsys):
                "--temperature-sigma", tsig, "--json", str(d / "s.json"), "--report", str(d / "rep")])
     out = capsys.readouterr().out
     assert rc == 0, out
-    assert "deg/h" in out and "ppm" in out and "third-order" in out
+    assert "deg/h" in out and "ppm" in out and "K^3" in out
     assert (d / "rep" / "selfcal-gyro.png").stat().st_size > 10000
     c2 = Calibration.load(d / "cal2.json")["gyro"]
     names = list(F.cal.geometry.names)
     n = len(names)
-    # the written terms against the truth at the end of the log: bias, relative scale, tc1, tc2 (in the effects),
-    # tc3 in the covariance only
+    # the written terms against the truth at the end of the log: bias, relative scale, tc1, tc2, tc3 (in the
+    # bias_temperature, bias_temperature2 and bias_temperature3 effects)
     k = len(F.t) - 1
     rel = F.cal.scale / c2.scale - 1.0                     # SF' = SF / (1 + k)
     bias = c2.bias * (1.0 + rel) - F.cal.bias
     tc1 = np.array([c2.effects["bias_temperature"][f"{nm}.bias_tc1"] for nm in names])
     tc2 = np.array([c2.effects["bias_temperature2"][f"{nm}.bias_tc2"] for nm in names])
-    est = np.concatenate([bias, rel, tc1, tc2])
-    truth = np.concatenate([F.bias[k], F.scale[k], F.tc[0], F.tc[1]])
-    order = [f"{nm}.{p}" for p in ("bias", "scale", "bias_tc1", "bias_tc2") for nm in names]
+    tc3 = np.array([c2.effects["bias_temperature3"][f"{nm}.bias_tc3"] for nm in names])
+    est = np.concatenate([bias, rel, tc1, tc2, tc3])
+    truth = np.concatenate([F.bias[k], F.scale[k], F.tc[0], F.tc[1], F.tc[2]])
+    order = [f"{nm}.{p}" for p in ("bias", "scale", "bias_tc1", "bias_tc2", "bias_tc3") for nm in names]
     idx = [c2.param_names.index(p) for p in order]
     C = c2.covariance[np.ix_(idx, idx)]
     # the scale's covariance is written in SI per raw unit (d SF = -SF dk): back to relative
-    J = np.ones(4 * n)
+    J = np.ones(5 * n)
     J[n:2 * n] = -1.0 / F.cal.scale
     C = C * np.outer(J, J)
-    U = unobservable_basis(F.cal.axes_mb(), ["bias", "scale", "tc1", "tc2"])
-    Po = np.eye(4 * n) - U @ U.T
+    U = unobservable_basis(F.cal.axes_mb(), ["bias", "scale", "tc1", "tc2", "tc3"])
+    Po = np.eye(5 * n) - U @ U.T
     e = Po @ (est - truth)
     lam, Q = np.linalg.eigh(Po @ C @ Po)
     keep = lam > 1e-12 * lam.max()

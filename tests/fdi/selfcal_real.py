@@ -7,13 +7,11 @@ fitted: consumer MEMS gyros (bias instability 20 deg/h, three times as fast; res
 0.1 deg/s 1-sigma; relative scale 0.5 % 1-sigma, moving by 200 ppm in 2 h); no temperature terms (the logs read
 here carry no temperature channel of every triad).
 
-The MIMU4444 board has no reader in rimu.io yet: :func:`read_mimu4444` parses its documented packet stream here
-(README of the data set) for the tests only.
+The MIMU4444 board is read by :mod:`rimu.io.formats.mimu4444` (its clipped samples invalid).
 """
 
 from __future__ import annotations
 
-import lzma
 from pathlib import Path
 
 import numpy as np
@@ -22,35 +20,18 @@ from rimu.calibration.multi_imu import setup_multi_imu
 from rimu.fdi import RedundancyManager
 from rimu.fdi.selfcal import SelfCalibratingRun, SelfCalSettings, SelfCalTracker, TrackedGltWindow
 from rimu.fusion import InstrumentPipeline
-from rimu.io.multiimu import ImuStream, MultiImuRecording
-from rimu.units import DEG_TO_RAD, G0, PPM
+from rimu.io.formats import mimu4444
+from rimu.io.multiimu import MultiImuRecording
+from rimu.units import DEG_TO_RAD, PPM
 
 XSENS = ("Horizontal/path_10", "Horizontal/path_11", "Vertical/path_1", "Vertical/path_8", "StraightLine/path_1")
 MIMU = ("exp_5", "exp_6", "exp_7", "exp_8", "exp_9")
-_C_BOTTOM = np.array([[0, -1, 0], [-1, 0, 0], [0, 0, -1]], dtype=float)
 
 
 def read_mimu4444(path: Path) -> MultiImuRecording:
-    """The MIMU4444 raw stream (``exp_k.bin.xz``): 8 MPU-9150 triads, 62.5 Hz, in the array frame, SI."""
-    raw = lzma.open(path).read()[4:]
-    dt = np.dtype([("head", "u1"), ("num", ">u2"), ("len", "u1"), ("ts", ">u4"), ("imu", ">i2", (8, 6)),
-                   ("sum", ">u2")])
-    k = len(raw) // dt.itemsize
-    rec = np.frombuffer(raw[:k * dt.itemsize], dt)
-    rec = rec[rec["head"] == 0xAA]
-    ticks = np.concatenate([[0], np.cumsum(np.diff(rec["ts"].astype(np.int64)) % 2**32)])
-    t = ticks / 64e6
-    units = []
-    for j in range(8):
-        v = rec["imu"][:, j].astype(float)
-        clip = np.abs(v) >= 32767
-        v[clip] = np.nan
-        acc = v[:, :3] / 2048.0 * G0
-        gyr = v[:, 3:] / 16.4 * DEG_TO_RAD
-        if j % 2 == 1:                           # IMUs 2, 4, 6, 8: bottom side, v_array = C v_raw
-            acc, gyr = acc @ _C_BOTTOM.T, gyr @ _C_BOTTOM.T
-        units.append(ImuStream(f"imu{j + 1}", t, gyr, acc))
-    return MultiImuRecording(units, {"own_clocks": False, "body_frame": False, "source": str(path)})
+    """The MIMU4444 raw stream (``exp_k.bin.xz``) through rimu's reader (:func:`rimu.io.formats.mimu4444.read`):
+    8 MPU-9150 triads, 62.5 Hz, each in its own axes, SI, NaN where clipped."""
+    return mimu4444.read(path)
 
 
 def recordings(shared: Path) -> list[tuple[str, object]]:
@@ -101,4 +82,24 @@ def compare(rec, p_fa: float = 1e-3, confirm: int = 3) -> dict:
             "invalid_isolations_tracked": sum(e.kind == "invalid_isolated" for e in iso),
             "invalid_isolations_fixed": sum(e.kind == "invalid_isolated" for e in iso0),
             "alarms_tracked": float(res.replay.alarm.mean()), "alarms_fixed": float(res0.alarm.mean()),
-            "result": res, "tracker": trk, "t": t, "second": second}
+            "result": res, "tracker": trk, "t": t, "second": second, "z_second": cal.compensate(
+                np.where(np.isfinite(Y), Y, 0.0))[second]}
+
+
+def hindsight(c: dict, scale: bool = True) -> dict:
+    """What the drift model could do at best on the second half, with hindsight: constant biases (and relative
+    scales) of every gyro fitted by least squares to the second half's own parity. Returns the parity rms left
+    (sigma; ``dof_corrected``: divided by the observations minus the parameters fitted) and the sampling standard
+    error of the fixed calibration's rms (``rms / sqrt(2 N)`` for N parity values)."""
+    trk, z = c["tracker"], c["z_second"]
+    Vz = trk.parity_rows()
+    p = z @ Vz.T
+    s = (z @ trk.G.T) @ trk.axes.T
+    cols = [np.ones_like(s)] + ([s] if scale else [])
+    K, r = p.shape
+    X = np.concatenate([(Vz[None] * g[:, None, :]).reshape(K * r, -1) for g in cols], axis=1)
+    th, *_ = np.linalg.lstsq(X, p.reshape(-1), rcond=None)
+    res = p.reshape(-1) - X @ th
+    dof = K * r - np.linalg.matrix_rank(X)
+    return {"rms": float(np.sqrt(np.mean(res**2))), "dof_corrected": float(np.sqrt(np.sum(res**2) / dof)),
+            "se": float(np.sqrt(np.mean(p**2)) / np.sqrt(2 * K * r))}

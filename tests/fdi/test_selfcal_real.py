@@ -13,7 +13,7 @@ from __future__ import annotations
 import pytest
 
 from tests.conftest import shared_data
-from tests.fdi.selfcal_real import XSENS, compare
+from tests.fdi.selfcal_real import XSENS, compare, hindsight
 
 CASES = [("pixhawk1_dual_imu_flight", "")] + [("quadrotor_4x_xsens_dot", r) for r in XSENS]
 # known not met: the second half of this run is 12 s (119 averaged samples); tracked 1.048 against fixed 1.041 sigma
@@ -43,3 +43,16 @@ def test_tracking_lowers_the_second_half_parity_without_isolation(folder, run):
           f"{c['alarms_tracked']:.2%} tracked")
     assert c["isolations_tracked"] == 0
     assert c["rms_tracked"] < c["rms_fixed"]
+
+
+@pytest.mark.parametrize("run", sorted(NOT_MET))
+def test_where_tracking_does_not_help_there_is_no_drift_to_track(run):
+    """StraightLine/path_1: even with hindsight, constant biases and relative scales fitted to the second half's own
+    parity lower its rms by less than one sampling standard error: the disagreement left is noise, not drift the model
+    could track (so the tracker cannot be shown to lower it; docs/selfcal.md)."""
+    c = compare(_load("quadrotor_4x_xsens_dot", run))
+    h = hindsight(c)
+    print(f"\n{run}: parity rms fixed {c['rms_fixed']:.3f}, tracked {c['rms_tracked']:.3f}, hindsight bias+scale "
+          f"{h['rms']:.3f} ({h['dof_corrected']:.3f} per degree of freedom left); standard error {h['se']:.3f} sigma")
+    assert c["rms_fixed"] - h["dof_corrected"] < h["se"]
+    assert abs(c["rms_tracked"] - c["rms_fixed"]) < h["se"]

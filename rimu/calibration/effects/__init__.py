@@ -8,6 +8,7 @@ from .bias import Bias
 from .bias_drift import BiasDrift
 from .bias_temperature import BiasTemperature
 from .bias_temperature2 import BiasTemperature2
+from .bias_temperature3 import BiasTemperature3
 from .cross_coupling import CrossCoupling
 from .earth_rate import EarthRate
 from .g2_sensitivity import G2Sensitivity
@@ -29,6 +30,7 @@ register_effect(GSensitivity)
 register_effect(G2Sensitivity)
 register_effect(BiasTemperature)
 register_effect(BiasTemperature2)
+register_effect(BiasTemperature3)
 register_effect(ScaleTemperature)
 register_effect(ScaleTemperature2)
 register_effect(BiasDrift)
@@ -42,6 +44,7 @@ __all__ = [
     "BiasDrift",
     "BiasTemperature",
     "BiasTemperature2",
+    "BiasTemperature3",
     "CrossCoupling",
     "EarthRate",
     "G2Sensitivity",
