@@ -75,7 +75,8 @@ def _blocks(N: int, pipes: dict, backends: list, Yall: dict, Rs: list, offs: lis
                 p.process(block, o)
         fns[b] = run
     if "numba" in pipes:
-        pn = pipes["numba"]
+        pn = Pipeline(pipes["numba"].calibration, backend="numba")  # its own pipeline: no state shared with "numba"
+        pn.process(block)
 
         def run_alloc(pn=pn):
             for _ in range(inner):
@@ -139,7 +140,8 @@ def main() -> dict:
                  "includes": {
                      "rimu": "Pipeline.process(block, out=): checks, one compiled pass over both instruments "
                              "(R y - off, estimate + parity, range and finiteness), result objects",
-                     "rimu_alloc": "the same without out=: two fresh result arrays per instrument",
+                     "rimu_alloc": "the same without out= (a pipeline of its own): a fresh result array per "
+                                   "instrument, freed by the caller",
                      "c_fixed": "fixed-size C (gcc -O3 -march=native): R y - off of both instruments into the "
                                 "same buffers, range and finiteness once per block; timed inside C",
                      "c_export": "rimu's exported C rimu_step per epoch (WLS estimate, covariance, chi-square, "

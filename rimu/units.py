@@ -204,12 +204,16 @@ def field_unit(quantity: str, magnitude_si: float | None = None) -> tuple[str, f
 
 
 def fmt(value_si: float | None, quantity: str, unit: str | None = None, digits: int = 4,
-        raw_unit: str | None = None) -> str:
+        raw_unit: str | None = None, decimals: int | None = None, width: int = 0) -> str:
     """A value in SI as text in a field unit: ``unit`` (a name of :data:`FIELD_UNITS`) or the one that reads
     best (:func:`field_unit`). ``quantity="raw"`` formats a raw value with :func:`fmt_raw`. None or NaN: "n/a".
+    ``decimals`` gives fixed decimals in place of ``digits`` significant ones, ``width`` right-aligns the number
+    (a column of a live status line).
 
     >>> fmt(1e-5, "rate", "deg/s"), fmt(None, "rate"), fmt(2e-6, "ratio")
     ('0.0005730 deg/s', 'n/a', '2 ppm')
+    >>> fmt(12.3456, "time", "s", decimals=2, width=8), fmt(2.5e-3, "angle", "arcsec", decimals=1)
+    ('   12.35 s', '515.7 arcsec')
     """
     if quantity == "raw":
         return fmt_raw(value_si, raw_unit or "count", digits)
@@ -223,8 +227,11 @@ def fmt(value_si: float | None, quantity: str, unit: str | None = None, digits: 
             raise ValueError(f"{unit!r} is not a unit of {quantity}; units: {sorted(units)}")
         f = units[unit]
     v = float(value_si) * f
-    text = f"{v:#.{digits}g}" if abs(v) < 1e-3 and v != 0 else f"{v:.{digits}g}"
-    return f"{text} {unit}".rstrip()
+    if decimals is not None:
+        text = f"{v:.{decimals}f}"
+    else:
+        text = f"{v:#.{digits}g}" if abs(v) < 1e-3 and v != 0 else f"{v:.{digits}g}"
+    return f"{text:>{width}} {unit}".rstrip()
 
 
 def fmt_raw(value: float | None, raw_unit: str = "count", digits: int = 4) -> str:

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import json
+import re
 import shutil
 
 import numpy as np
+import pytest
 
 from rimu.cli import main
 
@@ -37,7 +39,37 @@ def test_demo_end_to_end(tmp_path, capsys):
         assert fc["built"] and fc["decisions_equal"] and fc["max_rel_diff"] < 1e-12 and fc["samples"] == 3000
     else:
         assert fc == {"built": False}
-    assert "isolated" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "isolated" in out
+    # every printed figure is the report's, in the unit it states (parsed and converted: a wrong label fails)
+    from rimu.geometry import cone6
+    from rimu.units import FIELD_UNITS
+
+    def si(v: str, u: str, q: str) -> float:
+        units = dict(FIELD_UNITS[q])
+        assert u in units, (u, q)
+        return float(v) / units[u]
+
+    iso = list(re.finditer(r"t = \s*(\S+) (\S+)\s+(gyro|accel)\s+(\S+) isolated \(fault at (\S+) (\S+), "
+                         r"delay (\S+) (\S+)\)", out))
+    assert len(iso) == 2, out
+    for m in iso:
+        e = next(e for e in rep["events"] if e["instrument"] == m.group(3))
+        t, t0, delay = si(m.group(1), m.group(2), "time"), si(m.group(5), m.group(6), "time"), si(m.group(7), m.group(8), "time")
+        assert t == pytest.approx(e["t"], abs=0.006) and delay == pytest.approx(e["delay_s"], abs=1e-6 + 5e-4 * delay)
+        assert delay == pytest.approx(t - t0, abs=0.006)
+    cal = json.loads((tmp_path / "demo" / "calibration.json").read_text())["payload"]["instruments"]
+    H = cone6().H
+    for k in ("gyro", "accel"):
+        q = "rate" if k == "gyro" else "specific_force"
+        lines = re.findall(rf"  {k}\s+([xyz]):\s+(\S+) ->\s+(\S+) (\S+)   ratio", out)
+        assert len(lines) == 3 and rep["std"][k]["unit"] == ("rad/s" if k == "gyro" else "m/s^2"), lines
+        sigma = float(np.mean(cal[k]["noise_sigma"]))
+        for (ax, b, a, u), sb, sa, p in zip(lines, rep["std"][k]["before"], rep["std"][k]["after"],
+                                            np.diag(np.linalg.inv(H.T @ H))):
+            assert si(b, u, q) == pytest.approx(sb, rel=1e-3) and si(a, u, q) == pytest.approx(sa, rel=1e-3)
+            # before the fault: the least-squares error, sigma sqrt(diag((H^T H)^-1)), within 10 %
+            assert sb == pytest.approx(sigma * np.sqrt(p), rel=0.1), (k, ax, sb, sigma * np.sqrt(p))
 
 
 def test_simulate_writes_a_file(tmp_path):

@@ -131,3 +131,22 @@ def test_array_report_renders(tmp_path, capsys):
     _assert_page(res, [ln[len("note: "):] for ln in out if ln.startswith("note: ")], 1)
     assert "gyro: each triad against the array, in motion" in res["titles"]
     assert _pdf_pages(tmp_path / "rep" / "array_report.pdf", tmp_path) >= 2
+
+
+def test_replay_report_renders(tmp_path, capsys):
+    """rimu replay --report: parity, alarms, validity and isolations on one time axis, in the one layout; the
+    console's note (the window detector's correlated statistic) is in the page, the isolation in its events."""
+    assert main(["simulate", "-o", str(tmp_path / "s.npz"), "--duration", "1"]) == 0
+    assert main(["calibrate", str(tmp_path / "s.npz"), "-o", str(tmp_path / "cal.json"), "-q"]) == 0
+    capsys.readouterr()
+    out = _console(capsys, ["replay", tmp_path / "s.npz", "--calibration", tmp_path / "cal.json", "--detector",
+                            "glt_window", "--inject", "bias:gyro:y2:5:20sigma", "--report", tmp_path / "rep"])
+    cautions = _cautions(out)
+    assert any("--p-fa is per sample" in c for c in cautions), out
+    res = _browse(tmp_path / "rep" / "replay_report.html", tmp_path)
+    _assert_page(res, cautions, 1)
+    assert {"gyro: parity statistic and alarms", "gyro: validity of the estimate",
+            "gyro: sensors in use and isolations", "accel: estimate (master-body frame)"} <= set(res["titles"])
+    assert re.search(r"gyro\s+5\.0\d\d\s+\d+\s+isolated\s+y2", res["text"]), res["text"][:3000]
+    assert _pdf_pages(tmp_path / "rep" / "replay_report.pdf", tmp_path) >= 2
+    assert (tmp_path / "rep" / "replay.png").stat().st_size > 1000

@@ -6,8 +6,11 @@ cut-off from the vibration spectrum, and whether a step made the agreement worse
   Specific force in g or milli-g read as m/s^2 gives a norm near 1 or 1000 at rest instead of 9.8.
 * **Low-pass.** The rigid-body model holds where the triads agree: in the band where the array-mean (common)
   signal dominates the triads' disagreement (parity). The cut-off is the lowest frequency at which the power of
-  the gyros' common signal falls below :data:`SNR_MIN` times their parity power per triad (Welch spectra); none
-  when the triads agree up to 0.4 of the sample rate.
+  the gyros' common signal falls below :data:`SNR_MIN` times their parity power per triad (Welch spectra), and
+  at least :data:`MARGIN` times the top of the motion band (where :data:`MOTION_POWER` of the common power
+  lies below), clear of the motion; none when the triads agree up to 0.4 of the
+  sample rate, or when less than :data:`VIBRATION_SHARE` of the parity power lies above the motion band (nothing
+  to remove: a clean recording's disagreement is its gains and misalignments, in the motion band).
 * **Never worse.** A step whose parity rms in motion (mean over triads) is above its input's is not applied; the
   report names it and the figures.
 
@@ -24,10 +27,18 @@ import numpy as np
 
 from ..units import G0, RAD_TO_DEG
 
-__all__ = ["SNR_MIN", "check_units", "choose_lowpass", "worse"]
+__all__ = ["MARGIN", "MOTION_POWER", "SNR_MIN", "VIBRATION_SHARE", "check_units", "choose_lowpass", "worse"]
 
 #: common-to-parity power ratio below which a frequency band is vibration, not rigid-body motion
 SNR_MIN = 10.0
+#: the cut-off lies this factor above the top of the motion band (a 4th-order Butterworth passes 0.4 % less at
+#: 1/1.5 of its cut-off, -3 dB at it)
+MARGIN = 1.5
+#: the motion band holds this share of the common signal's power
+MOTION_POWER = 0.99
+#: a low-pass is chosen only when the parity power above the motion band is at least this share of all of it
+#: (vibration to remove); a clean recording's disagreement lies in the motion band (gains, misalignments)
+VIBRATION_SHARE = 0.25
 #: a step raising the mean parity rms by more than this fraction of it is refused
 WORSE_TOL = 1e-3
 
@@ -100,9 +111,22 @@ def choose_lowpass(t: np.ndarray, gyro: np.ndarray, accel: "np.ndarray | None" =
     if low.size == 0:
         return None, (f"the {what} agree up to {0.4 * fs:.3g} Hz (common power above {SNR_MIN:g} times the parity "
                       "power per triad): no low-pass")
-    fc = float(max(f[low[0]], 1.0))
-    return fc, (f"every triad low-passed at {fc:.3g} Hz (zero phase), chosen from the spectrum: above it the {what}' "
-                f"common signal falls below {SNR_MIN:g} times their disagreement (vibration, not rigid-body motion); "
+    edge = float(max(f[low[0]], 1.0))
+    # the motion band: below the edge, where MOTION_POWER of the common signal's power lies (the common signal above
+    # the edge holds the rotors' vibration too); the cut-off at least MARGIN above its top, clear of the motion
+    below = f < edge
+    cum = np.cumsum(pm[below]) / max(float(pm[below].sum()), 1e-300)
+    top = float(f[below][min(int(np.searchsorted(cum, MOTION_POWER)), int(below.sum()) - 1)]) if below.any() else 0.0
+    fc = float(min(max(edge, MARGIN * top), 0.45 * fs))
+    share = float(pp[f >= fc].sum() / max(pp.sum(), 1e-300))
+    if share < VIBRATION_SHARE:
+        return None, (f"the {what}' motion band ends near {top:.3g} Hz and their disagreement above {fc:.3g} Hz is "
+                      f"{100 * share:.2g} % of all of it (below {100 * VIBRATION_SHARE:g} %: no vibration to remove): "
+                      "no low-pass")
+    return fc, (f"every triad low-passed at {fc:.3g} Hz (zero phase), chosen from the spectrum: above {edge:.3g} Hz the "
+                f"{what}' common signal falls below {SNR_MIN:g} times their disagreement (vibration, not rigid-body "
+                f"motion: {100 * share:.2g} % of the disagreement lies above the cut-off), and {100 * MOTION_POWER:g} % "
+                f"of the motion below it lies below {top:.3g} Hz (the cut-off at least {MARGIN:g} times above); "
                 "--lowpass-hz overrides")
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -39,6 +40,7 @@ __all__ = [
     "CalibrationResult",
     "LeastSquares",
     "estimate_noise_sigma",
+    "bias_magnitudes",
     "field_value",
     "make_sensor_fit",
     "segment_residuals",
@@ -166,12 +168,41 @@ def make_sensor_fit(model: ErrorModel, ctx: SensorContext, beta: np.ndarray, bet
                      sigma_known, int(n_obs), float(chi2) * float(sigma) ** 2, residuals)
 
 
-def field_value(name: str, value: float, std: float, spec_unit: str, to_report: float) -> tuple[float, float, str]:
+#: report units of a parameter that are a rate or a specific force: the one formatter's field unit is chosen by the
+#: magnitude of the table (deg/h for a tactical gyro bias, deg/s for a MEMS one; ug, mg or m/s^2)
+_MAGNITUDE_UNITS = {"deg/h": "rate", "ug": "specific_force"}
+
+
+def field_value(name: str, value: float, std: float, spec_unit: str, to_report: float,
+                magnitude: float | None = None) -> tuple[float, float, str]:
     """(value, std, unit) in the field's units. Scale factors are reported as a value in SI and a relative
-    standard deviation in ppm."""
+    standard deviation in ppm. A bias (rate or specific force) reads in the field unit the ``magnitude`` (SI, the
+    largest of its table; :func:`rimu.units.field_unit`) calls for, or in its parameter's report unit without it.
+
+    >>> field_value("x.bias", 3.33, 0.01, "deg/h", 1.0, magnitude=3.33)[2]     # a MEMS gyro bias: deg/s
+    'deg/s'
+    >>> field_value("x.bias", 3e-5, 1e-6, "deg/h", 1.0, magnitude=3e-5)[2]     # a tactical one: deg/h
+    'deg/h'
+    """
     if name.endswith(".scale"):
         return value, abs(std / value) * 1e6, "ppm"
+    if magnitude is not None and spec_unit in _MAGNITUDE_UNITS:
+        from ..units import field_unit
+
+        unit, f = field_unit(_MAGNITUDE_UNITS[spec_unit], magnitude)
+        return value * f, std * f, unit
     return value * to_report, std * to_report, spec_unit
+
+
+def bias_magnitudes(result: "LsqResult") -> dict[str, float]:
+    """Per report unit that is a rate or a specific force (:data:`_MAGNITUDE_UNITS`): the largest magnitude (SI)
+    of the parameters of one instrument in that unit, so that one table reads in one unit."""
+    out: dict[str, float] = {}
+    for s in result.sensors:
+        for v, sp in zip(s.theta, s.theta_specs):
+            if sp.report_unit in _MAGNITUDE_UNITS and np.isfinite(v):
+                out[sp.report_unit] = max(out.get(sp.report_unit, 0.0), abs(float(v)))
+    return out
 
 
 @dataclass
@@ -230,10 +261,11 @@ class CalibrationResult:
     def std_field(self, instrument: str) -> dict[str, tuple[float, str]]:
         """Standard deviations in the field's units: ppm (scale, relative), arcsec, micro-g, deg/h."""
         out = {}
+        mag = bias_magnitudes(self.instruments[instrument])
         for s in self.instruments[instrument].sensors:
             for i, (n, sp) in enumerate(zip(s.theta_names, s.theta_specs)):
                 _, sd, unit = field_value(n, s.theta[i], np.sqrt(max(s.theta_cov[i, i], 0.0)), sp.report_unit,
-                                          sp.to_report)
+                                          sp.to_report, mag.get(sp.report_unit))
                 out[n] = (sd, unit)
         return out
 
@@ -262,10 +294,11 @@ class CalibrationResult:
         for inst, r in self.instruments.items():
             lines.append(f"\n{inst}: chi2/dof = {r.chi2_dof:.3f}")
             lines.append(f"  {'parameter':<16} {'value':>16} {'std':>12}  unit")
+            mag = bias_magnitudes(r)
             for s in r.sensors:
                 for i, (n, sp) in enumerate(zip(s.theta_names, s.theta_specs)):
                     v, sd, unit = field_value(n, s.theta[i], np.sqrt(max(s.theta_cov[i, i], 0.0)), sp.report_unit,
-                                              sp.to_report)
+                                              sp.to_report, mag.get(sp.report_unit))
                     vs = f"{v:.8g}" if n.endswith(".scale") else f"{v:.4f}"
                     unit_s = (f"{scale_unit(inst, raw_unit_for(self.raw_unit, inst))} (std ppm)" if n.endswith(".scale")
                               else unit)
@@ -338,6 +371,11 @@ class LeastSquares:
             ctxs = contexts(session, inst, axes=axes)
             if base:
                 stats = self._base_statistics(session, segs, inst, ctxs[0], skipped, sstats, tuple(insts))
+            if base:  # every sensor of the instrument at once (one G, array operations)
+                out[inst] = self._base_fit(model, ctxs, stats, sig, self.sigma is not None, inst, segs, skipped)
+                if skipped:
+                    notes.append(f"{inst}: segments not used: {sorted(skipped)}")
+                continue
             fits = []
             for ctx in ctxs:
                 names = model.parameter_names(ctx)
@@ -371,6 +409,68 @@ class LeastSquares:
 
 
     @staticmethod
+    def _base_fit(model: ErrorModel, ctxs: list[SensorContext], stats: tuple, sig: np.ndarray, sigma_known: bool,
+                  inst: str, segs: list[Segment], skipped: dict[str, str]) -> LsqResult:
+        """The base model (scale/misalignment + bias) of every sensor of ``inst`` from the shared statistics, as
+        array operations over the sensors: ``B = G^-1 H`` (4, n), the residual sums of squares from the statistics,
+        and the physical values with their Jacobian (:func:`~rimu.calibration.lsq.physical_from_beta` and
+        :meth:`~rimu.calibration.effects.scale_misalignment.ScaleMisalignment.physical`, Cho & Park 2005, Eq. 10:
+        ``SF = 1/|w|``, ``m = C w/|w|``, ``b = c SF``) for all sensors at once. The same numbers as the per-sensor
+        path (:func:`make_sensor_fit`, to rounding; tested to 1e-12)."""
+        G, H, q, n_obs, labels, parts = stats
+        ctx0 = ctxs[0]
+        if not labels:
+            raise IdentifiabilityError(f"{inst}: no segment carries the inputs the model {model.label} needs",
+                                       model.parameter_names(ctx0))
+        try:
+            check_identifiable_gram(G, n_obs, model.parameter_names(ctx0), inst)
+        except IdentifiabilityError as exc:
+            raise IdentifiabilityError(str(exc), _physical_names(model, ctx0, exc.parameters)) from None
+        Ginv = np.linalg.inv(G)
+        B = Ginv @ H  # (4, n): w_x, w_y, w_z, c of every sensor
+        rss = np.maximum(q - 2.0 * np.einsum("pn,pn->n", B, H) + np.einsum("pn,pn->n", B, G @ B), 0.0)
+        W = np.ascontiguousarray(B[:3].T)
+        nw = np.sqrt(np.einsum("ni,ni->n", W, W))
+        if not np.all(nw > 0):
+            raise IdentifiabilityError("a sensor's output does not respond to its input (zero scale-misalignment "
+                                       "vector): a dead sensor or an unconnected channel; remove it from the geometry")
+        geo = ctx0.geometry
+        EC = geo.off_axis_projections()  # (n, 2, 3): E_i C_i, a constant of the geometry
+        U = W / nw[:, None]
+        sf = 1.0 / nw
+        p = len(ctxs)
+        J = np.zeros((p, 4, 4))
+        d_sf = -W * (sf**3)[:, None]
+        J[:, 0, :3] = d_sf
+        d_u = (np.eye(3)[None] - U[:, :, None] * U[:, None, :]) * sf[:, None, None]
+        J[:, 1:3, :3] = EC @ d_u
+        J[:, 3, 3] = sf
+        J[:, 3, :3] = B[3][:, None] * d_sf
+        theta = np.empty((p, 4))
+        theta[:, 0] = sf
+        theta[:, 1:3] = np.einsum("nij,nj->ni", EC, U)
+        theta[:, 3] = B[3] * sf
+        s2 = sig**2
+        tcov = (J @ Ginv @ J.transpose(0, 2, 1)) * s2[:, None, None]
+        chi2 = rss / s2
+        effs = model.effects_for(ctx0)
+        by_label = {lab: (seg, u) for lab, seg, u in parts}
+        fits = []
+        for ctx in ctxs:
+            i = ctx.index
+            r = float(rss[i])
+            res = LazyResiduals(labels=by_label, compute=partial(_base_residual_of, by_label, inst, ctx, B[:, i]))
+            if r < 1e-8 * q[i]:  # cancellation in the statistics: an exact second pass
+                r = sum(float(np.sum(res[lab] ** 2)) for lab in res)
+                chi2[i] = r / s2[i]
+            names = [f"{ctx.name}.{x.name}" for e in effs for x in e.parameters(ctx)]
+            specs = [x for e in effs for x in e.physical_parameters(ctx)]
+            fits.append(SensorFit(ctx, names, B[:, i].copy(), s2[i] * Ginv, [f"{ctx.name}.{x.name}" for x in specs],
+                                  specs, theta[i], tcov[i], float(sig[i]), sigma_known, int(n_obs),
+                                  float(chi2[i]) * float(s2[i]), res))
+        return LsqResult(inst, model, fits, [x.label for x in segs if x.label not in skipped], skipped)
+
+    @staticmethod
     def _base_statistics(session: Session, segs: list[Segment], inst: str, ctx0: SensorContext,
                          skipped: dict[str, str], sstats: SessionStatistics | None = None,
                          instruments: tuple[str, ...] = ()) -> tuple:
@@ -386,15 +486,17 @@ class LeastSquares:
         H = np.zeros((4, session.geometries[inst].n))
         q = np.zeros(session.geometries[inst].n)
         n_obs, labels, parts = 0, [], []
+        rows, weights, totals = [], [], []  # rows of one input for all samples (static positions) and angle rows
         for seg in segs:
-            st = sstats.sums(seg, inst)
             kind, u = _input_form(ctx0, seg)
             if kind is None:
                 if seg.kind == "angle" and inst == "gyro" and seg.n_samples > 1:
+                    st = sstats.sums(seg, inst)
                     x = _angle_row(seg, ErrorModel.base(), ctx0)[0]
                     yv = st.total / np.sqrt(seg.n_samples)
-                    G += np.outer(x, x)
-                    H += np.outer(x, yv)
+                    rows.append(x)
+                    weights.append(1.0)
+                    totals.append(yv)
                     q += yv**2
                     n_obs += 1
                     labels.append(seg.label)
@@ -402,11 +504,12 @@ class LeastSquares:
                 else:
                     skipped[seg.label] = "the segment lacks inputs an effect needs (known rate, attitude or angle)"
                 continue
+            st = sstats.sums(seg, inst)
             N = seg.n_samples
-            if kind == "constant":  # one input for every sample (a static position)
-                x = np.append(u, 1.0)
-                G += N * np.outer(x, x)
-                H += np.outer(x, st.total)
+            if kind == "constant":  # one input for every sample (a static position): N x x^T, x total^T
+                rows.append((u[0], u[1], u[2], 1.0))
+                weights.append(N)
+                totals.append(st.total)
             elif kind == "basis":  # u = B P on a turning segment: from the moments of its angle
                 rm = sstats.rotation(seg)
                 Q = np.zeros((3, 4))
@@ -422,6 +525,10 @@ class LeastSquares:
             n_obs += N
             labels.append(seg.label)
             parts.append((seg.label, seg, None))
+        if rows:  # every such segment's terms in two products
+            X = np.array(rows, dtype=float)
+            G += (X.T * np.array(weights, dtype=float)) @ X
+            H += X.T @ np.array(totals)
         return G, H, q, n_obs, labels, parts
 
     @staticmethod
@@ -462,6 +569,15 @@ def _base_residual(seg: Segment, inst: str, ctx: SensorContext, u: Any) -> Any:
         return seg.raw[inst][:, ctx.index] - (uu @ beta[:3] + beta[3])
 
     return make
+
+
+def _base_residual_of(parts: dict[str, tuple[Segment, Any]], inst: str, ctx: SensorContext, beta: np.ndarray,
+                      label: str) -> np.ndarray:
+    """The base model's residual of sensor ``ctx`` on the segment ``label`` (:func:`_base_residual`, bound)."""
+    seg, u = parts[label]
+    if isinstance(u, tuple):  # an angle row: its one integrated value
+        return np.array([float(float(u[2][ctx.index]) - u[1] @ beta)])
+    return seg.raw[inst][:, ctx.index] - (_known_input(ctx, seg) @ beta[:3] + beta[3])
 
 
 def _model_residual(seg: Segment, inst: str, ctx: SensorContext, model: ErrorModel) -> Any:

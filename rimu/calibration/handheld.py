@@ -78,6 +78,7 @@ from .._backend import resolve as _resolve_backend
 from ..errors import IdentifiabilityError, SessionFormatError
 from ..geometry import Geometry
 from ..session import Segment, Session
+from ..units import field_unit, fmt
 from .estimate import CalibrationResult, estimate_noise_sigma, make_sensor_fit
 from .lsq import LsqResult, central_jacobian
 from .model import ErrorModel, SensorContext
@@ -87,6 +88,7 @@ __all__ = [
     "STATIC_KINDS",
     "AccelFit",
     "GyroFit",
+    "held_out_accel",
     "HandHeld",
     "clip_levels",
     "ellipsoid_fit",
@@ -705,6 +707,33 @@ def fit_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, n
     sn = np.sqrt(np.einsum("ka,kab,kb->k", u, np.linalg.inv(info), u))
     return AccelFit(members, tri, Wp @ P, c, cov * s2, theta, free, P, f @ P, nf - gravity, sn, chi2, dof, s2,
                     e if n > 3 else None, weak, ybar, sd, tau2[0])
+
+
+def held_out_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: float, names: Sequence[str],
+                   members: Sequence[int] | None = None) -> dict[str, Any] | None:
+    """The accelerometer misalignment step checked on held-out poses: rms of the gravity-norm residual
+    ``|f_k| - g`` of the model with scale and bias alone (the step's input) and of the full model (its result), on
+    the poses they were fitted on and on each pose left out in turn (fitted on the others, ``f_k`` the least-squares
+    solution of ``W f = y_k - c``). None when leaving a pose out leaves the full model unidentifiable (fewer than 10
+    poses). Values in m/s^2, ``[scale_bias, full]``."""
+    K = len(ybar)
+    if K < 10 or H.shape[0] != 3:
+        return None
+    ins, out = [], []
+    for model in ("scale_bias", "full"):
+        try:
+            ins.append(float(np.sqrt(np.mean(fit_accel(ybar, sd, H, gravity, names, members, model=model,
+                                                       quick=True).norm_residual ** 2))))
+            r = []
+            for k in range(K):
+                keep = np.arange(K) != k
+                af = fit_accel(ybar[keep], sd[keep], H, gravity, names, members, model=model, quick=True)
+                f = np.linalg.lstsq(af.W, ybar[k] - af.c, rcond=None)[0]
+                r.append(float(np.linalg.norm(f)) - gravity)
+        except IdentifiabilityError:
+            return None
+        out.append(float(np.sqrt(np.mean(np.square(r)))))
+    return {"in_sample": ins, "held_out": out, "unit": "m/s^2", "models": ["scale_bias", "full"]}
 
 
 def _distinct_directions(ybar: np.ndarray, deg: float = 5.0) -> int:
@@ -1509,19 +1538,23 @@ class HandHeld:
         Implementation of the pass over the samples and of the integration of the motions (:mod:`rimu._backend`;
         default ``RIMU_BACKEND``, else ``"auto"``: numba where installed). Both give the same calibration to
         rounding (tested to 1e-9 relative); numpy is the reference.
+    held_out : bool
+        Check the accelerometers' misalignment step (the full model against scale and bias alone) on held-out
+        poses (:func:`held_out_accel`, a triad of 10 poses or more); a step that raises the held-out residual is not
+        applied, and a note says why with the figures (default True).
     """
 
     method = "hand-held (Zhang et al. 2010 accelerometers, Tedaldi et al. 2014 gyros)"
 
     def __init__(self, sigma: dict[str, Any] | None = None, mode: str = "joint",
                  instruments: Sequence[str] | None = None, robust: bool = True, pose_weights: str = "noise",
-                 accel_model: str = "full", backend: str | None = None) -> None:
+                 accel_model: str = "full", backend: str | None = None, held_out: bool = True) -> None:
         choices = (("mode", mode, ("joint", "subunits")), ("pose_weights", pose_weights, ("noise", "equal")))
         for name, value, allowed in choices:
             if value not in allowed:
                 raise ValueError(f"{name} must be {' or '.join(repr(x) for x in allowed)}, got {value!r}")
         self.sigma, self.mode, self.instruments, self.robust = sigma, mode, instruments, robust
-        self.pose_weights, self.accel_model = pose_weights, accel_model
+        self.pose_weights, self.accel_model, self.held_out = pose_weights, accel_model, held_out
         self.backend = _resolve_backend(backend, lambda: _kernels() is not None, "the compiled hand-held kernels")
 
     def _sigma(self, session: Session, inst: str, stats: _RawStats | None = None) -> np.ndarray:
@@ -1583,8 +1616,25 @@ class HandHeld:
             ybar, sd = _pose_stats(statics, "accel", grp, sa[grp], raw["accel"].means(st_idx, grp))
             if self.pose_weights == "equal":
                 sd = np.broadcast_to(np.median(sd, axis=0), sd.shape).copy()
-            af = fit_accel(ybar, sd, ga.H[grp], session.gravity, [ga.names[i] for i in grp], grp, robust=False,
-                           model=self.accel_model)
+            names_g = [ga.names[i] for i in grp]
+            af = fit_accel(ybar, sd, ga.H[grp], session.gravity, names_g, grp, robust=False, model=self.accel_model)
+            if self.accel_model == "full" and len(grp) == 3 and self.held_out:
+                check = held_out_accel(ybar, sd, ga.H[grp], session.gravity, names_g, grp)
+                if check is not None:
+                    extra.setdefault("held_out_accel", []).append(check)
+                    (ins_sb, ins_f), (out_sb, out_f) = check["in_sample"], check["held_out"]
+                    u = field_unit("specific_force", max(ins_sb, ins_f, out_sb, out_f))[0]   # one unit for the four
+                    step = (f"accel: the misalignment step (the full model against scale and bias alone) takes the "
+                            f"gravity-norm residual on the poses it was fitted on {fmt(ins_sb, 'specific_force', u)} "
+                            f"-> {fmt(ins_f, 'specific_force', u)}, on held-out poses (each left out in turn) "
+                            f"{fmt(out_sb, 'specific_force', u)} -> {fmt(out_f, 'specific_force', u)}")
+                    if out_f > out_sb * (1.0 + 1e-3):
+                        af = fit_accel(ybar, sd, ga.H[grp], session.gravity, names_g, grp, robust=False,
+                                       model="scale_bias")
+                        notes.append(step + "; not applied: it raises the residual on held-out poses (it fits these "
+                                            "poses, not the sensor): scale and bias alone, axes nominal")
+                    else:
+                        notes.append(step)
             afits.append(af)
             for j, i in enumerate(grp):
                 ctx = SensorContext("accel", i, ga, session.latitude, session.gravity)

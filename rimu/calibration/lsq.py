@@ -93,6 +93,8 @@ class LsqResult:
             )
         g = self.sensors[0].ctx.geometry
         n = g.n
+        if [e.name for e in self.model.effects] == ["scale_misalignment", "bias"] and len(self.sensors) == n:
+            return self._base_calibration(g)
         scale, bias, sig = np.empty(n), np.empty(n), np.empty(n)
         mis = np.empty((n, 3))
         names: list[str] = []
@@ -115,6 +117,33 @@ class LsqResult:
                     effects.setdefault(e.name, {})[f"{s.name}.{p.name}"] = s.value(p.name)
         cov = _block_diag(blocks)
         return InstrumentCalibration(self.instrument, g, scale, mis, bias, sig, cov, names, effects)
+
+
+    def _base_calibration(self, g: "object") -> InstrumentCalibration:
+        """:meth:`to_calibration` of the base model (every sensor's theta is scale, two misalignment angles, bias;
+        beta is w_x, w_y, w_z, c), as array operations over the sensors: the same numbers as the per-sensor path."""
+        n = len(self.sensors)
+        order = [s.ctx.index for s in self.sensors]
+        theta = np.empty((n, 4))
+        W = np.empty((n, 3))
+        sig = np.empty(n)
+        names: list[str] = []
+        cov = np.zeros((4 * n, 4 * n))
+        for k, s in enumerate(sorted(self.sensors, key=lambda s: s.ctx.index) if order != list(range(n))
+                              else self.sensors):
+            theta[k] = s.theta
+            W[k] = s.beta[:3]
+            sig[k] = s.sigma
+            names += s.theta_names
+            cov[4 * k:4 * k + 4, 4 * k:4 * k + 4] = s.theta_cov
+        if order != list(range(n)):  # the covariance follows the sensors' order in the result
+            names, cov = [], _block_diag([s.theta_cov for s in self.sensors])
+            for s in self.sensors:
+                names += s.theta_names
+        scale = theta[:, 0]
+        C = np.stack([g.subunit_of(i).mat_sb_mb for i in range(n)])  # type: ignore[attr-defined]
+        mis = np.einsum("nij,nj->ni", C, W / np.sqrt(np.einsum("ni,ni->n", W, W))[:, None])
+        return InstrumentCalibration(self.instrument, g, scale, mis, theta[:, 3], sig * scale, cov, names, {})  # type: ignore[arg-type]
 
 
 def physical_from_beta(model: ErrorModel, ctx: SensorContext, beta: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[ParamSpec]]:
@@ -340,14 +369,23 @@ class LazyResiduals(Mapping):
     array``) are stored as given.
     """
 
-    def __init__(self, makers: dict[str, Callable[[], np.ndarray]] | None = None) -> None:
+    def __init__(self, makers: dict[str, Callable[[], np.ndarray]] | None = None, *,
+                 labels: Iterable[str] = (), compute: Callable[[str], np.ndarray] | None = None) -> None:
         self._makers: dict[str, Callable[[], np.ndarray]] = dict(makers or {})
+        #: segments whose residual is ``compute(label)`` (one function for all of them: no closure per segment)
+        self._labels: tuple[str, ...] = tuple(k for k in labels if k not in self._makers) if compute else ()
+        self._compute = compute
         self._given: dict[str, np.ndarray] = {}
 
     def __getitem__(self, label: str) -> np.ndarray:
         if label in self._given:
             return self._given[label]
-        return self._makers[label]()
+        mk = self._makers.get(label)
+        if mk is not None:
+            return mk()
+        if label in self._labels:
+            return self._compute(label)  # type: ignore[misc]
+        raise KeyError(label)
 
     def __setitem__(self, label: str, value: np.ndarray) -> None:
         self._given[label] = np.asarray(value)
@@ -355,10 +393,11 @@ class LazyResiduals(Mapping):
 
     def __iter__(self) -> Iterator[str]:
         yield from self._makers
-        yield from (k for k in self._given if k not in self._makers)
+        yield from self._labels
+        yield from (k for k in self._given if k not in self._makers and k not in self._labels)
 
     def __len__(self) -> int:
-        return len(set(self._makers) | set(self._given))
+        return len(set(self._makers) | set(self._labels) | set(self._given))
 
     def __repr__(self) -> str:
         return f"LazyResiduals({list(self)})"

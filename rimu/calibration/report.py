@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 
 from ..report import Report
-from ..units import G0, fmt, raw_unit_for, scale_unit
-from .estimate import field_value
+from ..units import G0, field_unit, fmt, raw_unit_for, scale_unit
+from .estimate import bias_magnitudes, field_value
 from .plots import residual_table
 
 __all__ = ["calibration_report"]
@@ -37,10 +37,11 @@ def calibration_report(result: Any, session: Any = None, reference: Any = None, 
     rep.heading("Parameters (1-sigma)")
     for inst, r in result.instruments.items():
         rows = []
+        mag = bias_magnitudes(r)
         for s in r.sensors:
             for i, (n, sp) in enumerate(zip(s.theta_names, s.theta_specs)):
                 v, sd, unit = field_value(n, s.theta[i], float(np.sqrt(max(s.theta_cov[i, i], 0.0))), sp.report_unit,
-                                          sp.to_report)
+                                          sp.to_report, mag.get(sp.report_unit))
                 if n.endswith(".scale"):
                     rows.append([n, f"{v:.8g}", f"{sd:.3g} ppm", scale_unit(inst, raw_unit_for(result.raw_unit, inst))])
                 else:
@@ -144,10 +145,11 @@ def _compare(rep: Report, result: Any, reference: Any) -> None:
         a, b = cal[inst], reference[inst]
         if a.geometry.n != b.geometry.n:
             continue
-        unit = "rate" if inst == "gyro" else "specific_force"
+        quantity = "rate" if inst == "gyro" else "specific_force"
+        d = np.asarray(a.bias, float) - np.asarray(b.bias, float)
+        unit = field_unit(quantity, float(np.nanmax(np.abs(d))) if d.size else None)[0]  # one unit per instrument
         for i, name in enumerate(a.geometry.names):
-            rows.append([inst, name, f"{(a.scale[i] / b.scale[i] - 1) * 1e6:.4g}",
-                         fmt(float(a.bias[i] - b.bias[i]), unit)])
+            rows.append([inst, name, f"{(a.scale[i] / b.scale[i] - 1) * 1e6:.4g}", fmt(float(d[i]), quantity, unit)])
     if rows:
         rep.heading("Against the reference calibration")
         rep.table(["instrument", "sensor", "scale difference [ppm]", "bias difference"], rows)

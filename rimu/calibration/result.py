@@ -104,10 +104,10 @@ class InstrumentCalibration:
         m = np.array(self.misalignment, dtype=float)
         if m.shape != (n, 3):
             raise ShapeError(f"misalignment must have shape ({n}, 3), got {m.shape}")
-        if not np.all(np.isfinite(m)):
+        if not np.isfinite(m).all():
             raise ShapeError("misalignment has non-finite entries")
-        norms = np.linalg.norm(m, axis=1)
-        if np.any(np.abs(norms - 1.0) > 1e-3):
+        norms = np.sqrt(np.einsum("ij,ij->i", m, m))
+        if (np.abs(norms - 1.0) > 1e-3).any():
             i = int(np.argmax(np.abs(norms - 1.0)))
             raise ShapeError(
                 f"misalignment row {i} ({self.geometry.names[i]}) has norm {norms[i]:.6f}; rows are unit vectors "
@@ -116,7 +116,7 @@ class InstrumentCalibration:
         off = np.abs(norms - 1.0) > 4e-16
         m[off] /= norms[off, None]
         self.misalignment = m
-        if np.any(self.scale == 0):
+        if (self.scale == 0).any():
             raise ShapeError("a scale factor is zero; the sensor's output would carry no information")
         if self.noise_sigma is not None:
             self.noise_sigma = _vec(self.noise_sigma, n, "noise_sigma")
@@ -408,8 +408,9 @@ class Calibration:
 
 
 def _vec(v: Any, n: int, name: str) -> np.ndarray:
-    a = np.array(np.broadcast_to(np.asarray(v, dtype=float), (n,)), dtype=float)
-    if not np.all(np.isfinite(a)):
+    a = np.asarray(v, dtype=float)
+    a = a.copy() if a.shape == (n,) else np.array(np.broadcast_to(a, (n,)), dtype=float)
+    if not np.isfinite(a).all():
         raise ShapeError(f"{name} has non-finite entries: {a.tolist()}")
     return a
 

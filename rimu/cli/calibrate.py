@@ -93,18 +93,22 @@ def bias_at_zero_input(res) -> dict[str, dict[str, tuple[float, float]]]:  # typ
     return out
 
 
-def _print_bias_note(zero: dict) -> None:
-    for line in _bias_note_lines(zero):
+def _print_bias_note(zero: dict, res=None) -> None:  # type: ignore[no-untyped-def]
+    for line in _bias_note_lines(zero, res):
         print(line)
 
 
-def _bias_note_lines(zero: dict) -> list[str]:
-    from ..units import MS2_TO_UG, RS_TO_DH
+def _bias_note_lines(zero: dict, res=None) -> list[str]:  # type: ignore[no-untyped-def]
+    """The note on the bias std at zero input, in the unit of the bias column of ``res``'s table (the one the
+    largest bias calls for: deg/h for a tactical gyro, deg/s for a MEMS one)."""
+    from ..calibration.estimate import bias_magnitudes
+    from ..units import field_unit
 
     out = []
-    unit = {"gyro": ("deg/h", RS_TO_DH), "accel": ("ug", MS2_TO_UG)}
     for k, per in zero.items():
-        u, f = unit.get(k, ("SI", 1.0))
+        mag = bias_magnitudes(res.instruments[k]) if res is not None and k in res.instruments else {}
+        m = mag.get("deg/h" if k == "gyro" else "ug", max((z for z, _ in per.values()), default=0.0))
+        u, f = field_unit(k, m) if k in ("gyro", "accel") else ("SI", 1.0)
         ratio = max(m / z for z, m in per.values() if z > 0) if per else 1.0
         if ratio < 1.5:
             continue
@@ -173,7 +177,7 @@ def run(args: argparse.Namespace) -> int:
     res = estimator(args.method, inst, args.effects, args.wavelet).fit(session)
     print(res.table())
     zero = bias_at_zero_input(res)
-    _print_bias_note(zero)
+    _print_bias_note(zero, res)
     held = _held_out_lines(session, args.effects, inst) if args.method == "lsq" else []
     for line in held:
         print(line)
@@ -191,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         from ..calibration.report import calibration_report
 
-        rep = calibration_report(res, session, ref, cautions=_bias_note_lines(zero) + held)
+        rep = calibration_report(res, session, ref, cautions=_bias_note_lines(zero, res) + held)
         Path(args.report).mkdir(parents=True, exist_ok=True)
         if not args.plot and rep.save_figure(0, Path(args.report) / "residuals.png"):
             print(f"residual plot written to {Path(args.report) / 'residuals.png'}")

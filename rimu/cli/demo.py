@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     from ..fusion import Pipeline
     from ..geometry import cone6
     from ..sim import Simulator, TruthEffect, cho_park_procedure, rotation
-    from ..units import DS_TO_RS, G0, MS2_TO_UG, RS_TO_DH, RS_TO_DS
+    from ..units import DS_TO_RS, G0, MS2_TO_UG, RS_TO_DH, SI_UNITS, field_unit, fmt
     from ._common import check_samples
 
     check_samples(args.segment_duration * 100.0, f"--segment-duration {args.segment_duration:g} s at 100 Hz",
@@ -173,8 +173,8 @@ def run(args: argparse.Namespace) -> int:
                 events.append({"instrument": k, "sensor": e.sensor, "t": float(e.t),
                                "delay_s": float(e.t - faults[k][1])})
     for e in sorted(events, key=lambda e: e["t"]):
-        print(f"  t = {e['t']:6.2f} s  {e['instrument']:5s} {e['sensor']} isolated "
-              f"(fault at {faults[e['instrument']][1]:.0f} s, delay {e['delay_s'] * 1000:.0f} ms)")
+        print(f"  t = {fmt(e['t'], 'time', 's', decimals=2, width=6)}  {e['instrument']:5s} {e['sensor']} isolated "
+              f"(fault at {fmt(faults[e['instrument']][1], 'time', 's')}, delay {fmt(e['delay_s'], 'time', 'ms', 3)})")
     for k, m in managers.items():
         print(f"  {k}: state {m.health.state.value}, isolated {m.health.isolated}")
     report["events"] = events
@@ -185,7 +185,6 @@ def run(args: argparse.Namespace) -> int:
     report["std"] = {}
     for k, (i, t_f, _) in faults.items():
         err = runs[k].x - man.truth_inputs[k]
-        unit, conv = ("deg/s", RS_TO_DS) if k == "gyro" else ("mg", 1e3 / G0)
         iso_t = next((e["t"] for e in events if e["instrument"] == k), None)
         before = err[(t > 1.0) & (t < t_f)]
         after = err[t > iso_t + 0.1] if iso_t is not None else err[:0]
@@ -194,13 +193,16 @@ def run(args: argparse.Namespace) -> int:
         P_red = tab.P[tab.lookup(tab.full_code & ~(1 << i))]
         pred = np.sqrt(np.diag(P_red) / np.diag(P_full))
         meas = after.std(axis=0) / before.std(axis=0) if len(after) else np.zeros(3)
-        report["std"][k] = {"before": (before.std(axis=0) * conv).tolist(),
-                            "after": (after.std(axis=0) * conv).tolist() if len(after) else [],
+        # SI in the JSON, with its unit; printed through the one formatter in the unit the magnitude calls for
+        report["std"][k] = {"before": before.std(axis=0).tolist(),
+                            "after": after.std(axis=0).tolist() if len(after) else [],
+                            "unit": SI_UNITS["rate" if k == "gyro" else "specific_force"],
                             "ratio_measured": meas.tolist(), "ratio_predicted": pred.tolist()}
+        unit = field_unit(k, float(before.std(axis=0).max()))[0]
         for a, ax in enumerate("xyz"):
-            aft = after[:, a].std() * conv if len(after) else float("nan")
-            print(f"  {k:5s} {ax}: {before[:, a].std() * conv:7.4f} -> {aft:7.4f} {unit}"
-                  f"   ratio {meas[a]:.3f} (predicted {pred[a]:.3f})")
+            aft = after[:, a].std() if len(after) else float("nan")
+            print(f"  {k:5s} {ax}: {fmt(before[:, a].std(), k, unit, decimals=4, width=7).split()[0]} -> "
+                  f"{fmt(aft, k, unit, decimals=4, width=7)}   ratio {meas[a]:.3f} (predicted {pred[a]:.3f})")
     # 7. flight code: the same runtime and decisions as dependency-free C, checked sample by sample --------
     report["flight_code"] = _flight_code(cal, t, Y, runs, out, args)
     report["elapsed_s"] = time.perf_counter() - t_start

@@ -27,6 +27,8 @@ import uuid
 from pathlib import Path
 from typing import Any
 
+from ..units import fmt
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("monitor", help="live source -> compensation -> FDI, with a status line",
@@ -264,12 +266,14 @@ class _Monitor:
 
 def _status(t: float, rate: float, src: Any, mon: _Monitor) -> str:
     a = src.accounting
-    parts = [f"t {t:9.2f} s", f"{rate:6.1f} Hz", f"{a.unit}s {a.received} ok {a.accepted} rej {a.rejected_total}"]
+    parts = [f"t {fmt(t, 'time', 's', decimals=2, width=9)}", fmt(rate, "frequency", "Hz", decimals=1, width=6),
+             f"{a.unit}s {a.received} ok {a.accepted} rej {a.rejected_total}"]
     for k, m in mon.rt.managers.items():
         r = m.result
         h = m.health
         parts.append(f"{k} {int(r.active.sum()) if r.observable else 0}/{m.n} ok {h.state.value} FD "
-                     f"{h.statistic:6.1f}/{h.threshold:.1f}" + (f" isolated {','.join(h.isolated)}" if h.isolated else ""))
+                     f"{fmt(h.statistic, 'ratio', '', decimals=1, width=6)}/{fmt(h.threshold, 'ratio', '', decimals=1)}"
+                     + (f" isolated {','.join(h.isolated)}" if h.isolated else ""))
     return " | ".join(parts)
 
 
@@ -339,7 +343,7 @@ def run(args: argparse.Namespace) -> int:
             for ev in mon.step(ep, n - 1):  # events carry the epoch index as well as the time
                 if ev["kind"] == "transient":
                     continue
-                print(("\n" if tty else "") + f"  t = {ev['t']:.2f} s (epoch {n - 1}): {ev['instrument']} "
+                print(("\n" if tty else "") + f"  t = {fmt(ev['t'], 'time', 's', decimals=2)} (epoch {n - 1}): {ev['instrument']} "
                       f"{ev['kind']} {ev['sensor'] or ''} {ev['message']}", flush=True)
             if rec is not None:
                 rec.write(ep)
@@ -393,13 +397,15 @@ def run(args: argparse.Namespace) -> int:
     if tty:
         print()
     print(f"rimu monitor: {'interrupted, ' if interrupted else ''}{n} epochs"
-          + (f" over {summary['data_span_s']:.2f} s of data" if n else "") + f" in {wall:.1f} s")
+          + (f" over {fmt(summary['data_span_s'], 'time', 's', decimals=2)} of data" if n else "")
+          + f" in {fmt(wall, 'time', 's', decimals=1)}")
     print(f"  {a.summary()}")
     print(f"  outages (epochs without any valid sensor of an instrument): {outages.summary() or 'none'}")
     print(f"  accounting identity received = accepted + rejected + pending: "
           f"{'holds' if a.identity_holds() else 'BROKEN'}")
     for ev in mon.isolations:
-        print(f"  isolated: {ev['instrument']} {ev['sensor']} at t = {ev['t']:.2f} s (epoch {ev.get('sample')})")
+        print(f"  isolated: {ev['instrument']} {ev['sensor']} at t = {fmt(ev['t'], 'time', 's', decimals=2)} "
+              f"(epoch {ev.get('sample')})")
     if not mon.isolations:
         print("  no sensor isolated")
     for k, m in mon.rt.managers.items():

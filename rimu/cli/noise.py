@@ -3,7 +3,7 @@
 RECORDING is a static recording: a session file in rimu's format (``.npz``, or ``.csv`` with its ``.json``
 sidecar; the longest static segment, or ``--segment``); a raw log of counts with a header row naming its
 columns (``ax,ay,az,gx,gy,gz``, as rimu detect reads; ``--calibration`` required: its scale factors give the
-SI); or a plain array of compensated outputs in SI of one instrument (``.npy``, or a ``.csv`` without header
+SI, applied once to the counts, also to a log whose reader knows the chip's nominal scales); or a plain array of compensated outputs in SI of one instrument (``.npy``, or a ``.csv`` without header
 or sidecar: N rows, one column per sensor) with ``--sample-rate``. Counts are never taken as SI: whole numbers
 in the hundreds, or an accelerometer at rest given as gyros, are refused. Writes the noise model (JSON, ``format: rimu.noise``); ``--report DIR``
 adds one log-log plot per instrument with the fitted slopes, the parity plot and a markdown summary;
@@ -89,12 +89,28 @@ def _raw_log(args: argparse.Namespace, path: Path) -> Any:
         c = cal[k]
         if c.geometry.n != log.raw[k].shape[1]:
             raise CalibrationFileError(f"{path} has {log.raw[k].shape[1]} {k} columns, {args.calibration} "
-                                       f"calibrates {c.geometry.n} {k} sensors")
+                                       f"calibrates {c.geometry.n} {k} sensors: calibrate this unit, or give the "
+                                       "calibration made for it")
         outputs[k], axes[k], names[k] = c.compensate(log.raw[k]), c.axes_mb(), list(log.columns[k])
     if not outputs:
         raise CalibrationFileError(f"{args.calibration} calibrates none of the instruments of {path} ({cols})")
     return identify(outputs, log.sample_rate, axes, names, _terms(args), args.p_fa,
                     meta={"recording": str(path), "plain": False, "calibrated": True, "raw_columns": log.columns})
+
+
+def _counts_log(path: Path, calibration: str) -> bool:
+    """Whether ``path`` is a text log with a header row (its cells counts) and ``calibration`` one of counts: then
+    the calibration's scale factors give the SI, once (its reader's nominal scales are not applied as well)."""
+    from ..calibration import Calibration
+
+    if path.suffix.lower() not in (".csv", ".txt") or path.with_suffix(".json").exists() or not path.is_file():
+        return False
+    try:
+        if not _header_line(path):
+            return False
+    except OSError:
+        return False
+    return str(Calibration.load(calibration).raw_unit).lower() in ("count", "counts")
 
 
 def _check_si(z: np.ndarray, inst: str, path: Path) -> None:
@@ -223,6 +239,10 @@ def _run(args: argparse.Namespace) -> int:
     cal = None
     if _is_plain(path):
         model = _plain(args, path)
+    elif args.calibration and _counts_log(path, args.calibration):
+        # a log of counts whose reader would convert them with the chip's nominal scales, and a calibration of
+        # counts: the counts are read as they are and the calibration applied once (not on top of the nominal ones)
+        model = _raw_log(args, path)
     else:
         from ..calibration import Calibration
         from ._inputs import open_session

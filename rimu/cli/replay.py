@@ -2,8 +2,9 @@
 runtime pipeline with fault detection and isolation, optionally with injected faults.
 
 Prints the events (isolations, transients, re-admissions, state changes) and the final state per instrument;
-``--report DIR`` writes a plot of the parity statistic against its threshold, the estimates and the states over
-time, ``--json FILE`` the events (time in s and sample index) and final states.
+``--report DIR`` writes the replay report (``replay_report.html`` and ``.pdf``, rimu's one report layout, and the
+plot ``replay.png``): the parity statistic against its threshold with the alarms, the estimate, its validity, the
+sensors in use with the isolations, on one time axis, ``--json FILE`` the events (time in s and sample index) and final states.
 
 Injection: ``TYPE:INSTRUMENT:SENSOR:START[:SIZE[:DURATION]]``, SIZE in SI or as ``10sigma``; types: bias, ramp,
 stuck, scale, noise, spikes, dropout, zero, saturation, nonfinite. Example: ``--inject bias:gyro:y2:15:10sigma``.
@@ -92,7 +93,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", default=None, metavar="DIR",
                    help="folder for summary.json: the runtime error against the segments' known inputs, alarms and "
                         "isolations per instrument (docs/runtime.md)")
-    add_report_option(p, "the plot (replay.png)")
+    add_report_option(p, "the report (replay_report.html, .pdf) and its plot (replay.png)")
     add_json_option(p, "the events (time in s and sample index) and final states")
     p.add_argument("--estimates", default=None, metavar="FILE.csv",
                    help="write per sample t, then per instrument {k}_x/_y/_z (SI, master-body frame), {k}_validity "
@@ -324,14 +325,24 @@ class _Plot:
 
     def __init__(self) -> None:
         self.stride, self.seen = 1, 0
-        self.parts: dict[str, list[np.ndarray]] = {f: [] for f in ("t", "statistic", "threshold", "x", "state")}
+        self.parts: dict[str, list[np.ndarray]] = {f: [] for f in ("t", "statistic", "threshold", "x", "state",
+                                                                   "validity", "n_active")}
         self.events: list = []
+        #: times and statistics of the alarm samples (every one, up to _PLOT_POINTS: decimation would drop them)
+        self.alarm_t: list[np.ndarray] = []
+        self.alarm_s: list[np.ndarray] = []
+        self.names: list[str] = []
 
     def add(self, r) -> None:  # type: ignore[no-untyped-def]
         sel = slice((-self.seen) % self.stride, None, self.stride)
         self.seen += len(r.t)
+        self.names = list(r.names)
         for f, v in self.parts.items():
             v.append(np.asarray(getattr(r, f))[sel])
+        a = np.flatnonzero(np.asarray(r.alarm, bool))
+        if a.size and sum(len(x) for x in self.alarm_t) < _PLOT_POINTS:
+            self.alarm_t.append(np.asarray(r.t)[a])
+            self.alarm_s.append(np.asarray(r.statistic)[a])
         self.events += [e for e in r.events if e.kind in ("isolated", "invalid_isolated", "readmitted")][:1000]
         if sum(len(p) for p in self.parts["t"]) > 2 * _PLOT_POINTS:
             for f, v in self.parts.items():
@@ -341,7 +352,9 @@ class _Plot:
     def series(self):  # type: ignore[no-untyped-def]
         from types import SimpleNamespace
 
-        return SimpleNamespace(events=self.events, **{f: np.concatenate(v) for f, v in self.parts.items()})
+        cat = (lambda v: np.concatenate(v) if v else np.zeros(0))  # noqa: E731
+        return SimpleNamespace(events=self.events, names=self.names, alarm_t=cat(self.alarm_t),
+                               alarm_s=cat(self.alarm_s), **{f: np.concatenate(v) for f, v in self.parts.items()})
 
 
 class _Errors:
@@ -392,7 +405,35 @@ class _Errors:
                                 [self.session.segments[i].label for i in order], E)
 
 
+class _Tee:
+    """stdout that also keeps every line (the console's notes and cautions go into the report word for word)."""
+
+    def __init__(self, out, lines: list[str]) -> None:  # type: ignore[no-untyped-def]
+        self.out, self.lines, self.part = out, lines, ""
+
+    def write(self, text: str) -> int:
+        self.part += text
+        *done, self.part = self.part.split("\n")
+        self.lines += done
+        return self.out.write(text)
+
+    def flush(self) -> None:
+        self.out.flush()
+
+    def __getattr__(self, name: str):  # type: ignore[no-untyped-def]
+        return getattr(self.out, name)
+
+
 def run(args: argparse.Namespace) -> int:
+    import contextlib
+    import sys
+
+    console: list[str] = []
+    with contextlib.redirect_stdout(_Tee(sys.stdout, console)) if args.report else contextlib.nullcontext():
+        return _run(args, console)
+
+
+def _run(args: argparse.Namespace, console: list[str]) -> int:
     import contextlib
 
     from ..calibration import Calibration
@@ -620,10 +661,16 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         out = Path(args.report)
         out.mkdir(parents=True, exist_ok=True)
-        png = _plot(out / "replay.png", {k: p.series() for k, p in plots.items()})
-        print(f"  plot:   {png}" if png else "  (matplotlib not installed: no plot; pip install 'rimu[plots]')")
-        for k, tr in tracked.items():
-            print(f"  plot:   {tr.plot(k, out)}")
+        series = {k: p.series() for k, p in plots.items()}
+        page = _report(series, summary, events, args, console, fmt)
+        if page is None:
+            print("  (matplotlib not installed: no plot; pip install 'rimu[plots]')")
+        else:
+            png = page.save_figure(0, out / "replay.png", dpi=90)
+            html, pdf = page.write(out, "replay_report")
+            print(f"  plot:   {png}\n  report: {html} and {pdf}")
+            for k, tr in tracked.items():
+                print(f"  plot:   {tr.plot(k, out)}")
     if args.output:
         import json
 
@@ -808,46 +855,86 @@ def _motion_detector(cal, block, seconds: float, margin: float, p_fa: float, fs:
     return det
 
 
-def _plot(path: Path, results: dict) -> Path | None:
+def _report(results: dict, summary: dict, events: dict, args: argparse.Namespace, console: list[str],
+            fmt):  # type: ignore[no-untyped-def]
+    """The replay report in rimu's one layout (:class:`rimu.report.Report`): the console's notes and cautions,
+    the summary per instrument in the field's units, and per instrument one column of panels on one time axis, as
+    a flight-review page shows a flight: the parity statistic against its threshold with every alarm sample, the
+    estimate, its validity, the sensors in the estimate with every isolation and readmission. None without
+    matplotlib."""
     from ..plotting import pyplot
 
     plt = pyplot(optional=True)
     if plt is None:
         return None
     from ..fdi.manager import HealthState
+    from ..fusion.validity import Validity
+    from ..report import Report
+    from ..units import field_unit
 
+    page = Report(f"rimu replay: {Path(args.data).name} with {Path(args.calibration).name}")
+    page.cautions([ln.strip() for ln in console if ln.strip().startswith(("note:", "caution", "warning"))])
+    rows = []
+    for k, e in summary.items():
+        rows.append([k, e["samples"], e["alarms"], e["isolations"], e["final_state"],
+                     fmt(e.get("segment_error_rms"), k), fmt(e.get("sample_error_rms"), k)])
+    page.table(["instrument", "samples", "alarm samples", "isolations", "final state", "segment_error_rms",
+                "sample_error_rms"], rows, "against the known inputs of the segments (docs/runtime.md)")
+    names = {i: h.value for i, h in enumerate(HealthState)}
+    page.text("States the unit went through: " + "; ".join(
+        f"{k}: {', '.join(names[int(v)] for v in np.unique(r.state))}" for k, r in results.items()))
+    shown = [(k, e) for k in events for e in events[k] if e.kind != "transient"][:200]
+    if shown:
+        page.heading("Events")
+        page.table(["instrument", "t [s]", "sample", "event", "sensor", "message"],
+                   [[k, f"{e.t:.3f}", e.sample, e.kind, e.sensor or "", e.message] for k, e in shown])
     k_n = len(results)
-    fig, axes = plt.subplots(3, k_n, figsize=(6 * k_n, 8), sharex=True, squeeze=False)
+    fig, axes = plt.subplots(4, k_n, figsize=(6.2 * k_n, 10), sharex="col", squeeze=False)
     for c, (k, r) in enumerate(results.items()):
+        iso = [e for e in r.events if e.kind in ("isolated", "invalid_isolated", "readmitted")]
         ax = axes[0, c]
-        ax.semilogy(r.t, np.maximum(r.statistic, 1e-3), lw=0.5, label="statistic")
+        ln, = ax.semilogy(r.t, np.maximum(r.statistic, 1e-3), lw=0.5, label="parity statistic")
+        ln.set_gid("data")
         ax.semilogy(r.t, np.where(np.isfinite(r.threshold), r.threshold, np.nan), "k--", lw=1, label="threshold")
-        for e in r.events:
-            if e.kind in ("isolated", "invalid_isolated", "readmitted"):
-                ax.axvline(e.t, color="m" if e.kind != "readmitted" else "g", lw=0.8, ls=":")
-                ax.text(e.t, ax.get_ylim()[1], f"{e.kind[:3]} {e.sensor}", fontsize=7, rotation=90, va="top")
-        ax.set_title(f"{k}: parity test statistic")
+        if r.alarm_t.size:
+            ax.semilogy(r.alarm_t, np.maximum(r.alarm_s, 1e-3), "r.", ms=2, label="alarm samples")
+        ax.set_title(f"{k}: parity statistic and alarms", fontsize=10)
         ax.set_ylabel("statistic [-]")
-        ax.legend(fontsize=7, loc="upper left")
         ax = axes[1, c]
-        for a, col in zip(range(3), "rgb"):
-            ax.plot(r.t, r.x[:, a], col, lw=0.5, label="xyz"[a])
-        ax.set_title(f"{k}: MB-frame estimate")
-        ax.set_ylabel("angular rate [rad/s]" if k == "gyro" else "specific force [m/s^2]")
-        ax.legend(fontsize=7)
+        x = np.asarray(r.x, float)
+        unit, f = field_unit(k, float(np.nanmax(np.abs(x))) if np.isfinite(x).any() else None)
+        for a, col in zip(range(3), ("C3", "C2", "C0")):
+            ax.plot(r.t, x[:, a] * f, color=col, lw=0.5, label="xyz"[a])
+        ax.set_title(f"{k}: estimate (master-body frame)", fontsize=10)
+        ax.set_ylabel(("angular rate" if k == "gyro" else "specific force") + f" [{unit}]")
         ax = axes[2, c]
-        ax.step(r.t, r.state, where="post")
-        ax.set_yticks(range(len(HealthState)))
-        ax.set_yticklabels([s.value for s in HealthState], fontsize=7)
+        ln, = ax.step(r.t, r.validity, where="post", color="C1", lw=1)
+        ln.set_gid("data")
+        ax.set_yticks([v.value for v in Validity], [v.name.lower() for v in Validity], fontsize=7)
+        ax.set_ylim(-0.3, len(Validity) - 0.7)
+        ax.set_title(f"{k}: validity of the estimate", fontsize=10)
+        ax = axes[3, c]
+        ln, = ax.step(r.t, r.n_active, where="post", color="C0", lw=1, label="sensors in the estimate")
+        ln.set_gid("data")
+        for e in iso:
+            ax.axvline(e.t, color="C3" if e.kind != "readmitted" else "C2", lw=0.8, ls=":")
+        n_max = max(len(r.names), int(np.max(r.n_active)) if r.n_active.size else 0)
+        for e in iso[:30]:
+            ax.annotate(f"{'readmit' if e.kind == 'readmitted' else 'isolate'} {e.sensor}", (e.t, n_max),
+                        fontsize=7, rotation=90, va="top", ha="right")
+        ax.set_ylim(-0.2, n_max + 0.5)
+        ax.set_ylabel("sensors [count]")
         ax.set_xlabel("time [s]")
-        ax.set_title(f"{k}: state")
+        ax.set_title(f"{k}: sensors in use and isolations", fontsize=10)
+        for ax in axes[:, c]:
+            ax.grid(alpha=0.3)
+            if ax.get_legend_handles_labels()[0]:
+                ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     fig.tight_layout()
-    from ..atomic import atomic_path
-
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    return path
+    page.heading("Parity, validity, alarms and isolations on one time axis")
+    page.figure(fig, "Per instrument: the parity test statistic against its threshold (red: alarm samples), the "
+                     "estimate, its validity and the sensors in it (dotted: isolation in red, readmission in green).")
+    return page
 
 
 def _epochs_recording_session(data: str, calibration: str) -> Path | None:

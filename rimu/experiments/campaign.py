@@ -326,21 +326,24 @@ class CampaignResult:
 
     def table(self) -> str:
         """The summary as a readable table."""
+        from ..units import fmt
+
         lines = [f"campaign: {self.spec.geometry} {self.spec.instrument}, detector {self.spec.detector}, "
                  f"{len(self.rows)} tasks in {self.elapsed_s:.1f} s on {self.workers} worker(s)",
                  f"{'fault':>10} {'size':>5} | {'Pd':>7} {'99% CI':>17} {'theory':>7} | {'Pfa':>8} {'99% CI':>19} | "
-                 f"{'wrong iso':>9} | {'closed loop: correct':>20} {'delay s':>8}"]
+                 f"{'wrong iso':>9} | {'closed loop: correct':>20} {'delay':>10}"]
         for s in self.summary():
             ci = s["pd_ci"]
             fci = s["pfa_ci"]
             th = f"{s['pd_theory']:.4f}" if "pd_theory" in s else "   -   "
-            wi = f"{100 * s['wrong_isolation']:.3f}%" if s["wrong_isolation"] is not None else "-"
-            cl = f"{100 * s['closed_loop_correct']:.0f}%" if "closed_loop_correct" in s else "-"
-            dl = f"{s['delay_mean_s']:.3f}" if s.get("delay_mean_s") is not None else "-"
+            # the figures with a unit through the one formatter (rimu.units.fmt)
+            wi = fmt(s["wrong_isolation"], "ratio", "%", decimals=3) if s["wrong_isolation"] is not None else "-"
+            cl = fmt(s["closed_loop_correct"], "ratio", "%", decimals=0) if "closed_loop_correct" in s else "-"
+            dl = fmt(s["delay_mean_s"], "time", "s", decimals=3) if s.get("delay_mean_s") is not None else "-"
             pd = f"{s['pd']:.4f}" if s["pd"] is not None else "-"
             pfa = f"{s['pfa']:.2e}" if s["pfa"] is not None else "-"
             lines.append(f"{s['fault']:>10} {s['size_sigma']:>5g} | {pd:>7} [{ci[0]:.4f}, {ci[1]:.4f}] {th:>7} | "
-                         f"{pfa:>8} [{fci[0]:.2e}, {fci[1]:.2e}] | {wi:>9} | {cl:>20} {dl:>8}")
+                         f"{pfa:>8} [{fci[0]:.2e}, {fci[1]:.2e}] | {wi:>9} | {cl:>20} {dl:>10}")
         return "\n".join(lines)
 
     def to_json(self, path: str | Path | None = None) -> str:

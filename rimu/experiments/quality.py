@@ -185,14 +185,22 @@ class QualityReport(ParityCheckReport, rows="pairs"):
         return [p.direction for p in self.pairs if p.bad]
 
     def summary(self) -> str:
+        from ..units import ARCSEC_TO_RAD, field_unit, fmt
+
+        # one angle unit for the table (rimu.units.fmt): arcsec, or deg for misfits of a degree and more
+        unit = field_unit("angle", ARCSEC_TO_RAD * max([max(p.nominal_arcsec, p.misalignment_arcsec)
+                                                        for p in self.pairs] or [0.0]))[0]
         head = [f"parity calibration check ({self.instrument}): de Oliveira et al. 2012, Eq. 21-25",
-                f"{'pair':>10} {'rate direction (MB)':>24} | {'|v g_w|/|w|':>12} {'|v_c g_w|/|w|':>14} | "
+                f"{'pair':>10} {'rate direction (MB)':>24} | {'|v g_w|/|w|':>16} {'|v_c g_w|/|w|':>16} | "
                 f"{'chi2':>9} {'limit':>7}"]
-        rows = [f"{p.labels[0] + '/' + p.labels[1]:>10} {vector_text(p.direction):>24} | {p.nominal_arcsec:10.1f}\" "
-                f"{p.misalignment_arcsec:12.1f}\" | {p.statistic:9.1f} {p.threshold:7.1f}" for p in self.pairs]
+        rows = [f"{p.labels[0] + '/' + p.labels[1]:>10} {vector_text(p.direction):>24} | "
+                f"{fmt(p.nominal_arcsec * ARCSEC_TO_RAD, 'angle', unit, digits=4, width=9):>16} "
+                f"{fmt(p.misalignment_arcsec * ARCSEC_TO_RAD, 'angle', unit, digits=4, width=9):>16} | "
+                f"{p.statistic:9.1f} {p.threshold:7.1f}" for p in self.pairs]
         w = self.worst()
         return self._summary(head, rows, f"largest misfit for rates along MB {vector_text(w.direction)}"
-                             f" [{w.labels[0]}/{w.labels[1]}], about {w.misalignment_arcsec:.0f} arcsec")
+                             f" [{w.labels[0]}/{w.labels[1]}], about "
+                             f"{fmt(w.misalignment_arcsec * ARCSEC_TO_RAD, 'angle', digits=3)}")
 
     def to_dict(self) -> dict[str, Any]:
         return self._to_dict("pairs")
@@ -206,7 +214,7 @@ class QualityReport(ParityCheckReport, rows="pairs"):
             ax.set_yscale("symlog", linthresh=10)
             ax.legend(fontsize=8)
 
-        return self._plot(path, [f"{p.labels[0]}/{p.labels[1]}" for p in self.pairs], "|parity of g_w| / |w|, arcsec",
+        return self._plot(path, [f"{p.labels[0]}/{p.labels[1]}" for p in self.pairs], "|parity of g_w| / |w| [arcsec]",
                           f"parity calibration check: {self.verdict}", draw)
 
 

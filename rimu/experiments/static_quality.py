@@ -66,12 +66,18 @@ class StaticQualityReport(ParityCheckReport, rows="segments"):
     notes: list[str] = field(default_factory=list)
 
     def summary(self) -> str:
+        from ..units import G0, UG_TO_MS2, field_unit, fmt
+
+        # one unit for the misfit column (rimu.units.fmt): ug, or mg and m/s^2 for larger misfits
+        unit = field_unit("specific_force", UG_TO_MS2 * max([s.misfit_ug for s in self.segments] or [0.0]))[0]
         head = [f"parity calibration check at rest ({self.instrument}): v_c (SF y - B), chi2({self.dof}) per segment",
-                f"{'segment':>10} {'f (MB), g':>24} | {'|v_c z|, ug':>12} | {'chi2':>9} {'limit':>7}"]
-        rows = [f"{s.label:>10} {vector_text(s.specific_force_mb / 9.80665):>24} | {s.misfit_ug:12.1f} | "
+                f"{'segment':>10} {'f (MB), g':>24} | {'|v_c z|':>14} | {'chi2':>9} {'limit':>7}"]
+        rows = [f"{s.label:>10} {vector_text(s.specific_force_mb / G0):>24} | "
+                f"{fmt(s.misfit_ug * UG_TO_MS2, 'specific_force', unit, digits=4, width=8):>14} | "
                 f"{s.statistic:9.1f} {s.threshold:7.1f}" for s in self.segments]
         w = max(self.segments, key=lambda s: s.statistic)
-        return self._summary(head, rows, f"largest misfit in segment {w.label!r}, about {w.misfit_ug:.0f} micro-g")
+        return self._summary(head, rows, f"largest misfit in segment {w.label!r}, about "
+                                         f"{fmt(w.misfit_ug * UG_TO_MS2, 'specific_force', digits=3)}")
 
     @property
     def dof(self) -> int:
@@ -85,7 +91,7 @@ class StaticQualityReport(ParityCheckReport, rows="segments"):
         def draw(ax: Any, k: np.ndarray, colours: list[str]) -> None:
             ax.bar(k, [s.misfit_ug for s in self.segments], color=colours)
 
-        return self._plot(path, [s.label for s in self.segments], "|v_c (SF y - B)|, micro-g",
+        return self._plot(path, [s.label for s in self.segments], "|v_c (SF y - B)| [ug]",
                           f"{self.instrument} parity check at rest: {self.verdict}", draw)
 
 

@@ -550,13 +550,18 @@ def _block_source(sizes: tuple[tuple[int, int], ...]) -> str:
     """Python source of :func:`block_kernel` for instruments of sizes ``(n, m)``.
 
     The kernel ``k(Y0, [Y1,] P, O0, [O1])`` does ``O = Y @ R.T - off`` for every instrument of a unit in one pass
-    and returns whether every raw value was finite and inside its limit: the test is a maximum of the bit patterns
-    of ``|y|`` (monotone in ``|y|`` for non-negative doubles; NaN's pattern is above inf's), an integer reduction
-    that the compiler vectorises, compared with the limits once per block. ``P`` packs, per instrument, ``R`` (m, n)
-    row-major, ``off`` (m) and the limits (n) (:meth:`BlockPath.pack`)."""
+    and returns 0 when every raw value was finite and inside its limit, 1 when some was not (outputs unspecified),
+    2 when the shapes do not agree (an empty block, a block whose column count is not the instrument's, or an output
+    buffer of another shape; nothing written): the caller's checks are the kernel's. The range test is a maximum of
+    the bit patterns of ``|y|`` (monotone in ``|y|`` for non-negative doubles; NaN's pattern is above inf's), an
+    integer reduction that the compiler vectorises, compared with the limits once per block. ``P`` packs, per
+    instrument, ``R`` (m, n) row-major, ``off`` (m) and the limits (n) (:meth:`BlockPath.pack`)."""
     k = len(sizes)
     args = [f"Y{s}" for s in range(k)] + ["P"] + [f"O{s}" for s in range(k)]
-    L = [f"def kernel({', '.join(args)}):", "    N = Y0.shape[0]", "    Pb = P.view(np.int64)"]
+    shape = " or ".join(f"Y{s}.shape[0] != N or Y{s}.shape[1] != {n} or O{s}.shape[0] != N or O{s}.shape[1] != {m}"
+                        for s, (n, m) in enumerate(sizes))
+    L = [f"def kernel({', '.join(args)}):", "    N = Y0.shape[0]", f"    if N == 0 or {shape}:", "        return 2",
+         "    Pb = P.view(np.int64)"]
     tail: list[str] = []
     pos = 0
     for s, (n, m) in enumerate(sizes):
@@ -578,7 +583,7 @@ def _block_source(sizes: tuple[tuple[int, int], ...]) -> str:
         tail += [f"a{s}_{i} < Pb[{lim + i}]" for i in range(n)]
         L += body  # one loop per instrument: its coefficients stay in registers
         pos = lim + n
-    L.append("    return " + " and ".join(tail))
+    L.append("    return 0 if " + " and ".join(tail) + " else 1")
     return "\n".join(L) + "\n"
 
 
@@ -595,7 +600,12 @@ def block_kernel(sizes: tuple[tuple[int, int], ...]) -> Any:
         return fn
     src = "import numpy as np\nimport numba\n\nMASK = np.int64(0x7FFFFFFFFFFFFFFF)\nu = numba.uint64\n\n\n" \
         + _block_source(sizes)
-    name = "rimu_block_" + "_".join(f"{n}x{m}" for n, m in sizes) + f"_v1_{UNROLL_MAX}"
+    name = "rimu_block_" + "_".join(f"{n}x{m}" for n, m in sizes) + f"_v2_{UNROLL_MAX}"
+    # one signature, compiled now: C-ordered, writable float64 blocks and buffers; numba's dispatcher refuses
+    # anything else (another dtype or layout, a read-only block, not an array) with a TypeError, which is the
+    # caller's cue to convert (BlockPath.run) -- no per-call checks of type, dtype or layout in Python
+    a2, a1 = numba.types.Array(numba.float64, 2, "C"), numba.types.Array(numba.float64, 1, "C")
+    sig = numba.int64(*([a2] * len(sizes) + [a1] + [a2] * len(sizes)))
     ns: dict[str, Any] = {}
     try:
         import importlib.util
@@ -614,10 +624,10 @@ def block_kernel(sizes: tuple[tuple[int, int], ...]) -> Any:
         mod = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
         spec.loader.exec_module(mod)  # type: ignore[union-attr]
         sys.modules[name] = mod  # numba's disk cache finds the function's module by name
-        fn = numba.njit(cache=True, nogil=True, error_model="numpy", _nrt=False)(mod.kernel)
+        fn = numba.njit(sig, cache=True, nogil=True, error_model="numpy", _nrt=False)(mod.kernel)
     except OSError:  # nowhere to write: compiled in memory, every process
         exec(compile(src, f"<{name}>", "exec"), ns)  # the source above: made from two integers per instrument
-        fn = numba.njit(nogil=True, error_model="numpy", _nrt=False)(ns["kernel"])
+        fn = numba.njit(sig, nogil=True, error_model="numpy", _nrt=False)(ns["kernel"])
     _BLOCK_KERNELS[sizes] = fn
     return fn
 
@@ -627,9 +637,10 @@ class BlockPath:
     one's current active set (Cho & Park 2005, Eq. 20 folded into R and off; de Oliveira 2012, Eq. 11 for the
     parity rows), with the range and finiteness test, for every block length, in one call.
 
-    The kernel's coefficients are packed when an active set changes (never per block); :meth:`run` returns False
+    The kernel's coefficients are packed when an active set changes (never per block); :meth:`run` returns 1
     (outputs unspecified) when some raw value is non-finite, at its range or too large to project without overflow,
-    and the caller then runs the numpy path, which routes around it.
+    and the caller then runs the numpy path, which routes around it (2 when the shapes disagree: the numpy path
+    says what is wrong).
     """
 
     def __init__(self, pipes: list[Any]) -> None:
@@ -663,10 +674,19 @@ class BlockPath:
                 return False
         return True
 
-    def run(self, Ys: list[np.ndarray], outs: list[np.ndarray]) -> bool:
-        """Project the blocks ``Ys`` (C-contiguous float64 (N, n)) into ``outs`` (C-contiguous (N, m))."""
+    def run(self, Ys: list[np.ndarray], outs: list[np.ndarray]) -> int:
+        """Project the blocks ``Ys`` ((N, n) each) into ``outs`` (C-ordered float64 (N, m) each): 0 when done, 1
+        when some raw value is off the common path, 2 when the shapes disagree or an array is not one the kernel
+        takes (nothing done: the numpy path decides). A block that is not C-ordered writable float64 is copied
+        into one first (numba's dispatcher refuses it; nothing is checked in Python on the common path)."""
         if not self.current():
             self.pack()
-        if len(Ys) == 1:
-            return self.kernel(Ys[0], self.P, outs[0])
-        return self.kernel(Ys[0], Ys[1], self.P, outs[0], outs[1])
+        try:
+            return self.kernel(*Ys, self.P, *outs)
+        except TypeError:
+            pass
+        try:
+            Ys = [np.array(Y, dtype=np.float64, order="C") for Y in Ys]
+            return self.kernel(*Ys, self.P, *outs)
+        except (TypeError, ValueError):  # an output buffer of another kind, or not numbers: the numpy path says so
+            return 2

@@ -57,6 +57,7 @@ _INF_P = np.diag([np.inf] * 3)
 _INF_P.setflags(write=False)
 _NDARRAY = np.ndarray
 _F8 = np.dtype(np.float64)
+_B1 = np.dtype(bool)
 
 
 @dataclass
@@ -304,34 +305,40 @@ class InstrumentPipeline:
         """Process one raw sample ``y`` (n,) on the sensors ``active`` (a mask (n,), a set code, or None: all;
         invalid and clipped values are left out of the sample on top). Returns :attr:`result` (reused; copy
         what you keep)."""
-        if active is not None or self._code != self._full:
+        if active is None:
+            if self._code != self._full:
+                self._use(None)
+        elif type(active) is not int or active != self._code:  # (an unchanged set code costs one comparison)
             self._use(active)
         self.samples += 1
+        if valid is not None:  # every sensor flagged valid? (a bool array's bytes are 0 or 1: no zero byte)
+            clean = (0 not in valid.tobytes()) if type(valid) is _NDARRAY and valid.dtype is _B1 else bool(np.all(valid))
+            if not clean:
+                return self._step_slow(np.asarray(y, dtype=float), valid)
         k = self._kstep
         if k is not None:  # compiled: range, R y - off and finiteness in one call
-            if (valid is None or valid.all()) and type(y) is _NDARRAY and y.dtype is _F8 and y.ndim == 1:
+            if type(y) is _NDARRAY and y.dtype is _F8 and y.ndim == 1:
                 if k(y, self._Re, self._offe, self._range, self._out):
                     if self._dirty:
                         self._clean()
                     return self.result
             return self._step_slow(np.asarray(y, dtype=float), valid)
-        if valid is None or valid.all():
-            try:
-                yl = y.tolist()
-            except AttributeError:  # not an ndarray: the careful path converts and checks it
-                yl = None
-            if yl is not None and len(yl) == self.n:
-                s = sum(yl)  # Python floats: inf and nan propagate without floating-point warnings
-                lim = self._range_min
-                if s - s == 0.0 and max(yl) < lim and min(yl) > -lim:
-                    out = self._out
-                    np.dot(self._Re, y, out=out)
-                    out -= self._offe
-                    s = sum(out.tolist())
-                    if s - s == 0.0:  # finite: the common path
-                        if self._dirty:
-                            self._clean()
-                        return self.result
+        try:
+            yl = y.tolist()
+        except AttributeError:  # not an ndarray: the careful path converts and checks it
+            yl = None
+        if yl is not None and len(yl) == self.n:
+            s = sum(yl)  # Python floats: inf and nan propagate without floating-point warnings
+            lim = self._range_min
+            if s - s == 0.0 and max(yl) < lim and min(yl) > -lim:
+                out = self._out
+                np.dot(self._Re, y, out=out)
+                out -= self._offe
+                s = sum(out.tolist())
+                if s - s == 0.0:  # finite: the common path
+                    if self._dirty:
+                        self._clean()
+                    return self.result
         return self._step_slow(np.asarray(y, dtype=float), valid)
 
     def _step_slow(self, y: np.ndarray, valid: np.ndarray | None) -> StepResult:
@@ -382,17 +389,18 @@ class InstrumentPipeline:
         self.samples += N
         n, r, tab = self.n, self.r, self.table
         kk = self._bkey
+        keep = out is not None  # a buffer of the caller's: the result is kept for the next block with it
         if out is None or kk is None or out is not kk[2] or kk[1] != N:  # (a buffer checked last block is fine)
             out = _out_buffer(out, N, 3 + r)
         bp = self._bpath if self._bpath is not None else self._block_path()
         if bp:
             if N and (valid is None or np.all(valid)):
-                if bp.run((np.ascontiguousarray(Y),), (out,)):
-                    return self._clean_block(out)
+                if bp.run((Y,), (out,)) == 0:
+                    return self._clean_block(out, keep)
         else:
             in_range = self.range_raw is None or not N or bool(np.all(np.abs(Y) < self.range_raw))
             if N and in_range and (valid is None or np.all(valid)) and self._fast_block(Y, out):
-                return self._clean_block(out)
+                return self._clean_block(out, keep)
         good = np.isfinite(Y)
         if valid is not None:
             v = np.asarray(valid, dtype=bool)
@@ -445,10 +453,11 @@ class InstrumentPipeline:
                 self._bpath = kern.BlockPath([self])
         return self._bpath
 
-    def _clean_block(self, out: np.ndarray) -> BlockResult:
+    def _clean_block(self, out: np.ndarray, keep: bool = True) -> BlockResult:
         """The result of a block whose every sample took the common path on the current set (the per-sample
         arrays are read-only broadcasts of the set's, kept while the set and the block length stay the same;
-        the result itself while the output buffer stays the same too)."""
+        the result itself while the output buffer stays the same too, where ``keep``: a buffer made for this call
+        is the caller's alone, so that it is freed when the caller lets go of it, not at the next call)."""
         N, n, cur = out.shape[0], self.n, self._set
         key = self._bkey
         if key is None or key[0] is not cur or key[1] != N:
@@ -461,7 +470,7 @@ class InstrumentPipeline:
         e, d, a, no, o, v = self._bviews
         res = BlockResult(out[:, :3], out[:, 3:], e, d, a, no, o, self.table, no, v,
                           {cur.entry: cur.P if cur.observable else _INF_P})
-        self._bkey = (cur, N, out, res)
+        self._bkey = (cur, N, out, res) if keep else (cur, N, None, None)
         return res
 
     # ------------------------------------------------------------------ estimates without side effects
@@ -930,57 +939,94 @@ class Pipeline:
 
         ``out``: per instrument, the buffer of :meth:`InstrumentPipeline.process` (a stream that passes the same
         buffers every block allocates nothing)."""
-        self._use(active)
         if not self.compensation:
             if self._bpath is not False:  # compiled: every instrument in one call
-                res = self._process_compiled(block, out)
+                res = self._process_compiled(block, out, active)
                 if res is not None:
                     return res
+            self._use(active)
             out = out or {}
             return {k: p.process(block.raw[k], block.valid.get(k), out.get(k), active=p._code)
                     for k, p in self.instruments.items()}
+        self._use(active)
         _, results = self._compensate_block(block, want_raw=False, out=out)
         return {k: results[k] for k in self.instruments}
 
-    def _process_compiled(self, block: EpochBlock, out: dict[str, np.ndarray] | None
+    def _block_path(self) -> Any:
+        """The compiled block path of the unit (:class:`rimu.fusion._kernels.BlockPath`), else False."""
+        self._bpath = False
+        pipes = list(self.instruments.values())
+        if self.backend == "numba" and 1 <= len(pipes) <= 2:
+            kern = _kernels()
+            if all(p.n * (3 + p.r) <= kern.UNROLL_MAX for p in pipes):
+                self._bpath = kern.BlockPath(pipes)
+                self._bslots = tuple(zip(self._keys, pipes, [3 + p.r for p in pipes]))
+        return self._bpath
+
+    def _process_compiled(self, block: EpochBlock, out: dict[str, np.ndarray] | None, active: dict[str, Any] | None
                           ) -> dict[str, BlockResult] | None:
         """:meth:`process` of a unit without a compensation stage in one compiled call
-        (:class:`rimu.fusion._kernels.BlockPath`); None when a sample is off the common path."""
+        (:class:`rimu.fusion._kernels.BlockPath`); None when a sample is off the common path.
+
+        The per-call work in Python is kept to what the kernel cannot do: the shapes, the dtype, the layout and the
+        finiteness are the kernel's checks (its signature and its return code), the output buffers are checked when
+        they change, and the result objects are reused while the sets, the length and the buffers stay."""
         bp = self._bpath
         if bp is None:
-            bp = self._bpath = False
-            pipes = list(self.instruments.values())
-            if self.backend == "numba" and len(pipes) <= 2:
-                kern = _kernels()
-                if all(p.n * (3 + p.r) <= kern.UNROLL_MAX for p in pipes):
-                    bp = self._bpath = kern.BlockPath(pipes)
+            bp = self._block_path()
             if not bp:
                 return None
-        if block.valid and not all(np.all(v) for v in block.valid.values()):
+        if active is not None:
+            self._use(active)
+        valid = block.valid
+        if valid and not all(np.all(v) for v in valid.values()):
             return None
         raw = block.raw
-        Ys, outs, res = [], [], {}
-        N = -1
-        packed = True
-        for k, p, st in zip(self._keys, bp.pipes, bp.sets):
-            packed = packed and p._set is st
+        slots = self._bslots
+        if out is not None and len(slots) == 2:  # a stream's steady state: a unit's two instruments, their buffers
+            (k0, p0, _), (k1, p1, _) = slots
+            o0, o1 = out.get(k0), out.get(k1)
+            kk0, kk1 = p0._bkey, p1._bkey
+            if kk0 is not None and kk1 is not None and o0 is kk0[2] and o1 is kk1[2] and o0 is not None \
+                    and o1 is not None:
+                if active is None and (p0._code != p0._full or p1._code != p1._full):
+                    self._use(None)
+                st = bp.sets
+                if p0._set is not st[0] or p1._set is not st[1]:
+                    bp.pack()
+                try:
+                    code = bp.kernel(raw[k0], raw[k1], bp.P, o0, o1)
+                except TypeError:  # a block the kernel does not take as it is: converted
+                    code = bp.run([raw[k0], raw[k1]], [o0, o1])
+                if code:
+                    return None
+                N = o0.shape[0]
+                p0.samples += N
+                p1.samples += N
+                return {k0: kk0[3] if kk0[0] is p0._set and kk0[1] == N else p0._clean_block(o0),
+                        k1: kk1[3] if kk1[0] is p1._set and kk1[1] == N else p1._clean_block(o1)}
+        Ys, outs, kept = [], [], []
+        for k, p, m in slots:
+            if p._code != p._full and active is None:
+                p._use(None)
             Y = raw[k]
-            if not Y.flags.c_contiguous:
-                Y = np.ascontiguousarray(Y)
-            N = Y.shape[0]
-            if not N or Y.shape[1] != p.n:
-                return None
             Ys.append(Y)
             o = None if out is None else out.get(k)
+            kept.append(o is not None)
             kk = p._bkey
-            if o is None or kk is None or o is not kk[2] or kk[1] != N:  # a buffer checked last block is fine
-                o = _out_buffer(o, N, 3 + p.r)
+            if o is None or kk is None or o is not kk[2]:  # a buffer checked at an earlier block is fine
+                N = Y.shape[0] if hasattr(Y, "shape") and len(Y.shape) == 2 else -1
+                if N < 1:
+                    return None
+                o = _out_buffer(o, N, m)
             outs.append(o)
-        if not packed:
-            bp.pack()
-        if not (bp.kernel(Ys[0], bp.P, outs[0]) if len(Ys) == 1 else bp.kernel(Ys[0], Ys[1], bp.P, outs[0], outs[1])):
+        if bp.run(Ys, outs):  # off the common path (or shapes that disagree: the numpy path says what is wrong)
             return None
-        for k, p, o in zip(self._keys, bp.pipes, outs):
+        N = outs[0].shape[0]
+        res = {}
+        for (k, p, _), o, keep in zip(slots, outs, kept):
             p.samples += N
-            res[k] = p._clean_block(o)
+            kk = p._bkey
+            res[k] = kk[3] if kk is not None and kk[2] is o and kk[0] is p._set and kk[1] == N else \
+                p._clean_block(o, keep)
         return res

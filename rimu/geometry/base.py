@@ -205,6 +205,17 @@ class Geometry:
             cache[i] = (E, names)
         return cache[i]
 
+    def off_axis_projections(self) -> np.ndarray:
+        """``E_i C_i`` of every sensor, (n, 2, 3), read-only: its off-axis basis (:meth:`off_axis_basis`) times its
+        sub-unit's rotation from MB, so that ``(E_i C_i) a`` are the misalignment components of an MB axis ``a``
+        (Cho & Park 2005, Eq. 10). A constant of the geometry, computed once."""
+        P = self.__dict__.get("_off_axis_mb")
+        if P is None:
+            P = np.stack([self.off_axis_basis(i)[0] @ self.subunit_of(i).mat_sb_mb for i in range(self.n)])
+            P.setflags(write=False)
+            self._off_axis_mb = P
+        return P
+
     def _off_axis_basis(self, i: int) -> tuple[np.ndarray, tuple[str, str]]:
         self.nominal_rows()  # (fills the cache)
         r = self._nominal_rows[i]

@@ -77,3 +77,51 @@ def test_ln_vector_in_mb_equals_the_attitude_matrices(run):
         if C is None:
             continue
         assert np.allclose(seg.ln_vector_in_mb(v), np.einsum("nji,j->ni", C, v), rtol=0, atol=1e-12)
+
+
+def _same_fit(a, b, what, session):
+    """Two LeastSquares results of the same base model (perhaps its effects in another order): every sensor's
+    values, covariances, residual sums and residuals, and the calibrations they make, equal to 1e-12."""
+    for inst in a.instruments:
+        for sa, sb in zip(a[inst].sensors, b[inst].sensors):
+            pa = [sb.theta_names.index(n) for n in sa.theta_names]  # b's physical parameters in a's order
+            qa = [sb.beta_names.index(n) for n in sa.beta_names]
+            # (absolute: 1e-14 rad of a misalignment angle near zero, 1e-12 of the largest raw coefficient)
+            np.testing.assert_allclose(sa.theta, sb.theta[pa], rtol=1e-12, atol=1e-14, err_msg=what)
+            np.testing.assert_allclose(sa.beta, sb.beta[qa], rtol=1e-12, atol=1e-12 * np.abs(sb.beta).max(),
+                                       err_msg=what)
+            for ca, cb in ((sa.theta_cov, sb.theta_cov[np.ix_(pa, pa)]), (sa.beta_cov, sb.beta_cov[np.ix_(qa, qa)])):
+                np.testing.assert_allclose(ca, cb, rtol=1e-12, atol=1e-12 * np.abs(cb).max(), err_msg=what)
+            # the residual sum from the statistics, q - 2 b.h + b.G.b, cancels: eps q / rss of it is rounding
+            assert sa.rss == pytest.approx(sb.rss, rel=1e-6) and sa.sigma == sb.sigma and sa.n_obs == sb.n_obs
+            assert sa.theta_names == [sb.theta_names[k] for k in pa] and list(sa.residuals) == list(sb.residuals)
+            for lab in sa.residuals:  # to 1e-12 of the raw outputs they are the residuals of
+                y = session.segment(lab).raw[inst][:, sa.ctx.index]
+                np.testing.assert_allclose(sa.residuals[lab], sb.residuals[lab], rtol=0,
+                                           atol=1e-12 * np.abs(y).max() * max(1.0, np.sqrt(len(y))),
+                                           err_msg=f"{what} {lab}")
+        ca, cb = a[inst].to_calibration(), b[inst].to_calibration()
+        for f in ("scale", "misalignment", "bias", "noise_sigma"):
+            np.testing.assert_allclose(getattr(ca, f), getattr(cb, f), rtol=1e-12, atol=1e-15, err_msg=f"{what} {f}")
+        p = [cb.param_names.index(n) for n in ca.param_names]
+        np.testing.assert_allclose(ca.covariance, cb.covariance[np.ix_(p, p)], rtol=1e-12,
+                                   atol=1e-12 * np.abs(cb.covariance).max(), err_msg=what)
+
+
+@pytest.mark.parametrize("data", ["simulated", "ferraris"])
+def test_array_base_path_equals_the_general_path(run, data):
+    """LeastSquares of the base model takes the array path (every sensor of an instrument at once, from the shared
+    statistics); the same model with its effects listed the other way round takes the general per-sensor design
+    path. Both give the same numbers to 1e-12: on a simulated Cho & Park session (static and rate segments) and
+    on imucal's real Ferraris recording (static positions and turns of known angle)."""
+    if data == "ferraris":
+        from rimu.session import load_ferraris
+        from tests.conftest import shared_data
+
+        session = load_ferraris(shared_data("imucal_ferraris_session", "example_ferraris_session.csv"))
+    else:
+        session = run.session
+    for sigma in (None, {"gyro": 0.01, "accel": 0.002}):
+        fast = LeastSquares(sigma=sigma).fit(session)
+        general = LeastSquares(model=ErrorModel.from_names("bias,scale_misalignment"), sigma=sigma).fit(session)
+        _same_fit(fast, general, f"{data}, sigma {sigma}", session)

@@ -377,6 +377,12 @@ ISSUE_CASES = [
     (["export-c", "{in}/cal.json", "-o", "{out}/x", "--confirm", "99999999999999999999"], "--confirm"),
     (["array", "{in}/arr.npz", "--motion-threshold-deg-s", "1e9"], "--motion-threshold-deg-s"),
     (["array", "{in}/arr.npz", "--lowpass-hz", "1e6"], "--lowpass-hz"),
+    # issue 27: a log of counts with a calibration of counts is read as counts; one of another unit is refused
+    (["noise", "{in}/raw.csv", "--calibration", "{in}/cal.json", "-o", "{out}/n.json"], "calibrate this unit"),
+    (["noise", "{in}/raw.csv", "--calibration", "{in}/nope.json", "-o", "{out}/n.json"], "nope.json"),
+    (["calibrate", "{in}/s.npz", "-o", "{out}/c.json", "--report", "{out}/rep", "--reference", "{in}/raw.csv"],
+     "raw.csv"),
+    (["replay", "{in}/s.npz", "--calibration", "{in}/cal.json", "--report", "{in}/s.npz"], "--report"),
 ]
 
 

@@ -400,3 +400,73 @@ def test_block_stream_with_out_allocates_nothing_and_bad_buffers_are_refused():
         for wrong in (np.empty((N, 5)), np.empty((6, N)).T, np.empty((N, 6), np.float32)):
             with pytest.raises(ShapeError, match="C-ordered float64"):
                 pipe.process(block, {"gyro": wrong})
+
+
+def test_block_path_takes_any_layout_and_keeps_no_fresh_result():
+    """Blocks that are not C-ordered writable float64 (Fortran order, read-only, a strided view) go through the
+    compiled path as copies, with the numpy path's numbers; a buffer the stream used before, now of the wrong
+    length, is refused with ShapeError (the kernel's shape check); and a result made without out= is the caller's
+    alone: the pipeline keeps no reference to its arrays once the caller lets go."""
+    import gc
+    import weakref
+
+    from rimu.errors import ShapeError
+
+    N = 257
+    cal = _unit(cone6(), seed=28, effects=False)
+    block = _stream(cal, 2 * N, seed=29)
+    a, b = _pair(cal)
+    done = _spy_block(a)
+    ro = block.raw["accel"][:N].copy()
+    ro.setflags(write=False)
+    kinds = {"fortran": {"gyro": np.asfortranarray(block.raw["gyro"][:N]), "accel": block.raw["accel"][:N]},
+             "read-only": {"gyro": block.raw["gyro"][:N], "accel": ro},
+             "strided": {k: block.raw[k][::2] for k in INSTS}}
+    out = {k: np.empty((N, 6)) for k in INSTS}
+    for name, raw in kinds.items():
+        blk = EpochBlock(block.t[:N], raw)
+        _same_block(a.process(blk, out), b.process(blk), name)
+        assert done[-1] is True, name
+    with pytest.raises(ShapeError, match="C-ordered float64"):
+        a.process(EpochBlock(block.t[:N - 1], {k: block.raw[k][:N - 1] for k in INSTS}), out)
+    r = a.process(EpochBlock(block.t, block.raw))
+    ref = weakref.ref(r["gyro"].x.base)
+    del r
+    gc.collect()
+    assert ref() is None
+
+
+def test_block_stream_steady_state_keeps_every_check():
+    """A stream through the same out= buffers (the short Python path of the compiled block path): a block with a
+    NaN, one at the range limit, and an isolation are handed on and give the numpy path's numbers and counters; a
+    block of the wrong width is refused with ShapeError naming the shape; a clean block after them is compiled
+    again into the same buffers."""
+    from rimu.errors import ShapeError
+
+    N = 300
+    cal = _unit(cone6(), seed=30, effects=False)
+    block = _stream(cal, N, seed=31)
+    lim = {k: float(np.abs(block.raw[k]).max()) * 1.01 for k in INSTS}
+    a, b = _pair(cal, range_raw=lim)
+    done = _spy_block(a)
+    out = {k: np.empty((N, 6)) for k in INSTS}
+    a.process(block, out), b.process(block)
+    for what in ("nan", "range", "isolated", "clean"):
+        raw = {k: v.copy() for k, v in block.raw.items()}
+        active = None
+        if what == "nan":
+            raw["accel"][123, 4] = np.nan
+        elif what == "range":
+            raw["gyro"][77, 1] = lim["gyro"]
+        elif what == "isolated":
+            active = {"accel": np.arange(6) != 4}
+        blk = EpochBlock(block.t, raw)
+        with np.errstate(invalid="ignore"):
+            _same_block(a.process(blk, out, active=active), b.process(blk, active=active), what)
+        assert done[-1] is (what in ("isolated", "clean")), what
+        for k in INSTS:
+            np.testing.assert_array_equal(a[k].invalid_count, b[k].invalid_count)
+            np.testing.assert_array_equal(a[k].saturated_count, b[k].saturated_count)
+            assert a[k].samples == b[k].samples
+    with pytest.raises(ShapeError, match=r"\(N, 6\)"):
+        a.process(EpochBlock(block.t, {"gyro": block.raw["gyro"][:, :5], "accel": block.raw["accel"]}), out)
