@@ -35,7 +35,7 @@ def test_setup_prints_the_noise_of_its_epochs_in_their_unit(tmp_path, capsys):
         out = capsys.readouterr().out
         for inst, q in (("gyro", "rate"), ("accel", "specific_force")):
             m = re.search(rf"{inst} noise per sensor \((\S+?)(?:, per epoch of the (\d+)-sample averages.*?)?\): "
-                          r"(.+)", out)
+                          r"([-\d.e+ ]+?)(?:  \(|\n)", out)
             assert m, out
             assert int(m.group(2) or 1) == n_avg, m.group(0)
             got = np.array([to_si(float(v), m.group(1), q) for v in m.group(3).split()])
