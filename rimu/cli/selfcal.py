@@ -126,23 +126,27 @@ def tracker_settings(args: argparse.Namespace, cal: Any, inst: str, has_temperat
 
 def print_terms(inst: str, trk: Any, terms: dict[str, tuple[np.ndarray, np.ndarray]], indent: str = "  "
                 ) -> list[dict[str, Any]]:
-    """Print the tracked terms of every sensor in the field's units (deg/h, micro-g, ppm, per K^k); returns them
-    per sensor in SI (for the JSON summaries)."""
-    from ..units import MS2_TO_UG, PPM, RS_TO_DH
+    """Print the tracked terms of every sensor in one field unit per instrument (:func:`rimu.units.fmt`; scales in
+    ppm, coefficients per K^k); returns them per sensor in SI (for the JSON summaries)."""
+    from ..units import field_unit, fmt
 
-    f, unit = (RS_TO_DH, "deg/h") if inst == "gyro" else (MS2_TO_UG, "micro-g")
+    quantity = "rate" if inst == "gyro" else "specific_force"
+    # one unit per instrument for every term, the one its largest bias (or coefficient) reads best in
+    big = max((float(np.nanmax(np.abs(v))) for k, (v, _) in terms.items() if k != "scale" and np.size(v)), default=0.0)
+    unit, _ = field_unit(quantity, big)
     rows = []
     for i, nm in enumerate(trk.calibration.geometry.names):
         row: dict[str, Any] = {"sensor": nm}
         parts = []
         for blk_name, (v, s) in terms.items():
             if blk_name == "bias":
-                parts.append(f"bias {v[i] * f:+9.2f} +- {s[i] * f:.2f} {unit}")
+                parts.append(f"bias {fmt(v[i], quantity, unit)} +- {fmt(s[i], quantity, unit, digits=2)}")
             elif blk_name == "scale":
-                parts.append(f"scale {v[i] / PPM:+8.1f} +- {s[i] / PPM:.1f} ppm")
+                parts.append(f"scale {fmt(v[i], 'ratio', 'ppm')} +- {fmt(s[i], 'ratio', 'ppm', digits=2)}")
             else:
                 o = int(blk_name[2])
-                parts.append(f"{blk_name} {v[i] * f:+.3g} +- {s[i] * f:.2g} {unit}/K^{o}")
+                parts.append(f"{blk_name} {fmt(v[i], quantity, unit, digits=3)}/K^{o} +- "
+                             f"{fmt(s[i], quantity, unit, digits=2)}/K^{o}")
             row[blk_name] = float(v[i])
             row[blk_name + "_sigma"] = float(s[i])
         print(f"{indent}{nm:>8s}  " + ", ".join(parts))

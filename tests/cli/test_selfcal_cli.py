@@ -4,6 +4,7 @@ simulated truth through the covariance it writes (normalised errors over the obs
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -70,6 +71,25 @@ def test_selfcal_writes_the_fitted_terms_with_their_covariance(log, capsys):
     assert 0.8 <= rms <= 1.25
     summary = json.loads((d / "s.json").read_text())
     assert summary["instruments"]["gyro"]["windows_absorbed"] > 1500
+    # every printed term, parsed with its printed unit and converted, equals the SI value the summary writes
+    from tests.cli.test_figures_per_command import to_si
+
+    rows = {r["sensor"]: r for r in summary["instruments"]["gyro"]["sensors"]}
+    pat = re.compile(r"(bias|scale|tc\d) ([-+0-9.eE]+) ([a-z/]+?)(?:/K\^\d)? \+- ([-+0-9.eE]+) ([a-z/]+?)(?:/K\^\d)?(?:,|$)")
+    checked = 0
+    for line in out.splitlines():
+        words = line.split()
+        if not words or words[0] not in rows:
+            continue
+        for term, v, unit, sd, unit2 in pat.findall(line.split(None, 1)[1]):
+            q = "ratio" if term == "scale" else "rate"
+            assert unit == unit2
+            mant, _, exp = v.lower().partition("e")
+            last = 0.5 * 10.0 ** (int(exp or 0) - len(mant.partition(".")[2]))                 # half the last digit
+            assert to_si(float(v), unit, q) == pytest.approx(rows[words[0]][term], abs=to_si(last, unit, q)), line
+            assert to_si(float(sd), unit, q) == pytest.approx(rows[words[0]][term + "_sigma"], rel=2e-2), line
+            checked += 1
+    assert checked == 5 * n, checked
     # the updated calibration takes the drift out of the end of the log: parity rms over the last 5 min
     tail = slice(len(F.t) - 3000, None)
     from rimu.epoch import EpochBlock
