@@ -1,12 +1,14 @@
-"""`rimu import` of a file in the two-IMU Pixhawk CSV layout whose values are deg/s and g (written by another tool):
+"""`rimu import` (issue 27's property test: samples, duration in s, rate in Hz, units converted from) of a file in the two-IMU Pixhawk CSV layout whose values are deg/s and g (written by another tool):
 refused at the door as deg/s taken for rad/s, then read right when the units are declared (the declaration was
 ignored, so the refusal's own advice could not be followed)."""
 
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
+import pytest
 
 from rimu.cli import main
 from rimu.units import G0
@@ -32,6 +34,15 @@ def test_declared_deg_s_and_g_are_applied(tmp_path, capsys):  # type: ignore[no-
     assert "--gyro-unit" in err and "--accel-unit" in err and not (tmp_path / "a.npz").exists()
     assert main(["import", str(tmp_path / "flight.csv"), "-o", str(tmp_path / "b.npz"), "--gyro-unit", "deg/s",
                  "--accel-unit", "g", "--json", str(tmp_path / "b.json")]) == 0
+    out = capsys.readouterr().out
+    # the figures it prints, in their units: 2000 samples of each IMU over 19.99 s at 100 Hz, converted from deg/s, g
+    for name in ("imu0", "imu1"):
+        line = next(ln for ln in out.splitlines() if ln.startswith(name + ":"))
+        m = re.match(rf"{name}: (\d+) samples, ([0-9.]+) s, ([0-9.]+) Hz; rejected: none$", line)
+        assert m, line
+        assert int(m[1]) == 2000 and float(m[2]) == pytest.approx(19.99, abs=5e-4)
+        assert float(m[3]) == pytest.approx(100.0, rel=1e-3)
+    assert "gyro declared (deg/s)" in out and "accel declared (g)" in out
     from rimu.io.formats import read_log
 
     rec = read_log(tmp_path / "b.npz")
