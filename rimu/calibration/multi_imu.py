@@ -108,7 +108,9 @@ class MultiImuSetup:
             cal = self.calibration[k]
             s = cal.noise_sigma
             unit, f = ("deg/s", RAD_TO_DEG) if k == "gyro" else ("m/s^2", 1.0)
-            lines.append(f"{k} noise per sensor ({unit}): " + " ".join(f"{v * f:.3g}" for v in s))
+            two = len(s) == 6  # two triads: only the sum of their variances is seen (triad_noise)
+            lines.append(f"{k} noise per sensor ({unit}): " + " ".join(f"{v * f:.3g}" for v in s)
+                         + ("  (two triads: their disagreement split equally)" if two else ""))
             if k in self.bias_sigma:
                 lines.append(f"{k} bias difference 1-sigma ({unit}): "
                              + " ".join(f"{v * f:.2g}" for v in self.bias_sigma[k]))

@@ -153,8 +153,14 @@ def check_recording(rec: Any, source: str = "") -> list[Any]:
             quiet &= sd_g <= np.nanquantile(sd_g[ok], 0.5) * 2 + 1e-12
         if not quiet.any():
             continue
-        segs = [Segment(f"{u.name}_rest{j}", "static_unknown", u.t[j * n:(j + 1) * n],
-                        {"accel": u.accel[j * n:(j + 1) * n]}) for j in np.flatnonzero(quiet)[:50]]
+        segs = []
+        for j in np.flatnonzero(quiet)[:50]:
+            t_j, a_j = u.t[j * n:(j + 1) * n], u.accel[j * n:(j + 1) * n]
+            fin = np.isfinite(a_j).all(axis=1)  # a NaN row is an invalid sample, not a measurement
+            if fin.sum() >= 2:
+                segs.append(Segment(f"{u.name}_rest{j}", "static_unknown", t_j[fin], {"accel": a_j[fin]}))
+        if not segs:
+            continue
         s = Session(segs, {"accel": triads(1)}, 1.0 / u.period_s, raw_unit={"accel": "m/s^2"})
         for f in check_session(s, source):
             if f.check == "units":

@@ -6,7 +6,8 @@ The format is found from the content and the name (``--format`` to force one); `
 states, else from what is declared: ``--mapping``, ``--gyro-unit``, ``--accel-unit``) and checked at the door
 (gravity at rest, plausible rates; ``--accept-implausible`` turns a refusal into a warning). Formats with a
 streaming reader are imported piece by piece: a long log never has to fit in memory. ``--json`` summarises per
-IMU its name, sample count, mean rate in Hz, the units it was converted from and the rejected records by reason.
+IMU its name, sample count, mean rate in Hz, the units it was converted from, the axes' frame where the log states
+it (``frame``; null where it does not) and the rejected records by reason.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("log", help="log file or folder (compressed or not)")
     p.add_argument("-o", "--output", required=True, help="recording file to write (.npz)")
-    add_json_option(p, "per IMU: name, samples, mean rate (Hz), units converted from, rejected records")
+    add_json_option(p, "per IMU: name, samples, mean rate (Hz), units converted from, axes' frame, rejected records")
     from ._inputs import add_log_options
 
     add_log_options(p)
@@ -43,6 +44,7 @@ def summary(head_meta: dict, names: list[str], counts: dict[str, int], spans: di
         c = counts[n]
         imus.append({"name": n, "samples": c, "mean_rate_hz": (c - 1) / (b - a) if c > 1 and b > a else None,
                      "duration_s": b - a if c else 0.0, "units_from": head_meta.get("units_from", {}),
+                     "frame": (head_meta.get("frames") or {}).get(n, head_meta.get("frame")),
                      "rejected": rej.get(n, {})})
     return {"format": head_meta.get("format"), "source": head_meta.get("source"), "imus": imus,
             "file_counts": {k: head_meta[k] for k in ("records", "garbage_bytes", "truncated") if k in head_meta}}
@@ -92,6 +94,11 @@ def run(args: argparse.Namespace) -> int:
     uf = meta.get("units_from") or {}
     if uf:
         print("units (SI: rad/s, m/s^2, s) converted from: " + "; ".join(f"{k} {v}" for k, v in uf.items()))
+    frames = {imu["frame"] for imu in doc["imus"] if imu["frame"]}
+    if len(frames) == 1:
+        print(f"axes: {frames.pop()}")
+    elif frames:
+        print("axes: " + "; ".join(f"{imu['name']} {imu['frame']}" for imu in doc["imus"] if imu["frame"]))
     print(f"{meta.get('format')} log {args.log}: {len(w.names)} IMUs -> {out}")
     if args.json:
         print(f"summary written to {json_dump(doc, args.json)}")

@@ -332,7 +332,12 @@ def _write_kalibr(model: Any, path: str) -> str:
 
         raise NotApplicableError(f"--kalibr: kalibr describes triads; this unit has {n} sensors, not 3 per IMU")
     write_text(path, kalibr_yaml(doc))
-    print("kalibr noise (SI): " + ", ".join(f"{k} {v:.4g}" for k, v in doc.items() if isinstance(v, float)))
+    from ..noise.kalibr import UNITS
+
+    for name, d in ([("", doc)] if any(isinstance(v, float) for v in doc.values())
+                    else [(f"{k} ", v) for k, v in doc.items() if isinstance(v, dict)]):
+        print(f"kalibr noise {name}".rstrip() + ": " + ", ".join(
+            f"{k} {v:.4g} {UNITS.get(k, '')}".rstrip() for k, v in d.items() if isinstance(v, float)))
     return path
 
 

@@ -37,7 +37,7 @@ import numpy as np
 from ..errors import CalibrationFileError
 from .model import InstrumentNoise
 
-__all__ = ["KALIBR_KEYS", "kalibr_yaml", "noise_from_kalibr", "read_kalibr", "to_kalibr", "to_kalibr_chain"]
+__all__ = ["KALIBR_KEYS", "UNITS", "kalibr_yaml", "noise_from_kalibr", "read_kalibr", "to_kalibr", "to_kalibr_chain"]
 
 #: (instrument, rimu term) -> kalibr key
 KALIBR_KEYS = {("accel", "white"): "accelerometer_noise_density", ("accel", "rate_random_walk"): "accelerometer_random_walk",
@@ -86,11 +86,14 @@ def to_kalibr_chain(instruments: dict[str, InstrumentNoise], triads: list[list[i
     return out
 
 
+#: the unit of each kalibr field
+UNITS = {"accelerometer_noise_density": "m/s^2/sqrt(Hz)", "accelerometer_random_walk": "m/s^3/sqrt(Hz)",
+         "gyroscope_noise_density": "rad/s/sqrt(Hz)", "gyroscope_random_walk": "rad/s^2/sqrt(Hz)", "update_rate": "Hz"}
+
+
 def kalibr_yaml(doc: dict[str, Any]) -> str:
     """The YAML text of a kalibr document (units as comments, no PyYAML needed)."""
-    unit = {"accelerometer_noise_density": "m/s^2/sqrt(Hz)", "accelerometer_random_walk": "m/s^3/sqrt(Hz)",
-            "gyroscope_noise_density": "rad/s/sqrt(Hz)", "gyroscope_random_walk": "rad/s^2/sqrt(Hz)",
-            "update_rate": "Hz"}
+    unit = UNITS
 
     def block(d: dict[str, Any], indent: str) -> list[str]:
         lines = []

@@ -22,7 +22,7 @@ from rimu.cli import main
 from rimu.errors import RimuError
 from rimu.io.formats import read_log
 from rimu.io.formats._synth import write_dataflash
-from tests.io.test_formats import _ulog_bytes
+from tests.io.test_formats import _ulog_bytes, _ulog_combined_bytes
 
 pytest.importorskip("pymavlink")
 
@@ -43,10 +43,33 @@ def _valid() -> dict[str, tuple[str, bytes]]:
     d = Path(tempfile.mkdtemp(prefix="rimu-logfuzz-"))
     write_dataflash(d / "a.bin", 3, 200.0, 1.5)
     write_dataflash(d / "b.bin", 2, 100.0, 1.0, old_names=True)
-    return {"dataflash": (".bin", (d / "a.bin").read_bytes()), "dataflash-old": (".bin", (d / "b.bin").read_bytes()),
-            "ulog": (".ulg", _ulog_bytes(2, 120, 100.0)), "mpu6050": (".csv", MPU.encode()),
-            "pixhawk": (".csv", PIXHAWK.encode()), "text": (".txt", b"t ax ay az\n" + b"".join(
-                b"%g 0 0 1\n" % (k / 100) for k in range(100)))}
+    write_dataflash(d / "c.bin", 2, 100.0, 1.0, time_ms=True)
+    write_dataflash(d / "m.bin", 2, 100.0, 1.0, gyro_mult="C")
+    write_dataflash(d / "r.bin", 2, 100.0, 0.5, raw_rate_hz=400.0)
+    out = {"dataflash": (".bin", (d / "a.bin").read_bytes()), "dataflash-old": (".bin", (d / "b.bin").read_bytes()),
+           "dataflash-timems": (".bin", (d / "c.bin").read_bytes()),
+           "dataflash-mult": (".bin", (d / "m.bin").read_bytes()),
+           "dataflash-raw": (".bin", (d / "r.bin").read_bytes()),
+           "ulog": (".ulg", _ulog_bytes(2, 120, 100.0)), "mpu6050": (".csv", MPU.encode()),
+           "ulog-combined": (".ulg", _ulog_combined_bytes([10_000 + 4000 * k for k in range(300)])),
+           "pixhawk": (".csv", PIXHAWK.encode()), "text": (".txt", b"t ax ay az\n" + b"".join(
+               b"%g 0 0 1\n" % (k / 100) for k in range(100)))}
+    try:  # a bare MCAP file (ROS 2 Imu messages, rosbags' writer; the .mcap without its metadata.yaml)
+        from rosbags.rosbag2 import StoragePlugin, Writer
+        from rosbags.typesys import Stores, get_typestore
+
+        from tests.io.test_formats import _ros_msg
+
+        store = get_typestore(Stores.ROS2_HUMBLE)
+        with Writer(d / "bag", version=9, storage_plugin=StoragePlugin.MCAP) as w:
+            c = w.add_connection("/imu", "sensor_msgs/msg/Imu", typestore=store)
+            for k in range(200):
+                w.write(c, int((5 + k / 100) * 1e9), store.serialize_cdr(_ros_msg(store, 5 + k / 100, 0.01),
+                                                                         "sensor_msgs/msg/Imu"))
+        out["mcap"] = (".mcap", (d / "bag" / "bag.mcap").read_bytes())
+    except ImportError:
+        pass
+    return out
 
 
 def _check(path: Path, capsys) -> None:

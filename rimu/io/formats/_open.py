@@ -22,7 +22,7 @@ import zlib
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 from ...errors import SessionFormatError, TransportError
 
@@ -82,7 +82,31 @@ def open_binary(path: str | os.PathLike[str]) -> IO[bytes]:
     except ImportError:
         raise SessionFormatError(f"{p} is zstd-compressed: reading it needs zstandard (pip install 'rimu[logs]'), "
                                  "or decompress it first (unzstd)") from None
-    return zstandard.ZstdDecompressor().stream_reader(open(p, "rb"), closefd=True)  # type: ignore[return-value]
+    return io.BufferedReader(_ZstdStream(zstandard.ZstdDecompressor().stream_reader(open(p, "rb"), closefd=True),
+                                         zstandard.ZstdError), 1 << 20)
+
+
+class _ZstdStream(io.RawIOBase):
+    """zstandard's stream reader with its errors as ``OSError`` (errno None), as the other codecs' damaged-stream
+    errors are caught: a damaged or fake ``.zst`` ends in the readers' one-line error, not a ZstdError traceback."""
+
+    def __init__(self, reader: Any, error: type[Exception]) -> None:
+        self._r, self._error = reader, error
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, b: Any) -> int:
+        try:
+            data = self._r.read(len(b))
+        except self._error as exc:
+            raise OSError(f"zstd: {exc}") from None
+        b[:len(data)] = data
+        return len(data)
+
+    def close(self) -> None:
+        self._r.close()
+        super().close()
 
 
 def open_text(path: str | os.PathLike[str]) -> io.TextIOBase:

@@ -10,9 +10,14 @@ IMUs read:
 
 * ArduPilot, current: ``IMU`` with the instance field ``I`` -> ``imu<I>``;
 * ArduPilot, older: ``IMU``, ``IMU2``, ``IMU3`` -> ``imu0``, ``imu1``, ``imu2``;
-  fields ``TimeUS`` [us], ``GyrX/Y/Z`` [rad/s], ``AccX/Y/Z`` [m/s^2], ``T`` [degC]. Where the log states units
-  (``FMTU``/``UNIT`` messages) they are read and must be rad/s and m/s/s; otherwise ArduPilot's convention (SI)
-  is taken and ``meta["units_from"]`` says so;
+  fields ``TimeUS`` [us] (``TimeMS`` [ms] in logs before ArduPilot 3.3), ``GyrX/Y/Z`` [rad/s], ``AccX/Y/Z``
+  [m/s^2], ``T`` (older: ``Temp``) [degC]. Where the log states units (``FMTU``/``UNIT`` messages) they are read
+  and must be rad/s and m/s/s, each times its multiplier (``FMTU.MultIds``, the values of the log's ``MULT``
+  messages or ArduPilot's table :data:`MULTIPLIERS`), which is applied; otherwise ArduPilot's convention (SI) is
+  taken; ``meta["units_from"]`` says which;
+* ArduPilot's raw IMU messages (``INS_RAW_LOG_OPT``): ``GYR`` and ``ACC`` of instance ``I`` -> ``raw<I>`` at the
+  gyro's ``SampleUS`` stamps and rate, the accelerometer interpolated to them (within 2.5 of its periods, else NaN:
+  counted ``accel_unmatched``), across blocks;
 * PX4 sdlog2: ``IMU``, ``IMU1``, ``IMU2`` (``GyroX/Y/Z`` [rad/s], ``AccX/Y/Z`` [m/s^2], ``tG`` [degC]), stamped with
   the ``TIME.StartTime`` [us] record logged before them (one TIME per logging cycle).
 
@@ -40,7 +45,7 @@ from ..guard import reading
 from ..multiimu import ImuStream, MultiImuRecording
 from ._open import open_binary
 
-__all__ = ["EXTRA", "NAME", "iter_chunks", "read", "sniff"]
+__all__ = ["EXTRA", "FRAMES", "MULTIPLIERS", "NAME", "iter_chunks", "read", "sniff"]
 
 NAME = "dataflash"
 EXTRA = "logs"
@@ -56,6 +61,19 @@ _NP = {"b": "i1", "B": "u1", "h": "<i2", "H": "<u2", "i": "<i4", "I": "<u4", "f"
        "n": "S4", "N": "S16", "Z": "S64", "a": "S64"}
 _IMU_NAMES = {"IMU": 0, "IMU1": 1, "IMU2": 1, "IMU3": 2}
 _UNITS_OK = {"gyro": ("rad/s",), "accel": ("m/s/s", "m/s^2", "m/s2")}
+#: ArduPilot's multipliers by id (``AP_Logger/LogStructure.h``, ``log_Multipliers``): a field's value times its
+#: multiplier is in the field's unit; ``-`` (0) marks a field without one (a string), ``?`` one not worked out (1).
+#: The log restates them in ``MULT`` messages, which take precedence.
+MULTIPLIERS = {"-": 0.0, "?": 1.0, "2": 1e2, "1": 1e1, "0": 1e0, "A": 1e-1, "B": 1e-2, "C": 1e-3, "D": 1e-4,
+               "E": 1e-5, "F": 1e-6, "G": 1e-7, "I": 1e-9, "!": 3.6, "/": 3600.0}
+#: the time fields of ArduPilot's IMU messages and their scale to s (``TimeMS`` before ArduPilot 3.3)
+_TIME_FIELDS = {"TimeUS": 1e-6, "TimeMS": 1e-3}
+#: ArduPilot's raw IMU messages (``INS_RAW_LOG_OPT``): gyro and accelerometer samples of instance ``I`` apart, each
+#: stamped ``SampleUS``, at the sensors' own rates
+_RAW = {"GYR": ("GyrX", "GyrY", "GyrZ"), "ACC": ("AccX", "AccY", "AccZ")}
+#: the axes of the IMUs read, per flavour (``meta["frame"]``)
+FRAMES = {"ardupilot": "vehicle body frame (ArduPilot IMU messages: sensor and board orientation applied)",
+          "sdlog2": "vehicle body frame (PX4 sdlog2 IMU messages)"}
 
 
 def sniff(name: str, head: bytes) -> bool:
@@ -107,6 +125,8 @@ class _Parser:
         self.fmts: dict[int, _Fmt] = {}
         self.units: dict[str, str] = {}
         self.fmtu: dict[int, str] = {}
+        self.fmtu_mult: dict[int, str] = {}
+        self.mults: dict[str, float] = dict(MULTIPLIERS)
         self.garbage = 0
         self.truncated = 0
         self.offset = 0  # bytes before the current block
@@ -201,11 +221,56 @@ def _imu_types(fmts: dict[int, _Fmt]) -> dict[int, tuple[str, str]]:
     for t, f in fmts.items():
         if f.name not in _IMU_NAMES:
             continue
-        if {"TimeUS", "GyrX", "AccX"} <= set(f.columns):
+        if {"GyrX", "AccX"} <= set(f.columns) and any(c in f.columns for c in _TIME_FIELDS):
             out[t] = ("ardupilot", f.name)
         elif {"GyroX", "AccX"} <= set(f.columns):
             out[t] = ("sdlog2", f.name)
     return out
+
+
+def _raw_types(fmts: dict[int, _Fmt]) -> dict[int, str]:
+    """type -> ``GYR`` / ``ACC`` of ArduPilot's raw IMU messages."""
+    return {t: f.name for t, f in fmts.items()
+            if f.name in _RAW and {"I", "SampleUS", *_RAW[f.name]} <= set(f.columns)}
+
+
+class _RawJoin:
+    """Each instance's ``GYR`` samples with its ``ACC`` samples interpolated at their stamps, across blocks: a gyro
+    sample waits until an accelerometer sample at or after it has been read (or the log ends: then the ones after
+    the last accelerometer sample have none, NaN)."""
+
+    def __init__(self) -> None:
+        self.gyro: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self.acc: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    def add(self, kind: str, i: int, t: np.ndarray, v: np.ndarray) -> None:
+        store = self.gyro if kind == "GYR" else self.acc
+        t0, v0 = store.get(i, (np.zeros(0), np.zeros((0, 3))))
+        store[i] = (np.concatenate([t0, t]), np.concatenate([v0, v]))
+
+    def take(self, final: bool) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        from ..multiimu import resample_stream
+
+        out = {}
+        for i, (tg, g) in list(self.gyro.items()):
+            ta, a = self.acc.get(i, (np.zeros(0), np.zeros((0, 3))))
+            order = np.argsort(ta, kind="stable")
+            ta, a = ta[order], a[order]
+            keep = np.concatenate([[True], np.diff(ta) > 0]) if len(ta) else np.zeros(0, bool)
+            ta, a = ta[keep], a[keep]
+            ready = np.ones(len(tg), bool) if final else (tg <= ta[-1] if len(ta) else np.zeros(len(tg), bool))
+            if ready.any():
+                acc = np.full((int(ready.sum()), 3), np.nan)
+                if len(ta) > 1:
+                    acc, ok = resample_stream(ta, a, tg[ready])
+                    acc[~ok] = np.nan
+                out[i] = (tg[ready], g[ready], acc)
+            self.gyro[i] = (tg[~ready], g[~ready])
+            # the accelerometer samples a waiting gyro sample may need: from the one before the earliest on
+            first = tg[~ready].min() if (~ready).any() else (ta[-1] if len(ta) else 0.0)
+            j = max(0, int(np.searchsorted(ta, first)) - 1)
+            self.acc[i] = (ta[j:], a[j:])
+        return out
 
 
 def _unit_of(parser: _Parser, f: _Fmt, col: str) -> str | None:
@@ -214,6 +279,16 @@ def _unit_of(parser: _Parser, f: _Fmt, col: str) -> str | None:
         return None
     k = f.columns.index(col)
     return parser.units.get(spec[k]) if k < len(spec) else None
+
+
+def _mult_of(parser: _Parser, f: _Fmt, col: str) -> float:
+    """The multiplier ``FMTU`` states for a field (1 where none, or ``-``/``?``)."""
+    spec = parser.fmtu_mult.get(f.type)
+    k = f.columns.index(col)
+    if spec is None or k >= len(spec) or spec[k] in "-?":
+        return 1.0
+    m = parser.mults.get(spec[k])
+    return 1.0 if m is None or m == 0.0 else m
 
 
 def iter_chunks(path: str | os.PathLike[str], block: int = BLOCK, **options: Any) -> Iterator[MultiImuRecording]:
@@ -226,6 +301,8 @@ def iter_chunks(path: str | os.PathLike[str], block: int = BLOCK, **options: Any
     time_us = None  # sdlog2: the current TIME.StartTime
     flavour_seen: set[str] = set()
     units_from: dict[str, str] = {}
+    join = _RawJoin()
+    raw_seen = False
     rest = b""
     with reading(p, "DataFlash log"), open_binary(p) as fh:  # damaged compression: one line naming the file
         while True:
@@ -238,20 +315,28 @@ def iter_chunks(path: str | os.PathLike[str], block: int = BLOCK, **options: Any
             final = not data
             buf = rest + data
             starts, used = parser.walk(buf, final)
-            # FMTU / UNIT (units of the fields, ArduPilot)
-            for t, pos in starts.items():
-                f = parser.fmts.get(t)
-                if f is None or f.name not in ("UNIT", "FMTU"):
-                    continue
+            # FMTU / UNIT / MULT (units and multipliers of the fields, ArduPilot), the tables before their uses
+            decl = {"UNIT": 0, "MULT": 1, "FMTU": 2}
+            for t, pos in sorted(((t, pos) for t, pos in starts.items()
+                                  if t in parser.fmts and parser.fmts[t].name in decl),
+                                 key=lambda tp: decl[parser.fmts[tp[0]].name]):
+                f = parser.fmts[t]
                 rec = parser.decode(buf, t, pos)
                 if rec is None:
                     continue
                 if f.name == "UNIT" and {"Id", "Label"} <= set(f.columns):
                     for i, lab in zip(rec[f"f{f.columns.index('Id')}"], rec[f"f{f.columns.index('Label')}"]):
                         parser.units[chr(int(i))] = _cstr(bytes(lab))
+                elif f.name == "MULT" and {"Id", "Mult"} <= set(f.columns):
+                    for i, m in zip(rec[f"f{f.columns.index('Id')}"], f.field(rec, "Mult")):
+                        parser.mults[chr(int(i))] = float(m)
                 elif f.name == "FMTU" and {"FmtType", "UnitIds"} <= set(f.columns):
                     for ft, u in zip(rec[f"f{f.columns.index('FmtType')}"], rec[f"f{f.columns.index('UnitIds')}"]):
                         parser.fmtu[int(ft)] = _cstr(bytes(u))
+                    if "MultIds" in f.columns:
+                        for ft, m in zip(rec[f"f{f.columns.index('FmtType')}"],
+                                         rec[f"f{f.columns.index('MultIds')}"]):
+                            parser.fmtu_mult[int(ft)] = _cstr(bytes(m))
             imu_types = _imu_types(parser.fmts)
             time_type = next((t for t, f in parser.fmts.items() if f.name == "TIME" and "StartTime" in f.columns), None)
             pieces: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]]] = {}
@@ -270,19 +355,28 @@ def iter_chunks(path: str | os.PathLike[str], block: int = BLOCK, **options: Any
                     continue
                 flavour_seen.add(flavour)
                 if flavour == "ardupilot":
-                    ts = f.field(rec, "TimeUS") * 1e-6
-                    g = np.column_stack([f.field(rec, c) for c in ("GyrX", "GyrY", "GyrZ")])
-                    a = np.column_stack([f.field(rec, c) for c in ("AccX", "AccY", "AccZ")])
-                    temp = f.field(rec, "T") if "T" in f.columns else None
-                    inst = (rec[f"f{f.columns.index('I')}"].astype(int) if "I" in f.columns
-                            else np.full(len(rec), _IMU_NAMES[base]))
+                    tcol = next(c for c in _TIME_FIELDS if c in f.columns)
+                    ts = f.field(rec, tcol) * _TIME_FIELDS[tcol]
+                    scale = {}
                     for col, q in (("GyrX", "gyro"), ("AccX", "accel")):
                         u = _unit_of(parser, f, col)
                         if u is not None and u not in _UNITS_OK[q]:
                             raise SessionFormatError(f"{p}: {f.name}.{col} is logged in {u!r}, not "
                                                      f"{_UNITS_OK[q][0]}; this reader knows ArduPilot's SI IMU "
                                                      "messages only")
-                        units_from[q] = "log (FMTU)" if u is not None else "ArduPilot convention (SI)"
+                        scale[q] = _mult_of(parser, f, col) if u is not None else 1.0
+                        units_from[q] = ("ArduPilot convention (SI)" if u is None else "log (FMTU)" if scale[q] == 1.0
+                                         else f"log (FMTU: {u} x {scale[q]:g})")
+                    g = np.column_stack([f.field(rec, c) for c in ("GyrX", "GyrY", "GyrZ")])
+                    a = np.column_stack([f.field(rec, c) for c in ("AccX", "AccY", "AccZ")])
+                    if scale["gyro"] != 1.0:
+                        g *= scale["gyro"]
+                    if scale["accel"] != 1.0:
+                        a *= scale["accel"]
+                    tc = next((c for c in ("T", "Temp") if c in f.columns), None)
+                    temp = f.field(rec, tc) if tc is not None else None
+                    inst = (rec[f"f{f.columns.index('I')}"].astype(int) if "I" in f.columns
+                            else np.full(len(rec), _IMU_NAMES[base]))
                 else:
                     pos_a = np.asarray(pos, np.int64)
                     if tval is not None:
@@ -303,6 +397,31 @@ def iter_chunks(path: str | os.PathLike[str], block: int = BLOCK, **options: Any
                     pieces.setdefault(f"imu{int(i)}", []).append(
                         (np.asarray(pos, np.int64)[sel], ts[sel], np.column_stack([g[sel], a[sel]]),
                          None if temp is None else temp[sel]))
+            for t, kind in _raw_types(parser.fmts).items():
+                pos = starts.get(t)
+                rec = parser.decode(buf, t, pos)
+                if rec is None:
+                    continue
+                f = parser.fmts[t]
+                cols = _RAW[kind]
+                q = "gyro" if kind == "GYR" else "accel"
+                u = _unit_of(parser, f, cols[0])
+                if u is not None and u not in _UNITS_OK[q]:
+                    raise SessionFormatError(f"{p}: {f.name}.{cols[0]} is logged in {u!r}, not {_UNITS_OK[q][0]}; "
+                                             "this reader knows ArduPilot's SI IMU messages only")
+                scale = _mult_of(parser, f, cols[0]) if u is not None else 1.0
+                units_from.setdefault(q, "ArduPilot convention (SI)" if u is None else "log (FMTU)" if scale == 1.0
+                                      else f"log (FMTU: {u} x {scale:g})")
+                v = np.column_stack([f.field(rec, c) for c in cols]) * scale
+                ts = f.field(rec, "SampleUS") * 1e-6
+                inst = rec[f"f{f.columns.index('I')}"].astype(int)
+                for i in np.unique(inst):
+                    join.add(kind, int(i), ts[inst == i], v[inst == i])
+                raw_seen = True
+                flavour_seen.add("ardupilot")
+            for i, (ts, g, a) in join.take(final).items():
+                if len(ts):
+                    pieces.setdefault(f"raw{i}", []).append((np.arange(len(ts)), ts, np.column_stack([g, a]), None))
             if tval is not None and len(tval):
                 time_us = float(tval[-1])
             units = []
@@ -313,7 +432,12 @@ def iter_chunks(path: str | os.PathLike[str], block: int = BLOCK, **options: Any
                 ga = np.concatenate([q[2] for q in parts])[order]
                 temps = None if any(q[3] is None for q in parts) else np.concatenate([q[3] for q in parts])[order]
                 rej = rejected.setdefault(name, {"nonfinite": 0, "time_not_increasing": 0})
-                fin = np.isfinite(ga).all(axis=1) & np.isfinite(ts)
+                # a raw gyro sample without an accelerometer sample around it keeps its gyro (accel NaN: invalid)
+                fin = (np.isfinite(ga[:, :3]).all(axis=1) if name.startswith("raw")
+                       else np.isfinite(ga).all(axis=1)) & np.isfinite(ts)
+                if name.startswith("raw"):
+                    rej.setdefault("accel_unmatched", 0)
+                    rej["accel_unmatched"] += int((fin & ~np.isfinite(ga[:, 3:]).all(axis=1)).sum())
                 rej["nonfinite"] += int((~fin).sum())
                 ts, ga = ts[fin], ga[fin]
                 temps = None if temps is None else temps[fin]
@@ -332,13 +456,14 @@ def iter_chunks(path: str | os.PathLike[str], block: int = BLOCK, **options: Any
                 if not parser.fmts:
                     raise SessionFormatError(f"{p}: no FMT message: not a DataFlash/px4log file, or its start is "
                                              "missing; check that this is the .bin/.px4log as logged")
-                if not imu_types:
+                if not imu_types and not raw_seen:
                     names = sorted({f.name for f in parser.fmts.values()})[:20]
-                    raise SessionFormatError(f"{p}: no IMU messages (IMU, IMU2, IMU3; sdlog2 IMU, IMU1) in the log; "
-                                             f"it declares {names}")
+                    raise SessionFormatError(f"{p}: no IMU messages (IMU, IMU2, IMU3, GYR/ACC; sdlog2 IMU, IMU1) in "
+                                             f"the log; it declares {names}")
                 meta.update({"records": parser.records, "garbage_bytes": parser.garbage,
                              "truncated": parser.truncated, "rejected": rejected,
                              "flavour": sorted(flavour_seen), "units_from": units_from, "body_frame": True,
+                             "frame": FRAMES["ardupilot" if "ardupilot" in flavour_seen else "sdlog2"],
                              "first_garbage_byte": parser.first_garbage})
             yield MultiImuRecording(units, meta)
             if final:

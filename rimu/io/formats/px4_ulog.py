@@ -8,6 +8,16 @@ where logged, else ``timestamp`` [us -> s]. A gyro instance and an accelerometer
 period, else NaN: rejected as ``unmatched``). A fifo message holds ``samples`` values ``x[k] * scale`` spaced
 ``dt`` us and ending at ``timestamp_sample``.
 
+Logs without any of these topics (older PX4 logs, and the logging profiles that leave the per-sensor topics
+out) are read from ``sensor_combined`` as one IMU, ``combined``: gyro at ``timestamp``, accelerometer at
+``timestamp + accelerometer_timestamp_relative`` interpolated to it; PX4 states it in the FRD body frame, calibrated
+(``meta["frame"]`` says so).
+
+Axes: PX4 states the per-sensor topics in the FRD board frame (uORB ``SensorGyro``, ``SensorAccel`` and their fifo
+messages: each sensor's mounting rotation applied by its driver; the board's ``SENS_BOARD_ROT`` and the sensor
+calibration are not). Every instance is in that one frame: ``meta["frame"]`` says so and ``meta["body_frame"]``
+is set (a unit set up from the log keeps its triads parallel, as for the autopilots' DataFlash logs).
+
 >>> sniff("flight.ulg", b"ULog\\x01\\x12\\x35\\x01")
 True
 """
@@ -24,12 +34,19 @@ from ...errors import SessionFormatError
 from ..multiimu import ImuStream, MultiImuRecording, resample_stream
 from ._open import local_file
 
-__all__ = ["EXTRA", "NAME", "read", "sniff"]
+__all__ = ["EXTRA", "FRAME", "FRAME_COMBINED", "NAME", "read", "sniff"]
 
 NAME = "ulog"
 EXTRA = "ulog"
 MAGIC = b"ULog\x01\x12\x35"
-TOPICS = ("sensor_gyro", "sensor_accel", "sensor_gyro_fifo", "sensor_accel_fifo")
+TOPICS = ("sensor_gyro", "sensor_accel", "sensor_gyro_fifo", "sensor_accel_fifo", "sensor_combined")
+#: the axes of every IMU read (PX4's message definitions)
+FRAME = ("FRD board frame (PX4 uORB sensor_gyro/sensor_accel: sensor mounting rotation applied, SENS_BOARD_ROT "
+         "and calibration not)")
+#: the axes of ``sensor_combined`` (read only when the log holds no per-sensor topic)
+FRAME_COMBINED = "FRD body frame (PX4 uORB sensor_combined: the selected IMU, calibrated, board rotation applied)"
+#: ``sensor_combined.accelerometer_timestamp_relative`` of an invalid accelerometer sample
+RELATIVE_TIMESTAMP_INVALID = 2147483647
 
 
 def sniff(name: str, head: bytes) -> bool:
@@ -55,6 +72,17 @@ def _series(d: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     return ts, xyz, (f["temperature"].astype(float) if "temperature" in f else None)
 
 
+def _combined(d: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Gyro stamps [s] and values, accelerometer stamps [s] and values of ``sensor_combined``."""
+    f = d.data
+    t = f["timestamp"].astype(np.float64)
+    g = np.column_stack([f[f"gyro_rad[{j}]"] for j in range(3)]).astype(float)
+    rel = f["accelerometer_timestamp_relative"].astype(np.int64)
+    ok = rel != RELATIVE_TIMESTAMP_INVALID
+    a = np.column_stack([f[f"accelerometer_m_s2[{j}]"] for j in range(3)]).astype(float)
+    return t * 1e-6, g, (t[ok] + rel[ok]) * 1e-6, a[ok]
+
+
 def read(path: str | os.PathLike[str], **options: Any) -> MultiImuRecording:
     """Every IMU instance of the log (see the module docstring).
 
@@ -75,15 +103,21 @@ def read(path: str | os.PathLike[str], **options: Any) -> MultiImuRecording:
             raise SessionFormatError(f"{p}: not a readable ULog file ({type(exc).__name__}); check that it is the "
                                      ".ulg as logged, not truncated") from None
     by: dict[tuple[str, int], dict[str, Any]] = {}
+    combined = [d for d in ulog.data_list if d.name == "sensor_combined"]
     for d in ulog.data_list:
+        if d.name == "sensor_combined":
+            continue
         base = "fifo" if d.name.endswith("_fifo") else "imu"
         inst = "gyro" if "gyro" in d.name else "accel"
         by.setdefault((base, int(d.multi_id)), {})[inst] = d
     units, rejected = [], {}
-    for (base, i), parts in sorted(by.items()):
-        if "gyro" not in parts:
-            continue
-        t, g, temp = _series(parts["gyro"])
+    series = {key: (_series(parts["gyro"]), parts.get("accel")) for key, parts in sorted(by.items()) if "gyro" in parts}
+    frame = FRAME
+    if not series and combined:
+        t, g, ta, ya = _combined(combined[0])
+        series = {("combined", -1): ((t, g, None), (ta, ya))}
+        frame = FRAME_COMBINED
+    for (base, i), ((t, g, temp), acc) in series.items():
         order = np.argsort(t, kind="stable")
         t, g = t[order], g[order]
         temp = None if temp is None else temp[order]
@@ -92,21 +126,29 @@ def read(path: str | os.PathLike[str], **options: Any) -> MultiImuRecording:
         t, g = t[keep], g[keep]
         temp = None if temp is None else temp[keep]
         a = None
-        if "accel" in parts and len(t) > 1:
-            ta, ya, _ = _series(parts["accel"])
+        if acc is not None and len(t) > 1:
+            ta, ya = acc if isinstance(acc, tuple) else _series(acc)[:2]
             oa = np.argsort(ta, kind="stable")
             ta, ya = ta[oa], ya[oa]
             ka = np.concatenate([[True], np.diff(ta) > 0])
             if ka.sum() > 1:
                 a, ok = resample_stream(ta[ka], ya[ka], t)
+                # an accelerometer sample on the gyro's own stamp is taken as it is (sensor_combined logs both in
+                # one record: a gap in the log is no reason to refuse the samples on either side of it)
+                j = np.clip(np.searchsorted(ta[ka], t), 0, ka.sum() - 1)
+                same = ta[ka][j] == t
+                a[same], ok[same] = ya[ka][j[same]], True
                 a[~ok] = np.nan
                 rej["unmatched"] = int((~ok).sum())
-        name = f"{base}{i}"
+        name = base if i < 0 else f"{base}{i}"
         rejected[name] = rej
         units.append(ImuStream(name, t, g, a, temp))
     if not units:
-        raise SessionFormatError(f"{p}: no sensor_gyro or sensor_gyro_fifo data in the log; log the IMU topics "
-                                 "(SDLOG_PROFILE) to read it")
+        raise SessionFormatError(f"{p}: no sensor_gyro, sensor_gyro_fifo or sensor_combined data in the log; log "
+                                 "the IMU topics (SDLOG_PROFILE) to read it")
     meta = {"format": NAME, "source": str(p), "rejected": rejected,
-            "units_from": {"gyro": "uORB sensor_gyro (rad/s)", "accel": "uORB sensor_accel (m/s^2)"}}
+            "units_from": ({"gyro": "uORB sensor_gyro (rad/s)", "accel": "uORB sensor_accel (m/s^2)"}
+                           if frame == FRAME else
+                           {"gyro": "uORB sensor_combined (rad/s)", "accel": "uORB sensor_combined (m/s^2)"}),
+            "frame": frame, "body_frame": True}
     return MultiImuRecording(units, meta)

@@ -1,10 +1,10 @@
-"""ROS 1 bags, ROS 2 bags (sqlite3 or MCAP storage) and bare MCAP files (rosbags, extra ``logs``):
-``sensor_msgs/Imu`` messages, one IMU per topic.
+"""ROS 1 bags, ROS 2 bags (sqlite3 or MCAP storage) and bare MCAP files (without the bag folder's
+``metadata.yaml``; rosbags, extra ``logs``): ``sensor_msgs/Imu`` messages, one IMU per topic.
 
 Each topic of type ``sensor_msgs/msg/Imu`` (ROS 1: ``sensor_msgs/Imu``) is one IMU, named after the topic
 (``/imu0/data`` -> ``imu0_data``): ``angular_velocity`` [rad/s], ``linear_acceleration`` [m/s^2] (SI by the
 message's definition, REP 103; ``meta["units_from"]`` says so), time ``header.stamp`` [s] (the bag's receive time
-where the stamp is zero). Messages are read in bag order and handed on in pieces (:func:`iter_chunks`): a long
+where the stamp is zero), axes: the ``header.frame_id`` each topic states (``meta["frames"]``, per IMU). Messages are read in bag order and handed on in pieces (:func:`iter_chunks`): a long
 bag never has to fit in memory. Rejected, counted per IMU: ``nonfinite``, ``time_not_increasing``.
 
 >>> sniff("run.bag", b"#ROSBAG V2.0\\n"), sniff("run.mcap", b"\\x89MCAP0\\r\\n")
@@ -24,7 +24,7 @@ import numpy as np
 from ...errors import SessionFormatError
 from ..multiimu import ImuStream, MultiImuRecording
 from ._join import join_chunks
-from ._open import local_file
+from ._open import local_file, plain_name
 
 __all__ = ["EXTRA", "NAME", "iter_chunks", "read", "sniff"]
 
@@ -63,11 +63,47 @@ def iter_chunks(path: str | os.PathLike[str], chunk: int = 100_000, topics: list
     except ImportError:
         raise ImportError("reading ROS bags needs rosbags: pip install 'rimu[logs]'", name="rosbags") from None
     p = Path(path)
-    if p.is_file() and p.suffix == ".mcap" and not (p.parent / "metadata.yaml").exists():
-        raise SessionFormatError(f"{p}: an MCAP file without its ROS 2 metadata.yaml; give the bag folder that holds "
-                                 "both (ros2 bag reindex writes metadata.yaml)")
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    if p.is_file() and Path(plain_name(p)).suffix == ".mcap" and not (p.parent / "metadata.yaml").exists():
+        with local_file(p, ".mcap") as lp:  # compressed: decompressed to a temporary file first
+            yield from _iter_bare_mcap(p, Path(lp), chunk, topics, store)
+        return
     with local_file(p, ".bag") if p.is_file() and p.suffix not in (".db3", ".mcap") else nullcontext(p) as lp:
-        yield from _iter_bag(p, Path(lp), chunk, topics, AnyReader, get_typestore(Stores.ROS2_HUMBLE))
+        yield from _iter_bag(p, Path(lp), chunk, topics, AnyReader, store)
+
+
+def _iter_bare_mcap(p: Path, lp: Path, chunk: int, topics: list[str] | None, store: Any
+                    ) -> Iterator[MultiImuRecording]:
+    """An MCAP file alone (no ``metadata.yaml``: copied out of its bag folder, or written by another MCAP writer):
+    channels and schemas from the file itself (rosbags' MCAP storage reader), messages decoded by their encoding
+    (``cdr`` or ``ros1``) with the ROS 2 type store."""
+    from rosbags.rosbag2.storage_mcap import McapReader
+
+    reader = McapReader(lp)
+    try:
+        reader.open()
+    except Exception as exc:  # rosbags' errors have no common base with OSError
+        raise SessionFormatError(f"{p}: not a readable MCAP file ({type(exc).__name__}: {str(exc)[:120]}); give the "
+                                 "file as recorded, or its ROS 2 bag folder (with metadata.yaml)") from None
+    try:
+        conns = [c for c in reader.connections if c.msgtype in IMU_TYPES and (topics is None or c.topic in topics)]
+        if not conns:
+            found = sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})[:20]
+            raise SessionFormatError(f"{p}: no sensor_msgs/Imu channel in the MCAP file; it holds {found}")
+
+        def decode(c: Any, raw: bytes) -> Any:
+            fmt = getattr(c.ext, "serialization_format", "cdr")
+            msgtype = "sensor_msgs/msg/Imu"
+            return store.deserialize_ros1(raw, msgtype) if fmt == "ros1" else store.deserialize_cdr(raw, msgtype)
+
+        yield from _collect(p, ((c.topic, ts, decode(c, raw)) for c, ts, raw in reader.messages(conns)), chunk)
+    except SessionFormatError:
+        raise
+    except Exception as exc:
+        raise SessionFormatError(f"{p}: a message could not be read ({type(exc).__name__}: {str(exc)[:120]}); the "
+                                 "file may be truncated: recover it (mcap recover)") from None
+    finally:
+        reader.close()
 
 
 def _iter_bag(p: Path, lp: Path, chunk: int, topics: list[str] | None, AnyReader: Any, store: Any
@@ -98,6 +134,7 @@ def _collect(p: Path, msgs: Iterator[tuple[str, int, Any]], chunk: int) -> Itera
     last: dict[str, float] = {}
     rejected: dict[str, dict[str, int]] = {}
     buf: dict[str, list[list[float]]] = {}
+    frames: dict[str, str] = {}
     count = 0
 
     def flush(final: bool) -> MultiImuRecording:
@@ -110,6 +147,7 @@ def _collect(p: Path, msgs: Iterator[tuple[str, int, Any]], chunk: int) -> Itera
         meta: dict[str, Any] = {"format": NAME, "source": str(p)}
         if final:
             meta.update({"rejected": {_name(k): v for k, v in rejected.items()}, "records": count,
+                         "frames": {_name(k): f"header.frame_id {v!r}" for k, v in frames.items()},
                          "units_from": {"gyro": "sensor_msgs/Imu (rad/s)", "accel": "sensor_msgs/Imu (m/s^2)"}})
         return MultiImuRecording(units, meta)
 
@@ -117,6 +155,8 @@ def _collect(p: Path, msgs: Iterator[tuple[str, int, Any]], chunk: int) -> Itera
         count += 1
         st = m.header.stamp
         t = st.sec + st.nanosec * 1e-9 if (st.sec or st.nanosec) else ts * 1e-9
+        if topic not in frames:
+            frames[topic] = str(m.header.frame_id)
         w, f = m.angular_velocity, m.linear_acceleration
         row = [t, w.x, w.y, w.z, f.x, f.y, f.z]
         rej = rejected.setdefault(topic, {"nonfinite": 0, "time_not_increasing": 0})
