@@ -27,7 +27,7 @@ def test_thresholds_equal_scipy_stats() -> None:
 
 
 def test_runtime_import_leaves_scipy_stats_out() -> None:
-    code = ("import sys, rimu.cli.replay, rimu.fdi, rimu.fusion, rimu.session; "
+    code = ("import sys, rimu.cli.replay, rimu.export, rimu.fdi, rimu.fusion, rimu.session; "
             "print(sorted(m for m in ('scipy.stats', 'scipy.optimize', 'scipy.signal') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == "[]", out
