@@ -120,7 +120,9 @@ def main(argv: list[str]) -> int:
         return run(["-m", "rimu.cli", "demo", *rest])
     if cmd == "test":
         ensure_env("test")
-        return run(["-m", "pytest", *rest], single_thread_blas=True)
+        # one worker per core (pytest-xdist): the suite is ~7 min of CPU and CI has 2 cores; `-n 0` runs it serially
+        workers = [] if any(a == "-n" or a.startswith(("-n", "--numprocesses")) for a in rest) else ["-n", "auto"]
+        return run(["-m", "pytest", *workers, *rest], single_thread_blas=True)
     if cmd == "bench":
         ensure_env("test,bench")
         return bench(rest)

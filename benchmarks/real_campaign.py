@@ -40,10 +40,10 @@ from typing import Any
 
 import numpy as np
 
+from rimu.calibration import Calibration
 from rimu.calibration.multi_imu import MultiImuSetup, setup_multi_imu
 from rimu.experiments.faults import Injection, inject
-from rimu.fdi import Px4GyroSelector, RedundancyManager, fit_motion_detector, unisolated_alarm_runs
-from rimu.fusion import InstrumentPipeline
+from rimu.fdi import Px4GyroSelector, Runtime, fit_motion_detector, unisolated_alarm_runs
 from rimu.io.pixhawk_dual import read_pixhawk_dual
 from rimu.io.xsens_dot import read_xsens_dot_run
 from rimu.units import DEG_TO_RAD
@@ -102,29 +102,31 @@ def body_rates(su: MultiImuSetup, block: Any) -> tuple[np.ndarray, np.ndarray]:
     return W, block.valid["gyro"].reshape(len(block), k, 3).all(axis=2)
 
 
-_MANAGERS: dict[int, RedundancyManager] = {}
+_RUNTIMES: dict[int, Runtime] = {}
 #: the detector of rimu's manager: "glt" (the snapshot GLT under the noise fitted at setup) or "motion" (the
 #: motion-aware GLT, its motion terms fitted on the same fault-free first half: benchmarks/real_campaign_motion.py)
 DETECTOR = "glt"
 MOTION_MARGIN = 10.0
 
 
-def manager(su: MultiImuSetup) -> RedundancyManager:
-    """One manager per setup, reset before every replay."""
+def runtime(su: MultiImuSetup) -> Runtime:
+    """One runtime (rimu.fdi.Runtime, the one owner of a unit's state: what rimu replay and monitor step) of the
+    unit's gyros per setup, reset before every replay."""
     key = id(su)
-    if key not in _MANAGERS:
+    if key not in _RUNTIMES:
         cal = su.calibration["gyro"]
-        pipe = InstrumentPipeline(cal)
         det = None
         if DETECTOR == "motion":
             b = su.block
             first = (b.t >= su.fit_window_s[0]) & (b.t <= su.fit_window_s[1])
             det = fit_motion_detector(cal, b.raw["gyro"][first], b.valid["gyro"][first],
                                       1.0 / float(np.median(np.diff(b.t))), margin=MOTION_MARGIN, p_fa=P_FA)
-        _MANAGERS[key] = RedundancyManager(pipe, det, p_fa=P_FA, confirm=CONFIRM)
-    mgr = _MANAGERS[key]
-    mgr.reset()
-    return mgr
+        gyro_only = Calibration({"gyro": cal}, su.calibration.raw_unit)
+        _RUNTIMES[key] = Runtime(gyro_only, p_fa=P_FA, confirm=CONFIRM,
+                                 detector_factory=None if det is None else (lambda ip, det=det: det))
+    rt = _RUNTIMES[key]
+    rt.reset()
+    return rt
 
 
 def run_rimu(su: MultiImuSetup, block: Any) -> tuple[list[tuple[float, str, str]], float]:
@@ -133,9 +135,9 @@ def run_rimu(su: MultiImuSetup, block: Any) -> tuple[list[tuple[float, str, str]
     Kinds: ``isolated``, ``invalid_isolated``, and ``detected`` for every run of ``confirm`` consecutive alarms
     that led to no isolation (a unit that cannot isolate, such as two parallel triads, reports the fault as
     detected; the manager logs ``detected_not_isolable`` only once until the next isolation)."""
-    mgr = manager(su)
+    rt = runtime(su)
     t0 = time.perf_counter()
-    res = mgr.run(block.raw["gyro"], block.valid["gyro"], block.t)
+    res = rt.run(block)["gyro"]
     dt = (time.perf_counter() - t0) / len(block)
     ev = [(e.t, e.kind, e.sensor or "") for e in res.events if e.kind in ("isolated", "invalid_isolated")]
     ev += [(tt, "detected", "") for tt in unisolated_alarm_runs(res, CONFIRM)]

@@ -18,11 +18,11 @@ from typing import Any
 
 import numpy as np
 
+from rimu.calibration import Calibration
 from rimu.calibration.multi_imu import MultiImuSetup, setup_multi_imu
 from rimu.experiments.faults import Injection, inject
-from rimu.fdi import RedundancyManager
+from rimu.fdi import Runtime
 from rimu.fdi.manager import STATE_CODES
-from rimu.fusion import InstrumentPipeline
 from rimu.io.pixhawk_dual import read_pixhawk_dual
 from rimu.io.xsens_dot import read_xsens_dot_run
 from rimu.units import DEG_TO_RAD, RAD_TO_DEG
@@ -43,10 +43,10 @@ def load(which: str, data: Path) -> Any:
 
 def replay(su: MultiImuSetup, block: Any, instrument: str = "gyro") -> dict[str, Any]:
     """Fuse and monitor one instrument over a block: estimate, covariance, parity, statistic, state, events."""
-    cal = su.calibration[instrument]
-    pipe = InstrumentPipeline(cal)
-    mgr = RedundancyManager(pipe, p_fa=1e-3, confirm=3)
-    res = mgr.run(block.raw[instrument], block.valid[instrument], block.t)
+    # the one runtime owner of the unit's state (rimu.fdi.Runtime: what rimu replay and rimu monitor step)
+    rt = Runtime(Calibration({instrument: su.calibration[instrument]}, su.calibration.raw_unit), p_fa=1e-3, confirm=3)
+    res = rt.run(block)[instrument]
+    mgr = rt.managers[instrument]
     return {"t": block.t, "x": res.x, "statistic": res.statistic, "threshold": res.threshold,
             "state": res.state, "n_active": res.n_active, "events": res.events, "alarm": res.alarm,
             "final_state": mgr.state.value, "isolated": list(mgr.health.isolated)}

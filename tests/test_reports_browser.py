@@ -139,8 +139,10 @@ def test_replay_report_renders(tmp_path, capsys):
     assert main(["simulate", "-o", str(tmp_path / "s.npz"), "--duration", "1"]) == 0
     assert main(["calibrate", str(tmp_path / "s.npz"), "-o", str(tmp_path / "cal.json"), "-q"]) == 0
     capsys.readouterr()
+    # with the in-flight self-calibration: its tracked terms are sections of the same page and PDF (issue 27)
     out = _console(capsys, ["replay", tmp_path / "s.npz", "--calibration", tmp_path / "cal.json", "--detector",
-                            "glt_window", "--inject", "bias:gyro:y2:5:20sigma", "--report", tmp_path / "rep"])
+                            "glt_window", "--inject", "bias:gyro:y2:5:20sigma", "--selfcal", "--selfcal-bias-rw",
+                            "1e-12", "--report", tmp_path / "rep"])
     cautions = _cautions(out)
     assert any("--p-fa is per sample" in c for c in cautions), out
     res = _browse(tmp_path / "rep" / "replay_report.html", tmp_path)
@@ -148,5 +150,10 @@ def test_replay_report_renders(tmp_path, capsys):
     assert {"gyro: parity statistic and alarms", "gyro: validity of the estimate",
             "gyro: sensors in use and isolations", "accel: estimate (master-body frame)"} <= set(res["titles"])
     assert re.search(r"gyro\s+5\.0\d\d\s+\d+\s+isolated\s+y2", res["text"]), res["text"][:3000]
-    assert _pdf_pages(tmp_path / "rep" / "replay_report.pdf", tmp_path) >= 2
-    assert (tmp_path / "rep" / "replay.png").stat().st_size > 1000
+    assert {f"{k}: tracked {b} (without its common mode), 1-sigma band" for k in ("gyro", "accel")
+            for b in ("bias", "scale")} <= set(res["titles"]), res["titles"]
+    assert "Self-calibration: gyro" in res["text"] and "Self-calibration: accel" in res["text"]
+    assert res["svgs"] >= 3
+    assert _pdf_pages(tmp_path / "rep" / "replay_report.pdf", tmp_path) >= 4
+    for png in ("replay.png", "selfcal-gyro.png", "selfcal-accel.png"):
+        assert (tmp_path / "rep" / png).stat().st_size > 1000

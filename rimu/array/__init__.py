@@ -51,3 +51,6 @@ __all__ += ["PositionFit", "fit_positions"]
 from .report import ArrayReport, array_report, lowpass  # noqa: E402
 
 __all__ += ["ArrayReport", "array_report", "lowpass"]
+from .remainder import RemainderAnalysis, ljung_box, remainder_analysis  # noqa: E402
+
+__all__ += ["RemainderAnalysis", "ljung_box", "remainder_analysis"]

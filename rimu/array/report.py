@@ -13,11 +13,12 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import IdentifiabilityError, ShapeError
-from ..units import RAD_TO_DEG
+from ..units import RAD_TO_DEG, fmt
 from .guards import choose_lowpass, worse
 from .layout import ArrayLayout
 from .positions import PositionFit, fit_positions
 from .relative import RelativeFit, fit_relative_gyro
+from .remainder import RemainderAnalysis, remainder_analysis
 
 __all__ = ["ArrayReport", "array_report", "lowpass"]
 
@@ -55,6 +56,8 @@ class ArrayReport:
     notes: list[str] = field(default_factory=list)
     #: steps not applied because they made the agreement worse: step name -> the reason with the figures
     refused: dict[str, str] = field(default_factory=dict)
+    #: what is left of the gyro disagreement: deterministic or not (:func:`rimu.array.remainder_analysis`)
+    remainder: "RemainderAnalysis | None" = None
 
     def to_dict(self) -> dict:
         return {"triads": list(self.names),
@@ -62,7 +65,7 @@ class ArrayReport:
                 "accel_parity_rms_m_s2": {k: v.tolist() for k, v in self.accel_steps.items()},
                 "limiting_term": self.limiting_term, "refused": dict(self.refused),
                 "candidates": [c.to_dict() for c in (self.gyro_fit.candidates if self.gyro_fit else [])],
-                "notes": self.notes}
+                "notes": self.notes, "remainder": None if self.remainder is None else self.remainder.to_dict()}
 
     def to_markdown(self) -> str:
         out = ["# Array report: parity rms in motion per step", ""]
@@ -80,6 +83,8 @@ class ArrayReport:
             for c in self.gyro_fit.candidates:
                 out.append(f"| {c.name} | {c.n_params} | {c.f_stat:.3g} | {c.log10_p:.1f} | {c.explained:.3f} |")
             out.append("")
+        if self.remainder is not None:
+            out += [self.remainder.to_markdown()]
         out += [f"- {n}" for n in self.notes]
         out += [f"- **not applied**: {r}" for r in self.refused.values()]
         return "\n".join(out) + "\n"
@@ -179,6 +184,7 @@ def array_report(
     applied: :attr:`ArrayReport.refused` says why, and the steps shown are the ones applied.
     """
     notes: list[str] = []
+    gyro_unfiltered = gyro  # the remainder is judged on the rates as sampled (a low-passed series is never white)
     if isinstance(lowpass_hz, str):
         if lowpass_hz != "auto":
             raise ShapeError(f"lowpass_hz must be a number of Hz, 'auto' or None, got {lowpass_hz!r}")
@@ -216,6 +222,14 @@ def array_report(
         fit = base
     rep = ArrayReport(layout.names, steps, limiting_term=fit.limiting_term(), gyro_fit=fit, notes=notes,
                       refused=refused)
+    try:  # the remainder after the applied gyro steps, on the rates as sampled: deterministic, or not
+        rfit = fit
+        if gyro_unfiltered is not gyro:  # the steps were fitted low-passed: the same terms on the rates as sampled
+            rfit = fit_relative_gyro(layout, t, gyro_unfiltered, terms=fit.terms, candidates=(),
+                                     motion_threshold_deg_s=motion_threshold_deg_s)
+        rep.remainder = remainder_analysis(t, rfit.apply(t, gyro_unfiltered), motion_threshold_deg_s)
+    except (ShapeError, IdentifiabilityError) as exc:
+        notes.append(f"no analysis of the remainder: {exc}")
     if accel is not None:
         best = None
         for mode, label in (("absolute", "+ gain+bias"), ("relative", "+ relative gain+bias"), ("none", "+ bias")):
@@ -253,15 +267,19 @@ def _accel_candidate(layout, t, accel, fit, gyro, nominal_positions_m, motion_th
         return None
     if align and cand.parity_rms_m_s2["aligned"].mean() > cand.parity_rms_m_s2["raw"].mean():
         align = False
+        # what was seen, not a guess about the hardware: a single-chip IMU (one die, one sampling instant for
+        # both) shows it too when the gyro offsets hold something else (the paths' different filter delays)
+        seen = (f"the gyros' sampling offsets do not fit the accelerometers (moved by them, the accelerometer "
+                f"parity rises from {fmt(cand.parity_rms_m_s2['raw'].mean(), 'accel', 'm/s^2', digits=6)} to "
+                f"{fmt(cand.parity_rms_m_s2['aligned'].mean(), 'accel', 'm/s^2', digits=6)}: the accelerometers are not sampled "
+                "at the gyros' instants, or the gyro paths delay differently from the accelerometer paths)")
         try:
             cand = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
                                  motion_threshold_deg_s=motion_threshold_deg_s, gain=mode, align=False,
                                  offsets=True)
-            note = ("the gyros' sampling offsets do not fit the accelerometers (separate chips?): "
-                    "the accelerometers' own offsets were estimated")
+            note = f"{seen}: the accelerometers' own offsets were estimated"
         except IdentifiabilityError as exc:
-            note = ("the gyros' sampling offsets do not fit the accelerometers (separate chips?) and "
-                    f"their own cannot be estimated ({exc}): accelerometers left on their own time")
+            note = f"{seen}, and their own cannot be estimated ({exc}): accelerometers left on their own time"
             cand = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
                                  motion_threshold_deg_s=motion_threshold_deg_s, gain=mode, align=False)
         if note not in notes:

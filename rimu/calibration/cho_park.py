@@ -37,8 +37,9 @@ from ..session import Segment, Session, SessionStatistics, earth_rate_ln
 from .estimate import CalibrationResult, _sigma_for, make_sensor_fit, segment_residuals
 from .lsq import LsqResult
 from .model import ErrorModel, SensorContext, contexts
+from .steps import StepCheck, linear_step_check
 
-__all__ = ["ChoPark", "accel_rows", "gyro_rows", "rate_pairs"]
+__all__ = ["ChoPark", "accel_rows", "gyro_rows", "rate_pairs", "rate_step_check"]
 
 
 def rate_pairs(segments: Sequence[Segment], tol: float = 1e-6) -> tuple[list[tuple[Segment, Segment]], list[str]]:
@@ -98,6 +99,10 @@ class ChoPark:
         as printed leaves it in the bias).
     instruments : sequence of str, optional
         Default: every instrument of the session.
+    held_out : bool
+        Check the misalignment step (Eq. 7 and 13 against the nominal axes times a scale) with each position or
+        +/- pair left out in turn (:mod:`rimu.calibration.steps`); a step that raises the held-out residual is not
+        applied and a note says why with the figures (default True).
 
     Examples
     --------
@@ -114,8 +119,9 @@ class ChoPark:
     method = "Cho & Park 2005"
 
     def __init__(self, sigma: dict[str, Any] | None = None, earth_rate: bool = True,
-                 instruments: Sequence[str] | None = None) -> None:
+                 instruments: Sequence[str] | None = None, held_out: bool = True) -> None:
         self.sigma = sigma
+        self.held_out = held_out
         self.earth_rate = earth_rate
         self.instruments = instruments
 
@@ -126,15 +132,21 @@ class ChoPark:
         self.check(session, insts)
         stats = SessionStatistics(session)  # each segment's sums once, shared by the noise level and the means
         notes: list[str] = []
+        steps: list[dict[str, Any]] = []
         out: dict[str, LsqResult] = {}
         for inst in insts:
             sig = _sigma_for(self.sigma, session, inst, stats)
             if inst == "accel":
-                out[inst] = self._fit_accel(session, sig, stats)
+                out[inst], check = self._fit_accel(session, sig, stats)
             else:
-                out[inst], note = self._fit_gyro(session, sig, stats)
+                out[inst], note, check = self._fit_gyro(session, sig, stats)
                 notes.append(note)
-        return CalibrationResult(self.method, out, session.raw_unit, notes)
+            notes.append(check.note() if check is not None else
+                         f"{inst}: the misalignment step could not be checked on held-out segments (too few positions "
+                         "or +/- rate pairs: leaving one out leaves it unidentifiable); applied")
+            if check is not None:
+                steps.append(check.to_dict())
+        return CalibrationResult(self.method, out, session.raw_unit, notes, {"steps": steps})
 
     # ------------------------------------------------------------------ identifiability
     def check(self, session: Session, instruments: Sequence[str] | None = None) -> None:
@@ -162,12 +174,14 @@ class ChoPark:
                     [f"{c.name}.bias" for c in contexts(session, inst)])
 
     # ------------------------------------------------------------------ accelerometers
-    def _fit_accel(self, session: Session, sig: np.ndarray, stats: SessionStatistics) -> LsqResult:
+    def _fit_accel(self, session: Session, sig: np.ndarray, stats: SessionStatistics
+                   ) -> tuple[LsqResult, StepCheck | None]:
         model = ErrorModel.base()
         fits = []
         used: list[Segment] = []
         cache: dict = {}
         by_su: dict[int, tuple] = {}
+        rows = []
         for ctx in contexts(session, "accel"):
             su = ctx.geometry.subunit_of(ctx.index)
             if id(su) not in by_su:  # the rows, weights and means of a sub-unit serve all its sensors
@@ -181,18 +195,35 @@ class ChoPark:
                 Ybar = np.array([stats.mean(s, "accel") for s in used]).reshape(len(used), -1)  # Eq. 9, all sensors
                 by_su[id(su)] = (S, used, W, A, T, Ybar, A @ S.T @ (W[:, None] * Ybar))
             S, used, W, A, T, Ybar, X = by_su[id(su)]
-            Y = Ybar[:, ctx.index]  # Eq. 9
+            # the step's input: the nominal axis (sub-unit coordinates) times a scale, plus the bias
+            e = ctx.geometry.nominal_rows()[ctx.index]
+            Tr = np.zeros((4, 2))
+            Tr[:3, 0], Tr[3, 1] = e, 1.0
+            rows.append((ctx, S, W, T, Ybar[:, ctx.index], X[:, ctx.index], A, Tr))
+        check = None
+        if self.held_out:
+            check = linear_step_check([r[1] for r in rows], [r[1] @ r[7] for r in rows], [r[4] for r in rows],
+                                      rows[0][2], [1.0 / max(np.linalg.norm(r[5][:3]), 1e-300) for r in rows],
+                                      instrument="accel", step="misalignment", against="scale and bias alone",
+                                      quantity="specific_force", groups="positions",
+                                      fallback="scale and bias alone, axes nominal")
+        reduce = check is not None and not check.applied
+        for ctx, S, W, T, Y, x, A, Tr in rows:
             s2 = float(sig[ctx.index]) ** 2
-            x = X[:, ctx.index]  # Eq. 7 (weighted by samples per position)
-            cov_x = s2 * A
+            if reduce:  # Eq. 7 with the nominal axis: two coefficients
+                Sr = S @ Tr
+                Ar = np.linalg.inv(Sr.T @ (W[:, None] * Sr))
+                x, A = Tr @ (Ar @ Sr.T @ (W * Y)), Tr @ Ar @ Tr.T
+            cov_x = s2 * A  # Eq. 7 (weighted by samples per position)
             chi2 = float(np.sum(W * (Y - S @ x) ** 2)) / s2
             beta, bcov = T @ x, T @ cov_x @ T.T
             res = segment_residuals(model, ctx, session.segments, beta, "accel", cache)
             fits.append(make_sensor_fit(model, ctx, beta, bcov, np.sqrt(s2), self.sigma is not None, len(Y), chi2, res))
-        return LsqResult("accel", model, fits, [s.label for s in used], {})
+        return LsqResult("accel", model, fits, [s.label for s in used], {}), check
 
     # ------------------------------------------------------------------ gyros
-    def _fit_gyro(self, session: Session, sig: np.ndarray, stats: SessionStatistics) -> tuple[LsqResult, str]:
+    def _fit_gyro(self, session: Session, sig: np.ndarray, stats: SessionStatistics
+                  ) -> tuple[LsqResult, str, StepCheck | None]:
         model = ErrorModel.base()
         pairs, unpaired = rate_pairs(session.segments)
         statics = [s for s in session.segments if s.kind in ("static", "static_unknown")]
@@ -211,6 +242,8 @@ class ChoPark:
         N = np.array([s.n_samples for s in statics], dtype=float)
         wbar = (N @ we) / N.sum()
         by_su: dict[int, tuple] = {}
+        check = self._gyro_check(session, pairs, Yg_all, V) if self.held_out else None
+        reduce = check is not None and not check.applied
         for ctx in contexts(session, "gyro"):
             su = ctx.geometry.subunit_of(ctx.index)
             C = su.mat_sb_mb
@@ -224,6 +257,11 @@ class ChoPark:
             Yg = Yg_all[:, i]
             m_sf = MS[:, i]  # Eq. 13 (weighted by the variance of each difference)
             cov_m = s2 * A
+            if reduce:  # Eq. 13 with the nominal axis e (sub-unit coordinates): one coefficient, the scale
+                e = ctx.geometry.nominal_rows()[i]
+                re = R @ e
+                a = float(re @ (Yg / V) / (re @ (re / V)))
+                m_sf, cov_m = a * e, s2 * np.outer(e, e) / float(re @ (re / V))
             chi2 = float(np.sum((Yg - R @ m_sf) ** 2 / V)) / s2
             w = C.T @ m_sf
             cov_w = C.T @ cov_m @ C
@@ -251,7 +289,34 @@ class ChoPark:
         if unpaired:
             note += f"; rate segments without a -w partner, not used: {unpaired}"
         used = [s.label for p in pairs for s in p] + [s.label for s in statics]
-        return LsqResult("gyro", model, fits, used, {x: "no -w partner" for x in unpaired}), note
+        return LsqResult("gyro", model, fits, used, {x: "no -w partner" for x in unpaired}), note, check
+
+    def _gyro_check(self, session: Session, pairs: Sequence[tuple[Segment, Segment]], Yg_all: np.ndarray,
+                    V: np.ndarray) -> StepCheck | None:
+        """The misalignment step of the rate test (Eq. 13 against the nominal axes times a scale) checked with
+        each +/- pair left out in turn (:func:`rate_step_check`)."""
+        return rate_step_check(session, "gyro", pairs, Yg_all, V)
+
+
+def rate_step_check(session: Session, inst: str, pairs: Sequence[tuple[Segment, Segment]], Yg_all: np.ndarray,
+                    V: np.ndarray) -> StepCheck | None:
+    """The misalignment step of the rate test (Cho & Park 2005 Eq. 13, de Oliveira et al. 2012 Eq. 18: the pair
+    differences ``G = R m/SF``) against the nominal axes times a scale, each +/- pair left out in turn; residuals
+    in rad/s of the half difference. None when too few pairs to leave one out."""
+    full, reduced, Y, to_si = [], [], [], []
+    for ctx in contexts(session, inst):
+        C = ctx.geometry.subunit_of(ctx.index).mat_sb_mb
+        R = gyro_rows(pairs, C)
+        e = ctx.geometry.nominal_rows()[ctx.index]
+        y = Yg_all[:, ctx.index]
+        full.append(R)
+        reduced.append((R @ e)[:, None])
+        Y.append(y)
+        m = np.linalg.lstsq(R / np.sqrt(V)[:, None], y / np.sqrt(V), rcond=None)[0]
+        to_si.append(0.5 / max(float(np.linalg.norm(m)), 1e-300))
+    return linear_step_check(full, reduced, Y, 1.0 / V, to_si, instrument=inst, step="misalignment",
+                             against="scale alone, axes nominal", quantity="rate", groups="+/- rate pairs",
+                             fallback="scale and bias alone, axes nominal")
 
 
 def _subunit_rows(ctxs: Sequence[SensorContext], rows_of: Any) -> list[tuple[SensorContext, np.ndarray, bool]]:

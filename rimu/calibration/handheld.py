@@ -78,11 +78,11 @@ from .._backend import resolve as _resolve_backend
 from ..errors import IdentifiabilityError, SessionFormatError
 from ..geometry import Geometry
 from ..session import Segment, Session
-from ..units import field_unit, fmt
 from .estimate import CalibrationResult, estimate_noise_sigma, make_sensor_fit
 from .lsq import LsqResult, central_jacobian
 from .model import ErrorModel, SensorContext
 from .result import Calibration, InstrumentCalibration
+from .steps import StepCheck
 
 __all__ = [
     "STATIC_KINDS",
@@ -1622,19 +1622,14 @@ class HandHeld:
                 check = held_out_accel(ybar, sd, ga.H[grp], session.gravity, names_g, grp)
                 if check is not None:
                     extra.setdefault("held_out_accel", []).append(check)
-                    (ins_sb, ins_f), (out_sb, out_f) = check["in_sample"], check["held_out"]
-                    u = field_unit("specific_force", max(ins_sb, ins_f, out_sb, out_f))[0]   # one unit for the four
-                    step = (f"accel: the misalignment step (the full model against scale and bias alone) takes the "
-                            f"gravity-norm residual on the poses it was fitted on {fmt(ins_sb, 'specific_force', u)} "
-                            f"-> {fmt(ins_f, 'specific_force', u)}, on held-out poses (each left out in turn) "
-                            f"{fmt(out_sb, 'specific_force', u)} -> {fmt(out_f, 'specific_force', u)}")
-                    if out_f > out_sb * (1.0 + 1e-3):
+                    sc = StepCheck("accel", "misalignment", "scale and bias alone", "specific_force",
+                                   tuple(check["in_sample"]), tuple(check["held_out"]), "poses",
+                                   "scale and bias alone, axes nominal", residual="gravity-norm residual")
+                    extra.setdefault("steps", []).append(sc.to_dict())
+                    if not sc.applied:
                         af = fit_accel(ybar, sd, ga.H[grp], session.gravity, names_g, grp, robust=False,
                                        model="scale_bias")
-                        notes.append(step + "; not applied: it raises the residual on held-out poses (it fits these "
-                                            "poses, not the sensor): scale and bias alone, axes nominal")
-                    else:
-                        notes.append(step)
+                    notes.append(sc.note())
             afits.append(af)
             for j, i in enumerate(grp):
                 ctx = SensorContext("accel", i, ga, session.latitude, session.gravity)

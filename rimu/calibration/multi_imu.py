@@ -108,8 +108,10 @@ class MultiImuSetup:
             cal = self.calibration[k]
             s = cal.noise_sigma
             unit, f = ("deg/s", RAD_TO_DEG) if k == "gyro" else ("m/s^2", 1.0)
+            per = (f", per epoch of the {self.n_average}-sample averages; x sqrt({self.n_average}) per raw sample"
+                   if self.n_average > 1 else "")
             two = len(s) == 6  # two triads: only the sum of their variances is seen (triad_noise)
-            lines.append(f"{k} noise per sensor ({unit}): " + " ".join(f"{v * f:.3g}" for v in s)
+            lines.append(f"{k} noise per sensor ({unit}{per}): " + " ".join(f"{v * f:.3g}" for v in s)
                          + ("  (two triads: their disagreement split equally)" if two else ""))
             if k in self.bias_sigma:
                 lines.append(f"{k} bias difference 1-sigma ({unit}): "

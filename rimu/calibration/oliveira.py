@@ -32,7 +32,7 @@ import numpy as np
 from ..errors import IdentifiabilityError
 from ..session import Session, SessionStatistics, column_sums, earth_rate_ln
 from ..units import RS_TO_DH
-from .cho_park import _named_rank_check, _subunit_rows, gyro_rows, rate_pairs
+from .cho_park import _named_rank_check, _subunit_rows, gyro_rows, rate_pairs, rate_step_check
 from .estimate import CalibrationResult, _sigma_for, make_sensor_fit, segment_residuals
 from .lsq import LsqResult
 from .model import ErrorModel, contexts
@@ -86,6 +86,10 @@ class Oliveira:
         Denoise each sequence (db4, 8 levels) before averaging.
     instrument : str
         Which instrument to calibrate (``"gyro"``).
+    held_out : bool
+        Check the misalignment step (Eq. 18 against the nominal axes times a scale) with each +/- pair left out in
+        turn (:func:`rimu.calibration.cho_park.rate_step_check`); a step that raises the held-out residual is not
+        applied and a note says why with the figures (default True).
 
     Examples
     --------
@@ -100,8 +104,9 @@ class Oliveira:
     method = "de Oliveira et al. 2012"
 
     def __init__(self, sigma: dict[str, Any] | None = None, earth_rate: bool = True, wavelet: bool = False,
-                 instrument: str = "gyro") -> None:
+                 instrument: str = "gyro", held_out: bool = True) -> None:
         self.sigma = sigma
+        self.held_out = held_out
         self.earth_rate = earth_rate
         self.wavelet = wavelet
         self.instrument = instrument
@@ -138,6 +143,10 @@ class Oliveira:
         model = ErrorModel.base()
         fits = []
         cache: dict = {}
+        Vp = np.array([1.0 / a.n_samples + 1.0 / b.n_samples for a, b in pairs])
+        check = (rate_step_check(session, inst, pairs, np.array([means[a.label] - means[b.label] for a, b in pairs]),
+                                 Vp) if self.held_out else None)
+        reduce = check is not None and not check.applied
         for ctx in contexts(session, inst):
             i = ctx.index
             C = ctx.geometry.subunit_of(i).mat_sb_mb
@@ -147,6 +156,11 @@ class Oliveira:
             V = np.array([1.0 / a.n_samples + 1.0 / b.n_samples for a, b in pairs])
             A = np.linalg.inv(R.T @ (R / V[:, None]))
             m_sf = A @ R.T @ (G / V)  # Eq. 18
+            if reduce:  # Eq. 18 with the nominal axis e (sub-unit coordinates): one coefficient, the scale
+                e = ctx.geometry.nominal_rows()[i]
+                re = R @ e
+                m_sf = float(re @ (G / V) / (re @ (re / V))) * e
+                A = np.outer(e, e) / float(re @ (re / V))
             chi2 = float(np.sum((G - R @ m_sf) ** 2 / V)) / s2
             w, cov_w = C.T @ m_sf, C.T @ (s2 * A) @ C
             # Eq. 20: mean residue over the sequences (raw domain: c = b / SF)
@@ -172,11 +186,15 @@ class Oliveira:
             notes.append(f"{inst}: Eq. 20 as printed (Earth rate not subtracted: attitude or latitude unknown, or "
                          f"switched off); over these sequences the mean Earth rate left in the biases is "
                          f"{left_dh if earth_known == len(seqs) else 'unknown'} deg/h")
+        notes.append(check.note() if check is not None else
+                     f"{inst}: the misalignment step could not be checked on held-out segments (too few +/- rate "
+                     "pairs: leaving one out leaves it unidentifiable); applied")
         if self.wavelet:
             notes.append(f"{inst}: outputs denoised (db4, 8 levels) before averaging")
         if unpaired:
             notes.append(f"{inst}: rate sequences without a -w partner, not used: {unpaired}")
         out = {inst: LsqResult(inst, model, fits, [s.label for s in seqs], {x: "no -w partner" for x in unpaired})}
-        result = CalibrationResult(self.method, out, session.raw_unit, notes)
+        result = CalibrationResult(self.method, out, session.raw_unit, notes,
+                                   {"steps": [check.to_dict()] if check is not None else []})
         result.extra["parity"] = parity_check(session, result, inst, stats)
         return result

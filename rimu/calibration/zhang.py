@@ -48,6 +48,7 @@ from .estimate import CalibrationResult, _sigma_for, make_sensor_fit
 from .lsq import LsqResult
 from .model import ErrorModel, contexts
 from .result import Calibration, InstrumentCalibration
+from .steps import StepCheck, linear_step_check
 
 __all__ = [
     "Zhang",
@@ -425,6 +426,11 @@ class Zhang:
         Jacobian at the closed-form estimate.
     earth_rate : float
         Magnitude of the Earth rate (rad/s) the static gyro norms equal (Eq. 23).
+    held_out : bool
+        Check each triad's misalignment step (the off-diagonal of ``K T``) on held-out segments: the
+        accelerometers with each static position left out (:func:`rimu.calibration.handheld.held_out_accel`, ten
+        positions or more), the gyros with each CW/CCW pair left out in Eq. 21 (seven pairs or more). A step that
+        raises the held-out residual is not applied (``T`` nominal) and a note says why with the figures.
 
     Examples
     --------
@@ -444,8 +450,9 @@ class Zhang:
         return _accel_only(self, session, statics)
 
     def __init__(self, sigma: dict[str, Any] | None = None, refine: bool = True,
-                 earth_rate: float = EARTH_RATE) -> None:
+                 earth_rate: float = EARTH_RATE, held_out: bool = True) -> None:
         self.sigma = sigma
+        self.held_out = held_out
         self.refine = refine
         self.earth_rate = earth_rate
 
@@ -495,6 +502,12 @@ class Zhang:
         )
         La0, Lg0 = np.linalg.inv(Aa), np.linalg.inv(Ag)
         p0 = np.concatenate([La0[il], ba, Lg0[il], bg])
+        # the misalignment steps (the off-diagonal of L = K T) checked on held-out positions and pairs
+        checks = _step_checks(session, ya, sa, Ns, phi, ang) if self.held_out else [None, None]
+        keep = [np.arange(9) if c is None or c.applied else _DIAG_AND_BIAS for c in checks]
+        for k in (0, 1):
+            off = np.setdiff1d(np.arange(9), keep[k])
+            p0[9 * k + off] = 0.0  # the nominal axes: L diagonal (a refit from there when refused)
         p = p0.copy()
         Js, rs_, typs, steps, stalled = [], [], [], [], []
         for k, (prob, sig) in enumerate(zip(problems, (sa, sg))):
@@ -502,15 +515,19 @@ class Zhang:
             rows = np.linalg.norm(La0 if k == 0 else Lg0, axis=1)
             typ = np.concatenate([rows[il[0]], np.maximum(np.abs(p0[sl][6:]), sig)])  # row size; bias or noise
             typs.append(typ)
+            prob = _masked(prob, keep[k])
             if self.refine:
-                p[sl], rk, Jk, nit, ok = refine_norms(prob, p0[sl], typ)
+                qk, rk, Jk, nit, ok = refine_norms(prob, p0[sl][keep[k]], typ[keep[k]])
+                p[9 * k + keep[k]] = qk
                 steps.append(nit)
                 if not ok:
                     stalled.append(f"{('accelerometer', 'gyro')[k]} norms after {nit} steps")
             else:
-                rk, Jk = prob(p[sl])
+                rk, Jk = prob(p[sl][keep[k]])
+            Jf = np.zeros((len(rk), 9))
+            Jf[:, keep[k]] = Jk  # a parameter held at zero has no column: zero variance
             rs_.append(rk)
-            Js.append(Jk)
+            Js.append(Jf)
         r = np.concatenate(rs_)
         J = np.zeros((len(r), 18))
         J[:len(rs_[0]), :9] = Js[0]
@@ -614,6 +631,11 @@ class Zhang:
         if stalled:
             notes.append("the nonlinear refinement (step 4) stopped before converging: " + "; ".join(stalled)
                          + "; the estimates are the last accepted step (check the static positions and rotations)")
+        for inst, c in zip(("accel", "gyro"), checks):
+            notes.append(c.note() if c is not None else
+                         f"{inst}: the misalignment step could not be checked on held-out segments (too few "
+                         f"{'static positions' if inst == 'accel' else 'CW/CCW pairs'}: leaving one out leaves it "
+                         "unidentifiable); applied")
         if dur_mismatch:
             notes.append(f"CW/CCW segments of unequal length ({dur_mismatch}): the gyro bias does not cancel "
                          "exactly in Eq. 18")
@@ -625,7 +647,8 @@ class Zhang:
         notes.append("residuals of this method are the norm residuals of each static position (Eq. 7-8, 23), "
                      "one value per segment shared by the triad's sensors")
         extra = {"inter_triad_rad": theta, "inter_triad_std_rad": np.sqrt(np.diag(cov_th)),
-                 "R_p_o": Rpo, "norm_residuals_accel": r[:nA], "refined": bool(self.refine)}
+                 "R_p_o": Rpo, "norm_residuals_accel": r[:nA], "refined": bool(self.refine),
+                 "steps": [c.to_dict() for c in checks if c is not None]}
         res = CalibrationResult(self.method, out, session.raw_unit, notes, extra)
         # the two refinement problems (accelerometers, gyros): start, optimum, scales, Newton steps (for tests)
         res.refinement = {"problems": problems, "p0": (p0[:9], p0[9:]), "p": (p[:9], p[9:]),  # type: ignore[attr-defined]
@@ -635,6 +658,50 @@ class Zhang:
                 # the norm fit has 9 parameters per triad: chi2 per dof of the triad, shared by its sensors
                 f.rss = chi / max(nobs - 9, 1) * (f.n_obs - 4) * f.sigma**2
         return res
+
+
+_DIAG_AND_BIAS = np.array([0, 2, 5, 6, 7, 8])  # L[0,0], L[1,1], L[2,2] in tril order, and the bias
+
+
+def _masked(prob: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], keep: np.ndarray
+            ) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """The norm problem in the parameters ``keep`` alone, the others held at zero."""
+    if len(keep) == 9:
+        return prob
+
+    def sub(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        q = np.asarray(q, float)
+        full = np.zeros((*q.shape[:-1], 9))
+        full[..., keep] = q
+        r, J = prob(full)
+        return r, J[..., keep]
+
+    return sub
+
+
+def _step_checks(session: Session, ya: np.ndarray, sa: np.ndarray, Ns: np.ndarray, phi: np.ndarray,
+                 ang: np.ndarray) -> list[StepCheck | None]:
+    """The accelerometer and gyro misalignment steps checked on held-out segments: the gravity norm of each
+    static position predicted from the others (Eq. 7-8, the hand-held check) and the angle of each CW/CCW pair
+    predicted from the others by Eq. 21 (linearised: ``|phi|_M^2 = angle^2`` divided by ``2 angle``)."""
+    from .handheld import held_out_accel
+
+    ga = session.geometries["accel"]
+    sd = np.asarray(sa, float)[None, :] / np.sqrt(Ns)[:, None]
+    c = held_out_accel(ya, sd, ga.H, session.gravity, list(ga.names))
+    acc = None if c is None else StepCheck(
+        "accel", "misalignment", "scale and bias alone", "specific_force", tuple(c["in_sample"]),
+        tuple(c["held_out"]), "static positions", "scale and bias alone, axes nominal",
+        residual="gravity-norm residual")
+    sc = float(np.median(np.linalg.norm(phi, axis=1)))
+    X = _quad_rows(phi / sc) / (2 * ang)[:, None]
+    y = (ang / sc) ** 2 / (2 * ang)
+    Xs = [X * sc**2]
+    gyro = linear_step_check(Xs, [Xs[0][:, :3]], [y * sc**2], np.ones(len(ang)), [1.0], instrument="gyro",
+                             step="misalignment", against="scale alone", quantity="angle",
+                             groups="CW/CCW pairs", fallback="scale and bias alone, axes nominal",
+                             residual="rotation-angle residual")
+    return [acc, gyro]
 
 
 def _accel_only(est: Zhang, session: Session, statics: list[Segment]) -> CalibrationResult:

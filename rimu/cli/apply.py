@@ -65,9 +65,15 @@ def run(args: argparse.Namespace) -> int:
                                         "units_from": {"gyro": "calibration (rad/s)", "accel": "calibration (m/s^2)"}})
     path = save_recording(rec_out, args.output)
     rate = (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 and t[-1] > t[0] else float("nan")
+    from ..units import field_unit, fmt
+
+    def mean3(k: str, v: np.ndarray) -> str:  # one field unit for the three axes (rimu.units.fmt)
+        unit = field_unit(k, float(np.nanmax(np.abs(v))) if np.isfinite(v).any() else None)[0]
+        return f"{k} mean [{', '.join(fmt(x, k, unit).rsplit(' ', 1)[0] for x in v)}] {unit}"
+
     for u in units:
-        means = ", ".join(f"{k} mean [{', '.join(f'{v:.4g}' for v in np.nanmean(getattr(u, k), axis=0))}] "
-                          f"{'rad/s' if k == 'gyro' else 'm/s^2'}" for k in ("gyro", "accel") if getattr(u, k) is not None)
+        means = ", ".join(mean3(k, np.nanmean(getattr(u, k), axis=0)) for k in ("gyro", "accel")
+                          if getattr(u, k) is not None)
         print(f"{u.name}: {len(u)} samples at {rate:.4g} Hz; {means}")
     print(f"calibrated recording written to {path}")
     if args.json:

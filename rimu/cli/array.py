@@ -175,5 +175,6 @@ def run(args: argparse.Namespace) -> int:
             f"not applied: {r}" for r in rep.refused.values()]:
         print(f"note: {n}")
     lim = rep.limiting_term
-    print(line + (f"; what is left is {lim}" if lim.startswith("unexplained") else f"; limited now by {lim}"))
+    print(line + (f"; what is left is {lim}" if lim.startswith("unexplained") else f"; limited now by {lim}")
+          + ("" if rep.remainder is None else f"; remainder: {rep.remainder.verdict}"))
     return 0

@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     from ..geometry import preset
     from ..sim import PROCEDURES, zhang_scheme
     from ..sim.procedures import CHO_PARK_TABLE1, CHO_PARK_TABLE2
-    from ..units import ARW_DSQH_TO_RSQS, G0, MS2_TO_UG, RAD_TO_ARCSEC, RS_TO_DH, UG_TO_MS2, white_noise_sigma
+    from ..units import ARW_DSQH_TO_RSQS, G0, UG_TO_MS2, field_unit, fmt, white_noise_sigma
 
     geo = preset(args.geometry)
     if args.duration is not None and not args.procedure.startswith("cho_park"):
@@ -72,15 +72,20 @@ def run(args: argparse.Namespace) -> int:
         pred = None
     if pred:
         print("\npredicted standard deviations (Cho & Park Eq. 19), field units")
-        print(f"  {'sensor':<8} {'acc SF ppm':>11} {'acc mis arcsec':>16} {'acc bias ug':>12} "
-              f"{'gyro SF ppm':>12} {'gyro mis arcsec':>16} {'gyro bias deg/h':>16}")
+        a, g = pred["accel"], pred["gyro"]
+        # one field unit per column, chosen by the column's largest figure (rimu.units.fmt, as every printout)
+        cols = [("acc SF", "ratio", a, "scale"), ("acc mis", "angle", a, "mis"), ("acc bias", "specific_force", a, "bias"),
+                ("gyro SF", "ratio", g, "scale"), ("gyro mis", "angle", g, "mis"), ("gyro bias", "rate", g, "bias")]
+
+        def cell(d: dict, name: str, what: str) -> float:
+            return max(v for k, v in d.items() if k.startswith(name + ".mis")) if what == "mis" else d[f"{name}.{what}"]
+
+        units = [field_unit(q, max(cell(d, nm, w) for nm in geo.names))[0] for _, q, d, w in cols]
+        heads = [f"{h} {u}" for (h, *_), u in zip(cols, units)]
+        print(f"  {'sensor':<8} " + " ".join(f"{h:>16}" for h in heads))
         for name in geo.names:
-            a, g = pred["accel"], pred["gyro"]
-            am = [v for k, v in a.items() if k.startswith(name + ".mis")]
-            gm = [v for k, v in g.items() if k.startswith(name + ".mis")]
-            print(f"  {name:<8} {a[name + '.scale'] * 1e6:>11.1f} {max(am) * RAD_TO_ARCSEC:>16.2f} "
-                  f"{a[name + '.bias'] * MS2_TO_UG:>12.1f} {g[name + '.scale'] * 1e6:>12.1f} "
-                  f"{max(gm) * RAD_TO_ARCSEC:>16.2f} {g[name + '.bias'] * RS_TO_DH:>16.2f}")
+            print(f"  {name:<8} " + " ".join(
+                f"{fmt(cell(d, name, w), q, u, digits=4).rsplit(' ', 1)[0]:>16}" for (_, q, d, w), u in zip(cols, units)))
         print("  bias: the error of the compensated output at zero input. 'rimu calibrate' prints this figure in a "
               "note; its bias column is the marginal std of B = SF x raw offset, larger by the scale-factor "
               "uncertainty times the unit's raw offset, which design cannot know")

@@ -45,6 +45,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     from ._common import Deprecated, add_fdi_options, add_json_option, add_readmit_options, positive_float, positive_int
 
     p.add_argument("--baud", type=positive_int, default=921600, help="serial baud rate")
+    p.add_argument("--serial-format", default=None, metavar="NAME",
+                   help="--serial only: a device's own stream instead of rimu's framing (a source of rimu.io's "
+                        "registry, e.g. mimu4444)")
+    p.add_argument("--common-cause", action="store_true",
+                   help="invalid samples of several sub-units at once (triads clipping together) are a common cause: "
+                        "routed around, never isolated (rimu.fdi.common_cause)")
     p.add_argument("--calibration", help="calibration file (rimu.calibration JSON); --simulate uses the truth")
     p.add_argument("--geometry", default=None, help="geometry preset of gyros and accelerometers "
                    "(default: the layout's, or cone6)")
@@ -148,7 +154,13 @@ def _open(args: argparse.Namespace) -> tuple[Any, Any, dict]:
     elif args.serial:
         from ..io.serial import SerialSource
 
-        src = SerialSource(args.serial, args.baud, idle_timeout=args.idle_timeout, side_log=side)
+        if args.serial_format:
+            from ..io.registry import source_class
+
+            src = source_class(args.serial_format)(args.serial, args.baud, idle_timeout=args.idle_timeout,
+                                                   side_log=side)
+        else:
+            src = SerialSource(args.serial, args.baud, idle_timeout=args.idle_timeout, side_log=side)
     elif args.replay and (src := log_source(args.replay)) is not None:  # an IMU log (rimu import --help)
         pass
     elif args.replay:
@@ -173,8 +185,8 @@ def _open(args: argparse.Namespace) -> tuple[Any, Any, dict]:
     geos = _geometries(args, layout)
     if args.ulog:
         geos = {k: src.geometry(k) for k in src.instances}
-    elif hasattr(src, "recording"):  # an IMU log: the unit's geometry is the calibration's (rimu setup fits axes)
-        geos = None
+    elif hasattr(src, "recording") or args.serial_format:  # an IMU log or a device stream: the unit's geometry is the
+        geos = None                                            # calibration's (rimu setup fits axes)
     return src, Calibration.load(args.calibration, geometries=geos), extra
 
 
@@ -182,10 +194,23 @@ class _Monitor:
     """The runtime (:class:`rimu.fdi.Runtime`: the decisions of ``rimu replay`` and of the exported C) on a live
     stream: its new events per epoch, and the estimates file."""
 
-    def __init__(self, pipe: Any, settings: Any, estimates: str | None) -> None:
-        from ..fdi import Runtime
+    def __init__(self, pipe: Any, settings: Any, estimates: str | None, detectors: dict | None = None) -> None:
+        from ..fdi import RedundancyManager, Runtime
 
-        self.rt = Runtime(pipe, settings)
+        if detectors:  # the unit file's motion-aware tests (rimu setup --motion-fit); the others the default
+            kw = settings.manager_kwargs()
+            mgrs = {}
+            for k, ip in pipe.instruments.items():
+                kk = dict(kw)
+                if k in detectors:
+                    kk.pop("isolator")  # the manager picks the isolator that fits the detector
+                    kk["sample_rate"] = detectors[k].sample_rate
+                else:
+                    kk["isolator"] = settings.isolator()
+                mgrs[k] = RedundancyManager(ip, detectors.get(k), **kk)
+            self.rt = Runtime(pipe, mgrs)
+        else:
+            self.rt = Runtime(pipe, settings)
         self.seen = {k: 0 for k in self.rt.managers}
         self.events: list[dict] = []
         self.isolations: list[dict] = []
@@ -277,12 +302,12 @@ def run(args: argparse.Namespace) -> int:
     from ..io.recorded import CsvRecorder
     from ._common import fdi_settings, readmit_after
 
-    settings = fdi_settings(args, readmit_after=readmit_after(args))
+    settings = fdi_settings(args, readmit_after=readmit_after(args), common_cause=True if args.common_cause else None)
     if args.no_readmit:
         settings = type(settings)(**{**settings.as_dict(), "readmit_after": None})
     src, cal, extra = _open(args)
     pipe = Pipeline(cal)
-    mon = _Monitor(pipe, settings, args.estimates)
+    mon = _Monitor(pipe, settings, args.estimates, _stored_detectors(cal, settings))
     stack = contextlib.ExitStack()
     mon.open(stack)
     rec = CsvRecorder(args.record) if args.record else None
@@ -400,3 +425,23 @@ def run(args: argparse.Namespace) -> int:
 
 
 __all__ = ["register", "run"]
+
+
+def _stored_detectors(cal: Any, settings: Any) -> dict:
+    """The motion-aware tests stored in the unit file by ``rimu setup --motion-fit`` (gyros), said once."""
+    from ..errors import CalibrationFileError, ShapeError
+    from ..fdi.motion import motion_detector_from_dict
+
+    out = {}
+    for k, d in (cal.metadata.get("motion_terms") or {}).items():
+        if k not in cal.instruments:
+            continue
+        try:
+            out[k] = motion_detector_from_dict(cal[k], d, settings.p_fa)
+        except ShapeError as exc:
+            raise CalibrationFileError(f"the calibration's {k} motion terms: {exc}") from None
+        det = out[k]
+        print(f"rimu monitor: {k}: motion-aware test of the unit file at {det.sample_rate:.4g} Hz"
+              + ("" if det.envelope is None else f" (|rate| up to {det.envelope[0] * 57.29577951308232:.4g} deg/s)")
+              + "; the source must deliver epochs at that rate")
+    return out

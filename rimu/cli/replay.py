@@ -81,6 +81,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "vibration) on the first SECONDS of the data, taken as fault-free, and test with them "
                         "(docs/many-sensors.md)")
     p.add_argument("--motion-margin", type=positive_float, default=3.0, help="factor on the fitted motion variances")
+    p.add_argument("--common-cause", action="store_true",
+                   help="invalid samples of several sub-units at once (triads clipping together) are a common cause: "
+                        "routed around, never isolated (rimu.fdi.common_cause; not in the exported C)")
+    p.add_argument("--instrument", action="append", default=None, metavar="NAME",
+                   help="replay only this instrument of the calibration (repeatable; default: every one)")
+    p.add_argument("--px4", action="store_true",
+                   help="gyros of a unit of triads: also run the PX4 EKF2-selector-style rule (|rate - median of the "
+                        "other triads| - 7 deg/s integrated to 15 deg; rimu.fdi.Px4GyroSelector) on the same samples "
+                        "and print the triads it flags and when")
     p.add_argument("-o", "--output", default=None, metavar="DIR",
                    help="folder for summary.json: the runtime error against the segments' known inputs, alarms and "
                         "isolations per instrument (docs/runtime.md)")
@@ -434,14 +443,13 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
     from ..export.estimates import Estimates, estimate_columns, write_estimates
     from ..fdi import RedundancyManager, Runtime
     from ..fdi.detectors import make_detector
-    from ..fdi.settings import DEFAULTS
     from ..fusion import Pipeline
     from ..progress import bar
     from ..session import iter_blocks
     from ..units import fmt  # the field's units, as rimu calibrate prints them
     from ._common import check_outputs, fdi_settings
 
-    fdi_settings(args)  # --p-fa and --confirm not given: the one default
+    settings = fdi_settings(args, common_cause=True if args.common_cause else None)  # the one default otherwise
     if args.estimates:  # a CSV without a sidecar: checked alone, then against the other outputs and the inputs
         from ..errors import OutputPathError
 
@@ -469,6 +477,12 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
     # calibration on cone6 data would otherwise isolate healthy sensors)
     cal = Calibration.load(args.calibration, geometries=session.geometries)
     insts = [k for k in cal.instruments if k in session.geometries]
+    if args.instrument:
+        unknown = sorted(set(args.instrument) - set(insts))
+        if unknown:
+            raise OptionError(f"--instrument {', '.join(unknown)}: not an instrument of both the calibration and the "
+                              f"data ({', '.join(insts) or 'none'})")
+        insts = [k for k in insts if k in args.instrument]
     if not insts:
         raise CalibrationFileError(f"the calibration ({', '.join(cal.instruments)}) and the data "
                                    f"({', '.join(session.instruments)}) have no instrument in common: nothing to replay")
@@ -531,6 +545,8 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
     for k in insts:
         pipe = unit[k]
         det = make_detector(args.detector, pipe.table.sigma, window=args.window, p_fa=args.p_fa, arl0=args.arl0)
+        stored = (cal.metadata.get("motion_terms") or {}).get(k) if args.detector == "glt" and k not in trackers \
+            else None
         if k in trackers:
             from ..fdi.selfcal import TrackedGltWindow
 
@@ -540,9 +556,11 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
             det = _motion_detector(cal[k], _first_seconds(blocks(Pipeline(sub, temperature=scan.has_temp)),
                                                           t0 + args.motion_fit),
                                    args.motion_fit, args.motion_margin, args.p_fa, fs)
-        kw = DEFAULTS.replace(p_fa=args.p_fa, confirm=1 if args.detector == "cusum" else args.confirm).manager_kwargs()
+        elif stored is not None:
+            det = _stored_motion_detector(cal[k], stored, args.p_fa, fs, k)
+        kw = settings.replace(confirm=1 if args.detector == "cusum" else None).manager_kwargs()
         kw.update(readmit_after=readmit_after(args), sample_rate=fs)
-        if args.detector != "glt" or args.motion_fit is not None or k in trackers:
+        if args.detector != "glt" or args.motion_fit is not None or stored is not None or k in trackers:
             kw.pop("isolator")  # the manager picks the isolator that fits the detector
         managers[k] = (RedundancyManager(pipe, det, **kw), det)
     alarms = dict.fromkeys(insts, 0)
@@ -551,6 +569,10 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
     last_state: dict[str, str | None] = dict.fromkeys(insts)
     errors = {k: _Errors(session, k) for k in insts}
     plots = {k: _Plot() for k in insts} if args.report else {}
+    at_rest = {k: [0, 0] for k in insts}  # alarms and samples in the segments at rest (kind static*)
+    per_seg = {k: np.zeros((len(session.segments), 2), np.int64) for k in insts}  # alarms, samples per segment
+    rest_kind = np.array([str(seg.kind).startswith("static") for seg in session.segments])
+    px4 = _Px4(cal["gyro"]) if args.px4 and "gyro" in insts else None
     n_chunks = -(-scan.n // chunk)
     with contextlib.ExitStack() as stack:  # pass 2: the replay, one chunk in memory at a time
         est = None
@@ -571,6 +593,11 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
             for k in insts:
                 r = results[k]
                 alarms[k] += int(np.count_nonzero(r.alarm))
+                rest = rest_kind[blk.meta["segment"]]
+                at_rest[k][0] += int(np.count_nonzero(np.asarray(r.alarm)[rest]))
+                at_rest[k][1] += int(rest.sum())
+                np.add.at(per_seg[k], (blk.meta["segment"], 0), np.asarray(r.alarm, np.int64))
+                np.add.at(per_seg[k], (blk.meta["segment"], 1), 1)
                 events[k] += r.events
                 # a number wherever there is an estimate; NaN exactly where there is none (unobservable)
                 finite[k] = finite[k] and bool(np.array_equal(np.isfinite(r.x).all(axis=1), r.validity != 2))
@@ -585,6 +612,8 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
                 e = Estimates.from_replay(blk.t, results)
                 e.extra = extra or None
                 write_estimates(est, e, header=False)
+            if px4 is not None:
+                px4.add(blk)
     summary: dict = {}
     for k in insts:
         mgr, det = managers[k]
@@ -606,31 +635,47 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
             print(f"    runtime error: segment_error_rms {fmt(err.segment_error_rms, k)} over "
                   f"{len(err.segments)} segments, sample_error_rms {fmt(err.sample_error_rms, k)}")
         print(f"    alarms {entry['alarms']}, isolations {entry['isolations']}")
+        if at_rest[k][1]:
+            a, n = at_rest[k]
+            entry["rest_alarms"], entry["rest_samples"] = a, n
+            entry["segments"] = [{"label": seg.label, "kind": seg.kind, "t_start_s": st.t0, "t_end_s": st.t_last,
+                                  "alarms": int(per_seg[k][i, 0]), "samples": int(per_seg[k][i, 1])}
+                                 for i, (seg, st) in enumerate(zip(session.segments, scan.stats))]
+            print(f"    alarm rate at rest (the session's static segments): {fmt(a / n, 'ratio', '%', digits=3)} of {n} "
+                  f"samples (design: --p-fa {fmt(args.p_fa, 'ratio', '%', digits=3)})")
         if k in tracked:
             entry["selfcal"] = tracked[k].summary(k)
         summary[k] = entry
+    px4_doc = px4.report() if px4 is not None else None
     if args.estimates:
         print(f"\n  estimates: {args.estimates} ({scan.n} rows)")
     if args.json:
         from ._common import json_dump
 
-        doc = {k: {"events": [e.to_dict() for e in events[k]], "final_state": last_state[k]} for k in insts}
-        for k in tracked:
-            doc[k]["selfcal"] = summary[k]["selfcal"]
+        keep = ("alarms", "isolations", "rest_alarms", "rest_samples", "segments", "selfcal")
+        doc = {k: {"events": [e.to_dict() for e in events[k]], "final_state": last_state[k],
+                   **{f: v for f, v in summary[k].items() if f in keep}} for k in insts}
+        if px4_doc is not None:
+            doc["px4"] = px4_doc
         print(f"\n  events: {json_dump(doc, args.json)}")
     if args.report:
         out = Path(args.report)
         out.mkdir(parents=True, exist_ok=True)
         series = {k: p.series() for k, p in plots.items()}
         page = _report(series, summary, events, args, console, fmt)
+        if page is not None:  # the tracked terms: sections of the same page (and PDF), after the replay's figure
+            for k, tr in tracked.items():
+                page.heading(f"Self-calibration: {k}")
+                page.figure(tr.figure(k), f"{k}: the terms the in-flight self-calibration tracked over the replay "
+                                          "(docs/selfcal.md), each sensor with its 1-sigma band, in the field's units.")
         if page is None:
             print("  (matplotlib not installed: no plot; pip install 'rimu[plots]')")
         else:
             png = page.save_figure(0, out / "replay.png", dpi=90)
             html, pdf = page.write(out, "replay_report")
             print(f"  plot:   {png}\n  report: {html} and {pdf}")
-            for k, tr in tracked.items():
-                print(f"  plot:   {tr.plot(k, out)}")
+            for j, k in enumerate(tracked, start=1):  # figure 0 is the replay's, then one per tracked instrument
+                print(f"  plot:   {page.save_figure(j, out / f'selfcal-{k}.png', dpi=90)}")
     if args.output:
         import json
 
@@ -638,13 +683,70 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
 
         out = Path(args.output)
         out.mkdir(parents=True, exist_ok=True)
-        write_text(out / "summary.json", json.dumps(summary, indent=1))
+        write_text(out / "summary.json", json.dumps(summary if px4_doc is None else {**summary, "px4": px4_doc}, indent=1))
         print(f"  summary: {out / 'summary.json'}")
     n_iso = sum(v["isolations"] for v in summary.values())
     errs = ", ".join(f"{k} segment_error_rms {fmt(v['segment_error_rms'], k, digits=3)}"
                      for k, v in summary.items() if "segment_error_rms" in v)
     print(f"replayed {scan.n} samples: {n_iso} isolation(s)" + (f"; {errs}" if errs else ""))
     return 0
+
+
+class _Px4:
+    """The PX4 EKF2-selector-style rule (:class:`rimu.fdi.Px4GyroSelector`) beside the runtime: each triad's gyro
+    rates with the calibration's bias removed, in MB, gathered over the replay and judged at its end."""
+
+    def __init__(self, cal) -> None:  # type: ignore[no-untyped-def]
+        from ..errors import ShapeError
+
+        subs = cal.geometry.subunits
+        if len(subs) < 2 or any(len(su.members) != 3 for su in subs):
+            raise ShapeError("--px4 compares triads: the gyros must be two or more triads (sub-units of 3 sensors)")
+        self.cal = cal
+        self.names = [su.name for su in subs]
+        self.t: list[np.ndarray] = []
+        self.W: list[np.ndarray] = []
+
+    def add(self, blk) -> None:  # type: ignore[no-untyped-def]
+        y = np.where(blk.valid["gyro"], blk.raw["gyro"], np.nan) if "gyro" in blk.valid else blk.raw["gyro"]
+        z = (y - self.cal.bias) / np.asarray(self.cal.scale)
+        self.W.append(np.stack([z[:, list(su.members)] @ su.mat_sb_mb for su in self.cal.geometry.subunits], axis=1))
+        self.t.append(np.asarray(blk.t, float))
+
+    def report(self) -> dict:
+        from ..fdi import Px4GyroSelector
+        from ..units import fmt
+
+        t, W = np.concatenate(self.t), np.concatenate(self.W)
+        # no timeout: the session holds clipped samples as invalid, where PX4 would read the clipped value
+        res = Px4GyroSelector(timeout_s=np.inf).run(t, W, np.isfinite(W).all(axis=2))
+        flags = [{"triad": self.names[i], "t": float(res.t_flag[i]), "reason": res.reason[i]}
+                 for i in np.argsort(res.t_flag) if np.isfinite(res.t_flag[i])]
+        print("\n  PX4-style rule (|rate - median of the others| - 7 deg/s, integrated to 15 deg), same samples, "
+              "invalid ones skipped: "
+              + ("; ".join(f"{f['triad']} flagged at {fmt(f['t'], 'time', 's', digits=4)} ({f['reason']})" for f in flags)
+                 if flags else "no triad flagged"))
+        return {"flags": flags}
+
+
+def _stored_motion_detector(cal, stored: dict, p_fa: float, fs: float, k: str):  # type: ignore[no-untyped-def]
+    """The motion-aware GLT of the terms ``rimu setup --motion-fit`` stored in the calibration."""
+    from ..errors import CalibrationFileError, ShapeError
+    from ..fdi.motion import motion_detector_from_dict
+
+    try:
+        det = motion_detector_from_dict(cal, stored, p_fa)
+    except ShapeError as exc:
+        raise CalibrationFileError(f"the calibration's {k} motion terms: {exc}") from None
+    if abs(det.sample_rate / fs - 1.0) > 0.02:
+        raise CalibrationFileError(f"the calibration's {k} motion terms were fitted at {det.sample_rate:.4g} Hz and the "
+                                   f"data run at {fs:.4g} Hz: set the unit up at the data's rate (rimu setup --average)")
+    print(f"  {k}: motion terms of the calibration (rimu setup --motion-fit, {det.fit_samples} epochs)"
+          + ("" if det.envelope is None else
+             f"; the thresholds assume |rate| up to {np.degrees(det.envelope[0]):.4g} deg/s and |angular acceleration| "
+             f"up to {np.degrees(det.envelope[1]):.4g} deg/s^2: an alarm beyond is model_exceeded (output DEGRADED), "
+             "nothing isolated"))
+    return det
 
 
 def _tracked_columns(trackers: dict) -> list[str]:
@@ -703,14 +805,59 @@ class _Tracked:
         print(f"    self-calibration: {loop.accepted} windows absorbed, {loop.rejected} gated out, {loop.discarded} "
               "thrown away (alarms); tracked terms at the end (common mode left as it was), value +- 1 sigma:")
         rows = print_terms(inst, loop.tracker, loop.terms(), indent="    ")
+        g = loop.guard()
+        if g["enabled"]:
+            print(f"    held-out check (docs/selfcal.md): parity rms {g['heldout_rms_fixed']:.3f} sigma with the fixed "
+                  f"calibration, {g['heldout_rms_applied']:.3f} sigma with the terms applied"
+                  + ("" if g["nis_per_dof"] is None else
+                     f"; innovations {g['nis_per_dof']:.2f} per dof (1: the model fits)"))
+            for name, v in g["groups"].items():
+                print(f"      {name}: {'applied' if v['applied'] else 'SUSPENDED'} at the end; suspended "
+                      f"{v['suspended_windows']} windows ({v['suspensions']} times switched off); held-out gain "
+                      f"{v['heldout_gain']:+.4g} sigma^2" + ("" if v["heldout_gain"] > 0 else
+                                                             " (it would have made the parity worse)"))
         return {"windows_absorbed": loop.accepted, "windows_gated": loop.rejected, "windows_discarded": loop.discarded,
                 "blocks": list(loop.tracker.blocks), "units": "SI (rad/s or m/s^2, relative scale, SI/K^k)",
-                "sensors": rows}
+                "sensors": rows, "guard": g}
 
-    def plot(self, inst: str, folder: Path):  # type: ignore[no-untyped-def]
-        from .selfcal import _plot
+    def figure(self, inst: str):  # type: ignore[no-untyped-def]
+        """The tracked terms of every sensor over the replay, each with its 1-sigma band, one panel per term, each
+        axis in the field unit of its values (rimu.units.field_unit; bracketed, as the report layout wants)."""
+        from ..plotting import pyplot
+        from ..units import PPM, field_unit
 
-        return _plot(inst, self.loop.tracker, self.series, str(folder))
+        plt = pyplot()
+        trk = self.loop.tracker
+        hist = self.series or [self.last]
+        t = np.array([h[0] for h in hist], dtype=float)
+        v = np.array([h[1] for h in hist], dtype=float)
+        s = np.array([h[2] for h in hist], dtype=float)
+        if not np.isfinite(t).all():
+            t = np.zeros(len(t))
+        fig, axes = plt.subplots(trk.m, 1, figsize=(9, 2.3 * trk.m + 0.6), sharex=True, squeeze=False)
+        names = trk.calibration.geometry.names
+        q = "rate" if inst == "gyro" else "specific_force"
+        for b, (name, ax) in enumerate(zip(trk.blocks, axes[:, 0])):
+            big = float(np.nanmax(np.abs(v[:, b]) + np.abs(s[:, b]))) if v.size else 0.0
+            if name == "scale":
+                fb, ub = 1.0 / PPM, "ppm"
+            else:
+                u, fb = field_unit(q, big)
+                ub = u if name == "bias" else f"{u}/K^{name[2]}"
+            for i in range(trk.n):
+                line, = ax.plot(t, v[:, b, i] * fb, lw=0.8, marker="." if len(t) < 3 else None,
+                                label=names[i] if trk.n <= 12 else None)
+                line.set_gid("data")
+                ax.fill_between(t, (v[:, b, i] - s[:, b, i]) * fb, (v[:, b, i] + s[:, b, i]) * fb,
+                                color=line.get_color(), alpha=0.15, lw=0)
+            ax.set_ylabel(f"{name} [{ub}]")
+            ax.set_title(f"{inst}: tracked {name} (without its common mode), 1-sigma band", fontsize=10)
+            ax.grid(alpha=0.3)
+        if trk.n <= 12:
+            axes[0, 0].legend(ncol=1, fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+        axes[-1, 0].set_xlabel("time [s]")
+        fig.tight_layout()
+        return fig
 
 
 def _first_seconds(blocks, t_stop: float):  # type: ignore[no-untyped-def]

@@ -78,6 +78,10 @@ def add_tracker_options(p: argparse.ArgumentParser, prefix: str = "") -> None:
         p.add_argument(f"--{prefix}hold", type=nonnegative_float, default=3.0,
                        help="seconds without an alarm before a window is absorbed (default %(default)s; at least the "
                             "detector's window plus its confirmations)")
+        p.add_argument(f"--{prefix}guard", type=nonnegative_float, default=60.0,
+                       help="memory of the held-out check, s: each group of terms corrects the outputs only while "
+                            "it lowers the parity of windows it was not fitted on (default %(default)s; 0: off, "
+                            "every term applied; docs/selfcal.md)")
 
 
 def tracker_settings(args: argparse.Namespace, cal: Any, inst: str, has_temperature: bool, prefix: str = "") -> Any:
@@ -115,7 +119,7 @@ def tracker_settings(args: argparse.Namespace, cal: Any, inst: str, has_temperat
         else:
             vals = list(_TC_DEFAULT[inst])
         tsig = tuple(vals[:orders])
-    extra = {"hold_s": opt("hold")} if prefix else {}
+    extra = {"hold_s": opt("hold"), "guard_s": opt("guard") or None} if prefix else {}
     return SelfCalSettings(bias_rw=q, scale_rw=None if opt("no-scale") else opt("scale-rw"), scale_sigma0=0.0,
                            temperature_sigma=tsig, window_s=opt("window"), gate_p=opt("gate"), **extra)
 

@@ -14,21 +14,40 @@ LOG is anything ``rimu import`` reads, or its recording file.
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
-from ._common import add_accept_implausible, add_json_option, nonnegative_float
+from ._common import add_accept_implausible, add_json_option, nonnegative_float, positive_float
 from ._inputs import add_log_options
 
 
-def _window(text: str) -> tuple[float, float]:
-    try:
-        a, b = (float(x) if x.strip() else float("nan") for x in text.split(":"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not START:END in seconds (e.g. 0:30)") from None
+def _window(text: str) -> tuple[Any, Any]:
+    """``START:END``, each in s from the start of the log or as a percentage of its span (``:50%``: the first
+    half); an empty bound is open."""
     import math
 
-    a = -math.inf if math.isnan(a) else a
-    b = math.inf if math.isnan(b) else b
-    if not a < b:
+    def bound(x: str, open_: float) -> Any:
+        x = x.strip()
+        if not x:
+            return open_
+        if x.endswith("%"):
+            v = float(x[:-1])
+            if not 0.0 <= v <= 100.0:
+                raise ValueError
+            return ("%", v / 100.0)
+        v = float(x)
+        if math.isnan(v):
+            raise ValueError
+        return v
+
+    try:
+        a_txt, b_txt = text.split(":")
+        a, b = bound(a_txt, -math.inf), bound(b_txt, math.inf)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not START:END in seconds or percent of the log (e.g. 0:30, "
+                                         ":50%)") from None
+    if not isinstance(a, tuple) and not isinstance(b, tuple) and not a < b:
+        raise argparse.ArgumentTypeError(f"{text!r}: START must be before END")
+    if isinstance(a, tuple) and isinstance(b, tuple) and not a[1] < b[1]:
         raise argparse.ArgumentTypeError(f"{text!r}: START must be before END")
     return a, b
 
@@ -41,10 +60,25 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", required=True, help="calibration file to write")
     p.add_argument("--session", default=None, metavar="FILE.npz", help="write the unit's samples on one time base")
     p.add_argument("--fit-window", type=_window, default=None, metavar="START:END",
-                   help="fit on this span, s from the start of the log (default: the whole log)")
+                   help="fit on this span, s from the start of the log or %% of its span (e.g. :50%%: the first "
+                        "half; default: the whole log)")
     p.add_argument("--average", type=nonnegative_float, default=0.1,
                    help="block-average length, s (0: none; default %(default)s)")
-    add_json_option(p, "clock offsets (s) and rotation angles (deg) per triad")
+    p.add_argument("--motion-fit", action="store_true",
+                   help="also fit the gyros' motion terms (rimu.fdi.fit_motion_detector: residual scale, misalignment, "
+                        "time offset, vibration per rate and angular acceleration, and the envelope of motion they hold "
+                        "for) on the fit window, and store them in the calibration: rimu replay and rimu monitor then "
+                        "test with them")
+    p.add_argument("--motion-margin", type=positive_float, default=10.0,
+                   help="factor on the fitted motion variances (default %(default)s)")
+    p.add_argument("--motion-window", type=positive_float, default=0.1, metavar="SECONDS",
+                   help="the motion-aware test decides on the mean of its last SECONDS of samples (at least one; "
+                        "default %(default)s s: at the full rate of a fast-sampled unit the sensitivity of 0.1 s "
+                        "averages, deciding at every sample)")
+    p.add_argument("--bias-track", type=nonnegative_float, default=60.0, metavar="SECONDS",
+                   help="time constant of the motion-aware test's tracker of the triads' relative bias drift at rest "
+                        "(0: none; default %(default)s s)")
+    add_json_option(p, "clock offsets (s), rotation angles (deg), spans at rest (s) per triad")
     add_log_options(p)
     add_accept_implausible(p)
     p.set_defaults(func=run, extra_outputs=("session",))  # --session is written (rimu.cli._common.output_options)
@@ -55,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..calibration.multi_imu import setup_multi_imu
     from ..errors import SessionFormatError
-    from ..session import Segment, Session, save_session
+    from ..session import save_session
     from ._common import json_dump
     from ._inputs import open_recording
 
@@ -63,8 +97,14 @@ def run(args: argparse.Namespace) -> int:
     if len(rec.units) < 2:
         raise SessionFormatError(f"{args.log}: {len(rec.units)} IMU; a unit of triads needs two or more")
     t0 = float(rec.units[0].t[0])  # the window counts from the start of the log (the first IMU's first stamp)
-    win = None if args.fit_window is None else (args.fit_window[0] + t0, args.fit_window[1] + t0)
     span = max(float(u.t[-1] - u.t[0]) for u in rec.units if len(u.t))
+    win = None
+    if args.fit_window is not None:
+        win = tuple(t0 + (w[1] * span if isinstance(w, tuple) else w) for w in args.fit_window)
+        if not win[0] < win[1]:
+            from ..errors import OptionError
+
+            raise OptionError(f"--fit-window: the span {win[0] - t0:.4g} .. {win[1] - t0:.4g} s is empty")
     if args.average and args.average > span / 10:
         from ..errors import OptionError
 
@@ -72,22 +112,88 @@ def run(args: argparse.Namespace) -> int:
                           "(ten averaged epochs)")
     su = setup_multi_imu(rec, average_s=args.average or None, fit_window_s=win)
     print(su.report())
+    if args.motion_fit:
+        _fit_motion(su, args.motion_margin, args.motion_window, args.bias_track or None)
     out = su.calibration.save(args.output)
     print(f"calibration written to {out}")
     b = su.block
     insts = [k for k in su.calibration.instruments if k in b.raw]
+    spans = _rest_spans(su, t0)
     if args.session:
-        ok = np.all([b.valid[k].all(axis=1) for k in insts], axis=0)
-        seg = Segment("log", "motion", b.t[ok] - t0, {k: b.raw[k][ok] for k in insts},
-                      None if b.temperature is None else b.temperature[ok], meta={"imus": rec.names})
-        s = Session([seg], {k: su.calibration[k].geometry for k in insts}, 1.0 / float(np.median(np.diff(b.t[ok]))),
-                    raw_unit="SI", meta={"raw_units": {"gyro": "rad/s", "accel": "m/s^2"}, "source": str(args.log),
-                                         "t0_s": t0})
-        print(f"session written to {save_session(s, args.session)}: {int(ok.sum())} epochs at {s.sample_rate:.4g} Hz")
+        s = _session(su, insts, rec.names, t0, str(args.log))
+        n_rest = sum(len(g.t) for g in s.segments if g.kind == "static_unknown")
+        print(f"session written to {save_session(s, args.session)}: {len(b.t)} epochs at {s.sample_rate:.4g} Hz "
+              f"({len(spans)} spans at rest, {n_rest} epochs; invalid samples kept as empty values)")
     if args.json:
         doc = {"imus": rec.names, "offsets_s": None if su.timing is None else list(su.timing.offsets_s),
                "rotation_deg": [float(np.degrees(np.arccos(np.clip((np.trace(a.mat_unit_ref) - 1) / 2, -1, 1))))
                                 for a in su.alignments],
-               "fit_window_s": [w - t0 for w in su.fit_window_s], "n_average": su.n_average, "delivering": su.delivering}
+               "fit_window_s": [w - t0 for w in su.fit_window_s], "n_average": su.n_average, "delivering": su.delivering,
+               "rest_spans_s": spans, "spans_s": {k: v for k, v in su.spans.items() if k != "noise_scale"},
+               "sample_rate_hz": 1.0 / float(np.median(np.diff(b.t)))}
         print(f"summary written to {json_dump(doc, args.json)}")
     return 0
+
+
+def _rest_spans(su, t0: float) -> list[list[float]]:  # type: ignore[no-untyped-def]
+    """The spans at rest of the whole log (``su.still``), ``[start, end]`` in s from the start of the log."""
+    import numpy as np
+
+    st = np.asarray(su.still, bool)
+    t = su.block.t[: len(st)]
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], st.astype(np.int8), [0]])))
+    return [[float(t[a] - t0), float(t[b - 1] - t0)] for a, b in zip(edges[::2], edges[1::2])]
+
+
+def _session(su, insts: list[str], names: list[str], t0: float, source: str):  # type: ignore[no-untyped-def]
+    """The whole log on one time base as a session: one segment per span at rest (kind ``static_unknown``) or in
+    motion (``motion``), every epoch kept, an invalid sample (clipped, placeholder, a gap) as an empty value
+    (NaN: invalid when replayed), so the replay sees the log's invalidity where it was."""
+    import numpy as np
+
+    from ..session import Segment, Session
+
+    b = su.block
+    n = len(b.t)
+    st = np.zeros(n, bool)
+    st[: len(su.still)] = su.still[:n]
+    raw = {k: np.where(b.valid[k], b.raw[k], np.nan) for k in insts}
+    cut = np.concatenate([[0], np.flatnonzero(np.diff(st.astype(np.int8))) + 1, [n]])
+    segs = []
+    for i, (a, e) in enumerate(zip(cut[:-1], cut[1:])):
+        rest = bool(st[a])
+        segs.append(Segment(f"{'rest' if rest else 'move'}{i}", "static_unknown" if rest else "motion", b.t[a:e] - t0,
+                            {k: v[a:e] for k, v in raw.items()},
+                            None if b.temperature is None else b.temperature[a:e], meta={"imus": names}))
+    return Session(segs, {k: su.calibration[k].geometry for k in insts}, 1.0 / float(np.median(np.diff(b.t))),
+                   raw_unit="SI", meta={"raw_units": {"gyro": "rad/s", "accel": "m/s^2"}, "source": source, "t0_s": t0})
+
+
+def _fit_motion(su, margin: float, window_s: float, track_s: float | None) -> None:  # type: ignore[no-untyped-def]
+    """The gyros' motion terms on the fit window (taken as fault-free), stored in the calibration's metadata
+    (``motion_terms``), with what they assume printed."""
+    import numpy as np
+
+    from ..errors import ShapeError
+    from ..fdi.motion import fit_motion_detector, motion_detector_to_dict
+
+    if "gyro" not in su.calibration.instruments:
+        raise ShapeError("--motion-fit: the unit has no gyros")
+    b = su.block
+    lo, hi = su.fit_window_s
+    win = (b.t >= lo) & (b.t <= hi)
+    fs = 1.0 / float(np.median(np.diff(b.t)))
+    try:
+        det = fit_motion_detector(su.calibration["gyro"], b.raw["gyro"][win], b.valid["gyro"][win], fs, margin=margin,
+                                  window=max(1, round(window_s * fs)), bias_track_s=track_s,
+                                  still=np.asarray(su.still, bool)[win])
+    except ShapeError as exc:
+        raise ShapeError(f"--motion-fit: {exc}") from None
+    su.calibration.metadata["motion_terms"] = {"gyro": motion_detector_to_dict(det)}
+    m = det.model
+    print(f"gyro motion terms (fit window, {det.fit_samples} epochs, margin {margin:g}; the test decides on the mean "
+          f"of {det.window} epoch(s), window gain {float(np.median(det.window_gain)):.3g} (median)): scale "
+          f"{1e2 * float(np.median(m.scale_rel)):.3g} %, misalignment {1e3 * float(np.median(m.misalignment_rad)):.3g} "
+          f"mrad, time offset {1e3 * float(np.median(m.time_offset_s)):.3g} ms (medians); they hold for |rate| up to "
+          f"{np.degrees(det.envelope[0]):.4g} deg/s and |angular acceleration| up to {np.degrees(det.envelope[1]):.4g} "
+          "deg/s^2 (beyond: model_exceeded, nothing isolated)")

@@ -52,6 +52,8 @@ from .manager import FdiEvent, FdiResult, Health, HealthState, RedundancyManager
 from .motion import (
     MotionAwareGlt,
     fit_motion_detector,
+    motion_detector_from_dict,
+    motion_detector_to_dict,
 )
 from .motion import (
     MotionNoiseModel as MotionNoiseModel,
@@ -114,6 +116,8 @@ __all__ = [
     "CalibrationAwareGlt",
     "MotionAwareGlt",
     "fit_motion_detector",
+    "motion_detector_from_dict",
+    "motion_detector_to_dict",
     "FaultSetGlt",
     "glt_threshold",
     # what a geometry can detect and isolate

@@ -670,6 +670,14 @@ class RedundancyManager:
                 dec = dec2
         return dec
 
+    @property
+    def _needed(self) -> int:
+        """Consecutive alarms that confirm: ``confirm``, or ``(confirm - 1) span + 1`` for a detector whose
+        statistics overlap over ``span`` samples (``evidence_span``: a window mean), i.e. ``confirm`` disjoint
+        pieces of evidence."""
+        span = int(getattr(self.detector, "evidence_span", 1))
+        return self.confirm if span <= 1 else (self.confirm - 1) * span + 1
+
     def _on_alarm(self, r: StepResult, stat: float, t: float) -> tuple[tuple[int, ...], bool]:
         """Returns (sensors to leave out of this sample's output, whether the isolation set changed)."""
         self._ep_alarms += 1
@@ -685,7 +693,7 @@ class RedundancyManager:
         if dec.kind != "isolated":
             self._streak = 0
             self._cand = ()
-            if self._ep_alarms >= self.confirm and not self._not_isolable:
+            if self._ep_alarms >= self._needed and not self._not_isolable:
                 self._not_isolable = True
                 self._quiet = 0
                 what = {"ambiguous": "several sensor sets explain it equally well"
@@ -713,7 +721,7 @@ class RedundancyManager:
         remaining[list(S)] = False
         if self._state_of(mask_bits(remaining)) is HealthState.UNOBSERVABLE:
             return (), False  # never isolate into blindness
-        if self._streak < self.confirm:
+        if self._streak < self._needed:
             return S, False
         names = [self.names[i] for i in S]
         for i in S:

@@ -32,6 +32,27 @@ per-sample cost is O(n dof) for ``Vz^T p`` plus one batched solve of the sub-uni
 no decomposition of an n x n or dof x dof matrix. Cross-sub-unit correlations of the calibration covariance
 are dropped (documented limitation). At rest ``u = 0`` and the test is the plain GLT: a fault of a few sigma
 at rest is isolated as fast as before.
+
+**Window** (``window=L``): the same test on the mean residual of the last L samples of one active set. Its
+covariance is ``W / L + (1/L) sum_t M(u_t)`` with W the white noise (times ``window_gain``, the variance of an
+L-sample mean of the sensor's own noise over ``sigma^2 / L``: 1 for white noise, more for noise the chip's
+low-pass correlates) and M(u_t) the motion part at each sample: ``Cov(mean_t m_t) <= mean_t Cov(m_t)`` for any
+correlation of the motion errors (Jensen's inequality for the outer product), so the motion part is bounded, not
+assumed to average down; the constant ``extra_var`` does not average down either. At rest a bias b is then L
+times its snapshot noncentrality: at the full rate of a fast-sampled unit the window gives the sensitivity of
+block averages while deciding at every sample. The window statistics overlap, so an alarm carries up to L
+samples of the same evidence: the manager confirms on ``(confirm - 1) L + 1`` consecutive alarms
+(``evidence_span``), i.e. ``confirm`` disjoint windows.
+
+**Relative-bias tracker** (``bias_track_s=tau``): MEMS biases drift (warm-up, temperature); a triad's bias
+against the array that moved by a few tenths of its noise since the setup makes the window means at rest
+alarm (the MIMU4444's exp_6: 0.1 deg/s in seven minutes against a noise of 0.06 deg/s at 0.1 s). At rest
+(``|rate| < rest_rate``) and without an alarm, each active sensor's residual feeds an exponential mean of time
+constant tau (``tracked_bias``), subtracted from the residual before the test, its own variance
+(``sigma^2 alpha / (2 - alpha)``, alpha = 1 / (tau fs)) added to the covariance. Only the part of a drift that
+breaks the sensors' agreement reaches the residual, so only that is tracked; an abrupt fault moves it by
+``t / tau`` of itself in t seconds (0.4 % in the 0.25 s it takes to isolate 1 deg/s with tau = 60 s), a fault that
+grows more slowly than tau is absorbed (the price of following drift). The tracker is kept across set changes.
 """
 
 from __future__ import annotations
@@ -48,7 +69,11 @@ from .calaware import CalibrationCovariance
 from .glt import glt_threshold
 
 __all__ = [
-    "check_fit_span", "MotionAwareGlt", "MotionNoiseModel", "fit_motion_detector", "fit_motion_terms"]
+    "check_fit_span", "MotionAwareGlt", "MotionNoiseModel", "fit_motion_detector", "fit_motion_terms",
+    "motion_detector_from_dict", "motion_detector_to_dict"]
+
+#: the fitted terms a unit file stores (:func:`motion_detector_to_dict`)
+_STORED_TERMS = ("scale_rel", "misalignment_rad", "time_offset_s", "rate_var", "accel_var", "extra_var")
 
 _EYE3 = np.eye(3)
 
@@ -208,13 +233,32 @@ class MotionAwareGlt:
     """
 
     name = "glt_motion"
-    window = 1
     uses_input = True
 
     def __init__(self, model: MotionNoiseModel, p_fa: float = 1e-3, sample_rate: float = 1.0,
-                 input_is_rate: bool = True) -> None:
+                 input_is_rate: bool = True, window: int = 1, window_gain: Any = 1.0,
+                 bias_track_s: float | None = None, rest_rate: float = 0.02, rest_level: Any = None) -> None:
         if not sample_rate > 0:
             raise ValueError(f"sample_rate must be positive (Hz), got {sample_rate}")
+        if int(window) < 1:
+            raise ValueError(f"window must be at least 1 sample, got {window}")
+        #: samples of the window mean (1: the snapshot test); the manager confirms on ``confirm`` disjoint windows
+        self.window = int(window)
+        self.evidence_span = self.window
+        #: per sensor (n,): the variance of a window mean of its white noise over ``sigma^2 / window`` (1 for white
+        #: noise; more for noise correlated between samples: the chip's low-pass)
+        self.window_gain = _per(window_gain, model.n, "window_gain")
+        if bias_track_s is not None and not bias_track_s > 0:
+            raise ValueError(f"bias_track_s must be positive (s) or None, got {bias_track_s}")
+        #: time constant (s) of the relative-bias tracker at rest (None: none; module docstring)
+        self.bias_track_s = None if bias_track_s is None else float(bias_track_s)
+        self.rest_rate = float(rest_rate)
+        #: the estimate at rest (3,): the common bias no parity sees (the reference triad's), subtracted from the
+        #: input (the motion terms act on the rate); rest is ``|u - rest_level| < rest_rate``
+        self.rest_level = np.zeros(3) if rest_level is None else np.asarray(rest_level, float).reshape(3)
+        #: the tracked residual bias of each sensor (n,), output units: kept across set changes
+        self.tracked_bias = np.zeros(model.n)
+        self._r_raw: np.ndarray | None = None
         self.model = model
         self.p_fa = p_fa
         self.sample_rate = float(sample_rate)
@@ -253,9 +297,19 @@ class MotionAwareGlt:
             self._thr_cache[self._dof] = glt_threshold(self.p_fa, self._dof) if self._dof else float("inf")
         self._thr = self._thr_cache[self._dof]
         self._u_prev = None  # the derivative restarts with the set (the estimate may jump)
+        self._act_n = act
+        if self.bias_track_s is not None:  # the tracked value's own variance (an EMA of white noise)
+            al = min(1.0, 1.0 / (self.bias_track_s * self.sample_rate))
+            self._trk_var = mdl.sigma[mdl._p0] ** 2 * self.window_gain[mdl._p0] * (al / (2.0 - al)) * mdl.real
+        if self.window > 1:  # the window restarts with the set
+            self._wr = np.zeros((self.window, mdl.n))
+            self._wm = np.zeros((self.window,) + mdl._Ab.shape[:2] + (mdl._Ab.shape[1],))
+            self._wi = self._wc = 0
+            self._white = mdl.sigma[mdl._p0] ** 2 * self.window_gain[mdl._p0] * mdl.real
+            self._const = mdl.extra_var[mdl._p0] * mdl.real
 
     def set_input(self, u: np.ndarray) -> None:
-        u = np.array(u, dtype=float)
+        u = np.array(u, dtype=float) - self.rest_level  # the rate: the common bias at rest is not motion
         self._du = (u - self._u_prev) * self.sample_rate if self._u_prev is not None else np.zeros(3)
         self._u_prev = u
         self._u = u
@@ -269,12 +323,26 @@ class MotionAwareGlt:
         mdl = self.model
         d = self._dof
         r = self._s2 * (parity[:d] @ self._V)  # WLS residual of the outputs (0 on inactive sensors)
-        if self.input_is_rate:
-            B = mdl.blocks(self._u, self._du)
-        else:
+        if self.bias_track_s is not None:
+            self._r_raw = r
+            r = r - self.tracked_bias * self._act_n
+        rate = dg = None
+        if not self.input_is_rate:
             rate = self._rate if self._rate is not None else np.zeros(3)
             dg = self._dgyro if self._dgyro is not None else np.zeros(3)
+        if self.window == 1:
             B = mdl.blocks(self._u, self._du, rate, dg)
+        else:  # the window mean: white noise / c (times its gain), the motion part's mean (a bound: module doc)
+            i = self._wi
+            self._wr[i] = r
+            self._wm[i] = mdl.blocks(self._u, self._du, rate, dg, white=False)
+            self._wi = (i + 1) % self.window
+            self._wc = c = min(self.window, self._wc + 1)
+            r = self._wr.sum(axis=0) / c
+            B = self._wm.sum(axis=0) / c
+            B[mdl._diag] += self._white / c + self._const
+        if self.bias_track_s is not None:
+            B[mdl._diag] += self._trk_var
         # inactive slots: identity rows and columns, zero residual and zero axis
         if not self._all:
             B *= self._pair
@@ -302,7 +370,12 @@ class MotionAwareGlt:
             self.model_exceeded = bool(np.linalg.norm(self._u) > env[0] or np.linalg.norm(self._du) > env[1])
         if self._dof < 1:
             return 0.0, float("inf")
-        return self._solve(parity), self._thr
+        stat = self._solve(parity)
+        if self.bias_track_s is not None and stat <= self._thr and float(np.linalg.norm(self._u)) < self.rest_rate:
+            al = min(1.0, 1.0 / (self.bias_track_s * self.sample_rate))  # at rest, no alarm: follow the drift
+            a = self._act_n
+            self.tracked_bias[a] += al * (self._r_raw[a] - self.tracked_bias[a])
+        return stat, self._thr
 
     def isolate(self, parity: np.ndarray) -> tuple[int, np.ndarray]:
         """Bias likelihood ratio of each active sensor for the last sample (after an alarm)."""
@@ -468,7 +541,8 @@ def fit_motion_terms(model: MotionNoiseModel, residuals: np.ndarray, G: np.ndarr
 def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, valid: np.ndarray | None,
                         sample_rate: float, margin: float = 3.0, p_fa: float = 1e-3,
                         terms: tuple[str, ...] = _FIT_TERMS[1:], min_samples: int = 50,
-                        envelope: float | None = 1.0) -> MotionAwareGlt:
+                        envelope: float | None = 1.0, window: int = 1,
+                        bias_track_s: float | None = None, still: np.ndarray | None = None) -> MotionAwareGlt:
     """A gyro :class:`MotionAwareGlt` whose motion terms are fitted on fault-free raw data of the unit.
 
     The data go through the runtime pipeline with every sensor active; the samples where every sensor is valid
@@ -488,6 +562,17 @@ def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, val
         The detector's :attr:`MotionAwareGlt.envelope` is ``envelope`` times the largest |angular rate| and
         |angular acceleration| of the fit samples: beyond it the fitted terms are an extrapolation and an alarm
         is reported as ``model_exceeded`` (the unit DEGRADED, nothing isolated). None: no envelope.
+    window : int
+        Samples of the detector's window mean (:class:`MotionAwareGlt`, module docstring); with more than one,
+        each sensor's ``window_gain`` is measured on the fit span's rest (rate below 0.02 rad/s, in runs of at
+        least four windows, each run's mean removed): the variance of an L-sample mean of its residual over
+        1/L of its variance, at least 1.
+    bias_track_s : float or None
+        Time constant of the detector's relative-bias tracker at rest (:class:`MotionAwareGlt`); None: none.
+    still : ndarray (N,) of bool, optional
+        The samples at rest (e.g. :attr:`rimu.calibration.multi_imu.MultiImuSetup.still`); default: the estimate
+        within 0.02 rad/s of zero. Given, their median estimate is the detector's ``rest_level`` (the array's
+        common bias, which no parity sees): the motion terms are fitted and evaluated on the rate from it.
 
     Returns
     -------
@@ -508,15 +593,45 @@ def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, val
         raise ShapeError(f"only {int(full.sum())} samples with every gyro valid to fit the motion terms; give a "
                          f"longer fault-free span (at least {min_samples} samples)")
     res = pipe.table.sigma**2 * (blk.parity @ pipe.table.Vz[0])
-    alpha = np.gradient(blk.x, 1.0 / sample_rate, axis=0)
+    x = np.where(np.isfinite(blk.x), blk.x, 0.0)
+    level = np.zeros(3)
+    if still is None:  # rest: the estimate within 0.02 rad/s of zero
+        rest = full & (np.linalg.norm(x, axis=1) < 0.02)
+    else:  # the estimate at rest is the common bias no parity sees (the reference triad's): not a rate
+        rest = full & np.asarray(still, bool)
+        level = np.median(x[rest], axis=0) if rest.any() else level
+    x = x - level
+    alpha = np.gradient(x, 1.0 / sample_rate, axis=0)
     model = fit_motion_terms(MotionNoiseModel(calibration, sigma=pipe.table.sigma), res[full], pipe.table.G[0],
-                             blk.x[full], alpha[full], terms=terms, margin=margin)
-    det = MotionAwareGlt(model, p_fa, sample_rate=sample_rate)
+                             x[full], alpha[full], terms=terms, margin=margin)
+    gain = _window_gain(res, rest, int(window)) if window > 1 else 1.0
+    det = MotionAwareGlt(model, p_fa, sample_rate=sample_rate, window=window, window_gain=gain,
+                         bias_track_s=bias_track_s, rest_level=level)
     det.fit_samples = int(full.sum())
     if envelope is not None:
-        det.envelope = (float(envelope * np.linalg.norm(blk.x[full], axis=1).max()),
+        det.envelope = (float(envelope * np.linalg.norm(x[full], axis=1).max()),
                         float(envelope * np.linalg.norm(alpha[full], axis=1).max()))
     return det
+
+
+def _window_gain(res: np.ndarray, rest: np.ndarray, L: int) -> np.ndarray:
+    """Per sensor: the variance of an L-sample mean of its residual ``res`` (N, n) over ``var / L``, measured
+    in the runs of ``rest`` of at least ``4 L`` samples with each run's mean removed; 1 where there is no rest
+    (white noise assumed), never below 1."""
+    n = res.shape[1]
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], rest.astype(np.int8), [0]])))
+    num, den = np.zeros(n), np.zeros(n)
+    for a, b in zip(edges[::2], edges[1::2]):
+        if b - a < 4 * L:
+            continue
+        x = res[a:b] - res[a:b].mean(axis=0)
+        c = np.cumsum(np.vstack([np.zeros(n), x]), axis=0)
+        m = (c[L:] - c[:-L]) / L
+        num += (m * m).sum(axis=0) / len(m) * (b - a)
+        den += (x * x).mean(axis=0) * (b - a)
+    if not den.any():
+        return np.ones(n)
+    return np.maximum(1.0, L * num / np.where(den > 0, den, 1.0))
 
 
 #: what a fault-free fit span may need: extra white noise up to 4 times a sensor's calibrated variance (its noise
@@ -567,3 +682,51 @@ def check_fit_span(calibration: InstrumentCalibration, detector: MotionAwareGlt,
                                  f"detector, run over it, {ev.kind.replace('_', ' ')} {ev.sensor or ''} at t = "
                                  f"{ev.t:.4g} s); give a shorter --motion-fit that ends before the fault, or fit on "
                                  "a fault-free recording")
+
+
+def motion_detector_to_dict(detector: MotionAwareGlt) -> dict[str, Any]:
+    """The fitted motion terms and envelope of a gyro :class:`MotionAwareGlt` as plain lists (SI: rad, s,
+    (rad/s)^2 per (rad/s)^2, ...), for a unit file (``rimu setup --motion-fit``); the noise and axes stay in the
+    calibration. :func:`motion_detector_from_dict` makes the same detector again.
+
+    Examples
+    --------
+    >>> from rimu.geometry import triads
+    >>> cal = InstrumentCalibration.nominal("gyro", triads(3), 1.0, noise_sigma=0.01)
+    >>> det = MotionAwareGlt(MotionNoiseModel(cal, scale_rel=0.01, rate_var=1e-6), sample_rate=100.0)
+    >>> det.envelope = (3.0, 50.0)
+    >>> d = motion_detector_to_dict(det)
+    >>> again = motion_detector_from_dict(cal, d, p_fa=1e-3)
+    >>> again.envelope, float(again.model.rate_var[0]), again.sample_rate
+    ((3.0, 50.0), 1e-06, 100.0)
+    """
+    m = detector.model
+    out: dict[str, Any] = {k: np.asarray(getattr(m, k), float).tolist() for k in _STORED_TERMS}
+    out["sample_rate_hz"] = float(detector.sample_rate)
+    out["window"] = int(detector.window)
+    out["bias_track_s"] = detector.bias_track_s
+    out["rest_level"] = np.asarray(detector.rest_level, float).tolist()
+    out["window_gain"] = np.asarray(detector.window_gain, float).tolist()
+    out["fit_samples"] = int(detector.fit_samples)
+    out["envelope"] = None if detector.envelope is None else [float(v) for v in detector.envelope]
+    return out
+
+
+def motion_detector_from_dict(calibration: InstrumentCalibration, stored: dict[str, Any], p_fa: float = 1e-3,
+                              sample_rate: float | None = None) -> MotionAwareGlt:
+    """The gyro :class:`MotionAwareGlt` of stored motion terms (:func:`motion_detector_to_dict`) on
+    ``calibration`` (its noise and axes); ``sample_rate`` defaults to the stored one (the rate the terms were
+    fitted at: the angular acceleration is a difference of successive samples)."""
+    try:
+        terms = {k: np.asarray(stored[k], float) for k in _STORED_TERMS}
+        fs = float(stored["sample_rate_hz"]) if sample_rate is None else float(sample_rate)
+        env = stored.get("envelope")
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ShapeError(f"stored motion terms are incomplete or malformed ({exc}); fit them again "
+                         "(rimu setup --motion-fit)") from None
+    det = MotionAwareGlt(MotionNoiseModel(calibration, **terms), p_fa, sample_rate=fs,
+                         window=int(stored.get("window", 1)), window_gain=stored.get("window_gain", 1.0),
+                         bias_track_s=stored.get("bias_track_s"), rest_level=stored.get("rest_level"))
+    det.fit_samples = int(stored.get("fit_samples", 0))
+    det.envelope = None if env is None else (float(env[0]), float(env[1]))
+    return det

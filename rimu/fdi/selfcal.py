@@ -63,13 +63,15 @@ from ..noise.model import FLICKER_AVAR
 from .glt import GltWindow, glt_threshold
 from .health import SensorState
 
-__all__ = ["BLOCKS", "SelfCalLoop", "SelfCalSettings", "SelfCalState", "SelfCalTracker", "SelfCalUpdate", "SelfCalibratingRun",
+__all__ = ["BLOCKS", "GROUPS", "SelfCalLoop", "SelfCalSettings", "SelfCalState", "SelfCalTracker", "SelfCalUpdate", "SelfCalibratingRun",
            "SelfCalRunResult", "TrackedGltWindow", "bias_random_walk", "minimum_detectable_bias",
            "unobservable_basis"]
 
 #: the state's blocks, in order (each holds one value per sensor)
 BLOCKS = ("bias", "scale", "tc1", "tc2", "tc3")
 _BIAS_LIKE = ("bias", "tc1", "tc2", "tc3")
+#: the groups of blocks the held-out check of :class:`SelfCalLoop` applies or suspends as one
+GROUPS = (("bias", ("bias",)), ("scale", ("scale",)), ("temperature", ("tc1", "tc2", "tc3")))
 
 
 def bias_random_walk(noise: Any, factor: float = 1.0, horizon_s: float = 3600.0) -> np.ndarray:
@@ -141,6 +143,14 @@ class SelfCalSettings:
     watch_p : float
         :class:`SelfCalLoop` treats a detector statistic above ``chi2_{1 - watch_p}(dof)`` like an alarm
         for the tracker (a fault building up below the alarm threshold is not absorbed).
+    guard_s : float or None
+        Memory (time constant, s) of :class:`SelfCalLoop`'s held-out check: each group of terms (biases, scales,
+        temperature) corrects the outputs only while, on the windows of about the last ``guard_s`` and on all windows
+        since the start, the terms fitted before each window lowered that window's parity (see :class:`SelfCalLoop`); None: no check,
+        every tracked term is applied.
+    guard_z : float
+        How significant the held-out gain must be: a group is applied while its summed gain exceeds ``guard_z``
+        times its standard deviation (2: about 2.3 % one-sided).
     """
 
     bias_rw: Any
@@ -153,10 +163,14 @@ class SelfCalSettings:
     gate_p: float = 1e-4
     hold_s: float = 10.0
     watch_p: float = 0.01
+    guard_s: float | None = 60.0
+    guard_z: float = 2.0
 
     def __post_init__(self) -> None:
         if not (self.window_s > 0 and 0 < self.gate_p < 1 and self.hold_s >= 0 and 0 < self.watch_p < 1):
             raise ValueError("window_s must be positive, gate_p and watch_p in (0, 1), hold_s >= 0")
+        if self.guard_s is not None and not self.guard_s > 0:
+            raise ValueError(f"guard_s must be positive (s) or None, got {self.guard_s}")
         if self.temperature_sigma is not None and not 1 <= len(self.temperature_sigma) <= 3:
             raise ValueError("temperature_sigma holds one prior sigma per order, orders 1 to 3")
 
@@ -606,7 +620,23 @@ class SelfCalLoop:
     * **fault-aware absorption**: a window in which the manager alarmed, or its statistic exceeded the ``watch_p``
       level, throws away itself and every window still waiting (an open alarm episode and its lead-up are never
       absorbed); the others are absorbed ``hold_s`` later, the sensors isolated then frozen (Schmidt), the sensors
-      invalid in the window left out.
+      invalid in the window left out;
+    * **never worse silently: the held-out check** (``guard_s``; :data:`GROUPS`). At the end of every window
+      (absorbed later or thrown away: the violent stretches count; the sensors not isolated, on the samples where
+      all of them are valid, or if there is none, those valid throughout the window), its parity is computed with the terms fitted
+      before it (the window is held out) with and without each group of terms (biases, scales, temperature). The group's gain is the sum of squares of the
+      normalised parity it removes, given the other groups applied: ``g = |p - D_(-g)|^2 - |p - D|^2`` summed over
+      the window's samples (``p`` the fixed calibration's parity, ``D`` that of the applied correction). Its
+      expectation ``2 e.D_g - |D_g|^2`` (``e`` the true error's parity) is positive exactly when the group's
+      correction is nearer to the truth than no correction; its variance is estimated from the window itself,
+      ``4 sum_k (r_k . D_gk)^2`` (``r`` the parity without the group; White's sandwich estimate: ``4 |D_g|^2`` for
+      white parity, larger where the parity is not). The gains and these variances are summed with the memory ``guard_s`` (exponential forgetting)
+      and over the whole run, and a group corrects the outputs only while both sums exceed ``guard_z`` standard
+      deviations (it has lowered the held-out parity significantly, lately and since the start); otherwise it is
+      suspended (the filter keeps tracking it, so it comes back when its predictions do). :meth:`guard` reports
+      which groups are applied, how often they were suspended, the held-out parity rms with the fixed calibration
+      and with the terms applied, and the filter's normalised innovations per degree of freedom (1 when the model
+      fits the data).
 
     Parameters
     ----------
@@ -640,7 +670,9 @@ class SelfCalLoop:
     >>> c = loop.terms()["bias"][0]                   # what the parity tells: the drift without its common mode
     >>> d = np.array([0.02, 0, 0, 0, 0, 0])
     >>> bool(np.abs(c - (d - trk.common_mode(d))).max() < 3e-3), loop.accepted, mgr.health.isolated
-    (True, 29, [])
+    (True, 26, [])
+    >>> loop.guard()["groups"]["bias"]["applied"]      # the held-out check: the bias lowers the parity, applied
+    True
     """
 
     def __init__(self, tracker: SelfCalTracker, sample_rate: float, detector: Any = None,
@@ -671,12 +703,105 @@ class SelfCalLoop:
         self._watch: dict[int, float] = {}
         self._scale = tracker.calibration.scale
         self.last_correction = np.zeros(n)
+        # the held-out check: per group, the blocks it holds, its forgotten gain, its counts
+        self._groups = [(g, np.array([b in blks for b in tracker.blocks]))
+                        for g, blks in GROUPS if any(b in blks for b in tracker.blocks)]
+        G = len(self._groups)
+        self._guard = st.guard_s is not None
+        self._applied = np.full(G, not self._guard)
+        self._mask = self._block_mask()
+        self._gain = np.zeros(G)
+        self._gain_total = np.zeros(G)
+        self._var = np.zeros(G)
+        self._var_total = np.zeros(G)
+        self._t_gain: float | None = None
+        self._suspended_windows = np.zeros(G, int)
+        self._suspensions = np.zeros(G, int)
+        self._ss = np.zeros(2)              # held-out sums of squares: fixed, applied
+        self._n_par = 0
+        self._nis = np.zeros(2)             # sum of d2, sum of dof (windows tested by the gate)
 
     def _watch_level(self, dof: int) -> float:
         v = self._watch.get(dof)
         if v is None:
             v = self._watch[dof] = glt_threshold(self.tracker.settings.watch_p, max(int(dof), 1))
         return v
+
+    def _block_mask(self) -> np.ndarray:
+        mask = np.zeros(self.tracker.m)
+        for (_, blk), on in zip(self._groups, self._applied):
+            mask[blk] = float(on)
+        return mask
+
+    def _check(self, state: SelfCalState, z: np.ndarray, g: np.ndarray, active: np.ndarray, t: float) -> None:
+        """The held-out check of one window (``z`` (M, n) compensated outputs, ``g`` (M, m, n) regressors, ``active``
+        the sensors not isolated) with the state fitted before it; updates which groups are applied (see the class
+        docstring)."""
+        trk = self.tracker
+        full = self._ok[:, active].all(axis=1)
+        if full.any():      # the samples where every sensor not isolated is valid, with all of them
+            z, g = z[full], g[full]
+        else:               # else the sensors valid throughout the window
+            active = active & self._ok.all(axis=0)
+        Vz = trk.parity_rows(active)
+        if Vz.shape[0] < 1 or not self._groups:
+            return
+        p = z @ Vz.T                                                      # (M, r) the fixed calibration's parity
+        D = np.einsum("kbn,bn,rn->bkr", g, state.theta.reshape(trk.m, trk.n), Vz)
+        Dg = np.stack([D[blk].sum(axis=0) for _, blk in self._groups])    # (G, M, r)
+        app = self._applied
+        Da = Dg[app].sum(axis=0) if app.any() else np.zeros_like(p)
+        ss_a = float(np.sum((p - Da) ** 2))
+        gains = np.array([float(np.sum((p - Da + Dg[j]) ** 2)) - ss_a if app[j]
+                          else ss_a - float(np.sum((p - Da - Dg[j]) ** 2)) for j in range(len(self._groups))])
+        # the gain's variance, robust to parity that is not white (White's sandwich): 4 sum_k (r_k . D_gk)^2, r the
+        # parity without the group
+        R = p[None] - Da[None] + np.where(app[:, None, None], Dg, 0.0)
+        var = 4.0 * np.sum(np.sum(R * Dg, axis=2) ** 2, axis=1)
+        decay = 1.0 if self._t_gain is None else math.exp(-max(t - self._t_gain, 0.0) / trk.settings.guard_s)
+        self._t_gain = t
+        self._gain = decay * self._gain + gains
+        self._var = decay * decay * self._var + var
+        self._gain_total += gains
+        self._var_total += var
+        self._ss += (float(np.sum(p * p)), ss_a)
+        self._n_par += p.size
+        z = trk.settings.guard_z
+        new = (self._gain > z * np.sqrt(self._var)) & (self._gain_total > z * np.sqrt(self._var_total))
+        self._suspensions += app & ~new
+        self._applied = new
+        self._mask = self._block_mask()
+
+    def _absorb(self, t: float, iso: np.ndarray) -> None:
+        """Absorb the waiting windows that ended ``hold_s`` or more before ``t`` (s)."""
+        trk = self.tracker
+        while self._pending and self._pending[0][0] <= t - trk.settings.hold_s:
+            tp, zp, gp, actp = self._pending.pop(0)
+            s0 = trk.predict(self.state, max(tp, self.state.t))
+            s1, info = trk.update(s0, zp, gp, actp, ~actp | iso)
+            if info.dof >= 1 and info.gate < float("inf"):
+                self._nis += (info.d2, info.dof)
+            self.accepted += int(info.accepted)
+            self.rejected += int(not info.accepted and info.gate < float("inf"))
+            self.state = s1
+
+    def guard(self) -> dict[str, Any]:
+        """What the held-out check did (see the class docstring): per group ``applied`` (now), ``suspended_windows``
+        (windows started while suspended), ``suspensions`` (times it was switched off), ``heldout_gain`` (sum of
+        squares of the normalised parity it removed on held-out windows, sigma^2, with every window; negative: it
+        made them worse); overall ``heldout_rms_fixed`` / ``heldout_rms_applied`` (normalised parity rms of the
+        windows with the fixed calibration and with the terms applied, sigma), ``nis_per_dof`` (the
+        filter's normalised innovations per degree of freedom, 1 when its model fits; None before any window)."""
+        npar = max(self._n_par, 1)
+        return {"enabled": self._guard,
+                "groups": {g: {"applied": bool(a), "suspended_windows": int(sw), "suspensions": int(sn),
+                               "heldout_gain": float(gt)}
+                           for (g, _), a, sw, sn, gt in zip(self._groups, self._applied, self._suspended_windows,
+                                                            self._suspensions, self._gain_total)},
+                "heldout_windows_parity_values": int(self._n_par),
+                "heldout_rms_fixed": float(math.sqrt(self._ss[0] / npar)),
+                "heldout_rms_applied": float(math.sqrt(self._ss[1] / npar)),
+                "nis_per_dof": float(self._nis[0] / self._nis[1]) if self._nis[1] > 0 else None}
 
     def take_history(self) -> list[tuple[float, np.ndarray, np.ndarray, np.ndarray]]:
         """The windows' entries of :attr:`history` since the last call (and forget them: a long replay's memory
@@ -713,7 +838,8 @@ class SelfCalLoop:
                 del self._recent[:-self.span]
                 self.detector.set_tracker_covariance(max(self._recent, key=lambda c: float(np.trace(c))))
             self._flag = False
-        c = trk.Pi @ np.einsum("bn,bn->n", g, self._th)
+            self._suspended_windows += ~self._applied
+        c = trk.Pi @ np.einsum("bn,bn->n", g, self._th * self._mask[:, None])
         self._z[k] = z
         self._g[k] = g
         self._ok[k] = ok
@@ -739,14 +865,12 @@ class SelfCalLoop:
             self.discarded += len(self._pending) + 1
             self._pending = []
         else:
+            self._absorb(t, iso)       # the windows whose hold has passed, before this one
+        if self._guard:  # every window, absorbed or not, with the terms fitted before it (held out)
+            self._check(self.state, self._z, self._g, ~iso, t)
+        if not self._flag:
             self._pending.append((t, self._z.copy(), self._g.copy(), self._ok.all(axis=0) & ~iso))
-        while self._pending and self._pending[0][0] <= t - trk.settings.hold_s:
-            tp, zp, gp, actp = self._pending.pop(0)
-            s0 = trk.predict(self.state, max(tp, self.state.t))
-            s1, info = trk.update(s0, zp, gp, actp, ~actp | iso)
-            self.accepted += int(info.accepted)
-            self.rejected += int(not info.accepted and info.gate < float("inf"))
-            self.state = s1
+            self._absorb(t, iso)
         if self.keep_history:
             terms = trk.terms(trk.predict(self.state, max(t, self.state.t)))
             self.history.append((t, np.stack([terms[b][0] for b in trk.blocks]),

@@ -413,7 +413,7 @@ def check_units(streams: Sequence[ImuStream], source: Any, declared: dict[str, d
     >>> ok = ImuStream("a", t, np.full((100, 3), 0.1), np.tile([0.0, 0.0, 9.81], (100, 1)))
     >>> g = ImuStream("b", t, np.full((100, 3), 0.1), np.tile([0.0, 0.0, 1.0], (100, 1)))
     >>> check_units([ok, g], "f.csv", checks="warn")
-    ["f.csv: IMU 'b' accel: median specific force 1 m/s^2, not about 1 g (9.807 m/s^2): the values look like g declared as m/s^2; fix accel_unit of 'b' in the mapping"]
+    ["f.csv: IMU 'b' accel: median specific force 1 m/s^2, not about 1 g (9.807 m/s^2): the values look like g declared as m/s^2; fix accel_unit of 'b' (--accel-unit, or the mapping)"]
     """
     from ..errors import PlausibilityError
 
@@ -428,14 +428,14 @@ def check_units(streams: Sequence[ImuStream], source: Any, declared: dict[str, d
                 likely = [v for v in _QUANTITY_UNITS["accel"] if 0.5 * G0 <= norm / have * UNIT_FACTORS[v] <= 2 * G0]
                 cause = f"the values look like {likely[0]} declared as {unit}" if likely else "check the unit"
                 found.append(f"{source}: IMU {u.name!r} accel: median specific force {norm:.4g} m/s^2, not about 1 g "
-                             f"({G0:.4g} m/s^2): {cause}; fix accel_unit of {u.name!r} in the mapping")
+                             f"({G0:.4g} m/s^2): {cause}; fix accel_unit of {u.name!r} (--accel-unit, or the mapping)")
     gy = [u for u in streams if u.gyro is not None and np.isfinite(u.gyro).any()]
     for u in gy:
         peak = float(np.nanmax(np.abs(u.gyro)))
         if peak > GYRO_RANGE_RAD_S:
             found.append(f"{source}: IMU {u.name!r} gyro reaches {peak:.4g} rad/s, beyond any MEMS gyro's range "
                          f"({GYRO_RANGE_RAD_S:.4g} rad/s = 4000 deg/s): the values look like deg/s declared as rad/s; "
-                         f"fix gyro_unit of {u.name!r} in the mapping")
+                         f"fix gyro_unit of {u.name!r} (--gyro-unit, or the mapping)")
     if len(gy) >= 2:
         rms = np.array([float(np.sqrt(np.nanmean(u.gyro ** 2))) for u in gy])
         for j, u in enumerate(gy):
@@ -447,7 +447,7 @@ def check_units(streams: Sequence[ImuStream], source: Any, declared: dict[str, d
                 likely = "deg/s declared as rad/s" if r > 1 else "rad/s declared as deg/s"
                 found.append(f"{source}: IMU {u.name!r} gyro: rms rate {rms[j]:.4g} rad/s against {others:.4g} "
                              f"rad/s of the other IMUs on the same vehicle ({r:.3g} times): the values look like "
-                             f"{likely}; fix gyro_unit of {u.name!r} in the mapping")
+                             f"{likely}; fix gyro_unit of {u.name!r} (--gyro-unit, or the mapping)")
     if found and checks == "strict":
         raise PlausibilityError("; ".join(found) + " (or read with checks='warn')")
     return found

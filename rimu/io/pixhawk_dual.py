@@ -26,12 +26,17 @@ PIXHAWK_DUAL_MAPPING: dict[str, Any] = {
 }
 
 
-def read_pixhawk_dual(path: str | os.PathLike[str]) -> MultiImuRecording:
-    """Read the CSV (or a folder holding ``01_07_59_imu01.csv.xz``) as a two-IMU recording."""
+def read_pixhawk_dual(path: str | os.PathLike[str], gyro_unit: str | float | None = None,
+                      accel_unit: str | float | None = None) -> MultiImuRecording:
+    """Read the CSV (or a folder holding ``01_07_59_imu01.csv.xz``) as a two-IMU recording: rad/s and m/s^2 as
+    PX4's extraction writes them, unless ``gyro_unit`` / ``accel_unit`` declare otherwise (a file of this layout
+    written by another tool)."""
     p = Path(path)
     if p.is_dir():
         p = p / "01_07_59_imu01.csv.xz"
-    rec = read_multi_imu_csv(PIXHAWK_DUAL_MAPPING, p)
+    declared = {k: v for k, v in (("gyro_unit", gyro_unit), ("accel_unit", accel_unit)) if v is not None}
+    mapping = {**PIXHAWK_DUAL_MAPPING, "imus": [{**imu, **declared} for imu in PIXHAWK_DUAL_MAPPING["imus"]]}
+    rec = read_multi_imu_csv(mapping, p)
     rec.meta.update({"format": "pixhawk-dual", "body_frame": True, "devices": {"imu0": "MPU-6000", "imu1": "L3GD20 + LSM303D"}})
     return rec
 

@@ -57,6 +57,13 @@ def identify(outputs: dict[str, np.ndarray], sample_rate: float, axes_mb: dict[s
         insts[k] = fit_instrument(ad, k, terms)
         A = (axes_mb or {}).get(k)
         if A is not None and np.asarray(A).shape[0] >= 4:
+            white = np.asarray(insts[k].terms["white"], dtype=float)
+            bad = [n for n, w in zip(nm, white) if not (np.isfinite(w) and w > 0)]
+            if bad:
+                raise IdentifiabilityError(
+                    f"no white noise could be identified for {len(bad)} of {len(nm)} {k} sensors ({', '.join(bad[:4])}"
+                    f"{', ...' if len(bad) > 4 else ''}): their Allan deviation has no -1/2 slope, as on a moving "
+                    "recording; noise identification needs the unit still: give a static recording")
             pw = parity_allan(z, A, sample_rate, insts[k], instrument=k, p_fa=p_fa, per_decade=per_decade)
             parity[k] = pw.to_dict()
     return NoiseModel(insts, parity, meta=dict(meta or {}))

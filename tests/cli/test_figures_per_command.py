@@ -70,22 +70,30 @@ def test_simulate_writes_counts_of_the_stated_scale(unit, capsys, tmp_path):
 
 
 def test_design_prints_eq19_in_the_units_of_its_header(capsys, tmp_path):
-    out = _cli(capsys, "design", "--duration", "10", "--json", tmp_path / "d.json")
+    # a navigation-grade noise (ug, deg/h) and a very noisy one (mg, deg/s, %, deg): each column in the field
+    # unit of its figures (rimu.units.fmt), every figure the JSON's SI value in the unit its header states
+    heads = []
+    for noise in ([], ["--vrw", "200000", "--arw", "1000"]):
+        out = _cli(capsys, "design", "--duration", "10", *noise, "--json", tmp_path / "d.json")
+        doc = json.loads((tmp_path / "d.json").read_text())["predicted_std_si"]
+        i = next(k for k, ln in enumerate(out) if ln.strip().startswith("sensor"))
+        cols = re.findall(r"(acc|gyro) (SF|mis|bias) (\S+)", out[i])
+        assert len(cols) == 6, out[i]
+        heads.append([c[2] for c in cols])
+        quantity = {"SF": "ratio", "mis": "angle"}
+        rows = [ln.split() for ln in out[i + 1:i + 7]]
+        for r in rows:
+            name = r[0]
+            for (inst, what, u), v in zip(cols, map(float, r[1:])):
+                d = doc["accel" if inst == "acc" else "gyro"]
+                q = quantity.get(what, "specific_force" if inst == "acc" else "rate")
+                si = to_si(v, u, q)
+                truth = (max(x for k, x in d.items() if k.startswith(name + ".mis")) if what == "mis"
+                         else d[f"{name}.{'scale' if what == 'SF' else 'bias'}"])
+                assert si == pytest.approx(truth, rel=1e-3), (name, inst, what, v, u)
+    assert heads == [["ppm", "arcsec", "ug", "ppm", "arcsec", "deg/h"], ["%", "deg", "mg", "%", "deg", "deg/s"]]
+    _cli(capsys, "design", "--duration", "10", "--json", tmp_path / "d.json")
     doc = json.loads((tmp_path / "d.json").read_text())["predicted_std_si"]
-    i = next(k for k, ln in enumerate(out) if ln.strip().startswith("sensor"))
-    cols = re.findall(r"(acc|gyro) (SF|mis|bias) (\S+)", out[i])
-    assert len(cols) == 6, out[i]
-    quantity = {"SF": "ratio", "mis": "angle"}
-    rows = [ln.split() for ln in out[i + 1:i + 7]]
-    for r in rows:
-        name = r[0]
-        for (inst, what, u), v in zip(cols, map(float, r[1:])):
-            d = doc["accel" if inst == "acc" else "gyro"]
-            q = quantity.get(what, "specific_force" if inst == "acc" else "rate")
-            si = to_si(v, u, q)
-            truth = (max(x for k, x in d.items() if k.startswith(name + ".mis")) if what == "mis"
-                     else d[f"{name}.{'scale' if what == 'SF' else 'bias'}"])
-            assert si == pytest.approx(truth, rel=0.01, abs=0.6 * to_si(0.01, u, q)), (name, inst, what, v, u)
     # Cho & Park Eq. 19: the standard deviations fall as 1/sqrt(samples): four times the duration, half of each
     _cli(capsys, "design", "--duration", "40", "--json", tmp_path / "d4.json")
     doc4 = json.loads((tmp_path / "d4.json").read_text())["predicted_std_si"]

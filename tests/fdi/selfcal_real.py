@@ -66,9 +66,12 @@ def compare(rec, p_fa: float = 1e-3, confirm: int = 3) -> dict:
     blk = su.block
     Y, V, t = blk.raw["gyro"], blk.valid["gyro"], blk.t
     trk = SelfCalTracker(cal, settings())
-    mgr = RedundancyManager(InstrumentPipeline(cal), TrackedGltWindow(1, p_fa), p_fa=p_fa, confirm=confirm)
-    res = SelfCalibratingRun(mgr, trk).run(Y, V, t)
-    mgr0 = RedundancyManager(InstrumentPipeline(cal), TrackedGltWindow(1, p_fa), p_fa=p_fa, confirm=confirm)
+    mgr = RedundancyManager(InstrumentPipeline(cal), TrackedGltWindow(1, p_fa), p_fa=p_fa, confirm=confirm,
+                            common_cause=True)
+    run = SelfCalibratingRun(mgr, trk)
+    res = run.run(Y, V, t)
+    mgr0 = RedundancyManager(InstrumentPipeline(cal), TrackedGltWindow(1, p_fa), p_fa=p_fa, confirm=confirm,
+                            common_cause=True)
     res0 = mgr0.run(Y, V, t)
     second = (t >= t[0] + 0.5 * (t[-1] - t[0])) & np.all(V, axis=1) & np.all(np.isfinite(Y), axis=1)
     pipe = InstrumentPipeline(cal)
@@ -82,7 +85,7 @@ def compare(rec, p_fa: float = 1e-3, confirm: int = 3) -> dict:
             "invalid_isolations_tracked": sum(e.kind == "invalid_isolated" for e in iso),
             "invalid_isolations_fixed": sum(e.kind == "invalid_isolated" for e in iso0),
             "alarms_tracked": float(res.replay.alarm.mean()), "alarms_fixed": float(res0.alarm.mean()),
-            "result": res, "tracker": trk, "t": t, "second": second, "z_second": cal.compensate(
+            "result": res, "guard": run.loop.guard(), "tracker": trk, "t": t, "second": second, "z_second": cal.compensate(
                 np.where(np.isfinite(Y), Y, 0.0))[second]}
 
 

@@ -144,7 +144,25 @@ def flown(request):
         keep = lam > 1e-12 * lam.max()
         z.append((Q[:, keep].T @ e) / np.sqrt(lam[keep]))
     return {"name": request.param, "F": F, "N2": N2, "tracker": trk, "state": run.state, "z": np.concatenate(z),
-            "isolations": iso, "alarms": alarms, "accepted": accepted, "discarded": discarded}
+            "isolations": iso, "alarms": alarms, "accepted": accepted, "discarded": discarded,
+            "guard": run.loop.guard()}
+
+
+@pytest.mark.slow
+def test_the_held_out_check_keeps_tracking_where_there_is_drift(flown):
+    """The held-out check (docs/selfcal.md, 'never worse silently') on a flight that drifts: biases and temperature
+    terms are applied at the end and lower the held-out parity (the terms fitted before each window, on that
+    window) well below the fixed calibration's."""
+    g = flown["guard"]
+    print(f"\n{flown['name']}: held-out parity rms {g['heldout_rms_fixed']:.3f} sigma fixed, "
+          f"{g['heldout_rms_applied']:.3f} with the terms applied; "
+          + ", ".join(f"{k}: applied {v['applied']}, suspended {v['suspended_windows']} windows, held-out gain "
+                      f"{v['heldout_gain']:.3g} sigma^2" for k, v in g["groups"].items())
+          + f"; innovations per dof {g['nis_per_dof']:.2f}")
+    assert g["enabled"] and g["groups"]["bias"]["applied"] and g["groups"]["temperature"]["applied"]
+    assert g["groups"]["bias"]["heldout_gain"] > 0 and g["groups"]["temperature"]["heldout_gain"] > 0
+    assert g["heldout_rms_applied"] < 0.8 * g["heldout_rms_fixed"]
+    assert 0.8 < g["nis_per_dof"] < 1.25
 
 
 _NORMALISED = {}

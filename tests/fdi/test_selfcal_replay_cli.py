@@ -52,6 +52,11 @@ def test_replay_selfcal_shows_the_tracked_terms_and_decides_as_the_runtime(log, 
     summary = json.loads((d / "o" / "summary.json").read_text())["gyro"]
     assert summary["isolations"] == 0 and summary["selfcal"]["windows_absorbed"] > 120
     assert json.loads((d / "ev.json").read_text())["gyro"]["selfcal"] == summary["selfcal"]
+    # the held-out check: on this drifting flight the temperature terms lower the held-out parity and are applied
+    g = summary["selfcal"]["guard"]
+    assert g["enabled"] and g["groups"]["temperature"]["applied"] and g["groups"]["temperature"]["heldout_gain"] > 0
+    assert g["heldout_rms_applied"] < g["heldout_rms_fixed"]
+    assert "held-out check" in out
     est = read_estimates(d / "est.csv", {"gyro": 6})
     names = cone6().names
     blocks = ("bias", "scale", "tc1", "tc2", "tc3")

@@ -122,3 +122,20 @@ def test_cli_plain_recording(tmp_path, capsys) -> None:  # type: ignore[no-untyp
     assert np.allclose(m["gyro"].terms["white"], 1e-3, rtol=0.03)
     assert m.parity["gyro"]["white"] is True
     assert main(["noise", str(tmp_path / "z.npy")]) == 2     # no sample rate
+
+
+def test_a_moving_recording_is_refused_with_its_reason(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """Slow motion (0.5 rad/s at 0.05 Hz) over white noise of 1e-4 rad/s per sample hides the -1/2 slope at every
+    averaging time: no white noise is identified, and the parity check, which needs it, is refused with the
+    reason, not a shape error (the Pixhawk flight log did this from the command line)."""
+    from rimu.errors import IdentifiabilityError
+    from rimu.noise import identify
+
+    t = np.arange(60000) / 100.0
+    rng = np.random.default_rng(0)
+    z = 0.5 * np.stack([np.sin(2 * np.pi * 0.05 * t + i) for i in range(6)], 1) + 1e-4 * rng.standard_normal((60000, 6))
+    with pytest.raises(IdentifiabilityError, match="no white noise could be identified for 6 of 6 gyro.*static"):
+        identify({"gyro": z}, 100.0, {"gyro": cone6().H}, terms=("white", "bias_instability", "rate_random_walk"))
+    still = 1e-4 * rng.standard_normal((60000, 6))
+    model = identify({"gyro": still}, 100.0, {"gyro": cone6().H}, terms=("white",))
+    assert np.allclose(model["gyro"].terms["white"], 1e-5, rtol=0.05)  # 1e-4 per sample at 100 Hz: 1e-5 rad/sqrt(s)

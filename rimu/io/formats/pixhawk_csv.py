@@ -24,8 +24,11 @@ def sniff(name: str, head: bytes) -> bool:
     return head.startswith(b"t_s,imu0_gx")
 
 
-def read(path: str | os.PathLike[str], **options: Any) -> MultiImuRecording:
-    """Both IMUs in SI (see :mod:`rimu.io.pixhawk_dual`)."""
-    rec = read_pixhawk_dual(path)
-    rec.meta["units_from"] = {"gyro": "column names (rad/s, PX4 extraction)", "accel": "column names (m/s^2)"}
+def read(path: str | os.PathLike[str], gyro_unit: Any = None, accel_unit: Any = None,
+         **options: Any) -> MultiImuRecording:
+    """Both IMUs in SI (see :mod:`rimu.io.pixhawk_dual`; ``gyro_unit`` / ``accel_unit`` declare other units)."""
+    rec = read_pixhawk_dual(path, gyro_unit, accel_unit)
+    rec.meta["units_from"] = {
+        "gyro": "column names (rad/s, PX4 extraction)" if gyro_unit is None else f"declared ({gyro_unit})",
+        "accel": "column names (m/s^2)" if accel_unit is None else f"declared ({accel_unit})"}
     return rec
