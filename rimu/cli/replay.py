@@ -117,7 +117,7 @@ def _old_out(ns: argparse.Namespace, value: str) -> None:
 
 
 #: samples per chunk of the streaming replay; replays longer than this show a progress bar (one step per chunk)
-_CHUNK = 20_000
+_CHUNK = 5_000
 #: points per series the --report plot keeps (every d-th sample, d doubling as the replay grows)
 _PLOT_POINTS = 20_000
 #: fault types that act on each sample alone: injected chunk by chunk, they give the samples of one pass over

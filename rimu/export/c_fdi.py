@@ -37,7 +37,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtri  # chdtri(d, p) = chi2.isf(p, d), without importing scipy.stats (~40 MB)
 
 from ..fdi.settings import C_INT_MAX, MAX_ISOLATIONS, FdiSettings  # noqa: F401  (re-exported)
 
@@ -925,7 +925,7 @@ def fdi_defines(settings: FdiSettings, num: Any, nmax: int) -> str:
         f"#define RIMU_FDI_BLOCK {s.scatter_window // 2}L  /* in two blocks of this many */",
         f"#define RIMU_FDI_NU {len(thr) - 1}L  /* the largest nu = samples (dof - k) of its thresholds */",
         f"#define RIMU_FDI_MEAN_THR {num(s.mean_threshold())}  /* chi2_(1-p_fa)(1): mean residual, re-admission */",
-        f"#define RIMU_FDI_SAMPLE_THR {num(float(chi2.isf(1e-6, 1)))}  /* chi2_(1-1e-6)(1): each clean sample */",
+        f"#define RIMU_FDI_SAMPLE_THR {num(float(chdtri(1, 1e-6)))}  /* chi2_(1-1e-6)(1): each clean sample */",
         f"#define RIMU_FDI_NREQ {len(req)}",
         "/* clean samples before re-admission after the 1st, 2nd, ... isolation, and the energy threshold */",
         f"static const long rimu_fdi_required[RIMU_FDI_NREQ] = {{{', '.join(f'{r}L' for r in req)}}};",
@@ -945,4 +945,4 @@ def _table(values: np.ndarray, num: Any, per_line: int = 6) -> str:
 def fdi_tables(settings: FdiSettings, nmax: int) -> np.ndarray:
     """Detection thresholds by dof (0..nmax-3; the set test's are :meth:`FdiSettings.set_thresholds`)."""
     r = max(nmax - 3, 0)
-    return np.array([0.0] + [float(chi2.isf(settings.p_fa, d)) for d in range(1, r + 1)])
+    return np.array([0.0] + [float(chdtri(d, settings.p_fa)) for d in range(1, r + 1)])

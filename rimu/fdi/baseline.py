@@ -19,7 +19,6 @@ into x_hat), which is what makes this baseline isolate worse: the campaigns show
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import brentq
 from scipy.special import ndtr
 
 from .cusum import cached_design, markov_arl
@@ -66,6 +65,7 @@ class MeanDisagreement:
             hi = 1.0
             while markov_arl(hi, cdf, 120) < target:
                 hi *= 2
+            from scipy.optimize import brentq  # imported where used: scipy.optimize is ~18 MB
             _H_CACHE[key] = float(brentq(lambda h: markov_arl(h, cdf, 120) - target, hi / 2 if hi > 1 else 1e-3, hi,
                                             xtol=1e-3))
         return _H_CACHE[key]

@@ -43,8 +43,6 @@ from math import isfinite
 from operator import mul
 
 import numpy as np
-from scipy.optimize import brentq
-from scipy.stats import norm  # noqa: F401  (used by the doctests)
 
 from ..errors import NonFiniteError, ShapeError
 from ..fusion.backend import resolve_backend
@@ -83,6 +81,7 @@ def cusum_threshold(arl0: float, k: float) -> float:
     hi = 1.0
     while siegmund_arl(-k, hi) < arl0:
         hi *= 2.0
+    from scipy.optimize import brentq  # imported where used: scipy.optimize is ~18 MB
     return float(brentq(lambda h: siegmund_arl(-k, h) - arl0, 0.0, hi))
 
 
@@ -111,6 +110,7 @@ def cusum_threshold_mixture(arl0: float, k: float, sigma_mu: float, nodes: int =
         hi *= 2.0
         if hi > 1e9:
             raise ValueError(f"no CUSUM threshold reaches ARL0 {arl0:g} with a wander of {sigma_mu:g} against k = {k:g}")
+    from scipy.optimize import brentq  # imported where used: scipy.optimize is ~18 MB
     return float(brentq(excess, lo, hi)) if hi > lo else lo
 
 
@@ -120,6 +120,7 @@ def markov_arl(h: float, cdf: Callable[[np.ndarray], np.ndarray], states: int = 
     Brook & Evans 1972: the interval [0, h] is cut into ``states`` cells; the transition probabilities
     between cells give the run lengths by one linear solve, ``(I - R) L = 1``.
 
+    >>> from scipy.stats import norm
     >>> round(markov_arl(4.0, lambda x: norm.cdf(x + 0.5)), 1)  # k = 0.5, h = 4: tables give 336
     335.4
     """

@@ -24,7 +24,7 @@ from __future__ import annotations
 from enum import IntEnum
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtrc, chdtri
 
 __all__ = ["READMIT_AFTER", "SensorHealth", "SensorState"]
 
@@ -189,7 +189,7 @@ class SensorHealth:
         a fault whose sign changes, e.g. a scale-factor error under a swinging input, which the mean misses)."""
         cache = self.__dict__.setdefault("_energy", {})
         if N not in cache:
-            cache[N] = float(chi2.isf(chi2.sf(self.mean_threshold, 1), N))
+            cache[N] = float(chdtri(N, chdtrc(1, self.mean_threshold)))  # chi2.isf(chi2.sf(., 1), N)
         return cache[N]
 
     def clean_count(self, i: int) -> int:

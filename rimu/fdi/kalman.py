@@ -37,7 +37,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy.signal import lfilter
 
 from ..errors import NonFiniteError, ShapeError
 from ..fusion.backend import resolve_backend
@@ -234,6 +233,8 @@ class ParityKalman:
         # N samples (the isolation takes the transposed view, as BLAS does without a copy)
         ZT = P[:, :dof].T
         with np.errstate(invalid="ignore", over="ignore"):     # checked once, on the statistic
+            from scipy.signal import lfilter  # imported where used: scipy.signal brings scipy.stats (~40 MB)
+
             BT = lfilter([K], [1.0, -(1.0 - K)], ZT, axis=1)   # beta_k = (1 - K) beta_{k-1} + K p_k
             if self.test == "innovation":                       # nu_k = p_k - beta_{k-1}, as update(), into BT:
                 for e in range(BT.shape[1], 1, -_CHUNK):          # backwards, each chunk reads beta before it is

@@ -853,10 +853,69 @@ class RedundancyManager:
             t = (base + np.arange(N)) / (self.sample_rate or 1.0)
         t = np.asarray(t, float)
         out = _Collector(self, N)
+        fast = self.pipeline.backend == "numba" and type(self.detector) is GltSnapshot
+        buf = np.empty((min(N, _QUIET_MAX), 3 + max(self.n - 3, 0))) if fast else None
+        size = _QUIET_MIN
         with np.errstate(invalid="ignore", over="ignore"):  # non-finite raw values are routed around, not warned
-            for k in range(N):
+            k = 0
+            while k < N:
+                if fast and self._is_quiet():
+                    m = self._quiet_block(Y, valid, t, k, min(N, k + size), buf, out)
+                    k += m
+                    size = min(2 * size, _QUIET_MAX) if m == size else _QUIET_MIN
+                    if k >= N:
+                        break
                 out.add(k, self.step(Y[k], None if valid is None else valid[k], float(t[k])))
+                k += 1
         return out.result(t)
+
+    # ------------------------------------------------------------------ block fast path
+    def _is_quiet(self) -> bool:
+        """Whether a clean sample below the threshold would change nothing but the numbers: the last output took
+        :meth:`_output`'s common path on the isolation set, no episode, report, suspect, pending invalid run or
+        isolated sensor (nothing to re-admit)."""
+        return (self._plain_entry == self.pipeline.result.entry and self._cur == self._iso_code and not self._n_iso and not self._ep_n
+                and not self._not_isolable and not self._suspects_on and not self._invalid_pending
+                and not self._exceeded and not self._uses_input and self._observable)
+
+    def _quiet_block(self, Y: np.ndarray, valid: np.ndarray | None, t: np.ndarray, k0: int, k1: int,
+                     buf: np.ndarray, out: _Collector) -> int:
+        """Samples k0.. up to k1 (exclusive) in bulk while nothing can happen: every sensor valid, every value on
+        the pipeline's common path, every statistic at or below its threshold; the same state and outputs as
+        :meth:`step` on each. Returns how many were taken (the first one that may change something, or the
+        end, is left to :meth:`step`)."""
+        Yb = Y[k0:k1]
+        if valid is not None:
+            v = np.asarray(valid[k0:k1], dtype=bool).all(axis=1)
+            if not v.all():
+                Yb = Yb[:int(np.argmin(v))]
+        pipe = self.pipeline
+        m = pipe.common_rows(Yb, buf, self._iso_code) if len(Yb) else 0
+        if not m:
+            return 0
+        P = buf[:m]
+        stat = self.detector.block_update(P[:, 3:])
+        if stat is None:
+            return 0
+        thr = self.detector.threshold(pipe.result.dof)
+        hit = stat > thr
+        if hit.any():
+            m = int(np.argmax(hit))
+            if not m:
+                return 0
+            P, stat = P[:m], stat[:m]
+        pipe.advance(P)
+        self.samples += m
+        self._t_last = float(t[k0 + m - 1])
+        h, res = self.health, self.result
+        h.statistic, h.threshold, h.alarm = float(stat[-1]), thr, False
+        res.statistic, res.threshold, res.alarm = h.statistic, thr, False
+        out.add_quiet(k0, P[:, :3], stat, thr, res)
+        return m
+
+
+#: the block fast path's run lengths (samples): from the first after an event, doubling while nothing happens
+_QUIET_MIN, _QUIET_MAX = 16, 8192
 
 
 class _Collector:
@@ -885,6 +944,21 @@ class _Collector:
         self.sensor[k] = self.mgr.sensors.state
         if e not in self.seen:
             self.seen[e] = (np.asarray(r.active, bool).copy(), np.diagonal(r.P).copy())
+
+    def add_quiet(self, k: int, x: np.ndarray, stat: np.ndarray, thr: float, r: FdiResult) -> None:
+        """Samples k.. of a quiet run (:meth:`RedundancyManager._quiet_block`): their estimates and statistics;
+        everything else as the last output ``r``."""
+        m = len(x)
+        sl = slice(k, k + m)
+        self.x[sl] = x
+        self.stat[sl], self.thr[sl], self.alarm[sl] = stat, thr, False
+        self.state[sl] = STATE_CODES[r.state]
+        self.validity[sl] = r.validity
+        self.entry[sl] = r.entry
+        self.obs[sl] = r.observable
+        self.sensor[sl] = self.mgr.sensors.state
+        if r.entry not in self.seen:
+            self.seen[r.entry] = (np.asarray(r.active, bool).copy(), np.diagonal(r.P).copy())
 
     def result(self, t: np.ndarray) -> ReplayResult:
         N, mgr = len(self.entry), self.mgr

@@ -61,7 +61,6 @@ from typing import Any
 
 import numpy as np
 from scipy.linalg import cho_factor, solve_triangular
-from scipy.optimize import nnls
 
 from ..calibration.result import InstrumentCalibration
 from ..errors import ShapeError
@@ -515,6 +514,7 @@ def fit_motion_terms(model: MotionNoiseModel, residuals: np.ndarray, G: np.ndarr
     c, low = cho_factor(XtXs)
     U = np.triu(c) if not low else np.tril(c).T
     d = solve_triangular(U, Xty / scale, trans="T")
+    from scipy.optimize import nnls  # imported where used: scipy.optimize is ~18 MB
     q = nnls(U, d, maxiter=50 * p)[0] / scale * float(margin)
     out: dict[str, np.ndarray] = {}
     pos = 0

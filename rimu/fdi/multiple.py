@@ -46,8 +46,7 @@ from math import comb
 from typing import Any
 
 import numpy as np
-from scipy.integrate import quad
-from scipy.stats import chi2, ncx2
+from scipy.special import chdtri
 
 __all__ = ["FaultSetGlt", "SetDecision", "set_fault_rates", "single_fault_rates"]
 
@@ -165,7 +164,7 @@ class FaultSetGlt:
         key = (int(dof), int(size), int(samples))
         c = self._thr.get(key)
         if c is None:
-            c = float(chi2.isf(self.alpha, samples * (dof - size)))
+            c = float(chdtri(samples * (dof - size), self.alpha))  # chi2.isf
             if len(self._thr) > 4096:
                 self._thr.clear()
             self._thr[key] = c
@@ -249,6 +248,8 @@ def single_fault_rates(Vz: np.ndarray, j: int, m: float, alpha: float = 1e-3, p_
     >>> round(r["missed"], 6), r["correct_lower"] > 0.99
     (0.001, True)
     """
+    from scipy.integrate import quad
+    from scipy.stats import chi2, ncx2  # analysis only: not imported with the runtime (~40 MB)
     V = np.asarray(Vz, dtype=float)
     dof = V.shape[0]
     U = _unit(V)
@@ -287,6 +288,7 @@ def set_fault_rates(Vz: np.ndarray, sensors: tuple[int, ...], b: np.ndarray, alp
     correct isolation is at least ``1 - rejected - single_consistent - other_set_consistent`` once detection
     is certain.
     """
+    from scipy.stats import chi2, ncx2  # analysis only: not imported with the runtime (~40 MB)
     V = np.asarray(Vz, dtype=float)
     dof = V.shape[0]
     U = _unit(V)

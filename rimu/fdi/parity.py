@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.stats import chi2, ncx2, norm
 
 from ..fusion import ProjectionTable
 from ..fusion.projection import bits_mask
@@ -69,6 +68,7 @@ def pairwise_wrong_isolation(m: float | np.ndarray, rho: float | np.ndarray) -> 
     >>> round(float(pairwise_wrong_isolation(0.0, 0.5)), 3)  # no signal: a coin toss
     0.5
     """
+    from scipy.stats import norm  # analysis only: not imported with the runtime (~40 MB)
     m = np.asarray(m, dtype=float)
     r = np.clip(np.abs(np.asarray(rho, dtype=float)), 0.0, 1.0)
     a = m * np.sqrt((1.0 - r) / 2.0)
@@ -112,6 +112,7 @@ def detection_probability(p_fa: float, dof: int, noncentrality: float | np.ndarr
     >>> round(float(detection_probability(1e-3, 3, 0.0)), 6)
     0.001
     """
+    from scipy.stats import chi2, ncx2  # analysis only: not imported with the runtime (~40 MB)
     thr = chi2.isf(p_fa, dof)
     lam = np.asarray(noncentrality, dtype=float)
     return np.where(lam > 0, ncx2.sf(thr, dof, np.maximum(lam, 1e-300)), chi2.sf(thr, dof))

@@ -54,7 +54,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import optimize, stats
+from scipy import special
 
 from ..calibration.result import InstrumentCalibration
 from ..errors import MissingInputError, MissingNoiseError, ShapeError
@@ -407,7 +407,7 @@ class SelfCalTracker:
         d2 = float(nu @ Sinv_nu)
         gate = self._gates.get(r)
         if gate is None:
-            gate = self._gates[r] = float(stats.chi2.isf(self.settings.gate_p, r))
+            gate = self._gates[r] = float(special.chdtri(r, self.settings.gate_p))  # chi2.isf
         if not d2 <= gate:
             return (SelfCalState(state.theta, state.P, state.t, state.updates, state.rejected + 1),
                     SelfCalUpdate(False, d2, gate, r))
@@ -564,6 +564,8 @@ def minimum_detectable_bias(Vz: np.ndarray, window: int = 1, sigma_c: np.ndarray
     V = np.asarray(Vz, dtype=float)
     dof = V.shape[0]
     thr = glt_threshold(p_fa, dof)
+    from scipy import optimize, stats  # analysis only: not imported with the runtime (~60 MB)
+
     lam = optimize.brentq(lambda x: stats.ncx2.sf(thr, dof, x) - p_d, 1e-9, 1e4)
     C = np.eye(dof) if sigma_c is None else np.eye(dof) + window * (V @ sigma_c @ V.T)
     info = np.einsum("ij,ij->j", V, np.linalg.solve(C, V))

@@ -341,6 +341,31 @@ class InstrumentPipeline:
                     return self.result
         return self._step_slow(np.asarray(y, dtype=float), valid)
 
+    def common_rows(self, Y: np.ndarray, out: np.ndarray, active: int) -> int:
+        """How many leading rows of ``Y`` (N, n) :meth:`step` would take on its common path on the set code
+        ``active`` (every value finite and inside the range, the output finite), with their outputs (x, parity)
+        written into ``out[:m]`` exactly as :meth:`step` computes them (its compiled kernel, row by row).
+
+        0 where :meth:`step` has no compiled kernel or its last sample was not on the common path. Changes no
+        state: :meth:`advance` does, for the rows the caller takes (the block fast path of
+        :meth:`rimu.fdi.RedundancyManager.run`)."""
+        k = self._kstep
+        if k is None or self._dirty or type(active) is not int or active != self._code \
+                or Y.dtype != np.float64 or Y.ndim != 2 or Y.shape[1] != self.n:
+            return 0
+        ok = (np.abs(Y) < self._range).all(axis=1)
+        m = len(ok) if ok.all() else int(np.argmin(ok))
+        if m and not _kernels().project_block(Y[:m], self._Re, self._offe, self._range, out[:m]):
+            return 0  # a non-finite output somewhere: the caller steps sample by sample
+        return m
+
+    def advance(self, rows: np.ndarray) -> None:
+        """Account for ``len(rows)`` samples taken on the common path (:meth:`common_rows`): the state as after
+        stepping them, the result holding the last row's (x, parity)."""
+        if len(rows):
+            self.samples += len(rows)
+            self._out[:] = rows[-1]
+
     def _step_slow(self, y: np.ndarray, valid: np.ndarray | None) -> StepResult:
         if y.shape != (self.n,):
             raise ShapeError(f"a raw sample must have shape ({self.n},), got {y.shape}")
