@@ -241,7 +241,12 @@ def session_file(path: str | os.PathLike[str], checks: str = "strict", kind: str
         _SCRATCH.append(tempfile.mkdtemp(prefix="rimu-in-"))
         atexit.register(_cleanup)
     out = Path(_SCRATCH[0]) / (p.name.replace(".", "_") + ".npz")
-    return Path(save_session(s, out))
+    written = Path(save_session(s, out))
+    # the command's output group holds atomic writes back until it ends; this scratch file is read now
+    from ..atomic import flush_outputs
+
+    flush_outputs()
+    return written
 
 
 def open_raw(path: str | os.PathLike[str], rate: float | None, accel: Any, gyro: Any, time: Any,

@@ -438,7 +438,7 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
 
     from ..calibration import Calibration
     from ..epoch import EpochBlock
-    from ..errors import CalibrationFileError, OptionError, RimuError, SessionFormatError
+    from ..errors import CalibrationFileError, GeometryMismatchError, OptionError, RimuError, SessionFormatError
     from ..experiments.faults import inject, parse_injection
     from ..export.estimates import Estimates, estimate_columns, write_estimates
     from ..fdi import RedundancyManager, Runtime
@@ -475,7 +475,16 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
         print("  note: the samples are not in the order of the sidecar's segments; they are replayed in file order")
     # the calibration must be of this unit: its geometry fingerprint against the data's (a dodecahedron6
     # calibration on cone6 data would otherwise isolate healthy sensors)
-    cal = Calibration.load(args.calibration, geometries=session.geometries)
+    try:
+        cal = Calibration.load(args.calibration, geometries=session.geometries)
+    except GeometryMismatchError as exc:
+        if path == Path(args.data):
+            raise
+        # a log read as parallel triads against a unit set up with its board's geometry (rimu setup)
+        n = next(iter(session.geometries.values())).n
+        raise GeometryMismatchError(f"{exc}. {args.data} was read as {n} sensors on parallel axes; for a unit set "
+                                    "up with rimu setup, replay the session it wrote (rimu setup LOG ... --session S.npz; rimu replay S.npz --calibration "
+                                    f"{args.calibration})") from None
     insts = [k for k in cal.instruments if k in session.geometries]
     if args.instrument:
         unknown = sorted(set(args.instrument) - set(insts))

@@ -51,3 +51,16 @@ def test_declared_deg_s_and_g_are_applied(tmp_path, capsys):  # type: ignore[no-
         assert abs(np.nanmax(np.abs(u.gyro[:, 0])) - np.radians(90.0)) < np.radians(1.0)  # deg/s -> rad/s
     summary = json.loads((tmp_path / "b.json").read_text())
     assert "deg/s" in json.dumps(summary) and "g" in json.dumps(summary)
+
+
+def test_setup_and_replay_take_the_log_itself(tmp_path, capsys):  # type: ignore[no-untyped-def]
+    """`rimu replay LOG --calibration` on a log, not a session: the log's session is written to a scratch file and
+    read back in the same command (it was held back by the command's output group: 'fl_csv.npz does not exist')."""
+    _write(tmp_path / "fl.csv", np.random.default_rng(4))
+    units = ["--gyro-unit", "deg/s", "--accel-unit", "g"]
+    assert main(["setup", str(tmp_path / "fl.csv"), *units, "-o", str(tmp_path / "u.json"), "--average", "0",
+                 "-q"]) == 0
+    assert main(["replay", str(tmp_path / "fl.csv"), *units, "--calibration", str(tmp_path / "u.json"),
+                 "--json", str(tmp_path / "r.json")]) == 0, capsys.readouterr().err
+    doc = json.loads((tmp_path / "r.json").read_text())
+    assert "replayed 2000 samples" in capsys.readouterr().out and json.dumps(doc)
