@@ -102,7 +102,9 @@ def _monitor(argv, send, tmp_path, name):
     out = {}
     th = threading.Thread(target=lambda: out.setdefault("rc", main(
         ["monitor", *argv, "--calibration", str(tmp_path / "cal.json"), "--estimates", str(est), "--json", str(js),
-         "--idle-timeout", "1.5", "--status-interval", "60"])))
+         # the idle timeout also bounds the wait for the first frame: 5 s covers a sender thread starved by a
+         # loaded machine (1.5 s ended one CI run with 'no epoch came out of the source' on the CAN bus)
+         "--idle-timeout", "5", "--status-interval", "60"])))
     th.start()
     stop = send()
     th.join(60)
