@@ -169,10 +169,11 @@ def check_recording(rec: Any, source: str = "") -> list[Any]:
     return found
 
 
-def recording_session(rec: Any, kind: str = "motion", label: str | None = None) -> Any:
+def recording_session(rec: Any, kind: str = "motion", label: str | None = None, keep_invalid: bool = False) -> Any:
     """A recording as a one-segment :class:`rimu.session.Session`: the IMUs on the first one's time base
-    (:meth:`MultiImuRecording.to_block`), the epochs where every IMU is valid, raw values in SI (``raw_unit``
-    rad/s and m/s^2), k parallel triads named after the IMUs."""
+    (:meth:`MultiImuRecording.to_block`), the epochs where every IMU is valid (``keep_invalid``: every epoch, an
+    invalid sample as NaN, for a replay that decides on it), raw values in SI (``raw_unit`` rad/s and m/s^2), k
+    parallel triads named after the IMUs."""
     from ..errors import SessionFormatError
     from ..session import Segment, Session
 
@@ -183,6 +184,12 @@ def recording_session(rec: Any, kind: str = "motion", label: str | None = None) 
     ok = np.ones(len(block.t), bool)
     for k in insts:
         ok &= block.valid[k].all(axis=1)
+    if keep_invalid and ok.sum() >= 2:
+        ok = np.zeros(len(block.t), bool)
+        for k in insts:
+            ok |= block.valid[k].any(axis=1)   # an epoch with any valid sample; the invalid ones as NaN
+        raw = {k: np.where(block.valid[k], block.raw[k], np.nan) for k in insts}
+        block = type(block)(block.t, raw, block.valid, block.temperature)
     if ok.sum() < 2:
         raise SessionFormatError(f"{rec.meta.get('source')}: fewer than 2 epochs where every IMU ({rec.names}) has a "
                                  "valid sample; the IMUs do not overlap in time")
@@ -198,7 +205,7 @@ def recording_session(rec: Any, kind: str = "motion", label: str | None = None) 
 
 
 def open_session(path: str | os.PathLike[str], checks: str = "strict", kind: str = "motion",
-                 args: argparse.Namespace | None = None) -> Any:
+                 args: argparse.Namespace | None = None, keep_invalid: bool = False) -> Any:
     """A Session of whatever ``path`` is: a session file (:func:`rimu.session.load_session`), imucal's Ferraris
     folder (:func:`rimu.session.load_ferraris`), or a log (:func:`open_recording` + :func:`recording_session`;
     its one segment is of ``kind``)."""
@@ -216,7 +223,7 @@ def open_session(path: str | os.PathLike[str], checks: str = "strict", kind: str
     if p.suffix in (".npz", ".csv", ".json") and not log_options(args) and _not_a_log(p):
         return load_session(p, checks=checks)  # meant as a session: its reader says what is wrong with it
     rec = open_recording(p, args, checks)
-    return recording_session(rec, kind)
+    return recording_session(rec, kind, keep_invalid=keep_invalid)
 
 
 _SCRATCH: list[str] = []
@@ -236,7 +243,7 @@ def session_file(path: str | os.PathLike[str], checks: str = "strict", kind: str
     p = Path(path)
     if is_session_file(p):
         return p
-    s = open_session(p, checks, kind, args)
+    s = open_session(p, checks, kind, args, keep_invalid=True)   # replayed: an invalid sample is decided on, not dropped
     if not _SCRATCH:
         _SCRATCH.append(tempfile.mkdtemp(prefix="rimu-in-"))
         atexit.register(_cleanup)

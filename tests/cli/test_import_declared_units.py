@@ -58,9 +58,18 @@ def test_setup_and_replay_take_the_log_itself(tmp_path, capsys):  # type: ignore
     read back in the same command (it was held back by the command's output group: 'fl_csv.npz does not exist')."""
     _write(tmp_path / "fl.csv", np.random.default_rng(4))
     units = ["--gyro-unit", "deg/s", "--accel-unit", "g"]
+    # 20 epochs (rows 1500-1519) where imu1's gyro cells are empty: replayed as invalid samples, not dropped
+    lines = (tmp_path / "fl.csv").read_text().splitlines()
+    for r in range(1501, 1521):
+        cells = lines[r].split(",")
+        cells[8:11] = ["", "", ""]
+        lines[r] = ",".join(cells)
+    (tmp_path / "fl.csv").write_text("\n".join(lines) + "\n")
     assert main(["setup", str(tmp_path / "fl.csv"), *units, "-o", str(tmp_path / "u.json"), "--average", "0",
                  "-q"]) == 0
     assert main(["replay", str(tmp_path / "fl.csv"), *units, "--calibration", str(tmp_path / "u.json"),
                  "--json", str(tmp_path / "r.json")]) == 0, capsys.readouterr().err
     doc = json.loads((tmp_path / "r.json").read_text())
-    assert "replayed 2000 samples" in capsys.readouterr().out and json.dumps(doc)
+    out = capsys.readouterr().out
+    assert "replayed 2000 samples" in out, out               # every epoch, the 20 with imu1's gyro empty included
+    assert "gyro: 2000 samples" in out and json.dumps(doc)
