@@ -514,8 +514,8 @@ void {p}_correction(const {p} *s, const double *g, double *c)
     }}
 }}
 
-/* covariance C (N x N), SI^2, of the correction's error for regressors g (NB x N): (Pi Phi) P (Pi Phi)^T */
-void {p}_correction_covariance(const {p} *s, const double *g, double *C)
+/* the correction covariance of regressors g with the state predicted dt ahead (without changing the state) */
+static void {p}_cov_ahead(const {p} *s, const double *g, double dt, double *C)
 {{
     double B[N * S], T[N * S];
     int i, j, l;
@@ -528,7 +528,11 @@ void {p}_correction_covariance(const {p} *s, const double *g, double *C)
         for (j = 0; j < S; ++j) {{
             double v = 0.0;
             for (l = 0; l < S; ++l) {{
-                v += B[(i * S) + l] * AT(s->P, l, j);
+                double p = AT(s->P, l, j);
+                if (l == j) {{
+                    p += {p}_q[l] * dt;
+                }}
+                v += B[(i * S) + l] * p;
             }}
             T[(i * S) + j] = v;
         }}
@@ -542,6 +546,12 @@ void {p}_correction_covariance(const {p} *s, const double *g, double *C)
             C[(i * N) + j] = v;
         }}
     }}
+}}
+
+/* covariance C (N x N), SI^2, of the correction's error for regressors g (NB x N): (Pi Phi) P (Pi Phi)^T */
+void {p}_correction_covariance(const {p} *s, const double *g, double *C)
+{{
+    {p}_cov_ahead(s, g, 0.0, C);
 }}
 
 /* the tracked terms and their 1-sigma (NB x N each), SI: bias-like blocks without their common mode (Pi theta_b,
@@ -618,40 +628,6 @@ void {p}_loop_reset({p}_loop *L)
     size_t i;
     for (i = 0; i < sizeof *L; ++i) {{
         b[i] = 0u;
-    }}
-}}
-
-/* the correction covariance of regressors g with the state predicted dt ahead (without changing the state) */
-static void {p}_cov_ahead(const {p} *s, const double *g, double dt, double *C)
-{{
-    double B[N * S], T[N * S];
-    int i, j, l;
-    for (i = 0; i < N; ++i) {{
-        for (j = 0; j < S; ++j) {{
-            B[(i * S) + j] = {p}_Pi[(i * N) + (j % N)] * g[j];
-        }}
-    }}
-    for (i = 0; i < N; ++i) {{
-        for (j = 0; j < S; ++j) {{
-            double v = 0.0;
-            for (l = 0; l < S; ++l) {{
-                double p = AT(s->P, l, j);
-                if (l == j) {{
-                    p += {p}_q[l] * dt;
-                }}
-                v += B[(i * S) + l] * p;
-            }}
-            T[(i * S) + j] = v;
-        }}
-    }}
-    for (i = 0; i < N; ++i) {{
-        for (j = 0; j < N; ++j) {{
-            double v = 0.0;
-            for (l = 0; l < S; ++l) {{
-                v += T[(i * S) + l] * B[(j * S) + l];
-            }}
-            C[(i * N) + j] = v;
-        }}
     }}
 }}
 
