@@ -86,10 +86,7 @@ def _iter_bare_mcap(p: Path, lp: Path, chunk: int, topics: list[str] | None, sto
         raise SessionFormatError(f"{p}: not a readable MCAP file ({type(exc).__name__}: {str(exc)[:120]}); give the "
                                  "file as recorded, or its ROS 2 bag folder (with metadata.yaml)") from None
     try:
-        conns = [c for c in reader.connections if c.msgtype in IMU_TYPES and (topics is None or c.topic in topics)]
-        if not conns:
-            found = sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})[:20]
-            raise SessionFormatError(f"{p}: no sensor_msgs/Imu channel in the MCAP file; it holds {found}")
+        conns = _imu_connections(p, reader.connections, topics, "channel in the MCAP file")
 
         def decode(c: Any, raw: bytes) -> Any:
             fmt = getattr(c.ext, "serialization_format", "cdr")
@@ -106,6 +103,15 @@ def _iter_bare_mcap(p: Path, lp: Path, chunk: int, topics: list[str] | None, sto
         reader.close()
 
 
+def _imu_connections(p: Path, connections: Any, topics: list[str] | None, where: str) -> list[Any]:
+    """The ``sensor_msgs/Imu`` connections (of ``topics`` when given), or the refusal naming what the file holds."""
+    conns = [c for c in connections if c.msgtype in IMU_TYPES and (topics is None or c.topic in topics)]
+    if not conns:
+        found = sorted({f"{c.topic} ({c.msgtype})" for c in connections})[:20]
+        raise SessionFormatError(f"{p}: no sensor_msgs/Imu {where}; it holds {found}")
+    return conns
+
+
 def _iter_bag(p: Path, lp: Path, chunk: int, topics: list[str] | None, AnyReader: Any, store: Any
               ) -> Iterator[MultiImuRecording]:
     try:
@@ -115,10 +121,7 @@ def _iter_bag(p: Path, lp: Path, chunk: int, topics: list[str] | None, AnyReader
         raise SessionFormatError(f"{p}: not a readable ROS bag ({type(exc).__name__}: {str(exc)[:120]}); give the "
                                  "ROS 1 .bag file or the ROS 2 bag folder (with metadata.yaml)") from None
     try:
-        conns = [c for c in reader.connections if c.msgtype in IMU_TYPES and (topics is None or c.topic in topics)]
-        if not conns:
-            found = sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})[:20]
-            raise SessionFormatError(f"{p}: no sensor_msgs/Imu topic in the bag; it holds {found}")
+        conns = _imu_connections(p, reader.connections, topics, "topic in the bag")
         yield from _collect(p, ((c.topic, ts, reader.deserialize(raw, c.msgtype))
                                 for c, ts, raw in reader.messages(connections=conns)), chunk)
     except SessionFormatError:
