@@ -31,9 +31,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._backend import import_once
+from .._backend import resolve as _resolve_backend
 from .model import Segment, Session
 
-__all__ = ["RotationMoments", "SegmentSums", "SessionStatistics", "column_sums"]
+__all__ = ["KERNEL_MIN_SAMPLES", "RotationMoments", "SegmentSums", "SessionStatistics", "column_sums"]
+
+#: segments of at least this many samples take the compiled pass (:mod:`rimu.session._kernels`) where numba is
+#: installed and the backend allows it: below it numpy's few calls cost as little, and a short session (a test, a
+#: hand recording) never imports numba
+KERNEL_MIN_SAMPLES = 2048
+_KERNELS: list = []
+
+
+def _kernels():
+    """The compiled kernel's module (imports numba once), or None without numba."""
+    return import_once(_KERNELS, "rimu.session._kernels")
 
 _ONES = np.ones(0)
 
@@ -120,9 +133,17 @@ class SegmentSums:
             else:
                 d = y[1:] - y[:-1]
                 d *= d
-                m = self.n - 1
-                self._diff = (_ones(m) @ d - (y[-1] - y[0]) ** 2 / m, m - 1)
+                self._diff = _diff_from(_ones(self.n - 1) @ d, y, self.n)
         return self._diff
+
+
+def _diff_from(dd: np.ndarray, y: np.ndarray, n: int) -> tuple[np.ndarray, int]:
+    """:attr:`SegmentSums.diff` from the sums ``dd`` of the squared first differences of ``y`` (n samples): their
+    sum of squared deviations from their mean ``(y[-1] - y[0]) / m`` (``m = n - 1``), and its degrees of freedom."""
+    if n < 3:
+        return np.zeros(y.shape[1]), 0
+    m = n - 1
+    return dd - (y[-1] - y[0]) ** 2 / m, m - 1
 
 
 @dataclass(eq=False)
@@ -167,21 +188,84 @@ class SessionStatistics:
     True
     """
 
-    def __init__(self, session: Session) -> None:
+    def __init__(self, session: Session, backend: str | None = None) -> None:
         self.session = session
+        #: "auto", "numpy" or "numba" (:mod:`rimu._backend`), resolved when a segment is first long enough for the
+        #: compiled pass (:data:`KERNEL_MIN_SAMPLES`), so that a short session never imports numba
+        self.backend = backend
+        self._kernel: object = False  # not resolved yet
         self._sums: dict[tuple[int, str], tuple[Segment, SegmentSums]] = {}
         self._rot: dict[int, tuple[Segment, RotationMoments | None]] = {}
 
-    def sums(self, seg: Segment, instrument: str) -> SegmentSums:
-        """The :class:`SegmentSums` of ``instrument`` on ``seg``."""
+    def sums(self, seg: Segment, instrument: str, full: bool = False) -> SegmentSums:
+        """The :class:`SegmentSums` of ``instrument`` on ``seg``; ``full``: with its sums of squares and its
+        first-difference sum computed now, together (one compiled pass over a long segment where numba is
+        installed, :mod:`rimu.session._kernels`; numpy's passes otherwise), not on first use."""
         key = (id(seg), instrument)
         hit = self._sums.get(key)
         if hit is not None and hit[0] is seg:
-            return hit[1]
+            out = hit[1]
+            if full:
+                self._fill(out)
+            return out
         y = seg.raw[instrument]
-        out = SegmentSums(y.shape[0], _ones(y.shape[0]) @ y, y)
+        n = y.shape[0]
+        if full and n >= KERNEL_MIN_SAMPLES and self._compiled() is not None:
+            m = np.empty((3, y.shape[1]))
+            self._kernel.column_moments(y, m)  # type: ignore[attr-defined]
+            out = SegmentSums(n, m[0], y, m[1], None, _diff_from(m[2], y, n))
+        else:
+            out = SegmentSums(n, _ones(n) @ y, y)
+            if full:
+                self._fill(out)
         self._sums[key] = (seg, out)
         return out
+
+    def sums_of(self, segs: "list[Segment]", instrument: str, full: bool = False) -> list[SegmentSums]:
+        """:meth:`sums` of each of ``segs``, in order. The short ones not known yet (under
+        :data:`KERNEL_MIN_SAMPLES` samples) are summed together: their samples stacked once, every sum of every
+        segment in one ``np.add.reduceat`` per quantity, so that a session of many short segments costs a few
+        numpy calls, not a few per segment (the per-segment sums to rounding)."""
+        todo = []
+        for seg in segs:
+            hit = self._sums.get((id(seg), instrument))
+            if (hit is None or hit[0] is not seg) and seg.raw[instrument].shape[0] < KERNEL_MIN_SAMPLES:
+                todo.append(seg)
+        if len(todo) > 1:
+            ys = [seg.raw[instrument] for seg in todo]
+            ns = [y.shape[0] for y in ys]
+            Y = np.concatenate(ys)
+            starts = np.zeros(len(ns), dtype=np.intp)
+            np.cumsum(ns[:-1], out=starts[1:])
+            tot = np.add.reduceat(Y, starts, axis=0)
+            if full:
+                sq = np.add.reduceat(np.square(Y), starts, axis=0)
+                d = np.empty_like(Y)  # first differences, the last row a zero that closes the last segment's range
+                np.subtract(Y[1:], Y[:-1], out=d[:-1])
+                d[-1] = 0.0
+                d *= d
+                ends = starts + np.asarray(ns, dtype=np.intp) - 1  # a segment's differences: rows start .. end - 1
+                dd = np.add.reduceat(d, np.column_stack([starts, ends]).ravel(), axis=0)[::2]
+            for j, (seg, y, n) in enumerate(zip(todo, ys, ns)):
+                out = (SegmentSums(n, tot[j], y, sq[j], None, _diff_from(dd[j], y, n)) if full
+                       else SegmentSums(n, tot[j], y))
+                self._sums[(id(seg), instrument)] = (seg, out)
+        return [self.sums(seg, instrument, full) for seg in segs]
+
+    def _compiled(self):
+        """The compiled kernels' module where the backend asks for it and numba is installed, else None (resolved
+        once per object)."""
+        if self._kernel is False:
+            name = _resolve_backend(self.backend, lambda: _kernels() is not None, "the compiled statistics kernel")
+            self._kernel = _kernels() if name == "numba" else None
+        return self._kernel
+
+    @staticmethod
+    def _fill(out: SegmentSums) -> None:
+        """The sums of squares and the first-difference sum of ``out`` by numpy (one temporary at a time), where
+        they are not known yet."""
+        out.sumsq  # noqa: B018 - computed and kept on first use
+        out.diff  # noqa: B018
 
     def mean(self, seg: Segment, instrument: str) -> np.ndarray:
         """Column means of ``instrument`` on ``seg`` (k,)."""
