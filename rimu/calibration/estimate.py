@@ -13,6 +13,7 @@ Eq. 5): ``y_i = u . w_i + c_i + ...`` with ``SF_i = 1/|w_i|`` (Eq. 10).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import partial
@@ -55,13 +56,17 @@ def estimate_noise_sigma(session: Session, instrument: str, stats: SessionStatis
     :class:`~rimu.session.SessionStatistics` (whose first-difference sums are then shared), default a new one.
     """
     stats = stats or SessionStatistics(session)
-    segs = [s for s in session.segments if s.kind in ("static", "static_unknown")] or list(session.segments)
-    n = session.geometries[instrument].n
-    acc = np.zeros(n)
-    cnt = 0
     # each segment's sum of squared deviations of the differences from their mean (y[-1] - y[0]) / m, with the
     # sums and squares the fit reads next (one pass, or a few numpy calls for all short segments together)
-    for st in stats.sums_of(segs, instrument, full=True):
+    return _noise_sigma_from(stats.sums_of(_noise_segments(session), instrument, full=True),
+                             session.geometries[instrument].n, instrument)
+
+
+def _noise_sigma_from(sums: Sequence[Any], n: int, instrument: str) -> np.ndarray:
+    """:func:`estimate_noise_sigma` from the :class:`~rimu.session.SegmentSums` of its segments."""
+    acc = np.zeros(n)
+    cnt = 0
+    for st in sums:
         ss, dof = st.diff
         if dof:
             acc += ss
@@ -72,6 +77,16 @@ def estimate_noise_sigma(session: Session, instrument: str, stats: SessionStatis
     if np.any(sig <= 0):
         sig = np.where(sig > 0, sig, np.max(sig) if np.max(sig) > 0 else 1.0)
     return sig
+
+
+def _noise_segments(session: Session) -> list[Segment]:
+    """The segments :func:`estimate_noise_sigma` reads: the static ones, or every segment where none is."""
+    return [s for s in session.segments if s.kind in ("static", "static_unknown")] or list(session.segments)
+
+
+def _is_turn(seg: Segment, inst: str) -> bool:
+    """Whether the base model reads ``seg`` of ``inst`` as one integrated row (a gyro's turn of known angle)."""
+    return inst == "gyro" and seg.kind == "angle" and seg.n_samples > 1
 
 
 def segment_residuals(model: ErrorModel, ctx: SensorContext, segments: Sequence[Segment], beta: np.ndarray,
@@ -373,15 +388,25 @@ class LeastSquares:
         sstats = SessionStatistics(session, self.backend)
         if base:  # every sensor of every instrument at once (one G per instrument, array operations)
             per = []
+            noise = _noise_segments(session)
             for inst in insts:
-                sig = _sigma_for(self.sigma, session, inst, sstats)
-                skipped = {}
                 ctxs = contexts(session, inst)
-                stats = self._base_statistics(session, segs, inst, ctxs[0], skipped, sstats, tuple(insts))
-                self._base_check(model, ctxs[0], stats, inst)  # refused in the order of the instruments
+                forms = [_input_form(ctxs[0], seg) for seg in segs]
+                # the sums, squares and first differences of every segment the noise level and the fit read, the
+                # short ones together in a few numpy calls
+                need = {id(x): x for x in noise}
+                need.update((id(x), x) for x, (kind, _) in zip(segs, forms) if kind is not None or _is_turn(x, inst))
+                sums = dict(zip(need, sstats.sums_of(list(need.values()), inst, full=True)))
+                if self.sigma is not None and self.sigma.get(inst) is not None:
+                    sig = _sigma_for(self.sigma, session, inst, sstats)
+                else:
+                    sig = _noise_sigma_from([sums[id(x)] for x in noise], ctxs[0].geometry.n, inst)
+                skipped = {}
+                stats = self._base_statistics(session, segs, inst, ctxs[0], skipped, sstats, tuple(insts), forms)
                 per.append((inst, ctxs, stats, sig, skipped))
                 if skipped:
                     notes.append(f"{inst}: segments not used: {sorted(skipped)}")
+            self._base_check(model, per)
             out = self._base_fit(model, per, self.sigma is not None, segs)
             return CalibrationResult(f"least squares ({model.label})", out, session.raw_unit, notes)
         for inst in insts:
@@ -416,18 +441,28 @@ class LeastSquares:
         return CalibrationResult(f"least squares ({model.label})", out, session.raw_unit, notes)
 
     @staticmethod
-    def _base_check(model: ErrorModel, ctx0: SensorContext, stats: tuple, inst: str) -> None:
-        """Refuse an instrument whose base statistics identify no parameter set (no usable segment, or a Gram
-        matrix with a direction the segments do not excite: :func:`~rimu.calibration.lsq.check_identifiable_gram`),
-        naming the physical parameters involved."""
-        G, _, _, n_obs, labels, _ = stats
-        names = model.parameter_names(ctx0)
-        if not labels:
-            raise IdentifiabilityError(f"{inst}: no segment carries the inputs the model {model.label} needs", names)
-        try:
-            check_identifiable_gram(G, n_obs, names, inst)
-        except IdentifiabilityError as exc:
-            raise IdentifiabilityError(str(exc), _physical_names(model, ctx0, exc.parameters)) from None
+    def _base_check(model: ErrorModel, per: list[tuple]) -> None:
+        """Refuse the first instrument (in order) whose base statistics identify no parameter set: no usable
+        segment, or a Gram matrix with a direction the segments do not excite
+        (:func:`~rimu.calibration.lsq.check_identifiable_gram`), naming the physical parameters involved. The
+        eigenvalues of every instrument's scaled Gram matrix in one call; the full check, which names the
+        parameters, only where one fails."""
+        G = np.stack([st[0] for _, _, st, _, _ in per])
+        scale = np.sqrt(np.clip(np.diagonal(G, axis1=1, axis2=2), 0.0, None))
+        scale[scale == 0] = 1.0
+        lam = np.linalg.eigvalsh(G / (scale[:, :, None] * scale[:, None, :]))
+        ok = lam[:, 0] > 1e-12 * np.maximum(lam[:, -1], 1e-300)
+        for k, (inst, ctxs, st, _, _) in enumerate(per):
+            if st[4] and st[3] >= G.shape[1] and ok[k]:
+                continue
+            names = model.parameter_names(ctxs[0])
+            if not st[4]:
+                raise IdentifiabilityError(f"{inst}: no segment carries the inputs the model {model.label} needs",
+                                           names)
+            try:
+                check_identifiable_gram(st[0], st[3], names, inst)
+            except IdentifiabilityError as exc:
+                raise IdentifiabilityError(str(exc), _physical_names(model, ctxs[0], exc.parameters)) from None
 
     @staticmethod
     def _base_fit(model: ErrorModel, per: list[tuple], sigma_known: bool, segs: list[Segment]) -> dict[str, LsqResult]:
@@ -506,7 +541,7 @@ class LeastSquares:
     @staticmethod
     def _base_statistics(session: Session, segs: list[Segment], inst: str, ctx0: SensorContext,
                          skipped: dict[str, str], sstats: SessionStatistics | None = None,
-                         instruments: tuple[str, ...] = ()) -> tuple:
+                         instruments: tuple[str, ...] = (), forms: list | None = None) -> tuple:
         """Sufficient statistics of the base model for every sensor of ``inst`` at once: the known input u of a
         segment is the same for all of them, so ``X = [u, 1]`` and ``X^T X`` are shared, ``X^T Y`` is one
         product for all sensors. Every term comes from the segment's sums (:class:`~rimu.session.SessionStatistics`):
@@ -521,21 +556,18 @@ class LeastSquares:
         q = np.zeros(n)
         n_obs, labels, parts = 0, [], []
         rows, weights, totals = [], [], []  # rows of one input for all samples (static positions) and angle rows
-        forms = [_input_form(ctx0, seg) for seg in segs]
-        turns = [seg for seg, (kind, _) in zip(segs, forms)
-                 if kind is None and seg.kind == "angle" and inst == "gyro" and seg.n_samples > 1]
-        sstats.sums_of([seg for seg, (kind, _) in zip(segs, forms) if kind is not None], inst, full=True)
-        sstats.sums_of(turns, inst)  # (the sums of every segment, the short ones in a few calls for all)
+        forms = forms or [_input_form(ctx0, seg) for seg in segs]  # (``forms``: these, known already)
+        qs = [q]  # the sums of squares of the sensors' outputs, added in the order of the segments
         for seg, (kind, u) in zip(segs, forms):
             if kind is None:
-                if seg.kind == "angle" and inst == "gyro" and seg.n_samples > 1:
+                if _is_turn(seg, inst):
                     st = sstats.sums(seg, inst)
                     x = _base_angle_row(seg)
-                    yv = st.total / np.sqrt(seg.n_samples)
+                    yv = st.total / math.sqrt(st.n)
                     rows.append(x)
                     weights.append(1.0)
                     totals.append(yv)
-                    q += yv**2
+                    qs.append(yv**2)
                     n_obs += 1
                     labels.append(seg.label)
                     parts.append((seg.label, seg, ("angle", x, yv)))
@@ -545,10 +577,15 @@ class LeastSquares:
             st = sstats.sums(seg, inst)
             N = st.n
             if kind == "constant":  # one input for every sample (a static position): N x x^T, x total^T
-                rows.append((u[0], u[1], u[2], 1.0))
+                rows.append((*u.tolist(), 1.0))
                 weights.append(N)
                 totals.append(st.total)
-            elif kind == "basis":  # u = B P on a turning segment: from the moments of its angle
+                qs.append(st.sumsq)
+                n_obs += N
+                labels.append(seg.label)
+                parts.append((seg.label, seg, None))
+                continue
+            if kind == "basis":  # u = B P on a turning segment: from the moments of its angle
                 rm = sstats.rotation(seg)
                 Q = np.zeros((3, 4))
                 Q[:, :3] = u
@@ -559,10 +596,11 @@ class LeastSquares:
                 X = np.column_stack([u, np.ones(N)])
                 G += X.T @ X
                 H += X.T @ seg.raw[inst]
-            q += st.sumsq
+            qs.append(st.sumsq)
             n_obs += N
             labels.append(seg.label)
             parts.append((seg.label, seg, None))
+        q = np.add.reduce(np.array(qs), axis=0) if len(qs) > 1 else q  # (row by row, as q += each in turn)
         if rows:  # every such segment's terms in two products
             X = np.array(rows, dtype=float)
             G += (X.T * np.array(weights, dtype=float)) @ X

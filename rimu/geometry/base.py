@@ -216,6 +216,15 @@ class Geometry:
             self._off_axis_mb = P
         return P
 
+    def subunit_rotations(self) -> np.ndarray:
+        """``mat_sb_mb`` of every sensor's sub-unit, (n, 3, 3), read-only: a constant of the geometry, computed once."""
+        C = self.__dict__.get("_subunit_rotations")
+        if C is None:
+            C = np.stack([self.subunit_of(i).mat_sb_mb for i in range(self.n)])
+            C.setflags(write=False)
+            self._subunit_rotations = C
+        return C
+
     def _off_axis_basis(self, i: int) -> tuple[np.ndarray, tuple[str, str]]:
         self.nominal_rows()  # (fills the cache)
         r = self._nominal_rows[i]

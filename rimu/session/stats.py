@@ -27,6 +27,7 @@ mutable, and nothing here could tell that they changed).
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,8 +39,9 @@ from .model import Segment, Session
 __all__ = ["KERNEL_MIN_SAMPLES", "RotationMoments", "SegmentSums", "SessionStatistics", "column_sums"]
 
 #: segments of at least this many samples take the compiled pass (:mod:`rimu.session._kernels`) where numba is
-#: installed and the backend allows it: below it numpy's few calls cost as little, and a short session (a test, a
-#: hand recording) never imports numba
+#: installed and the backend allows it; shorter ones take it once numba is loaded in the process anyway, and are
+#: otherwise summed by numpy, all of them together, so that a short session (a test, a hand recording, a command
+#: line run) never pays for importing numba (about 1 s)
 KERNEL_MIN_SAMPLES = 2048
 _KERNELS: list = []
 
@@ -210,10 +212,10 @@ class SessionStatistics:
             return out
         y = seg.raw[instrument]
         n = y.shape[0]
-        if full and n >= KERNEL_MIN_SAMPLES and self._compiled() is not None:
+        if full and self._compiled(n) is not None:
             m = np.empty((3, y.shape[1]))
             self._kernel.column_moments(y, m)  # type: ignore[attr-defined]
-            out = SegmentSums(n, m[0], y, m[1], None, _diff_from(m[2], y, n))
+            out = SegmentSums(n, m[0], y, m[1], None, (m[2], n - 2) if n >= 3 else (np.zeros(y.shape[1]), 0))
         else:
             out = SegmentSums(n, _ones(n) @ y, y)
             if full:
@@ -223,38 +225,70 @@ class SessionStatistics:
 
     def sums_of(self, segs: "list[Segment]", instrument: str, full: bool = False) -> list[SegmentSums]:
         """:meth:`sums` of each of ``segs``, in order. The short ones not known yet (under
-        :data:`KERNEL_MIN_SAMPLES` samples) are summed together: their samples stacked once, every sum of every
-        segment in one ``np.add.reduceat`` per quantity, so that a session of many short segments costs a few
-        numpy calls, not a few per segment (the per-segment sums to rounding)."""
+        :data:`KERNEL_MIN_SAMPLES` samples) are summed together: their samples, squares and squared first
+        differences stacked in one array, every sum of every segment in one ``np.add.reduceat``, so that a session
+        of many short segments costs a few numpy calls, not a few per segment (the per-segment sums to rounding)."""
+        cache = self._sums
+        out: list = []
         todo = []
         for seg in segs:
-            hit = self._sums.get((id(seg), instrument))
-            if (hit is None or hit[0] is not seg) and seg.raw[instrument].shape[0] < KERNEL_MIN_SAMPLES:
+            hit = cache.get((id(seg), instrument))
+            if hit is not None and hit[0] is seg:
+                if full:
+                    self._fill(hit[1])
+                out.append(hit[1])
+            elif seg.raw[instrument].shape[0] < KERNEL_MIN_SAMPLES and not (full and self._compiled(0) is not None):
+                out.append(None)
                 todo.append(seg)
-        if len(todo) > 1:
+            else:
+                out.append(self.sums(seg, instrument, full))
+        if len(todo) == 1:
+            out[out.index(None)] = self.sums(todo[0], instrument, full)
+        elif todo:
             ys = [seg.raw[instrument] for seg in todo]
-            ns = [y.shape[0] for y in ys]
-            Y = np.concatenate(ys)
-            starts = np.zeros(len(ns), dtype=np.intp)
+            ns = np.array([y.shape[0] for y in ys], dtype=np.intp)
+            N, m = int(ns.sum()), len(ys)
+            starts = np.zeros(m, dtype=np.intp)
             np.cumsum(ns[:-1], out=starts[1:])
-            tot = np.add.reduceat(Y, starts, axis=0)
+            # rows: the samples, their squares, their squared first differences (zero at each segment's first row)
+            Z = np.empty(((3 if full else 1) * N, ys[0].shape[1]))
+            Y = Z[:N]
+            np.concatenate(ys, out=Y)
+            idx = starts
             if full:
-                sq = np.add.reduceat(np.square(Y), starts, axis=0)
-                d = np.empty_like(Y)  # first differences, the last row a zero that closes the last segment's range
-                np.subtract(Y[1:], Y[:-1], out=d[:-1])
-                d[-1] = 0.0
-                d *= d
-                ends = starts + np.asarray(ns, dtype=np.intp) - 1  # a segment's differences: rows start .. end - 1
-                dd = np.add.reduceat(d, np.column_stack([starts, ends]).ravel(), axis=0)[::2]
-            for j, (seg, y, n) in enumerate(zip(todo, ys, ns)):
-                out = (SegmentSums(n, tot[j], y, sq[j], None, _diff_from(dd[j], y, n)) if full
-                       else SegmentSums(n, tot[j], y))
-                self._sums[(id(seg), instrument)] = (seg, out)
-        return [self.sums(seg, instrument, full) for seg in segs]
+                np.square(Y, out=Z[N:2 * N])
+                D = Z[2 * N:]
+                np.subtract(Y[1:], Y[:-1], out=D[1:])
+                D[starts] = 0.0
+                np.square(D, out=D)
+                idx = np.concatenate([starts, starts + N, starts + 2 * N])
+            R = np.add.reduceat(Z, idx, axis=0)
+            if full:
+                ends = starts + ns - 1
+                R[2 * m:] -= (Y[ends] - Y[starts]) ** 2 / np.maximum(ns - 1, 1)[:, None]  # (:func:`_diff_from`)
+            ns_l = ns.tolist()
+            k = 0
+            for j, seg in enumerate(segs):
+                if out[j] is not None:
+                    continue
+                n = ns_l[k]
+                if not full:
+                    new = SegmentSums(n, R[k], ys[k])
+                elif n < 3:
+                    new = SegmentSums(n, R[k], ys[k], R[m + k], None, (np.zeros(Y.shape[1]), 0))
+                else:
+                    new = SegmentSums(n, R[k], ys[k], R[m + k], None, (R[2 * m + k], n - 2))
+                cache[(id(seg), instrument)] = (seg, new)
+                out[j] = new
+                k += 1
+        return out
 
-    def _compiled(self):
-        """The compiled kernels' module where the backend asks for it and numba is installed, else None (resolved
-        once per object)."""
+    def _compiled(self, n: int):
+        """The compiled kernel's module for a segment of ``n`` samples, or None: where the backend asks for it and
+        numba is installed, for a segment of at least :data:`KERNEL_MIN_SAMPLES` samples (which repays importing
+        numba) or for any segment once numba is loaded in the process anyway (resolved once per object)."""
+        if n < KERNEL_MIN_SAMPLES and "numba" not in sys.modules and not _KERNELS:
+            return None
         if self._kernel is False:
             name = _resolve_backend(self.backend, lambda: _kernels() is not None, "the compiled statistics kernel")
             self._kernel = _kernels() if name == "numba" else None
