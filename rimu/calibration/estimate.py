@@ -64,17 +64,14 @@ def estimate_noise_sigma(session: Session, instrument: str, stats: SessionStatis
 
 def _noise_sigma_from(sums: Sequence[Any], n: int, instrument: str) -> np.ndarray:
     """:func:`estimate_noise_sigma` from the :class:`~rimu.session.SegmentSums` of its segments."""
-    acc = np.zeros(n)
-    cnt = 0
-    for st in sums:
-        ss, dof = st.diff
-        if dof:
-            acc += ss
-            cnt += dof
+    parts = [st.diff for st in sums]
+    used = [ss for ss, dof in parts if dof]
+    cnt = sum(dof for _, dof in parts)
     if cnt == 0:
         raise IdentifiabilityError(f"{instrument}: no segment has enough samples to estimate the noise level")
+    acc = np.add.reduce(np.array(used), axis=0)  # row by row: the segments' sums added in turn
     sig = np.sqrt(acc / cnt / 2.0)
-    if np.any(sig <= 0):
+    if np.logical_or.reduce(sig <= 0):
         sig = np.where(sig > 0, sig, np.max(sig) if np.max(sig) > 0 else 1.0)
     return sig
 
@@ -406,8 +403,8 @@ class LeastSquares:
                 per.append((inst, ctxs, stats, sig, skipped))
                 if skipped:
                     notes.append(f"{inst}: segments not used: {sorted(skipped)}")
-            self._base_check(model, per)
-            out = self._base_fit(model, per, self.sigma is not None, segs)
+            Ginv = self._base_check(model, per)
+            out = self._base_fit(model, per, self.sigma is not None, segs, Ginv)
             return CalibrationResult(f"least squares ({model.label})", out, session.raw_unit, notes)
         for inst in insts:
             sig = _sigma_for(self.sigma, session, inst, sstats)
@@ -441,17 +438,24 @@ class LeastSquares:
         return CalibrationResult(f"least squares ({model.label})", out, session.raw_unit, notes)
 
     @staticmethod
-    def _base_check(model: ErrorModel, per: list[tuple]) -> None:
+    def _base_check(model: ErrorModel, per: list[tuple]) -> np.ndarray:
         """Refuse the first instrument (in order) whose base statistics identify no parameter set: no usable
         segment, or a Gram matrix with a direction the segments do not excite
-        (:func:`~rimu.calibration.lsq.check_identifiable_gram`), naming the physical parameters involved. The
-        eigenvalues of every instrument's scaled Gram matrix in one call; the full check, which names the
-        parameters, only where one fails."""
+        (:func:`~rimu.calibration.lsq.check_identifiable_gram`), naming the physical parameters involved. Returns
+        every instrument's ``G^-1`` (K, 4, 4), one call for all.
+
+        The check's criterion is an eigenvalue of the scaled Gram matrix ``S = D^-1 G D^-1`` (unit diagonal) below
+        1e-12 of the largest. ``tr S = 4`` bounds the largest from above and ``1 / tr S^-1`` the smallest from
+        below, and ``S^-1 = D G^-1 D`` comes from the inverse the fit needs anyway: where ``1 / tr S^-1 > 4e-12``
+        no eigenvalue can fail, and only otherwise are the eigenvalues computed (by the check itself, which names
+        the parameters)."""
         G = np.stack([st[0] for _, _, st, _, _ in per])
-        scale = np.sqrt(np.clip(np.diagonal(G, axis1=1, axis2=2), 0.0, None))
-        scale[scale == 0] = 1.0
-        lam = np.linalg.eigvalsh(G / (scale[:, :, None] * scale[:, None, :]))
-        ok = lam[:, 0] > 1e-12 * np.maximum(lam[:, -1], 1e-300)
+        d = np.diagonal(G, axis1=1, axis2=2)  # (K, 4)
+        try:
+            Ginv = np.linalg.inv(G)
+            ok = (np.einsum("ki,ki->k", np.diagonal(Ginv, axis1=1, axis2=2), d) * 4e-12 < 1.0) & (d > 0).all(axis=1)
+        except np.linalg.LinAlgError:  # exactly singular: the check below names what is missing
+            Ginv, ok = None, np.zeros(len(per), dtype=bool)
         for k, (inst, ctxs, st, _, _) in enumerate(per):
             if st[4] and st[3] >= G.shape[1] and ok[k]:
                 continue
@@ -463,9 +467,13 @@ class LeastSquares:
                 check_identifiable_gram(st[0], st[3], names, inst)
             except IdentifiabilityError as exc:
                 raise IdentifiabilityError(str(exc), _physical_names(model, ctxs[0], exc.parameters)) from None
+        if Ginv is None:  # (singular, yet not refused: cannot happen, the check refuses a rank-deficient G)
+            Ginv = np.linalg.inv(G)
+        return Ginv
 
     @staticmethod
-    def _base_fit(model: ErrorModel, per: list[tuple], sigma_known: bool, segs: list[Segment]) -> dict[str, LsqResult]:
+    def _base_fit(model: ErrorModel, per: list[tuple], sigma_known: bool, segs: list[Segment],
+                  Ginv_k: np.ndarray | None = None) -> dict[str, LsqResult]:
         """The base model (scale/misalignment + bias) of every sensor of every instrument from the shared
         statistics (``per``: instrument, contexts, statistics, noise level, skipped segments; each checked by
         :meth:`_base_check`), as array operations over all the sensors at once: ``B = G^-1 H`` (4, n) per
@@ -474,7 +482,8 @@ class LeastSquares:
         :meth:`~rimu.calibration.effects.scale_misalignment.ScaleMisalignment.physical`, Cho & Park 2005, Eq. 10:
         ``SF = 1/|w|``, ``m = C w/|w|``, ``b = c SF``). The same numbers as the per-sensor path
         (:func:`make_sensor_fit`, to rounding; tested to 1e-12)."""
-        Ginv_k = np.linalg.inv(np.stack([st[0] for _, _, st, _, _ in per]))  # (K, 4, 4): one call for all
+        if Ginv_k is None:  # (K, 4, 4): one call for all
+            Ginv_k = np.linalg.inv(np.stack([st[0] for _, _, st, _, _ in per]))
         Bs, GB, EC, sizes = [], [], [], []
         for k, (_, ctxs, st, _, _) in enumerate(per):
             Bk = Ginv_k[k] @ st[1]  # (4, n_k): w_x, w_y, w_z, c of every sensor of instrument k
@@ -701,13 +710,13 @@ def _angle_row(seg: Segment, model: ErrorModel, ctx: SensorContext) -> np.ndarra
 
 
 def _base_angle_row(seg: Segment) -> np.ndarray:
-    """:func:`_angle_row` of the base model (scale/misalignment, then bias): ``[angle, N dt] / (dt sqrt(N))``."""
+    """:func:`_angle_row` of the base model (scale/misalignment, then bias): ``[angle, N dt] / (dt sqrt(N))``
+    (in Python floats: the same IEEE operations, without four numpy calls)."""
     N = seg.n_samples
     dt = seg.duration / (N - 1)
-    row = np.empty(4)
-    row[:3] = seg.angle_mb if seg.angle_mb.ndim == 1 else seg.angle_mb[-1]
-    row[3] = N * dt
-    return row / (dt * np.sqrt(N))
+    w = dt * math.sqrt(N)
+    a = (seg.angle_mb if seg.angle_mb.ndim == 1 else seg.angle_mb[-1]).tolist()
+    return np.array([a[0] / w, a[1] / w, a[2] / w, N * dt / w])
 
 
 #: physical parameters of the base model per (effect types, instrument, off-axis names): ParamSpec is frozen, so

@@ -364,7 +364,8 @@ class LazyResiduals(Mapping):
                  labels: Iterable[str] = (), compute: Callable[[str], np.ndarray] | None = None) -> None:
         self._makers: dict[str, Callable[[], np.ndarray]] = dict(makers or {})
         #: segments whose residual is ``compute(label)`` (one function for all of them: no closure per segment)
-        self._labels: tuple[str, ...] = tuple(k for k in labels if k not in self._makers) if compute else ()
+        self._labels: tuple[str, ...] = ((tuple(k for k in labels if k not in self._makers) if self._makers
+                                          else tuple(labels)) if compute else ())
         self._compute = compute
         self._given: dict[str, np.ndarray] = {}
 
