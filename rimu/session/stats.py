@@ -237,7 +237,7 @@ class SessionStatistics:
                 if full:
                     self._fill(hit[1])
                 out.append(hit[1])
-            elif seg.raw[instrument].shape[0] < KERNEL_MIN_SAMPLES and not (full and self._compiled(0) is not None):
+            elif seg.raw[instrument].shape[0] < KERNEL_MIN_SAMPLES:
                 out.append(None)
                 todo.append(seg)
             else:
@@ -250,20 +250,26 @@ class SessionStatistics:
             N, m = int(ns.sum()), len(ys)
             starts = np.zeros(m, dtype=np.intp)
             np.cumsum(ns[:-1], out=starts[1:])
+            kern = self._compiled(0) if full else None
             # rows: the samples, their squares, their squared first differences (zero at each segment's first row)
-            Z = np.empty(((3 if full else 1) * N, ys[0].shape[1]))
+            Z = np.empty(((3 if full and kern is None else 1) * N, ys[0].shape[1]))
             Y = Z[:N]
             np.concatenate(ys, out=Y)
             idx = starts
-            if full:
+            if kern is not None:  # numba loaded already: every segment's moments in one compiled call
+                M = np.empty((m, 3, Y.shape[1]))
+                kern.stacked_moments(Y, starts, ns, M)
+                R = M.transpose(1, 0, 2).reshape(3 * m, Y.shape[1])
+            elif full:
                 np.square(Y, out=Z[N:2 * N])
                 D = Z[2 * N:]
                 np.subtract(Y[1:], Y[:-1], out=D[1:])
                 D[starts] = 0.0
                 np.square(D, out=D)
                 idx = np.concatenate([starts, starts + N, starts + 2 * N])
-            R = np.add.reduceat(Z, idx, axis=0)
-            if full:
+            if kern is None:
+                R = np.add.reduceat(Z, idx, axis=0)
+            if full and kern is None:
                 ends = starts + ns - 1
                 R[2 * m:] -= (Y[ends] - Y[starts]) ** 2 / np.maximum(ns - 1, 1)[:, None]  # (:func:`_diff_from`)
             ns_l = ns.tolist()
