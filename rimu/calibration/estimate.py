@@ -14,6 +14,7 @@ Eq. 5): ``y_i = u . w_i + c_i + ...`` with ``SF_i = 1/|w_i|`` (Eq. 10).
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import partial
@@ -21,6 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from .._backend import import_once
+from .._backend import resolve as _resolve_backend
 from ..errors import IdentifiabilityError
 from ..session import Segment, Session, SessionStatistics
 from ..units import raw_unit_for, scale_unit
@@ -74,6 +77,19 @@ def _noise_sigma_from(sums: Sequence[Any], n: int, instrument: str) -> np.ndarra
     if np.logical_or.reduce(sig <= 0):
         sig = np.where(sig > 0, sig, np.max(sig) if np.max(sig) > 0 else 1.0)
     return sig
+
+
+_DEAD_SENSOR = ("a sensor's output does not respond to its input (zero scale-misalignment vector): a dead sensor or "
+                "an unconnected channel; remove it from the geometry")
+_LSQ_KERNELS: list = []
+
+
+def _lsq_kernel(backend: str | None) -> Any:
+    """The compiled base-model kernel (:mod:`rimu.calibration._lsq_kernels`) where numba is loaded in the process
+    already and the backend allows it, else None (no calibration pays for importing numba)."""
+    if "numba" not in sys.modules or _resolve_backend(backend, True) != "numba":
+        return None
+    return import_once(_LSQ_KERNELS, "rimu.calibration._lsq_kernels")
 
 
 def _noise_segments(session: Session) -> list[Segment]:
@@ -404,7 +420,7 @@ class LeastSquares:
                 if skipped:
                     notes.append(f"{inst}: segments not used: {sorted(skipped)}")
             Ginv = self._base_check(model, per)
-            out = self._base_fit(model, per, self.sigma is not None, segs, Ginv)
+            out = self._base_fit(model, per, self.sigma is not None, segs, Ginv, _lsq_kernel(self.backend))
             return CalibrationResult(f"least squares ({model.label})", out, session.raw_unit, notes)
         for inst in insts:
             sig = _sigma_for(self.sigma, session, inst, sstats)
@@ -473,7 +489,7 @@ class LeastSquares:
 
     @staticmethod
     def _base_fit(model: ErrorModel, per: list[tuple], sigma_known: bool, segs: list[Segment],
-                  Ginv_k: np.ndarray | None = None) -> dict[str, LsqResult]:
+                  Ginv_k: np.ndarray | None = None, kern: Any = None) -> dict[str, LsqResult]:
         """The base model (scale/misalignment + bias) of every sensor of every instrument from the shared
         statistics (``per``: instrument, contexts, statistics, noise level, skipped segments; each checked by
         :meth:`_base_check`), as array operations over all the sensors at once: ``B = G^-1 H`` (4, n) per
@@ -484,45 +500,51 @@ class LeastSquares:
         (:func:`make_sensor_fit`, to rounding; tested to 1e-12)."""
         if Ginv_k is None:  # (K, 4, 4): one call for all
             Ginv_k = np.linalg.inv(np.stack([st[0] for _, _, st, _, _ in per]))
-        Bs, GB, EC, sizes = [], [], [], []
-        for k, (_, ctxs, st, _, _) in enumerate(per):
-            Bk = Ginv_k[k] @ st[1]  # (4, n_k): w_x, w_y, w_z, c of every sensor of instrument k
-            Bs.append(Bk)
-            GB.append(st[0] @ Bk)
-            EC.append(ctxs[0].geometry.off_axis_projections())  # (n_k, 2, 3): E_i C_i, a constant of the geometry
-            sizes.append(len(ctxs))
-
         def cat(xs: list, axis: int = 0) -> np.ndarray:
             return np.concatenate(xs, axis=axis) if len(xs) > 1 else xs[0]
 
-        B, H, GB = cat(Bs, 1), cat([st[1] for _, _, st, _, _ in per], 1), cat(GB, 1)
+        EC = cat([ctxs[0].geometry.off_axis_projections() for _, ctxs, _, _, _ in per])  # (p, 2, 3): E_i C_i
+        H = cat([st[1] for _, _, st, _, _ in per], 1)
         q, sig = cat([st[2] for _, _, st, _, _ in per]), cat([x[3] for x in per])
-        Gi = Ginv_k[np.repeat(np.arange(len(per)), sizes)]  # (p, 4, 4): each sensor's instrument's G^-1
-        rss = np.maximum(q - 2.0 * np.einsum("pn,pn->n", B, H) + np.einsum("pn,pn->n", B, GB), 0.0)
-        W = np.ascontiguousarray(B[:3].T)
-        nw = np.sqrt(np.einsum("ni,ni->n", W, W))
-        if not np.all(nw > 0):
-            raise IdentifiabilityError("a sensor's output does not respond to its input (zero scale-misalignment "
-                                       "vector): a dead sensor or an unconnected channel; remove it from the geometry")
-        EC = cat(EC)
-        U = W / nw[:, None]
-        sf = 1.0 / nw
-        p = W.shape[0]
-        J = np.zeros((p, 4, 4))
-        d_sf = -W * (sf**3)[:, None]
-        J[:, 0, :3] = d_sf
-        d_u = (np.eye(3)[None] - U[:, :, None] * U[:, None, :]) * sf[:, None, None]
-        J[:, 1:3, :3] = EC @ d_u
-        J[:, 3, 3] = sf
-        J[:, 3, :3] = B[3][:, None] * d_sf
-        theta = np.empty((p, 4))
-        theta[:, 0] = sf
-        theta[:, 1:3] = np.einsum("nij,nj->ni", EC, U)
-        theta[:, 3] = B[3] * sf
         s2 = sig**2
-        tcov = (J @ Gi @ J.transpose(0, 2, 1)) * s2[:, None, None]
-        beta_cov = s2[:, None, None] * Gi
-        Bt = np.ascontiguousarray(B.T)
+        if kern is not None:  # numba loaded: every sensor's numbers in one compiled call (the same to rounding)
+            p = H.shape[1]
+            Bt, theta, rss = np.empty((p, 4)), np.empty((p, 4)), np.empty(p)
+            tcov, beta_cov = np.empty((p, 4, 4)), np.empty((p, 4, 4))
+            which = np.repeat(np.arange(len(per)), [len(x[1]) for x in per])
+            G = np.stack([st[0] for _, _, st, _, _ in per])
+            if not kern.base_solve(Ginv_k, G, H, q, s2, which, EC, Bt, theta, tcov, beta_cov, rss):
+                raise IdentifiabilityError(_DEAD_SENSOR)
+        else:
+            Bs, GB = [], []
+            for k, (_, _, st, _, _) in enumerate(per):
+                Bk = Ginv_k[k] @ st[1]  # (4, n_k): w_x, w_y, w_z, c of every sensor of instrument k
+                Bs.append(Bk)
+                GB.append(st[0] @ Bk)
+            B, GB = cat(Bs, 1), cat(GB, 1)
+            Gi = Ginv_k[np.repeat(np.arange(len(per)), [len(x[1]) for x in per])]  # (p, 4, 4): each sensor's G^-1
+            rss = np.maximum(q - 2.0 * np.einsum("pn,pn->n", B, H) + np.einsum("pn,pn->n", B, GB), 0.0)
+            W = np.ascontiguousarray(B[:3].T)
+            nw = np.sqrt(np.einsum("ni,ni->n", W, W))
+            if not np.all(nw > 0):
+                raise IdentifiabilityError(_DEAD_SENSOR)
+            U = W / nw[:, None]
+            sf = 1.0 / nw
+            p = W.shape[0]
+            J = np.zeros((p, 4, 4))
+            d_sf = -W * (sf**3)[:, None]
+            J[:, 0, :3] = d_sf
+            d_u = (np.eye(3)[None] - U[:, :, None] * U[:, None, :]) * sf[:, None, None]
+            J[:, 1:3, :3] = EC @ d_u
+            J[:, 3, 3] = sf
+            J[:, 3, :3] = B[3][:, None] * d_sf
+            theta = np.empty((p, 4))
+            theta[:, 0] = sf
+            theta[:, 1:3] = np.einsum("nij,nj->ni", EC, U)
+            theta[:, 3] = B[3] * sf
+            tcov = (J @ Gi @ J.transpose(0, 2, 1)) * s2[:, None, None]
+            beta_cov = s2[:, None, None] * Gi
+            Bt = np.ascontiguousarray(B.T)
         small = (rss < 1e-8 * q).tolist()
         sig_l, s2_l, chi2_l = sig.tolist(), s2.tolist(), (rss / s2).tolist()
         out: dict[str, LsqResult] = {}

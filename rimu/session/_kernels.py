@@ -15,7 +15,7 @@ try:
 except ImportError as exc:  # pragma: no cover - the caller checks availability first
     raise ImportError("the compiled statistics kernel needs numba: pip install rimu[fast]") from exc
 
-__all__ = ["column_moments", "stacked_moments"]
+__all__ = ["column_moments"]
 
 #: IEEE arithmetic as numpy's (no exceptions, no reassociation), except that a product added to a sum may be one
 #: fused multiply-add (one rounding instead of two: the squares' sums twice as fast)
@@ -163,12 +163,4 @@ def _triad_moments(Y, out):  # pragma: no cover - compiled
     out[2, 0] = (d0 + f0) - e0**2 / (n - 1)
     out[2, 1] = (d1 + f1) - e1**2 / (n - 1)
     out[2, 2] = (d2 + f2) - e2**2 / (n - 1)
-
-
-@_jit
-def stacked_moments(Y, starts, counts, out):  # pragma: no cover - compiled
-    """:func:`column_moments` of every segment of samples stacked back to back in Y (segment j: ``counts[j]``
-    rows from ``starts[j]``), into ``out[j]`` (3, k): many short segments in one call."""
-    for j in range(starts.shape[0]):
-        column_moments(Y[starts[j]:starts[j] + counts[j]], out[j])
 

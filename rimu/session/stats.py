@@ -242,7 +242,18 @@ class SessionStatistics:
                 todo.append(seg)
             else:
                 out.append(self.sums(seg, instrument, full))
-        if len(todo) == 1:
+        kern = self._compiled(0) if full and todo else None
+        if kern is not None:  # numba loaded already: a compiled pass per segment (about 1 us for a short one)
+            for j, seg in enumerate(segs):
+                if out[j] is None:
+                    y = seg.raw[instrument]
+                    n = y.shape[0]
+                    M = np.empty((3, y.shape[1]))
+                    kern.column_moments(y, M)
+                    new = SegmentSums(n, M[0], y, M[1], None, (M[2], n - 2) if n >= 3 else (np.zeros(y.shape[1]), 0))
+                    cache[(id(seg), instrument)] = (seg, new)
+                    out[j] = new
+        elif len(todo) == 1:
             out[out.index(None)] = self.sums(todo[0], instrument, full)
         elif todo:
             ys = [seg.raw[instrument] for seg in todo]
@@ -250,26 +261,20 @@ class SessionStatistics:
             N, m = int(ns.sum()), len(ys)
             starts = np.zeros(m, dtype=np.intp)
             np.cumsum(ns[:-1], out=starts[1:])
-            kern = self._compiled(0) if full else None
             # rows: the samples, their squares, their squared first differences (zero at each segment's first row)
-            Z = np.empty(((3 if full and kern is None else 1) * N, ys[0].shape[1]))
+            Z = np.empty(((3 if full else 1) * N, ys[0].shape[1]))
             Y = Z[:N]
             np.concatenate(ys, out=Y)
             idx = starts
-            if kern is not None:  # numba loaded already: every segment's moments in one compiled call
-                M = np.empty((m, 3, Y.shape[1]))
-                kern.stacked_moments(Y, starts, ns, M)
-                R = M.transpose(1, 0, 2).reshape(3 * m, Y.shape[1])
-            elif full:
+            if full:
                 np.square(Y, out=Z[N:2 * N])
                 D = Z[2 * N:]
                 np.subtract(Y[1:], Y[:-1], out=D[1:])
                 D[starts] = 0.0
                 np.square(D, out=D)
                 idx = np.concatenate([starts, starts + N, starts + 2 * N])
-            if kern is None:
-                R = np.add.reduceat(Z, idx, axis=0)
-            if full and kern is None:
+            R = np.add.reduceat(Z, idx, axis=0)
+            if full:
                 ends = starts + ns - 1
                 R[2 * m:] -= (Y[ends] - Y[starts]) ** 2 / np.maximum(ns - 1, 1)[:, None]  # (:func:`_diff_from`)
             ns_l = ns.tolist()
