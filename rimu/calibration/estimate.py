@@ -466,10 +466,11 @@ class LeastSquares:
         no eigenvalue can fail, and only otherwise are the eigenvalues computed (by the check itself, which names
         the parameters)."""
         G = np.stack([st[0] for _, _, st, _, _ in per])
-        d = np.diagonal(G, axis1=1, axis2=2)  # (K, 4)
         try:
             Ginv = np.linalg.inv(G)
-            ok = (np.einsum("ki,ki->k", np.diagonal(Ginv, axis1=1, axis2=2), d) * 4e-12 < 1.0) & (d > 0).all(axis=1)
+            # tr S^-1 = sum_i G_ii (G^-1)_ii; a zero column (G_ii = 0) makes G singular: an error, inf or nan here
+            tr = np.einsum("kii,kii->k", Ginv, G)
+            ok = (tr > 0.0) & (tr * 4e-12 < 1.0)  # (an inverse of a Gram matrix has a positive diagonal)
         except np.linalg.LinAlgError:  # exactly singular: the check below names what is missing
             Ginv, ok = None, np.zeros(len(per), dtype=bool)
         for k, (inst, ctxs, st, _, _) in enumerate(per):
