@@ -115,6 +115,7 @@ def test_pandas_parser_reads_what_numpy_reads(monkeypatch):
     bit, and each instrument's samples contiguous."""
     pytest.importorskip("pandas")
     import pandas  # noqa: F401 - loaded: the loader takes its parser
+
     from rimu.session.loaders import ferraris
 
     folder = shared_data("imucal_ferraris_session", "example_ferraris_session.csv")
