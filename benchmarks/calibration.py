@@ -235,7 +235,8 @@ def main() -> None:
                                    args.repeats, time.thread_time)[name]
             real["estimators"][name] = {"ms": statistics.median(ts) * 1e3}
         # rimu's LeastSquares against imucal, both from prepared data and both from the files, interleaved
-        sessions = iter([load_ferraris(folder) for _ in range(2 * args.repeats + 4)])  # loaded outside the timing
+        rounds = max(args.repeats, 60)  # (a round is some 30 ms: more rounds for a steadier median on loaded cores)
+        sessions = iter([load_ferraris(folder) for _ in range(2 * rounds + 4)])  # loaded outside the timing
         kernels = "with its compiled kernels (numba loaded)" if HAVE_NUMBA else "numpy alone (numba not installed)"
         fns = {"rimu_prepared": lambda: LeastSquares().fit(next(sessions)).to_calibration(),
                "rimu_prepared_numpy": lambda: LeastSquares(backend="numpy").fit(next(sessions)).to_calibration(),
@@ -268,11 +269,11 @@ def main() -> None:
             includes["imucal_files"] = "pandas read_csv + read_json + ferraris_regions_from_section_list + compute"
         for f in fns.values():
             f()
-        ts = interleaved_times(fns, args.repeats, time.thread_time)
+        ts = interleaved_times(fns, rounds, time.thread_time)
         real["ms"] = {k: statistics.median(v) * 1e3 for k, v in ts.items()}
         real["includes"] = includes
         real["rimu_lsq_ms"] = real["ms"]["rimu_prepared"]
-        print(f"  LeastSquares against imucal (thread CPU time, median of {args.repeats} interleaved rounds; "
+        print(f"  LeastSquares against imucal (thread CPU time, median of {rounds} interleaved rounds; "
               f"ratio = median [min, max] of per-round ratios; {load()}):")
         for k in fns:
             print(f"    {k:20s} {real['ms'][k]:7.2f} ms  ({includes[k]})")
