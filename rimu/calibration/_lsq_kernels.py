@@ -4,8 +4,8 @@ normal equations, in one call instead of some sixty small numpy operations. The 
 reference; this gives its numbers to rounding (another summation order; tested to 1e-10 in
 tests/calibration/test_base_fast_path.py).
 
-Used only where numba is loaded in the process already and the backend allows it (:mod:`rimu._backend`), so that
-no short calibration pays for importing numba. Compiled on first use and cached on disk (``cache=True``).
+Used where numba is loaded in the process already and the backend allows it, or where ``"numba"`` is asked for by
+name (:func:`rimu._backend.resolve_loaded`), so that no calibration pays for importing numba unasked. Compiled on first use and cached on disk (``cache=True``).
 """
 
 from __future__ import annotations

@@ -14,7 +14,6 @@ Eq. 5): ``y_i = u . w_i + c_i + ...`` with ``SF_i = 1/|w_i|`` (Eq. 10).
 from __future__ import annotations
 
 import math
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import partial
@@ -23,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from .._backend import import_once
-from .._backend import resolve as _resolve_backend
+from .._backend import resolve_loaded as _resolve_loaded
 from ..errors import IdentifiabilityError
 from ..session import Segment, Session, SessionStatistics
 from ..units import raw_unit_for, scale_unit
@@ -86,8 +85,10 @@ _LSQ_KERNELS: list = []
 
 def _lsq_kernel(backend: str | None) -> Any:
     """The compiled base-model kernel (:mod:`rimu.calibration._lsq_kernels`) where numba is loaded in the process
-    already and the backend allows it, else None (no calibration pays for importing numba)."""
-    if "numba" not in sys.modules or _resolve_backend(backend, True) != "numba":
+    already and the backend allows it, or numba is asked for by name; else None
+    (:func:`rimu._backend.resolve_loaded`: no calibration pays for importing numba unasked)."""
+    if _resolve_loaded(backend, lambda: import_once(_LSQ_KERNELS, "rimu.calibration._lsq_kernels") is not None,
+                       "the compiled least-squares kernel") != "numba":
         return None
     return import_once(_LSQ_KERNELS, "rimu.calibration._lsq_kernels")
 

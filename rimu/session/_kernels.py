@@ -1,10 +1,10 @@
 """Compiled kernel (numba) of the per-segment statistics (:mod:`rimu.session.stats`): one pass over a segment's
 samples for its column sums, sums of squares and sums of squared first differences. The numpy code of stats.py is
-the reference; this gives its numbers to rounding (another summation order; tested in
-tests/calibration/test_segment_statistics.py).
+the reference; this gives its numbers to rounding (another summation order, fused multiply-adds; tested against
+exactly rounded sums in tests/calibration/test_base_fast_path.py).
 
-Imported only when numba is installed (``pip install rimu[fast]``), the backend is not ``"numpy"``
-(:mod:`rimu._backend`) and a segment is long enough to repay it (:data:`rimu.session.stats.KERNEL_MIN_SAMPLES`).
+Used where numba is loaded in the process already and the backend is not ``"numpy"``, or where ``"numba"`` is asked
+for by name (:func:`rimu._backend.resolve_loaded`: a calibration's sums never repay importing numba by themselves).
 Compiled on first use and cached on disk (``cache=True``).
 """
 

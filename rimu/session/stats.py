@@ -27,21 +27,18 @@ mutable, and nothing here could tell that they changed).
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .._backend import import_once
-from .._backend import resolve as _resolve_backend
+from .._backend import resolve_loaded as _resolve_loaded
 from .model import Segment, Session
 
 __all__ = ["KERNEL_MIN_SAMPLES", "RotationMoments", "SegmentSums", "SessionStatistics", "column_sums"]
 
-#: segments of at least this many samples take the compiled pass (:mod:`rimu.session._kernels`) where numba is
-#: installed and the backend allows it; shorter ones take it once numba is loaded in the process anyway, and are
-#: otherwise summed by numpy, all of them together, so that a short session (a test, a hand recording, a command
-#: line run) never pays for importing numba (about 1 s)
+#: without the compiled pass (numba not loaded), segments shorter than this are summed by numpy all together (a few
+#: calls for all of them), longer ones one by one
 KERNEL_MIN_SAMPLES = 2048
 _KERNELS: list = []
 
@@ -192,8 +189,8 @@ class SessionStatistics:
 
     def __init__(self, session: Session, backend: str | None = None) -> None:
         self.session = session
-        #: "auto", "numpy" or "numba" (:mod:`rimu._backend`), resolved when a segment is first long enough for the
-        #: compiled pass (:data:`KERNEL_MIN_SAMPLES`), so that a short session never imports numba
+        #: "auto", "numpy" or "numba" (:mod:`rimu._backend`): the compiled pass where numba is loaded already (auto),
+        #: or asked for by name (:func:`rimu._backend.resolve_loaded`)
         self.backend = backend
         self._kernel: object = False  # not resolved yet
         self._sums: dict[tuple[int, str], tuple[Segment, SegmentSums]] = {}
@@ -212,7 +209,7 @@ class SessionStatistics:
             return out
         y = seg.raw[instrument]
         n = y.shape[0]
-        if full and self._compiled(n) is not None:
+        if full and self._compiled() is not None:
             m = np.empty((3, y.shape[1]))
             self._kernel.column_moments(y, m)  # type: ignore[attr-defined]
             out = SegmentSums(n, m[0], y, m[1], None, (m[2], n - 2) if n >= 3 else (np.zeros(y.shape[1]), 0))
@@ -242,7 +239,7 @@ class SessionStatistics:
                 todo.append(seg)
             else:
                 out.append(self.sums(seg, instrument, full))
-        kern = self._compiled(0) if full and todo else None
+        kern = self._compiled() if full and todo else None
         if kern is not None:  # numba loaded already: a compiled pass per segment (about 1 us for a short one)
             for j, seg in enumerate(segs):
                 if out[j] is None:
@@ -294,14 +291,12 @@ class SessionStatistics:
                 k += 1
         return out
 
-    def _compiled(self, n: int):
-        """The compiled kernel's module for a segment of ``n`` samples, or None: where the backend asks for it and
-        numba is installed, for a segment of at least :data:`KERNEL_MIN_SAMPLES` samples (which repays importing
-        numba) or for any segment once numba is loaded in the process anyway (resolved once per object)."""
-        if n < KERNEL_MIN_SAMPLES and "numba" not in sys.modules and not _KERNELS:
-            return None
+    def _compiled(self):
+        """The compiled kernel's module, or None: where numba is loaded in the process already and the backend
+        allows it, or the backend asks for numba by name (:func:`rimu._backend.resolve_loaded`: the sums of a
+        calibration never repay importing numba by themselves). Resolved once per object."""
         if self._kernel is False:
-            name = _resolve_backend(self.backend, lambda: _kernels() is not None, "the compiled statistics kernel")
+            name = _resolve_loaded(self.backend, lambda: _kernels() is not None, "the compiled statistics kernel")
             self._kernel = _kernels() if name == "numba" else None
         return self._kernel
 
