@@ -40,6 +40,8 @@ __all__ = ["KERNEL_MIN_SAMPLES", "RotationMoments", "SegmentSums", "SessionStati
 #: without the compiled pass (numba not loaded), segments shorter than this are summed by numpy all together (a few
 #: calls for all of them), longer ones one by one
 KERNEL_MIN_SAMPLES = 2048
+#: at most this many rows of short segments are stacked at once (the stack holds three times as many)
+STACK_ROWS = 1 << 16
 _KERNELS: list = []
 
 
@@ -250,46 +252,56 @@ class SessionStatistics:
                     new = SegmentSums(n, M[0], y, M[1], None, (M[2], n - 2) if n >= 3 else (np.zeros(y.shape[1]), 0))
                     cache[(id(seg), instrument)] = (seg, new)
                     out[j] = new
-        elif len(todo) == 1:
-            out[out.index(None)] = self.sums(todo[0], instrument, full)
         elif todo:
-            ys = [seg.raw[instrument] for seg in todo]
-            ns = np.array([y.shape[0] for y in ys], dtype=np.intp)
-            N, m = int(ns.sum()), len(ys)
-            starts = np.zeros(m, dtype=np.intp)
-            np.cumsum(ns[:-1], out=starts[1:])
-            # rows: the samples, their squares, their squared first differences (zero at each segment's first row)
-            Z = np.empty(((3 if full else 1) * N, ys[0].shape[1]))
-            Y = Z[:N]
-            np.concatenate(ys, out=Y)
-            idx = starts
-            if full:
-                np.square(Y, out=Z[N:2 * N])
-                D = Z[2 * N:]
-                np.subtract(Y[1:], Y[:-1], out=D[1:])
-                D[starts] = 0.0
-                np.square(D, out=D)
-                idx = np.concatenate([starts, starts + N, starts + 2 * N])
-            R = np.add.reduceat(Z, idx, axis=0)
-            if full:
-                ends = starts + ns - 1
-                R[2 * m:] -= (Y[ends] - Y[starts]) ** 2 / np.maximum(ns - 1, 1)[:, None]  # (:func:`_diff_from`)
-            ns_l = ns.tolist()
-            k = 0
+            # a few numpy calls per chunk of at most STACK_ROWS stacked rows (memory: 3 x STACK_ROWS rows at a time)
+            chunk: list[Segment] = []
+            rows = 0
+            for seg in todo + [None]:  # type: ignore[list-item]
+                n = 0 if seg is None else seg.raw[instrument].shape[0]
+                if chunk and (seg is None or rows + n > STACK_ROWS):
+                    self._stacked(chunk, instrument, full)
+                    chunk, rows = [], 0
+                if seg is not None:
+                    chunk.append(seg)
+                    rows += n
             for j, seg in enumerate(segs):
-                if out[j] is not None:
-                    continue
-                n = ns_l[k]
-                if not full:
-                    new = SegmentSums(n, R[k], ys[k])
-                elif n < 3:
-                    new = SegmentSums(n, R[k], ys[k], R[m + k], None, (np.zeros(Y.shape[1]), 0))
-                else:
-                    new = SegmentSums(n, R[k], ys[k], R[m + k], None, (R[2 * m + k], n - 2))
-                cache[(id(seg), instrument)] = (seg, new)
-                out[j] = new
-                k += 1
+                if out[j] is None:
+                    out[j] = cache[(id(seg), instrument)][1]
         return out
+
+    def _stacked(self, todo: "list[Segment]", instrument: str, full: bool) -> None:
+        """The :class:`SegmentSums` of the short segments ``todo`` (stacked: a few numpy calls for all of them), kept.
+        Rows: the samples, their squares and their squared first differences (zero at each segment's first row);
+        every sum of every segment in one ``np.add.reduceat``."""
+        ys = [seg.raw[instrument] for seg in todo]
+        ns = np.array([y.shape[0] for y in ys], dtype=np.intp)
+        N, m = int(ns.sum()), len(ys)
+        starts = np.zeros(m, dtype=np.intp)
+        np.cumsum(ns[:-1], out=starts[1:])
+        # rows: the samples, their squares, their squared first differences (zero at each segment's first row)
+        Z = np.empty(((3 if full else 1) * N, ys[0].shape[1]))
+        Y = Z[:N]
+        np.concatenate(ys, out=Y)
+        idx = starts
+        if full:
+            np.square(Y, out=Z[N:2 * N])
+            D = Z[2 * N:]
+            np.subtract(Y[1:], Y[:-1], out=D[1:])
+            D[starts] = 0.0
+            np.square(D, out=D)
+            idx = np.concatenate([starts, starts + N, starts + 2 * N])
+        R = np.add.reduceat(Z, idx, axis=0)
+        if full:
+            ends = starts + ns - 1
+            R[2 * m:] -= (Y[ends] - Y[starts]) ** 2 / np.maximum(ns - 1, 1)[:, None]  # (:func:`_diff_from`)
+        for k, (seg, n) in enumerate(zip(todo, ns.tolist())):
+            if not full:
+                new = SegmentSums(n, R[k], ys[k])
+            elif n < 3:
+                new = SegmentSums(n, R[k], ys[k], R[m + k], None, (np.zeros(Y.shape[1]), 0))
+            else:
+                new = SegmentSums(n, R[k], ys[k], R[m + k], None, (R[2 * m + k], n - 2))
+            self._sums[(id(seg), instrument)] = (seg, new)
 
     def _compiled(self):
         """The compiled kernel's module, or None: where numba is loaded in the process already and the backend

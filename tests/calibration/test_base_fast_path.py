@@ -47,10 +47,12 @@ def _ferraris_session(static_s: float, seed: int = 7):
     return Simulator({"gyro": g, "accel": g}, latitude_deg=None, seed=seed).run(steps).session
 
 
-@pytest.mark.parametrize("compiled", [False, True])
-def test_stacked_and_compiled_sums_equal_exact_sums(monkeypatch, compiled):
-    """SessionStatistics.sums_of (short segments stacked: numpy's reduceat, or the compiled kernel in one call; a
-    long one alone) against exactly rounded per-sample sums, 1e-12 relative, segments of 1 to 3000 samples."""
+@pytest.mark.parametrize("compiled,stack_rows", [(False, 1 << 16), (False, 200), (True, 1 << 16)])
+def test_stacked_and_compiled_sums_equal_exact_sums(monkeypatch, compiled, stack_rows):
+    """SessionStatistics.sums_of (short segments stacked: numpy's reduceat, in one stack or in chunks of at most
+    ``stack_rows`` rows, or the compiled kernel; a long one alone) against exactly rounded per-sample sums, 1e-12
+    relative, segments of 1 to 3000 samples."""
+    monkeypatch.setattr(stats_mod, "STACK_ROWS", stack_rows)
     if compiled:
         pytest.importorskip("numba")
         import numba  # noqa: F401 - loaded: short segments take the kernel too
