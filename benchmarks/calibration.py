@@ -10,6 +10,11 @@ proportions), hand-held (30 poses, long holds) and LeastSquares (imucal's own da
 144000 x 6. de Oliveira needs at least four gyros: a tetrad of gyros with a triad of accelerometers (7 channels) over
 its Table 1 sequences with the same number of sample-channels; its ratio is also given per sample-channel.
 
+rimu runs with numba loaded (its ``fast`` extra, as in any process running rimu's compiled runtime): its statistics
+and base fit take their compiled kernels then; the real recording's comparison also times rimu with numpy alone
+(``backend="numpy"``). From files, rimu's Ferraris loader parses with pandas, which imucal's side loads in this
+process (without pandas loaded it takes numpy's reader).
+
 Every fit reads its session afresh: an estimator's per-segment statistics (rimu.session.stats) live for one
 ``fit``, so no round is helped by an earlier one (the warm-up call only imports).
 
