@@ -264,13 +264,15 @@ def main() -> None:
                 return FerrarisCalibration().compute(regions, sampling_rate_hz=102.4, from_acc_unit="m/s^2",
                                                      from_gyr_unit="deg/s")
 
-            regions = ferraris_regions_from_section_list(pd.read_csv(csv_path, header=0, index_col=0),
-                                                         pd.read_json(json_path).T)  # its own loader's arrays
+            # its own loader's arrays, made afresh for every call as rimu's sessions are (both sides then read
+            # data that no earlier call left in the caches)
+            pool = iter([ferraris_regions_from_section_list(pd.read_csv(csv_path, header=0, index_col=0),
+                                                            pd.read_json(json_path).T) for _ in range(rounds + 2)])
             fns["imucal_prepared"] = lambda: FerrarisCalibration().compute(
-                regions, sampling_rate_hz=102.4, from_acc_unit="m/s^2", from_gyr_unit="deg/s")
+                next(pool), sampling_rate_hz=102.4, from_acc_unit="m/s^2", from_gyr_unit="deg/s")
             fns["imucal_files"] = imucal_files
-            includes["imucal_prepared"] = ("FerrarisCalibration().compute on the FerrarisSignalRegions its loader "
-                                           "made beforehand")
+            includes["imucal_prepared"] = ("FerrarisCalibration().compute on FerrarisSignalRegions its loader made "
+                                           "beforehand, fresh for every call as rimu's sessions are")
             includes["imucal_files"] = "pandas read_csv + read_json + ferraris_regions_from_section_list + compute"
         for f in fns.values():
             f()
