@@ -19,7 +19,7 @@ from rimu.units import DH_TO_RS, G0
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root, for tests.diagnose
 
-from tests.diagnose.scenarios import simulate  # noqa: E402
+from tests.diagnose.scenarios import simulate
 
 EFFECTS = "bias,scale_misalignment,g_sensitivity"
 
@@ -40,6 +40,7 @@ def test_an_effect_that_raises_the_held_out_residual_is_dropped_unless_asked_to_
     s = tmp_path / "s.npz"
     line, b, a, unit, doc = _calibrate(capsys, tmp_path, s, "--report", str(tmp_path / "rep"))
     assert a > b and line.startswith("caution: gyro:") and "not applied" in line, line   # 0.5011 -> 0.5017 deg/s
+    assert unit == "deg/s"
     assert any("not applied" in n and "g_sensitivity" in n for n in doc["notes"])
     assert "gyro without g_sensitivity" in doc["method"]
     assert "not applied (the fit without it is kept)" in (tmp_path / "rep" / "calibration.html").read_text()
@@ -64,6 +65,7 @@ def test_an_effect_the_truth_has_lowers_the_held_out_residual_and_is_applied(tmp
     save_session(run.session, tmp_path / "g.npz")
     line, b, a, unit, doc = _calibrate(capsys, tmp_path, tmp_path / "g.npz")
     assert a < 0.95 * b and line.startswith("note: gyro:") and line.endswith("applied"), line  # 47.45 -> 40.36 deg/h
+    assert unit == "deg/h"
     gs = doc["instruments"]["gyro"]
     name = run.session.geometries["gyro"].names[0]
     for k, ax in enumerate("xyz"):
