@@ -1544,7 +1544,7 @@ def held_out_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]
                 gf = fit_gyro(session, keep, accel_dirs, None, None, idx, sigma, H, robust, dir_cov, model=model,
                               **fit_kw)
                 r[group == g] = misfit(gf.theta)[group == g]
-        except IdentifiabilityError:
+        except (IdentifiabilityError, np.linalg.LinAlgError):
             return None
         ins.append(float(np.sqrt(np.mean(np.sum(full.rotation_residual ** 2, axis=1)))))
         out.append(float(np.sqrt(np.mean(np.sum(r ** 2, axis=1)))))
