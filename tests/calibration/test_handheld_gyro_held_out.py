@@ -75,3 +75,22 @@ def test_the_gyro_step_on_a_nominal_truth_raises_the_held_out_misfit_and_is_refu
     np.testing.assert_allclose(cal.misalignment, np.eye(3), atol=1e-9)   # refused: nominal axes in the gauge frame
     assert not np.allclose(ref.to_calibration()["gyro"].misalignment, np.eye(3), atol=1e-4)
     assert res.extra["steps"][-1]["applied"] is False and res.extra["steps"][-1]["unit"] == "rad"
+
+
+def test_the_mpu6050_session_s_gyro_step_from_the_cli(tmp_path, capsys):
+    """The figures docs/calibration.md states for the real MPU-6050 hand-held session (rimu detect, then rimu
+    calibrate --method handheld): 7 motions (2 clipped left out), each left out in turn."""
+    import json
+
+    from rimu.cli import main
+    from tests.conftest import shared_data
+
+    raw = shared_data("mpu6050_handheld_session") / "calibration_data" / "example_data_calibration.csv"
+    assert main(["detect", str(raw), "-o", str(tmp_path / "s.csv"), "-q"]) == 0
+    assert main(["calibrate", str(tmp_path / "s.csv"), "--method", "handheld", "-o", str(tmp_path / "c.json"),
+                 "--json", str(tmp_path / "r.json")]) == 0
+    out = capsys.readouterr().out
+    note = next(n for n in json.loads((tmp_path / "r.json").read_text())["notes"]
+                if n.startswith("gyro: the misalignment step"))
+    assert note in out and "(each left out in turn)" in note and "not applied" not in note, note
+    np.testing.assert_allclose(_figures(note), np.radians([4.33, 2.209, 7.209, 7.172]), rtol=2e-3)
