@@ -425,6 +425,7 @@ def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: in
             sig *= np.sqrt(c)
             noise_scale[inst] = c
         cals[inst] = InstrumentCalibration.nominal(inst, geo, scale=1.0, bias=bias, noise_sigma=sig)
+        cals[inst].noise_period_s = dt_avg  # the noise of the epochs it was measured on (the averages')
     spans = {"still_s": float(st.sum()) * dt_avg if use_rest else 0.0, "motion_s": motion_s,
              "noise_at_rest": bool(use_rest and st.sum() >= 50), "noise_scale": noise_scale}
     meta: dict[str, Any] = {"source": recording.meta.get("source") or recording.meta.get("folder"),

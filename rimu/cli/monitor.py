@@ -433,6 +433,11 @@ def _stored_detectors(cal: Any, settings: Any) -> dict:
     from ..fdi.motion import motion_detector_from_dict
 
     out = {}
+    for k in cal.instruments:  # a live source's rate is not known up front: the period the noise holds for is said
+        per = cal[k].noise_period_s
+        if per is not None and k not in (cal.metadata.get("motion_terms") or {}):
+            print(f"rimu monitor: {k}: the unit file's noise is stated for epochs of {per:.4g} s; the source must "
+                  f"deliver epochs at {1.0 / per:.4g} Hz (rimu replay converts it for a log at another rate)")
     for k, d in (cal.metadata.get("motion_terms") or {}).items():
         if k not in cal.instruments:
             continue

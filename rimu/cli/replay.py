@@ -501,6 +501,13 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
             if args.noise is None:
                 raise CalibrationFileError(f"the {k} calibration states no noise; pass --noise SIGMA (SI per sample)")
             cal[k].noise_sigma = np.full(cal[k].geometry.n, float(args.noise))
+        per = cal[k].noise_period_s  # the noise is stated for the epochs it was measured on (rimu setup's averages)
+        if per is not None and abs(per * scan.fs - 1.0) > 0.02:
+            cal[k].noise_sigma = cal[k].noise_sigma_at(1.0 / scan.fs)
+            cal[k].noise_period_s = 1.0 / scan.fs
+            print(f"  {k}: the calibration's noise is stated for epochs of {fmt(per, 'time', 's', digits=3)}; at the "
+                  f"data's {fmt(scan.fs, 'frequency', 'Hz', digits=4)} it is x{np.sqrt(per * scan.fs):.3g} per sample "
+                  "(white noise: sigma sqrt(T_noise / T))")
     injections = [parse_injection(s) for s in args.inject]
     for inj in injections:  # a fault outside the data would be "injected" without touching a sample
         if not t0 <= inj.start < t_end:
