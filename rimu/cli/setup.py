@@ -52,6 +52,11 @@ def _window(text: str) -> tuple[Any, Any]:
     return a, b
 
 
+def _track(text: str) -> Any:
+    """``auto`` or a non-negative time in s."""
+    return "auto" if text.strip().lower() == "auto" else nonnegative_float(text)
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("setup", help="clock and axis alignment, bias differences and noise of a multi-IMU unit "
                        "from its own log -> calibration (+ session for rimu replay)", description=__doc__,
@@ -75,9 +80,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the motion-aware test decides on the mean of its last SECONDS of samples (at least one; "
                         "default %(default)s s: at the full rate of a fast-sampled unit the sensitivity of 0.1 s "
                         "averages, deciding at every sample)")
-    p.add_argument("--bias-track", type=nonnegative_float, default=60.0, metavar="SECONDS",
-                   help="time constant of the motion-aware test's tracker of the triads' relative bias drift at rest "
-                        "(0: none; default %(default)s s)")
+    p.add_argument("--bias-track", type=_track, default="auto", metavar="SECONDS|auto",
+                   help="time constant of the motion-aware test's tracker of the triads' relative bias drift at rest: "
+                        "'auto' (default) measures it on the fit window's poses at rest, tau = N/K of the residuals' "
+                        "white noise density N and bias random walk K (the Allan variance's minimum over sqrt(3)); "
+                        "or SECONDS (0: none)")
     add_json_option(p, "clock offsets (s), rotation angles (deg), spans at rest (s) per triad")
     add_log_options(p)
     add_accept_implausible(p)
@@ -169,7 +176,7 @@ def _session(su, insts: list[str], names: list[str], t0: float, source: str):  #
                    raw_unit="SI", meta={"raw_units": {"gyro": "rad/s", "accel": "m/s^2"}, "source": source, "t0_s": t0})
 
 
-def _fit_motion(su, margin: float, window_s: float, track_s: float | None) -> None:  # type: ignore[no-untyped-def]
+def _fit_motion(su, margin: float, window_s: float, track_s: Any) -> None:  # type: ignore[no-untyped-def]
     """The gyros' motion terms on the fit window (taken as fault-free), stored in the calibration's metadata
     (``motion_terms``), with what they assume printed."""
     import numpy as np
@@ -190,6 +197,8 @@ def _fit_motion(su, margin: float, window_s: float, track_s: float | None) -> No
     except ShapeError as exc:
         raise ShapeError(f"--motion-fit: {exc}") from None
     su.calibration.metadata["motion_terms"] = {"gyro": motion_detector_to_dict(det)}
+    if det.bias_drift is not None:
+        print("gyro " + (det.bias_drift if isinstance(det.bias_drift, str) else det.bias_drift.describe()))
     m = det.model
     print(f"gyro motion terms (fit window, {det.fit_samples} epochs, margin {margin:g}; the test decides on the mean "
           f"of {det.window} epoch(s), window gain {float(np.median(det.window_gain)):.3g} (median)): scale "

@@ -51,8 +51,11 @@ alarm (the MIMU4444's exp_6: 0.1 deg/s in seven minutes against a noise of 0.06 
 constant tau (``tracked_bias``), subtracted from the residual before the test, its own variance
 (``sigma^2 alpha / (2 - alpha)``, alpha = 1 / (tau fs)) added to the covariance. Only the part of a drift that
 breaks the sensors' agreement reaches the residual, so only that is tracked; an abrupt fault moves it by
-``t / tau`` of itself in t seconds (0.4 % in the 0.25 s it takes to isolate 1 deg/s with tau = 60 s), a fault that
-grows more slowly than tau is absorbed (the price of following drift). The tracker is kept across set changes.
+``t / tau`` of itself in t seconds (4 % in the 0.27 s it takes to isolate 1 deg/s with exp_6's tau = 6.7 s), a
+fault that grows more slowly than tau is absorbed (the price of following drift). The tracker is kept across set
+changes. tau is measured on the fit span (``fit_motion_detector(bias_track_s="auto")``): ``tau = N / K`` of the
+residuals' white noise density and bias random walk, where the tracker's error ``N^2 / (2 tau) + K^2 tau / 2`` is
+smallest (:mod:`rimu.fdi.bias_drift`).
 """
 
 from __future__ import annotations
@@ -272,6 +275,8 @@ class MotionAwareGlt:
         self._thr_cache: dict[int, float] = {}
         #: samples the motion terms were fitted on (set by :func:`fit_motion_detector`; 0: stated, not fitted)
         self.fit_samples = 0
+        #: the drift measured where ``bias_track_s`` came from the data (:func:`fit_motion_detector`, "auto")
+        self.bias_drift: Any = None
         #: (largest |rate| rad/s, largest |angular acceleration| rad/s^2) the terms hold for; None: no limit
         self.envelope: tuple[float, float] | None = None
         #: the last sample's motion was outside :attr:`envelope` (its alarm is no evidence against one sensor:
@@ -542,7 +547,7 @@ def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, val
                         sample_rate: float, margin: float = 3.0, p_fa: float = 1e-3,
                         terms: tuple[str, ...] = _FIT_TERMS[1:], min_samples: int = 50,
                         envelope: float | None = 1.0, window: int = 1,
-                        bias_track_s: float | None = None, still: np.ndarray | None = None) -> MotionAwareGlt:
+                        bias_track_s: float | str | None = None, still: np.ndarray | None = None) -> MotionAwareGlt:
     """A gyro :class:`MotionAwareGlt` whose motion terms are fitted on fault-free raw data of the unit.
 
     The data go through the runtime pipeline with every sensor active; the samples where every sensor is valid
@@ -567,8 +572,11 @@ def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, val
         each sensor's ``window_gain`` is measured on the fit span's rest (rate below 0.02 rad/s, in runs of at
         least four windows, each run's mean removed): the variance of an L-sample mean of its residual over
         1/L of its variance, at least 1.
-    bias_track_s : float or None
-        Time constant of the detector's relative-bias tracker at rest (:class:`MotionAwareGlt`); None: none.
+    bias_track_s : float, "auto" or None
+        Time constant of the detector's relative-bias tracker at rest (:class:`MotionAwareGlt`); None: none;
+        ``"auto"``: ``N / K`` of the residuals' white noise density N and bias random walk K measured on the
+        span's poses at rest (:func:`rimu.fdi.bias_drift.bias_drift`; the detector's ``bias_drift`` says them),
+        none where the span has fewer than three poses at rest (``bias_drift`` then says why).
     still : ndarray (N,) of bool, optional
         The samples at rest (e.g. :attr:`rimu.calibration.multi_imu.MultiImuSetup.still`); default: the estimate
         within 0.02 rad/s of zero. Given, their median estimate is the detector's ``rest_level`` (the array's
@@ -605,9 +613,21 @@ def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, val
     model = fit_motion_terms(MotionNoiseModel(calibration, sigma=pipe.table.sigma), res[full], pipe.table.G[0],
                              x[full], alpha[full], terms=terms, margin=margin)
     gain = _window_gain(res, rest, int(window)) if window > 1 else 1.0
+    drift = None
+    if isinstance(bias_track_s, str):
+        if bias_track_s != "auto":
+            raise ValueError(f"bias_track_s must be a time (s), 'auto' or None, got {bias_track_s!r}")
+        from .bias_drift import bias_drift
+
+        try:
+            drift = bias_drift(res, rest, sample_rate)
+            bias_track_s = drift.tau_s
+        except ShapeError as exc:  # no drift can be measured: no tracker, and the reason said
+            drift, bias_track_s = f"no bias tracker: {exc}", None
     det = MotionAwareGlt(model, p_fa, sample_rate=sample_rate, window=window, window_gain=gain,
                          bias_track_s=bias_track_s, rest_level=level)
     det.fit_samples = int(full.sum())
+    det.bias_drift = drift
     if envelope is not None:
         det.envelope = (float(envelope * np.linalg.norm(x[full], axis=1).max()),
                         float(envelope * np.linalg.norm(alpha[full], axis=1).max()))
