@@ -69,6 +69,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "half; default: the whole log)")
     p.add_argument("--average", type=nonnegative_float, default=0.1,
                    help="block-average length, s (0: none; default %(default)s)")
+    p.add_argument("--parallel", action="store_true",
+                   help="keep the triads on the axes the log states (no rotation fitted): for a static recording in "
+                        "one pose, where the rotations cannot be found (gravity in one direction only); the gyros "
+                        "at rest do not depend on the rotations, the bias differences are fitted either way")
     p.add_argument("--motion-fit", action="store_true",
                    help="also fit the gyros' motion terms (rimu.fdi.fit_motion_detector: residual scale, misalignment, "
                         "time offset, vibration per rate and angular acceleration, and the envelope of motion they hold "
@@ -117,7 +121,8 @@ def run(args: argparse.Namespace) -> int:
 
         raise OptionError(f"--average {args.average:g} s: the log spans {span:.4g} s; give at most {span / 10:.4g} s "
                           "(ten averaged epochs)")
-    su = setup_multi_imu(rec, average_s=args.average or None, fit_window_s=win)
+    su = setup_multi_imu(rec, average_s=args.average or None, fit_window_s=win,
+                         align_axes=False if args.parallel else None)
     print(su.report())
     if args.motion_fit:
         _fit_motion(su, args.motion_margin, args.motion_window, args.bias_track or None)
@@ -182,7 +187,7 @@ def _fit_motion(su, margin: float, window_s: float, track_s: Any) -> None:  # ty
     import numpy as np
 
     from ..errors import ShapeError
-    from ..fdi.motion import fit_motion_detector, motion_detector_to_dict
+    from ..fdi.motion import envelope_text, fit_motion_detector, motion_detector_to_dict
 
     if "gyro" not in su.calibration.instruments:
         raise ShapeError("--motion-fit: the unit has no gyros")
@@ -203,6 +208,8 @@ def _fit_motion(su, margin: float, window_s: float, track_s: Any) -> None:  # ty
     print(f"gyro motion terms (fit window, {det.fit_samples} epochs, margin {margin:g}; the test decides on the mean "
           f"of {det.window} epoch(s), window gain {float(np.median(det.window_gain)):.3g} (median)): scale "
           f"{1e2 * float(np.median(m.scale_rel)):.3g} %, misalignment {1e3 * float(np.median(m.misalignment_rad)):.3g} "
-          f"mrad, time offset {1e3 * float(np.median(m.time_offset_s)):.3g} ms (medians); they hold for |rate| up to "
-          f"{np.degrees(det.envelope[0]):.4g} deg/s and |angular acceleration| up to {np.degrees(det.envelope[1]):.4g} "
-          "deg/s^2 (beyond: model_exceeded, nothing isolated)")
+          f"mrad, time offset {1e3 * float(np.median(m.time_offset_s)):.3g} ms (medians); they hold for "
+          f"{envelope_text(det.envelope)} (beyond: model_exceeded, nothing isolated)")
+    if det.moving_samples < 50:
+        print(f"gyro: no motion in the fit window ({det.moving_samples} epochs): no motion term fitted; the test is "
+              "the plain GLT of the noise at rest, which holds at rest only")
