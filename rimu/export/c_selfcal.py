@@ -1232,3 +1232,101 @@ def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc", sample_rate: flo
                    f"static const double {prefix}_thr_det[{len(thr)}] = {_array(thr)};"]
         source += _GLT_SOURCE.format(P=P, p=prefix)
     return header, "\n".join(consts) + source
+
+
+# ---------------------------------------------------------------------------------------------- in the exported unit
+def unit_prefix(instrument: str) -> str:
+    """The prefix of an instrument's tracker in an exported unit (its files ``<prefix>.h`` / ``<prefix>.c``)."""
+    return f"rimu_{instrument.lower()}_sc"
+
+
+def unit_files(trackers: dict[str, SelfCalTracker], sample_rate: float, p_fa: float) -> dict[str, str]:
+    """The trackers' own translation units in an exported unit (:func:`rimu.export.export_c` with ``selfcal=``):
+    each with its loop and the window GLT of the tracker's window (what :class:`rimu.fdi.Runtime` gives a tracked
+    instrument's manager: ``TrackedGltWindow(round(window_s * rate), p_fa)``)."""
+    out = {}
+    for k, trk in trackers.items():
+        M = max(1, int(round(trk.settings.window_s * float(sample_rate))))
+        h, c = selfcal_c(trk, unit_prefix(k), sample_rate, M, p_fa)
+        out[f"{unit_prefix(k)}.h"] = h
+        out[f"{unit_prefix(k)}.c"] = c
+    return out
+
+
+def unit_header(trackers: dict[str, SelfCalTracker]) -> str:
+    """Declarations for ``rimu_unit.h``: each tracked instrument's state and its step through the manager."""
+    lines = ["", "/* ---- in-flight self-calibration (rimu.fdi.selfcal; docs/selfcal.md): per tracked instrument */"]
+    for k, trk in trackers.items():
+        p, P = unit_prefix(k), unit_prefix(k).upper()
+        lines += [
+            f'#include "{p}.h"',
+            f"/* {k}: the tracker's loop, the window GLT whose thresholds carry its covariance, and the tracked terms",
+            " * the estimates file shows on a sample (those after the last window that ended before it). Zero-initialise",
+            " * it. */",
+            "typedef struct {",
+            f"    {p}_loop loop;",
+            f"    {p}_glt glt;",
+            f"    double terms[{P}_S], sigmas[{P}_S];        /* SI, block-major ({', '.join(trk.blocks)}) x sensor */",
+            f"    double terms_next[{P}_S], sigmas_next[{P}_S];",
+            "    int started;",
+            f"}} rimu_{k.lower()}_tracked;",
+            f"/* {k}: one sample through the self-calibration and the redundancy manager, as rimu.fdi.Runtime does: the",
+            " * compensated outputs corrected by the tracked terms, the manager's step with the window GLT, the tracker",
+            " * told the alarm, the statistic and the isolated sensors (t: s, the log's own time; temperature: degC or",
+            " * NULL). */",
+            f"void rimu_{k.lower()}_sc_fdi_step(rimu_fdi *m, rimu_{k.lower()}_tracked *sc, double t, "
+            "const double *temperature, const rimu_real *y, const unsigned char *valid, rimu_fdi_output *out);",
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def unit_source(trackers: dict[str, SelfCalTracker]) -> str:
+    """The tracked instruments' steps for ``rimu_unit.c`` (after the manager's code: ``rimu_fdi_run``)."""
+    out = []
+    for k, trk in trackers.items():
+        p, P, lc = unit_prefix(k), unit_prefix(k).upper(), k.lower()
+        out.append(f"""
+/* {k}: Runtime._mstep with a SelfCalLoop: correct, the manager's step (its detector the tracked window GLT), observe */
+void rimu_{lc}_sc_fdi_step(rimu_fdi *m, rimu_{lc}_tracked *sc, double t, const double *temperature, const rimu_real *y,
+                          const unsigned char *valid, rimu_fdi_output *out)
+{{
+    double yc[{P}_N], C[{P}_N * {P}_N], st, thr;
+    rimu_real z[RIMU_NMAX] = {{0}}, stat;
+    unsigned char use[RIMU_NMAX] = {{0}}, iso[{P}_N];
+    const rimu_fdi_unit *u = &{lc}_unit;
+    int i, fresh;
+    fresh = {p}_loop_correct(&sc->loop, y, valid, t, temperature, yc, C);
+    if (sc->started == 0) {{
+        {p}_loop_terms(&sc->loop, sc->terms_next, sc->sigmas_next);
+        sc->started = 1;
+    }}
+    for (i = 0; i < {P}_S; ++i) {{  /* this sample shows the terms of the last window that ended before it */
+        sc->terms[i] = sc->terms_next[i];
+        sc->sigmas[i] = sc->sigmas_next[i];
+    }}
+    if (fresh != 0) {{
+        {p}_glt_set_covariance(&sc->glt, C);
+    }}
+    /* the manager's sensor set of this sample and its compensated outputs, as rimu_fdi_run makes them */
+    for (i = 0; i < {P}_N; ++i) {{
+        int good = rimu_flag(((valid == NULL) || (valid[i] != 0u)) && (isfinite(yc[i]) != 0));
+        int sat = rimu_flag((good != 0) && (u->range != NULL) && (RIMU_FABS(yc[i]) >= u->range[i]));
+        use[i] = ((good != 0) && (sat == 0) && (m->iso[i] == 0u)) ? 1u : 0u;
+        z[i] = (use[i] != 0u) ? (u->sf[i] * yc[i] - u->b[i]) : 0.0;
+    }}
+    if ((m->started == 0) || (rimu_same(use, m->prev, {P}_N) == 0)) {{  /* a new set: the window starts over */
+        {p}_glt_configure(&sc->glt, use);
+    }}
+    st = {p}_glt_update(&sc->glt, z, &thr);
+    stat = st;
+    rimu_fdi_run(u, m, yc, valid, out, &stat);
+    for (i = 0; i < {P}_N; ++i) {{
+        iso[i] = (m->sensor[i] >= RIMU_ISOLATED) ? 1u : 0u;
+    }}
+    {p}_loop_observe(&sc->loop, out->alarm, out->statistic, out->dof, iso);
+    if (sc->loop.k == 0L) {{  /* a window ended: its terms show from the next sample on */
+        {p}_loop_terms(&sc->loop, sc->terms_next, sc->sigmas_next);
+    }}
+}}
+""")
+    return "".join(out)
