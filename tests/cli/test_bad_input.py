@@ -302,6 +302,12 @@ CASES = [
     (["monitor", "--simulate", "--fault", "gyro:zz:1:1"], 2, ["--fault", "INSTRUMENT:SENSOR"]),
     (["monitor", "--ulog", "{s}", "--calibration", "{cal}"], 2, ["ULog"]),
     (["monitor", "--can", "virtual:x", "--calibration", "{cal}", "--layout", "{notjson}"], 2, ["notjson.json"]),
+    (["monitor", "--npz", "{s}", "--calibration", "{cal}", "--sample-rate", "100"], 2, ["--sample-rate", "--selfcal"]),
+    (["monitor", "--npz", "{s}", "--calibration", "{cal}", "--selfcal"], 2, ["--sample-rate"]),
+    (["monitor", "--npz", "{s}", "--calibration", "{cal}", "--selfcal", "--sample-rate", "100"], 2,
+     ["noise model", "--selfcal-bias-rw"]),
+    (["monitor", "--npz", "{s}", "--calibration", "{cal}", "--selfcal", "--sample-rate", "100", "--selfcal-bias-rw",
+      "1e-9", "--selfcal-window", "0.001"], 2, ["--selfcal-window", "one sample"]),
     # export-c
     (["export-c", "{tampered}", "-o", "{dir}/x"], 2, ["checksum"]),
     (["export-c", "{dir}/nocal.json", "-o", "{dir}/x"], 2, ["nocal.json"]),
