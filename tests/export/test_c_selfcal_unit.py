@@ -106,3 +106,53 @@ def test_exported_selfcal_unit_decides_as_replay(tmp_path, geo):
     assert min(applied.values()) < windows                 # the held-out check held a group back for a while
     print(f"\n{geo.name}: max |x_C - x_py| = {err_x:.3g} rad/s, terms max rel diff {worst:.3g}; windows applied "
           f"per group {applied} of {windows}")
+
+
+@needs_cc
+def test_exported_selfcal_with_further_effects_and_two_instruments(tmp_path):
+    """The API (export_c(selfcal=...)) on a unit whose compensation couples the instruments (gyro g-sensitivity and
+    temperature bias, accelerometer size effect: the gyro <-> accelerometer fixed point) with both instruments
+    tracked (bias, scale, first-order temperature) and a step on one gyro: the C decides as rimu.fdi.Runtime on
+    every sample, its estimates within 1e-12 (relative)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_c_effects import _base, _session
+
+    from rimu.epoch import EpochBlock
+    from rimu.export import export_c
+    from rimu.fdi import Runtime
+    from rimu.fdi.health import SensorState
+    from rimu.fdi.selfcal import SelfCalSettings, SelfCalTracker
+    from rimu.fdi.settings import FdiSettings
+    from rimu.fusion import Pipeline
+    from rimu.sim.typical import with_effects
+
+    cal = with_effects(_base("cone6"), {"gyro": ["g_sensitivity", "bias_temperature"], "accel": ["size_effect"]})
+    t, T, raw, _ = _session(cal, 2500, noise=True, seed=3)
+    raw["gyro"][1500:, 1] += 12 * cal["gyro"].noise_sigma[1] / cal["gyro"].scale[1]
+    trk = {k: SelfCalTracker(cal[k], SelfCalSettings(bias_rw=1e-8 if k == "gyro" else 1e-6, scale_rw=1e-9,
+                                                     temperature_sigma=[1e-4], window_s=0.5, hold_s=2.0))
+           for k in cal.instruments}
+    res = Runtime(Pipeline(cal), FdiSettings(), selfcal=trk, sample_rate=FS).run(
+        EpochBlock(t, raw, {k: np.isfinite(v) for k, v in raw.items()}, T))
+    export_c(cal, tmp_path / "c", selfcal=trk, sample_rate=FS)
+    made = subprocess.run(["make", "-s", "CFLAGS=-std=c99 -O0 -Wall -Wextra -Werror -pedantic"], cwd=tmp_path / "c",
+                          capture_output=True, text=True)       # -O0: the build is most of this test's time
+    assert made.returncode == 0, made.stderr
+    names = ["t"] + [f"{k}_{nm}" for k in cal.instruments for nm in cal[k].geometry.names] + ["temperature"]
+    rows = [",".join(names)] + [",".join([repr(float(t[i]))] + [
+        "" if not np.isfinite(raw[k][i, j]) else repr(float(raw[k][i, j])) for k in cal.instruments for j in range(6)]
+        + [repr(float(T[i]))]) for i in range(len(t))]
+    out = subprocess.run([str(tmp_path / "c" / "rimu_filter")], input="\n".join(rows) + "\n", capture_output=True,
+                         text=True)
+    assert out.returncode == 0, out.stderr
+    est = read_estimates(io.StringIO(out.stdout), {k: 6 for k in cal.instruments})
+    assert len(est.extra) == 2 * 2 * 3 * 6                      # two instruments, bias + scale + tc1, value + sigma
+    for k in cal.instruments:
+        x = np.asarray(res[k].x)
+        assert np.array_equal(est.validity[k], res[k].validity)
+        assert np.array_equal(est.isolated[k], np.asarray(res[k].sensor_state) >= SensorState.ISOLATED)
+        assert float(np.nanmax(np.abs(est.x[k] - x))) <= 1e-12 * float(np.nanmax(np.abs(x)))
+    assert est.isolated["gyro"][-1].nonzero()[0].tolist() == [1]
