@@ -35,9 +35,16 @@ With ``detector_window`` and ``p_fa`` the loop's detector too (``<p>_glt_*``, :c
 window sum of the normalised parity and its statistic ``S^T (I + W Vz Sigma_c Vz^T)^-1 S / count`` (``|L S|^2 /
 count`` in Python, the same in any orthonormal parity basis), thresholds ``chi2_{1-p_fa}(dof)`` tabulated.
 
-Not done yet: :func:`rimu.export.export_c` does not include any of this (the exported manager, rimu_fdi_run, runs
-the snapshot GLT, and its filter has no tracker); the kernels are fed the manager's decisions by their caller
-(tests/export/test_c_selfcal.py feeds them Python's).
+In an exported unit (:func:`rimu.export.export_c` with ``selfcal=``, ``rimu export-c --selfcal``): per tracked
+instrument these files (:func:`unit_files`, prefix ``rimu_<instrument>_sc``), and in ``rimu_unit.c`` the step that
+runs them around the manager as :class:`rimu.fdi.Runtime` does (:func:`unit_source`: correct, the manager's step with
+the window GLT's statistic, observe), ``rimu_selfcal_step`` for the epoch; the filter writes the tracked terms
+(tests/export/test_c_selfcal_unit.py: the compiled filter against ``rimu replay --selfcal``).
+
+The held-out check (``guard_s``, ``guard_z``; :meth:`SelfCalLoop._check`) runs at every window's end with the
+terms fitted before the window, per group of blocks (:data:`rimu.fdi.selfcal.GROUPS`), on the window's samples
+(kept in the loop's state when the check is on); the parity is the C's own basis (the check's sums of squares and
+inner products are the same in any orthonormal basis).
 """
 
 from __future__ import annotations
@@ -50,7 +57,7 @@ from scipy import stats
 from ..errors import ExportError
 from ..fdi.selfcal import BLOCKS, GROUPS, SelfCalTracker
 
-__all__ = ["selfcal_c"]
+__all__ = ["selfcal_c", "unit_files", "unit_header", "unit_prefix", "unit_source"]
 
 
 def _num(v: float) -> str:
@@ -1283,7 +1290,7 @@ def unit_header(trackers: dict[str, SelfCalTracker]) -> str:
 def unit_source(trackers: dict[str, SelfCalTracker]) -> str:
     """The tracked instruments' steps for ``rimu_unit.c`` (after the manager's code: ``rimu_fdi_run``)."""
     out = []
-    for k, trk in trackers.items():
+    for k in trackers:
         p, P, lc = unit_prefix(k), unit_prefix(k).upper(), k.lower()
         out.append(f"""
 /* {k}: Runtime._mstep with a SelfCalLoop: correct, the manager's step (its detector the tracked window GLT), observe */
