@@ -1243,14 +1243,27 @@ def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc", sample_rate: flo
 
 # ---------------------------------------------------------------------------------------------- in the exported unit
 def unit_prefix(instrument: str) -> str:
-    """The prefix of an instrument's tracker in an exported unit (its files ``<prefix>.h`` / ``<prefix>.c``)."""
+    """The prefix of an instrument's tracker in an exported unit (its files ``<prefix>.h`` / ``<prefix>.c``).
+
+    >>> unit_prefix("gyro")
+    'rimu_gyro_sc'
+    """
     return f"rimu_{instrument.lower()}_sc"
 
 
 def unit_files(trackers: dict[str, SelfCalTracker], sample_rate: float, p_fa: float) -> dict[str, str]:
     """The trackers' own translation units in an exported unit (:func:`rimu.export.export_c` with ``selfcal=``):
     each with its loop and the window GLT of the tracker's window (what :class:`rimu.fdi.Runtime` gives a tracked
-    instrument's manager: ``TrackedGltWindow(round(window_s * rate), p_fa)``)."""
+    instrument's manager: ``TrackedGltWindow(round(window_s * rate), p_fa)``).
+
+    >>> from rimu.calibration import InstrumentCalibration
+    >>> from rimu.fdi.selfcal import SelfCalSettings
+    >>> from rimu.geometry import cone6
+    >>> cal = InstrumentCalibration.nominal("gyro", cone6(), 1.0, noise_sigma=0.01)
+    >>> files = unit_files({"gyro": SelfCalTracker(cal, SelfCalSettings(bias_rw=1e-8))}, 100.0, 1e-3)
+    >>> sorted(files), "#define RIMU_GYRO_SC_GLT_WINDOW 100" in files["rimu_gyro_sc.h"]
+    (['rimu_gyro_sc.c', 'rimu_gyro_sc.h'], True)
+    """
     out = {}
     for k, trk in trackers.items():
         M = max(1, int(round(trk.settings.window_s * float(sample_rate))))
