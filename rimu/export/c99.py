@@ -91,6 +91,7 @@ def _header(cal: Calibration, real: str, fdi: FdiSettings, selfcal: dict | None 
         " * SI units: rad/s (gyro), m/s^2 (accel). No dynamic memory, no recursion; only <math.h>. */",
         "#ifndef RIMU_UNIT_H",
         "#define RIMU_UNIT_H",
+        *[f'#include "{c_selfcal.unit_prefix(k)}.h"  /* the {k} self-calibration */' for k in (selfcal or {})],
         "",
         f"typedef {real} rimu_real;",
         "",

@@ -1274,12 +1274,12 @@ def unit_files(trackers: dict[str, SelfCalTracker], sample_rate: float, p_fa: fl
 
 
 def unit_header(trackers: dict[str, SelfCalTracker]) -> str:
-    """Declarations for ``rimu_unit.h``: each tracked instrument's state and its step through the manager."""
+    """Declarations for ``rimu_unit.h``: each tracked instrument's state and its step through the manager (the
+    trackers' headers are included at the top of ``rimu_unit.h``: ``#include "<unit_prefix(k)>.h"``)."""
     lines = ["", "/* ---- in-flight self-calibration (rimu.fdi.selfcal; docs/selfcal.md): per tracked instrument */"]
     for k, trk in trackers.items():
         p, P = unit_prefix(k), unit_prefix(k).upper()
         lines += [
-            f'#include "{p}.h"',
             f"/* {k}: the tracker's loop, the window GLT whose thresholds carry its covariance, and the tracked terms",
             " * the estimates file shows on a sample (those after the last window that ended before it). Zero-initialise",
             " * it. */",
