@@ -58,3 +58,20 @@ def test_monitor_selfcal_on_the_simulated_device_decides_as_replay(tmp_path):
     assert worst <= 1e-12, worst
     assert "4" in a["gyro_isolated"][-1]                                    # y2 (index 4) out at the end
     assert any(float(v) != 0.0 for v in a["gyro_bias_x1"])                # the terms moved (and were compared)
+
+
+def test_monitor_selfcal_temperature_without_a_temperature_stops_with_one_line(tmp_path, capsys):
+    from rimu.calibration import Calibration, InstrumentCalibration
+    from rimu.epoch import EpochBlock
+    from rimu.geometry import cone6
+    from rimu.io.recorded import write_csv
+
+    cal = InstrumentCalibration.nominal("gyro", cone6(), 1.0, noise_sigma=0.01)
+    Calibration({"gyro": cal}, "rad/s", "nominal").save(tmp_path / "cal.json")
+    t = np.arange(200) / 100.0
+    write_csv(tmp_path / "rec.csv", EpochBlock(t, {"gyro": np.random.default_rng(0).normal(0, 0.01, (200, 6))}))
+    rc = main(["monitor", "--csv", str(tmp_path / "rec.csv"), "--calibration", str(tmp_path / "cal.json"),
+               "--sample-rate", "100", *OPTS, "--selfcal-temperature", "--estimates", str(tmp_path / "e.csv")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "--selfcal-temperature" in err[0] and "no temperature" in err[0], err
+    assert not (tmp_path / "e.csv").exists()                              # no half-written estimates file
