@@ -156,3 +156,20 @@ def test_exported_selfcal_with_further_effects_and_two_instruments(tmp_path):
         assert np.array_equal(est.isolated[k], np.asarray(res[k].sensor_state) >= SensorState.ISOLATED)
         assert float(np.nanmax(np.abs(est.x[k] - x))) <= 1e-12 * float(np.nanmax(np.abs(x)))
     assert est.isolated["gyro"][-1].nonzero()[0].tolist() == [1]
+
+
+@pytest.mark.skipif(shutil.which("cppcheck") is None, reason="cppcheck is not installed")
+def test_selfcal_unit_misra_nothing_outside_the_documented_deviations(tmp_path):
+    """rimu_unit.c/.h of a self-calibrating unit (the tracked step, rimu_selfcal_step) with MISRA C:2012: only the
+    documented deviations (rimu.export.misra; the trackers' own sources: tests/export/test_c_selfcal.py)."""
+    from rimu.export import export_c
+    from rimu.export.misra import DEVIATIONS, misra_check
+    from rimu.fdi.selfcal import SelfCalSettings, SelfCalTracker
+
+    inst = InstrumentCalibration.nominal("gyro", cone6(), 1.0, noise_sigma=SIGMA)
+    trk = SelfCalTracker(inst, SelfCalSettings(bias_rw=BIAS_RW, scale_rw=1e-9, temperature_sigma=[1e-4]))
+    export_c(Calibration({"gyro": inst}, "rad/s", "nominal"), tmp_path, selfcal={"gyro": trk}, sample_rate=FS)
+    found = misra_check(tmp_path)
+    assert sum(found["misra"].values()) > 0   # the addon ran and read the code
+    assert set(found["misra"]) <= set(DEVIATIONS), set(found["misra"]) - set(DEVIATIONS)
+    assert not found["other"], found["other"]
