@@ -263,11 +263,12 @@ class _Monitor:
                 self.events.append(d)
                 if e.kind in ("isolated", "invalid_isolated"):
                     self.isolations.append(d)
-        import numpy as np
-
         terms: dict = {}
-        for tr in self.tracked.values():  # the terms of the last window that ended before this epoch
-            terms.update(tr.add(np.array([float(ep.t)])))
+        if self.tracked:
+            import numpy as np
+
+            for tr in self.tracked.values():  # the terms of the last window that ended before this epoch
+                terms.update(tr.add(np.array([float(ep.t)])))
         if self.est is not None:
             self.rows.append((float(ep.t), {k: (r.x.copy(), int(r.validity), self.rt.managers[k].isolated)
                                             for k, r in res.items()}, terms))
