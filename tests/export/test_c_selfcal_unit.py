@@ -13,6 +13,7 @@ compiler (and make).
 from __future__ import annotations
 
 import contextlib
+import csv
 import io
 import json
 import shutil
@@ -154,8 +155,26 @@ def test_exported_selfcal_with_further_effects_and_two_instruments(tmp_path):
         x = np.asarray(res[k].x)
         assert np.array_equal(est.validity[k], res[k].validity)
         assert np.array_equal(est.isolated[k], np.asarray(res[k].sensor_state) >= SensorState.ISOLATED)
-        assert float(np.nanmax(np.abs(est.x[k] - x))) <= 1e-12 * float(np.nanmax(np.abs(x)))
+        rel = float(np.nanmax(np.abs(est.x[k] - x))) / float(np.nanmax(np.abs(x)))
+        assert rel <= 1e-12, (k, rel)
+        print(f"\n{k}: max |x_C - x_py| / max |x| = {rel:.3g}")
     assert est.isolated["gyro"][-1].nonzero()[0].tolist() == [1]
+    # --detail: the alarm of every sample identical; the detection statistic (the tracked window GLT's): its root, the
+    # parity's norm in sigma, within 1e-12 of the whitened outputs' size (the parity is their small difference)
+    det = subprocess.run([str(tmp_path / "c" / "rimu_filter"), "--detail"], input="\n".join(rows) + "\n",
+                         capture_output=True, text=True, check=True).stdout
+    cols = list(csv.DictReader(io.StringIO(det)))
+    for k in cal.instruments:
+        alarm = np.array([int(r[f"{k}_alarm"]) for r in cols])
+        stat = np.array([float(r[f"{k}_statistic"]) for r in cols])
+        assert np.array_equal(alarm, np.asarray(res[k].alarm, int)), k
+        ref = np.asarray(res[k].statistic, float)
+        zmax = float(np.nanmax(np.abs(raw[k] * cal[k].scale - cal[k].bias) / cal[k].noise_sigma))
+        err = float(np.abs(np.sqrt(stat) - np.sqrt(ref)).max())
+        assert err <= 1e-12 * zmax, (k, err, zmax)
+        print(f"\n{k}: max |sqrt(stat_C) - sqrt(stat_py)| = {err:.3g} sigma (outputs up to {zmax:.3g} sigma); "
+              f"alarms {int(alarm.sum())}")
+    assert int(np.sum(res["gyro"].alarm)) >= 5
 
 
 @pytest.mark.skipif(shutil.which("cppcheck") is None, reason="cppcheck is not installed")
