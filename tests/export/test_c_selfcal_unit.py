@@ -100,7 +100,12 @@ def test_exported_selfcal_unit_decides_as_replay(tmp_path, geo):
             worst = max(worst, float(np.abs(w - v).max()) / float(np.abs(v).max()))
     assert worst <= 1e-12, worst
     # the tracker did act: its terms moved, and the correction changed the estimates
-    sc = json.loads((tmp_path / "py.json").read_text())["gyro"]["selfcal"]
+    doc = json.loads((tmp_path / "py.json").read_text())["gyro"]
+    detail = subprocess.run([str(tmp_path / "c" / "rimu_filter"), "--detail"], stdin=open(log), capture_output=True,
+                            text=True, check=True).stdout
+    alarms_c = sum(int(r["gyro_alarm"]) for r in csv.DictReader(io.StringIO(detail)))
+    assert alarms_c == doc["alarms"] > 0                       # as many alarms (per sample: the next test)
+    sc = doc["selfcal"]
     windows = len(py.t) // int(0.5 * FS)
     applied = {g: windows - v["suspended_windows"] for g, v in sc["guard"]["groups"].items()}
     assert sc["windows_absorbed"] >= 10 and sc["windows_discarded"] >= 1 and max(applied.values()) >= 10, sc
