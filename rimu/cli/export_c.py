@@ -62,6 +62,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--selfcal-temperature", action="store_true",
                    help="the unit has a temperature channel: track the temperature coefficients (the filter reads "
                         "the temperature column)")
+    s.add_argument("--selfcal-detector-window", type=positive_int, default=None,
+                   help="samples of the window GLT whose thresholds carry the tracker's covariance (rimu replay "
+                        "--selfcal --detector glt_window --window N; default the tracker's window, as rimu replay "
+                        "--selfcal with --detector glt)")
     add_tracker_options(s, "selfcal-")
     p.set_defaults(func=run, output_is_dir=True)  # -o names a folder (rimu.cli._common.check_outputs)
 
@@ -107,8 +111,8 @@ def run(args: argparse.Namespace) -> int:
     if args.selfcal and (target or args.real == "float"):
         raise OptionError("--selfcal is generated in double precision only: drop --real float and --target cortex-m4")
     if not args.selfcal:
-        given = [o for o, v in (("--sample-rate", args.sample_rate), ("--selfcal-temperature", args.selfcal_temperature))
-                 if v]
+        given = [o for o, v in (("--sample-rate", args.sample_rate), ("--selfcal-temperature", args.selfcal_temperature),
+                                ("--selfcal-detector-window", args.selfcal_detector_window)) if v]
         if given:
             raise OptionError(f"{' and '.join(given)} only apply with --selfcal")
     if target:  # single precision with the Cortex-M4 harness (rimu.export.target)
@@ -121,7 +125,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         real = args.real or "double"
         trackers, rate = _trackers(args, cal, real) if args.selfcal else (None, None)
-        files = export_c(cal, args.output, real=real, fdi=fdi, selfcal=trackers, sample_rate=rate)
+        files = export_c(cal, args.output, real=real, fdi=fdi, selfcal=trackers, sample_rate=rate,
+                         detector_window=args.selfcal_detector_window)
         msg = f"wrote {', '.join(f.name for f in files)} to {out} ({real}; {settings}"
         if trackers:
             msg += (f"; self-calibration of {', '.join(trackers)} at {rate:g} Hz, terms "

@@ -592,7 +592,7 @@ clean:
 
 def export_c(calibration: Calibration, directory: str | os.PathLike[str], real: str = "double",
              fdi: FdiSettings | None = None, selfcal: dict[str, Any] | None = None,
-             sample_rate: float | None = None) -> list[Path]:
+             sample_rate: float | None = None, detector_window: int | None = None) -> list[Path]:
     """Write the C99 runtime of ``calibration`` into ``directory`` (created if needed).
 
     Parameters
@@ -616,6 +616,9 @@ def export_c(calibration: Calibration, directory: str | os.PathLike[str], real: 
         in ``rimu_<instrument>_sc.h/.c`` (:mod:`rimu.export.c_selfcal`); double only.
     sample_rate : float, optional
         Hz, with ``selfcal``: the rate the windows are counted at (the unit's sample rate).
+    detector_window : int, optional
+        With ``selfcal``: the tracked instruments' window GLT of this many samples (``rimu replay --selfcal
+        --detector glt_window --window N``); default the tracker's window (``Runtime(selfcal=)``'s default).
 
     Returns
     -------
@@ -639,7 +642,9 @@ def export_c(calibration: Calibration, directory: str | os.PathLike[str], real: 
         raise ExportError("common_cause (the evidence gate of units of triads) is not in the generated code; export "
                           "with common_cause=False")
     sc = _check_selfcal(calibration, real, selfcal, sample_rate)
-    extra = c_selfcal.unit_files(sc, float(sample_rate), fdi.p_fa) if sc else {}  # type: ignore[arg-type]
+    if detector_window is not None and not 1 <= int(detector_window) <= 2**31 - 1:
+        raise ExportError(f"detector_window must be a number of samples >= 1, got {detector_window}")
+    extra = c_selfcal.unit_files(sc, float(sample_rate), fdi.p_fa, detector_window) if sc else {}  # type: ignore[arg-type]
     make = _MAKEFILE.format(headers="".join(f" {f}" for f in extra if f.endswith(".h")),
                             sources="".join(f" {f}" for f in extra if f.endswith(".c")))
     files = {"rimu_unit.h": _header(calibration, real, fdi, sc), "rimu_unit.c": _source(calibration, real, fdi, sc),

@@ -1251,10 +1251,12 @@ def unit_prefix(instrument: str) -> str:
     return f"rimu_{instrument.lower()}_sc"
 
 
-def unit_files(trackers: dict[str, SelfCalTracker], sample_rate: float, p_fa: float) -> dict[str, str]:
+def unit_files(trackers: dict[str, SelfCalTracker], sample_rate: float, p_fa: float,
+               detector_window: int | None = None) -> dict[str, str]:
     """The trackers' own translation units in an exported unit (:func:`rimu.export.export_c` with ``selfcal=``):
     each with its loop and the window GLT of the tracker's window (what :class:`rimu.fdi.Runtime` gives a tracked
-    instrument's manager: ``TrackedGltWindow(round(window_s * rate), p_fa)``).
+    instrument's manager: ``TrackedGltWindow(round(window_s * rate), p_fa)``; ``detector_window``: of that many
+    samples instead).
 
     >>> from rimu.calibration import InstrumentCalibration
     >>> from rimu.fdi.selfcal import SelfCalSettings
@@ -1267,7 +1269,7 @@ def unit_files(trackers: dict[str, SelfCalTracker], sample_rate: float, p_fa: fl
     out = {}
     for k, trk in trackers.items():
         M = max(1, int(round(trk.settings.window_s * float(sample_rate))))
-        h, c = selfcal_c(trk, unit_prefix(k), sample_rate, M, p_fa)
+        h, c = selfcal_c(trk, unit_prefix(k), sample_rate, M if detector_window is None else int(detector_window), p_fa)
         out[f"{unit_prefix(k)}.h"] = h
         out[f"{unit_prefix(k)}.c"] = c
     return out

@@ -322,6 +322,8 @@ CASES = [
     (["export-c", "{cal}", "-o", "{dir}/x", "--selfcal", "--sample-rate", "100", "--selfcal-bias-rw", "1e-9",
       "--target", "cortex-m4"], 2, ["--selfcal", "cortex-m4"]),
     (["export-c", "{cal}", "-o", "{dir}/x", "--sample-rate", "100"], 2, ["--sample-rate", "--selfcal"]),
+    (["export-c", "{cal}", "-o", "{dir}/x", "--selfcal-detector-window", "30"], 2, ["--selfcal-detector-window",
+                                                                                    "--selfcal"]),
     (["export-c", "{cal}", "-o", "{dir}/x", "--selfcal", "--sample-rate", "100", "--selfcal-bias-rw", "1e-9",
       "--selfcal-window", "0.001"], 2, ["--selfcal-window", "one sample"]),
     (["export-c", "{cal}", "-o", "{dir}/x", "--selfcal", "--sample-rate", "0"], 2, ["--sample-rate"]),

@@ -67,14 +67,20 @@ def _run(argv: list[str]) -> str:
 
 
 @needs_cc
-@pytest.mark.parametrize("geo", [cone6(), triads(4)], ids=["cone6", "triads4"])
-def test_exported_selfcal_unit_decides_as_replay(tmp_path, geo):
+@pytest.mark.parametrize("geo,window", [(cone6(), None), (triads(4), 30)], ids=["cone6", "triads4-window30"])
+def test_exported_selfcal_unit_decides_as_replay(tmp_path, geo, window):
+    """cone6 with the default detector (the window GLT of the tracker's window); the triads with a window GLT of 30
+    samples (replay --detector glt_window --window 30, export-c --selfcal-detector-window 30)."""
     log, cal, bad = _unit(tmp_path, geo, seed=3)
     opts = ["--selfcal-bias-rw", repr(BIAS_RW), "--selfcal-window", "0.5"]
-    _run(["replay", str(log), "--calibration", str(cal), "--selfcal", *opts, "--estimates", str(tmp_path / "py.csv"),
-          "--json", str(tmp_path / "py.json"), "-q"])
+    det = [] if window is None else ["--detector", "glt_window", "--window", str(window)]
+    _run(["replay", str(log), "--calibration", str(cal), "--selfcal", *opts, *det, "--estimates",
+          str(tmp_path / "py.csv"), "--json", str(tmp_path / "py.json"), "-q"])
     _run(["export-c", str(cal), "-o", str(tmp_path / "c"), "--selfcal", "--sample-rate", repr(FS),
-          "--selfcal-temperature", *opts, "--build"])
+          "--selfcal-temperature", *opts, "--build"] + ([] if window is None else
+                                                       ["--selfcal-detector-window", str(window)]))
+    if window is not None:
+        assert f"#define RIMU_GYRO_SC_GLT_WINDOW {window}" in (tmp_path / "c" / "rimu_gyro_sc.h").read_text()
     out = subprocess.run([str(tmp_path / "c" / "rimu_filter")], stdin=open(log), capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     py = read_estimates(tmp_path / "py.csv", {"gyro": geo.n})
