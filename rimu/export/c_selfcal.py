@@ -52,7 +52,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy import stats
+from scipy.special import chdtri  # chdtri(d, p) = chi2.isf(p, d), without importing scipy.stats (~40 MB)
 
 from ..errors import ExportError
 from ..fdi.selfcal import BLOCKS, GROUPS, SelfCalTracker
@@ -1172,7 +1172,7 @@ def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc", sample_rate: flo
     P = prefix.upper()
     order = [-1 if b == "scale" else (0 if b == "bias" else int(b[2])) for b in trk.blocks]
     assert set(trk.blocks) <= set(BLOCKS)
-    gates = [0.0] + [float(stats.chi2.isf(st.gate_p, r)) for r in range(1, max(n - 3, 1) + 1)]
+    gates = [0.0] + [float(chdtri(r, st.gate_p)) for r in range(1, max(n - 3, 1) + 1)]
     header = _HEADER.format(guard=f"{P}_H", P=P, p=prefix, n=n, m=m, blocks=", ".join(trk.blocks),
                             what=f"{trk.calibration.instrument}, {n} sensors, gate_p={st.gate_p!r}")
     consts = [
@@ -1200,7 +1200,7 @@ def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc", sample_rate: flo
         M = max(1, int(round(st.window_s * float(sample_rate))))
         span = 1 if detector_window is None else int(np.ceil(int(detector_window) / M)) + 1
         npend = int(np.ceil(st.hold_s * float(sample_rate) / M)) + 2
-        watch = [0.0] + [float(stats.chi2.isf(st.watch_p, d)) for d in range(1, max(n - 3, 1) + 1)]
+        watch = [0.0] + [float(chdtri(d, st.watch_p)) for d in range(1, max(n - 3, 1) + 1)]
         cal = trk.calibration
         groups = [g for g, blks in GROUPS if any(b in blks for b in trk.blocks)]
         group_of = [next(j for j, g in enumerate(groups) if b in dict(GROUPS)[g]) for b in trk.blocks]
@@ -1233,7 +1233,7 @@ def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc", sample_rate: flo
                                          "    }\n" if guard else "")
         source += (_GUARD_CHECK.format(P=P, p=prefix) if guard else "") + loop
     if detector_window is not None and p_fa is not None:
-        thr = [0.0] + [float(stats.chi2.isf(p_fa, d)) for d in range(1, max(n - 3, 1) + 1)]
+        thr = [0.0] + [float(chdtri(d, p_fa)) for d in range(1, max(n - 3, 1) + 1)]
         header = header.replace("\n#endif\n", _GLT_HEADER.format(P=P, p=prefix, W=int(detector_window)) + "\n#endif\n")
         consts += [f"/* the detector's thresholds chi2_(1 - p_fa)(dof), p_fa = {p_fa!r} (entry 0 unused) */\n"
                    f"static const double {prefix}_thr_det[{len(thr)}] = {_array(thr)};"]
