@@ -430,9 +430,14 @@ __all__ = ["register", "run"]
 def _stored_detectors(cal: Any, settings: Any) -> dict:
     """The motion-aware tests stored in the unit file by ``rimu setup --motion-fit`` (gyros), said once."""
     from ..errors import CalibrationFileError, ShapeError
-    from ..fdi.motion import motion_detector_from_dict
+    from ..fdi.motion import envelope_text, motion_detector_from_dict
 
     out = {}
+    for k in cal.instruments:  # a live source's rate is not known up front: the period the noise holds for is said
+        per = cal[k].noise_period_s
+        if per is not None and k not in (cal.metadata.get("motion_terms") or {}):
+            print(f"rimu monitor: {k}: the unit file's noise is stated for epochs of {per:.4g} s; the source must "
+                  f"deliver epochs at {1.0 / per:.4g} Hz (rimu replay converts it for a log at another rate)")
     for k, d in (cal.metadata.get("motion_terms") or {}).items():
         if k not in cal.instruments:
             continue
@@ -442,6 +447,6 @@ def _stored_detectors(cal: Any, settings: Any) -> dict:
             raise CalibrationFileError(f"the calibration's {k} motion terms: {exc}") from None
         det = out[k]
         print(f"rimu monitor: {k}: motion-aware test of the unit file at {det.sample_rate:.4g} Hz"
-              + ("" if det.envelope is None else f" (|rate| up to {det.envelope[0] * 57.29577951308232:.4g} deg/s)")
+              + ("" if det.envelope is None else f" ({envelope_text(det.envelope)})")
               + "; the source must deliver epochs at that rate")
     return out

@@ -501,6 +501,13 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
             if args.noise is None:
                 raise CalibrationFileError(f"the {k} calibration states no noise; pass --noise SIGMA (SI per sample)")
             cal[k].noise_sigma = np.full(cal[k].geometry.n, float(args.noise))
+        per = cal[k].noise_period_s  # the noise is stated for the epochs it was measured on (rimu setup's averages)
+        if per is not None and abs(per * scan.fs - 1.0) > 0.02:
+            cal[k].noise_sigma = cal[k].noise_sigma_at(1.0 / scan.fs)
+            cal[k].noise_period_s = 1.0 / scan.fs
+            print(f"  {k}: the calibration's noise is stated for epochs of {fmt(per, 'time', 's', digits=3)}; at the "
+                  f"data's {fmt(scan.fs, 'frequency', 'Hz', digits=4)} it is x{np.sqrt(per * scan.fs):.3g} per sample "
+                  "(white noise: sigma sqrt(T_noise / T))")
     injections = [parse_injection(s) for s in args.inject]
     for inj in injections:  # a fault outside the data would be "injected" without touching a sample
         if not t0 <= inj.start < t_end:
@@ -741,7 +748,7 @@ class _Px4:
 def _stored_motion_detector(cal, stored: dict, p_fa: float, fs: float, k: str):  # type: ignore[no-untyped-def]
     """The motion-aware GLT of the terms ``rimu setup --motion-fit`` stored in the calibration."""
     from ..errors import CalibrationFileError, ShapeError
-    from ..fdi.motion import motion_detector_from_dict
+    from ..fdi.motion import envelope_text, motion_detector_from_dict
 
     try:
         det = motion_detector_from_dict(cal, stored, p_fa)
@@ -752,9 +759,8 @@ def _stored_motion_detector(cal, stored: dict, p_fa: float, fs: float, k: str): 
                                    f"data run at {fs:.4g} Hz: set the unit up at the data's rate (rimu setup --average)")
     print(f"  {k}: motion terms of the calibration (rimu setup --motion-fit, {det.fit_samples} epochs)"
           + ("" if det.envelope is None else
-             f"; the thresholds assume |rate| up to {np.degrees(det.envelope[0]):.4g} deg/s and |angular acceleration| "
-             f"up to {np.degrees(det.envelope[1]):.4g} deg/s^2: an alarm beyond is model_exceeded (output DEGRADED), "
-             "nothing isolated"))
+             f"; the thresholds assume {envelope_text(det.envelope)}: an alarm beyond is model_exceeded (output "
+             "DEGRADED), nothing isolated"))
     return det
 
 
@@ -830,43 +836,10 @@ class _Tracked:
                 "sensors": rows, "guard": g}
 
     def figure(self, inst: str):  # type: ignore[no-untyped-def]
-        """The tracked terms of every sensor over the replay, each with its 1-sigma band, one panel per term, each
-        axis in the field unit of its values (rimu.units.field_unit; bracketed, as the report layout wants)."""
-        from ..plotting import pyplot
-        from ..units import PPM, field_unit
+        """The tracked terms of every sensor over the replay, each with its 1-sigma band (:func:`terms_figure`)."""
+        from .selfcal import terms_figure
 
-        plt = pyplot()
-        trk = self.loop.tracker
-        hist = self.series or [self.last]
-        t = np.array([h[0] for h in hist], dtype=float)
-        v = np.array([h[1] for h in hist], dtype=float)
-        s = np.array([h[2] for h in hist], dtype=float)
-        if not np.isfinite(t).all():
-            t = np.zeros(len(t))
-        fig, axes = plt.subplots(trk.m, 1, figsize=(9, 2.3 * trk.m + 0.6), sharex=True, squeeze=False)
-        names = trk.calibration.geometry.names
-        q = "rate" if inst == "gyro" else "specific_force"
-        for b, (name, ax) in enumerate(zip(trk.blocks, axes[:, 0])):
-            big = float(np.nanmax(np.abs(v[:, b]) + np.abs(s[:, b]))) if v.size else 0.0
-            if name == "scale":
-                fb, ub = 1.0 / PPM, "ppm"
-            else:
-                u, fb = field_unit(q, big)
-                ub = u if name == "bias" else f"{u}/K^{name[2]}"
-            for i in range(trk.n):
-                line, = ax.plot(t, v[:, b, i] * fb, lw=0.8, marker="." if len(t) < 3 else None,
-                                label=names[i] if trk.n <= 12 else None)
-                line.set_gid("data")
-                ax.fill_between(t, (v[:, b, i] - s[:, b, i]) * fb, (v[:, b, i] + s[:, b, i]) * fb,
-                                color=line.get_color(), alpha=0.15, lw=0)
-            ax.set_ylabel(f"{name} [{ub}]")
-            ax.set_title(f"{inst}: tracked {name} (without its common mode), 1-sigma band", fontsize=10)
-            ax.grid(alpha=0.3)
-        if trk.n <= 12:
-            axes[0, 0].legend(ncol=1, fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
-        axes[-1, 0].set_xlabel("time [s]")
-        fig.tight_layout()
-        return fig
+        return terms_figure(inst, self.loop.tracker, self.series or [self.last])
 
 
 def _first_seconds(blocks, t_stop: float):  # type: ignore[no-untyped-def]
@@ -907,10 +880,10 @@ def _motion_detector(cal, block, seconds: float, margin: float, p_fa: float, fs:
           f"{1e3 * float(np.median(model.misalignment_rad)):.2f} mrad, time offset "
           f"{1e3 * float(np.median(model.time_offset_s)):.2f} ms (medians)")
     if det.envelope is not None:
-        print(f"  gyro thresholds assume the motion of the fit span: |rate| up to "
-              f"{np.degrees(det.envelope[0]):.4g} deg/s, |angular acceleration| up to "
-              f"{np.degrees(det.envelope[1]):.4g} deg/s^2; an alarm beyond is reported as model_exceeded "
-              "(output DEGRADED) and isolates nothing")
+        from ..fdi.motion import envelope_text
+
+        print(f"  gyro thresholds assume the motion of the fit span: {envelope_text(det.envelope)}; an alarm beyond "
+              "is reported as model_exceeded (output DEGRADED) and isolates nothing")
     return det
 
 
