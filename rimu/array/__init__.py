@@ -7,21 +7,28 @@
 
 from .layout import ArrayLayout
 from .runtime import (
+    DERIVATIVE_NOISE_GAIN,
     ArrayMotion,
+    LeverArmTransfer,
     accel_jacobian,
     accel_model,
+    angular_acceleration,
     crb,
     fisher_information,
     lever_arm_acceleration,
     ml_motion,
     remove_lever_arms,
     skew,
+    transfer_to_reference,
 )
 
 __all__ = [
     "ArrayLayout",
     "ArrayMotion",
+    "DERIVATIVE_NOISE_GAIN",
+    "LeverArmTransfer",
     "accel_jacobian",
+    "angular_acceleration",
     "accel_model",
     "crb",
     "fisher_information",
@@ -29,6 +36,7 @@ __all__ = [
     "ml_motion",
     "remove_lever_arms",
     "skew",
+    "transfer_to_reference",
 ]
 from .relative import (
     BASE_TERMS,

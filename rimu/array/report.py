@@ -58,18 +58,23 @@ class ArrayReport:
     refused: dict[str, str] = field(default_factory=dict)
     #: what is left of the gyro disagreement: deterministic or not (:func:`rimu.array.remainder_analysis`)
     remainder: "RemainderAnalysis | None" = None
+    #: the accelerometer steps fitted on the first part of the motion and judged on the rest (m/s^2, per triad)
+    accel_held_out: dict[str, np.ndarray] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {"triads": list(self.names),
                 "gyro_parity_rms_deg_s": {k: v.tolist() for k, v in self.gyro_steps.items()},
                 "accel_parity_rms_m_s2": {k: v.tolist() for k, v in self.accel_steps.items()},
+                "accel_parity_rms_held_out_m_s2": {k: v.tolist() for k, v in self.accel_held_out.items()},
                 "limiting_term": self.limiting_term, "refused": dict(self.refused),
                 "candidates": [c.to_dict() for c in (self.gyro_fit.candidates if self.gyro_fit else [])],
                 "notes": self.notes, "remainder": None if self.remainder is None else self.remainder.to_dict()}
 
     def to_markdown(self) -> str:
         out = ["# Array report: parity rms in motion per step", ""]
-        for title, steps, unit in (("Gyros", self.gyro_steps, "deg/s"), ("Accelerometers", self.accel_steps, "m/s^2")):
+        for title, steps, unit in (("Gyros", self.gyro_steps, "deg/s"), ("Accelerometers", self.accel_steps, "m/s^2"),
+                                   ("Accelerometers, held out (fitted on the first half of the motion, judged on "
+                                    "the second)", self.accel_held_out, "m/s^2")):
             if not steps:
                 continue
             out += [f"## {title} [{unit}]", "", "| step | " + " | ".join(self.names) + " | mean |",
@@ -252,7 +257,55 @@ def array_report(
         rep.refused.update(a_refused)
         if any(k != "raw" for k in a_steps):
             rep.position_fit = pf
+        if pf.lever_arm_invalid:
+            notes.append(f"{pf.lever_arm_invalid} of {pf.moving_epochs} epochs in motion have no angular acceleration "
+                         "(a clipped or missing gyro sample within the central difference's stencil): left out of "
+                         "the accelerometer lever-arm step, not bridged")
+        if held_out:
+            ho_steps = _accel_held_out(layout, t, gyro, accel, fit, pf, nominal_positions_m, motion_threshold_deg_s,
+                                       notes)
+            if ho_steps is not None:
+                label = {"absolute": "+ gain+bias", "relative": "+ relative gain+bias", "none": "+ bias"}[mode]
+                steps_ho = _accel_steps(layout, pf, fit, pf.sampling_offset_s is not None
+                                        and np.any(pf.sampling_offset_s != 0), nominal_positions_m, label, ho_steps)
+                rep.accel_held_out = {k: v for k, v in steps_ho.items() if k == "raw" or k in a_steps}
+                rep.accel_held_out[AA_STEP] = ho_steps["accel_angular_acceleration"]
     return rep
+
+
+#: the held-out step with the angular acceleration from the accelerometers themselves, not the gyros' derivative
+AA_STEP = "+ angular acceleration from the accelerometers"
+
+
+def _split_motion(omega: np.ndarray, motion_threshold_deg_s: float) -> int:
+    """The index that splits the epochs in motion into two halves."""
+    moving = np.linalg.norm(np.nan_to_num(omega), axis=1) > np.radians(motion_threshold_deg_s)
+    c = np.cumsum(moving)
+    return int(np.searchsorted(c, c[-1] // 2))
+
+
+def _accel_held_out(layout, t, gyro, accel, fit, pf, nominal_positions_m, motion_threshold_deg_s, notes):
+    """The accelerometer steps refitted (gyros and accelerometers, the same terms and modes) on the first half of the
+    motion and judged on the second: the parity dict of :meth:`PositionFit.parity_on`, or None."""
+    k0 = _split_motion(fit.layout.to_body(np.asarray(gyro, dtype=float)).mean(axis=1), motion_threshold_deg_s)
+    try:
+        g1 = fit_relative_gyro(layout, t[:k0], gyro[:k0], terms=fit.terms, candidates=(),
+                               motion_threshold_deg_s=motion_threshold_deg_s)
+        p1 = fit_positions(layout, t[:k0], accel[:k0], g1, gyro[:k0], nominal_positions_m=nominal_positions_m,
+                           motion_threshold_deg_s=motion_threshold_deg_s, gain=pf.gain_mode,
+                           align=bool(np.any(pf.sampling_offset_s != 0)), offsets=pf.accel_offset_s is not None,
+                           derivative_order=pf.derivative_order)
+        u = g1.apply(t[k0:], gyro[k0:])
+        a = 1 / g1.sigma_rad_s**2
+        omega = np.einsum("k,nki->ni", a / a.sum(), u)
+        steps, moving, invalid = p1.parity_on(t[k0:], accel[k0:], omega, motion_threshold_deg_s)
+    except (IdentifiabilityError, ShapeError) as exc:
+        notes.append(f"no held-out accelerometer figures: {exc}")
+        return None
+    notes.append(f"accelerometers held out: fitted on the first {t[k0 - 1] - t[0]:.4g} s (half of the motion), judged "
+                 f"on the remaining {t[-1] - t[k0]:.4g} s ({moving - invalid} epochs in motion, {invalid} more without "
+                 "an angular acceleration left out)")
+    return steps
 
 
 def _accel_candidate(layout, t, accel, fit, gyro, nominal_positions_m, motion_threshold_deg_s, mode, notes):
@@ -287,8 +340,8 @@ def _accel_candidate(layout, t, accel, fit, gyro, nominal_positions_m, motion_th
     return cand, align
 
 
-def _accel_steps(layout, pf, fit, align, nominal_positions_m, label) -> dict[str, np.ndarray]:
-    p = pf.parity_rms_m_s2
+def _accel_steps(layout, pf, fit, align, nominal_positions_m, label, parity=None) -> dict[str, np.ndarray]:
+    p = pf.parity_rms_m_s2 if parity is None else parity
     steps = {"raw": p["raw"]}
     if align and np.any(fit.sampling_offset_s != 0):
         steps["+ gyro sampling offsets"] = p["aligned"]
