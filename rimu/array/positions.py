@@ -39,7 +39,7 @@ from .relative import (
 )
 from .runtime import angular_acceleration, skew
 
-__all__ = ["PositionFit", "fit_positions"]
+__all__ = ["PositionFit", "angular_acceleration_check", "fit_positions"]
 
 
 @dataclass
@@ -299,6 +299,73 @@ def _rms_parity_accel_aa(f: np.ndarray, omega: np.ndarray, r: np.ndarray, moving
 def _rms_parity(e: np.ndarray, moving: np.ndarray) -> np.ndarray:
     y = e[moving] - e[moving].mean(axis=1, keepdims=True)
     return np.sqrt(np.mean(y**2, axis=(0, 2)))
+
+
+def angular_acceleration_check(t: np.ndarray, accel_body: np.ndarray, omega: np.ndarray, positions_m: np.ndarray,
+                               order: int = 2, motion_threshold_deg_s: float = 30.0, lags: int = 2) -> dict:
+    """What limits the accelerometers' agreement once the lever arms are removed with the gyros' angular
+    acceleration: the share of what is left that an angular acceleration explains, and whether the gyro samples
+    hold it.
+
+    In every epoch in motion with a known angular acceleration (:func:`rimu.array.angular_acceleration`), the
+    angular acceleration is also estimated from the accelerometers themselves (``f_j - w x (w x r_j) = s -
+    [r_j x] w'``, least squares per sample, Skog et al. 2016, Sec. II). Returned (SI):
+
+    * ``parity_gyro_m_s2``: rms of the residual with the gyros' ``w'`` (per triad axis, triads minus their mean);
+    * ``parity_accel_m_s2``: the same with the accelerometers' ``w'`` (scaled for its three more parameters per
+      sample, ``sqrt((3k - 3) / (3k - 6))``), and ``share``: ``1 - (parity_accel / parity_gyro)^2``, the part of
+      the residual's variance an angular acceleration explains;
+    * ``difference_rad_s2``: rms per axis of the accelerometers' ``w'`` minus the gyros', ``gyro_rad_s2`` the rms
+      of the gyros' ``w'``;
+    * ``held_out``: the accelerometers' ``w'`` predicted on the second half of the epochs from the gyro rate by
+      a linear filter over ``+-lags`` samples (all axes, fitted on the first half) and by the central difference:
+      rms of what each leaves, ``{"fir_rad_s2", "central_difference_rad_s2", "epochs"}``. A filter no better
+      than the difference says the angular acceleration the accelerometers see is not in the gyro samples.
+    """
+    t = np.asarray(t, dtype=float)
+    w = np.asarray(omega, dtype=float)
+    f = np.asarray(accel_body, dtype=float)
+    r = np.asarray(positions_m, dtype=float)
+    k = r.shape[0]
+    wd, ok = angular_acceleration(t, w, order)
+    moving = np.linalg.norm(np.nan_to_num(w), axis=1) > np.radians(motion_threshold_deg_s)
+    use = ok & moving & np.isfinite(f).all(axis=(1, 2))
+    idx = np.flatnonzero(use)
+    if len(idx) < 20:
+        raise ShapeError(f"only {len(idx)} epochs in motion with a known angular acceleration")
+    W = skew(w[idx])
+    g = f[idx] - np.einsum("nab,kb->nka", W @ W, r)
+    ea = g - np.cross(wd[idx][:, None], r[None])
+    ea = ea - ea.mean(axis=0)
+    ya = ea - ea.mean(axis=1, keepdims=True)
+    A = np.zeros((k, 3, 6))
+    A[:, :, :3] = np.eye(3)
+    A[:, :, 3:] = -skew(r)
+    A = A.reshape(3 * k, 6)
+    g2 = (g - g.mean(axis=0)).reshape(len(idx), 3 * k)
+    sol = np.einsum("ij,nj->ni", np.linalg.pinv(A), g2)
+    eb = g2 - sol @ A.T
+    wd_acc = np.einsum("ij,nj->ni", np.linalg.pinv(A), g.reshape(len(idx), 3 * k))[:, 3:]
+    pa = float(np.sqrt(np.mean(ya**2)))
+    pb = float(np.sqrt(np.mean(eb**2) * (3 * k - 3) / (3 * k - 6)))
+    cols, fin = [], np.ones(len(idx), bool)
+    for lag in range(-lags, lags + 1):
+        j = np.clip(idx + lag, 0, len(w) - 1)
+        x = w[j]
+        fin &= np.isfinite(x).all(axis=1) & (np.abs(t[j] - t[idx] - lag * np.median(np.diff(t))) < 1e-6 + 0.1 * abs(
+            float(np.median(np.diff(t)))))
+        cols.append(np.nan_to_num(x))
+    X = np.hstack([*cols, np.ones((len(idx), 1))])
+    half = np.arange(len(idx)) < len(idx) // 2
+    fit_, test = fin & half, fin & ~half
+    held = {"fir_rad_s2": float("nan"), "central_difference_rad_s2": float("nan"), "epochs": int(test.sum())}
+    if fit_.sum() > X.shape[1] and test.sum() > 0:
+        coef = np.linalg.lstsq(X[fit_], wd_acc[fit_], rcond=None)[0]
+        held["fir_rad_s2"] = float(np.sqrt(np.mean((wd_acc[test] - X[test] @ coef) ** 2)))
+        held["central_difference_rad_s2"] = float(np.sqrt(np.mean((wd_acc[test] - wd[idx][test]) ** 2)))
+    return {"epochs": int(len(idx)), "parity_gyro_m_s2": pa, "parity_accel_m_s2": pb, "share": 1.0 - (pb / pa) ** 2,
+            "difference_rad_s2": np.sqrt(np.mean((wd_acc - wd[idx]) ** 2, axis=0)).tolist(),
+            "gyro_rad_s2": np.sqrt(np.mean(wd[idx] ** 2, axis=0)).tolist(), "held_out": held}
 
 
 def fit_positions(

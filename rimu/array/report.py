@@ -16,7 +16,7 @@ from ..errors import IdentifiabilityError, ShapeError
 from ..units import RAD_TO_DEG, fmt
 from .guards import choose_lowpass, worse
 from .layout import ArrayLayout
-from .positions import PositionFit, fit_positions
+from .positions import PositionFit, angular_acceleration_check, fit_positions
 from .relative import RelativeFit, fit_relative_gyro
 from .remainder import RemainderAnalysis, remainder_analysis
 
@@ -60,12 +60,15 @@ class ArrayReport:
     remainder: "RemainderAnalysis | None" = None
     #: the accelerometer steps fitted on the first part of the motion and judged on the rest (m/s^2, per triad)
     accel_held_out: dict[str, np.ndarray] = field(default_factory=dict)
+    #: what is left of the accelerometers on the held-out part (:func:`rimu.array.angular_acceleration_check`)
+    accel_remainder: "dict | None" = None
 
     def to_dict(self) -> dict:
         return {"triads": list(self.names),
                 "gyro_parity_rms_deg_s": {k: v.tolist() for k, v in self.gyro_steps.items()},
                 "accel_parity_rms_m_s2": {k: v.tolist() for k, v in self.accel_steps.items()},
                 "accel_parity_rms_held_out_m_s2": {k: v.tolist() for k, v in self.accel_held_out.items()},
+                "accel_remainder": self.accel_remainder,
                 "limiting_term": self.limiting_term, "refused": dict(self.refused),
                 "candidates": [c.to_dict() for c in (self.gyro_fit.candidates if self.gyro_fit else [])],
                 "notes": self.notes, "remainder": None if self.remainder is None else self.remainder.to_dict()}
@@ -90,6 +93,8 @@ class ArrayReport:
             out.append("")
         if self.remainder is not None:
             out += [self.remainder.to_markdown()]
+        if self.accel_remainder is not None:
+            out += ["## What remains of the accelerometers (held out)", "", accel_verdict(self.accel_remainder), ""]
         out += [f"- {n}" for n in self.notes]
         out += [f"- **not applied**: {r}" for r in self.refused.values()]
         return "\n".join(out) + "\n"
@@ -262,9 +267,9 @@ def array_report(
                          "(a clipped or missing gyro sample within the central difference's stencil): left out of "
                          "the accelerometer lever-arm step, not bridged")
         if held_out:
-            ho_steps = _accel_held_out(layout, t, gyro, accel, fit, pf, nominal_positions_m, motion_threshold_deg_s,
-                                       notes)
-            if ho_steps is not None:
+            ho = _accel_held_out(layout, t, gyro, accel, fit, pf, nominal_positions_m, motion_threshold_deg_s, notes)
+            if ho is not None:
+                ho_steps, rep.accel_remainder = ho
                 label = {"absolute": "+ gain+bias", "relative": "+ relative gain+bias", "none": "+ bias"}[mode]
                 steps_ho = _accel_steps(layout, pf, fit, pf.sampling_offset_s is not None
                                         and np.any(pf.sampling_offset_s != 0), nominal_positions_m, label, ho_steps)
@@ -302,10 +307,41 @@ def _accel_held_out(layout, t, gyro, accel, fit, pf, nominal_positions_m, motion
     except (IdentifiabilityError, ShapeError) as exc:
         notes.append(f"no held-out accelerometer figures: {exc}")
         return None
+    try:
+        c0 = (p1.layout.positions_m if p1.nominal_m is None else np.asarray(p1.nominal_m)).mean(axis=0)
+        rem = angular_acceleration_check(t[k0:], p1.apply(t[k0:], accel[k0:]), omega, p1.positions_m - c0,
+                                         p1.derivative_order, motion_threshold_deg_s)
+    except ShapeError:
+        rem = None
     notes.append(f"accelerometers held out: fitted on the first {t[k0 - 1] - t[0]:.4g} s (half of the motion), judged "
                  f"on the remaining {t[-1] - t[k0]:.4g} s ({moving - invalid} epochs in motion, {invalid} more without "
                  "an angular acceleration left out)")
-    return steps
+    return steps, rem
+
+
+def accel_verdict(rem: dict) -> str:
+    """One sentence on what is left of the accelerometers after the lever arms with the gyros' angular
+    acceleration (:func:`rimu.array.angular_acceleration_check`): the angular acceleration is named only when it
+    explains at least 10 % of it, and whether the gyro samples hold it."""
+    share = rem["share"]
+    ho = rem["held_out"]
+    d, g = rem["difference_rad_s2"], rem["gyro_rad_s2"]
+    head = (f"with the gyros' angular acceleration {rem['parity_gyro_m_s2']:.4g} m/s^2 remain "
+            f"({rem['epochs']} epochs in motion); with the accelerometers' own, per sample, "
+            f"{rem['parity_accel_m_s2']:.4g} m/s^2")
+    if share < 0.10:
+        return head + f": an angular acceleration explains {100 * share:.3g} % of it; what is left is unexplained"
+    held = ""
+    if np.isfinite(ho["fir_rad_s2"]):
+        better = ho["fir_rad_s2"] < 0.9 * ho["central_difference_rad_s2"]
+        held = (f"; a linear filter of the gyro rate over +-2 samples, fitted on half the epochs, leaves "
+                f"{ho['fir_rad_s2']:.4g} rad/s^2 of it on the other half against {ho['central_difference_rad_s2']:.4g} "
+                "for the central difference: " + ("a better derivative would recover part of it" if better else
+                                                   "the gyro samples do not hold it (motion the sampling does not "
+                                                   "resolve)"))
+    return (head + f": limiting is the angular acceleration from the gyros ({100 * share:.3g} % of what is left): "
+            f"the accelerometers' differs from the gyros' central difference by {min(d):.4g}-{max(d):.4g} rad/s^2 "
+            f"rms per axis (the gyros' is {min(g):.4g}-{max(g):.4g})" + held)
 
 
 def _accel_candidate(layout, t, accel, fit, gyro, nominal_positions_m, motion_threshold_deg_s, mode, notes):

@@ -187,4 +187,8 @@ def run(args: argparse.Namespace) -> int:
     lim = rep.limiting_term
     print(line + (f"; what is left is {lim}" if lim.startswith("unexplained") else f"; limited now by {lim}")
           + ("" if rep.remainder is None else f"; remainder: {rep.remainder.verdict}"))
+    if rep.accel_remainder is not None:
+        from ..array.report import accel_verdict
+
+        print(f"accelerometers, what remains (held out): {accel_verdict(rep.accel_remainder)}")
     return 0

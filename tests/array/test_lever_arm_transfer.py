@@ -90,3 +90,37 @@ def test_stated_sigma_matches_the_gyro_noise_scatter():
         assert abs(ratios[0] - np.sqrt(2 / 3)) < 0.02, (order, ratios)
         # with the truncation estimate (which sees the noise as curvature) the sigma is conservative, not wild
         assert 0.5 < ratios[1] < ratios[0], (order, ratios)
+
+
+def test_what_remains_names_the_angular_acceleration_only_with_its_share():
+    """angular_acceleration_check: accelerometers that see an angular acceleration the gyro samples do not hold
+    (white, 300 rad/s^2 rms per axis) -> it explains the share of what is left that its variance predicts, and no
+    filter of the gyro samples recovers it; a plain rigid body with white accelerometer noise -> nothing named; accelerometers sampled 6 ms
+    after the gyros -> a filter of the gyro samples does better than the central difference."""
+    from rimu.array import angular_acceleration_check
+    from rimu.array.report import accel_verdict
+
+    rng = np.random.default_rng(7)
+    t, w, wd, s, f = _body(4000)
+    noise = rng.normal(0, 0.05, f.shape)
+    hidden = rng.normal(0, 300.0, w.shape)
+    seen = f + np.cross(hidden[:, None], R[None]) + noise
+    rem = angular_acceleration_check(t, seen, w, R)
+    share_expected = 1 - (0.05**2 * (21 / 18) * 18 / 21) / np.mean(
+        (np.cross(hidden[:, None], R[None]) - np.cross(hidden[:, None], R[None]).mean(axis=1, keepdims=True))**2
+        + 0.05**2 * 7 / 8)
+    assert abs(rem["share"] - share_expected) < 0.02, (rem["share"], share_expected)
+    assert rem["held_out"]["fir_rad_s2"] > 0.9 * rem["held_out"]["central_difference_rad_s2"]
+    assert "limiting is the angular acceleration" in accel_verdict(rem) and "do not hold it" in accel_verdict(rem)
+    # a rigid body with white accelerometer noise, the order-4 difference (its truncation, about 1 rad/s^2 here,
+    # is far below the noise's 0.2 m/s^2 over 13 mm): nothing to name
+    plain = angular_acceleration_check(t, f + 4 * noise, w, R, order=4)
+    assert abs(plain["share"]) < 0.05 and "unexplained" in accel_verdict(plain)
+    # accelerometers 6 ms late: their angular acceleration is the gyros' 6 ms later, which a filter of the gyro
+    # samples predicts (held out) better than the central difference at the sample does
+    a = 2 * np.pi * FRQ
+    late = s[:, None] + lever_arm_acceleration(AMP * np.sin(a * (t[:, None] + 6e-3) + PHS),
+                                               AMP * a * np.cos(a * (t[:, None] + 6e-3) + PHS), R)
+    lr = angular_acceleration_check(t, late + noise, w, R)
+    assert lr["held_out"]["fir_rad_s2"] < 0.75 * lr["held_out"]["central_difference_rad_s2"], lr
+    assert "a better derivative would recover" in accel_verdict(lr)
