@@ -101,7 +101,7 @@ def test_what_remains_names_the_angular_acceleration_only_with_its_share():
     from rimu.array.report import accel_verdict
 
     rng = np.random.default_rng(7)
-    t, w, wd, s, f = _body(4000)
+    t, w, _wd, s, f = _body(4000)
     noise = rng.normal(0, 0.05, f.shape)
     hidden = rng.normal(0, 300.0, w.shape)
     seen = f + np.cross(hidden[:, None], R[None]) + noise
