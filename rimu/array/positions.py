@@ -83,7 +83,7 @@ class PositionFit:
     #: inside the derivative's stencil), and the epochs in motion in all
     lever_arm_invalid: int = 0
     moving_epochs: int = 0
-    derivative_order: int = 2
+    derivative_order: int = 4
 
     def apply(self, t: np.ndarray, accel: np.ndarray) -> np.ndarray:
         """Compensate raw accelerometer triads (N, k, 3, own axes): body-frame specific force at each triad,
@@ -174,7 +174,14 @@ def _omega_dot(t: np.ndarray, omega: np.ndarray, order: int) -> tuple[np.ndarray
 
         omega = sosfiltfilt(butter(4, DERIVATIVE_CUTOFF_HZ, fs=fs, output="sos"), omega, axis=0,
                             padlen=min(len(t) - 1, int(4 * fs / DERIVATIVE_CUTOFF_HZ)))
-    return angular_acceleration(t, omega, order)
+    wd, ok = angular_acceleration(t, omega, order)
+    # the record's own ends (not a gap) keep the one-sided second-order difference they always had
+    m = order // 2
+    if len(t) > 2 * m + 2 and np.isfinite(omega[: 2 * m + 1]).all() and np.isfinite(omega[-2 * m - 1:]).all():
+        edge = np.gradient(omega, t, axis=0, edge_order=2)
+        wd[:m], wd[-m:] = edge[:m], edge[-m:]
+        ok[:m] = ok[-m:] = True
+    return wd, ok
 
 
 def _K(w: np.ndarray, wd: np.ndarray) -> np.ndarray:
@@ -372,7 +379,7 @@ def fit_positions(
     layout: ArrayLayout, t: np.ndarray, accel: np.ndarray, gyro_fit: "RelativeFit | None" = None,
     gyro: "np.ndarray | None" = None, omega: "np.ndarray | None" = None, nominal_positions_m: "np.ndarray | None" = None,
     max_iter: int = 15, motion_threshold_deg_s: float = 30.0, gain: str = "absolute", align: bool = True,
-    offsets: bool = False, derivative_order: int = 2,
+    offsets: bool = False, derivative_order: int = 4,
 ) -> PositionFit:
     """Positions, gains and biases of the accelerometer triads from motion (Carlsson, Skog & Jalden 2021).
 
@@ -431,8 +438,11 @@ def fit_positions(
         omega = np.asarray(omega, dtype=float)
         tau = np.zeros(k)
     z_raw = z
+    moving_all = np.linalg.norm(omega, axis=1) > np.radians(motion_threshold_deg_s)
+    raw_all = _rms_parity(z, moving_all if moving_all.sum() >= 10 else np.ones(N, bool))
     if np.any(tau != 0):
         z = np.stack([time_shift(t, z[:, j], -tau[j]) for j in range(k)], axis=1)
+    aligned_all = _rms_parity(z, moving_all if moving_all.sum() >= 10 else np.ones(N, bool))
     m = int(np.ceil(np.abs(tau).max() / np.max(np.diff(t)))) + 3
     z, t, omega = z[m:N - m], t[m:N - m], omega[m:N - m]
     # the lever-arm terms need w and w' at the accelerometer's sample: an epoch whose derivative stencil crosses a
@@ -536,6 +546,6 @@ def fit_positions(
     return PositionFit(layout.with_positions(r), D, c, r, cov, sigma,
                        {"raw": raw_rms, "aligned": aligned_rms, "raw_nominal_lever_arms": raw_lever,
                         "gain_bias_nominal_lever_arms": nom_rms, "positions": pos_rms,
-                        "accel_angular_acceleration": aa_rms},
+                        "accel_angular_acceleration": aa_rms, "raw_all": raw_all, "aligned_all": aligned_all},
                        nominal, it, np.asarray(tau, dtype=float), gain,
                        tau_a if offsets else None, n_invalid, n_moving, derivative_order)

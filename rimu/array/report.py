@@ -354,13 +354,13 @@ def _accel_candidate(layout, t, accel, fit, gyro, nominal_positions_m, motion_th
     except IdentifiabilityError as exc:
         notes.append(f"accelerometer gain={mode!r} skipped: {exc}")
         return None
-    if align and cand.parity_rms_m_s2["aligned"].mean() > cand.parity_rms_m_s2["raw"].mean():
+    if align and cand.parity_rms_m_s2["aligned_all"].mean() > cand.parity_rms_m_s2["raw_all"].mean():
         align = False
         # what was seen, not a guess about the hardware: a single-chip IMU (one die, one sampling instant for
         # both) shows it too when the gyro offsets hold something else (the paths' different filter delays)
         seen = (f"the gyros' sampling offsets do not fit the accelerometers (moved by them, the accelerometer "
-                f"parity rises from {fmt(cand.parity_rms_m_s2['raw'].mean(), 'accel', 'm/s^2', digits=6)} to "
-                f"{fmt(cand.parity_rms_m_s2['aligned'].mean(), 'accel', 'm/s^2', digits=6)}: the accelerometers are not sampled "
+                f"parity rises from {fmt(cand.parity_rms_m_s2['raw_all'].mean(), 'accel', 'm/s^2', digits=6)} to "
+                f"{fmt(cand.parity_rms_m_s2['aligned_all'].mean(), 'accel', 'm/s^2', digits=6)}: the accelerometers are not sampled "
                 "at the gyros' instants, or the gyro paths delay differently from the accelerometer paths)")
         try:
             cand = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
