@@ -447,5 +447,5 @@ def test_calibrate_lsq_checks_added_effects_on_held_out_segments(tmp_path, capsy
     assert rc == 0, err
     lines = [ln for ln in out if "held-out segments" in ln]
     assert len(lines) == 1 and lines[0].split(":")[1].strip() == "gyro", out   # g_sensitivity: gyros only
-    b, a, unit = re.search(r"goes (\S+) -> (\S+) (\S+?);?$", lines[0].split(";")[0]).groups()
+    b, a, unit = re.search(r"takes .* (\S+) -> (\S+) (\S+) \(mean over the sensors\)", lines[0]).groups()
     assert unit == "deg/s" and float(a) > 0.99 * float(b), lines

@@ -157,3 +157,32 @@ def test_replay_report_renders(tmp_path, capsys):
     assert _pdf_pages(tmp_path / "rep" / "replay_report.pdf", tmp_path) >= 4
     for png in ("replay.png", "selfcal-gyro.png", "selfcal-accel.png"):
         assert (tmp_path / "rep" / png).stat().st_size > 1000
+
+
+def test_selfcal_report_renders(tmp_path, capsys):
+    """rimu selfcal --report writes the one layout (issue 27): the console's lines, the terms at the end as a table
+    and their history as a figure with a unit on every axis, in one HTML page and a PDF."""
+    import numpy as np
+
+    from rimu.calibration import Calibration
+    from rimu.session import Segment, Session, save_session
+    from rimu.sim.multitriad import triad_array
+    from tests.fdi.selfcal_flight import flight
+
+    geo = triad_array(2)
+    F = flight(geo, hours=0.05, fs=10.0, seed=3)
+    seg = Segment("flight", "motion", F.t, {"gyro": F.Y}, temperature=F.temperature)
+    save_session(Session([seg], {"gyro": geo}, 10.0, raw_unit="rad/s"), tmp_path / "f.npz")
+    Calibration({"gyro": F.cal}, raw_unit="rad/s").save(tmp_path / "cal.json")
+    out = _console(capsys, ["selfcal", tmp_path / "f.npz", "--calibration", tmp_path / "cal.json", "-o",
+                            tmp_path / "cal2.json", "--bias-rw", repr(float(np.asarray(F.settings.bias_rw)[0])),
+                            "--report", tmp_path / "rep"])
+    console = [ln for ln in out if "samples over" in ln or "windows absorbed" in ln]
+    assert len(console) == 2, out
+    res = _browse(tmp_path / "rep" / "selfcal_report.html", tmp_path)
+    _assert_page(res, console + _cautions(out), 1)
+    assert {"gyro: tracked bias (without its common mode), 1-sigma band",
+            "gyro: tracked scale (without its common mode), 1-sigma band"} <= set(res["titles"]), res["titles"]
+    row = next(ln.split()[0] for ln in out if "bias" in ln and "+-" in ln)   # a sensor's row of the console
+    assert "Self-calibration: gyro" in res["text"] and row in res["text"]
+    assert _pdf_pages(tmp_path / "rep" / "selfcal_report.pdf", tmp_path) >= 2

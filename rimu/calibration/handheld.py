@@ -89,6 +89,7 @@ __all__ = [
     "AccelFit",
     "GyroFit",
     "held_out_accel",
+    "held_out_gyro",
     "HandHeld",
     "clip_levels",
     "ellipsoid_fit",
@@ -1058,7 +1059,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
              accel_dir_jac: np.ndarray | None, accel_cov: np.ndarray | None, idx: Sequence[int], sigma: np.ndarray,
              H: np.ndarray, robust: bool = True, dir_cov: np.ndarray | None = None,
              preintegrate: bool = True, _stats: _RawStats | None = None, _ybar: np.ndarray | None = None,
-             _kern: Any = None) -> GyroFit:
+             _kern: Any = None, model: str = "full") -> GyroFit:
     """Gyros from the rotations between poses (module docstring; Tedaldi et al. 2014, Eq. 14-18).
 
     Parameters
@@ -1078,7 +1079,13 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         while the correction turns some motion by more than 1e-4 rad (the model's error is second order in it).
         ``False``: the reference, every sample integrated again at every evaluation of a trust-region solver
         (``scipy.optimize.least_squares``); both reach the same optimum (tested).
+    model : {"full", "scale_bias"}
+        ``"full"``: every component of each sensor's row (scale and misalignment, relative to the accelerometer
+        frame) and the biases; ``"scale_bias"``: the axes kept nominal (``W_i = s_i H_i``), a scale and a bias per
+        sensor: the input of the misalignment step that :func:`held_out_gyro` checks.
     """
+    if model not in ("full", "scale_bias"):
+        raise ValueError(f"model must be 'full' or 'scale_bias', got {model!r}")
     statics = _statics(session)
     inst = "gyro"
     n = len(idx)
@@ -1313,6 +1320,28 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     s0 = _initial_gyro_scale(D["Yint"], Tw, c0, H, accel_dirs, ka, kb)
     theta0 = np.concatenate([(W0 * s0).ravel(), c0])
     typ = np.concatenate([np.full(3 * n, abs(s0)), np.maximum(np.abs(c0), sd.mean() * 10)])
+    # the parameters solved for: theta = Bm @ phi (the full model: phi = theta; scale_bias: W_i = s_i H_i)
+    Bm = np.eye(4 * n)
+    typ_p = typ
+    if model == "scale_bias":
+        Bm = np.zeros((4 * n, 2 * n))
+        for i in range(n):
+            Bm[3 * i:3 * i + 3, i] = H[i]
+            Bm[3 * n + i, n + i] = 1.0
+        typ_p = np.concatenate([np.full(n, abs(s0)), typ[3 * n:]])
+
+    def to_phi(theta):
+        return np.linalg.lstsq(Bm, theta, rcond=None)[0] if model == "scale_bias" else theta
+
+    def reduced(fun_):
+        """``fun_`` (theta -> (r, J)) as a function of phi."""
+        if model == "full":
+            return fun_
+
+        def f(phi):
+            r, J = fun_(Bm @ phi)
+            return r, J @ Bm
+        return f
     w_rot = 1.0e3  # 1 mrad to start with; both weights are then set from the residual scatter
     w_st = 1.0
     w_par = 1.0
@@ -1381,8 +1410,9 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
                 def reach(th, pre=pre):  # the largest change of a motion's rotation the model predicts, rad
                     return float(np.max(np.abs(model_x(th, pre))))
 
-                theta, _, _, edge = _gauss_newton(model_fun(pre), theta, typ, robust, xtol=1e-8, reach=reach,
-                                                 radius=1.0)
+                phi, _, _, edge = _gauss_newton(reduced(model_fun(pre)), to_phi(theta), typ_p, robust, xtol=1e-8,
+                                                reach=lambda p_, r_=reach: r_(Bm @ p_), radius=1.0)
+                theta = Bm @ phi
                 # done when the model's correction turns no motion by more than 1 mrad: its error, second order
                 # in that, is below 1e-6 rad (the motions' residual scatter is ~1e-3 rad)
                 if not edge and reach(theta) <= 3e-4:
@@ -1392,9 +1422,10 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         else:
             from scipy.optimize import least_squares
 
-            sol = least_squares(resid, theta, jac=jac, x_scale=typ, loss="huber" if robust else "linear",
+            sol = least_squares(lambda p_: resid(Bm @ p_), to_phi(theta), jac=lambda p_: jac(Bm @ p_) @ Bm,
+                                x_scale=typ_p, loss="huber" if robust else "linear",
                                 f_scale=3.0, xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=100 * len(theta))
-            theta = sol.x
+            theta = Bm @ sol.x
             R = rotations(theta)  # at theta: for Cr, the weights and the end
         if it == 0:
             # correlated residuals: the gravity direction of pose k enters motions k-1 and k; generalised least
@@ -1431,12 +1462,16 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     sn = [str(gnames[j]) if j < len(gnames) else str(i) for i, j in enumerate(idx)]
     # named as the tables name the sensors (x.w_z: the z component of sensor x's raw-domain row, axis / scale)
     names = [f"{sn[i]}.w_{a}" for i in range(n) for a in "xyz"] + [f"{sn[i]}.bias" for i in range(n)]
-    _check_jacobian(J, typ, names, "gyro")
-    Js = J * typ
-    Ninv = np.linalg.pinv(Js.T @ Js) * np.outer(typ, typ)
     size = np.concatenate([np.full(3 * n, abs(s0)), np.full(n, abs(s0) * 1.0)])  # scale; bias of 1 rad/s
+    if model == "scale_bias":
+        J = J @ Bm
+        names = [f"{sn[i]}.scale" for i in range(n)] + [f"{sn[i]}.bias" for i in range(n)]
+        size = np.concatenate([np.full(n, abs(s0)), np.full(n, abs(s0) * 1.0)])
+    _check_jacobian(J, typ_p, names, "gyro")
+    Js = J * typ_p
+    Ninv = np.linalg.pinv(Js.T @ Js) * np.outer(typ_p, typ_p)
     weak = _check_spread(Ninv / np.outer(size, size), names, "gyro")
-    cov = Ninv
+    cov = Bm @ Ninv @ Bm.T
     if accel_dir_jac is not None and accel_cov is not None:
         # d resid / d accel params through the gravity directions (the rotations do not depend on them; the
         # rotation residual T_m (R_m u_ka - u_kb) is linear in the directions)
@@ -1446,12 +1481,13 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         Jd[np.arange(M), :, kb, :] -= T
         Ja = np.zeros((J.shape[0], accel_dir_jac.shape[1]))
         Ja[:2 * M] = np.linalg.solve(Lw, Jd.reshape(2 * M, 3 * K) @ accel_dir_jac) * w_rot
-        B = Ninv @ J.T @ Ja
+        B = Bm @ Ninv @ J.T @ Ja
         cov = cov + B @ accel_cov @ B.T
     rr, rs_, rp = parts(theta, accel_dirs, R)
     W = theta[:3 * n].reshape(n, 3)
     c = theta[3 * n:]
     problem.update({"resid": resid, "jac": jac, "typ": typ, "dt": [p[2] for p in parts_idx], "n_rot": 2 * M,
+                    "rotation_misfit": lambda th: parts(th, accel_dirs)[0],
                     "rot_resid_shift": rot_resid_shift, "integrate": integrate, "model_x": model_x,
                     "model_fun": model_fun})
     ang = np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1, 1))
@@ -1461,8 +1497,58 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         chi2["parity"] = float(np.sum(rp**2) * w_par**2)
     scale = {"rotation_rad": 1.0 / w_rot, "static_sigma": 1.0 / w_st}
     return GyroFit(list(idx), W, c, cov, theta, list(zip(ka.tolist(), kb.tolist())), rr, ang, rs_ * sd,
-                   chi2, J.shape[0] - len(theta), scale, weak,
+                   chi2, J.shape[0] - J.shape[1], scale, weak,
                    problem)
+
+
+def held_out_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], accel_dirs: np.ndarray,
+                  idx: Sequence[int], sigma: np.ndarray, H: np.ndarray, robust: bool = True,
+                  dir_cov: np.ndarray | None = None, folds: int | None = None, fitted: dict[str, GyroFit] | None = None,
+                  **fit_kw: Any) -> dict[str, Any] | None:
+    """The gyro misalignment step checked on held-out motions: rms rotation misfit (the gravity direction of pose
+    k+1 against that of pose k turned by the integrated rotation, rad; :func:`fit_gyro`) of the model with the axes
+    nominal, a scale and a bias per sensor (``"scale_bias"``, the step's input) and of the full model (its result),
+    on the motions they were fitted on and on held-out motions: the motions split into ``folds`` groups (motion m
+    in group ``m % folds``; default: every motion its own group up to 8 motions, else 4 groups), each group left
+    out in turn,
+    the model fitted on the others (biases from every pose) and its misfit on the left-out motions evaluated by
+    exact integration. None when leaving a group out leaves a model unidentifiable (too few motions).
+    ``fitted``: fits on every motion already made (by model name). Values in rad, ``[scale_bias, full]``.
+
+    Examples
+    --------
+    >>> from rimu.sim.handheld import handheld_run
+    >>> run = handheld_run(n_poses=12, static_s=1.0, seed=1)
+    >>> s = run.session
+    >>> res = HandHeld(instruments=["accel"]).fit(s)
+    >>> dirs = _dirs_with_jacobian(res.fits["accel"][0], _statics(s), s, white_noise_sigma_hf(s, "accel"))[0]
+    >>> c = held_out_gyro(s, pose_windows(s), dirs, [0, 1, 2], white_noise_sigma_hf(s, "gyro"), np.eye(3), folds=4)
+    >>> c["models"], c["unit"], bool(c["in_sample"][1] <= c["in_sample"][0])
+    (['scale_bias', 'full'], 'rad', True)
+    """
+    M = len(windows)
+    k = min(int(folds), M) if folds is not None else (M if M <= 8 else 4)
+    if k < 2:
+        return None
+    group = np.arange(M) % k
+    fitted = dict(fitted or {})
+    ins, out = [], []
+    for model in ("scale_bias", "full"):
+        try:
+            full = fitted.get(model) or fit_gyro(session, windows, accel_dirs, None, None, idx, sigma, H, robust,
+                                                 dir_cov, model=model, **fit_kw)
+            misfit = full.problem["rotation_misfit"]
+            r = np.empty((M, 2))
+            for g in range(k):
+                keep = [w for m, w in enumerate(windows) if group[m] != g]
+                gf = fit_gyro(session, keep, accel_dirs, None, None, idx, sigma, H, robust, dir_cov, model=model,
+                              **fit_kw)
+                r[group == g] = misfit(gf.theta)[group == g]
+        except (IdentifiabilityError, np.linalg.LinAlgError):
+            return None
+        ins.append(float(np.sqrt(np.mean(np.sum(full.rotation_residual ** 2, axis=1)))))
+        out.append(float(np.sqrt(np.mean(np.sum(r ** 2, axis=1)))))
+    return {"in_sample": ins, "held_out": out, "unit": "rad", "models": ["scale_bias", "full"], "folds": k}
 
 
 def _robust_rms(r: np.ndarray) -> float:
@@ -1540,8 +1626,9 @@ class HandHeld:
         rounding (tested to 1e-9 relative); numpy is the reference.
     held_out : bool
         Check the accelerometers' misalignment step (the full model against scale and bias alone) on held-out
-        poses (:func:`held_out_accel`, a triad of 10 poses or more); a step that raises the held-out residual is not
-        applied, and a note says why with the figures (default True).
+        poses (:func:`held_out_accel`, a triad of 10 poses or more) and the gyros' (every component of each row
+        against nominal axes with a scale and a bias) on held-out motions (:func:`held_out_gyro`); a step that
+        raises the held-out residual is not applied, and a note says why with the figures (default True).
     """
 
     method = "hand-held (Zhang et al. 2010 accelerometers, Tedaldi et al. 2014 gyros)"
@@ -1673,6 +1760,9 @@ class HandHeld:
                     notes.append(f"gyros not calibrated: {exc}")
                     gyro_sensors = {}
                     break
+                if self.held_out:
+                    gf = self._gyro_step(session, windows, dirs, djac, acov, dcov, grp, sg[grp], gg.H[grp],
+                                         raw["gyro"], raw["gyro"].means(st_idx, grp), kern, gf, notes, extra)
                 rot_res.append(gf.rotation_residual)
                 gfits.append(gf)
                 if gf.weak:
@@ -1712,6 +1802,32 @@ class HandHeld:
         res = CalibrationResult(self.method, out, session.raw_unit, notes, extra)
         res.fits = fits  # type: ignore[attr-defined]  # the fitted problems (AccelFit, GyroFit), for diagnosis
         return res
+
+
+    def _gyro_step(self, session: Session, windows: list, dirs: np.ndarray, djac: np.ndarray, acov: np.ndarray,
+                   dcov: np.ndarray, grp: list[int], sigma: np.ndarray, H: np.ndarray, stats: _RawStats,
+                   ybar: np.ndarray, kern: Any, gf: GyroFit, notes: list[str], extra: dict[str, Any]) -> GyroFit:
+        """The gyro misalignment step checked on held-out motions (:func:`held_out_gyro`): ``gf`` (the full fit)
+        when it does not raise the held-out rotation misfit, else the fit with nominal axes; the note says why."""
+        kw = {"_stats": stats, "_ybar": ybar, "_kern": kern}
+        check = held_out_gyro(session, windows, dirs, grp, sigma, H, self.robust, dcov, fitted={"full": gf}, **kw)
+        if check is None:
+            notes.append("gyro: the misalignment step could not be checked on held-out motions (too few motions: "
+                         "leaving some out leaves a model unidentifiable); applied")
+            return gf
+        k, M = check["folds"], len(windows)
+        sc = StepCheck("gyro", "misalignment", "nominal axes, a scale and a bias per gyro", "angle",
+                       tuple(check["in_sample"]), tuple(check["held_out"]), "motions",
+                       "nominal axes (relative to the accelerometers), a scale and a bias per gyro",
+                       residual="rotation misfit",
+                       how="each left out in turn" if k == M else f"{k} groups of motions, each left out in turn")
+        extra.setdefault("held_out_gyro", []).append(check)
+        extra.setdefault("steps", []).append(sc.to_dict())
+        notes.append(sc.note())
+        if sc.applied:
+            return gf
+        return fit_gyro(session, windows, dirs, djac, acov, grp, sigma, H, robust=self.robust, dir_cov=dcov,
+                        model="scale_bias", **kw)
 
 
 def _dirs_with_jacobian(af: AccelFit, statics: list[Segment], session: Session, sa: np.ndarray):

@@ -50,6 +50,7 @@ class StepCheck:
     fallback: str
     residual: str = "residual"
     tol: float = 1e-3
+    how: str = "each left out in turn"
 
     @property
     def applied(self) -> bool:
@@ -61,7 +62,7 @@ class StepCheck:
         u = field_unit(self.quantity, max(*self.fitted, *self.held_out))[0]
         f = [fmt(x, self.quantity, u) for x in (*self.fitted, *self.held_out)]
         text = (f"{self.instrument}: the {self.step} step (against {self.against}) takes the {self.residual} on the "
-                f"{self.groups} it was fitted on {f[0]} -> {f[1]}, on held-out {self.groups} (each left out in turn) "
+                f"{self.groups} it was fitted on {f[0]} -> {f[1]}, on held-out {self.groups} ({self.how}) "
                 f"{f[2]} -> {f[3]}")
         if self.applied:
             return text

@@ -53,6 +53,7 @@ from .steps import StepCheck, linear_step_check
 __all__ = [
     "Zhang",
     "accel_rotation_axis",
+    "inter_triad_step_check",
     "lower_factor",
     "norm_problem",
     "norm_residuals",
@@ -583,6 +584,10 @@ class Zhang:
         w_a = np.array([1.0 / max(v * la2 / float(np.linalg.norm(n @ La)) ** 2, 1e-30)
                         for v, n in zip(var_raw, n_raw_a)])
         Rpo = wahba(lo_a, lp_a, w_a)
+        # the inter-triad step checked on held-out pairs: refused, the gyro frame is taken as the accelerometers'
+        inter = inter_triad_step_check(lo_a, lp_a, w_a) if self.held_out else None
+        if inter is not None and not inter.applied:
+            Rpo = np.eye(3)
         info = sum(w * (np.eye(3) - np.outer(l, l)) for w, l in zip(w_a, lp_a))
         # d theta / d p by central differences (theta does not depend on the biases: those columns are zero)
         Jt = np.zeros((3, 18))
@@ -593,6 +598,8 @@ class Zhang:
         th = theta_of(np.vstack([p + dP, p - dP]))
         Jt[:, cols] = ((th[:len(cols)] - th[len(cols):]) / (2 * h[:, None])).T
         cov_th = np.linalg.inv(info) + Jt @ cov_p @ Jt.T
+        if inter is not None and not inter.applied:
+            cov_th = np.zeros((3, 3))  # not estimated: held at zero
         theta = np.array([Rpo[2, 1] - Rpo[1, 2], Rpo[0, 2] - Rpo[2, 0], Rpo[1, 0] - Rpo[0, 1]]) / 2.0
         # map to rimu's per-sensor raw-domain coefficients in MB = p
         model = ErrorModel.base()
@@ -636,6 +643,10 @@ class Zhang:
                          f"{inst}: the misalignment step could not be checked on held-out segments (too few "
                          f"{'static positions' if inst == 'accel' else 'CW/CCW pairs'}: leaving one out leaves it "
                          "unidentifiable); applied")
+        notes.append(inter.note() if inter is not None else
+                     "gyro: the inter-triad misalignment step could not be checked on held-out CW/CCW pairs (fewer "
+                     "than three pairs, or the others' axes in one direction); applied" if self.held_out else
+                     "gyro: the inter-triad misalignment step not checked on held-out pairs (held_out=False)")
         if dur_mismatch:
             notes.append(f"CW/CCW segments of unequal length ({dur_mismatch}): the gyro bias does not cancel "
                          "exactly in Eq. 18")
@@ -648,7 +659,7 @@ class Zhang:
                      "one value per segment shared by the triad's sensors")
         extra = {"inter_triad_rad": theta, "inter_triad_std_rad": np.sqrt(np.diag(cov_th)),
                  "R_p_o": Rpo, "norm_residuals_accel": r[:nA], "refined": bool(self.refine),
-                 "steps": [c.to_dict() for c in checks if c is not None]}
+                 "steps": [c.to_dict() for c in (*checks, inter) if c is not None]}
         res = CalibrationResult(self.method, out, session.raw_unit, notes, extra)
         # the two refinement problems (accelerometers, gyros): start, optimum, scales, Newton steps (for tests)
         res.refinement = {"problems": problems, "p0": (p0[:9], p0[9:]), "p": (p[:9], p[9:]),  # type: ignore[attr-defined]
@@ -677,6 +688,50 @@ def _masked(prob: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], keep: n
         return r, J[..., keep]
 
     return sub
+
+
+def inter_triad_step_check(lo: np.ndarray, lp: np.ndarray, w: np.ndarray | None = None) -> StepCheck | None:
+    """The inter-triad misalignment step (Zhang et al. 2010, Eq. 39-47: ``R_p^o`` by Wahba's problem) checked on
+    held-out CW/CCW pairs: the angle between each pair's gyro rotation axis ``lo_k`` (Eq. 41) and its
+    accelerometer axis turned by R, ``R lp_k`` (Eq. 42-47), with ``R = I`` (the step's input: the gyro frame taken
+    as the accelerometers') and with R from :func:`wahba` on every pair, or on the others with each pair left out
+    in turn. None with fewer than three pairs, or when the others' accelerometer axes span one direction only.
+
+    Examples
+    --------
+    >>> from rimu.session import rotation_matrix
+    >>> lp = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [0.6, 0.8, 0], [0, 0.6, 0.8]], float)
+    >>> c = inter_triad_step_check(lp @ rotation_matrix(np.array([2e-3, 0, 0])).T, lp)
+    >>> c.applied, round(c.held_out[0] * 1e3, 2), c.held_out[1] < 1e-12  # 2 mrad * rms(|l x x|) = 1.71 mrad
+    (True, 1.71, True)
+    """
+    lo, lp = np.asarray(lo, float), np.asarray(lp, float)
+    M = len(lo)
+    w = np.ones(M) if w is None else np.asarray(w, float)
+    if M < 3:
+        return None
+
+    def angles(R: np.ndarray, k: slice | np.ndarray) -> np.ndarray:
+        c = np.einsum("ki,ki->k", lo[k], lp[k] @ R.T)
+        s = np.linalg.norm(np.cross(lo[k], lp[k] @ R.T), axis=1)
+        return np.arctan2(s, c)
+
+    every = slice(None)
+    base = angles(np.eye(3), every)
+    fitted = angles(wahba(lo, lp, w), every)
+    out = np.empty(M)
+    for k in range(M):
+        keep = np.arange(M) != k
+        if np.linalg.matrix_rank(lp[keep], tol=1e-3) < 2:
+            return None
+        out[k] = angles(wahba(lo[keep], lp[keep], w[keep]), np.array([k]))[0]
+
+    def rms(a: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(a * a)))
+
+    return StepCheck("gyro", "inter-triad misalignment", "the gyro frame taken as the accelerometers'", "angle",
+                     (rms(base), rms(fitted)), (rms(base), rms(out)), "CW/CCW pairs",
+                     "no inter-triad rotation (R_p^o = I)", residual="rotation-axis misfit")
 
 
 def _step_checks(session: Session, ya: np.ndarray, sa: np.ndarray, Ns: np.ndarray, phi: np.ndarray,

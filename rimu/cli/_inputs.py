@@ -190,6 +190,11 @@ def recording_session(rec: Any, kind: str = "motion", label: str | None = None, 
             ok |= block.valid[k].any(axis=1)   # an epoch with any valid sample; the invalid ones as NaN
         raw = {k: np.where(block.valid[k], block.raw[k], np.nan) for k in insts}
         block = type(block)(block.t, raw, block.valid, block.temperature)
+    dropped = int(len(ok) - ok.sum())
+    if dropped and ok.sum() >= 2:   # a counted, reported rejection: never lost without a word
+        log.warning("%s: %d of %d epochs left out: %s", rec.meta.get("source"), dropped, len(ok),
+                    "no IMU has a valid sample there" if keep_invalid
+                    else "not every IMU has a valid sample there (rimu replay decides on them instead)")
     if ok.sum() < 2:
         raise SessionFormatError(f"{rec.meta.get('source')}: fewer than 2 epochs where every IMU ({rec.names}) has a "
                                  "valid sample; the IMUs do not overlap in time")
@@ -201,7 +206,8 @@ def recording_session(rec: Any, kind: str = "motion", label: str | None = None, 
     rate = 1.0 / float(np.median(np.diff(t)))
     meta = {k: v for k, v in rec.meta.items() if isinstance(v, (str, int, float, bool, list, dict))}
     return Session([seg], {k: geo for k in insts}, rate, raw_unit="SI",
-                   meta={"recording": meta, "raw_units": {"gyro": "rad/s", "accel": "m/s^2"}})
+                   meta={"recording": meta, "raw_units": {"gyro": "rad/s", "accel": "m/s^2"},
+                         "epochs_left_out": dropped})
 
 
 def open_session(path: str | os.PathLike[str], checks: str = "strict", kind: str = "motion",

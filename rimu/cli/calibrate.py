@@ -23,6 +23,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "2010 (triads, no attitude needed); lsq: generic least squares on the effect model; handheld: "
                         "poses of unknown attitude and hand rotations between them (rimu detect's sessions)")
     p.add_argument("--effects", default=None, help="lsq only: comma-separated effects (default scale,bias)")
+    p.add_argument("--keep-worse-effects", action="store_true",
+                   help="lsq only: apply every effect of --effects even when it raises the residual on held-out "
+                        "segments (by default such an effect is not applied and the output says why)")
     p.add_argument("--instruments", default=None, help="comma-separated subset of gyro,accel")
     p.add_argument("--wavelet", action="store_true", help="oliveira only: db4/8-level wavelet denoising")
     p.add_argument("-o", "--output", default="calibration.json", help="calibration file to write")
@@ -120,51 +123,90 @@ def _bias_note_lines(zero: dict, res=None) -> list[str]:  # type: ignore[no-unty
     return out
 
 
-def _held_out_lines(session, effects: str | None, instruments) -> list[str]:  # type: ignore[no-untyped-def]
-    """lsq with effects beyond scale, misalignment and bias: the step that adds them compared with its input on
-    held-out segments (fitted on every other segment, checked on the rest; rimu.diagnose.Comparison.held_out)."""
+def _held_out_effects(session, effects: str | None, instruments, keep_worse: bool = False
+                      ) -> tuple[dict[str, list[str]], list[str]]:  # type: ignore[no-untyped-def]
+    """lsq with effects beyond scale, misalignment and bias: each added effect (in the order given) compared with the
+    model without it on held-out segments (fitted on every other segment, checked on the rest;
+    rimu.diagnose.Comparison.held_out). Returns the effects not applied per instrument (those that raise the
+    held-out residual; none with ``keep_worse``) and the lines that say so, with the figures."""
     from ..calibration.model import ErrorModel
     from ..diagnose.api import compare
     from ..diagnose.fitting import fit_model
     from ..errors import IdentifiabilityError
 
     if not effects:
-        return []
+        return {}, []
     model = ErrorModel.from_names(effects)
     base_names = [e.name for e in model if e.name in ("bias", "scale_misalignment")]
     extra_effects = [e for e in model if e.name not in base_names]
     if not extra_effects or set(base_names) != {"bias", "scale_misalignment"}:
-        return []
-    base = ErrorModel.from_names(",".join(base_names))
+        return {}, []
+    how = "the residual on held-out segments (fitted on every other segment, checked on the rest)"
+    dropped: dict[str, list[str]] = {}
     out = []
     for k in instruments or session.instruments:
+        kept = list(base_names)
         try:
-            before = fit_model(session, base, k)
-            extra = [e.name for e in extra_effects if any(e.applies_to(ctx) for ctx in before.contexts)]
-            if not extra:
-                continue
-            c = compare(session, before, model)
+            before = fit_model(session, ErrorModel.from_names(",".join(kept)), k)
         except (IdentifiabilityError, ValueError):
             continue
-        h = c.held_out()
-        if h is None:
-            out.append(f"note: {k}: the effects {', '.join(extra)} could not be checked on held-out segments (half "
-                       "of the segments cannot identify the model)")
-            continue
-        b, a = float(h[1].mean()), float(h[2].mean())
-        line = (f"note: {k}: with {', '.join(extra)} the residual on held-out segments (fitted on every other "
-                f"segment, checked on the rest) goes {b:.4g} -> {a:.4g} {h[0]}")
-        if c.worse_held_out():
-            line = line.replace("note:", "caution:", 1) + (f"; they fit these segments, not the instrument: "
-                                                           f"calibrate without them (--effects {','.join(base_names)})")
-        out.append(line)
-    return out
+        for e in extra_effects:
+            if not any(e.applies_to(ctx) for ctx in before.contexts):
+                continue
+            try:
+                c = compare(session, before, ErrorModel.from_names(",".join([*kept, e.name])))
+            except (IdentifiabilityError, ValueError):
+                continue
+            h = c.held_out()
+            if h is None:
+                out.append(f"note: {k}: the effect {e.name} could not be checked on held-out segments (half of the "
+                           "segments cannot identify the model); applied")
+                kept.append(e.name)
+                before = c.after
+                continue
+            b, a = float(h[1].mean()), float(h[2].mean())
+            line = f"{k}: adding {e.name} takes {how} {b:.4g} -> {a:.4g} {h[0]} (mean over the sensors)"
+            if not c.worse_held_out():
+                out.append(f"note: {line}; applied")
+                kept.append(e.name)
+                before = c.after
+            elif keep_worse:
+                out.append(f"caution: {line}; applied as asked (--keep-worse-effects): it fits these segments, "
+                           "not the instrument")
+                kept.append(e.name)
+                before = c.after
+            else:
+                dropped.setdefault(k, []).append(e.name)
+                out.append(f"caution: {line}; not applied (the fit without it is kept): it fits these segments, "
+                           f"not the instrument; --keep-worse-effects applies it anyway")
+    return dropped, out
+
+
+def _fit_lsq(session, effects: str, inst, dropped: dict[str, list[str]]):  # type: ignore[no-untyped-def]
+    """The lsq fit with the effects of ``dropped`` left out of their instrument's model (one fit per instrument
+    whose model differs from the one asked for)."""
+    from ..calibration import LeastSquares
+    from ..calibration.estimate import CalibrationResult
+    from ..calibration.model import ErrorModel
+
+    names = [e.name for e in ErrorModel.from_names(effects)]
+    parts = []
+    for k in inst or session.instruments:
+        model = ErrorModel.from_names(",".join(n for n in names if n not in dropped.get(k, [])))
+        parts.append((k, model, LeastSquares(model=model, instruments=[k]).fit(session)))
+    method = (f"least squares ({ErrorModel.from_names(effects).label}; "
+              + "; ".join(f"{k} without {', '.join(v)}" for k, v in dropped.items()) + ": raised the held-out residual)")
+    return CalibrationResult(method, {k: r.instruments[k] for k, _, r in parts}, session.raw_unit,
+                             [n for _, _, r in parts for n in r.notes],
+                             {"effects_not_applied": {k: list(v) for k, v in dropped.items()}})
 
 
 def run(args: argparse.Namespace) -> int:
     from ..errors import OptionError
     if args.effects and args.method != "lsq":
         raise OptionError(f"--effects applies to --method lsq only, not {args.method}")
+    if args.keep_worse_effects and (args.method != "lsq" or not args.effects):
+        raise OptionError("--keep-worse-effects applies to --method lsq with --effects only")
     if args.wavelet and args.method != "oliveira":
         raise OptionError(f"--wavelet applies to --method oliveira only, not {args.method}")
     session = open_session(args.session, "warn" if args.accept_implausible else "strict", args=args)
@@ -174,13 +216,19 @@ def run(args: argparse.Namespace) -> int:
         from ..calibration import Calibration
 
         ref = Calibration.load(args.reference, session.geometries)
-    res = estimator(args.method, inst, args.effects, args.wavelet).fit(session)
+    dropped, held = ({}, [])
+    if args.method == "lsq":
+        dropped, held = _held_out_effects(session, args.effects, inst, args.keep_worse_effects)
+    if dropped:
+        res = _fit_lsq(session, args.effects, inst, dropped)
+    else:
+        res = estimator(args.method, inst, args.effects, args.wavelet).fit(session)
     print(res.table())
     zero = bias_at_zero_input(res)
     _print_bias_note(zero, res)
-    held = _held_out_lines(session, args.effects, inst) if args.method == "lsq" else []
     for line in held:
         print(line)
+    res.notes.extend(line.split(": ", 1)[1] for line in held)  # the result's notes (JSON, report) say it too
     out = res.to_calibration().save(Path(args.output))
     print(f"\ncalibration written to {out}")
     if args.json:
@@ -195,7 +243,7 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         from ..calibration.report import calibration_report
 
-        rep = calibration_report(res, session, ref, cautions=_bias_note_lines(zero, res) + held)
+        rep = calibration_report(res, session, ref, cautions=_bias_note_lines(zero, res))  # held: in the notes
         Path(args.report).mkdir(parents=True, exist_ok=True)
         if not args.plot and rep.save_figure(0, Path(args.report) / "residuals.png"):
             print(f"residual plot written to {Path(args.report) / 'residuals.png'}")

@@ -833,43 +833,10 @@ class _Tracked:
                 "sensors": rows, "guard": g}
 
     def figure(self, inst: str):  # type: ignore[no-untyped-def]
-        """The tracked terms of every sensor over the replay, each with its 1-sigma band, one panel per term, each
-        axis in the field unit of its values (rimu.units.field_unit; bracketed, as the report layout wants)."""
-        from ..plotting import pyplot
-        from ..units import PPM, field_unit
+        """The tracked terms of every sensor over the replay, each with its 1-sigma band (:func:`terms_figure`)."""
+        from .selfcal import terms_figure
 
-        plt = pyplot()
-        trk = self.loop.tracker
-        hist = self.series or [self.last]
-        t = np.array([h[0] for h in hist], dtype=float)
-        v = np.array([h[1] for h in hist], dtype=float)
-        s = np.array([h[2] for h in hist], dtype=float)
-        if not np.isfinite(t).all():
-            t = np.zeros(len(t))
-        fig, axes = plt.subplots(trk.m, 1, figsize=(9, 2.3 * trk.m + 0.6), sharex=True, squeeze=False)
-        names = trk.calibration.geometry.names
-        q = "rate" if inst == "gyro" else "specific_force"
-        for b, (name, ax) in enumerate(zip(trk.blocks, axes[:, 0])):
-            big = float(np.nanmax(np.abs(v[:, b]) + np.abs(s[:, b]))) if v.size else 0.0
-            if name == "scale":
-                fb, ub = 1.0 / PPM, "ppm"
-            else:
-                u, fb = field_unit(q, big)
-                ub = u if name == "bias" else f"{u}/K^{name[2]}"
-            for i in range(trk.n):
-                line, = ax.plot(t, v[:, b, i] * fb, lw=0.8, marker="." if len(t) < 3 else None,
-                                label=names[i] if trk.n <= 12 else None)
-                line.set_gid("data")
-                ax.fill_between(t, (v[:, b, i] - s[:, b, i]) * fb, (v[:, b, i] + s[:, b, i]) * fb,
-                                color=line.get_color(), alpha=0.15, lw=0)
-            ax.set_ylabel(f"{name} [{ub}]")
-            ax.set_title(f"{inst}: tracked {name} (without its common mode), 1-sigma band", fontsize=10)
-            ax.grid(alpha=0.3)
-        if trk.n <= 12:
-            axes[0, 0].legend(ncol=1, fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
-        axes[-1, 0].set_xlabel("time [s]")
-        fig.tight_layout()
-        return fig
+        return terms_figure(inst, self.loop.tracker, self.series or [self.last])
 
 
 def _first_seconds(blocks, t_stop: float):  # type: ignore[no-untyped-def]

@@ -48,7 +48,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="instrument to track (repeatable; default every instrument of the calibration in the log)")
     add_tracker_options(p)
     add_json_option(p)
-    add_report_option(p, "selfcal-<instrument>.png: the tracked terms over the log with their 1-sigma band")
+    add_report_option(p, "the report (selfcal_report.html, selfcal_report.pdf: the tracked terms at the end and "
+                         "over the log with their 1-sigma band) and selfcal-<instrument>.png")
     p.set_defaults(func=run)
 
 
@@ -214,14 +215,24 @@ def run(args: argparse.Namespace) -> int:
     out = dict(cal.instruments_cal)
     summary: dict[str, Any] = {"log": str(args.data), "samples": n_samples, "duration_s": t_last - t_first,
                                "temperature": bool(has_t), "instruments": {}}
-    print(f"{args.data}: {n_samples} samples over {t_last - t_first:.1f} s"
-          + ("" if has_t else " (no temperature: temperature terms not tracked)"))
+    import contextlib
+    import io
+
+    console = [f"{args.data}: {n_samples} samples over {t_last - t_first:.1f} s"
+               + ("" if has_t else " (no temperature: temperature terms not tracked)")]
+    print(console[0])
+    sections = []
     for k, trk in trackers.items():
         out[k] = trk.calibration_at(states[k])
         terms = trk.terms(states[k])
-        print(f"{k}: {counts[k][0]} windows absorbed, {counts[k][1]} gated out; tracked terms (common mode left as "
-              f"it was: only an external reference gives it), value +- 1 sigma:")
-        rows = print_terms(k, trk, terms)
+        console.append(f"{k}: {counts[k][0]} windows absorbed, {counts[k][1]} gated out; tracked terms (common mode "
+                       f"left as it was: only an external reference gives it), value +- 1 sigma:")
+        print(console[-1])
+        buf = io.StringIO()
+        with contextlib.redirect_stdout(buf):
+            rows = print_terms(k, trk, terms)
+        print(buf.getvalue(), end="")
+        sections.append((k, trk, history[k], buf.getvalue().splitlines()))
         summary["instruments"][k] = {"windows_absorbed": counts[k][0], "windows_gated": counts[k][1],
                                      "blocks": list(trk.blocks), "units": "SI (rad/s or m/s^2, relative scale, "
                                      "SI/K^k)", "sensors": rows}
@@ -231,39 +242,73 @@ def run(args: argparse.Namespace) -> int:
     written = Calibration(out, cal.raw_unit, f"{cal.method}+selfcal", metadata=meta).save(args.output)
     print(f"updated calibration written to {written}")
     if args.report:
-        for k, trk in trackers.items():
-            print(f"report: {_plot(k, trk, history[k], args.report)}")
+        html, pdf, *pngs = _report(args.report, str(args.data), console, sections)
+        print(f"report: {html} and {pdf}" + "".join(f"\nplot: {p}" for p in pngs))
     if args.json:
         json_dump(summary, args.json)
     return 0
 
 
-def _plot(inst: str, trk: Any, hist: list[tuple[float, np.ndarray, np.ndarray]], folder: str) -> Any:
-    """The tracked terms of every sensor over the log, each with its 1-sigma band, in the field's units."""
-    from pathlib import Path
-
-    from ..plotting import pyplot, save_figure
-    from ..units import MS2_TO_UG, PPM, RS_TO_DH
+def terms_figure(inst: str, trk: Any, hist: list[tuple[float, np.ndarray, np.ndarray]], max_points: int = 400) -> Any:
+    """The tracked terms of every sensor over a log (``hist``: (t, values (m, n), 1-sigma (m, n)) per window, at most
+    ``max_points`` of them drawn, evenly spaced), each with its 1-sigma band, one panel per term, each axis in the field unit of its values (rimu.units.field_unit;
+    bracketed, as the report layout wants). Shared by ``rimu selfcal`` and ``rimu replay --selfcal``."""
+    from ..plotting import pyplot
+    from ..units import PPM, field_unit
 
     plt = pyplot()
-    f, unit = (RS_TO_DH, "deg/h") if inst == "gyro" else (MS2_TO_UG, "micro-g")
-    t = np.array([h[0] for h in hist])
-    v = np.array([h[1] for h in hist])
-    s = np.array([h[2] for h in hist])
-    fig, axes = plt.subplots(trk.m, 1, figsize=(9, 2.2 * trk.m), sharex=True, squeeze=False)
+    if len(hist) > max_points:  # a picture of the history, not every window: at most max_points, the last kept
+        step = -(-len(hist) // max_points)
+        hist = [*hist[:-1:step], hist[-1]]
+    t = np.array([h[0] for h in hist], dtype=float)
+    v = np.array([h[1] for h in hist], dtype=float)
+    s = np.array([h[2] for h in hist], dtype=float)
+    if not np.isfinite(t).all():
+        t = np.zeros(len(t))
+    fig, axes = plt.subplots(trk.m, 1, figsize=(9, 2.3 * trk.m + 0.6), sharex=True, squeeze=False)
     names = trk.calibration.geometry.names
+    q = "rate" if inst == "gyro" else "specific_force"
     for b, (name, ax) in enumerate(zip(trk.blocks, axes[:, 0])):
-        fb, ub = (1.0 / PPM, "ppm") if name == "scale" else (f, unit if name == "bias" else f"{unit}/K^{name[2]}")
+        big = float(np.nanmax(np.abs(v[:, b]) + np.abs(s[:, b]))) if v.size else 0.0
+        if name == "scale":
+            fb, ub = 1.0 / PPM, "ppm"
+        else:
+            u, fb = field_unit(q, big)
+            ub = u if name == "bias" else f"{u}/K^{name[2]}"
         for i in range(trk.n):
-            line, = ax.plot(t, v[:, b, i] * fb, lw=0.8, label=names[i] if trk.n <= 12 else None)
+            line, = ax.plot(t, v[:, b, i] * fb, lw=0.8, marker="." if len(t) < 3 else None,
+                            label=names[i] if trk.n <= 12 else None)
+            line.set_gid("data")
             ax.fill_between(t, (v[:, b, i] - s[:, b, i]) * fb, (v[:, b, i] + s[:, b, i]) * fb,
                             color=line.get_color(), alpha=0.15, lw=0)
-        ax.set_ylabel(f"{name} ({ub})")
+        ax.set_ylabel(f"{name} [{ub}]")
+        ax.set_title(f"{inst}: tracked {name} (without its common mode), 1-sigma band", fontsize=10)
         ax.grid(alpha=0.3)
     if trk.n <= 12:
-        axes[0, 0].legend(ncol=min(trk.n, 6), fontsize=7)
-    axes[-1, 0].set_xlabel("time (s)")
-    axes[0, 0].set_title(f"{inst}: tracked terms (without their common mode) with 1-sigma bands")
+        axes[0, 0].legend(ncol=1, fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    axes[-1, 0].set_xlabel("time [s]")
     fig.tight_layout()
-    Path(folder).mkdir(parents=True, exist_ok=True)
-    return save_figure(fig, Path(folder) / f"selfcal-{inst}.png")
+    return fig
+
+
+def _report(folder: str, log: str, console: list[str], sections: list[tuple[str, Any, list, list[str]]]) -> list:
+    """The one report layout (:class:`rimu.report.Report`): ``selfcal_report.html`` and ``.pdf`` in ``folder`` with
+    the console's notes, per instrument the terms at the end of the log as a table and their history as a figure
+    (also written as ``selfcal-<instrument>.png``). Returns the paths written."""
+    from pathlib import Path
+
+    from ..report import Report
+
+    rep = Report(f"rimu selfcal: {log}")
+    rep.cautions(console)
+    for inst, trk, hist, lines in sections:
+        rep.heading(f"Self-calibration: {inst}")
+        rep.table(["sensor", "tracked terms at the end of the log, value +- 1 sigma"],
+                  [ln.strip().split("  ", 1) if "  " in ln.strip() else [ln.strip(), ""] for ln in lines])
+        rep.figure(terms_figure(inst, trk, hist), f"{inst}: the terms tracked over the log, each sensor with its "
+                                                  "1-sigma band, in the field's units (docs/selfcal.md).")
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    written = [rep.save_figure(j, out / f"selfcal-{inst}.png") for j, (inst, *_r) in enumerate(sections)]
+    html, pdf = rep.write(out, "selfcal_report")
+    return [html, pdf, *[w for w in written if w is not None]]

@@ -237,6 +237,7 @@ CASES = [
     (["calibrate", "{s}", "--instruments", "gyr"], 2, ["--instruments", "gyr"]),
     (["calibrate", "{s}", "--effects", "foo", "--method", "lsq"], 2, ["unknown effect 'foo'"]),
     (["calibrate", "{s}", "--effects", "bias", "--method", "cho"], 2, ["--effects applies to --method lsq"]),
+    (["calibrate", "{s}", "--keep-worse-effects"], 2, ["--keep-worse-effects applies to --method lsq with --effects"]),
     (["calibrate", "{s}", "--method", "zhang"], 2, ["Zhang", "triad"]),
     (["calibrate", "{s_csv}", "-o", "{s_json}"], 2, ["would overwrite the input", "s.json"]),
     (["diagnose", "{empty}"], 2, ["empty.npz", "not a readable NPZ"]),

@@ -73,3 +73,18 @@ def test_setup_and_replay_take_the_log_itself(tmp_path, capsys):  # type: ignore
     out = capsys.readouterr().out
     assert "replayed 2000 samples" in out, out               # every epoch, the 20 with imu1's gyro empty included
     assert "gyro: 2000 samples" in out and json.dumps(doc)
+
+
+def test_a_command_that_takes_all_valid_epochs_counts_what_it_leaves_out(tmp_path, capsys):  # type: ignore
+    """`rimu noise` of a log whose imu1 gyro is empty on 20 rows: those epochs are left out of its session, and the
+    command says how many, of how many (they vanished without a word before)."""
+    _write(tmp_path / "fl.csv", np.random.default_rng(5))
+    lines = (tmp_path / "fl.csv").read_text().splitlines()
+    for r in range(101, 121):
+        cells = lines[r].split(",")
+        cells[8:11] = ["", "", ""]
+        lines[r] = ",".join(cells)
+    (tmp_path / "fl.csv").write_text("\n".join(lines) + "\n")
+    main(["noise", str(tmp_path / "fl.csv"), "--gyro-unit", "deg/s", "--accel-unit", "g"])
+    err = capsys.readouterr().err
+    assert "20 of 2000 epochs left out: not every IMU has a valid sample there" in err, err
