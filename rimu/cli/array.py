@@ -184,11 +184,11 @@ def run(args: argparse.Namespace) -> int:
     for n in rep.notes[:1] + [n for n in rep.notes[1:] if "not applied" in n or "angular acceleration" in n] + [
             f"not applied: {r}" for r in rep.refused.values()]:
         print(f"note: {n}")
-    lim = rep.limiting_term
-    print(line + (f"; what is left is {lim}" if lim.startswith("unexplained") else f"; limited now by {lim}")
-          + ("" if rep.remainder is None else f"; remainder: {rep.remainder.verdict}"))
     if rep.accel_remainder is not None:
         from ..array.report import accel_verdict
 
-        print(f"accelerometers, what remains (held out): {accel_verdict(rep.accel_remainder)}")
+        print(f"note: accelerometers, what remains (held out): {accel_verdict(rep.accel_remainder)}")
+    lim = rep.limiting_term
+    print(line + (f"; what is left is {lim}" if lim.startswith("unexplained") else f"; limited now by {lim}")
+          + ("" if rep.remainder is None else f"; remainder: {rep.remainder.verdict}"))
     return 0
