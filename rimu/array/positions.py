@@ -292,6 +292,8 @@ def _rms_parity_accel_aa(f: np.ndarray, omega: np.ndarray, r: np.ndarray, moving
     the centripetal term from the gyros' rate. Each triad's residual is scaled by ``sqrt((3k - 3) / (3k - 6))``:
     the three more parameters per sample, so that the figure compares with the steps that fit ``s`` only."""
     k = r.shape[0]
+    if k < 3:  # six unknowns per sample (s, w') from 3k outputs: no parity left with two triads
+        return np.full(k, np.nan)
     W = skew(omega[moving])
     g = f[moving] - np.einsum("nab,kb->nka", W @ W, r)
     A = np.zeros((k, 3, 6))
@@ -334,6 +336,8 @@ def angular_acceleration_check(t: np.ndarray, accel_body: np.ndarray, omega: np.
     f = np.asarray(accel_body, dtype=float)
     r = np.asarray(positions_m, dtype=float)
     k = r.shape[0]
+    if k < 3:
+        raise ShapeError(f"{k} triads: the angular acceleration from the accelerometers needs three at least")
     wd, ok = angular_acceleration(t, w, order)
     moving = np.linalg.norm(np.nan_to_num(w), axis=1) > np.radians(motion_threshold_deg_s)
     use = ok & moving & np.isfinite(f).all(axis=(1, 2))

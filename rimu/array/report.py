@@ -274,7 +274,18 @@ def array_report(
                 steps_ho = _accel_steps(layout, pf, fit, pf.sampling_offset_s is not None
                                         and np.any(pf.sampling_offset_s != 0), nominal_positions_m, label, ho_steps)
                 rep.accel_held_out = {k: v for k, v in steps_ho.items() if k == "raw" or k in a_steps}
-                rep.accel_held_out[AA_STEP] = ho_steps["accel_angular_acceleration"]
+                h = [v.mean() for v in rep.accel_held_out.values()]
+                line = (f"accelerometers held out: {fmt(h[0], 'specific_force', 'm/s^2')} -> "
+                        f"{fmt(h[-1], 'specific_force', 'm/s^2')} ({h[0] / h[-1]:.3g}x) with the gyros' angular "
+                        "acceleration")
+                aa = ho_steps["accel_angular_acceleration"]
+                if np.all(np.isfinite(aa)):
+                    rep.accel_held_out[AA_STEP] = aa
+                    line += (f"; {fmt(aa.mean(), 'specific_force', 'm/s^2')} ({h[0] / aa.mean():.3g}x) with the "
+                             "accelerometers' own")
+                notes.append(line)
+                if rep.accel_remainder is not None:
+                    notes.append(f"accelerometers, what remains (held out): {accel_verdict(rep.accel_remainder)}")
     return rep
 
 

@@ -171,23 +171,9 @@ def run(args: argparse.Namespace) -> int:
     if rep.accel_steps:
         a = list(rep.accel_steps.values())
         line += f", accelerometers {fmt(a[0].mean(), 'specific_force', 'm/s^2')} -> {fmt(a[-1].mean(), 'specific_force', 'm/s^2')}"
-        if rep.accel_held_out:
-            from ..array.report import AA_STEP
-
-            h = [v.mean() for k, v in rep.accel_held_out.items() if k != AA_STEP]
-            line += (f" (held out: {fmt(h[0], 'specific_force', 'm/s^2')} -> {fmt(h[-1], 'specific_force', 'm/s^2')}, "
-                     f"{h[0] / h[-1]:.3g}x, with the gyros' angular acceleration")
-            if AA_STEP in rep.accel_held_out:
-                aa = rep.accel_held_out[AA_STEP].mean()
-                line += f"; {fmt(aa, 'specific_force', 'm/s^2')}, {h[0] / aa:.3g}x, with the accelerometers' own"
-            line += ")"
     for n in rep.notes[:1] + [n for n in rep.notes[1:] if "not applied" in n or "angular acceleration" in n] + [
             f"not applied: {r}" for r in rep.refused.values()]:
         print(f"note: {n}")
-    if rep.accel_remainder is not None:
-        from ..array.report import accel_verdict
-
-        print(f"note: accelerometers, what remains (held out): {accel_verdict(rep.accel_remainder)}")
     lim = rep.limiting_term
     print(line + (f"; what is left is {lim}" if lim.startswith("unexplained") else f"; limited now by {lim}")
           + ("" if rep.remainder is None else f"; remainder: {rep.remainder.verdict}"))
