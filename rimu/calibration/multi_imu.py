@@ -186,8 +186,9 @@ def still_epochs(block: EpochBlock, sample_rate: float | None = None, window_s: 
     its 10th percentile, in runs of at least ``min_still_s``; that threshold is relative, so two absolute
     guards keep a recording that is never still (a flight) from calling its calmest part rest: every
     accelerometer's moving standard deviation stays below ``max_accel_std`` (m/s^2) and its magnitude within
-    ``max_gravity_error`` (relative) of g, and every gyro's below ``max_gyro_std`` (rad/s). Invalid samples
-    are never still.
+    ``max_gravity_error`` (relative) of its own median magnitude (g, as a raw triad with a scale error reads it:
+    a real MPU-9250 reading 0.82 g at rest is still at rest), and every gyro's below ``max_gyro_std`` (rad/s).
+    Invalid samples are never still.
 
     Parameters
     ----------
@@ -233,7 +234,8 @@ def still_epochs(block: EpochBlock, sample_rate: float | None = None, window_s: 
         aj = A0[:, 3 * j:3 * j + 3]
         nrm = np.linalg.norm(aj, axis=1)
         sd = np.sqrt(sum(_moving_var(aj[:, c], w) for c in range(3)))
-        still &= (sd < max_accel_std) & (np.abs(nrm / G0 - 1.0) < max_gravity_error)
+        level = float(np.median(nrm[ok])) if ok.any() else G0  # the triad's own 1 g (a raw triad's scale error)
+        still &= (sd < max_accel_std) & (np.abs(nrm / level - 1.0) < max_gravity_error)
         if G is not None:
             gj = G[:, 3 * j:3 * j + 3]
             still &= np.sqrt(sum(_moving_var(gj[:, c], w) for c in range(3))) < max_gyro_std
@@ -445,6 +447,7 @@ def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: in
                 ci.misalignment[sl] = rows / nrm[:, None]
                 ci.scale[sl] = 1.0 / nrm           # SF y = m.(C u) + b: y = g.u + c -> SF = 1/|g|, b = SF c
                 ci.bias[sl] = ci.bias[sl] / nrm
+        cals[inst].noise_period_s = dt_avg  # the noise of the epochs it was measured on (the averages')
     spans = {"still_s": float(st.sum()) * dt_avg if use_rest else 0.0, "motion_s": motion_s,
              "accel_gains_from_rest": accel_gains,
              "noise_at_rest": bool(use_rest and st.sum() >= 50), "noise_scale": noise_scale}
@@ -513,11 +516,11 @@ def _align_from_gravity(A: np.ndarray | None, still: np.ndarray, ref_cols: slice
            f"vary by less than {min_rate_rad_s:g} rad/s in a second direction)")
     if A is None or still.sum() < 3:
         raise IdentifiabilityError(f"triad {name!r}: {why} and no accelerometers at rest: the rotation between "
-                                   "the triads cannot be found; give align_axes=False to keep them parallel, or "
+                                   "the triads cannot be found; give align_axes=False (rimu setup --parallel) to keep them parallel, or "
                                    "a recording with motion", ["rotation"])
     try:
         return fit_rotation([VectorSet("gravity", A[still][:, ref_cols], A[still][:, cols])], name=name)
     except IdentifiabilityError as exc:
         raise IdentifiabilityError(
             f"triad {name!r}: {why}, and gravity was seen in one direction only ({exc}); rotate the unit, or "
-            "give align_axes=False to keep the triads parallel", ["rotation"]) from None
+            "give align_axes=False (rimu setup --parallel) to keep the triads parallel", ["rotation"]) from None

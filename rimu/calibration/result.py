@@ -81,6 +81,10 @@ class InstrumentCalibration:
         Optional noise terms of every sensor (IEEE Std 952: quantisation, random walk, bias instability,
         rate random walk; :mod:`rimu.noise`), e.g. from ``rimu noise``; the detectors of :mod:`rimu.fdi` take
         them as ``noise=``. Saved only when present, so files without it read and write as before.
+    noise_period_s : float or None
+        The sample period (s) ``noise_sigma`` was measured at, e.g. the 0.1 s block averages of ``rimu setup``;
+        None: the period of the data the calibration is used on. Data at another period take
+        :meth:`noise_sigma_at` (white noise). Saved only when set.
     """
 
     instrument: str
@@ -94,6 +98,7 @@ class InstrumentCalibration:
     effects: dict[str, dict[str, float]] = field(default_factory=dict)
     range_raw: np.ndarray | None = None
     noise: InstrumentNoise | None = None
+    noise_period_s: float | None = None
 
     def __post_init__(self) -> None:
         if self.instrument not in INSTRUMENTS:
@@ -104,24 +109,30 @@ class InstrumentCalibration:
         m = np.array(self.misalignment, dtype=float)
         if m.shape != (n, 3):
             raise ShapeError(f"misalignment must have shape ({n}, 3), got {m.shape}")
-        if not np.isfinite(m).all():
+        if not _all(np.isfinite(m), axis=None):
             raise ShapeError("misalignment has non-finite entries")
         norms = np.sqrt(np.einsum("ij,ij->i", m, m))
-        if (np.abs(norms - 1.0) > 1e-3).any():
-            i = int(np.argmax(np.abs(norms - 1.0)))
+        dev = np.abs(norms - 1.0)
+        if _any(dev > 1e-3):
+            i = int(np.argmax(dev))
             raise ShapeError(
                 f"misalignment row {i} ({self.geometry.names[i]}) has norm {norms[i]:.6f}; rows are unit vectors "
                 "(Cho & Park Eq. 10). Normalise it, moving the norm into the scale factor"
             )
-        off = np.abs(norms - 1.0) > 4e-16
-        m[off] /= norms[off, None]
+        off = dev > 4e-16
+        if _any(off):
+            m[off] /= norms[off, None]
         self.misalignment = m
-        if (self.scale == 0).any():
+        if _any(self.scale == 0):
             raise ShapeError("a scale factor is zero; the sensor's output would carry no information")
         if self.noise_sigma is not None:
             self.noise_sigma = _vec(self.noise_sigma, n, "noise_sigma")
-            if np.any(self.noise_sigma <= 0):
+            if _any(self.noise_sigma <= 0):
                 raise ShapeError("noise_sigma must be positive")
+        if self.noise_period_s is not None:
+            self.noise_period_s = float(self.noise_period_s)
+            if not (np.isfinite(self.noise_period_s) and self.noise_period_s > 0):
+                raise ShapeError(f"noise_period_s must be a positive time (s), got {self.noise_period_s}")
         if self.range_raw is not None:
             self.range_raw = _vec(self.range_raw, n, "range_raw")
             if np.any(self.range_raw <= 0):
@@ -173,6 +184,27 @@ class InstrumentCalibration:
         """Noise-free raw output for true inputs ``u`` (..., 3) in MB: ``(a.u + b) / SF``."""
         return (np.asarray(u, dtype=float) @ self.axes_mb().T + self.bias) / self.scale
 
+    def noise_sigma_at(self, sample_period_s: float) -> np.ndarray | None:
+        """``noise_sigma`` for samples of period ``sample_period_s`` (s): ``sigma sqrt(T_noise / T)``.
+
+        The white noise of a mean of n samples has the variance ``sigma^2 / n``, so a sigma measured on n-sample
+        averages (period ``T_noise = n T``) is ``sqrt(n)`` times too small for single samples. For noise that the
+        chip's low-pass correlates between samples the converted per-sample sigma is an upper bound (the average
+        kept more variance than ``sigma^2 / n``): conservative. Without ``noise_period_s`` the sigma is returned
+        as it is.
+
+        >>> from rimu.geometry import triads
+        >>> cal = InstrumentCalibration.nominal("gyro", triads(3), noise_sigma=0.01)
+        >>> cal.noise_period_s = 0.1                       # measured on 0.1 s averages
+        >>> round(float(cal.noise_sigma_at(0.01)[0]), 5)   # at 100 Hz: sqrt(10) times larger
+        0.03162
+        """
+        if self.noise_sigma is None or self.noise_period_s is None:
+            return self.noise_sigma
+        if not sample_period_s > 0:
+            raise ValueError(f"sample_period_s must be positive (s), got {sample_period_s}")
+        return self.noise_sigma * np.sqrt(self.noise_period_s / float(sample_period_s))
+
     def std(self) -> dict[str, float]:
         """Standard deviations of the parameters in ``param_names`` (SI), or {} without a covariance."""
         if self.covariance is None:
@@ -202,6 +234,7 @@ class InstrumentCalibration:
             "effects": self.effects,
             "range_raw": None if self.range_raw is None else self.range_raw.tolist(),
             **({} if self.noise is None else {"noise": self.noise.to_dict()}),
+            **({} if self.noise_period_s is None else {"noise_period_s": self.noise_period_s}),
         }
 
     @classmethod
@@ -225,6 +258,7 @@ class InstrumentCalibration:
             dict(d.get("effects") or {}),
             None if d.get("range_raw") is None else np.array(d["range_raw"], dtype=float),
             None if d.get("noise") is None else InstrumentNoise.from_dict(d["noise"]),
+            d.get("noise_period_s"),
         )
 
 
@@ -407,10 +441,15 @@ class Calibration:
             raise CalibrationFileError(f"{source}: malformed calibration content ({exc!r})") from exc
 
 
+#: ``x.all()`` and ``x.any()`` of a boolean array as the ufunc reductions themselves (numpy's methods add a Python
+#: layer: the validation of a result is a handful of these)
+_all, _any = np.logical_and.reduce, np.logical_or.reduce
+
+
 def _vec(v: Any, n: int, name: str) -> np.ndarray:
     a = np.asarray(v, dtype=float)
     a = a.copy() if a.shape == (n,) else np.array(np.broadcast_to(a, (n,)), dtype=float)
-    if not np.isfinite(a).all():
+    if not _all(np.isfinite(a), axis=None):
         raise ShapeError(f"{name} has non-finite entries: {a.tolist()}")
     return a
 

@@ -97,22 +97,23 @@ def _validator(kind: Callable[[str], _N], ok: Callable[[_N], bool], rule: str, n
     return check
 
 
-#: the extremes every numeric option takes: magnitudes beyond 1e12 or positive values below 1e-12 are typing
-#: mistakes for every quantity rimu takes (s, Hz, SI noise, factors), counts beyond a C int do not fit the
-#: exported code, and probabilities below 1e-15 are lost in the double precision of 1 - p (above 0.5 a test
-#: decides nothing)
+#: the extremes every numeric option takes: magnitudes beyond 1e12 are typing mistakes for every quantity rimu takes
+#: (s, Hz, SI noise, factors), counts beyond a C int do not fit the exported code, and probabilities below 1e-15 are
+#: lost in the double precision of 1 - p (above 0.5 a test decides nothing). A positive number may be as small as
+#: any normal double (FLOAT_TINY, about 2.2e-308): a tactical-grade drift rate (``--selfcal-bias-rw 1e-28`` (rad/s)^2/s)
+#: is a real value, not a mistake; below that its reciprocal would overflow.
 FLOAT_MAX = 1e12
-FLOAT_TINY = 1e-12
+FLOAT_TINY = sys.float_info.min
 INT_MAX = 2**31 - 1
 P_MIN = 1e-15
 
-positive_float = _validator(float, lambda v: FLOAT_TINY <= v <= FLOAT_MAX, f"> 0, between {FLOAT_TINY:g} and "
-                            f"{FLOAT_MAX:g}", "positive_float", "A finite number > 0 (between 1e-12 and 1e12).")
+positive_float = _validator(float, lambda v: FLOAT_TINY <= v <= FLOAT_MAX, f"> 0, between {FLOAT_TINY:.3g} and {FLOAT_MAX:g}",
+                            "positive_float", "A finite number > 0 (at most 1e12).")
 finite_float = _validator(float, lambda v: abs(v) <= FLOAT_MAX, f"finite, at most {FLOAT_MAX:g} in magnitude",
                           "finite_float", "A finite number (at most 1e12 in magnitude).")
 nonnegative_float = _validator(float, lambda v: v == 0 or FLOAT_TINY <= v <= FLOAT_MAX,
-                               f">= 0, 0 or between {FLOAT_TINY:g} and {FLOAT_MAX:g}", "nonnegative_float",
-                               "A finite number >= 0 (0, or between 1e-12 and 1e12).")
+                               f">= 0, 0 or between {FLOAT_TINY:.3g} and {FLOAT_MAX:g}", "nonnegative_float",
+                               "A finite number >= 0 (at most 1e12).")
 probability = _validator(float, lambda v: P_MIN <= v <= 0.5, f"a probability strictly between 0 and 1 "
                          f"(between {P_MIN:g} and 0.5: a false-alarm probability or significance level above one "
                          "half decides nothing)", "probability",

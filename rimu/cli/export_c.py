@@ -1,12 +1,20 @@
 """``rimu export-c``: write a calibration's runtime (compensation, projection, covariance, parity) and its fault
-management (the redundancy manager's decisions, configured here and baked into the code) as C99."""
+management (the redundancy manager's decisions, configured here and baked into the code) as C99.
+
+``--selfcal`` adds the in-flight self-calibration (docs/selfcal.md): every instrument's tracker runs before its
+manager exactly as ``rimu replay --selfcal`` runs it (the same ``--selfcal-*`` options and defaults, the window GLT
+whose thresholds carry the tracker's covariance, the held-out check), and the filter writes the tracked terms and
+their 1-sigma after the estimates. The windows are counted at ``--sample-rate`` (default the calibration's noise
+model's rate); ``--selfcal-temperature`` tracks the temperature coefficients (the filter then reads the temperature
+column; they are tracked anyway when the calibration's compensation reads it)."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from ._common import add_readmit_options, bounded_float, positive_int, probability, readmit_after
+from ._common import add_readmit_options, bounded_float, positive_float, positive_int, probability, readmit_after
+from .selfcal import add_tracker_options
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -46,6 +54,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--scatter-window", type=positive_int, default=None,
                    help="most samples of an alarm episode the set test pools (even; its thresholds are a table of "
                         "this many times n - 4 numbers in the code)")
+    s = p.add_argument_group("in-flight self-calibration (docs/selfcal.md; the options of rimu replay --selfcal)")
+    s.add_argument("--selfcal", action="store_true",
+                   help="track the calibration's drift in flight and compensate with it, as rimu replay --selfcal")
+    s.add_argument("--sample-rate", type=positive_float, default=None,
+                   help="the unit's sample rate, Hz, with --selfcal (default: the calibration's noise model's)")
+    s.add_argument("--selfcal-temperature", action="store_true",
+                   help="the unit has a temperature channel: track the temperature coefficients (the filter reads "
+                        "the temperature column)")
+    s.add_argument("--selfcal-detector-window", type=positive_int, default=None,
+                   help="samples of the window GLT whose thresholds carry the tracker's covariance (rimu replay "
+                        "--selfcal --detector glt_window --window N; default the tracker's window, as rimu replay "
+                        "--selfcal with --detector glt)")
+    add_tracker_options(s, "selfcal-")
     p.set_defaults(func=run, output_is_dir=True)  # -o names a folder (rimu.cli._common.check_outputs)
 
 
@@ -87,6 +108,13 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.output)
     settings = f"fault management p_fa {fdi.p_fa:g}, confirm {fdi.confirm}"
     target = args.target == "cortex-m4"
+    if args.selfcal and (target or args.real == "float"):
+        raise OptionError("--selfcal is generated in double precision only: drop --real float and --target cortex-m4")
+    if not args.selfcal:
+        given = [o for o, v in (("--sample-rate", args.sample_rate), ("--selfcal-temperature", args.selfcal_temperature),
+                                ("--selfcal-detector-window", args.selfcal_detector_window)) if v]
+        if given:
+            raise OptionError(f"{' and '.join(given)} only apply with --selfcal")
     if target:  # single precision with the Cortex-M4 harness (rimu.export.target)
         from ..export.target import write_target
 
@@ -96,8 +124,14 @@ def run(args: argparse.Namespace) -> int:
         msg = f"wrote {len(files)} files to {out} (float, Cortex-M4F; {settings})"
     else:
         real = args.real or "double"
-        files = export_c(cal, args.output, real=real, fdi=fdi)
-        msg = f"wrote {', '.join(f.name for f in files)} to {out} ({real}; {settings})"
+        trackers, rate = _trackers(args, cal, real) if args.selfcal else (None, None)
+        files = export_c(cal, args.output, real=real, fdi=fdi, selfcal=trackers, sample_rate=rate,
+                         detector_window=args.selfcal_detector_window)
+        msg = f"wrote {', '.join(f.name for f in files)} to {out} ({real}; {settings}"
+        if trackers:
+            msg += (f"; self-calibration of {', '.join(trackers)} at {rate:g} Hz, terms "
+                    + "; ".join(f"{k}: {', '.join(t.blocks)}" for k, t in trackers.items()))
+        msg += ")"
     if args.build:
         why, res, built = _build(out, target)
         if why:
@@ -110,6 +144,26 @@ def run(args: argparse.Namespace) -> int:
         msg += f"; built {built}"
     print(msg)
     return 0
+
+
+def _trackers(args: argparse.Namespace, cal, real: str):  # type: ignore[no-untyped-def]
+    """The trackers of every instrument (rimu replay --selfcal's, from the same options) and the sample rate."""
+    from ..errors import OptionError
+    from ..export.c_effects import needs_temperature
+    from ..fdi.selfcal import SelfCalTracker
+    from .selfcal import tracker_settings
+
+    rate = args.sample_rate
+    if rate is None:
+        rates = {float(cal[k].noise.sample_rate) for k in cal.instruments if cal[k].noise is not None}
+        if len(rates) != 1:
+            raise OptionError("--selfcal counts the tracker's windows in samples: give the unit's --sample-rate (Hz; "
+                              "the calibration has no noise model that states it)")
+        rate = rates.pop()
+    if args.selfcal_window * rate < 1:
+        raise OptionError(f"--selfcal-window {args.selfcal_window:g} s is shorter than one sample at {rate:g} Hz")
+    temp = args.selfcal_temperature or needs_temperature(cal)
+    return {k: SelfCalTracker(cal[k], tracker_settings(args, cal[k], k, temp, "selfcal-")) for k in cal.instruments}, rate
 
 
 def _build(out: Path, target: bool):  # type: ignore[no-untyped-def]

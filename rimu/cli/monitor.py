@@ -15,6 +15,13 @@ validity): the decisions of ``rimu replay`` and of the exported C filter on the 
 shows the epoch rate, frame counters and the health of each instrument; ``-o`` records the epochs as CSV,
 ``--estimates`` writes the estimates and decisions per epoch. Ctrl-C ends cleanly with a summary (epochs,
 accounting identity, rejections by reason, isolations).
+
+``--selfcal`` runs the in-flight self-calibration live (docs/selfcal.md), through the same runtime as ``rimu replay
+--selfcal`` and the exported C of ``rimu export-c --selfcal`` (the same ``--selfcal-*`` options): each instrument's
+compensated outputs are corrected by the tracked terms before its manager, whose window GLT carries the tracker's
+covariance; ``--estimates`` then ends every row with the tracked terms and their 1-sigma (SI), and the summary
+shows the terms at the end. The windows are counted at ``--sample-rate`` (default: the layout's rate, the
+simulated device's, or the calibration's noise model's).
 """
 
 from __future__ import annotations
@@ -70,6 +77,17 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="--simulate only: INSTRUMENT:SENSOR:T_S:SIGMAS step bias, or 'none'")
     p.add_argument("--sim-duration", type=positive_float, default=20.0, help="--simulate only: s of simulated data")
     add_json_option(p, "the final summary", allow_bare=True)
+    from .selfcal import add_tracker_options
+
+    s = p.add_argument_group("in-flight self-calibration (docs/selfcal.md; the options of rimu replay --selfcal)")
+    s.add_argument("--selfcal", action="store_true",
+                   help="track the calibration's drift live and compensate with it, as rimu replay --selfcal")
+    s.add_argument("--sample-rate", type=positive_float, default=None,
+                   help="the unit's sample rate, Hz, with --selfcal (default: the layout's, the simulated device's, "
+                        "or the calibration's noise model's)")
+    s.add_argument("--selfcal-temperature", action="store_true",
+                   help="the epochs carry the unit's temperature: track the temperature coefficients")
+    add_tracker_options(s, "selfcal-")
     p.set_defaults(func=run)
 
 
@@ -135,6 +153,7 @@ def _open(args: argparse.Namespace) -> tuple[Any, Any, dict]:
         extra["thread"] = CanDevice(args.layout, fault=fault).start(tx, run.block, realtime=args.realtime)
         extra["tx"] = tx
         extra["n_expected"] = len(run.block)
+        extra["rate"] = sim.sample_rate
         return src, run.truth, extra
     if args.can:
         from ..io.can import CanSource
@@ -194,10 +213,15 @@ class _Monitor:
     """The runtime (:class:`rimu.fdi.Runtime`: the decisions of ``rimu replay`` and of the exported C) on a live
     stream: its new events per epoch, and the estimates file."""
 
-    def __init__(self, pipe: Any, settings: Any, estimates: str | None, detectors: dict | None = None) -> None:
+    def __init__(self, pipe: Any, settings: Any, estimates: str | None, detectors: dict | None = None,
+                 selfcal: dict | None = None, rate: float | None = None) -> None:
         from ..fdi import RedundancyManager, Runtime
 
-        if detectors:  # the unit file's motion-aware tests (rimu setup --motion-fit); the others the default
+        if selfcal:  # the default managers, a tracked instrument's detector the window GLT with its covariance
+            self.rt = Runtime(pipe, settings, selfcal=selfcal, sample_rate=rate)
+            for loop in self.rt.selfcal.values():
+                loop.keep_history = True  # the terms after every window, for the estimates and the summary
+        elif detectors:  # the unit file's motion-aware tests (rimu setup --motion-fit); the others the default
             kw = settings.manager_kwargs()
             mgrs = {}
             for k, ip in pipe.instruments.items():
@@ -211,6 +235,9 @@ class _Monitor:
             self.rt = Runtime(pipe, mgrs)
         else:
             self.rt = Runtime(pipe, settings)
+        from .replay import _Tracked
+
+        self.tracked = {k: _Tracked(loop) for k, loop in self.rt.selfcal.items()}
         self.seen = {k: 0 for k in self.rt.managers}
         self.events: list[dict] = []
         self.isolations: list[dict] = []
@@ -220,6 +247,11 @@ class _Monitor:
         self.n_rows = 0
 
     def step(self, ep: Any, n: int) -> list[dict]:
+        if n == 0 and ep.temperature is None and any(
+                b.startswith("tc") for loop in self.rt.selfcal.values() for b in loop.tracker.blocks):
+            from ..errors import MissingInputError
+
+            raise MissingInputError("--selfcal-temperature: the source's epochs carry no temperature; drop the option")
         res = self.rt.step(ep)
         new = []
         for k, m in self.rt.managers.items():
@@ -231,9 +263,15 @@ class _Monitor:
                 self.events.append(d)
                 if e.kind in ("isolated", "invalid_isolated"):
                     self.isolations.append(d)
+        terms: dict = {}
+        if self.tracked:
+            import numpy as np
+
+            for tr in self.tracked.values():  # the terms of the last window that ended before this epoch
+                terms.update(tr.add(np.array([float(ep.t)])))
         if self.est is not None:
             self.rows.append((float(ep.t), {k: (r.x.copy(), int(r.validity), self.rt.managers[k].isolated)
-                                            for k, r in res.items()}))
+                                            for k, r in res.items()}, terms))
             if len(self.rows) >= 1000:
                 self.flush()
         return new
@@ -245,7 +283,10 @@ class _Monitor:
         from ..export.estimates import estimate_columns
 
         self.fh = stack.enter_context(stack.enter_context(atomic_path(self.est)).open("w"))
-        self.fh.write(",".join(estimate_columns({k: m.n for k, m in self.rt.managers.items()})) + "\n")
+        from .replay import _tracked_columns
+
+        self.fh.write(",".join(estimate_columns({k: m.n for k, m in self.rt.managers.items()})
+                               + _tracked_columns({k: loop.tracker for k, loop in self.rt.selfcal.items()})) + "\n")
 
     def flush(self) -> None:
         if self.fh is None or not self.rows:
@@ -255,10 +296,12 @@ class _Monitor:
         from ..export.estimates import Estimates, write_estimates
 
         ks = list(self.rt.managers)
-        est = Estimates(np.array([t for t, _ in self.rows]),
-                        {k: np.array([d[k][0] for _, d in self.rows]) for k in ks},
-                        {k: np.array([d[k][1] for _, d in self.rows]) for k in ks},
-                        {k: np.array([d[k][2] for _, d in self.rows]) for k in ks})
+        cols = list(self.rows[0][2])
+        est = Estimates(np.array([t for t, _, _ in self.rows]),
+                        {k: np.array([d[k][0] for _, d, _ in self.rows]) for k in ks},
+                        {k: np.array([d[k][1] for _, d, _ in self.rows]) for k in ks},
+                        {k: np.array([d[k][2] for _, d, _ in self.rows]) for k in ks},
+                        {c: np.concatenate([e[c] for _, _, e in self.rows]) for c in cols} or None)
         write_estimates(self.fh, est, header=False)
         self.n_rows += len(self.rows)
         self.rows = []
@@ -305,9 +348,25 @@ def run(args: argparse.Namespace) -> int:
     settings = fdi_settings(args, readmit_after=readmit_after(args), common_cause=True if args.common_cause else None)
     if args.no_readmit:
         settings = type(settings)(**{**settings.as_dict(), "readmit_after": None})
+    given = [o for o, v in (("--sample-rate", args.sample_rate), ("--selfcal-temperature", args.selfcal_temperature)) if v]
+    if given and not args.selfcal:
+        from ..errors import OptionError
+
+        raise OptionError(f"{' and '.join(given)} only apply with --selfcal")
     src, cal, extra = _open(args)
     pipe = Pipeline(cal)
-    mon = _Monitor(pipe, settings, args.estimates, _stored_detectors(cal, settings))
+    if args.selfcal:
+        try:
+            trackers, rate = _trackers(args, cal, src, extra)
+        except BaseException:
+            src.close()
+            if extra.get("tx") is not None:
+                extra["thread"].stop.set()
+                extra["tx"].shutdown()
+            raise
+        mon = _Monitor(pipe, settings, args.estimates, selfcal=trackers, rate=rate)
+    else:
+        mon = _Monitor(pipe, settings, args.estimates, _stored_detectors(cal, settings))
     stack = contextlib.ExitStack()
     mon.open(stack)
     rec = CsvRecorder(args.record) if args.record else None
@@ -411,6 +470,11 @@ def run(args: argparse.Namespace) -> int:
     for k, m in mon.rt.managers.items():
         print(f"  {k}: final state {m.health.state.value}" + (f", isolated {', '.join(m.health.isolated)}"
                                                             if m.health.isolated else ""))
+    if mon.tracked:
+        summary["selfcal"] = {}
+        for k, tr in mon.tracked.items():
+            print(f"  {k}:")
+            summary["selfcal"][k] = tr.summary(k)
     if args.estimates:
         print(f"  estimates: {Path(args.estimates)} ({mon.n_rows} rows)")
     if args.record:
@@ -427,12 +491,39 @@ def run(args: argparse.Namespace) -> int:
 __all__ = ["register", "run"]
 
 
+def _trackers(args: argparse.Namespace, cal: Any, src: Any, extra: dict) -> tuple[dict, float]:
+    """The trackers of every instrument (rimu replay --selfcal's, from the same options) and the unit's rate."""
+    from ..errors import OptionError
+    from ..fdi.selfcal import SelfCalTracker
+    from .selfcal import tracker_settings
+
+    layout = getattr(src, "layout", None)
+    rates = [args.sample_rate, extra.get("rate"), getattr(layout, "sample_rate_hz", None)]
+    rates += sorted({float(cal[k].noise.sample_rate) for k in cal.instruments if cal[k].noise is not None})
+    rate = next((float(r) for r in rates if r), None)
+    if rate is None:
+        raise OptionError("--selfcal counts the tracker's windows in samples: give the unit's --sample-rate (Hz; "
+                          "neither the source nor the calibration states it)")
+    if args.selfcal_window * rate < 1:
+        raise OptionError(f"--selfcal-window {args.selfcal_window:g} s is shorter than one sample at {rate:g} Hz")
+    trackers = {k: SelfCalTracker(cal[k], tracker_settings(args, cal[k], k, args.selfcal_temperature, "selfcal-"))
+                for k in cal.instruments}
+    print(f"rimu monitor: self-calibration of {', '.join(trackers)} at {rate:g} Hz (windows of "
+          f"{args.selfcal_window:g} s; docs/selfcal.md)")
+    return trackers, rate
+
+
 def _stored_detectors(cal: Any, settings: Any) -> dict:
     """The motion-aware tests stored in the unit file by ``rimu setup --motion-fit`` (gyros), said once."""
     from ..errors import CalibrationFileError, ShapeError
-    from ..fdi.motion import motion_detector_from_dict
+    from ..fdi.motion import envelope_text, motion_detector_from_dict
 
     out = {}
+    for k in cal.instruments:  # a live source's rate is not known up front: the period the noise holds for is said
+        per = cal[k].noise_period_s
+        if per is not None and k not in (cal.metadata.get("motion_terms") or {}):
+            print(f"rimu monitor: {k}: the unit file's noise is stated for epochs of {per:.4g} s; the source must "
+                  f"deliver epochs at {1.0 / per:.4g} Hz (rimu replay converts it for a log at another rate)")
     for k, d in (cal.metadata.get("motion_terms") or {}).items():
         if k not in cal.instruments:
             continue
@@ -442,6 +533,6 @@ def _stored_detectors(cal: Any, settings: Any) -> dict:
             raise CalibrationFileError(f"the calibration's {k} motion terms: {exc}") from None
         det = out[k]
         print(f"rimu monitor: {k}: motion-aware test of the unit file at {det.sample_rate:.4g} Hz"
-              + ("" if det.envelope is None else f" (|rate| up to {det.envelope[0] * 57.29577951308232:.4g} deg/s)")
+              + ("" if det.envelope is None else f" ({envelope_text(det.envelope)})")
               + "; the source must deliver epochs at that rate")
     return out

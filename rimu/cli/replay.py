@@ -501,6 +501,13 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
             if args.noise is None:
                 raise CalibrationFileError(f"the {k} calibration states no noise; pass --noise SIGMA (SI per sample)")
             cal[k].noise_sigma = np.full(cal[k].geometry.n, float(args.noise))
+        per = cal[k].noise_period_s  # the noise is stated for the epochs it was measured on (rimu setup's averages)
+        if per is not None and abs(per * scan.fs - 1.0) > 0.02:
+            cal[k].noise_sigma = cal[k].noise_sigma_at(1.0 / scan.fs)
+            cal[k].noise_period_s = 1.0 / scan.fs
+            print(f"  {k}: the calibration's noise is stated for epochs of {fmt(per, 'time', 's', digits=3)}; at the "
+                  f"data's {fmt(scan.fs, 'frequency', 'Hz', digits=4)} it is x{np.sqrt(per * scan.fs):.3g} per sample "
+                  "(white noise: sigma sqrt(T_noise / T))")
     injections = [parse_injection(s) for s in args.inject]
     for inj in injections:  # a fault outside the data would be "injected" without touching a sample
         if not t0 <= inj.start < t_end:
@@ -744,7 +751,7 @@ class _Px4:
 def _stored_motion_detector(cal, stored: dict, p_fa: float, fs: float, k: str):  # type: ignore[no-untyped-def]
     """The motion-aware GLT of the terms ``rimu setup --motion-fit`` stored in the calibration."""
     from ..errors import CalibrationFileError, ShapeError
-    from ..fdi.motion import motion_detector_from_dict
+    from ..fdi.motion import envelope_text, motion_detector_from_dict
 
     try:
         det = motion_detector_from_dict(cal, stored, p_fa)
@@ -755,9 +762,8 @@ def _stored_motion_detector(cal, stored: dict, p_fa: float, fs: float, k: str): 
                                    f"data run at {fs:.4g} Hz: set the unit up at the data's rate (rimu setup --average)")
     print(f"  {k}: motion terms of the calibration (rimu setup --motion-fit, {det.fit_samples} epochs)"
           + ("" if det.envelope is None else
-             f"; the thresholds assume |rate| up to {np.degrees(det.envelope[0]):.4g} deg/s and |angular acceleration| "
-             f"up to {np.degrees(det.envelope[1]):.4g} deg/s^2: an alarm beyond is model_exceeded (output DEGRADED), "
-             "nothing isolated"))
+             f"; the thresholds assume {envelope_text(det.envelope)}: an alarm beyond is model_exceeded (output "
+             "DEGRADED), nothing isolated"))
     return det
 
 
@@ -877,10 +883,10 @@ def _motion_detector(cal, block, seconds: float, margin: float, p_fa: float, fs:
           f"{1e3 * float(np.median(model.misalignment_rad)):.2f} mrad, time offset "
           f"{1e3 * float(np.median(model.time_offset_s)):.2f} ms (medians)")
     if det.envelope is not None:
-        print(f"  gyro thresholds assume the motion of the fit span: |rate| up to "
-              f"{np.degrees(det.envelope[0]):.4g} deg/s, |angular acceleration| up to "
-              f"{np.degrees(det.envelope[1]):.4g} deg/s^2; an alarm beyond is reported as model_exceeded "
-              "(output DEGRADED) and isolates nothing")
+        from ..fdi.motion import envelope_text
+
+        print(f"  gyro thresholds assume the motion of the fit span: {envelope_text(det.envelope)}; an alarm beyond "
+              "is reported as model_exceeded (output DEGRADED) and isolates nothing")
     return det
 
 

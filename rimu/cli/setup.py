@@ -52,6 +52,11 @@ def _window(text: str) -> tuple[Any, Any]:
     return a, b
 
 
+def _track(text: str) -> Any:
+    """``auto`` or a non-negative time in s."""
+    return "auto" if text.strip().lower() == "auto" else nonnegative_float(text)
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("setup", help="clock and axis alignment, bias differences and noise of a multi-IMU unit "
                        "from its own log -> calibration (+ session for rimu replay)", description=__doc__,
@@ -64,6 +69,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "half; default: the whole log)")
     p.add_argument("--average", type=nonnegative_float, default=0.1,
                    help="block-average length, s (0: none; default %(default)s)")
+    p.add_argument("--parallel", action="store_true",
+                   help="keep the triads on the axes the log states (no rotation fitted): for a static recording in "
+                        "one pose, where the rotations cannot be found (gravity in one direction only); the gyros "
+                        "at rest do not depend on the rotations, the bias differences are fitted either way")
     p.add_argument("--motion-fit", action="store_true",
                    help="also fit the gyros' motion terms (rimu.fdi.fit_motion_detector: residual scale, misalignment, "
                         "time offset, vibration per rate and angular acceleration, and the envelope of motion they hold "
@@ -75,9 +84,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the motion-aware test decides on the mean of its last SECONDS of samples (at least one; "
                         "default %(default)s s: at the full rate of a fast-sampled unit the sensitivity of 0.1 s "
                         "averages, deciding at every sample)")
-    p.add_argument("--bias-track", type=nonnegative_float, default=60.0, metavar="SECONDS",
-                   help="time constant of the motion-aware test's tracker of the triads' relative bias drift at rest "
-                        "(0: none; default %(default)s s)")
+    p.add_argument("--bias-track", type=_track, default="auto", metavar="SECONDS|auto",
+                   help="time constant of the motion-aware test's tracker of the triads' relative bias drift at rest: "
+                        "'auto' (default) measures it on the fit window's poses at rest, tau = N/K of the residuals' "
+                        "white noise density N and bias random walk K (the Allan variance's minimum over sqrt(3)); "
+                        "or SECONDS (0: none)")
     add_json_option(p, "clock offsets (s), rotation angles (deg), spans at rest (s) per triad")
     add_log_options(p)
     add_accept_implausible(p)
@@ -110,7 +121,8 @@ def run(args: argparse.Namespace) -> int:
 
         raise OptionError(f"--average {args.average:g} s: the log spans {span:.4g} s; give at most {span / 10:.4g} s "
                           "(ten averaged epochs)")
-    su = setup_multi_imu(rec, average_s=args.average or None, fit_window_s=win)
+    su = setup_multi_imu(rec, average_s=args.average or None, fit_window_s=win,
+                         align_axes=False if args.parallel else None)
     print(su.report())
     if args.motion_fit:
         _fit_motion(su, args.motion_margin, args.motion_window, args.bias_track or None)
@@ -201,13 +213,13 @@ def _fit_accel_motion(su, gyro_det, win, fs: float, margin: float, window_s: flo
           f"{np.degrees(det.envelope[1]):.4g} deg/s^2 of the gyros (beyond: model_exceeded, nothing isolated)")
 
 
-def _fit_motion(su, margin: float, window_s: float, track_s: float | None) -> None:  # type: ignore[no-untyped-def]
+def _fit_motion(su, margin: float, window_s: float, track_s: Any) -> None:  # type: ignore[no-untyped-def]
     """The gyros' motion terms on the fit window (taken as fault-free), stored in the calibration's metadata
     (``motion_terms``), with what they assume printed."""
     import numpy as np
 
     from ..errors import ShapeError
-    from ..fdi.motion import fit_motion_detector, motion_detector_to_dict
+    from ..fdi.motion import envelope_text, fit_motion_detector, motion_detector_to_dict
 
     if "gyro" not in su.calibration.instruments:
         raise ShapeError("--motion-fit: the unit has no gyros")
@@ -222,12 +234,16 @@ def _fit_motion(su, margin: float, window_s: float, track_s: float | None) -> No
     except ShapeError as exc:
         raise ShapeError(f"--motion-fit: {exc}") from None
     su.calibration.metadata["motion_terms"] = {"gyro": motion_detector_to_dict(det)}
+    if det.bias_drift is not None:
+        print("gyro " + (det.bias_drift if isinstance(det.bias_drift, str) else det.bias_drift.describe()))
     if "accel" in su.calibration.instruments and "accel" in b.raw:
         _fit_accel_motion(su, det, win, fs, margin, window_s)
     m = det.model
     print(f"gyro motion terms (fit window, {det.fit_samples} epochs, margin {margin:g}; the test decides on the mean "
           f"of {det.window} epoch(s), window gain {float(np.median(det.window_gain)):.3g} (median)): scale "
           f"{1e2 * float(np.median(m.scale_rel)):.3g} %, misalignment {1e3 * float(np.median(m.misalignment_rad)):.3g} "
-          f"mrad, time offset {1e3 * float(np.median(m.time_offset_s)):.3g} ms (medians); they hold for |rate| up to "
-          f"{np.degrees(det.envelope[0]):.4g} deg/s and |angular acceleration| up to {np.degrees(det.envelope[1]):.4g} "
-          "deg/s^2 (beyond: model_exceeded, nothing isolated)")
+          f"mrad, time offset {1e3 * float(np.median(m.time_offset_s)):.3g} ms (medians); they hold for "
+          f"{envelope_text(det.envelope)} (beyond: model_exceeded, nothing isolated)")
+    if det.moving_samples < 50:
+        print(f"gyro: no motion in the fit window ({det.moving_samples} epochs): no motion term fitted; the test is "
+              "the plain GLT of the noise at rest, which holds at rest only")

@@ -177,10 +177,16 @@ def _arr(values: np.ndarray, real: str) -> str:
 STEP_PARAMS = "const rimu_state *{k}_state, const rimu_real *{k}_y, const unsigned char *{k}_valid, rimu_output *{k}_out"
 
 
-def unit_declaration(cal: Calibration, name: str, params: str) -> str:
-    """The prototype of a unit step made by :func:`unit_step` (``params`` per instrument, ``{k}`` templated)."""
-    args = ", ".join(params.format(k=k) for k in plan(cal).instruments)
-    return f"void {name}(rimu_real t, rimu_real temperature, {args});"
+def _per(template: str | dict[str, str], k: str) -> str:
+    """A per-instrument template: one for all (``{k}`` templated) or one per instrument."""
+    return (template[k] if isinstance(template, dict) else template).format(k=k)
+
+
+def unit_declaration(cal: Calibration, name: str, params: str | dict[str, str], lead: str = "") -> str:
+    """The prototype of a unit step made by :func:`unit_step` (``params`` per instrument, ``{k}`` templated, or a
+    template per instrument; ``lead`` further parameters after the temperature)."""
+    args = ", ".join(_per(params, k) for k in plan(cal).instruments)
+    return f"void {name}(rimu_real t, rimu_real temperature, {lead}{args});"
 
 
 def header(cal: Calibration, real: str) -> str:
@@ -472,7 +478,8 @@ def source(cal: Calibration, real: str) -> str:
     return "\n".join(parts)
 
 
-def unit_step(cal: Calibration, name: str, params: str, iso: str, call: str, x: str, clip: bool = False) -> str:
+def unit_step(cal: Calibration, name: str, params: str | dict[str, str], iso: str, call: str | dict[str, str],
+              x: str, clip: bool = False, lead: str = "") -> str:
     """A C function ``void name(rimu_real t, rimu_real temperature, <params per instrument>)`` that runs one
     epoch of the unit through the compensation and a per-instrument step, in the order and rounds of
     :meth:`rimu.fusion.Pipeline.step`. Templates (``{k}``: the instrument): ``params`` its parameters (with
@@ -482,10 +489,12 @@ def unit_step(cal: Calibration, name: str, params: str, iso: str, call: str, x: 
     ``clip``: a raw output at its range limit (``|y| >= <k>_range``, an instrument with ``range_raw``) is judged
     before the compensation, as the Python runtime does: it stays out of the compensation's estimates and is
     handed to the step as it came (the step then routes it around as saturated), not compensated into the range.
+    ``params`` and ``call`` may be one template per instrument (a dict); ``lead``: further parameters after the
+    temperature.
     """
     p = plan(cal)
-    args = ", ".join(params.format(k=k) for k in p.instruments)
-    b = [f"void {name}(rimu_real t, rimu_real temperature, {args})", "{"]
+    args = ", ".join(_per(params, k) for k in p.instruments)
+    b = [f"void {name}(rimu_real t, rimu_real temperature, {lead}{args})", "{"]
     ranged = [k for k in p.comps if clip and getattr(cal[k], "range_raw", None) is not None]
     vname = {k: (f"{k}_use" if k in ranged else f"{k}_valid") for k in p.instruments}
     if p.comps:
@@ -532,18 +541,22 @@ def unit_step(cal: Calibration, name: str, params: str, iso: str, call: str, x: 
                     b += [f"    for (i = 0; i < RIMU_{k.upper()}_N; ++i) {{  /* a clipped output stays clipped */",
                           f"        if (RIMU_FABS({k}_y[i]) >= {k}_range[i]) {{", f"            yr[i] = {k}_y[i];",
                           "        }", "    }"]
-                b += ["    " + call.format(k=k, y="yr")]
+                b += ["    " + _call(call, k, "yr")]
             else:
-                b += ["    " + call.format(k=k, y=f"{k}_y")]
+                b += ["    " + _call(call, k, f"{k}_y")]
             if k != p.order[-1]:  # the estimate of the epoch feeds the next instrument
                 v, xk = ("f" if k == "accel" else "w"), x.format(k=k)
                 b += [f"    if (isfinite({xk}[0]) != 0) {{ {v}[0] = {xk}[0]; {v}[1] = {xk}[1]; {v}[2] = {xk}[2]; }}"
                       "  /* no estimate (NaN): no input */"]
     else:
         b += ["    (void)t; (void)temperature;"]
-        b += ["    " + call.format(k=k, y=f"{k}_y") for k in p.instruments]
+        b += ["    " + _call(call, k, f"{k}_y") for k in p.instruments]
     b.append("}")
     return "\n".join(b) + "\n"
+
+
+def _call(call: str | dict[str, str], k: str, y: str) -> str:
+    return (call[k] if isinstance(call, dict) else call).format(k=k, y=y)
 
 
 def filter_call(cal: Calibration, name: str = "rimu_step", args: str = "&st_{k}, y_{k}, v_{k}, &o_{k}") -> str:

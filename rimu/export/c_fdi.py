@@ -737,8 +737,10 @@ static int rimu_on_alarm(const rimu_fdi_unit *u, rimu_fdi *m, const rimu_fit *f,
     return 1;
 }
 
+/* one sample through the manager; stat_ext: the detection statistic of the caller's detector on this sample's set
+ * (the window GLT of the self-calibration, rimu.fdi.selfcal.TrackedGltWindow), NULL: the GLT snapshot's */
 static void rimu_fdi_run(const rimu_fdi_unit *u, rimu_fdi *m, const rimu_real *y, const unsigned char *valid,
-                         rimu_fdi_output *out)
+                         rimu_fdi_output *out, const rimu_real *stat_ext)
 {
     int i, n = rimu_n(u), changed = 0, alarm, nex = 0, code_full = 1;
     unsigned char inv[RIMU_NMAX] = {0}, use[RIMU_NMAX] = {0}, excl[RIMU_NMAX] = {0}, notiso[RIMU_NMAX] = {0};
@@ -772,7 +774,9 @@ static void rimu_fdi_run(const rimu_fdi_unit *u, rimu_fdi *m, const rimu_real *y
         changed = rimu_invalid(u, m, inv);
     }
     if (f.dof >= 1) {
-        if (u->wdet != u->w) {
+        if (stat_ext != NULL) {
+            stat = *stat_ext;
+        } else if (u->wdet != u->w) {
             rimu_fit_set(u, u->wdet, use, z, &g);
             stat = g.chi2;
         } else {

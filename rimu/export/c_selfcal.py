@@ -35,9 +35,16 @@ With ``detector_window`` and ``p_fa`` the loop's detector too (``<p>_glt_*``, :c
 window sum of the normalised parity and its statistic ``S^T (I + W Vz Sigma_c Vz^T)^-1 S / count`` (``|L S|^2 /
 count`` in Python, the same in any orthonormal parity basis), thresholds ``chi2_{1-p_fa}(dof)`` tabulated.
 
-Not done yet: :func:`rimu.export.export_c` does not include any of this (the exported manager, rimu_fdi_run, runs
-the snapshot GLT, and its filter has no tracker); the kernels are fed the manager's decisions by their caller
-(tests/export/test_c_selfcal.py feeds them Python's).
+In an exported unit (:func:`rimu.export.export_c` with ``selfcal=``, ``rimu export-c --selfcal``): per tracked
+instrument these files (:func:`unit_files`, prefix ``rimu_<instrument>_sc``), and in ``rimu_unit.c`` the step that
+runs them around the manager as :class:`rimu.fdi.Runtime` does (:func:`unit_source`: correct, the manager's step with
+the window GLT's statistic, observe), ``rimu_selfcal_step`` for the epoch; the filter writes the tracked terms
+(tests/export/test_c_selfcal_unit.py: the compiled filter against ``rimu replay --selfcal``).
+
+The held-out check (``guard_s``, ``guard_z``; :meth:`SelfCalLoop._check`) runs at every window's end with the
+terms fitted before the window, per group of blocks (:data:`rimu.fdi.selfcal.GROUPS`), on the window's samples
+(kept in the loop's state when the check is on); the parity is the C's own basis (the check's sums of squares and
+inner products are the same in any orthonormal basis).
 """
 
 from __future__ import annotations
@@ -45,12 +52,12 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy import stats
+from scipy.special import chdtri  # chdtri(d, p) = chi2.isf(p, d), without importing scipy.stats (~40 MB)
 
 from ..errors import ExportError
-from ..fdi.selfcal import BLOCKS, SelfCalTracker
+from ..fdi.selfcal import BLOCKS, GROUPS, SelfCalTracker
 
-__all__ = ["selfcal_c"]
+__all__ = ["selfcal_c", "unit_files", "unit_header", "unit_prefix", "unit_source"]
 
 
 def _num(v: float) -> str:
@@ -101,6 +108,7 @@ void {p}_update_mean({p} *s, const double *zbar, const double *gbar, long M, con
 void {p}_correction(const {p} *s, const double *g, double *c);
 void {p}_correction_covariance(const {p} *s, const double *g, double *C);
 void {p}_terms(const {p} *s, double *values, double *sigmas);
+void {p}_terms_ahead(const {p} *s, double t, double *values, double *sigmas);
 
 #endif
 """
@@ -558,6 +566,13 @@ void {p}_correction_covariance(const {p} *s, const double *g, double *C)
  * Pi P_bb Pi^T), the scale block as estimated */
 void {p}_terms(const {p} *s, double *values, double *sigmas)
 {{
+    {p}_terms_ahead(s, s->t, values, sigmas);
+}}
+
+/* the terms of the state predicted to t (not before its own time; the state is not changed) */
+void {p}_terms_ahead(const {p} *s, double t, double *values, double *sigmas)
+{{
+    double dt = (t > s->t) ? (t - s->t) : 0.0;
     int b, i, j, l;
     for (b = 0; b < NB; ++b) {{
         int o = b * N;
@@ -565,13 +580,17 @@ void {p}_terms(const {p} *s, double *values, double *sigmas)
             double v = 0.0, var = 0.0;
             if ({p}_order[b] < 0) {{
                 v = s->theta[o + i];
-                var = AT(s->P, o + i, o + i);
+                var = AT(s->P, o + i, o + i) + ({p}_q[o + i] * dt);
             }} else {{
                 for (j = 0; j < N; ++j) {{
                     double pij = {p}_Pi[(i * N) + j], row = 0.0;
                     v += pij * s->theta[o + j];
                     for (l = 0; l < N; ++l) {{
-                        row += AT(s->P, o + j, o + l) * {p}_Pi[(i * N) + l];
+                        double pjl = AT(s->P, o + j, o + l);
+                        if (j == l) {{
+                            pjl += {p}_q[o + j] * dt;
+                        }}
+                        row += pjl * {p}_Pi[(i * N) + l];
                     }}
                     var += pij * row;
                 }}
@@ -589,6 +608,7 @@ _LOOP_HEADER = """
 #define {P}_WIN {M}L      /* samples per window (window_s * sample_rate) */
 #define {P}_SPAN {span}   /* windows the detector's sum spans, + 1 */
 #define {P}_NPEND {npend}  /* the most windows held (hold_s): a full hold absorbs its oldest early */
+#define {P}_NG {ng}      /* groups of terms the held-out check applies or suspends as one */
 
 typedef struct {{
     double t, z[{P}_N], g[{P}_S];   /* the window's end, its mean outputs and regressors */
@@ -612,12 +632,20 @@ typedef struct {{
     int npend, first;
     long accepted, rejected, discarded;
     double last_correction[{P}_N];
-}} {p}_loop;
+    /* the held-out check (SelfCalLoop.guard): per group of terms (GROUPS: bias, scale, temperature) */
+    int applied[{P}_NG];
+    double gain[{P}_NG], var[{P}_NG], gain_total[{P}_NG], var_total[{P}_NG], t_gain;
+    int have_gain;
+    long suspended_windows[{P}_NG], suspensions[{P}_NG], n_par;
+    double ss[2];                   /* held-out sums of squares of the normalised parity: fixed, applied */
+    double nis[2];                  /* the gate's windows: sum of d2, sum of dof */
+{guard_fields}}} {p}_loop;
 
 void {p}_loop_reset({p}_loop *L);
 int {p}_loop_correct({p}_loop *L, const double *y, const unsigned char *valid, double t, const double *temperature,
                      double *out, double *sigma_c);
 void {p}_loop_observe({p}_loop *L, int alarm, double statistic, int dof, const unsigned char *isolated);
+void {p}_loop_terms(const {p}_loop *L, double *values, double *sigmas);
 """
 
 _LOOP_SOURCE = r"""
@@ -644,6 +672,12 @@ int {p}_loop_correct({p}_loop *L, const double *y, const unsigned char *valid, d
     if (L->started == 0) {{
         {p}_init(&L->s, t);
         L->started = 1;
+        for (j = 0; j < {P}_NG; ++j) {{  /* with the held-out check, every group waits for its evidence */
+            L->applied[j] = 1;
+            if ({p}_guard != 0) {{
+                L->applied[j] = 0;
+            }}
+        }}
     }}
     for (i = 0; i < N; ++i) {{
         ok[i] = (((valid == NULL) || (valid[i] != 0u)) && (isfinite(y[i]) != 0)) ? 1u : 0u;
@@ -713,15 +747,22 @@ int {p}_loop_correct({p}_loop *L, const double *y, const unsigned char *valid, d
             fresh = 1;
         }}
         L->flag = 0;
+        for (j = 0; j < {P}_NG; ++j) {{
+            if (L->applied[j] == 0) {{
+                L->suspended_windows[j] += 1L;
+            }}
+        }}
     }}
     for (i = 0; i < N; ++i) {{
         double v = 0.0;
         int b;
-        for (b = 0; b < NB; ++b) {{
-            v += g[(b * N) + i] * L->th[(b * N) + i];
+        for (b = 0; b < NB; ++b) {{  /* the terms of the groups applied (the held-out check) */
+            double mask = (L->applied[{p}_group[b]] != 0) ? 1.0 : 0.0;
+            v += g[(b * N) + i] * (L->th[(b * N) + i] * mask);
         }}
         c[i] = v;
     }}
+{keep}
     for (i = 0; i < N; ++i) {{
         double v = 0.0;
         for (j = 0; j < N; ++j) {{
@@ -742,6 +783,31 @@ int {p}_loop_correct({p}_loop *L, const double *y, const unsigned char *valid, d
     return fresh;
 }}
 
+/* the tracked terms after the latest window (SelfCalLoop.history: the state predicted to the window's end); before
+ * any sample, those of the initial state */
+void {p}_loop_terms(const {p}_loop *L, double *values, double *sigmas)
+{{
+    int b, i, j;
+    if (L->started != 0) {{
+        {p}_terms_ahead(&L->s, L->t_end, values, sigmas);
+        return;
+    }}
+    for (b = 0; b < NB; ++b) {{  /* zero drift with the prior's sigmas (bias-like blocks: diag(Pi P0 Pi^T)) */
+        for (i = 0; i < N; ++i) {{
+            double var = 0.0;
+            if ({p}_order[b] < 0) {{
+                var = {p}_p0[(b * N) + i];
+            }} else {{
+                for (j = 0; j < N; ++j) {{
+                    var += {p}_Pi[(i * N) + j] * {p}_Pi[(i * N) + j] * {p}_p0[(b * N) + j];
+                }}
+            }}
+            values[(b * N) + i] = 0.0;
+            sigmas[(b * N) + i] = sqrt(var);
+        }}
+    }}
+}}
+
 /* absorb the oldest held window: predicted to its end, its sensors not active or isolated now frozen (Schmidt) */
 static void {p}_absorb({p}_loop *L, const unsigned char *isolated)
 {{
@@ -756,6 +822,10 @@ static void {p}_absorb({p}_loop *L, const unsigned char *isolated)
         (void){p}_predict(&L->s, w->t);
     }}
     {p}_update_mean(&L->s, w->z, w->g, {P}_WIN, w->act, frozen, &info);
+    if ((info.dof >= 1) && (info.gate < HUGE_VAL)) {{
+        L->nis[0] += info.d2;
+        L->nis[1] += (double)info.dof;
+    }}
     L->accepted += (long)info.accepted;
     if ((info.accepted == 0) && (info.gate < HUGE_VAL)) {{
         L->rejected += 1L;
@@ -788,6 +858,11 @@ void {p}_loop_observe({p}_loop *L, int alarm, double statistic, int dof, const u
         L->npend = 0;
         L->first = 0;
     }} else {{
+        while ((L->npend > 0) && (L->pend[L->first].t <= (t - {p}_hold_s))) {{
+            {p}_absorb(L, isolated);
+        }}
+    }}
+{check}    if (L->flag == 0) {{
         {p}_window *w;
         if (L->npend == {P}_NPEND) {{  /* more held than hold_s allows at the nominal rate: absorb the oldest now */
             {p}_absorb(L, isolated);
@@ -809,6 +884,129 @@ void {p}_loop_observe({p}_loop *L, int alarm, double statistic, int dof, const u
 }}
 """
 
+
+_GUARD_KEEP = """    {{
+        int b;
+        for (i = 0; i < N; ++i) {{  /* the window's samples, for the held-out check at its end */
+            L->zb[L->k][i] = z[i];
+            L->okb[L->k][i] = ok[i];
+        }}
+        for (b = 0; b < S; ++b) {{
+            L->gb[L->k][b] = g[b];
+        }}
+    }}
+"""
+
+_GUARD_CHECK = r"""
+/* SelfCalLoop._check: the held-out check of the window just ended (the sensors not isolated, on the samples where
+ * all of them are valid, else those valid throughout), with the state fitted before it: per group of terms the
+ * sum of squares of the normalised parity it removes given the other groups applied, its variance
+ * 4 sum_k (r_k . D_gk)^2 (White's sandwich), both summed with the memory guard_s and since the start; a group is
+ * applied while both sums exceed guard_z standard deviations. The parity basis is the C's own (every quantity is
+ * a norm or an inner product in parity space: the same in any orthonormal basis). */
+static void {p}_check({p}_loop *L, const unsigned char *isolated, double t)
+{{
+    double V[R * N], p[R], Da[R], Dg[{P}_NG][R], sq[{P}_NG], vr[{P}_NG], ssp = 0.0, ssa = 0.0, decay;
+    unsigned char act[N], full[{P}_WIN];
+    int i, j, r, d, b, nfull = 0;
+    long k;
+    for (i = 0; i < N; ++i) {{
+        act[i] = (isolated[i] == 0u) ? 1u : 0u;
+    }}
+    for (k = 0L; k < {P}_WIN; ++k) {{
+        full[k] = 1u;
+        for (i = 0; i < N; ++i) {{
+            if ((act[i] != 0u) && (L->okb[k][i] == 0u)) {{
+                full[k] = 0u;
+            }}
+        }}
+        if (full[k] != 0u) {{
+            ++nfull;
+        }}
+    }}
+    if (nfull == 0) {{  /* no sample with all of them: the sensors valid throughout, on every sample */
+        for (k = 0L; k < {P}_WIN; ++k) {{
+            full[k] = 1u;
+            for (i = 0; i < N; ++i) {{
+                if (L->okb[k][i] == 0u) {{
+                    act[i] = 0u;
+                }}
+            }}
+        }}
+    }}
+    d = {p}_parity(act, V);
+    if (d < 1) {{
+        return;
+    }}
+    for (j = 0; j < {P}_NG; ++j) {{
+        sq[j] = 0.0;
+        vr[j] = 0.0;
+    }}
+    for (k = 0L; k < {P}_WIN; ++k) {{
+        if (full[k] == 0u) {{
+            continue;
+        }}
+        for (r = 0; r < d; ++r) {{
+            double v = 0.0;
+            for (i = 0; i < N; ++i) {{
+                v += V[(r * N) + i] * {p}_w[i] * L->zb[k][i];
+            }}
+            p[r] = v;
+            Da[r] = 0.0;
+            for (j = 0; j < {P}_NG; ++j) {{
+                Dg[j][r] = 0.0;
+            }}
+            for (b = 0; b < NB; ++b) {{
+                double e = 0.0;
+                for (i = 0; i < N; ++i) {{
+                    e += L->gb[k][(b * N) + i] * L->s.theta[(b * N) + i] * V[(r * N) + i] * {p}_w[i];
+                }}
+                Dg[{p}_group[b]][r] += e;
+            }}
+            for (j = 0; j < {P}_NG; ++j) {{
+                if (L->applied[j] != 0) {{
+                    Da[r] += Dg[j][r];
+                }}
+            }}
+            ssp += p[r] * p[r];
+            ssa += (p[r] - Da[r]) * (p[r] - Da[r]);
+        }}
+        for (j = 0; j < {P}_NG; ++j) {{
+            double dot = 0.0;
+            for (r = 0; r < d; ++r) {{
+                double e = (L->applied[j] != 0) ? (p[r] - Da[r] + Dg[j][r]) : (p[r] - Da[r] - Dg[j][r]);
+                double res = (L->applied[j] != 0) ? (p[r] - Da[r] + Dg[j][r]) : (p[r] - Da[r]);
+                sq[j] += e * e;
+                dot += res * Dg[j][r];
+            }}
+            vr[j] += dot * dot;
+        }}
+        L->n_par += (long)d;
+    }}
+    decay = (L->have_gain == 0) ? 1.0 : exp(-((t > L->t_gain) ? (t - L->t_gain) : 0.0) / {p}_guard_s);
+    L->t_gain = t;
+    L->have_gain = 1;
+    L->ss[0] += ssp;
+    L->ss[1] += ssa;
+    for (j = 0; j < {P}_NG; ++j) {{
+        double gj = (L->applied[j] != 0) ? (sq[j] - ssa) : (ssa - sq[j]);
+        int on;
+        L->gain[j] = (decay * L->gain[j]) + gj;
+        L->var[j] = (decay * decay * L->var[j]) + (4.0 * vr[j]);
+        L->gain_total[j] += gj;
+        L->var_total[j] += 4.0 * vr[j];
+        on = 0;
+        if ((L->gain[j] > ({p}_guard_z * sqrt(L->var[j])))
+            && (L->gain_total[j] > ({p}_guard_z * sqrt(L->var_total[j])))) {{
+            on = 1;
+        }}
+        if ((L->applied[j] != 0) && (on == 0)) {{
+            L->suspensions[j] += 1L;
+        }}
+        L->applied[j] = on;
+    }}
+}}
+"""
 
 _GLT_HEADER = '''
 /* ---- the window GLT with the tracker's covariance in its thresholds (rimu.fdi.selfcal.TrackedGltWindow) */
@@ -974,7 +1172,7 @@ def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc", sample_rate: flo
     P = prefix.upper()
     order = [-1 if b == "scale" else (0 if b == "bias" else int(b[2])) for b in trk.blocks]
     assert set(trk.blocks) <= set(BLOCKS)
-    gates = [0.0] + [float(stats.chi2.isf(st.gate_p, r)) for r in range(1, max(n - 3, 1) + 1)]
+    gates = [0.0] + [float(chdtri(r, st.gate_p)) for r in range(1, max(n - 3, 1) + 1)]
     header = _HEADER.format(guard=f"{P}_H", P=P, p=prefix, n=n, m=m, blocks=", ".join(trk.blocks),
                             what=f"{trk.calibration.instrument}, {n} sensors, gate_p={st.gate_p!r}")
     consts = [
@@ -1002,10 +1200,16 @@ def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc", sample_rate: flo
         M = max(1, int(round(st.window_s * float(sample_rate))))
         span = 1 if detector_window is None else int(np.ceil(int(detector_window) / M)) + 1
         npend = int(np.ceil(st.hold_s * float(sample_rate) / M)) + 2
-        watch = [0.0] + [float(stats.chi2.isf(st.watch_p, d)) for d in range(1, max(n - 3, 1) + 1)]
+        watch = [0.0] + [float(chdtri(d, st.watch_p)) for d in range(1, max(n - 3, 1) + 1)]
         cal = trk.calibration
+        groups = [g for g, blks in GROUPS if any(b in blks for b in trk.blocks)]
+        group_of = [next(j for j, g in enumerate(groups) if b in dict(GROUPS)[g]) for b in trk.blocks]
+        guard = st.guard_s is not None
+        fields = (f"    double zb[{P}_WIN][{P}_N], gb[{P}_WIN][{P}_S];  /* the window's samples (held-out check) */\n"
+                  f"    unsigned char okb[{P}_WIN][{P}_N];\n") if guard else ""
         header = header.replace("\n#endif\n", _LOOP_HEADER.format(P=P, p=prefix, M=M, span=span, npend=npend,
-                                                                   rate=f"{float(sample_rate)!r}") + "\n#endif\n")
+                                                                   rate=f"{float(sample_rate)!r}", ng=len(groups),
+                                                                   guard_fields=fields) + "\n#endif\n")
         consts += [
             "/* the loop: the fusion's weighted least squares G (3 x N), scale factor (SI per raw unit), bias (SI) */",
             f"static const double {prefix}_G[3 * {n}] = {_array(trk.G)};",
@@ -1017,12 +1221,134 @@ def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc", sample_rate: flo
             f"#define {P}_NWATCH {len(watch)}",
             f"/* the watch level chi2_(1 - watch_p)(dof) by dof (entry 0 unused) */\n"
             f"static const double {prefix}_watch[{P}_NWATCH] = {_array(watch)};",
+            f"/* the held-out check: on (guard_s, s; guard_z), and the group (bias, scale, temperature) of each block */\n"
+            f"static const int {prefix}_guard = {int(guard)};",
+        ] + ([f"static const double {prefix}_guard_s = {_num(st.guard_s)};",
+              f"static const double {prefix}_guard_z = {_num(st.guard_z)};"] if guard else []) + [
+
+            f"static const int {prefix}_group[{m}] = {{{', '.join(str(j) for j in group_of)}}};",
         ]
-        source += _LOOP_SOURCE.format(P=P, p=prefix)
+        loop = _LOOP_SOURCE.format(P=P, p=prefix, keep=_GUARD_KEEP.format(P=P, p=prefix) if guard else "",
+                                   check=f"    if ({prefix}_guard != 0) {{\n        {prefix}_check(L, isolated, t);\n"
+                                         "    }\n" if guard else "")
+        source += (_GUARD_CHECK.format(P=P, p=prefix) if guard else "") + loop
     if detector_window is not None and p_fa is not None:
-        thr = [0.0] + [float(stats.chi2.isf(p_fa, d)) for d in range(1, max(n - 3, 1) + 1)]
+        thr = [0.0] + [float(chdtri(d, p_fa)) for d in range(1, max(n - 3, 1) + 1)]
         header = header.replace("\n#endif\n", _GLT_HEADER.format(P=P, p=prefix, W=int(detector_window)) + "\n#endif\n")
         consts += [f"/* the detector's thresholds chi2_(1 - p_fa)(dof), p_fa = {p_fa!r} (entry 0 unused) */\n"
                    f"static const double {prefix}_thr_det[{len(thr)}] = {_array(thr)};"]
         source += _GLT_SOURCE.format(P=P, p=prefix)
     return header, "\n".join(consts) + source
+
+
+# ---------------------------------------------------------------------------------------------- in the exported unit
+def unit_prefix(instrument: str) -> str:
+    """The prefix of an instrument's tracker in an exported unit (its files ``<prefix>.h`` / ``<prefix>.c``).
+
+    >>> unit_prefix("gyro")
+    'rimu_gyro_sc'
+    """
+    return f"rimu_{instrument.lower()}_sc"
+
+
+def unit_files(trackers: dict[str, SelfCalTracker], sample_rate: float, p_fa: float,
+               detector_window: int | None = None) -> dict[str, str]:
+    """The trackers' own translation units in an exported unit (:func:`rimu.export.export_c` with ``selfcal=``):
+    each with its loop and the window GLT of the tracker's window (what :class:`rimu.fdi.Runtime` gives a tracked
+    instrument's manager: ``TrackedGltWindow(round(window_s * rate), p_fa)``; ``detector_window``: of that many
+    samples instead).
+
+    >>> from rimu.calibration import InstrumentCalibration
+    >>> from rimu.fdi.selfcal import SelfCalSettings
+    >>> from rimu.geometry import cone6
+    >>> cal = InstrumentCalibration.nominal("gyro", cone6(), 1.0, noise_sigma=0.01)
+    >>> files = unit_files({"gyro": SelfCalTracker(cal, SelfCalSettings(bias_rw=1e-8))}, 100.0, 1e-3)
+    >>> sorted(files), "#define RIMU_GYRO_SC_GLT_WINDOW 100" in files["rimu_gyro_sc.h"]
+    (['rimu_gyro_sc.c', 'rimu_gyro_sc.h'], True)
+    """
+    out = {}
+    for k, trk in trackers.items():
+        M = max(1, int(round(trk.settings.window_s * float(sample_rate))))
+        h, c = selfcal_c(trk, unit_prefix(k), sample_rate, M if detector_window is None else int(detector_window), p_fa)
+        out[f"{unit_prefix(k)}.h"] = h
+        out[f"{unit_prefix(k)}.c"] = c
+    return out
+
+
+def unit_header(trackers: dict[str, SelfCalTracker]) -> str:
+    """Declarations for ``rimu_unit.h``: each tracked instrument's state and its step through the manager (the
+    trackers' headers are included at the top of ``rimu_unit.h``: ``#include "<unit_prefix(k)>.h"``)."""
+    lines = ["", "/* ---- in-flight self-calibration (rimu.fdi.selfcal; docs/selfcal.md): per tracked instrument */"]
+    for k, trk in trackers.items():
+        p, P = unit_prefix(k), unit_prefix(k).upper()
+        lines += [
+            f"/* {k}: the tracker's loop, the window GLT whose thresholds carry its covariance, and the tracked terms",
+            " * the estimates file shows on a sample (those after the last window that ended before it). Zero-initialise",
+            " * it. */",
+            "typedef struct {",
+            f"    {p}_loop loop;",
+            f"    {p}_glt glt;",
+            f"    double terms[{P}_S], sigmas[{P}_S];        /* SI, block-major ({', '.join(trk.blocks)}) x sensor */",
+            f"    double terms_next[{P}_S], sigmas_next[{P}_S];",
+            "    int started;",
+            f"}} rimu_{k.lower()}_tracked;",
+            f"/* {k}: one sample through the self-calibration and the redundancy manager, as rimu.fdi.Runtime does: the",
+            " * compensated outputs corrected by the tracked terms, the manager's step with the window GLT, the tracker",
+            " * told the alarm, the statistic and the isolated sensors (t: s, the log's own time; temperature: degC or",
+            " * NULL). */",
+            f"void rimu_{k.lower()}_sc_fdi_step(rimu_fdi *m, rimu_{k.lower()}_tracked *sc, double t, "
+            "const double *temperature, const rimu_real *y, const unsigned char *valid, rimu_fdi_output *out);",
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def unit_source(trackers: dict[str, SelfCalTracker]) -> str:
+    """The tracked instruments' steps for ``rimu_unit.c`` (after the manager's code: ``rimu_fdi_run``)."""
+    out = []
+    for k in trackers:
+        p, P, lc = unit_prefix(k), unit_prefix(k).upper(), k.lower()
+        out.append(f"""
+/* {k}: Runtime._mstep with a SelfCalLoop: correct, the manager's step (its detector the tracked window GLT), observe */
+void rimu_{lc}_sc_fdi_step(rimu_fdi *m, rimu_{lc}_tracked *sc, double t, const double *temperature, const rimu_real *y,
+                          const unsigned char *valid, rimu_fdi_output *out)
+{{
+    double yc[{P}_N], C[{P}_N * {P}_N], st, thr;
+    rimu_real z[RIMU_NMAX] = {{0}}, stat;
+    unsigned char use[RIMU_NMAX] = {{0}}, iso[{P}_N];
+    const rimu_fdi_unit *u = &{lc}_unit;
+    int i, fresh;
+    fresh = {p}_loop_correct(&sc->loop, y, valid, t, temperature, yc, C);
+    if (sc->started == 0) {{
+        {p}_loop_terms(&sc->loop, sc->terms_next, sc->sigmas_next);
+        sc->started = 1;
+    }}
+    for (i = 0; i < {P}_S; ++i) {{  /* this sample shows the terms of the last window that ended before it */
+        sc->terms[i] = sc->terms_next[i];
+        sc->sigmas[i] = sc->sigmas_next[i];
+    }}
+    if (fresh != 0) {{
+        {p}_glt_set_covariance(&sc->glt, C);
+    }}
+    /* the manager's sensor set of this sample and its compensated outputs, as rimu_fdi_run makes them */
+    for (i = 0; i < {P}_N; ++i) {{
+        int good = rimu_flag(((valid == NULL) || (valid[i] != 0u)) && (isfinite(yc[i]) != 0));
+        int sat = rimu_flag((good != 0) && (u->range != NULL) && (RIMU_FABS(yc[i]) >= u->range[i]));
+        use[i] = ((good != 0) && (sat == 0) && (m->iso[i] == 0u)) ? 1u : 0u;
+        z[i] = (use[i] != 0u) ? (u->sf[i] * yc[i] - u->b[i]) : 0.0;
+    }}
+    if ((m->started == 0) || (rimu_same(use, m->prev, {P}_N) == 0)) {{  /* a new set: the window starts over */
+        {p}_glt_configure(&sc->glt, use);
+    }}
+    st = {p}_glt_update(&sc->glt, z, &thr);
+    stat = st;
+    rimu_fdi_run(u, m, yc, valid, out, &stat);
+    for (i = 0; i < {P}_N; ++i) {{
+        iso[i] = (m->sensor[i] >= RIMU_ISOLATED) ? 1u : 0u;
+    }}
+    {p}_loop_observe(&sc->loop, out->alarm, out->statistic, out->dof, iso);
+    if (sc->loop.k == 0L) {{  /* a window ended: its terms show from the next sample on */
+        {p}_loop_terms(&sc->loop, sc->terms_next, sc->sigmas_next);
+    }}
+}}
+""")
+    return "".join(out)

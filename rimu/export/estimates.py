@@ -137,7 +137,10 @@ def read_estimates(src: str | os.PathLike[str] | TextIO, cal: Any) -> Estimates:
         raise SessionFormatError(f"{name}: the header is {rows[0] if rows else 'missing'}, expected {want} "
                                  "(an estimates file of this calibration's instruments)")
     names_extra = rows[0][len(want):]
-    if any(nm.rsplit("_", 1)[-1] in ("x", "y", "z", "validity", "isolated") for nm in names_extra):
+    # another instrument's estimate columns (a file of another calibration); the tracked terms of a triad array's
+    # sensors (gyro_bias_imu0_x) end in _x too and are further columns
+    other = {f"{k}_{c}" for k in ("gyro", "accel") for c in ("x", "y", "z", "validity", "isolated")}
+    if any(nm in other for nm in names_extra):
         raise SessionFormatError(f"{name}: the header is {rows[0]}, expected {want} (an estimates file of this "
                                  "calibration's instruments)")
     body = [r for r in rows[1:] if r]

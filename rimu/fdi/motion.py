@@ -51,8 +51,11 @@ alarm (the MIMU4444's exp_6: 0.1 deg/s in seven minutes against a noise of 0.06 
 constant tau (``tracked_bias``), subtracted from the residual before the test, its own variance
 (``sigma^2 alpha / (2 - alpha)``, alpha = 1 / (tau fs)) added to the covariance. Only the part of a drift that
 breaks the sensors' agreement reaches the residual, so only that is tracked; an abrupt fault moves it by
-``t / tau`` of itself in t seconds (0.4 % in the 0.25 s it takes to isolate 1 deg/s with tau = 60 s), a fault that
-grows more slowly than tau is absorbed (the price of following drift). The tracker is kept across set changes.
+``t / tau`` of itself in t seconds (4 % in the 0.27 s it takes to isolate 1 deg/s with exp_6's tau = 6.7 s), a
+fault that grows more slowly than tau is absorbed (the price of following drift). The tracker is kept across set
+changes. tau is measured on the fit span (``fit_motion_detector(bias_track_s="auto")``): ``tau = N / K`` of the
+residuals' white noise density and bias random walk, where the tracker's error ``N^2 / (2 tau) + K^2 tau / 2`` is
+smallest (:mod:`rimu.fdi.bias_drift`).
 """
 
 from __future__ import annotations
@@ -69,7 +72,7 @@ from .calaware import CalibrationCovariance
 from .glt import glt_threshold
 
 __all__ = [
-    "check_fit_span", "MotionAwareGlt", "MotionNoiseModel", "fit_motion_detector", "fit_motion_terms",
+    "check_fit_span", "MotionAwareGlt", "MotionNoiseModel", "envelope_text", "fit_motion_detector", "fit_motion_terms",
     "motion_detector_from_dict", "motion_detector_to_dict"]
 
 #: the fitted terms a unit file stores (:func:`motion_detector_to_dict`)
@@ -259,6 +262,7 @@ class MotionAwareGlt:
         #: the tracked residual bias of each sensor (n,), output units: kept across set changes
         self.tracked_bias = np.zeros(model.n)
         self._r_raw: np.ndarray | None = None
+        self._r_last: np.ndarray | None = None
         self.model = model
         self.p_fa = p_fa
         self.sample_rate = float(sample_rate)
@@ -272,6 +276,11 @@ class MotionAwareGlt:
         self._thr_cache: dict[int, float] = {}
         #: samples the motion terms were fitted on (set by :func:`fit_motion_detector`; 0: stated, not fitted)
         self.fit_samples = 0
+        #: samples of the fit span in motion (rate of at least ``MOTION_RATE``); with fewer than ``min_samples`` no
+        #: terms are fitted
+        self.moving_samples = 0
+        #: the drift measured where ``bias_track_s`` came from the data (:func:`fit_motion_detector`, "auto")
+        self.bias_drift: Any = None
         #: (largest |rate| rad/s, largest |angular acceleration| rad/s^2) the terms hold for; None: no limit
         self.envelope: tuple[float, float] | None = None
         #: the last sample's motion was outside :attr:`envelope` (its alarm is no evidence against one sensor:
@@ -298,6 +307,12 @@ class MotionAwareGlt:
         self._thr = self._thr_cache[self._dof]
         self._u_prev = None  # the derivative restarts with the set (the estimate may jump)
         self._act_n = act
+        # each sub-unit's own rate from its outputs (x + A_j^+ r_j: the fused rate along what it does not measure),
+        # for the motion the envelope is judged on
+        seeing = a.any(axis=1)
+        self._Pj = np.array([np.linalg.pinv(Ab) for Ab in self._Ab[seeing]]) if seeing.any() else None
+        self._pj_rows = seeing
+        self._uj_prev = None
         if self.bias_track_s is not None:  # the tracked value's own variance (an EMA of white noise)
             al = min(1.0, 1.0 / (self.bias_track_s * self.sample_rate))
             self._trk_var = mdl.sigma[mdl._p0] ** 2 * self.window_gain[mdl._p0] * (al / (2.0 - al)) * mdl.real
@@ -326,6 +341,7 @@ class MotionAwareGlt:
         if self.bias_track_s is not None:
             self._r_raw = r
             r = r - self.tracked_bias * self._act_n
+        self._r_last = r
         rate = dg = None
         if not self.input_is_rate:
             rate = self._rate if self._rate is not None else np.zeros(3)
@@ -364,17 +380,40 @@ class MotionAwareGlt:
         self._last = (B, Sir, SiA, M, Minv_b)
         return float(rb.reshape(-1) @ Sir.reshape(-1) - b @ Minv_b)
 
+    def motion(self) -> tuple[float, float]:
+        """|rate| (rad/s) and |angular acceleration| (rad/s^2) of the last sample as most sub-units see them.
+
+        The median over the sub-units with an active sensor of the magnitude of each one's own rate
+        ``x + A_j^+ r_j`` (its outputs where it measures, the fused rate x along what it does not: a triad with
+        a sensor isolated still counts) and of its backward difference: a fault on one sensor moves its
+        sub-unit's rate and the fused rate, not the median of three or more, so it is never taken for motion
+        beyond the envelope (a 1 deg/s bias on one of four triads moves the fused rate by 0.25 deg/s). The
+        fused rate where fewer than two sub-units can say (one block, or before the first parity)."""
+        P, r = self._Pj, self._r_last
+        if P is None or len(P) < 2 or r is None:
+            return float(np.linalg.norm(self._u)), float(np.linalg.norm(self._du))
+        mdl = self.model
+        rb = (r[mdl._p0] * self._act)[self._pj_rows]
+        uj = self._u + np.einsum("jag,jg->ja", P, rb)
+        acc = 0.0 if self._uj_prev is None else float(np.median(np.linalg.norm(uj - self._uj_prev, axis=1))) * \
+            self.sample_rate
+        self._uj_prev = uj
+        return float(np.median(np.linalg.norm(uj, axis=1))), acc
+
     def update(self, parity: np.ndarray) -> tuple[float, float]:
         env = self.envelope
-        if env is not None and self.input_is_rate:
-            self.model_exceeded = bool(np.linalg.norm(self._u) > env[0] or np.linalg.norm(self._du) > env[1])
-        elif env is not None:  # accelerometers: the unit's motion from the gyros (set_motion); unknown is beyond
-            w = self._rate if self._rate is not None else np.zeros(3)
+        if env is not None and not self.input_is_rate:  # accelerometers: the unit's motion from the gyros
+            w = self._rate if self._rate is not None else np.zeros(3)  # (set_motion); unknown is beyond
             a = self._dgyro if self._dgyro is not None else np.zeros(3)
             self.model_exceeded = not (float(np.linalg.norm(w)) <= env[0] and float(np.linalg.norm(a)) <= env[1])
         if self._dof < 1:
+            if env is not None and self.input_is_rate:
+                self.model_exceeded = bool(np.linalg.norm(self._u) > env[0] or np.linalg.norm(self._du) > env[1])
             return 0.0, float("inf")
         stat = self._solve(parity)
+        if env is not None and self.input_is_rate:
+            w, dw = self.motion()
+            self.model_exceeded = bool(w > env[0] or dw > env[1])
         if self.bias_track_s is not None and stat <= self._thr and float(np.linalg.norm(self._u)) < self.rest_rate:
             al = min(1.0, 1.0 / (self.bias_track_s * self.sample_rate))  # at rest, no alarm: follow the drift
             a = self._act_n
@@ -546,7 +585,7 @@ def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, val
                         sample_rate: float, margin: float = 3.0, p_fa: float = 1e-3,
                         terms: tuple[str, ...] = _FIT_TERMS[1:], min_samples: int = 50,
                         envelope: float | None = 1.0, window: int = 1,
-                        bias_track_s: float | None = None, still: np.ndarray | None = None,
+                        bias_track_s: float | str | None = None, still: np.ndarray | None = None,
                         rate: np.ndarray | None = None) -> MotionAwareGlt:
     """A gyro (or, with ``rate``, accelerometer) :class:`MotionAwareGlt` whose motion terms are fitted on
     fault-free raw data of the unit.
@@ -566,15 +605,22 @@ def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, val
 
     envelope : float or None
         The detector's :attr:`MotionAwareGlt.envelope` is ``envelope`` times the largest |angular rate| and
-        |angular acceleration| of the fit samples: beyond it the fitted terms are an extrapolation and an alarm
-        is reported as ``model_exceeded`` (the unit DEGRADED, nothing isolated). None: no envelope.
+        |angular acceleration| of the fit samples, as most sub-units see them (:meth:`MotionAwareGlt.motion`: a
+        fault on one sensor is not motion): beyond it the fitted terms are an extrapolation and an alarm is
+        reported as ``model_exceeded`` (the unit DEGRADED, nothing isolated). None: no envelope. A fit span with fewer than ``min_samples``
+        samples in motion (|rate| of at least ``MOTION_RATE``, 0.05 rad/s; a static recording, where every term
+        would be fitted on noise) fits no term: the test is the plain GLT, and the envelope is the motion of
+        the samples at rest (what the noise was measured on).
     window : int
         Samples of the detector's window mean (:class:`MotionAwareGlt`, module docstring); with more than one,
         each sensor's ``window_gain`` is measured on the fit span's rest (rate below 0.02 rad/s, in runs of at
         least four windows, each run's mean removed): the variance of an L-sample mean of its residual over
         1/L of its variance, at least 1.
-    bias_track_s : float or None
-        Time constant of the detector's relative-bias tracker at rest (:class:`MotionAwareGlt`); None: none.
+    bias_track_s : float, "auto" or None
+        Time constant of the detector's relative-bias tracker at rest (:class:`MotionAwareGlt`); None: none;
+        ``"auto"``: ``N / K`` of the residuals' white noise density N and bias random walk K measured on the
+        span's poses at rest (:func:`rimu.fdi.bias_drift.bias_drift`; the detector's ``bias_drift`` says them),
+        none where the span has fewer than three poses at rest (``bias_drift`` then says why).
     still : ndarray (N,) of bool, optional
         The samples at rest (e.g. :attr:`rimu.calibration.multi_imu.MultiImuSetup.still`); default: the estimate
         within 0.02 rad/s of zero. Given, their median estimate is the detector's ``rest_level`` (the array's
@@ -629,20 +675,72 @@ def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, val
         gain = _window_gain(res, rest, int(window)) if window > 1 else 1.0
         det = MotionAwareGlt(model, p_fa, sample_rate=sample_rate, input_is_rate=False, window=window,
                              window_gain=gain)
-        x = w
-    else:
-        x = x - level
-        alpha = np.gradient(x, 1.0 / sample_rate, axis=0)
-        model = fit_motion_terms(MotionNoiseModel(calibration, sigma=pipe.table.sigma), res[full], pipe.table.G[0],
-                                 x[full], alpha[full], terms=terms, margin=margin)
-        gain = _window_gain(res, rest, int(window)) if window > 1 else 1.0
-        det = MotionAwareGlt(model, p_fa, sample_rate=sample_rate, window=window, window_gain=gain,
-                             bias_track_s=bias_track_s, rest_level=level)
+        det.fit_samples = int(full.sum())
+        det.bias_drift = None
+        det.moving_samples = int((full & (np.linalg.norm(w, axis=1) >= MOTION_RATE)).sum())
+        if envelope is not None:  # the gyros' motion over the fit samples (set_motion gives it at runtime)
+            det.envelope = (float(envelope * np.linalg.norm(w[full], axis=1).max()),
+                            float(envelope * np.linalg.norm(alpha[full], axis=1).max()))
+        return det
+    x = x - level
+    alpha = np.gradient(x, 1.0 / sample_rate, axis=0)
+    model = MotionNoiseModel(calibration, sigma=pipe.table.sigma)
+    moving = int((full & (np.linalg.norm(x, axis=1) >= MOTION_RATE)).sum())  # as the setup counts motion
+    if moving >= min_samples:
+        model = fit_motion_terms(model, res[full], pipe.table.G[0], x[full], alpha[full], terms=terms, margin=margin)
+    gain = _window_gain(res, rest, int(window)) if window > 1 else 1.0
+    drift = None
+    if isinstance(bias_track_s, str):
+        if bias_track_s != "auto":
+            raise ValueError(f"bias_track_s must be a time (s), 'auto' or None, got {bias_track_s!r}")
+        from .bias_drift import bias_drift
+
+        try:
+            drift = bias_drift(res, rest, sample_rate)
+            bias_track_s = drift.tau_s
+        except ShapeError as exc:  # no drift can be measured: no tracker, and the reason said
+            drift, bias_track_s = f"no bias tracker: {exc}", None
+    det = MotionAwareGlt(model, p_fa, sample_rate=sample_rate, window=window, window_gain=gain,
+                         bias_track_s=bias_track_s, rest_level=level)
     det.fit_samples = int(full.sum())
-    if envelope is not None:
-        det.envelope = (float(envelope * np.linalg.norm(x[full], axis=1).max()),
-                        float(envelope * np.linalg.norm(alpha[full], axis=1).max()))
+    det.bias_drift = drift
+    det.moving_samples = moving
+    if envelope is not None:  # the motion as the runtime judges it (MotionAwareGlt.motion), over the fit samples
+        w, dw = _subunit_motion(model, x, res, full, sample_rate)
+        seen = full if moving >= min_samples or not rest.any() else rest  # no terms: the rest the noise came from
+        det.envelope = (float(envelope * w[seen].max()), float(envelope * dw[seen].max()))
     return det
+
+
+def _subunit_motion(model: MotionNoiseModel, x: np.ndarray, res: np.ndarray, ok: np.ndarray,
+                    sample_rate: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per sample, the median over the sub-units of |x + A_j^+ r_j| and of its backward difference
+    times the rate (0 after a sample that is not ``ok``); the fused rate with fewer than two such sub-units (as
+    :meth:`MotionAwareGlt.motion`)."""
+    blocks = [model.pos[j][model.real[j]] for j in range(model.k)]
+    if len(blocks) < 2:
+        U = x[:, None, :]
+    else:
+        U = np.stack([x + res[:, b] @ np.linalg.pinv(model.axes[b]).T for b in blocks], axis=1)
+    w = np.median(np.linalg.norm(U, axis=2), axis=1)
+    dw = np.zeros(len(x))
+    dw[1:] = np.median(np.linalg.norm(np.diff(U, axis=0), axis=2), axis=1) * sample_rate
+    dw[1:][~ok[:-1]] = 0.0
+    return w, dw
+
+
+def envelope_text(envelope: tuple[float, float] | None) -> str:
+    """The envelope in the field's units, "any" where it sets no limit (an infinite bound).
+
+    >>> envelope_text((np.radians(100.0), np.inf))
+    '|rate| up to 100 deg/s and any |angular acceleration|'
+    """
+    if envelope is None:
+        return "any motion"
+    r, a = envelope
+    rt = f"|rate| up to {np.degrees(r):.4g} deg/s" if np.isfinite(r) else "any |rate|"
+    at = f"|angular acceleration| up to {np.degrees(a):.4g} deg/s^2" if np.isfinite(a) else "any |angular acceleration|"
+    return f"{rt} and {at}"
 
 
 def _window_gain(res: np.ndarray, rest: np.ndarray, L: int) -> np.ndarray:
@@ -664,6 +762,10 @@ def _window_gain(res: np.ndarray, rest: np.ndarray, L: int) -> np.ndarray:
         return np.ones(n)
     return np.maximum(1.0, L * num / np.where(den > 0, den, 1.0))
 
+
+#: rad/s: a sample of the fit span whose rate (from the rest level) reaches this is motion (the setup's threshold,
+#: :func:`rimu.calibration.multi_imu.setup_multi_imu` ``min_rate_rad_s``)
+MOTION_RATE = 0.05
 
 #: what a fault-free fit span may need: extra white noise up to 4 times a sensor's calibrated variance (its noise
 #: at most sqrt(5) = 2.2 times what the calibration states), a scale-factor spread up to 5 %
@@ -739,7 +841,8 @@ def motion_detector_to_dict(detector: MotionAwareGlt) -> dict[str, Any]:
     out["rest_level"] = np.asarray(detector.rest_level, float).tolist()
     out["window_gain"] = np.asarray(detector.window_gain, float).tolist()
     out["fit_samples"] = int(detector.fit_samples)
-    out["envelope"] = None if detector.envelope is None else [float(v) for v in detector.envelope]
+    out["envelope"] = None if detector.envelope is None else [  # no limit (inf): null
+        float(v) if np.isfinite(v) else None for v in detector.envelope]
     if not detector.input_is_rate:
         out["input_is_rate"] = False
     return out
@@ -762,5 +865,5 @@ def motion_detector_from_dict(calibration: InstrumentCalibration, stored: dict[s
                          window=int(stored.get("window", 1)), window_gain=stored.get("window_gain", 1.0),
                          bias_track_s=stored.get("bias_track_s"), rest_level=stored.get("rest_level"))
     det.fit_samples = int(stored.get("fit_samples", 0))
-    det.envelope = None if env is None else (float(env[0]), float(env[1]))
+    det.envelope = None if env is None else tuple(np.inf if v is None else float(v) for v in env)  # type: ignore
     return det

@@ -267,7 +267,9 @@ int main(void)
             dump(vals, RIMU_SC_S);
             dump(sig, RIMU_SC_S);
             dump(L.s.theta, RIMU_SC_S);
-            printf("%ld %ld %ld\n", L.accepted, L.rejected, L.discarded);
+            printf("%ld %ld %ld ", L.accepted, L.rejected, L.discarded);
+            for (i = 0; i < RIMU_SC_NG; ++i) { printf("%d %.17g %.17g ", L.applied[i], L.gain_total[i], L.var_total[i]); }
+            printf("\n");
         }
     }
     return 0;
@@ -307,7 +309,7 @@ def test_loop_c_matches_selfcalloop_with_a_step_fault(tmp_path):
     cal = InstrumentCalibration.nominal("gyro", cone6(), 1.0, noise_sigma=sig)
     st = SelfCalSettings(bias_rw=4e-7, bias_sigma0=0.004, scale_rw=1e-9, scale_sigma0=5e-4,
                          temperature_sigma=[1e-4, 5e-6, 2e-7], window_s=0.5, hold_s=2.0,
-                         guard_s=None)       # the generated loop has no held-out check yet (docs/selfcal.md)
+                         guard_s=10.0)       # the held-out check, with a memory short enough to switch groups
     trk = SelfCalTracker(cal, st)
     M = int(round(st.window_s * fs))
     det = _Spy(M, 1e-4)
@@ -343,7 +345,7 @@ def test_loop_c_matches_selfcalloop_with_a_step_fault(tmp_path):
         loop.observe(r, iso)
         ref_y.append(yk)
         if len(loop.history) > h0:
-            ref_w.append(loop.history[-1])
+            ref_w.append(loop.history[-1] + (loop._applied.copy(), loop._gain_total.copy(), loop._var_total.copy()))
         lines.append(f"{float(t[k])!r} {float(T[k])!r} {_f(Y[k])} {' '.join(str(int(v)) for v in valid[k])} "
                      f"{int(r.alarm)} {float(r.statistic)!r} {int(r.dof)} {' '.join(str(int(v)) for v in iso)} "
                      f"{int(cfg is not None)} {' '.join(str(int(v)) for v in act)}")
@@ -376,13 +378,21 @@ def test_loop_c_matches_selfcalloop_with_a_step_fault(tmp_path):
     for a, b in zip(got["C"], ref_c, strict=True):
         _close(a, b, "the detector's covariance")
     S = trk.m * n
-    for a, (_, vals, sigs, theta) in zip(got["W"], ref_w, strict=True):
+    G = len(loop._applied)
+    switched = set()
+    for a, (_, vals, sigs, theta, app, gain, var) in zip(got["W"], ref_w, strict=True):
+        tail = a[3 * S + 3:].reshape(G, 3)
+        assert tail[:, 0].astype(bool).tolist() == app.tolist()        # the held-out check decides alike
+        _close(tail[:, 1], gain, "held-out gain")
+        _close(tail[:, 2], var, "held-out gain variance")
+        switched |= {(j, bool(v)) for j, v in enumerate(app)}
         for b in range(trk.m):
             blk = slice(b * n, (b + 1) * n)
             _close(a[:S][blk], vals[b], f"terms[{trk.blocks[b]}]")
             _close(a[S:2 * S][blk], sigs[b], f"sigmas[{trk.blocks[b]}]")
             _close(a[2 * S:3 * S][blk], theta[blk], f"theta[{trk.blocks[b]}]")
-    assert tuple(int(v) for v in a[3 * S:]) == (loop.accepted, loop.rejected, loop.discarded)
+    assert tuple(int(v) for v in a[3 * S:3 * S + 3]) == (loop.accepted, loop.rejected, loop.discarded)
+    assert len(switched) >= G + 1          # some group both applied and suspended over the run: the check acted
 
 
 def _full_kernel() -> tuple[str, str]:

@@ -48,6 +48,7 @@ FORMATS: dict[str, str] = {
     "mpu6050": f"{__name__}.mpu6050",
     "multiimu-csv": f"{__name__}.multiimu_csv",
     "mimu4444": f"{__name__}.mimu4444",
+    "navego-mat": f"{__name__}.navego_mat",
 }
 #: asked last when sniffing (it accepts any numeric text)
 FALLBACK = {"text": f"{__name__}.text"}
