@@ -96,7 +96,7 @@ def test_the_documented_journey(run, average, tmp_path, capsys):
         assert g["isolations"] == 0 and "isolated" not in kinds and "invalid_isolated" not in kinds, inst
         # the manager's state at the end and the sensors isolated then (on exp_6 the accelerometers' final_state,
         # the last sample's state, reads fault_isolated although nothing was isolated and the manager ends nominal)
-        assert g["end_state"] == "nominal" and g["isolated_at_end"] == [], inst
+        assert g["final_state"] == "nominal" and g["isolated_at_end"] == [], inst
         held = [s for s in g["segments"] if s["kind"] == "static_unknown" and s["t_start_s"] >= half]
         a, n = sum(s["alarms"] for s in held), sum(s["samples"] for s in held)
         assert n > 1000, (inst, n)
