@@ -1,7 +1,9 @@
 """Report: the array's parity rms in motion before and after each calibration step, per triad, with a plot.
 
 Steps (gyros): raw -> relative gain and bias -> + sampling offsets; (accelerometers): raw -> lever arms at the
-nominal positions removed -> + gains and biases -> + estimated positions. After the gyro steps the nested F-test
+nominal positions removed -> + gains and biases -> + estimated positions -> + the angular acceleration taken per epoch
+from the accelerometers themselves (``AA_STEP``; three triads at least, not on one line; its parity is scaled to
+compare like for like with the plain model's, :func:`rimu.array.accel_angular_acceleration`). After the gyro steps the nested F-test
 ranking (:func:`rimu.array.rank_candidates`) names the term that now limits the agreement.
 """
 
@@ -16,7 +18,7 @@ from ..errors import IdentifiabilityError, ShapeError
 from ..units import RAD_TO_DEG, fmt
 from .guards import choose_lowpass, worse
 from .layout import ArrayLayout
-from .positions import PositionFit, angular_acceleration_check, fit_positions
+from .positions import PositionFit, aa_from_accelerometers_refusal, angular_acceleration_check, fit_positions
 from .relative import RelativeFit, fit_relative_gyro
 from .remainder import RemainderAnalysis, remainder_analysis
 
@@ -260,6 +262,9 @@ def array_report(
         pf, a_steps, a_refused, mode = best
         rep.accel_steps = a_steps
         rep.refused.update(a_refused)
+        why = aa_from_accelerometers_refusal(pf.positions_m)
+        if why is not None:
+            rep.refused[AA_STEP] = f"accelerometer step '{AA_STEP}' not identifiable: {why}"
         if any(k != "raw" for k in a_steps):
             rep.position_fit = pf
         if pf.lever_arm_invalid:
@@ -274,23 +279,28 @@ def array_report(
                 steps_ho = _accel_steps(layout, pf, fit, pf.sampling_offset_s is not None
                                         and np.any(pf.sampling_offset_s != 0), nominal_positions_m, label, ho_steps)
                 rep.accel_held_out = {k: v for k, v in steps_ho.items() if k == "raw" or k in a_steps}
+                if AA_STEP in rep.accel_held_out:  # the never-worse rule on the held-out half too
+                    prev = [v for k, v in rep.accel_held_out.items() if k != AA_STEP][-1]
+                    if worse(prev, rep.accel_held_out[AA_STEP]):
+                        rep.refused[AA_STEP] = (
+                            f"accelerometer step '{AA_STEP}' not applied: fitted on the first half of the motion it "
+                            f"raises the parity rms on the second from {prev.mean():.4g} to "
+                            f"{rep.accel_held_out[AA_STEP].mean():.4g} m/s^2")
+                        del rep.accel_held_out[AA_STEP]
+                        del rep.accel_steps[AA_STEP]
                 h = [v.mean() for v in rep.accel_held_out.values()]
                 line = (f"accelerometers held out: {fmt(h[0], 'specific_force', 'm/s^2')} -> "
-                        f"{fmt(h[-1], 'specific_force', 'm/s^2')} ({h[0] / h[-1]:.3g}x) with the gyros' angular "
-                        "acceleration")
-                aa = ho_steps["accel_angular_acceleration"]
-                if np.all(np.isfinite(aa)):
-                    rep.accel_held_out[AA_STEP] = aa
-                    line += (f"; {fmt(aa.mean(), 'specific_force', 'm/s^2')} ({h[0] / aa.mean():.3g}x) with the "
-                             "accelerometers' own")
+                        f"{fmt(h[-1], 'specific_force', 'm/s^2')} ({h[0] / h[-1]:.3g}x) after the steps applied")
                 notes.append(line)
                 if rep.accel_remainder is not None:
                     notes.append(f"accelerometers, what remains (held out): {accel_verdict(rep.accel_remainder)}")
     return rep
 
 
-#: the held-out step with the angular acceleration from the accelerometers themselves, not the gyros' derivative
-AA_STEP = "+ angular acceleration from the accelerometers"
+#: the last accelerometer step: the angular acceleration taken per epoch from the accelerometers themselves, not
+#: from the gyros' derivative (:func:`rimu.array.accel_angular_acceleration`; its parity scaled to compare like for
+#: like with the steps before it)
+AA_STEP = "+ angular acceleration from the accelerometers (per epoch; Skog et al. 2016)"
 
 
 def _split_motion(omega: np.ndarray, motion_threshold_deg_s: float) -> int:
@@ -397,4 +407,6 @@ def _accel_steps(layout, pf, fit, align, nominal_positions_m, label, parity=None
         steps["+ nominal lever arms"] = p["raw_nominal_lever_arms"]
     steps[label] = p["gain_bias_nominal_lever_arms"]
     steps["+ positions"] = p["positions"]
+    if np.all(np.isfinite(p.get("accel_angular_acceleration", np.nan))):
+        steps[AA_STEP] = p["accel_angular_acceleration"]
     return steps
