@@ -63,7 +63,8 @@ class PositionFit:
         biases removed); ``"positions"`` (lever arms at the estimated positions): rms of each triad's difference
         from the array mean, in motion; ``"accel_angular_acceleration"``: the angular acceleration taken from the
         accelerometers themselves in every sample, not from the gyros' derivative (the centripetal term from the
-        gyros' rate), scaled for the three parameters more per sample (``_rms_parity_accel_aa``).
+        gyros' rate), scaled by leverage to compare like for like (:func:`accel_angular_acceleration`); NaN with
+        fewer than three triads or positions on one line.
     nominal_m : ndarray (k, 3) or None
     iterations : int
     """

@@ -87,6 +87,13 @@ class ArrayReport:
             for name, v in steps.items():
                 out.append(f"| {name} | " + " | ".join(f"{x:.4g}" for x in v) + f" | {v.mean():.4g} |")
             out.append("")
+            if AA_STEP in steps:
+                k = len(self.names)
+                out += [f"Every row is the rms per triad axis of the parity, scaled alike: on white noise sigma each "
+                        f"is sigma sqrt((k - 1)/k) (k = {k}). The plain model (specific force per epoch) leaves "
+                        f"3k - 3 = {3 * k - 3} parity dof per epoch; the last row's (specific force and angular "
+                        f"acceleration per epoch, rimu.array.accel_angular_acceleration) leaves 3k - 6 = {3 * k - 6}, "
+                        "each component scaled by sqrt(((k - 1)/k) / (1 - h)), h its leverage.", ""]
         if self.gyro_fit is not None:
             out += ["## What limits the gyro agreement now", "", f"**{self.limiting_term}**", "",
                     "| candidate | parameters | F | log10 p | share of residual |", "|---|---|---|---|---|"]

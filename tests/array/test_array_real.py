@@ -67,6 +67,8 @@ def test_pixhawk_two_imus_parity_falls():
     a = _falls(rep.accel_steps)
     assert g[-1] < 0.6 * g[0] and a[-1] < 0.9 * a[0], rep.to_markdown()
     assert any("do not fit the accelerometers" in n and "m/s^2" in n for n in rep.notes)  # what was seen, no guess
+    from rimu.array.report import AA_STEP  # two triads: 6 unknowns per epoch, no parity left (issue 32)
+    assert "not identifiable: 2 triads" in rep.refused[AA_STEP] and AA_STEP not in rep.accel_steps, rep.refused
 
 
 def _mimu(n_last: int = 2500):
