@@ -286,15 +286,7 @@ def array_report(
                 steps_ho = _accel_steps(layout, pf, fit, pf.sampling_offset_s is not None
                                         and np.any(pf.sampling_offset_s != 0), nominal_positions_m, label, ho_steps)
                 rep.accel_held_out = {k: v for k, v in steps_ho.items() if k == "raw" or k in a_steps}
-                if AA_STEP in rep.accel_held_out:  # the never-worse rule on the held-out half too
-                    prev = [v for k, v in rep.accel_held_out.items() if k != AA_STEP][-1]
-                    if worse(prev, rep.accel_held_out[AA_STEP]):
-                        rep.refused[AA_STEP] = (
-                            f"accelerometer step '{AA_STEP}' not applied: fitted on the first half of the motion it "
-                            f"raises the parity rms on the second from {prev.mean():.4g} to "
-                            f"{rep.accel_held_out[AA_STEP].mean():.4g} m/s^2")
-                        del rep.accel_held_out[AA_STEP]
-                        del rep.accel_steps[AA_STEP]
+                _aa_held_out_rule(rep.accel_steps, rep.accel_held_out, rep.refused)
                 h = [v.mean() for v in rep.accel_held_out.values()]
                 line = (f"accelerometers held out: {fmt(h[0], 'specific_force', 'm/s^2')} -> "
                         f"{fmt(h[-1], 'specific_force', 'm/s^2')} ({h[0] / h[-1]:.3g}x) after the steps applied")
@@ -308,6 +300,21 @@ def array_report(
 #: from the gyros' derivative (:func:`rimu.array.accel_angular_acceleration`; its parity scaled to compare like for
 #: like with the steps before it)
 AA_STEP = "+ angular acceleration from the accelerometers (per epoch; Skog et al. 2016)"
+
+
+def _aa_held_out_rule(steps: dict, held_out: dict, refused: dict) -> None:
+    """The never-worse rule on the held-out half for :data:`AA_STEP`: where, fitted on the first half of the motion,
+    it raises the parity on the second above the last step applied before it, it is taken out of ``steps`` and
+    ``held_out`` and ``refused`` says why (the dicts are the caller's, updated in place)."""
+    if AA_STEP not in held_out:
+        return
+    prev = [v for k, v in held_out.items() if k != AA_STEP][-1]
+    if worse(prev, held_out[AA_STEP]):
+        refused[AA_STEP] = (f"accelerometer step '{AA_STEP}' not applied: fitted on the first half of the motion it "
+                            f"raises the parity rms on the second from {prev.mean():.4g} to "
+                            f"{held_out[AA_STEP].mean():.4g} m/s^2")
+        del held_out[AA_STEP]
+        steps.pop(AA_STEP, None)
 
 
 def _split_motion(omega: np.ndarray, motion_threshold_deg_s: float) -> int:

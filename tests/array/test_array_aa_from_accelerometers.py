@@ -75,3 +75,16 @@ def test_refused_where_not_identifiable(r, word):
     with pytest.raises(IdentifiabilityError, match=word):
         accel_angular_acceleration(np.zeros((5, len(r), 3)), np.zeros((5, 3)), r)
     assert aa_from_accelerometers_refusal(np.array([[0.0, 0, 0], [0.01, 0, 0], [0, 0.01, 0]])) is None
+
+
+def test_never_worse_on_the_held_out_half():
+    """The step is taken out, with the figures, where it raises the held-out parity; kept where it lowers it."""
+    from rimu.array.report import AA_STEP, _aa_held_out_rule
+
+    for after, kept in ((np.array([0.9, 1.1]), True), (np.array([1.2, 1.3]), False)):
+        steps = {"raw": np.array([8.0, 8.0]), "+ positions": np.array([4.0, 4.0]), AA_STEP: np.array([1.0, 1.0])}
+        held = {"raw": np.array([8.0, 8.0]), "+ positions": np.array([1.1, 1.1]), AA_STEP: after}
+        refused: dict = {}
+        _aa_held_out_rule(steps, held, refused)
+        assert (AA_STEP in steps) == kept and (AA_STEP in held) == kept and (AA_STEP in refused) != kept
+    assert "from 1.1 to 1.25 m/s^2" in refused[AA_STEP]
