@@ -287,6 +287,7 @@ def array_report(
                                         and np.any(pf.sampling_offset_s != 0), nominal_positions_m, label, ho_steps)
                 rep.accel_held_out = {k: v for k, v in steps_ho.items() if k == "raw" or k in a_steps}
                 _aa_held_out_rule(rep.accel_steps, rep.accel_held_out, rep.refused)
+                notes.extend(_held_out_raises(rep.accel_held_out, "m/s^2"))
                 h = [v.mean() for v in rep.accel_held_out.values()]
                 line = (f"accelerometers held out: {fmt(h[0], 'specific_force', 'm/s^2')} -> "
                         f"{fmt(h[-1], 'specific_force', 'm/s^2')} ({h[0] / h[-1]:.3g}x) after the steps applied")
@@ -315,6 +316,19 @@ def _aa_held_out_rule(steps: dict, held_out: dict, refused: dict) -> None:
                             f"{held_out[AA_STEP].mean():.4g} m/s^2")
         del held_out[AA_STEP]
         steps.pop(AA_STEP, None)
+
+
+def _held_out_raises(held_out: dict, unit: str) -> list[str]:
+    """Notes for the intermediate steps that raise the held-out parity above the step before them (by more than
+    :func:`rimu.array.guards.worse`'s tolerance) though the steps after them, which build on them, are kept: reported,
+    not applied silently."""
+    out, names = [], list(held_out)
+    for a, b in zip(names[:-1], names[1:]):
+        if worse(held_out[a], held_out[b]):
+            out.append(f"accelerometer step '{b}' raises the held-out parity rms from {held_out[a].mean():.4g} to "
+                       f"{held_out[b].mean():.4g} {unit}; kept because the steps after it build on it (the chain: "
+                       f"{held_out[names[0]].mean():.4g} -> {held_out[names[-1]].mean():.4g} {unit})")
+    return out
 
 
 def _split_motion(omega: np.ndarray, motion_threshold_deg_s: float) -> int:

@@ -88,3 +88,16 @@ def test_never_worse_on_the_held_out_half():
         _aa_held_out_rule(steps, held, refused)
         assert (AA_STEP in steps) == kept and (AA_STEP in held) == kept and (AA_STEP in refused) != kept
     assert "from 1.1 to 1.25 m/s^2" in refused[AA_STEP]
+
+
+def test_an_intermediate_step_that_raises_the_held_out_parity_is_reported():
+    """A step between two others that raises the held-out parity (beyond the 1e-3 tolerance) gets a note with both
+    figures and the whole chain's; one within the tolerance, or one that lowers it, gets none."""
+    from rimu.array.report import _held_out_raises
+
+    ho = {"raw": np.array([8.0, 8.2]), "+ a": np.array([4.0, 4.0]), "+ b": np.array([4.1, 4.1]),
+          "+ c": np.array([1.5, 1.5])}
+    notes = _held_out_raises(ho, "m/s^2")
+    assert len(notes) == 1 and "'+ b'" in notes[0] and "4 to 4.1 m/s^2" in notes[0] and "8.1 -> 1.5" in notes[0]
+    ho["+ b"] = np.array([4.002, 4.002])
+    assert _held_out_raises(ho, "m/s^2") == []
