@@ -62,10 +62,6 @@ def add_tracker_options(p: argparse.ArgumentParser, prefix: str = "") -> None:
                    help="time scale at which the bias random walk matches the bias instability, s (default %(default)s)")
     p.add_argument(f"--{prefix}bias-rw", type=positive_float, default=None,
                    help="bias random-walk intensity, SI^2/s (instead of the noise model's)")
-    p.add_argument(f"--{prefix}bias-sigma0", type=nonnegative_float, default=0.0,
-                   help="1-sigma of each bias's error when tracking starts, SI (rad/s, m/s^2; default 0: the "
-                        "calibration is true at the start; a unit that starts further off than the random walk allows "
-                        "alarms from its first windows, which freezes the tracker: docs/selfcal.md)")
     p.add_argument(f"--{prefix}scale-rw", type=positive_float, default=(200e-6) ** 2 / 7200.0,
                    help="relative scale random-walk intensity, 1/s (default: 200 ppm in 2 h)")
     p.add_argument(f"--{prefix}no-scale", action="store_true", help="do not track the scale")
@@ -125,7 +121,7 @@ def tracker_settings(args: argparse.Namespace, cal: Any, inst: str, has_temperat
             vals = list(_TC_DEFAULT[inst])
         tsig = tuple(vals[:orders])
     extra = {"hold_s": opt("hold"), "guard_s": opt("guard") or None} if prefix else {}
-    return SelfCalSettings(bias_rw=q, bias_sigma0=opt("bias-sigma0"), scale_rw=None if opt("no-scale") else opt("scale-rw"), scale_sigma0=0.0,
+    return SelfCalSettings(bias_rw=q, scale_rw=None if opt("no-scale") else opt("scale-rw"), scale_sigma0=0.0,
                            temperature_sigma=tsig, window_s=opt("window"), gate_p=opt("gate"), **extra)
 
 
