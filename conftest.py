@@ -5,4 +5,5 @@ numba: importing them is an ImportError by design; their callers check the backe
 try:
     import numba  # noqa: F401
 except ImportError:
-    collect_ignore = ["rimu/fusion/_kernels.py", "rimu/calibration/_hh_kernels.py"]
+    collect_ignore = ["rimu/fusion/_kernels.py", "rimu/calibration/_hh_kernels.py", "rimu/session/_kernels.py",
+                      "rimu/calibration/_lsq_kernels.py"]

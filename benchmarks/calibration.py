@@ -10,6 +10,11 @@ proportions), hand-held (30 poses, long holds) and LeastSquares (imucal's own da
 144000 x 6. de Oliveira needs at least four gyros: a tetrad of gyros with a triad of accelerometers (7 channels) over
 its Table 1 sequences with the same number of sample-channels; its ratio is also given per sample-channel.
 
+rimu runs with numba loaded (its ``fast`` extra, as in any process running rimu's compiled runtime): its statistics
+and base fit take their compiled kernels then; the real recording's comparison also times rimu with numpy alone
+(``backend="numpy"``). From files, rimu's Ferraris loader parses with pandas, which imucal's side loads in this
+process (without pandas loaded it takes numpy's reader).
+
 Every fit reads its session afresh: an estimator's per-segment statistics (rimu.session.stats) live for one
 ``fit``, so no round is helped by an earlier one (the warm-up call only imports).
 
@@ -45,6 +50,15 @@ from rimu.geometry import tetrad4, triad3
 from rimu.sim import Simulator, cho_park_procedure, oliveira_table1, rotation, static, zhang_scheme
 from rimu.sim.handheld import handheld_run
 from rimu.units import DEG_TO_RAD, G0, MS2_TO_UG, RS_TO_DH
+
+try:  # rimu's fast extra (numba), loaded as in any process that runs rimu's compiled runtime: rimu's statistics and
+    # base fit take their compiled kernels once numba is loaded (a short session never imports it by itself; the
+    # real recording's section also times rimu with numpy alone, backend="numpy")
+    import numba  # noqa: F401
+
+    HAVE_NUMBA = True
+except ImportError:  # pragma: no cover
+    HAVE_NUMBA = False
 
 try:  # optional reference
     from imucal import FerrarisCalibration, FerrarisSignalRegions
@@ -151,7 +165,7 @@ def main() -> None:
     print(f"timing (thread CPU time, median of {args.repeats} interleaved rounds; ratio = median [min, max] of the "
           f"per-round ratios; {load()}; imucal's input: {size['imucal_ferraris'][0]} samples x "
           f"{size['imucal_ferraris'][1]} channels, column-ordered as its loader makes them, sections prepared; "
-          "rimu's: a simulated session in memory)")
+          "rimu's: a simulated session in memory" + (", numba loaded)" if HAVE_NUMBA else ", numpy alone)"))
     print(f"  {'estimator':42s} {'samples x ch':>15s} {'ms':>9s} {'/ imucal':>20s} {'per sample-ch':>14s}")
     ratio, ratio_sc, ratio_range = {}, {}, {}
     for k, (label, _, _) in cases.items():
@@ -172,7 +186,8 @@ def main() -> None:
     out["ratio_to_imucal_range"] = ratio_range
     out["timing_includes"] = {"imucal": "FerrarisCalibration().compute on FerrarisSignalRegions prepared beforehand "
                                         "(column-ordered arrays, as its loader makes)",
-                              "rimu": "estimator().fit(session).to_calibration() on a session in memory"}
+                              "rimu": "estimator().fit(session).to_calibration() on a session in memory"
+                                      + (" (numba loaded: compiled kernels)" if HAVE_NUMBA else " (numpy alone)")}
     out["ratio_to_imucal_per_sample_channel"] = ratio_sc
     out["size_samples_channels"] = size
 
@@ -225,11 +240,17 @@ def main() -> None:
                                    args.repeats, time.thread_time)[name]
             real["estimators"][name] = {"ms": statistics.median(ts) * 1e3}
         # rimu's LeastSquares against imucal, both from prepared data and both from the files, interleaved
-        sessions = iter([load_ferraris(folder) for _ in range(args.repeats + 2)])  # loaded outside the timing
+        rounds = max(args.repeats, 60)  # (a round is some 30 ms: more rounds for a steadier median on loaded cores)
+        sessions = iter([load_ferraris(folder) for _ in range(2 * rounds + 4)])  # loaded outside the timing
+        kernels = "with its compiled kernels (numba loaded)" if HAVE_NUMBA else "numpy alone (numba not installed)"
         fns = {"rimu_prepared": lambda: LeastSquares().fit(next(sessions)).to_calibration(),
+               "rimu_prepared_numpy": lambda: LeastSquares(backend="numpy").fit(next(sessions)).to_calibration(),
                "rimu_files": lambda: LeastSquares().fit(load_ferraris(folder)).to_calibration()}
-        includes = {"rimu_prepared": "LeastSquares().fit(session).to_calibration() on a session loaded beforehand",
-                    "rimu_files": "load_ferraris(folder) (CSV + section list) + the same fit"}
+        includes = {"rimu_prepared": f"LeastSquares().fit(session).to_calibration() on a session loaded beforehand, "
+                                     f"{kernels}",
+                    "rimu_prepared_numpy": "the same, backend='numpy' (no compiled kernel)",
+                    "rimu_files": "load_ferraris(folder) (CSV parsed by pandas, loaded in this process as it is by "
+                                  "imucal's side, else numpy; section list JSON) + the same fit"}
         if HAVE_IMUCAL:
             import pandas as pd
             from imucal import ferraris_regions_from_section_list
@@ -243,30 +264,39 @@ def main() -> None:
                 return FerrarisCalibration().compute(regions, sampling_rate_hz=102.4, from_acc_unit="m/s^2",
                                                      from_gyr_unit="deg/s")
 
-            regions = ferraris_regions_from_section_list(pd.read_csv(csv_path, header=0, index_col=0),
-                                                         pd.read_json(json_path).T)  # its own loader's arrays
+            # its own loader's arrays, made afresh for every call as rimu's sessions are (both sides then read
+            # data that no earlier call left in the caches)
+            pool = iter([ferraris_regions_from_section_list(pd.read_csv(csv_path, header=0, index_col=0),
+                                                            pd.read_json(json_path).T) for _ in range(rounds + 2)])
             fns["imucal_prepared"] = lambda: FerrarisCalibration().compute(
-                regions, sampling_rate_hz=102.4, from_acc_unit="m/s^2", from_gyr_unit="deg/s")
+                next(pool), sampling_rate_hz=102.4, from_acc_unit="m/s^2", from_gyr_unit="deg/s")
             fns["imucal_files"] = imucal_files
-            includes["imucal_prepared"] = ("FerrarisCalibration().compute on the FerrarisSignalRegions its loader "
-                                           "made beforehand")
+            includes["imucal_prepared"] = ("FerrarisCalibration().compute on FerrarisSignalRegions its loader made "
+                                           "beforehand, fresh for every call as rimu's sessions are")
             includes["imucal_files"] = "pandas read_csv + read_json + ferraris_regions_from_section_list + compute"
         for f in fns.values():
             f()
-        ts = interleaved_times(fns, args.repeats, time.thread_time)
+        # each comparison interleaves its own candidates only: a round of the prepared pair is not run right after
+        # a file-parsing call that leaves the caches cold for whichever candidate comes next (the pairs were one
+        # rotation of five; rimu's prepared fit then ran 0.70 ms against 0.44 ms alone, imucal's barely moved)
+        ts = {}
+        for group in (("rimu_prepared", "rimu_prepared_numpy", "imucal_prepared"), ("rimu_files", "imucal_files")):
+            ts.update(interleaved_times({k: fns[k] for k in group if k in fns}, rounds, time.thread_time))
         real["ms"] = {k: statistics.median(v) * 1e3 for k, v in ts.items()}
         real["includes"] = includes
         real["rimu_lsq_ms"] = real["ms"]["rimu_prepared"]
-        print(f"  LeastSquares against imucal (thread CPU time, median of {args.repeats} interleaved rounds; "
+        print(f"  LeastSquares against imucal (thread CPU time, median of {rounds} rounds, each comparison's own "
+              f"candidates interleaved; "
               f"ratio = median [min, max] of per-round ratios; {load()}):")
         for k in fns:
-            print(f"    {k:16s} {real['ms'][k]:7.2f} ms  ({includes[k]})")
+            print(f"    {k:20s} {real['ms'][k]:7.2f} ms  ({includes[k]})")
         if HAVE_IMUCAL:
             real["ratio_prepared"] = ratio_stats(ts, "rimu_prepared", "imucal_prepared")
+            real["ratio_prepared_numpy"] = ratio_stats(ts, "rimu_prepared_numpy", "imucal_prepared")
             real["ratio_files"] = ratio_stats(ts, "rimu_files", "imucal_files")
-            for w, tgt in (("prepared", 2.0), ("files", 1.0)):
+            for w, tgt in (("prepared", 2.0), ("prepared_numpy", 2.0), ("files", 1.0)):
                 r = real[f"ratio_{w}"]
-                print(f"    rimu / imucal from {w:8s}: {r['median']:.2f} [{r['min']:.2f}, {r['max']:.2f}]  "
+                print(f"    rimu / imucal from {w:14s}: {r['median']:.2f} [{r['min']:.2f}, {r['max']:.2f}]  "
                       f"target <= {tgt}")
             for v in real["estimators"].values():
                 if "ms" in v:

@@ -13,6 +13,7 @@ Eq. 5): ``y_i = u . w_i + c_i + ...`` with ``SF_i = 1/|w_i|`` (Eq. 10).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import partial
@@ -20,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from .._backend import import_once
+from .._backend import resolve_loaded as _resolve_loaded
 from ..errors import IdentifiabilityError
 from ..session import Segment, Session, SessionStatistics
 from ..units import raw_unit_for, scale_unit
@@ -55,22 +58,49 @@ def estimate_noise_sigma(session: Session, instrument: str, stats: SessionStatis
     :class:`~rimu.session.SessionStatistics` (whose first-difference sums are then shared), default a new one.
     """
     stats = stats or SessionStatistics(session)
-    segs = [s for s in session.segments if s.kind in ("static", "static_unknown")] or list(session.segments)
-    n = session.geometries[instrument].n
-    acc = np.zeros(n)
-    cnt = 0
-    for s in segs:
-        # sum of squared deviations of the differences from their mean (y[-1] - y[0]) / m, in one pass
-        ss, dof = stats.sums(s, instrument).diff
-        if dof:
-            acc += ss
-            cnt += dof
+    # each segment's sum of squared deviations of the differences from their mean (y[-1] - y[0]) / m, with the
+    # sums and squares the fit reads next (one pass, or a few numpy calls for all short segments together)
+    return _noise_sigma_from(stats.sums_of(_noise_segments(session), instrument, full=True),
+                             session.geometries[instrument].n, instrument)
+
+
+def _noise_sigma_from(sums: Sequence[Any], n: int, instrument: str) -> np.ndarray:
+    """:func:`estimate_noise_sigma` from the :class:`~rimu.session.SegmentSums` of its segments."""
+    parts = [st.diff for st in sums]
+    used = [ss for ss, dof in parts if dof]
+    cnt = sum(dof for _, dof in parts)
     if cnt == 0:
         raise IdentifiabilityError(f"{instrument}: no segment has enough samples to estimate the noise level")
+    acc = np.add.reduce(np.array(used), axis=0)  # row by row: the segments' sums added in turn
     sig = np.sqrt(acc / cnt / 2.0)
-    if np.any(sig <= 0):
+    if np.logical_or.reduce(sig <= 0):
         sig = np.where(sig > 0, sig, np.max(sig) if np.max(sig) > 0 else 1.0)
     return sig
+
+
+_DEAD_SENSOR = ("a sensor's output does not respond to its input (zero scale-misalignment vector): a dead sensor or "
+                "an unconnected channel; remove it from the geometry")
+_LSQ_KERNELS: list = []
+
+
+def _lsq_kernel(backend: str | None) -> Any:
+    """The compiled base-model kernel (:mod:`rimu.calibration._lsq_kernels`) where numba is loaded in the process
+    already and the backend allows it, or numba is asked for by name; else None
+    (:func:`rimu._backend.resolve_loaded`: no calibration pays for importing numba unasked)."""
+    if _resolve_loaded(backend, lambda: import_once(_LSQ_KERNELS, "rimu.calibration._lsq_kernels") is not None,
+                       "the compiled least-squares kernel") != "numba":
+        return None
+    return import_once(_LSQ_KERNELS, "rimu.calibration._lsq_kernels")
+
+
+def _noise_segments(session: Session) -> list[Segment]:
+    """The segments :func:`estimate_noise_sigma` reads: the static ones, or every segment where none is."""
+    return [s for s in session.segments if s.kind in ("static", "static_unknown")] or list(session.segments)
+
+
+def _is_turn(seg: Segment, inst: str) -> bool:
+    """Whether the base model reads ``seg`` of ``inst`` as one integrated row (a gyro's turn of known angle)."""
+    return inst == "gyro" and seg.kind == "angle" and seg.n_samples > 1
 
 
 def segment_residuals(model: ErrorModel, ctx: SensorContext, segments: Sequence[Segment], beta: np.ndarray,
@@ -124,7 +154,7 @@ def _input_form(ctx: SensorContext, seg: Segment) -> tuple[str | None, Any]:
     segment turning at a constant rate with known attitude (:class:`~rimu.session.RotationMoments`);
     ``("samples", u (N, 3))`` for an input given sample by sample; ``(None, None)`` when it is not known."""
     w = seg.table_rate()
-    turning = bool(np.any(w))
+    turning = seg.rate_mb is not None and bool(np.any(w))
     if ctx.instrument == "gyro":
         if seg.kind not in ("rate", "static"):
             return None, None
@@ -342,16 +372,21 @@ class LeastSquares:
         Default: every instrument of the session.
     segments : sequence of str, optional
         Labels of the segments to use (default all).
+    backend : {"auto", "numpy", "numba"}, optional
+        Implementation of the one pass over a long segment's samples (sums, squares, first differences;
+        :class:`~rimu.session.SessionStatistics`, :mod:`rimu._backend`). Default: ``RIMU_BACKEND``, else auto.
     """
 
     method = "lsq"
 
     def __init__(self, model: ErrorModel | None = None, sigma: dict[str, Any] | None = None,
-                 instruments: Sequence[str] | None = None, segments: Sequence[str] | None = None) -> None:
+                 instruments: Sequence[str] | None = None, segments: Sequence[str] | None = None,
+                 backend: str | None = None) -> None:
         self.model = model
         self.sigma = sigma
         self.instruments = instruments
         self.segments = segments
+        self.backend = backend
 
     def fit(self, session: Session) -> CalibrationResult:
         """Fit every instrument. Raises IdentifiabilityError naming what the segments cannot identify."""
@@ -359,41 +394,53 @@ class LeastSquares:
         insts = list(self.instruments or session.instruments)
         segs = [session.segment(x) for x in self.segments] if self.segments is not None else list(session.segments)
         base_only = all(e.name in ("bias", "scale_misalignment") for e in model.effects)
+        base = [e.name for e in model.effects] == ["scale_misalignment", "bias"]
         out: dict[str, LsqResult] = {}
         notes: list[str] = []
-        sstats = SessionStatistics(session)  # each segment's sums and rotation moments once for every instrument
+        # each segment's sums (with their squares and first differences, in one pass) and rotation moments once for
+        # every instrument and step of the fit
+        sstats = SessionStatistics(session, self.backend)
+        if base:  # every sensor of every instrument at once (one G per instrument, array operations)
+            per = []
+            noise = _noise_segments(session)
+            for inst in insts:
+                ctxs = contexts(session, inst)
+                forms = [_input_form(ctxs[0], seg) for seg in segs]
+                # the sums, squares and first differences of every segment the noise level and the fit read, the
+                # short ones together in a few numpy calls
+                need = {id(x): x for x in noise}
+                need.update((id(x), x) for x, (kind, _) in zip(segs, forms) if kind is not None or _is_turn(x, inst))
+                sums = dict(zip(need, sstats.sums_of(list(need.values()), inst, full=True)))
+                if self.sigma is not None and self.sigma.get(inst) is not None:
+                    sig = _sigma_for(self.sigma, session, inst, sstats)
+                else:
+                    sig = _noise_sigma_from([sums[id(x)] for x in noise], ctxs[0].geometry.n, inst)
+                skipped = {}
+                stats = self._base_statistics(session, segs, inst, ctxs[0], skipped, sstats, tuple(insts), forms)
+                per.append((inst, ctxs, stats, sig, skipped))
+                if skipped:
+                    notes.append(f"{inst}: segments not used: {sorted(skipped)}")
+            Ginv = self._base_check(model, per)
+            out = self._base_fit(model, per, self.sigma is not None, segs, Ginv, _lsq_kernel(self.backend))
+            return CalibrationResult(f"least squares ({model.label})", out, session.raw_unit, notes)
         for inst in insts:
             sig = _sigma_for(self.sigma, session, inst, sstats)
             skipped: dict[str, str] = {}
-            base = [e.name for e in model.effects] == ["scale_misalignment", "bias"]
             # effects along an axis act on the calibrated axis: fit them there
             axes = first_axes(session, model, inst, segs, sig) if on_calibrated_axes(model) else None
             ctxs = contexts(session, inst, axes=axes)
-            if base:
-                stats = self._base_statistics(session, segs, inst, ctxs[0], skipped, sstats, tuple(insts))
-            if base:  # every sensor of the instrument at once (one G, array operations)
-                out[inst] = self._base_fit(model, ctxs, stats, sig, self.sigma is not None, inst, segs, skipped)
-                if skipped:
-                    notes.append(f"{inst}: segments not used: {sorted(skipped)}")
-                continue
             fits = []
             for ctx in ctxs:
                 names = model.parameter_names(ctx)
-                if base:
-                    G, h, q, n_obs, labels, makers = stats[0], stats[1][:, ctx.index], stats[2][ctx.index], stats[3], \
-                        stats[4], {lab: _base_residual(seg, inst, ctx, u) for lab, seg, u in stats[5]}
-                else:
-                    G, h, q, n_obs, labels, makers = self._model_statistics(segs, inst, ctx, model, base_only,
-                                                                            skipped)
+                G, h, q, n_obs, labels, makers = self._model_statistics(segs, inst, ctx, model, base_only, skipped)
                 if not labels:
                     raise IdentifiabilityError(f"{inst}: no segment carries the inputs the model {model.label} needs",
                                                model.parameter_names(ctx))
-                if not base or ctx is ctxs[0]:  # the base model's G is every sensor's: checked and inverted once
-                    try:
-                        check_identifiable_gram(G, n_obs, names, inst)
-                    except IdentifiabilityError as exc:
-                        raise IdentifiabilityError(str(exc), _physical_names(model, ctx, exc.parameters)) from None
-                    Ginv = np.linalg.inv(G)
+                try:
+                    check_identifiable_gram(G, n_obs, names, inst)
+                except IdentifiabilityError as exc:
+                    raise IdentifiabilityError(str(exc), _physical_names(model, ctx, exc.parameters)) from None
+                Ginv = np.linalg.inv(G)
                 beta = Ginv @ h
                 rss = rss_from_statistics(q, h, G, beta)
                 res = LazyResiduals({lab: _bind(mk, beta) for lab, mk in makers.items()})
@@ -407,73 +454,127 @@ class LeastSquares:
                 notes.append(f"{inst}: segments not used: {sorted(skipped)}")
         return CalibrationResult(f"least squares ({model.label})", out, session.raw_unit, notes)
 
+    @staticmethod
+    def _base_check(model: ErrorModel, per: list[tuple]) -> np.ndarray:
+        """Refuse the first instrument (in order) whose base statistics identify no parameter set: no usable
+        segment, or a Gram matrix with a direction the segments do not excite
+        (:func:`~rimu.calibration.lsq.check_identifiable_gram`), naming the physical parameters involved. Returns
+        every instrument's ``G^-1`` (K, 4, 4), one call for all.
+
+        The check's criterion is an eigenvalue of the scaled Gram matrix ``S = D^-1 G D^-1`` (unit diagonal) below
+        1e-12 of the largest. ``tr S = 4`` bounds the largest from above and ``1 / tr S^-1`` the smallest from
+        below, and ``S^-1 = D G^-1 D`` comes from the inverse the fit needs anyway: where ``1 / tr S^-1 > 4e-12``
+        no eigenvalue can fail, and only otherwise are the eigenvalues computed (by the check itself, which names
+        the parameters)."""
+        G = np.stack([st[0] for _, _, st, _, _ in per])
+        try:
+            Ginv = np.linalg.inv(G)
+            # tr S^-1 = sum_i G_ii (G^-1)_ii; a zero column (G_ii = 0) makes G singular: an error, inf or nan here
+            tr = np.einsum("kii,kii->k", Ginv, G)
+            ok = (tr > 0.0) & (tr * 4e-12 < 1.0)  # (an inverse of a Gram matrix has a positive diagonal)
+        except np.linalg.LinAlgError:  # exactly singular: the check below names what is missing
+            Ginv, ok = None, np.zeros(len(per), dtype=bool)
+        for k, (inst, ctxs, st, _, _) in enumerate(per):
+            if st[4] and st[3] >= G.shape[1] and ok[k]:
+                continue
+            names = model.parameter_names(ctxs[0])
+            if not st[4]:
+                raise IdentifiabilityError(f"{inst}: no segment carries the inputs the model {model.label} needs",
+                                           names)
+            try:
+                check_identifiable_gram(st[0], st[3], names, inst)
+            except IdentifiabilityError as exc:
+                raise IdentifiabilityError(str(exc), _physical_names(model, ctxs[0], exc.parameters)) from None
+        if Ginv is None:  # (singular, yet not refused: cannot happen, the check refuses a rank-deficient G)
+            Ginv = np.linalg.inv(G)
+        return Ginv
 
     @staticmethod
-    def _base_fit(model: ErrorModel, ctxs: list[SensorContext], stats: tuple, sig: np.ndarray, sigma_known: bool,
-                  inst: str, segs: list[Segment], skipped: dict[str, str]) -> LsqResult:
-        """The base model (scale/misalignment + bias) of every sensor of ``inst`` from the shared statistics, as
-        array operations over the sensors: ``B = G^-1 H`` (4, n), the residual sums of squares from the statistics,
-        and the physical values with their Jacobian (:func:`~rimu.calibration.lsq.physical_from_beta` and
+    def _base_fit(model: ErrorModel, per: list[tuple], sigma_known: bool, segs: list[Segment],
+                  Ginv_k: np.ndarray | None = None, kern: Any = None) -> dict[str, LsqResult]:
+        """The base model (scale/misalignment + bias) of every sensor of every instrument from the shared
+        statistics (``per``: instrument, contexts, statistics, noise level, skipped segments; each checked by
+        :meth:`_base_check`), as array operations over all the sensors at once: ``B = G^-1 H`` (4, n) per
+        instrument, the residual sums of squares from the statistics, and the physical values with their Jacobian
+        (:func:`~rimu.calibration.lsq.physical_from_beta` and
         :meth:`~rimu.calibration.effects.scale_misalignment.ScaleMisalignment.physical`, Cho & Park 2005, Eq. 10:
-        ``SF = 1/|w|``, ``m = C w/|w|``, ``b = c SF``) for all sensors at once. The same numbers as the per-sensor
-        path (:func:`make_sensor_fit`, to rounding; tested to 1e-12)."""
-        G, H, q, n_obs, labels, parts = stats
-        ctx0 = ctxs[0]
-        if not labels:
-            raise IdentifiabilityError(f"{inst}: no segment carries the inputs the model {model.label} needs",
-                                       model.parameter_names(ctx0))
-        try:
-            check_identifiable_gram(G, n_obs, model.parameter_names(ctx0), inst)
-        except IdentifiabilityError as exc:
-            raise IdentifiabilityError(str(exc), _physical_names(model, ctx0, exc.parameters)) from None
-        Ginv = np.linalg.inv(G)
-        B = Ginv @ H  # (4, n): w_x, w_y, w_z, c of every sensor
-        rss = np.maximum(q - 2.0 * np.einsum("pn,pn->n", B, H) + np.einsum("pn,pn->n", B, G @ B), 0.0)
-        W = np.ascontiguousarray(B[:3].T)
-        nw = np.sqrt(np.einsum("ni,ni->n", W, W))
-        if not np.all(nw > 0):
-            raise IdentifiabilityError("a sensor's output does not respond to its input (zero scale-misalignment "
-                                       "vector): a dead sensor or an unconnected channel; remove it from the geometry")
-        geo = ctx0.geometry
-        EC = geo.off_axis_projections()  # (n, 2, 3): E_i C_i, a constant of the geometry
-        U = W / nw[:, None]
-        sf = 1.0 / nw
-        p = len(ctxs)
-        J = np.zeros((p, 4, 4))
-        d_sf = -W * (sf**3)[:, None]
-        J[:, 0, :3] = d_sf
-        d_u = (np.eye(3)[None] - U[:, :, None] * U[:, None, :]) * sf[:, None, None]
-        J[:, 1:3, :3] = EC @ d_u
-        J[:, 3, 3] = sf
-        J[:, 3, :3] = B[3][:, None] * d_sf
-        theta = np.empty((p, 4))
-        theta[:, 0] = sf
-        theta[:, 1:3] = np.einsum("nij,nj->ni", EC, U)
-        theta[:, 3] = B[3] * sf
+        ``SF = 1/|w|``, ``m = C w/|w|``, ``b = c SF``). The same numbers as the per-sensor path
+        (:func:`make_sensor_fit`, to rounding; tested to 1e-12)."""
+        if Ginv_k is None:  # (K, 4, 4): one call for all
+            Ginv_k = np.linalg.inv(np.stack([st[0] for _, _, st, _, _ in per]))
+        def cat(xs: list, axis: int = 0) -> np.ndarray:
+            return np.concatenate(xs, axis=axis) if len(xs) > 1 else xs[0]
+
+        EC = cat([ctxs[0].geometry.off_axis_projections() for _, ctxs, _, _, _ in per])  # (p, 2, 3): E_i C_i
+        H = cat([st[1] for _, _, st, _, _ in per], 1)
+        q, sig = cat([st[2] for _, _, st, _, _ in per]), cat([x[3] for x in per])
         s2 = sig**2
-        tcov = (J @ Ginv @ J.transpose(0, 2, 1)) * s2[:, None, None]
-        chi2 = rss / s2
-        effs = model.effects_for(ctx0)
-        by_label = {lab: (seg, u) for lab, seg, u in parts}
-        fits = []
-        for ctx in ctxs:
-            i = ctx.index
-            r = float(rss[i])
-            res = LazyResiduals(labels=by_label, compute=partial(_base_residual_of, by_label, inst, ctx, B[:, i]))
-            if r < 1e-8 * q[i]:  # cancellation in the statistics: an exact second pass
-                r = sum(float(np.sum(res[lab] ** 2)) for lab in res)
-                chi2[i] = r / s2[i]
-            names = [f"{ctx.name}.{x.name}" for e in effs for x in e.parameters(ctx)]
-            specs = [x for e in effs for x in e.physical_parameters(ctx)]
-            fits.append(SensorFit(ctx, names, B[:, i].copy(), s2[i] * Ginv, [f"{ctx.name}.{x.name}" for x in specs],
-                                  specs, theta[i], tcov[i], float(sig[i]), sigma_known, int(n_obs),
-                                  float(chi2[i]) * float(s2[i]), res))
-        return LsqResult(inst, model, fits, [x.label for x in segs if x.label not in skipped], skipped)
+        if kern is not None:  # numba loaded: every sensor's numbers in one compiled call (the same to rounding)
+            p = H.shape[1]
+            Bt, theta, rss = np.empty((p, 4)), np.empty((p, 4)), np.empty(p)
+            tcov, beta_cov = np.empty((p, 4, 4)), np.empty((p, 4, 4))
+            which = np.repeat(np.arange(len(per)), [len(x[1]) for x in per])
+            G = np.stack([st[0] for _, _, st, _, _ in per])
+            if not kern.base_solve(Ginv_k, G, H, q, s2, which, EC, Bt, theta, tcov, beta_cov, rss):
+                raise IdentifiabilityError(_DEAD_SENSOR)
+        else:
+            Bs, GB = [], []
+            for k, (_, _, st, _, _) in enumerate(per):
+                Bk = Ginv_k[k] @ st[1]  # (4, n_k): w_x, w_y, w_z, c of every sensor of instrument k
+                Bs.append(Bk)
+                GB.append(st[0] @ Bk)
+            B, GB = cat(Bs, 1), cat(GB, 1)
+            Gi = Ginv_k[np.repeat(np.arange(len(per)), [len(x[1]) for x in per])]  # (p, 4, 4): each sensor's G^-1
+            rss = np.maximum(q - 2.0 * np.einsum("pn,pn->n", B, H) + np.einsum("pn,pn->n", B, GB), 0.0)
+            W = np.ascontiguousarray(B[:3].T)
+            nw = np.sqrt(np.einsum("ni,ni->n", W, W))
+            if not np.all(nw > 0):
+                raise IdentifiabilityError(_DEAD_SENSOR)
+            U = W / nw[:, None]
+            sf = 1.0 / nw
+            p = W.shape[0]
+            J = np.zeros((p, 4, 4))
+            d_sf = -W * (sf**3)[:, None]
+            J[:, 0, :3] = d_sf
+            d_u = (np.eye(3)[None] - U[:, :, None] * U[:, None, :]) * sf[:, None, None]
+            J[:, 1:3, :3] = EC @ d_u
+            J[:, 3, 3] = sf
+            J[:, 3, :3] = B[3][:, None] * d_sf
+            theta = np.empty((p, 4))
+            theta[:, 0] = sf
+            theta[:, 1:3] = np.einsum("nij,nj->ni", EC, U)
+            theta[:, 3] = B[3] * sf
+            tcov = (J @ Gi @ J.transpose(0, 2, 1)) * s2[:, None, None]
+            beta_cov = s2[:, None, None] * Gi
+            Bt = np.ascontiguousarray(B.T)
+        small = (rss < 1e-8 * q).tolist()
+        sig_l, s2_l, chi2_l = sig.tolist(), s2.tolist(), (rss / s2).tolist()
+        out: dict[str, LsqResult] = {}
+        a = 0
+        for inst, ctxs, st, _, skipped in per:
+            n_obs, parts = int(st[3]), st[5]
+            effs = model.effects_for(ctxs[0])
+            local = [x.name for e in effs for x in e.parameters(ctxs[0])]  # w_x, w_y, w_z, bias: every sensor's
+            by_label = {lab: (seg, u) for lab, seg, u in parts}
+            fits = []
+            for ctx in ctxs:
+                i = a + ctx.index
+                name = ctx.name
+                res = LazyResiduals(labels=by_label, compute=partial(_base_residual_of, by_label, inst, ctx, Bt[i]))
+                if small[i]:  # cancellation in the statistics: an exact second pass
+                    chi2_l[i] = sum(float(np.sum(res[lab] ** 2)) for lab in res) / s2_l[i]
+                specs = _base_physical_specs(effs, ctx)
+                fits.append(SensorFit(ctx, [f"{name}.{x}" for x in local], Bt[i], beta_cov[i],
+                                      [f"{name}.{x.name}" for x in specs], specs, theta[i], tcov[i], sig_l[i],
+                                      sigma_known, n_obs, chi2_l[i] * s2_l[i], res))
+            a += len(ctxs)
+            out[inst] = LsqResult(inst, model, fits, [x.label for x in segs if x.label not in skipped], skipped)
+        return out
 
     @staticmethod
     def _base_statistics(session: Session, segs: list[Segment], inst: str, ctx0: SensorContext,
                          skipped: dict[str, str], sstats: SessionStatistics | None = None,
-                         instruments: tuple[str, ...] = ()) -> tuple:
+                         instruments: tuple[str, ...] = (), forms: list | None = None) -> tuple:
         """Sufficient statistics of the base model for every sensor of ``inst`` at once: the known input u of a
         segment is the same for all of them, so ``X = [u, 1]`` and ``X^T X`` are shared, ``X^T Y`` is one
         product for all sensors. Every term comes from the segment's sums (:class:`~rimu.session.SessionStatistics`):
@@ -482,22 +583,24 @@ class LeastSquares:
         ``B^T B`` and ``B^T Y`` (``X^T X = Q^T (B^T B) Q``, ``X^T Y = Q^T (B^T Y)``, ``Q = [P, e_1]``); only an input
         given sample by sample (``specific_force_mb`` of shape (N, 3)) is built per sample."""
         sstats = sstats or SessionStatistics(session)
+        n = session.geometries[inst].n
         G = np.zeros((4, 4))
-        H = np.zeros((4, session.geometries[inst].n))
-        q = np.zeros(session.geometries[inst].n)
+        H = np.zeros((4, n))
+        q = np.zeros(n)
         n_obs, labels, parts = 0, [], []
         rows, weights, totals = [], [], []  # rows of one input for all samples (static positions) and angle rows
-        for seg in segs:
-            kind, u = _input_form(ctx0, seg)
+        forms = forms or [_input_form(ctx0, seg) for seg in segs]  # (``forms``: these, known already)
+        qs = [q]  # the sums of squares of the sensors' outputs, added in the order of the segments
+        for seg, (kind, u) in zip(segs, forms):
             if kind is None:
-                if seg.kind == "angle" and inst == "gyro" and seg.n_samples > 1:
+                if _is_turn(seg, inst):
                     st = sstats.sums(seg, inst)
-                    x = _angle_row(seg, ErrorModel.base(), ctx0)[0]
-                    yv = st.total / np.sqrt(seg.n_samples)
+                    x = _base_angle_row(seg)
+                    yv = st.total / math.sqrt(st.n)
                     rows.append(x)
                     weights.append(1.0)
                     totals.append(yv)
-                    q += yv**2
+                    qs.append(yv**2)
                     n_obs += 1
                     labels.append(seg.label)
                     parts.append((seg.label, seg, ("angle", x, yv)))
@@ -505,12 +608,17 @@ class LeastSquares:
                     skipped[seg.label] = "the segment lacks inputs an effect needs (known rate, attitude or angle)"
                 continue
             st = sstats.sums(seg, inst)
-            N = seg.n_samples
+            N = st.n
             if kind == "constant":  # one input for every sample (a static position): N x x^T, x total^T
-                rows.append((u[0], u[1], u[2], 1.0))
+                rows.append((*u.tolist(), 1.0))
                 weights.append(N)
                 totals.append(st.total)
-            elif kind == "basis":  # u = B P on a turning segment: from the moments of its angle
+                qs.append(st.sumsq)
+                n_obs += N
+                labels.append(seg.label)
+                parts.append((seg.label, seg, None))
+                continue
+            if kind == "basis":  # u = B P on a turning segment: from the moments of its angle
                 rm = sstats.rotation(seg)
                 Q = np.zeros((3, 4))
                 Q[:, :3] = u
@@ -521,10 +629,11 @@ class LeastSquares:
                 X = np.column_stack([u, np.ones(N)])
                 G += X.T @ X
                 H += X.T @ seg.raw[inst]
-            q += st.sumsq
+            qs.append(st.sumsq)
             n_obs += N
             labels.append(seg.label)
             parts.append((seg.label, seg, None))
+        q = np.add.reduce(np.array(qs), axis=0) if len(qs) > 1 else q  # (row by row, as q += each in turn)
         if rows:  # every such segment's terms in two products
             X = np.array(rows, dtype=float)
             G += (X.T * np.array(weights, dtype=float)) @ X
@@ -622,6 +731,32 @@ def _angle_row(seg: Segment, model: ErrorModel, ctx: SensorContext) -> np.ndarra
         elif e.name == "bias":
             row.append(seg.n_samples * dt)
     return np.array(row)[None, :] / (dt * np.sqrt(seg.n_samples))
+
+
+def _base_angle_row(seg: Segment) -> np.ndarray:
+    """:func:`_angle_row` of the base model (scale/misalignment, then bias): ``[angle, N dt] / (dt sqrt(N))``
+    (in Python floats: the same IEEE operations, without four numpy calls)."""
+    N = seg.n_samples
+    dt = seg.duration / (N - 1)
+    w = dt * math.sqrt(N)
+    a = (seg.angle_mb if seg.angle_mb.ndim == 1 else seg.angle_mb[-1]).tolist()
+    return np.array([a[0] / w, a[1] / w, a[2] / w, N * dt / w])
+
+
+#: physical parameters of the base model per (effect types, instrument, off-axis names): ParamSpec is frozen, so
+#: every fit shares these few lists instead of making 4 per sensor
+_BASE_SPECS: dict[tuple, list] = {}
+
+
+def _base_physical_specs(effs: Sequence[Any], ctx: SensorContext) -> list:
+    """The physical parameters of the base model's ``effs`` (scale/misalignment, bias) for one sensor: what their
+    :meth:`~rimu.calibration.model.Effect.physical_parameters` give, which depends only on the instrument and the
+    names of the sensor's off-axis basis."""
+    key = (tuple(type(e) for e in effs), ctx.instrument, ctx.geometry.off_axis_basis(ctx.index)[1])
+    specs = _BASE_SPECS.get(key)
+    if specs is None:
+        specs = _BASE_SPECS[key] = [x for e in effs for x in e.physical_parameters(ctx)]
+    return specs
 
 
 def _sigma_for(sigma: dict[str, Any] | None, session: Session, inst: str,

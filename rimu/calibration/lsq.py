@@ -122,26 +122,17 @@ class LsqResult:
     def _base_calibration(self, g: "object") -> InstrumentCalibration:
         """:meth:`to_calibration` of the base model (every sensor's theta is scale, two misalignment angles, bias;
         beta is w_x, w_y, w_z, c), as array operations over the sensors: the same numbers as the per-sensor path."""
-        n = len(self.sensors)
-        order = [s.ctx.index for s in self.sensors]
-        theta = np.empty((n, 4))
-        W = np.empty((n, 3))
-        sig = np.empty(n)
-        names: list[str] = []
-        cov = np.zeros((4 * n, 4 * n))
-        for k, s in enumerate(sorted(self.sensors, key=lambda s: s.ctx.index) if order != list(range(n))
-                              else self.sensors):
-            theta[k] = s.theta
-            W[k] = s.beta[:3]
-            sig[k] = s.sigma
-            names += s.theta_names
-            cov[4 * k:4 * k + 4, 4 * k:4 * k + 4] = s.theta_cov
-        if order != list(range(n)):  # the covariance follows the sensors' order in the result
-            names, cov = [], _block_diag([s.theta_cov for s in self.sensors])
-            for s in self.sensors:
-                names += s.theta_names
+        sensors = self.sensors
+        n = len(sensors)
+        order = [s.ctx.index for s in sensors]
+        ordered = sensors if order == list(range(n)) else sorted(sensors, key=lambda s: s.ctx.index)
+        theta = np.array([s.theta for s in ordered])  # (n, 4)
+        W = np.array([s.beta[:3] for s in ordered])
+        sig = np.array([s.sigma for s in ordered])
+        names = [x for s in sensors for x in s.theta_names]  # the covariance follows the sensors' order
+        cov = _block_diag([s.theta_cov for s in sensors])
         scale = theta[:, 0]
-        C = np.stack([g.subunit_of(i).mat_sb_mb for i in range(n)])  # type: ignore[attr-defined]
+        C = g.subunit_rotations()  # type: ignore[attr-defined]
         mis = np.einsum("nij,nj->ni", C, W / np.sqrt(np.einsum("ni,ni->n", W, W))[:, None])
         return InstrumentCalibration(self.instrument, g, scale, mis, theta[:, 3], sig * scale, cov, names, {})  # type: ignore[arg-type]
 
@@ -373,7 +364,8 @@ class LazyResiduals(Mapping):
                  labels: Iterable[str] = (), compute: Callable[[str], np.ndarray] | None = None) -> None:
         self._makers: dict[str, Callable[[], np.ndarray]] = dict(makers or {})
         #: segments whose residual is ``compute(label)`` (one function for all of them: no closure per segment)
-        self._labels: tuple[str, ...] = tuple(k for k in labels if k not in self._makers) if compute else ()
+        self._labels: tuple[str, ...] = ((tuple(k for k in labels if k not in self._makers) if self._makers
+                                          else tuple(labels)) if compute else ())
         self._compute = compute
         self._given: dict[str, np.ndarray] = {}
 

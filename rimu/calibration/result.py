@@ -109,23 +109,25 @@ class InstrumentCalibration:
         m = np.array(self.misalignment, dtype=float)
         if m.shape != (n, 3):
             raise ShapeError(f"misalignment must have shape ({n}, 3), got {m.shape}")
-        if not np.isfinite(m).all():
+        if not _all(np.isfinite(m), axis=None):
             raise ShapeError("misalignment has non-finite entries")
         norms = np.sqrt(np.einsum("ij,ij->i", m, m))
-        if (np.abs(norms - 1.0) > 1e-3).any():
-            i = int(np.argmax(np.abs(norms - 1.0)))
+        dev = np.abs(norms - 1.0)
+        if _any(dev > 1e-3):
+            i = int(np.argmax(dev))
             raise ShapeError(
                 f"misalignment row {i} ({self.geometry.names[i]}) has norm {norms[i]:.6f}; rows are unit vectors "
                 "(Cho & Park Eq. 10). Normalise it, moving the norm into the scale factor"
             )
-        off = np.abs(norms - 1.0) > 4e-16
-        m[off] /= norms[off, None]
+        off = dev > 4e-16
+        if _any(off):
+            m[off] /= norms[off, None]
         self.misalignment = m
-        if (self.scale == 0).any():
+        if _any(self.scale == 0):
             raise ShapeError("a scale factor is zero; the sensor's output would carry no information")
         if self.noise_sigma is not None:
             self.noise_sigma = _vec(self.noise_sigma, n, "noise_sigma")
-            if np.any(self.noise_sigma <= 0):
+            if _any(self.noise_sigma <= 0):
                 raise ShapeError("noise_sigma must be positive")
         if self.noise_period_s is not None:
             self.noise_period_s = float(self.noise_period_s)
@@ -439,10 +441,15 @@ class Calibration:
             raise CalibrationFileError(f"{source}: malformed calibration content ({exc!r})") from exc
 
 
+#: ``x.all()`` and ``x.any()`` of a boolean array as the ufunc reductions themselves (numpy's methods add a Python
+#: layer: the validation of a result is a handful of these)
+_all, _any = np.logical_and.reduce, np.logical_or.reduce
+
+
 def _vec(v: Any, n: int, name: str) -> np.ndarray:
     a = np.asarray(v, dtype=float)
     a = a.copy() if a.shape == (n,) else np.array(np.broadcast_to(a, (n,)), dtype=float)
-    if not np.isfinite(a).all():
+    if not _all(np.isfinite(a), axis=None):
         raise ShapeError(f"{name} has non-finite entries: {a.tolist()}")
     return a
 

@@ -65,6 +65,12 @@ def add_tracker_options(p: argparse.ArgumentParser, prefix: str = "") -> None:
     p.add_argument(f"--{prefix}scale-rw", type=positive_float, default=(200e-6) ** 2 / 7200.0,
                    help="relative scale random-walk intensity, 1/s (default: 200 ppm in 2 h)")
     p.add_argument(f"--{prefix}no-scale", action="store_true", help="do not track the scale")
+    p.add_argument(f"--{prefix}bias-sigma0", type=nonnegative_float, default=0.0,
+                   help="1-sigma of each bias's error when tracking starts, SI (default 0: the calibration is taken "
+                        "as true at the start; give its stated uncertainty to let the tracker correct it)")
+    p.add_argument(f"--{prefix}scale-sigma0", type=nonnegative_float, default=0.0,
+                   help="1-sigma of each relative scale's error when tracking starts, 1 (e.g. 1e-3 for 1000 ppm; "
+                        "default 0)")
     p.add_argument(f"--{prefix}temperature-orders", type=positive_int, default=2, choices=[1, 2, 3],
                    help="orders of the bias temperature coefficients tracked when the data have a temperature "
                         "(default %(default)s)")
@@ -121,8 +127,8 @@ def tracker_settings(args: argparse.Namespace, cal: Any, inst: str, has_temperat
             vals = list(_TC_DEFAULT[inst])
         tsig = tuple(vals[:orders])
     extra = {"hold_s": opt("hold"), "guard_s": opt("guard") or None} if prefix else {}
-    return SelfCalSettings(bias_rw=q, scale_rw=None if opt("no-scale") else opt("scale-rw"), scale_sigma0=0.0,
-                           temperature_sigma=tsig, window_s=opt("window"), gate_p=opt("gate"), **extra)
+    return SelfCalSettings(bias_rw=q, scale_rw=None if opt("no-scale") else opt("scale-rw"), bias_sigma0=opt("bias-sigma0"),
+                           scale_sigma0=opt("scale-sigma0"), temperature_sigma=tsig, window_s=opt("window"), gate_p=opt("gate"), **extra)
 
 
 def print_terms(inst: str, trk: Any, terms: dict[str, tuple[np.ndarray, np.ndarray]], indent: str = "  "

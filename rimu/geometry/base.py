@@ -69,6 +69,10 @@ class SubUnit:
         return bool(np.linalg.det(self.mat_sb_mb) > 0)
 
 
+#: derived constants of geometries by content (H and the sub-units' rotations and members; :meth:`Geometry._constants`)
+_CONSTANTS: dict[tuple, dict] = {}
+
+
 class Geometry:
     """Sensing axes of a set of single-axis sensors, in the MB frame.
 
@@ -181,14 +185,15 @@ class Geometry:
 
     def nominal_rows(self) -> np.ndarray:
         """Nominal misalignment rows, shape (n, 3): each axis in its sub-unit's basis (unit vectors)."""
-        rows = self.__dict__.get("_nominal_rows")
+        const = self._constants()
+        rows = const.get("nominal_rows")
         if rows is None:  # a constant of the geometry: computed once (calibration asks for it per sensor and fit)
             rows = np.empty((self.n, 3))
             for su in self._subunits:
                 for i in su.members:
                     rows[i] = su.mat_sb_mb @ self._H[i]
             rows.setflags(write=False)
-            self._nominal_rows = rows
+            const["nominal_rows"] = rows
         return rows.copy()
 
     def off_axis_basis(self, i: int) -> tuple[np.ndarray, tuple[str, str]]:
@@ -198,7 +203,7 @@ class Geometry:
         sensor (small angles, rad). Where the nominal row is a basis axis (a triad), they are the other two
         axes and are named after them, as in Cho & Park's ``m_xy``, ``m_xz``; otherwise ``mis_1, mis_2``.
         """
-        cache = self.__dict__.setdefault("_off_axis", {})
+        cache = self._constants().setdefault("off_axis", {})
         if i not in cache:  # a constant of the geometry: computed once per sensor
             E, names = self._off_axis_basis(i)
             E.setflags(write=False)
@@ -209,16 +214,42 @@ class Geometry:
         """``E_i C_i`` of every sensor, (n, 2, 3), read-only: its off-axis basis (:meth:`off_axis_basis`) times its
         sub-unit's rotation from MB, so that ``(E_i C_i) a`` are the misalignment components of an MB axis ``a``
         (Cho & Park 2005, Eq. 10). A constant of the geometry, computed once."""
-        P = self.__dict__.get("_off_axis_mb")
+        const = self._constants()
+        P = const.get("off_axis_mb")
         if P is None:
             P = np.stack([self.off_axis_basis(i)[0] @ self.subunit_of(i).mat_sb_mb for i in range(self.n)])
             P.setflags(write=False)
-            self._off_axis_mb = P
+            const["off_axis_mb"] = P
         return P
+
+    def subunit_rotations(self) -> np.ndarray:
+        """``mat_sb_mb`` of every sensor's sub-unit, (n, 3, 3), read-only: a constant of the geometry, computed once."""
+        const = self._constants()
+        C = const.get("subunit_rotations")
+        if C is None:
+            C = np.stack([self.subunit_of(i).mat_sb_mb for i in range(self.n)])
+            C.setflags(write=False)
+            const["subunit_rotations"] = C
+        return C
+
+    def _constants(self) -> dict:
+        """The derived constants of this geometry (nominal rows, off-axis bases, ...), shared by every Geometry of
+        the same axes and sub-units in the process (:data:`_CONSTANTS`): a loader that builds its unit's geometry
+        afresh for every file does not compute them again for every fit."""
+        const = self.__dict__.get("_const")
+        if const is None:
+            key = (self._H.tobytes(), tuple((su.mat_sb_mb.tobytes(), tuple(su.members)) for su in self._subunits))
+            const = _CONSTANTS.get(key)
+            if const is None:
+                if len(_CONSTANTS) >= 256:  # many geometries made on the fly (tests, searches): start afresh
+                    _CONSTANTS.clear()
+                const = _CONSTANTS[key] = {}
+            self._const = const
+        return const
 
     def _off_axis_basis(self, i: int) -> tuple[np.ndarray, tuple[str, str]]:
         self.nominal_rows()  # (fills the cache)
-        r = self._nominal_rows[i]
+        r = self._constants()["nominal_rows"][i]
         k = int(np.argmax(np.abs(r)))
         if abs(abs(r[k]) - 1.0) < 1e-9:
             others = [a for a in range(3) if a != k]

@@ -31,9 +31,23 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._backend import import_once
+from .._backend import resolve_loaded as _resolve_loaded
 from .model import Segment, Session
 
-__all__ = ["RotationMoments", "SegmentSums", "SessionStatistics", "column_sums"]
+__all__ = ["KERNEL_MIN_SAMPLES", "RotationMoments", "SegmentSums", "SessionStatistics", "column_sums"]
+
+#: without the compiled pass (numba not loaded), segments shorter than this are summed by numpy all together (a few
+#: calls for all of them), longer ones one by one
+KERNEL_MIN_SAMPLES = 2048
+#: at most this many rows of short segments are stacked at once (the stack holds three times as many)
+STACK_ROWS = 1 << 16
+_KERNELS: list = []
+
+
+def _kernels():
+    """The compiled kernel's module (imports numba once), or None without numba."""
+    return import_once(_KERNELS, "rimu.session._kernels")
 
 _ONES = np.ones(0)
 
@@ -120,9 +134,17 @@ class SegmentSums:
             else:
                 d = y[1:] - y[:-1]
                 d *= d
-                m = self.n - 1
-                self._diff = (_ones(m) @ d - (y[-1] - y[0]) ** 2 / m, m - 1)
+                self._diff = _diff_from(_ones(self.n - 1) @ d, y, self.n)
         return self._diff
+
+
+def _diff_from(dd: np.ndarray, y: np.ndarray, n: int) -> tuple[np.ndarray, int]:
+    """:attr:`SegmentSums.diff` from the sums ``dd`` of the squared first differences of ``y`` (n samples): their
+    sum of squared deviations from their mean ``(y[-1] - y[0]) / m`` (``m = n - 1``), and its degrees of freedom."""
+    if n < 3:
+        return np.zeros(y.shape[1]), 0
+    m = n - 1
+    return dd - (y[-1] - y[0]) ** 2 / m, m - 1
 
 
 @dataclass(eq=False)
@@ -167,21 +189,135 @@ class SessionStatistics:
     True
     """
 
-    def __init__(self, session: Session) -> None:
+    def __init__(self, session: Session, backend: str | None = None) -> None:
         self.session = session
+        #: "auto", "numpy" or "numba" (:mod:`rimu._backend`): the compiled pass where numba is loaded already (auto),
+        #: or asked for by name (:func:`rimu._backend.resolve_loaded`)
+        self.backend = backend
+        self._kernel: object = False  # not resolved yet
         self._sums: dict[tuple[int, str], tuple[Segment, SegmentSums]] = {}
         self._rot: dict[int, tuple[Segment, RotationMoments | None]] = {}
 
-    def sums(self, seg: Segment, instrument: str) -> SegmentSums:
-        """The :class:`SegmentSums` of ``instrument`` on ``seg``."""
+    def sums(self, seg: Segment, instrument: str, full: bool = False) -> SegmentSums:
+        """The :class:`SegmentSums` of ``instrument`` on ``seg``; ``full``: with its sums of squares and its
+        first-difference sum computed now, together (one compiled pass over a long segment where numba is
+        installed, :mod:`rimu.session._kernels`; numpy's passes otherwise), not on first use."""
         key = (id(seg), instrument)
         hit = self._sums.get(key)
         if hit is not None and hit[0] is seg:
-            return hit[1]
+            out = hit[1]
+            if full:
+                self._fill(out)
+            return out
         y = seg.raw[instrument]
-        out = SegmentSums(y.shape[0], _ones(y.shape[0]) @ y, y)
+        n = y.shape[0]
+        if full and self._compiled() is not None:
+            m = np.empty((3, y.shape[1]))
+            self._kernel.column_moments(y, m)  # type: ignore[attr-defined]
+            out = SegmentSums(n, m[0], y, m[1], None, (m[2], n - 2) if n >= 3 else (np.zeros(y.shape[1]), 0))
+        else:
+            out = SegmentSums(n, _ones(n) @ y, y)
+            if full:
+                self._fill(out)
         self._sums[key] = (seg, out)
         return out
+
+    def sums_of(self, segs: "list[Segment]", instrument: str, full: bool = False) -> list[SegmentSums]:
+        """:meth:`sums` of each of ``segs``, in order. The short ones not known yet (under
+        :data:`KERNEL_MIN_SAMPLES` samples) are summed together: their samples, squares and squared first
+        differences stacked in one array, every sum of every segment in one ``np.add.reduceat``, so that a session
+        of many short segments costs a few numpy calls, not a few per segment (the per-segment sums to rounding)."""
+        cache = self._sums
+        out: list = []
+        todo = []
+        for seg in segs:
+            hit = cache.get((id(seg), instrument))
+            if hit is not None and hit[0] is seg:
+                if full:
+                    self._fill(hit[1])
+                out.append(hit[1])
+            elif seg.raw[instrument].shape[0] < KERNEL_MIN_SAMPLES:
+                out.append(None)
+                todo.append(seg)
+            else:
+                out.append(self.sums(seg, instrument, full))
+        kern = self._compiled() if full and todo else None
+        if kern is not None:  # numba loaded already: a compiled pass per segment (about 1 us for a short one)
+            for j, seg in enumerate(segs):
+                if out[j] is None:
+                    y = seg.raw[instrument]
+                    n = y.shape[0]
+                    M = np.empty((3, y.shape[1]))
+                    kern.column_moments(y, M)
+                    new = SegmentSums(n, M[0], y, M[1], None, (M[2], n - 2) if n >= 3 else (np.zeros(y.shape[1]), 0))
+                    cache[(id(seg), instrument)] = (seg, new)
+                    out[j] = new
+        elif todo:
+            # a few numpy calls per chunk of at most STACK_ROWS stacked rows (memory: 3 x STACK_ROWS rows at a time)
+            chunk: list[Segment] = []
+            rows = 0
+            for seg in todo + [None]:  # type: ignore[list-item]
+                n = 0 if seg is None else seg.raw[instrument].shape[0]
+                if chunk and (seg is None or rows + n > STACK_ROWS):
+                    self._stacked(chunk, instrument, full)
+                    chunk, rows = [], 0
+                if seg is not None:
+                    chunk.append(seg)
+                    rows += n
+            for j, seg in enumerate(segs):
+                if out[j] is None:
+                    out[j] = cache[(id(seg), instrument)][1]
+        return out
+
+    def _stacked(self, todo: "list[Segment]", instrument: str, full: bool) -> None:
+        """The :class:`SegmentSums` of the short segments ``todo`` (stacked: a few numpy calls for all of them), kept.
+        Rows: the samples, their squares and their squared first differences (zero at each segment's first row);
+        every sum of every segment in one ``np.add.reduceat``."""
+        ys = [seg.raw[instrument] for seg in todo]
+        ns = np.array([y.shape[0] for y in ys], dtype=np.intp)
+        N, m = int(ns.sum()), len(ys)
+        starts = np.zeros(m, dtype=np.intp)
+        np.cumsum(ns[:-1], out=starts[1:])
+        # rows: the samples, their squares, their squared first differences (zero at each segment's first row)
+        Z = np.empty(((3 if full else 1) * N, ys[0].shape[1]))
+        Y = Z[:N]
+        np.concatenate(ys, out=Y)
+        idx = starts
+        if full:
+            np.square(Y, out=Z[N:2 * N])
+            D = Z[2 * N:]
+            np.subtract(Y[1:], Y[:-1], out=D[1:])
+            D[starts] = 0.0
+            np.square(D, out=D)
+            idx = np.concatenate([starts, starts + N, starts + 2 * N])
+        R = np.add.reduceat(Z, idx, axis=0)
+        if full:
+            ends = starts + ns - 1
+            R[2 * m:] -= (Y[ends] - Y[starts]) ** 2 / np.maximum(ns - 1, 1)[:, None]  # (:func:`_diff_from`)
+        for k, (seg, n) in enumerate(zip(todo, ns.tolist())):
+            if not full:
+                new = SegmentSums(n, R[k], ys[k])
+            elif n < 3:
+                new = SegmentSums(n, R[k], ys[k], R[m + k], None, (np.zeros(Y.shape[1]), 0))
+            else:
+                new = SegmentSums(n, R[k], ys[k], R[m + k], None, (R[2 * m + k], n - 2))
+            self._sums[(id(seg), instrument)] = (seg, new)
+
+    def _compiled(self):
+        """The compiled kernel's module, or None: where numba is loaded in the process already and the backend
+        allows it, or the backend asks for numba by name (:func:`rimu._backend.resolve_loaded`: the sums of a
+        calibration never repay importing numba by themselves). Resolved once per object."""
+        if self._kernel is False:
+            name = _resolve_loaded(self.backend, lambda: _kernels() is not None, "the compiled statistics kernel")
+            self._kernel = _kernels() if name == "numba" else None
+        return self._kernel
+
+    @staticmethod
+    def _fill(out: SegmentSums) -> None:
+        """The sums of squares and the first-difference sum of ``out`` by numpy (one temporary at a time), where
+        they are not known yet."""
+        out.sumsq  # noqa: B018 - computed and kept on first use
+        out.diff  # noqa: B018
 
     def mean(self, seg: Segment, instrument: str) -> np.ndarray:
         """Column means of ``instrument`` on ``seg`` (k,)."""

@@ -106,3 +106,48 @@ def hindsight(c: dict, scale: bool = True) -> dict:
     dof = K * r - np.linalg.matrix_rank(X)
     return {"rms": float(np.sqrt(np.mean(res**2))), "dof_corrected": float(np.sqrt(np.sum(res**2) / dof)),
             "se": float(np.sqrt(np.mean(p**2)) / np.sqrt(2 * K * r))}
+
+
+def _regressors(trk, z: np.ndarray, blocks: str) -> np.ndarray:
+    """Per-sample regressors (K, n, p) in sensor space of constant terms of every gyro: biases (``b``), relative
+    scales (``s``: ``a_i . u``, u the fused rate)."""
+    n = trk.n
+    u = z @ trk.G.T
+    cols = []
+    if "b" in blocks:
+        cols.append(np.broadcast_to(np.eye(n), (len(z), n, n)))
+    if "s" in blocks:
+        cols.append(np.einsum("kn,nm->knm", u @ trk.axes.T, np.eye(n)))
+    return np.concatenate(cols, axis=2)
+
+
+def ceiling(c: dict, blocks: str = "b", batches: int = 10) -> dict:
+    """The ceiling of a tracker of constant terms on the second half: the hindsight-optimal constant correction
+    (least squares in the parity space; ``blocks`` "b" biases, "bs" biases and relative scales) and what it gains
+    over the fixed calibration, judged out of sample so that fitting the noise does not count as a gain.
+
+    The second half is cut into ``batches`` contiguous batches; the terms are fitted on all batches but one and
+    the gain (sum of squares of the normalised parity removed) is measured on the one left out. The gains of the
+    batches are summed; their standard error is ``sqrt(B) std(g_j)`` (the batches as independent replicates: the
+    parity's own correlation, vibration and manoeuvres, is inside each batch). For the biases alone the fit is the
+    mean parity of the other batches. Returns the parity rms fixed and at the ceiling (sigma), the ``gain`` (rms
+    fixed minus ceiling, sigma; negative: constant terms fitted on the rest of the half make each batch worse) and
+    its standard error ``se`` (sigma)."""
+    trk, z = c["tracker"], c["z_second"]
+    Vz = trk.parity_rows()
+    p = z @ Vz.T
+    K = p.shape[0]
+    X = np.einsum("rn,knp->krp", Vz, _regressors(trk, z, blocks))
+    idx = np.array_split(np.arange(K), batches)
+    g = np.empty(batches)
+    for j, out in enumerate(idx):
+        fit = np.setdiff1d(np.arange(K), out)
+        th, *_ = np.linalg.lstsq(X[fit].reshape(-1, X.shape[2]), p[fit].reshape(-1), rcond=None)
+        g[j] = np.sum(p[out] ** 2) - np.sum((p[out] - X[out] @ th) ** 2)
+    N = p.size
+    ss0 = float(np.sum(p * p))
+    rms0 = np.sqrt(ss0 / N)
+    rms_c = np.sqrt(max(ss0 - g.sum(), 0.0) / N)
+    se_ss = np.sqrt(batches) * g.std(ddof=1)
+    return {"rms_fixed": float(rms0), "rms": float(rms_c), "gain": float(rms0 - rms_c),
+            "se": float(se_ss / N / (2 * rms0)), "z": float(g.sum() / se_ss)}

