@@ -53,9 +53,16 @@ from .terms import GYRO_TERMS, Signals, Term
 
 __all__ += ["BASE_TERMS", "CANDIDATE_TERMS", "CandidateScore", "RelativeFit", "derivative", "fit_relative_gyro",
             "rank_candidates", "time_shift", "to_array_gauge", "GYRO_TERMS", "Signals", "Term"]
-from .positions import PositionFit, angular_acceleration_check, fit_positions  # noqa: E402
+from .positions import (  # noqa: E402
+    PositionFit,
+    aa_from_accelerometers_refusal,
+    accel_angular_acceleration,
+    angular_acceleration_check,
+    fit_positions,
+)
 
-__all__ += ["PositionFit", "angular_acceleration_check", "fit_positions"]
+__all__ += ["PositionFit", "aa_from_accelerometers_refusal", "accel_angular_acceleration",
+            "angular_acceleration_check", "fit_positions"]
 from .report import ArrayReport, array_report, lowpass  # noqa: E402
 
 __all__ += ["ArrayReport", "array_report", "lowpass"]

@@ -39,7 +39,8 @@ from .relative import (
 )
 from .runtime import angular_acceleration, skew
 
-__all__ = ["PositionFit", "angular_acceleration_check", "fit_positions"]
+__all__ = ["PositionFit", "aa_from_accelerometers_refusal", "accel_angular_acceleration", "angular_acceleration_check",
+           "fit_positions"]
 
 
 @dataclass
@@ -62,7 +63,8 @@ class PositionFit:
         biases removed); ``"positions"`` (lever arms at the estimated positions): rms of each triad's difference
         from the array mean, in motion; ``"accel_angular_acceleration"``: the angular acceleration taken from the
         accelerometers themselves in every sample, not from the gyros' derivative (the centripetal term from the
-        gyros' rate), scaled for the three parameters more per sample (``_rms_parity_accel_aa``).
+        gyros' rate), scaled by leverage to compare like for like (:func:`accel_angular_acceleration`); NaN with
+        fewer than three triads or positions on one line.
     nominal_m : ndarray (k, 3) or None
     iterations : int
     """
@@ -286,23 +288,113 @@ def _cost(z, Kt, D, c, r, wj) -> float:
     return float(np.einsum("k,nka,nka->", wj, e, e))
 
 
-def _rms_parity_accel_aa(f: np.ndarray, omega: np.ndarray, r: np.ndarray, moving: np.ndarray) -> np.ndarray:
-    """Parity rms per triad with the angular acceleration taken from the accelerometers themselves (Skog et al.
-    2016, Sec. II: ``f_j - w x (w x r_j) = s - [r_j x] w'`` solved for ``(s, w')`` in every sample, least squares),
-    the centripetal term from the gyros' rate. Each triad's residual is scaled by ``sqrt((3k - 3) / (3k - 6))``:
-    the three more parameters per sample, so that the figure compares with the steps that fit ``s`` only."""
+def aa_from_accelerometers_refusal(positions_m: np.ndarray) -> "str | None":
+    """Why the angular acceleration cannot be taken from the accelerometers of triads at ``positions_m`` (k, 3),
+    or None when it can: six unknowns per epoch (``s``, ``w'``) need 3k - 6 > 0 parity dof (k >= 3) and positions
+    not on one line (a line leaves the angular acceleration about it unseen)."""
+    r = np.asarray(positions_m, dtype=float)
     k = r.shape[0]
-    if k < 3:  # six unknowns per sample (s, w') from 3k outputs: no parity left with two triads
-        return np.full(k, np.nan)
-    W = skew(omega[moving])
-    g = f[moving] - np.einsum("nab,kb->nka", W @ W, r)
+    if k < 3:
+        return (f"{k} triads: the angular acceleration from the accelerometers has 6 unknowns per epoch and needs "
+                f"3 triads at least (parity dof 3k - 6 = {3 * k - 6})")
+    sv = np.linalg.svd(r - r.mean(axis=0), compute_uv=False)
+    if sv[0] <= 0 or sv[1] < 1e-3 * sv[0]:
+        return ("the triads' positions lie on one line: the angular acceleration about it is not seen by the "
+                "accelerometers")
+    return None
+
+
+def accel_angular_acceleration(f: np.ndarray, omega: np.ndarray, positions_m: np.ndarray,
+                               sigma_m_s2: "float | None" = None) -> dict:
+    """The angular acceleration and specific force per epoch from the accelerometers themselves, and the parity
+    that is left (Skog et al. 2016, Sec. II, the accelerometer-array model with ``w`` from the gyros).
+
+    Model, body frame, triad j at ``r_j`` (relative to the reference point), every epoch ``n``::
+
+        f_j - [w x]^2 r_j = s - [r_j x] w'  + noise,    i.e.   g_n = A (s_n, w'_n) + noise,
+        A = [[I, -[r_1 x]], ..., [I, -[r_k x]]]      (3k x 6)
+
+    ``w`` from the gyros (the centripetal term), ``s`` and ``w'`` unknown per epoch: least squares, ``(s, w')_n =
+    A^+ g_n``, covariance ``sigma^2 (A^T A)^-1``. The parity is the residual projected onto the left null space of
+    ``A``: ``e_n = (I - A A^+) g_n``, 3k - 6 dof per epoch (the plain model, ``s`` only, leaves 3k - 3).
+
+    Degrees of freedom. With white noise of variance ``sigma^2`` per axis, ``E[e_i^2] = sigma^2 (1 - h_i)`` where
+    ``h_i`` is the leverage (diagonal of ``A A^+``, summing to 6). The plain model's parity (each triad minus the
+    array mean, as in every other step of the table) has ``h_i = 1/k``: its rms per triad is ``sigma sqrt((k -
+    1)/k)``. So that the two compare like for like, each component here is scaled by ``sqrt(((k - 1)/k) / (1 -
+    h_i))``::
+
+        parity_rms_j = sqrt( mean_{n, a} e_{n,ja}^2 (k - 1) / (k (1 - h_ja)) )
+
+    which has the same expectation, ``sigma^2 (k - 1)/k``, as the plain figure (over all triads: the residual sum
+    of squares divided by its dof, ``3k - 6``, times ``(3k - 3) / 3k``). ``per_dof_m_s2``, the rms per parity dof,
+    ``sqrt(sum ||e_n||^2 / (N (3k - 6)))``, estimates ``sigma`` itself.
+
+    Parameters
+    ----------
+    f : ndarray (N, k, 3)
+        Specific force at each triad, body frame [m/s^2] (gains and biases removed).
+    omega : ndarray (N, 3)
+        Angular rate from the gyros [rad/s].
+    positions_m : ndarray (k, 3)
+        Triad positions relative to the reference point [m].
+    sigma_m_s2 : float, optional
+        Accelerometer noise per axis for the covariance; default the per-dof figure.
+
+    Returns
+    -------
+    dict
+        ``angular_acceleration_rad_s2`` (N, 3), ``specific_force_m_s2`` (N, 3), ``covariance`` (6, 6) per epoch
+        ((s, w'), SI), ``parity_rms_m_s2`` (k,) (scaled like the plain parity, above), ``per_dof_m_s2`` and
+        ``dof`` (3k - 6), ``parity_m_s2`` (N, k, 3) the projected residual ``e_n`` (unscaled).
+
+    Raises
+    ------
+    IdentifiabilityError
+        Fewer than 3 triads, or positions on one line (:func:`aa_from_accelerometers_refusal`).
+
+    Examples
+    --------
+    >>> r = np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0, 0, 0.1]]) - 0.025
+    >>> wd = np.array([[1.0, -2.0, 3.0]])
+    >>> f = np.array([9.8, 0, 0]) - np.cross(r, wd)[None]       # w = 0: f_j = s + w' x r_j
+    >>> out = accel_angular_acceleration(f, np.zeros((1, 3)), r)
+    >>> np.round(out["angular_acceleration_rad_s2"], 6).tolist(), out["dof"]
+    ([[1.0, -2.0, 3.0]], 6)
+    """
+    r = np.asarray(positions_m, dtype=float)
+    why = aa_from_accelerometers_refusal(r)
+    if why is not None:
+        raise IdentifiabilityError(why, parameters=["angular_acceleration"])
+    k = r.shape[0]
+    f = np.asarray(f, dtype=float)
+    W = skew(np.asarray(omega, dtype=float))
+    g = (f - np.einsum("nab,kb->nka", W @ W, r)).reshape(len(f), 3 * k)
     A = np.zeros((k, 3, 6))
     A[:, :, :3] = np.eye(3)
     A[:, :, 3:] = -skew(r)
     A = A.reshape(3 * k, 6)
-    P = np.eye(3 * k) - A @ np.linalg.pinv(A)
-    e = np.einsum("ij,nj->ni", P, g.reshape(len(g), 3 * k)).reshape(len(g), k, 3)
-    return np.sqrt(np.mean(e**2, axis=(0, 2)) * (3 * k - 3) / (3 * k - 6))
+    Ap = np.linalg.pinv(A)
+    x = g @ Ap.T
+    e = g - x @ A.T
+    h = np.einsum("ij,ji->i", A, Ap)
+    dof = 3 * k - 6
+    per_dof = float(np.sqrt(np.sum(e**2) / (len(f) * dof))) if len(f) else float("nan")
+    scaled = e**2 * ((k - 1) / k) / (1 - h)[None]
+    sig = per_dof if sigma_m_s2 is None else float(sigma_m_s2)
+    return {"angular_acceleration_rad_s2": x[:, 3:], "specific_force_m_s2": x[:, :3],
+            "covariance": sig**2 * np.linalg.inv(A.T @ A), "parity_rms_m_s2":
+            np.sqrt(scaled.reshape(len(f), k, 3).mean(axis=(0, 2))), "per_dof_m_s2": per_dof, "dof": dof,
+            "parity_m_s2": e.reshape(len(f), k, 3)}
+
+
+def _rms_parity_accel_aa(f: np.ndarray, omega: np.ndarray, r: np.ndarray, moving: np.ndarray) -> np.ndarray:
+    """Parity rms per triad with the angular acceleration taken from the accelerometers themselves
+    (:func:`accel_angular_acceleration`, scaled like the plain parity); NaN where it cannot be taken (fewer than
+    three triads, positions on one line)."""
+    if aa_from_accelerometers_refusal(r) is not None:
+        return np.full(r.shape[0], np.nan)
+    return accel_angular_acceleration(f[moving], omega[moving], r)["parity_rms_m_s2"]
 
 
 def _rms_parity(e: np.ndarray, moving: np.ndarray) -> np.ndarray:

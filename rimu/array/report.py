@@ -1,7 +1,9 @@
 """Report: the array's parity rms in motion before and after each calibration step, per triad, with a plot.
 
 Steps (gyros): raw -> relative gain and bias -> + sampling offsets; (accelerometers): raw -> lever arms at the
-nominal positions removed -> + gains and biases -> + estimated positions. After the gyro steps the nested F-test
+nominal positions removed -> + gains and biases -> + estimated positions -> + the angular acceleration taken per epoch
+from the accelerometers themselves (``AA_STEP``; three triads at least, not on one line; its parity is scaled to
+compare like for like with the plain model's, :func:`rimu.array.accel_angular_acceleration`). After the gyro steps the nested F-test
 ranking (:func:`rimu.array.rank_candidates`) names the term that now limits the agreement.
 """
 
@@ -16,7 +18,7 @@ from ..errors import IdentifiabilityError, ShapeError
 from ..units import RAD_TO_DEG, fmt
 from .guards import choose_lowpass, worse
 from .layout import ArrayLayout
-from .positions import PositionFit, angular_acceleration_check, fit_positions
+from .positions import PositionFit, aa_from_accelerometers_refusal, angular_acceleration_check, fit_positions
 from .relative import RelativeFit, fit_relative_gyro
 from .remainder import RemainderAnalysis, remainder_analysis
 
@@ -85,6 +87,13 @@ class ArrayReport:
             for name, v in steps.items():
                 out.append(f"| {name} | " + " | ".join(f"{x:.4g}" for x in v) + f" | {v.mean():.4g} |")
             out.append("")
+            if AA_STEP in steps:
+                k = len(self.names)
+                out += [f"Every row is the rms per triad axis of the parity, scaled alike: on white noise sigma each "
+                        f"is sigma sqrt((k - 1)/k) (k = {k}). The plain model (specific force per epoch) leaves "
+                        f"3k - 3 = {3 * k - 3} parity dof per epoch; the last row's (specific force and angular "
+                        f"acceleration per epoch, rimu.array.accel_angular_acceleration) leaves 3k - 6 = {3 * k - 6}, "
+                        "each component scaled by sqrt(((k - 1)/k) / (1 - h)), h its leverage.", ""]
         if self.gyro_fit is not None:
             out += ["## What limits the gyro agreement now", "", f"**{self.limiting_term}**", "",
                     "| candidate | parameters | F | log10 p | share of residual |", "|---|---|---|---|---|"]
@@ -260,6 +269,9 @@ def array_report(
         pf, a_steps, a_refused, mode = best
         rep.accel_steps = a_steps
         rep.refused.update(a_refused)
+        why = aa_from_accelerometers_refusal(pf.positions_m)
+        if why is not None:
+            rep.refused[AA_STEP] = f"accelerometer step '{AA_STEP}' not identifiable: {why}"
         if any(k != "raw" for k in a_steps):
             rep.position_fit = pf
         if pf.lever_arm_invalid:
@@ -274,23 +286,49 @@ def array_report(
                 steps_ho = _accel_steps(layout, pf, fit, pf.sampling_offset_s is not None
                                         and np.any(pf.sampling_offset_s != 0), nominal_positions_m, label, ho_steps)
                 rep.accel_held_out = {k: v for k, v in steps_ho.items() if k == "raw" or k in a_steps}
+                _aa_held_out_rule(rep.accel_steps, rep.accel_held_out, rep.refused)
+                notes.extend(_held_out_raises(rep.accel_held_out, "m/s^2"))
                 h = [v.mean() for v in rep.accel_held_out.values()]
                 line = (f"accelerometers held out: {fmt(h[0], 'specific_force', 'm/s^2')} -> "
-                        f"{fmt(h[-1], 'specific_force', 'm/s^2')} ({h[0] / h[-1]:.3g}x) with the gyros' angular "
-                        "acceleration")
-                aa = ho_steps["accel_angular_acceleration"]
-                if np.all(np.isfinite(aa)):
-                    rep.accel_held_out[AA_STEP] = aa
-                    line += (f"; {fmt(aa.mean(), 'specific_force', 'm/s^2')} ({h[0] / aa.mean():.3g}x) with the "
-                             "accelerometers' own")
+                        f"{fmt(h[-1], 'specific_force', 'm/s^2')} ({h[0] / h[-1]:.3g}x) after the steps applied")
                 notes.append(line)
                 if rep.accel_remainder is not None:
                     notes.append(f"accelerometers, what remains (held out): {accel_verdict(rep.accel_remainder)}")
     return rep
 
 
-#: the held-out step with the angular acceleration from the accelerometers themselves, not the gyros' derivative
-AA_STEP = "+ angular acceleration from the accelerometers"
+#: the last accelerometer step: the angular acceleration taken per epoch from the accelerometers themselves, not
+#: from the gyros' derivative (:func:`rimu.array.accel_angular_acceleration`; its parity scaled to compare like for
+#: like with the steps before it)
+AA_STEP = "+ angular acceleration from the accelerometers (per epoch; Skog et al. 2016)"
+
+
+def _aa_held_out_rule(steps: dict, held_out: dict, refused: dict) -> None:
+    """The never-worse rule on the held-out half for :data:`AA_STEP`: where, fitted on the first half of the motion,
+    it raises the parity on the second above the last step applied before it, it is taken out of ``steps`` and
+    ``held_out`` and ``refused`` says why (the dicts are the caller's, updated in place)."""
+    if AA_STEP not in held_out:
+        return
+    prev = [v for k, v in held_out.items() if k != AA_STEP][-1]
+    if worse(prev, held_out[AA_STEP]):
+        refused[AA_STEP] = (f"accelerometer step '{AA_STEP}' not applied: fitted on the first half of the motion it "
+                            f"raises the parity rms on the second from {prev.mean():.4g} to "
+                            f"{held_out[AA_STEP].mean():.4g} m/s^2")
+        del held_out[AA_STEP]
+        steps.pop(AA_STEP, None)
+
+
+def _held_out_raises(held_out: dict, unit: str) -> list[str]:
+    """Notes for the intermediate steps that raise the held-out parity above the step before them (by more than
+    :func:`rimu.array.guards.worse`'s tolerance) though the steps after them, which build on them, are kept: reported,
+    not applied silently."""
+    out, names = [], list(held_out)
+    for a, b in zip(names[:-1], names[1:]):
+        if worse(held_out[a], held_out[b]):
+            out.append(f"accelerometer step '{b}' raises the held-out parity rms from {held_out[a].mean():.4g} to "
+                       f"{held_out[b].mean():.4g} {unit}; kept because the steps after it build on it (the chain: "
+                       f"{held_out[names[0]].mean():.4g} -> {held_out[names[-1]].mean():.4g} {unit})")
+    return out
 
 
 def _split_motion(omega: np.ndarray, motion_threshold_deg_s: float) -> int:
@@ -397,4 +435,6 @@ def _accel_steps(layout, pf, fit, align, nominal_positions_m, label, parity=None
         steps["+ nominal lever arms"] = p["raw_nominal_lever_arms"]
     steps[label] = p["gain_bias_nominal_lever_arms"]
     steps["+ positions"] = p["positions"]
+    if np.all(np.isfinite(p.get("accel_angular_acceleration", np.nan))):
+        steps[AA_STEP] = p["accel_angular_acceleration"]
     return steps
