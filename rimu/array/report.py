@@ -9,6 +9,7 @@ ranking (:func:`rimu.array.rank_candidates`) names the term that now limits the 
 
 from __future__ import annotations
 
+import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -122,7 +123,8 @@ class ArrayReport:
             x = np.arange(len(self.names))
             wbar = 0.8 / len(steps)
             for i, (name, v) in enumerate(steps.items()):
-                ax.bar(x + i * wbar - 0.4 + wbar / 2, v, wbar, label=name)
+                # a long step name wrapped to the legend's width beside the axes (it ran out of the figure)
+                ax.bar(x + i * wbar - 0.4 + wbar / 2, v, wbar, label=textwrap.fill(name, 26))
             ax.set_ylim(0, None)
             ax.set_xticks(x, self.names, rotation=90 if len(self.names) > 12 else 0)
             ax.set_xlabel("triad [name]")
