@@ -99,8 +99,7 @@ def test_the_mpu6050_session_s_gyro_step_from_the_cli(tmp_path, capsys):
 def test_a_fold_fit_started_from_the_whole_fit_reaches_the_minimum_of_the_nominal_start():
     # held_out_gyro starts each fold's fit from the fit on every motion (fewer integrations); the minimum must be
     # the one the nominal start reaches, to the solver's tolerance (1e-8 of the typical sizes)
-    from rimu.calibration.handheld import (_dirs_with_jacobian, _statics, fit_gyro, pose_windows,
-                                           white_noise_sigma_hf)
+    from rimu.calibration.handheld import _dirs_with_jacobian, _statics, fit_gyro, pose_windows, white_noise_sigma_hf
 
     run = handheld_run(n_poses=12, static_s=1.0, seed=1)
     s = run.session
