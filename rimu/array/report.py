@@ -1,7 +1,9 @@
 """Report: the array's parity rms in motion before and after each calibration step, per triad, with a plot.
 
 Steps (gyros): raw -> relative gain and bias -> + sampling offsets; (accelerometers): raw -> lever arms at the
-nominal positions removed -> + gains and biases -> + estimated positions. After the gyro steps the nested F-test
+nominal positions removed -> + gains and biases -> + estimated positions -> + the angular acceleration taken per epoch
+from the accelerometers themselves (``AA_STEP``; three triads at least, not on one line; its parity is scaled to
+compare like for like with the plain model's, :func:`rimu.array.accel_angular_acceleration`). After the gyro steps the nested F-test
 ranking (:func:`rimu.array.rank_candidates`) names the term that now limits the agreement.
 """
 
@@ -16,7 +18,7 @@ from ..errors import IdentifiabilityError, ShapeError
 from ..units import RAD_TO_DEG, fmt
 from .guards import choose_lowpass, worse
 from .layout import ArrayLayout
-from .positions import PositionFit, fit_positions
+from .positions import PositionFit, aa_from_accelerometers_refusal, angular_acceleration_check, fit_positions
 from .relative import RelativeFit, fit_relative_gyro
 from .remainder import RemainderAnalysis, remainder_analysis
 
@@ -58,18 +60,26 @@ class ArrayReport:
     refused: dict[str, str] = field(default_factory=dict)
     #: what is left of the gyro disagreement: deterministic or not (:func:`rimu.array.remainder_analysis`)
     remainder: "RemainderAnalysis | None" = None
+    #: the accelerometer steps fitted on the first part of the motion and judged on the rest (m/s^2, per triad)
+    accel_held_out: dict[str, np.ndarray] = field(default_factory=dict)
+    #: what is left of the accelerometers on the held-out part (:func:`rimu.array.angular_acceleration_check`)
+    accel_remainder: "dict | None" = None
 
     def to_dict(self) -> dict:
         return {"triads": list(self.names),
                 "gyro_parity_rms_deg_s": {k: v.tolist() for k, v in self.gyro_steps.items()},
                 "accel_parity_rms_m_s2": {k: v.tolist() for k, v in self.accel_steps.items()},
+                "accel_parity_rms_held_out_m_s2": {k: v.tolist() for k, v in self.accel_held_out.items()},
+                "accel_remainder": self.accel_remainder,
                 "limiting_term": self.limiting_term, "refused": dict(self.refused),
                 "candidates": [c.to_dict() for c in (self.gyro_fit.candidates if self.gyro_fit else [])],
                 "notes": self.notes, "remainder": None if self.remainder is None else self.remainder.to_dict()}
 
     def to_markdown(self) -> str:
         out = ["# Array report: parity rms in motion per step", ""]
-        for title, steps, unit in (("Gyros", self.gyro_steps, "deg/s"), ("Accelerometers", self.accel_steps, "m/s^2")):
+        for title, steps, unit in (("Gyros", self.gyro_steps, "deg/s"), ("Accelerometers", self.accel_steps, "m/s^2"),
+                                   ("Accelerometers, held out (fitted on the first half of the motion, judged on "
+                                    "the second)", self.accel_held_out, "m/s^2")):
             if not steps:
                 continue
             out += [f"## {title} [{unit}]", "", "| step | " + " | ".join(self.names) + " | mean |",
@@ -77,6 +87,13 @@ class ArrayReport:
             for name, v in steps.items():
                 out.append(f"| {name} | " + " | ".join(f"{x:.4g}" for x in v) + f" | {v.mean():.4g} |")
             out.append("")
+            if AA_STEP in steps:
+                k = len(self.names)
+                out += [f"Every row is the rms per triad axis of the parity, scaled alike: on white noise sigma each "
+                        f"is sigma sqrt((k - 1)/k) (k = {k}). The plain model (specific force per epoch) leaves "
+                        f"3k - 3 = {3 * k - 3} parity dof per epoch; the last row's (specific force and angular "
+                        f"acceleration per epoch, rimu.array.accel_angular_acceleration) leaves 3k - 6 = {3 * k - 6}, "
+                        "each component scaled by sqrt(((k - 1)/k) / (1 - h)), h its leverage.", ""]
         if self.gyro_fit is not None:
             out += ["## What limits the gyro agreement now", "", f"**{self.limiting_term}**", "",
                     "| candidate | parameters | F | log10 p | share of residual |", "|---|---|---|---|---|"]
@@ -85,6 +102,8 @@ class ArrayReport:
             out.append("")
         if self.remainder is not None:
             out += [self.remainder.to_markdown()]
+        if self.accel_remainder is not None:
+            out += ["## What remains of the accelerometers (held out)", "", accel_verdict(self.accel_remainder), ""]
         out += [f"- {n}" for n in self.notes]
         out += [f"- **not applied**: {r}" for r in self.refused.values()]
         return "\n".join(out) + "\n"
@@ -250,9 +269,128 @@ def array_report(
         pf, a_steps, a_refused, mode = best
         rep.accel_steps = a_steps
         rep.refused.update(a_refused)
+        why = aa_from_accelerometers_refusal(pf.positions_m)
+        if why is not None:
+            rep.refused[AA_STEP] = f"accelerometer step '{AA_STEP}' not identifiable: {why}"
         if any(k != "raw" for k in a_steps):
             rep.position_fit = pf
+        if pf.lever_arm_invalid:
+            notes.append(f"{pf.lever_arm_invalid} of {pf.moving_epochs} epochs in motion have no angular acceleration "
+                         "(a clipped or missing gyro sample within the central difference's stencil): left out of "
+                         "the accelerometer lever-arm step, not bridged")
+        if held_out:
+            ho = _accel_held_out(layout, t, gyro, accel, fit, pf, nominal_positions_m, motion_threshold_deg_s, notes)
+            if ho is not None:
+                ho_steps, rep.accel_remainder = ho
+                label = {"absolute": "+ gain+bias", "relative": "+ relative gain+bias", "none": "+ bias"}[mode]
+                steps_ho = _accel_steps(layout, pf, fit, pf.sampling_offset_s is not None
+                                        and np.any(pf.sampling_offset_s != 0), nominal_positions_m, label, ho_steps)
+                rep.accel_held_out = {k: v for k, v in steps_ho.items() if k == "raw" or k in a_steps}
+                _aa_held_out_rule(rep.accel_steps, rep.accel_held_out, rep.refused)
+                notes.extend(_held_out_raises(rep.accel_held_out, "m/s^2"))
+                h = [v.mean() for v in rep.accel_held_out.values()]
+                line = (f"accelerometers held out: {fmt(h[0], 'specific_force', 'm/s^2')} -> "
+                        f"{fmt(h[-1], 'specific_force', 'm/s^2')} ({h[0] / h[-1]:.3g}x) after the steps applied")
+                notes.append(line)
+                if rep.accel_remainder is not None:
+                    notes.append(f"accelerometers, what remains (held out): {accel_verdict(rep.accel_remainder)}")
     return rep
+
+
+#: the last accelerometer step: the angular acceleration taken per epoch from the accelerometers themselves, not
+#: from the gyros' derivative (:func:`rimu.array.accel_angular_acceleration`; its parity scaled to compare like for
+#: like with the steps before it)
+AA_STEP = "+ angular acceleration from the accelerometers (per epoch; Skog et al. 2016)"
+
+
+def _aa_held_out_rule(steps: dict, held_out: dict, refused: dict) -> None:
+    """The never-worse rule on the held-out half for :data:`AA_STEP`: where, fitted on the first half of the motion,
+    it raises the parity on the second above the last step applied before it, it is taken out of ``steps`` and
+    ``held_out`` and ``refused`` says why (the dicts are the caller's, updated in place)."""
+    if AA_STEP not in held_out:
+        return
+    prev = [v for k, v in held_out.items() if k != AA_STEP][-1]
+    if worse(prev, held_out[AA_STEP]):
+        refused[AA_STEP] = (f"accelerometer step '{AA_STEP}' not applied: fitted on the first half of the motion it "
+                            f"raises the parity rms on the second from {prev.mean():.4g} to "
+                            f"{held_out[AA_STEP].mean():.4g} m/s^2")
+        del held_out[AA_STEP]
+        steps.pop(AA_STEP, None)
+
+
+def _held_out_raises(held_out: dict, unit: str) -> list[str]:
+    """Notes for the intermediate steps that raise the held-out parity above the step before them (by more than
+    :func:`rimu.array.guards.worse`'s tolerance) though the steps after them, which build on them, are kept: reported,
+    not applied silently."""
+    out, names = [], list(held_out)
+    for a, b in zip(names[:-1], names[1:]):
+        if worse(held_out[a], held_out[b]):
+            out.append(f"accelerometer step '{b}' raises the held-out parity rms from {held_out[a].mean():.4g} to "
+                       f"{held_out[b].mean():.4g} {unit}; kept because the steps after it build on it (the chain: "
+                       f"{held_out[names[0]].mean():.4g} -> {held_out[names[-1]].mean():.4g} {unit})")
+    return out
+
+
+def _split_motion(omega: np.ndarray, motion_threshold_deg_s: float) -> int:
+    """The index that splits the epochs in motion into two halves."""
+    moving = np.linalg.norm(np.nan_to_num(omega), axis=1) > np.radians(motion_threshold_deg_s)
+    c = np.cumsum(moving)
+    return int(np.searchsorted(c, c[-1] // 2))
+
+
+def _accel_held_out(layout, t, gyro, accel, fit, pf, nominal_positions_m, motion_threshold_deg_s, notes):
+    """The accelerometer steps refitted (gyros and accelerometers, the same terms and modes) on the first half of the
+    motion and judged on the second: the parity dict of :meth:`PositionFit.parity_on`, or None."""
+    k0 = _split_motion(fit.layout.to_body(np.asarray(gyro, dtype=float)).mean(axis=1), motion_threshold_deg_s)
+    try:
+        g1 = fit_relative_gyro(layout, t[:k0], gyro[:k0], terms=fit.terms, candidates=(),
+                               motion_threshold_deg_s=motion_threshold_deg_s)
+        p1 = fit_positions(layout, t[:k0], accel[:k0], g1, gyro[:k0], nominal_positions_m=nominal_positions_m,
+                           motion_threshold_deg_s=motion_threshold_deg_s, gain=pf.gain_mode,
+                           align=bool(np.any(pf.sampling_offset_s != 0)), offsets=pf.accel_offset_s is not None,
+                           derivative_order=pf.derivative_order)
+        u = g1.apply(t[k0:], gyro[k0:])
+        a = 1 / g1.sigma_rad_s**2
+        omega = np.einsum("k,nki->ni", a / a.sum(), u)
+        steps, moving, invalid = p1.parity_on(t[k0:], accel[k0:], omega, motion_threshold_deg_s)
+    except (IdentifiabilityError, ShapeError) as exc:
+        notes.append(f"no held-out accelerometer figures: {exc}")
+        return None
+    try:
+        c0 = (p1.layout.positions_m if p1.nominal_m is None else np.asarray(p1.nominal_m)).mean(axis=0)
+        rem = angular_acceleration_check(t[k0:], p1.apply(t[k0:], accel[k0:]), omega, p1.positions_m - c0,
+                                         p1.derivative_order, motion_threshold_deg_s)
+    except ShapeError:
+        rem = None
+    notes.append(f"accelerometers held out: fitted on the first {t[k0 - 1] - t[0]:.4g} s (half of the motion), judged "
+                 f"on the remaining {t[-1] - t[k0]:.4g} s ({moving - invalid} epochs in motion, {invalid} more without "
+                 "an angular acceleration left out)")
+    return steps, rem
+
+
+def accel_verdict(rem: dict) -> str:
+    """One sentence on what is left of the accelerometers after the lever arms with the gyros' angular
+    acceleration (:func:`rimu.array.angular_acceleration_check`): the angular acceleration is named only when it
+    explains at least 10 % of it, and whether the gyro samples hold it."""
+    share = rem["share"]
+    ho = rem["held_out"]
+    d, g = rem["difference_rad_s2"], rem["gyro_rad_s2"]
+    head = (f"with the gyros' angular acceleration {rem['parity_gyro_m_s2']:.4g} m/s^2 remain "
+            f"({rem['epochs']} epochs in motion); with the accelerometers' own, per sample, "
+            f"{rem['parity_accel_m_s2']:.4g} m/s^2")
+    if share < 0.10:
+        return head + f": an angular acceleration explains {100 * share:.3g} % of it; what is left is unexplained"
+    held = ""
+    if np.isfinite(ho["fir_rad_s2"]):
+        better = ho["fir_rad_s2"] < 0.9 * ho["central_difference_rad_s2"]
+        held = (f"; a linear filter of the gyro rate over +-2 samples, fitted on half the epochs, leaves "
+                f"{ho['fir_rad_s2']:.4g} rad/s^2 of it on the other half against {ho['central_difference_rad_s2']:.4g} "
+                "for the central difference: " + ("a better derivative would recover part of it" if better else
+                                                   "the gyro samples do not hold it (motion the sampling does not "
+                                                   "resolve)"))
+    return (head + f": limiting is the angular acceleration from the gyros ({100 * share:.3g} % of what is left): "
+            f"the accelerometers' differs from the gyros' central difference by {min(d):.4g}-{max(d):.4g} rad/s^2 "
+            f"rms per axis (the gyros' is {min(g):.4g}-{max(g):.4g})" + held)
 
 
 def _accel_candidate(layout, t, accel, fit, gyro, nominal_positions_m, motion_threshold_deg_s, mode, notes):
@@ -265,13 +403,13 @@ def _accel_candidate(layout, t, accel, fit, gyro, nominal_positions_m, motion_th
     except IdentifiabilityError as exc:
         notes.append(f"accelerometer gain={mode!r} skipped: {exc}")
         return None
-    if align and cand.parity_rms_m_s2["aligned"].mean() > cand.parity_rms_m_s2["raw"].mean():
+    if align and cand.parity_rms_m_s2["aligned_all"].mean() > cand.parity_rms_m_s2["raw_all"].mean():
         align = False
         # what was seen, not a guess about the hardware: a single-chip IMU (one die, one sampling instant for
         # both) shows it too when the gyro offsets hold something else (the paths' different filter delays)
         seen = (f"the gyros' sampling offsets do not fit the accelerometers (moved by them, the accelerometer "
-                f"parity rises from {fmt(cand.parity_rms_m_s2['raw'].mean(), 'accel', 'm/s^2', digits=6)} to "
-                f"{fmt(cand.parity_rms_m_s2['aligned'].mean(), 'accel', 'm/s^2', digits=6)}: the accelerometers are not sampled "
+                f"parity rises from {fmt(cand.parity_rms_m_s2['raw_all'].mean(), 'accel', 'm/s^2', digits=6)} to "
+                f"{fmt(cand.parity_rms_m_s2['aligned_all'].mean(), 'accel', 'm/s^2', digits=6)}: the accelerometers are not sampled "
                 "at the gyros' instants, or the gyro paths delay differently from the accelerometer paths)")
         try:
             cand = fit_positions(layout, t, accel, fit, gyro, nominal_positions_m=nominal_positions_m,
@@ -287,8 +425,8 @@ def _accel_candidate(layout, t, accel, fit, gyro, nominal_positions_m, motion_th
     return cand, align
 
 
-def _accel_steps(layout, pf, fit, align, nominal_positions_m, label) -> dict[str, np.ndarray]:
-    p = pf.parity_rms_m_s2
+def _accel_steps(layout, pf, fit, align, nominal_positions_m, label, parity=None) -> dict[str, np.ndarray]:
+    p = pf.parity_rms_m_s2 if parity is None else parity
     steps = {"raw": p["raw"]}
     if align and np.any(fit.sampling_offset_s != 0):
         steps["+ gyro sampling offsets"] = p["aligned"]
@@ -297,4 +435,6 @@ def _accel_steps(layout, pf, fit, align, nominal_positions_m, label) -> dict[str
         steps["+ nominal lever arms"] = p["raw_nominal_lever_arms"]
     steps[label] = p["gain_bias_nominal_lever_arms"]
     steps["+ positions"] = p["positions"]
+    if np.all(np.isfinite(p.get("accel_angular_acceleration", np.nan))):
+        steps[AA_STEP] = p["accel_angular_acceleration"]
     return steps

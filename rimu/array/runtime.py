@@ -28,7 +28,11 @@ __all__ = [
     "ArrayMotion",
     "skew",
     "lever_arm_acceleration",
+    "angular_acceleration",
     "remove_lever_arms",
+    "LeverArmTransfer",
+    "transfer_to_reference",
+    "DERIVATIVE_NOISE_GAIN",
     "accel_model",
     "accel_jacobian",
     "fisher_information",
@@ -48,6 +52,52 @@ def lever_arm_acceleration(omega: np.ndarray, omega_dot: np.ndarray, positions_m
     wd = np.asarray(omega_dot, dtype=float)[:, None, :]
     r = np.asarray(positions_m, dtype=float)[None, :, :]
     return np.cross(wd, r) + np.cross(w, np.cross(w, r))
+
+
+def angular_acceleration(t: np.ndarray, omega: np.ndarray, order: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Angular acceleration by a central difference of the (array-mean) rate, centred on each sample, where it
+    is known: ``(omega_dot (N, 3), ok (N,))``.
+
+    ``order`` 2: ``(w[n+1] - w[n-1]) / 2h``, truncation error ``h^2 w'''/6``; ``order`` 4:
+    ``(w[n-2] - 8 w[n-1] + 8 w[n+1] - w[n+2]) / 12h``, error ``h^4 w^(5)/30``. A sample is known (``ok``) only
+    when it and every sample of its stencil are finite and on the grid (``t`` steps within 10 % of the median
+    step): an epoch next to a clipped or missing gyro sample has no angular acceleration (NaN), never a
+    difference across the gap.
+
+    >>> t = np.arange(10) * 0.01
+    >>> w = np.stack([np.sin(t), 0 * t, t**2], axis=1)
+    >>> wd, ok = angular_acceleration(t, w)
+    >>> ok.astype(int).tolist()
+    [0, 0, 1, 1, 1, 1, 1, 1, 0, 0]
+    >>> bool(np.allclose(wd[ok], np.stack([np.cos(t), 0 * t, 2 * t], axis=1)[ok], atol=1e-9))
+    True
+    """
+    t = np.asarray(t, dtype=float)
+    w = np.asarray(omega, dtype=float)
+    if order not in (2, 4):
+        raise ShapeError(f"order must be 2 or 4, got {order}")
+    n, m = len(t), order // 2
+    wd = np.full(w.shape, np.nan)
+    ok = np.zeros(n, bool)
+    if n < 2 * m + 1:
+        return wd, ok
+    dt = np.diff(t)
+    h = float(np.median(dt))
+    step_ok = np.abs(dt - h) <= 0.1 * h
+    fin = np.isfinite(w).all(axis=1)
+    good = fin.copy()
+    for j in range(-m, m + 1):  # every stencil sample finite, every step inside the stencil on the grid
+        good[m:n - m] &= fin[m + j:n - m + j]
+    for j in range(-m, m):
+        good[m:n - m] &= step_ok[m + j:n - m + j]
+    good[:m] = False
+    good[n - m:] = False
+    if order == 2:
+        wd[1:-1] = (w[2:] - w[:-2]) / (2 * h)
+    else:
+        wd[2:-2] = (w[:-4] - 8 * w[1:-3] + 8 * w[3:-1] - w[4:]) / (12 * h)
+    wd[~good] = np.nan
+    return wd, good
 
 
 def remove_lever_arms(
@@ -81,6 +131,116 @@ def remove_lever_arms(
     if reference_m is not None:
         r = r - np.asarray(reference_m, dtype=float)[None, :]
     return f - lever_arm_acceleration(omega, omega_dot, r)
+
+
+#: noise gain of the central differences: the derivative's noise is ``sigma_w * gain / h`` (order -> gain)
+DERIVATIVE_NOISE_GAIN = {2: float(np.sqrt(0.5)), 4: float(np.sqrt(130.0) / 12.0)}
+
+
+@dataclass
+class LeverArmTransfer:
+    """Result of :func:`transfer_to_reference` (body frame, SI).
+
+    Attributes
+    ----------
+    accel_m_s2 : ndarray (N, k, 3)
+        Each triad's specific force moved to the reference point; NaN where ``valid`` is False.
+    valid : ndarray (N,)
+        Whether the angular acceleration is known at the epoch (no clipped, missing or off-grid gyro sample in
+        the derivative's stencil): elsewhere the transfer is not computed (never a wrong number).
+    omega_dot : ndarray (N, 3)
+        The angular acceleration used [rad/s^2] (NaN where unknown).
+    sigma_m_s2 : ndarray (N, k)
+        1-sigma per axis of each triad's transfer error: the gyro noise through the centripetal term and the
+        derivative, the position uncertainty through ``K = [w' x] + [w x]^2``, and the derivative's truncation
+        error (estimated from the data: the difference of the order-2 and order-4 derivatives, which is order 2's
+        leading error ``h^2 w'''/6``, its largest over five samples; for order 4 a quarter of it, a bound for motion below ``0.178 / h`` Hz).
+    """
+
+    accel_m_s2: np.ndarray
+    valid: np.ndarray
+    omega_dot: np.ndarray
+    sigma_m_s2: np.ndarray
+
+
+def transfer_to_reference(
+    t: np.ndarray, accel_body: np.ndarray, omega: np.ndarray, positions_m: np.ndarray,
+    reference_m: "np.ndarray | None" = None, order: int = 2, gyro_noise_rad_s: float = 0.0,
+    position_std_m: "float | np.ndarray" = 0.0, truncation: bool = True,
+) -> LeverArmTransfer:
+    """Every accelerometer triad's specific force transferred to the reference point with the gyros' rate and its
+    central-difference derivative (Skog et al. 2016, Sec. II: ``z_a,j = s + w' x r_j + w x (w x r_j)``).
+
+    Parameters
+    ----------
+    t : ndarray (N,)
+        Sample times [s] on a uniform grid (gaps and non-finite rates make the neighbouring epochs invalid).
+    accel_body : ndarray (N, k, 3)
+        Specific force of each triad, body frame [m/s^2].
+    omega : ndarray (N, 3)
+        The array's angular rate [rad/s] (the mean of the gyro triads: less noise than any one), NaN where a gyro
+        clipped.
+    positions_m : ndarray (k, 3)
+        Triad positions [m]; ``reference_m`` the reference point (default: their origin).
+    order : {2, 4}
+        Order of the central difference (:func:`angular_acceleration`).
+    gyro_noise_rad_s : float
+        1-sigma per axis of ``omega``'s noise per sample.
+    position_std_m : float or ndarray (k,)
+        1-sigma per axis of the positions.
+    truncation : bool
+        Include the estimated truncation error in ``sigma_m_s2`` (its estimate carries the gyro noise too: at rest
+        it makes the stated sigma conservative).
+
+    Returns
+    -------
+    LeverArmTransfer
+
+    Examples
+    --------
+    A board spinning up about z at 100 rad/s^2: every triad's specific force comes back to the reference's.
+
+    >>> t = np.arange(20) * 0.01
+    >>> w = np.stack([0 * t, 0 * t, 100 * t], axis=1)
+    >>> r = np.array([[0.01, 0, 0], [0, 0.01, 0]])
+    >>> f = lever_arm_acceleration(w, np.tile([0, 0, 100.0], (20, 1)), r) + [0, 0, 9.81]
+    >>> tr = transfer_to_reference(t, f, w, r)
+    >>> bool(np.allclose(tr.accel_m_s2[tr.valid], [0, 0, 9.81])), int(tr.valid.sum())
+    (True, 18)
+    """
+    from scipy.ndimage import maximum_filter1d
+
+    f = np.asarray(accel_body, dtype=float)
+    r = np.asarray(positions_m, dtype=float)
+    w = np.asarray(omega, dtype=float)
+    if f.ndim != 3 or f.shape[1:] != r.shape or w.shape != (f.shape[0], 3):
+        raise ShapeError(f"accel_body (N, k, 3) with k = {r.shape[0]} and omega (N, 3) expected, got {f.shape} "
+                         f"and {w.shape}")
+    if reference_m is not None:
+        r = r - np.asarray(reference_m, dtype=float)[None, :]
+    wd, ok = angular_acceleration(t, w, order)
+    wz = np.where(ok[:, None], w, 0.0)
+    wdz = np.where(ok[:, None], wd, 0.0)
+    out = f - lever_arm_acceleration(wz, wdz, r)
+    out[~ok] = np.nan
+    h = float(np.median(np.diff(t)))
+    rn = np.linalg.norm(r, axis=1)
+    wn = np.linalg.norm(wz, axis=1)
+    # truncation: order 2's error is about its difference from order 4; order 4's is smaller (bounded by it)
+    other, ok2 = angular_acceleration(t, w, 4 if order == 2 else 2)
+    trunc = np.where(ok & ok2, np.linalg.norm(np.nan_to_num(wd - other), axis=1), 0.0)
+    # its largest value over five samples: defined where the wider stencil is not (next to a gap), and a bound
+    trunc = maximum_filter1d(trunc, 5, mode="nearest") if truncation else 0.0 * trunc
+    if order == 4:  # its error is (2 pi f h)^2 / 5 times order 2's for motion at f: a quarter bounds f < 0.178 / h
+        trunc = trunc / 4.0
+    s_wd = gyro_noise_rad_s * DERIVATIVE_NOISE_GAIN[order] / h
+    sp = np.broadcast_to(np.asarray(position_std_m, dtype=float), (r.shape[0],))
+    knorm = np.linalg.norm(wdz, axis=1) + wn**2
+    var = ((2 * wn[:, None] * gyro_noise_rad_s * rn[None]) ** 2 + (s_wd * rn[None]) ** 2
+           + (knorm[:, None] * sp[None]) ** 2 + (trunc[:, None] * rn[None]) ** 2 / 3.0)
+    sigma = np.sqrt(var)
+    sigma[~ok] = np.nan
+    return LeverArmTransfer(out, ok, wd, sigma)
 
 
 def accel_model(theta: np.ndarray, positions_m: np.ndarray) -> np.ndarray:

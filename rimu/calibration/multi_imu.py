@@ -15,7 +15,9 @@ IMUs) is set up from a stretch of its own data, fault-free by assumption:
    in two directions at least, else refused (:class:`~rimu.errors.IdentifiabilityError` naming the reason);
    the reference triad defines MB;
 5. gyro and accelerometer bias differences **from the spans at rest** (median of each triad minus the
-   reference, rotated; their 1-sigma from the spread and the effective sample count), or, without enough rest
+   reference, rotated; their 1-sigma from the spread and the effective sample count); where the rest holds
+   gravity in three directions (poses), each accelerometer triad's gain against the reference too
+   (``y_j = G_j y_ref + c_j``, least squares at rest: relative scale and misalignment), or, without enough rest
    (``min_still_s``), the gyro offset fitted with the rotation and the median of the accelerometers;
 6. per-sensor noise levels from the residuals against the other triads (at rest when there is enough rest,
    else over the whole window: the flight's own disagreement), for the pipeline's weights and the detectors;
@@ -396,39 +398,58 @@ def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: in
     geo = triads(rotations, None, names)
     cals = {}
     noise_scale: dict[str, float] = {}
+    gains = [rotations[j] for j in range(k)]   # each triad's axes in MB (rows); accelerometers: refined below
+    accel_gains = False
     for inst in insts:
         Y = np.where(block.valid[inst], block.raw[inst], np.nan)[win]
         bias = gyro_bias.copy() if inst == "gyro" else np.zeros(3 * k)
+        axes = rotations
         if inst == "accel":
+            fitted = _accel_gains(Y, st, ref_cols, k, reference, [nm in delivering for nm in names]) if use_rest \
+                else None
+            accel_gains = fitted is not None
+            axes = list(fitted) if fitted is not None else rotations
             for j in range(k):
                 if j != reference and names[j] in delivering:
                     rows = st if use_rest else np.ones(len(Y), bool)
-                    d = Y[rows][:, 3 * j:3 * j + 3] - Y[rows][:, ref_cols] @ rotations[j].T
+                    d = Y[rows][:, 3 * j:3 * j + 3] - Y[rows][:, ref_cols] @ axes[j].T
                     if use_rest:
                         bias[3 * j:3 * j + 3], sa = _median_sigma(d)
                         bias_sigma.setdefault("accel", np.zeros(3 * k))[3 * j:3 * j + 3] = sa
                     else:
                         bias[3 * j:3 * j + 3] = np.nanmedian(d, axis=0)
+            gains = axes
         # compensated outputs expressed in MB (the reference's axes) for the disagreement
         live = [j for j in range(k) if names[j] in delivering]
         rows = st if (use_rest and st.sum() >= 50) else np.ones(len(Y), bool)
-        Zmb = np.column_stack([(Y[rows][:, 3 * j:3 * j + 3] - bias[3 * j:3 * j + 3]) @ rotations[j] for j in live])
+        Zmb = np.column_stack([(Y[rows][:, 3 * j:3 * j + 3] - bias[3 * j:3 * j + 3]) @ np.linalg.inv(axes[j]).T
+                               for j in live])
         sig = np.full(3 * k, np.nan)
         if len(live) >= 2:
             s_live = triad_noise(Zmb)           # per MB axis of each triad: back to the triad's own axes
             for q, j in enumerate(live):
-                sig[3 * j:3 * j + 3] = np.sqrt(rotations[j] ** 2 @ s_live[3 * q:3 * q + 3] ** 2)
+                sig[3 * j:3 * j + 3] = np.sqrt(axes[j] ** 2 @ s_live[3 * q:3 * q + 3] ** 2)
         finite = sig[np.isfinite(sig)]
         sig[~np.isfinite(sig)] = finite.max() if finite.size else 1.0
         if rows is st and len(live) >= 3:
             cols = np.concatenate([np.arange(3 * j, 3 * j + 3) for j in live])
             Yc = np.column_stack([Y[rows][:, 3 * j:3 * j + 3] - bias[3 * j:3 * j + 3] for j in live])
-            c = _chi2_scale(Yc, np.vstack([rotations[j] for j in live]), sig[cols])
+            c = _chi2_scale(Yc, np.vstack([axes[j] for j in live]), sig[cols])
             sig *= np.sqrt(c)
             noise_scale[inst] = c
         cals[inst] = InstrumentCalibration.nominal(inst, geo, scale=1.0, bias=bias, noise_sigma=sig)
+        if inst == "accel" and accel_gains:  # each triad's gain: unit rows m_i (a_i = m_i C_j), norms into SF
+            ci = cals[inst]
+            for j in range(k):
+                rows = gains[j] @ rotations[j].T
+                nrm = np.linalg.norm(rows, axis=1)
+                sl = slice(3 * j, 3 * j + 3)
+                ci.misalignment[sl] = rows / nrm[:, None]
+                ci.scale[sl] = 1.0 / nrm           # SF y = m.(C u) + b: y = g.u + c -> SF = 1/|g|, b = SF c
+                ci.bias[sl] = ci.bias[sl] / nrm
         cals[inst].noise_period_s = dt_avg  # the noise of the epochs it was measured on (the averages')
     spans = {"still_s": float(st.sum()) * dt_avg if use_rest else 0.0, "motion_s": motion_s,
+             "accel_gains_from_rest": accel_gains,
              "noise_at_rest": bool(use_rest and st.sum() >= 50), "noise_scale": noise_scale}
     meta: dict[str, Any] = {"source": recording.meta.get("source") or recording.meta.get("folder"),
                             "averaged": n_avg, "reference": names[reference]}
@@ -436,6 +457,39 @@ def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: in
     meta["spans_s"] = spans
     return MultiImuSetup(cal, block, timing, alignments, delivering, (lo, hi), full, n_avg, still, bias_sigma,
                          spans, clocks)
+
+
+#: the least spread of the reference accelerometer at rest, in its weakest direction, for the relative gains (m/s^2
+#: rms): gravity seen in three directions (poses), else the accelerometers keep the gyros' rotations
+MIN_POSE_SPREAD_M_S2 = 2.0
+
+
+def _accel_gains(Y: np.ndarray, still: np.ndarray, ref_cols: slice, k: int, reference: int, live: list[bool]
+                 ) -> list[np.ndarray] | None:
+    """Each accelerometer triad's gain against the reference triad from the spans at rest (Cho & Park 2005,
+    Eq. 1 with the reference as input): ``y_j = G_j y_ref + c_j`` by least squares over the samples at rest, so
+    that a triad's relative scale and misalignment (about 1 % and 18 mrad between the MIMU4444's triads) are not
+    seen as a pose-dependent bias. Needs gravity in three directions (the reference's spread at rest above
+    :data:`MIN_POSE_SPREAD_M_S2` in its weakest direction); None otherwise. The reference's gain is I (it
+    defines MB)."""
+    R = Y[still][:, ref_cols]
+    ok = np.isfinite(R).all(axis=1)
+    if ok.sum() < 50:
+        return None
+    ev = np.linalg.eigvalsh(np.cov(R[ok].T))
+    if np.sqrt(max(ev[0], 0.0)) < MIN_POSE_SPREAD_M_S2:
+        return None
+    out = []
+    for j in range(k):
+        if j == reference or not live[j]:
+            out.append(np.eye(3))
+            continue
+        Zj = Y[still][:, 3 * j:3 * j + 3]
+        m = ok & np.isfinite(Zj).all(axis=1)
+        X = np.column_stack([R[m], np.ones(m.sum())])
+        coef = np.linalg.lstsq(X, Zj[m], rcond=None)[0]
+        out.append(coef[:3].T)
+    return out
 
 
 def _placeholders_invalid(block: EpochBlock) -> EpochBlock:

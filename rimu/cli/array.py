@@ -171,7 +171,7 @@ def run(args: argparse.Namespace) -> int:
     if rep.accel_steps:
         a = list(rep.accel_steps.values())
         line += f", accelerometers {fmt(a[0].mean(), 'specific_force', 'm/s^2')} -> {fmt(a[-1].mean(), 'specific_force', 'm/s^2')}"
-    for n in rep.notes[:1] + [n for n in rep.notes[1:] if "not applied" in n] + [
+    for n in rep.notes[:1] + [n for n in rep.notes[1:] if "not applied" in n or "angular acceleration" in n] + [
             f"not applied: {r}" for r in rep.refused.values()]:
         print(f"note: {n}")
     lim = rep.limiting_term

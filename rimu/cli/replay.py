@@ -669,7 +669,11 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
         from ._common import json_dump
 
         keep = ("alarms", "isolations", "rest_alarms", "rest_samples", "segments", "selfcal")
-        doc = {k: {"events": [e.to_dict() for e in events[k]], "final_state": last_state[k],
+        # final_state: the manager's state at the end, as printed and as summary.json has it, with the sensors
+        # isolated then; last_sample_state: the last sample's label (an alarm's suspects left out of that sample's
+        # set read as fault_isolated there though nothing is isolated; it was given as final_state)
+        doc = {k: {"events": [e.to_dict() for e in events[k]], "final_state": managers[k][0].state.value,
+                   "isolated_at_end": list(managers[k][0].health.isolated), "last_sample_state": last_state[k],
                    **{f: v for f, v in summary[k].items() if f in keep}} for k in insts}
         if px4_doc is not None:
             doc["px4"] = px4_doc

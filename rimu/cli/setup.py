@@ -181,6 +181,38 @@ def _session(su, insts: list[str], names: list[str], t0: float, source: str):  #
                    raw_unit="SI", meta={"raw_units": {"gyro": "rad/s", "accel": "m/s^2"}, "source": source, "t0_s": t0})
 
 
+def _fit_accel_motion(su, gyro_det, win, fs: float, margin: float, window_s: float) -> None:  # type: ignore[no-untyped-def]
+    """The accelerometers' motion terms on the same window, with the gyros' rate (from their rest level) as the
+    unit's motion: their lever-arm terms grow with it; stored beside the gyros'. Where the setup took the
+    accelerometers' relative gains from the poses at rest, no scale or misalignment term (fitted on the motion's
+    large specific force, margin 10, they would claim at rest, under gravity, errors the poses showed absent)."""
+    import numpy as np
+
+    from ..errors import ShapeError
+    from ..fdi.motion import fit_motion_detector, motion_detector_to_dict
+    from ..fusion import InstrumentPipeline
+
+    b = su.block
+    gp = InstrumentPipeline(su.calibration["gyro"]).process(b.raw["gyro"][win], b.valid["gyro"][win])
+    rate = np.asarray(gp.x, dtype=float) - gyro_det.rest_level
+    try:
+        det = fit_motion_detector(su.calibration["accel"], b.raw["accel"][win], b.valid["accel"][win], fs,
+                                  margin=margin, window=max(1, round(window_s * fs)),
+                                  still=np.asarray(su.still, bool)[win], rate=rate,
+                                  terms=("time_offset", "rate", "accel") if su.spans.get("accel_gains_from_rest")
+                                  else ("scale", "misalignment", "time_offset", "rate", "accel"))
+    except ShapeError as exc:
+        raise ShapeError(f"--motion-fit (accelerometers): {exc}") from None
+    su.calibration.metadata["motion_terms"]["accel"] = motion_detector_to_dict(det)
+    m = det.model
+    print(f"accel motion terms (fit window, {det.fit_samples} epochs, margin {margin:g}, the test on the mean of "
+          f"{det.window} epoch(s)): scale {1e2 * float(np.median(m.scale_rel)):.3g} %, misalignment "
+          f"{1e3 * float(np.median(m.misalignment_rad)):.3g} mrad, vibration {float(np.median(np.sqrt(m.rate_var))):.3g} "
+          f"m/s^2 per rad/s and {float(np.median(np.sqrt(m.accel_var))):.3g} m/s^2 per rad/s^2 (medians); they hold "
+          f"for |rate| up to {np.degrees(det.envelope[0]):.4g} deg/s and |angular acceleration| up to "
+          f"{np.degrees(det.envelope[1]):.4g} deg/s^2 of the gyros (beyond: model_exceeded, nothing isolated)")
+
+
 def _fit_motion(su, margin: float, window_s: float, track_s: Any) -> None:  # type: ignore[no-untyped-def]
     """The gyros' motion terms on the fit window (taken as fault-free), stored in the calibration's metadata
     (``motion_terms``), with what they assume printed."""
@@ -204,6 +236,8 @@ def _fit_motion(su, margin: float, window_s: float, track_s: Any) -> None:  # ty
     su.calibration.metadata["motion_terms"] = {"gyro": motion_detector_to_dict(det)}
     if det.bias_drift is not None:
         print("gyro " + (det.bias_drift if isinstance(det.bias_drift, str) else det.bias_drift.describe()))
+    if "accel" in su.calibration.instruments and "accel" in b.raw:
+        _fit_accel_motion(su, det, win, fs, margin, window_s)
     m = det.model
     print(f"gyro motion terms (fit window, {det.fit_samples} epochs, margin {margin:g}; the test decides on the mean "
           f"of {det.window} epoch(s), window gain {float(np.median(det.window_gain)):.3g} (median)): scale "

@@ -402,6 +402,10 @@ class MotionAwareGlt:
 
     def update(self, parity: np.ndarray) -> tuple[float, float]:
         env = self.envelope
+        if env is not None and not self.input_is_rate:  # accelerometers: the unit's motion from the gyros
+            w = self._rate if self._rate is not None else np.zeros(3)  # (set_motion); unknown is beyond
+            a = self._dgyro if self._dgyro is not None else np.zeros(3)
+            self.model_exceeded = not (float(np.linalg.norm(w)) <= env[0] and float(np.linalg.norm(a)) <= env[1])
         if self._dof < 1:
             if env is not None and self.input_is_rate:
                 self.model_exceeded = bool(np.linalg.norm(self._u) > env[0] or np.linalg.norm(self._du) > env[1])
@@ -581,8 +585,10 @@ def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, val
                         sample_rate: float, margin: float = 3.0, p_fa: float = 1e-3,
                         terms: tuple[str, ...] = _FIT_TERMS[1:], min_samples: int = 50,
                         envelope: float | None = 1.0, window: int = 1,
-                        bias_track_s: float | str | None = None, still: np.ndarray | None = None) -> MotionAwareGlt:
-    """A gyro :class:`MotionAwareGlt` whose motion terms are fitted on fault-free raw data of the unit.
+                        bias_track_s: float | str | None = None, still: np.ndarray | None = None,
+                        rate: np.ndarray | None = None) -> MotionAwareGlt:
+    """A gyro (or, with ``rate``, accelerometer) :class:`MotionAwareGlt` whose motion terms are fitted on
+    fault-free raw data of the unit.
 
     The data go through the runtime pipeline with every sensor active; the samples where every sensor is valid
     give the residuals ``sigma^2 (parity @ Vz)``, the estimate is the angular rate and its central difference
@@ -619,6 +625,12 @@ def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, val
         The samples at rest (e.g. :attr:`rimu.calibration.multi_imu.MultiImuSetup.still`); default: the estimate
         within 0.02 rad/s of zero. Given, their median estimate is the detector's ``rest_level`` (the array's
         common bias, which no parity sees): the motion terms are fitted and evaluated on the rate from it.
+    rate : ndarray (N, 3), optional
+        For accelerometers: the unit's angular rate at the same samples (the gyros' estimate, rad/s). The
+        instrument's input is then the specific force (scale and misalignment act on it, its difference is the
+        time-offset term), the vibration terms and the envelope follow the rate and its difference (the
+        accelerometers' lever-arm terms grow with both), and the detector takes them per sample by
+        ``set_motion`` (:class:`rimu.fdi.Runtime` feeds the gyros' estimate). No relative-bias tracker.
 
     Returns
     -------
@@ -646,6 +658,30 @@ def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, val
     else:  # the estimate at rest is the common bias no parity sees (the reference triad's): not a rate
         rest = full & np.asarray(still, bool)
         level = np.median(x[rest], axis=0) if rest.any() else level
+    if rate is not None:  # accelerometers: input = specific force, motion = the gyros' rate
+        w = np.asarray(rate, dtype=float)
+        if w.shape != (len(x), 3):
+            raise ShapeError(f"rate must be (N, 3) with N = {len(x)} (the accelerometer samples), got {w.shape}")
+        full = full & np.isfinite(w).all(axis=1)
+        w = np.where(np.isfinite(w), w, 0.0)
+        if int(full.sum()) < min_samples:
+            raise ShapeError(f"only {int(full.sum())} samples with every accelerometer valid and a rate to fit the "
+                             f"motion terms; give a longer fault-free span (at least {min_samples} samples)")
+        rest = full & (np.asarray(still, bool) if still is not None else np.linalg.norm(w, axis=1) < 0.02)
+        du = np.gradient(x, 1.0 / sample_rate, axis=0)
+        alpha = np.gradient(w, 1.0 / sample_rate, axis=0)
+        model = fit_motion_terms(MotionNoiseModel(calibration, sigma=pipe.table.sigma), res[full], pipe.table.G[0],
+                                 w[full], alpha[full], u=x[full], du=du[full], terms=terms, margin=margin)
+        gain = _window_gain(res, rest, int(window)) if window > 1 else 1.0
+        det = MotionAwareGlt(model, p_fa, sample_rate=sample_rate, input_is_rate=False, window=window,
+                             window_gain=gain)
+        det.fit_samples = int(full.sum())
+        det.bias_drift = None
+        det.moving_samples = int((full & (np.linalg.norm(w, axis=1) >= MOTION_RATE)).sum())
+        if envelope is not None:  # the gyros' motion over the fit samples (set_motion gives it at runtime)
+            det.envelope = (float(envelope * np.linalg.norm(w[full], axis=1).max()),
+                            float(envelope * np.linalg.norm(alpha[full], axis=1).max()))
+        return det
     x = x - level
     alpha = np.gradient(x, 1.0 / sample_rate, axis=0)
     model = MotionNoiseModel(calibration, sigma=pipe.table.sigma)
@@ -807,6 +843,8 @@ def motion_detector_to_dict(detector: MotionAwareGlt) -> dict[str, Any]:
     out["fit_samples"] = int(detector.fit_samples)
     out["envelope"] = None if detector.envelope is None else [  # no limit (inf): null
         float(v) if np.isfinite(v) else None for v in detector.envelope]
+    if not detector.input_is_rate:
+        out["input_is_rate"] = False
     return out
 
 
@@ -823,6 +861,7 @@ def motion_detector_from_dict(calibration: InstrumentCalibration, stored: dict[s
         raise ShapeError(f"stored motion terms are incomplete or malformed ({exc}); fit them again "
                          "(rimu setup --motion-fit)") from None
     det = MotionAwareGlt(MotionNoiseModel(calibration, **terms), p_fa, sample_rate=fs,
+                         input_is_rate=bool(stored.get("input_is_rate", True)),
                          window=int(stored.get("window", 1)), window_gain=stored.get("window_gain", 1.0),
                          bias_track_s=stored.get("bias_track_s"), rest_level=stored.get("rest_level"))
     det.fit_samples = int(stored.get("fit_samples", 0))

@@ -133,6 +133,12 @@ class Runtime:
                                  f"(RedundancyManager(pipeline[{k!r}], ...)): the compensation estimates on it")
         self.pipeline = pipeline
         self.managers = managers
+        #: instruments whose detector takes the unit's motion from the gyros (accelerometers' motion-aware test,
+        #: ``MotionAwareGlt(input_is_rate=False)``): fed the gyro manager's last estimate and its difference
+        self._motion_fed = [k for k, m in managers.items() if k != "gyro" and "gyro" in managers
+                            and hasattr(m.detector, "set_motion") and not getattr(m.detector, "input_is_rate", True)]
+        self._gyro_last: tuple[float, np.ndarray] | None = None
+        self._motion = (np.zeros(3), np.zeros(3))
         #: the in-flight self-calibration of each tracked instrument (its state: ``selfcal[k].state``)
         self.selfcal: dict[str, SelfCalLoop] = {}
         for k, v in (selfcal or {}).items():
@@ -151,11 +157,31 @@ class Runtime:
         """Instrument ``k``'s manager on one epoch's compensated outputs, corrected by its tracked terms first."""
         loop = self.selfcal.get(k)
         m = self.managers[k]
+        if k in self._motion_fed:
+            m.detector.set_motion(*self._motion)
         if loop is None:
-            return m.step(y, valid, t)
-        r = m.step(loop.correct(y, valid, t, temperature), valid, t)
-        loop.observe(r, m.sensors.state >= SensorState.ISOLATED)
+            r = m.step(y, valid, t)
+        else:
+            r = m.step(loop.correct(y, valid, t, temperature), valid, t)
+            loop.observe(r, m.sensors.state >= SensorState.ISOLATED)
+        if k == "gyro" and self._motion_fed:
+            self._feed_motion(r, t)
         return r
+
+    def _feed_motion(self, r: FdiResult, t: float) -> None:
+        """The gyro manager's estimate (from its detector's rest level, the array's common bias) and its
+        difference: the motion the accelerometers' test assumes at the next accelerometer step (in the pipeline's
+        order: the same epoch when the gyros go first, else the next one)."""
+        x = np.asarray(r.x, dtype=float)
+        if not np.all(np.isfinite(x)):  # no rate (unobservable): the motion is unknown, taken as beyond any
+            self._motion = (np.full(3, 1e6), np.full(3, 1e6))  # envelope (finite: the covariance stays a number)
+            self._gyro_last = None
+            return
+        x = x - np.asarray(getattr(self.managers["gyro"].detector, "rest_level", np.zeros(3)), dtype=float)
+        last = self._gyro_last
+        alpha = (x - last[1]) / (t - last[0]) if last is not None and t > last[0] else np.zeros(3)
+        self._gyro_last = (t, x)
+        self._motion = (x, alpha)
 
     def selfcal_terms(self) -> dict[str, dict[str, tuple[np.ndarray, np.ndarray]]]:
         """The tracked terms of every tracked instrument now, with their 1-sigma (SI; see
@@ -227,7 +253,8 @@ class Runtime:
         epochs and doubles, so that sets changing often do not each waste a chunk's compensation."""
         N = len(block)
         t = np.asarray(block.t, dtype=float)
-        if not self.pipeline.compensation and not self.selfcal:  # nothing couples the instruments: each manager alone
+        if not self.pipeline.compensation and not self.selfcal and not self._motion_fed:
+            # nothing couples the instruments: each manager alone
             return {k: m.run(block.raw[k], block.valid.get(k), t) for k, m in self.managers.items()}
         if chunk < 1:
             raise ValueError(f"chunk must be >= 1 epochs, got {chunk}")

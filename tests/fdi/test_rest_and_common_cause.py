@@ -163,3 +163,81 @@ def test_replay_states_what_the_motion_thresholds_assume(tmp_path, capsys):
     line = next(ln for ln in out.splitlines() if "thresholds assume the motion of the fit span" in ln)
     rate = float(line.split("|rate| up to ")[1].split(" deg/s")[0])
     assert 0 < rate < 1e4 and "model_exceeded" in line
+
+
+def test_accelerometer_gains_from_the_poses_at_rest(monkeypatch):
+    """Issue 32: accelerometer triads with relative gains (1 % scale, 10 mrad misalignment) placed in six poses:
+    the setup's gains against the reference come out as the truth's (``G_j G_0^-1``), the noise as the
+    accelerometers' own and a plain GLT on them at rest alarms below 1 %; with biases only (the gains refused)
+    the pose-dependent error (0.1 m/s^2) is taken for noise, more than three times the true 0.01 m/s^2."""
+    import rimu.calibration.multi_imu as mi
+
+    rng = np.random.default_rng(11)
+    k, rate, per = 4, 50.0, 600
+    poses = [rotation_matrix(v) for v in np.radians([[0, 0, 0], [90, 0, 0], [-90, 0, 0], [0, 90, 0], [0, -90, 0],
+                                                     [180, 0, 0]])]
+    g_mb = np.vstack([np.tile(P.T @ [0.0, 0.0, G0], (per, 1)) for P in poses])
+    N = len(g_mb)
+    t = np.arange(N) / rate
+    gains = [np.eye(3) + rng.normal(0, 0.01, (3, 3)) for _ in range(k)]
+    units = []
+    for j in range(k):
+        a = g_mb @ gains[j].T + rng.normal(0, 0.05, 3) + 0.01 * rng.normal(size=(N, 3))
+        units.append(ImuStream(f"u{j}", t.copy(), 0.002 * rng.normal(size=(N, 3)), a))
+    rec = MultiImuRecording(units, {})
+    su = setup_multi_imu(rec, average_s=None, align_axes=False)
+    assert su.spans["accel_gains_from_rest"]
+    acc = su.calibration["accel"]
+    fitted = (acc.axes_mb() / acc.scale[:, None]).reshape(k, 3, 3)
+    for j in range(k):
+        np.testing.assert_allclose(fitted[j], gains[j] @ np.linalg.inv(gains[0]), atol=1e-3)
+
+    def rest_alarm_rate(cal):
+        mgr = RedundancyManager(InstrumentPipeline(cal), p_fa=1e-3, confirm=3)
+        res = mgr.run(su.block.raw["accel"], su.block.valid["accel"], su.block.t)
+        return float(np.asarray(res.alarm)[su.still].mean())
+
+    assert rest_alarm_rate(acc) < 0.01
+    # the noise (scaled so that the rest is chi-square) is the accelerometers' own: 0.01 m/s^2
+    assert np.allclose(acc.noise_sigma, 0.01, rtol=0.2), acc.noise_sigma
+    monkeypatch.setattr(mi, "MIN_POSE_SPREAD_M_S2", 1e9)             # gains refused: biases only, as before
+    su0 = setup_multi_imu(rec, average_s=None, align_axes=False)
+    assert not su0.spans["accel_gains_from_rest"]
+    # the pose-dependent error is taken for noise: thresholds several times too wide (a fault that size unseen)
+    assert np.median(su0.calibration["accel"].noise_sigma) > 3 * 0.01, su0.calibration["accel"].noise_sigma
+
+
+def test_accelerometer_test_takes_the_motion_from_the_gyros():
+    """Issue 32: an accelerometer MotionAwareGlt (``input_is_rate=False``) in a Runtime gets the gyro manager's
+    rate epoch by epoch: an accelerometer that disagrees while the gyros turn beyond the envelope is
+    ``model_exceeded`` (nothing isolated); the same disagreement at rest is isolated."""
+    from rimu.calibration.result import Calibration
+    from rimu.fdi import Runtime
+    from rimu.fusion import Pipeline
+
+    geo = triads(3)
+    cal = Calibration({"gyro": InstrumentCalibration.nominal("gyro", geo, 1.0, noise_sigma=0.01),
+                       "accel": InstrumentCalibration.nominal("accel", geo, 1.0, noise_sigma=0.01)}, raw_unit="SI")
+    pipe = Pipeline(cal)
+    rng = np.random.default_rng(2)
+    N = 400
+    w = np.zeros((N, 3))
+    w[100:200, 2] = 5.0                                          # the gyros turn at 5 rad/s: beyond 1 rad/s
+    G = np.tile(w, (1, 3)) + 0.01 * rng.normal(size=(N, 9))
+    A = np.tile([0.0, 0.0, G0], (N, 3)) + 0.01 * rng.normal(size=(N, 9))
+    A[100:200, 0] += 0.5                                         # one accelerometer off while turning ...
+    A[300:350, 0] += 0.5                                         # ... and at rest
+    det = MotionAwareGlt(MotionNoiseModel(cal["accel"]), sample_rate=100.0, input_is_rate=False)
+    det.envelope = (1.0, 1e4)
+    mgrs = {"gyro": RedundancyManager(pipe["gyro"], p_fa=1e-3, confirm=3),
+            "accel": RedundancyManager(pipe["accel"], det, p_fa=1e-3, confirm=3, sample_rate=100.0)}
+    from rimu.epoch import EpochBlock
+
+    blk = EpochBlock(np.arange(N) / 100.0, {"gyro": G, "accel": A}, {"gyro": np.ones((N, 9), bool),
+                                                                       "accel": np.ones((N, 9), bool)})
+    res = Runtime(pipe, mgrs).run(blk)
+    ev = [(e.kind, e.sensor, e.sample) for e in res["accel"].events]
+    assert any(k == "model_exceeded" and 100 <= s < 200 for k, _, s in ev), ev
+    iso = [(n, s) for k, n, s in ev if k == "isolated"]
+    assert iso and iso[0][0] == "imu0_x" and 300 <= iso[0][1] < 310, ev
+    assert not any(100 <= s < 300 for _, s in iso)

@@ -51,7 +51,9 @@ def test_replay_selfcal_shows_the_tracked_terms_and_decides_as_the_runtime(log, 
     assert (d / "rep" / "selfcal-gyro.png").stat().st_size > 10000
     summary = json.loads((d / "o" / "summary.json").read_text())["gyro"]
     assert summary["isolations"] == 0 and summary["selfcal"]["windows_absorbed"] > 120
-    assert json.loads((d / "ev.json").read_text())["gyro"]["selfcal"] == summary["selfcal"]
+    ev = json.loads((d / "ev.json").read_text())["gyro"]
+    assert ev["selfcal"] == summary["selfcal"]
+    assert ev["final_state"] == summary["final_state"] and f"final state {ev['final_state']}" in out  # one end state
     # the held-out check: on this drifting flight the temperature terms lower the held-out parity and are applied
     g = summary["selfcal"]["guard"]
     assert g["enabled"] and g["groups"]["temperature"]["applied"] and g["groups"]["temperature"]["heldout_gain"] > 0
