@@ -824,6 +824,11 @@ class _Tracked:
         print(f"    self-calibration: {loop.accepted} windows absorbed, {loop.rejected} gated out, {loop.discarded} "
               "thrown away (alarms); tracked terms at the end (common mode left as it was), value +- 1 sigma:")
         rows = print_terms(inst, loop.tracker, loop.terms(), indent="    ")
+        if loop.discarded > loop.accepted:  # the alarms froze the tracker more than it tracked: say what may cause it
+            print(f"    note: the alarms threw away more windows ({loop.discarded}) than were absorbed ({loop.accepted}): "
+                  "a unit drifting faster than the tracker is told (--selfcal-bias-rw or --selfcal-drift-factor) or "
+                  "starting further off (--selfcal-bias-sigma0) alarms on its drift, the tracker stays frozen and "
+                  "healthy sensors may be isolated (docs/selfcal.md, Fault-aware)")
         g = loop.guard()
         if g["enabled"]:
             print(f"    held-out check (docs/selfcal.md): parity rms {g['heldout_rms_fixed']:.3f} sigma with the fixed "

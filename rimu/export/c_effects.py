@@ -498,7 +498,7 @@ def unit_step(cal: Calibration, name: str, params: str | dict[str, str], iso: st
     ranged = [k for k in p.comps if clip and getattr(cal[k], "range_raw", None) is not None]
     vname = {k: (f"{k}_use" if k in ranged else f"{k}_valid") for k in p.instruments}
     if p.comps:
-        b += ["    rimu_real f[3] = {0, 0, 0}, w[3] = {0, 0, 0}, m[RIMU_NMONO], yr[RIMU_NMAX], dT;"]
+        b += ["    rimu_real f[3] = {0, 0, 0}, w[3] = {0, 0, 0}, m[RIMU_NMONO], yr[RIMU_NMAX], dT, tm;"]
         if p.cyclic:
             b += ["    rimu_real zero[3] = {0, 0, 0}, fp[3];", "    int r;"]
         if ranged:
@@ -508,9 +508,11 @@ def unit_step(cal: Calibration, name: str, params: str | dict[str, str], iso: st
                 b += [f"    for (i = 0; i < RIMU_{k.upper()}_N; ++i) {{  /* usable: flagged valid and inside the range */",
                       f"        {k}_use[i] = ((({k}_valid == NULL) || ({k}_valid[i] != 0u)) "
                       f"&& !(RIMU_FABS({k}_y[i]) >= {k}_range[i])) ? 1u : 0u;", "    }"]
-        b += [f"    dT = {'temperature - RIMU_REFERENCE_TEMPERATURE' if p.needs_temperature else '0'};"]
+        b += [f"    dT = {'temperature - RIMU_REFERENCE_TEMPERATURE' if p.needs_temperature else '(rimu_real)0'};"]
         if not p.needs_time:
-            b += ["    t = 0;  /* no drift term: the time is not read */"]
+            b += ["    tm = (rimu_real)0;  /* no drift term: the time is not read */", "    (void)t;"]
+        else:
+            b += ["    tm = t;"]
         if not p.needs_temperature:
             b += ["    (void)temperature;"]
         if p.cyclic:
@@ -519,23 +521,23 @@ def unit_step(cal: Calibration, name: str, params: str | dict[str, str], iso: st
             est = {k: f"rimu_wls(RIMU_{k.upper()}_N, {k}_axes, {k}_w, {k}_G, {iso.format(k=k)}, {vname[k]}, yr, "
                    for k in p.comps}
             b += ["    /* the gyro <-> accelerometer fixed point (Pipeline._preliminary_rate) */",
-                  "    rimu_monomials(t, dT, zero, zero, m);",
+                  "    rimu_monomials(tm, dT, zero, zero, m);",
                   f"    {q['accel']}",
                   f"    {est['accel']}fp);",
-                  "    rimu_monomials(t, dT, fp, zero, m);",
+                  "    rimu_monomials(tm, dT, fp, zero, m);",
                   f"    {q['gyro']}",
                   f"    {est['gyro']}w);",
                   f"    for (r = 1; r < {p.rounds}; ++r) {{",
-                  "        rimu_monomials(t, dT, zero, w, m);",
+                  "        rimu_monomials(tm, dT, zero, w, m);",
                   f"        {q['accel']}",
                   f"        {est['accel']}fp);",
-                  "        rimu_monomials(t, dT, fp, zero, m);",
+                  "        rimu_monomials(tm, dT, fp, zero, m);",
                   f"        {q['gyro']}",
                   f"        {est['gyro']}w);",
                   "    }"]
         for k in p.order:
             if k in p.comps:
-                b += ["    rimu_monomials(t, dT, f, w, m);",
+                b += ["    rimu_monomials(tm, dT, f, w, m);",
                       f"    {k}_raw({iso.format(k=k)}, {vname[k]}, {k}_y, m, yr);"]
                 if k in ranged:
                     b += [f"    for (i = 0; i < RIMU_{k.upper()}_N; ++i) {{  /* a clipped output stays clipped */",

@@ -352,3 +352,19 @@ def test_an_invalid_value_does_not_enter_the_compensation(tmp_path):
     assert any(not np.all(np.isfinite(v)) for v in raw.values())
     for h in ref:
         assert np.array_equal(c[h], ref[h]), h
+
+
+@pytest.mark.skipif(shutil.which("cppcheck") is None, reason="cppcheck is not installed")
+@pytest.mark.parametrize("effects", [{"gyro": ["g_sensitivity"], "accel": ["size_effect"]},
+                                     {"gyro": ["g_sensitivity", "bias_temperature"]}], ids=["no-drift", "temperature"])
+def test_effects_unit_misra_only_the_documented_deviations(tmp_path, effects):
+    """rimu_unit.c of a unit with coupled effects and no drift term (the time not read) or no temperature term:
+    MISRA C:2012 finds only the documented deviations (it assigned an int 0 to the real parameter t: rule 10.3,
+    four findings)."""
+    from rimu.export.misra import DEVIATIONS, misra_check
+
+    export_c(with_effects(_base("cone6"), effects), tmp_path)
+    found = misra_check(tmp_path)
+    assert sum(found["misra"].values()) > 0
+    assert set(found["misra"]) <= set(DEVIATIONS), set(found["misra"]) - set(DEVIATIONS)
+    assert not found["other"], found["other"]

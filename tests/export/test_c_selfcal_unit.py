@@ -35,6 +35,8 @@ needs_cc = pytest.mark.skipif(not (shutil.which("cc") or shutil.which("gcc")) or
 SIGMA = 0.01          # rad/s per sample
 FS = 100.0            # Hz
 BIAS_RW = 4e-7        # (rad/s)^2/s
+DRIFT_RW = 3 * BIAS_RW  # (rad/s)^2/s: the unit's bias random walk (the tracker is told it)
+OFFSET = 0.004        # rad/s: 1-sigma of each bias's error at the start (the tracker is told it)
 
 
 def _unit(tmp_path, geo, seed: int, duration: float = 40.0):
@@ -45,7 +47,7 @@ def _unit(tmp_path, geo, seed: int, duration: float = 40.0):
     t = 500.0 + np.arange(N) / FS
     T = 10.0 + 30.0 * np.arange(N) / (N - 1)                           # a 30 K ramp, degC
     u = np.column_stack([0.5 * np.sin(0.7 * t + i) + 0.2 * np.sin(2.3 * t + 2 * i) for i in range(3)])
-    drift = np.cumsum(rng.standard_normal((N, n)) * np.sqrt(3 * BIAS_RW / FS), axis=0) + rng.normal(0, 0.004, n)
+    drift = np.cumsum(rng.standard_normal((N, n)) * np.sqrt(DRIFT_RW / FS), axis=0) + rng.normal(0, OFFSET, n)
     c1, c2 = rng.normal(0, 1e-4, n), rng.normal(0, 5e-6, n)             # rad/s/K, rad/s/K^2
     Y = u @ inst.axes_mb().T + drift + (T - 25.0)[:, None] * c1 + ((T - 25.0) ** 2)[:, None] * c2
     Y += rng.standard_normal((N, n)) * SIGMA
@@ -72,7 +74,9 @@ def test_exported_selfcal_unit_decides_as_replay(tmp_path, geo, window):
     """cone6 with the default detector (the window GLT of the tracker's window); the triads with a window GLT of 30
     samples (replay --detector glt_window --window 30, export-c --selfcal-detector-window 30)."""
     log, cal, bad = _unit(tmp_path, geo, seed=3)
-    opts = ["--selfcal-bias-rw", repr(BIAS_RW), "--selfcal-window", "0.5"]
+    # the unit's drift as it is (told a slower one, the tracker is frozen by the alarms of the drift it may not
+    # absorb, and healthy sensors are isolated before the step: tests/fdi/test_selfcal_isolation.py)
+    opts = ["--selfcal-bias-rw", repr(DRIFT_RW), "--selfcal-bias-sigma0", repr(OFFSET), "--selfcal-window", "0.5"]
     det = [] if window is None else ["--detector", "glt_window", "--window", str(window)]
     _run(["replay", str(log), "--calibration", str(cal), "--selfcal", *opts, *det, "--estimates",
           str(tmp_path / "py.csv"), "--json", str(tmp_path / "py.json"), "-q"])
@@ -90,6 +94,9 @@ def test_exported_selfcal_unit_decides_as_replay(tmp_path, geo, window):
     assert np.array_equal(c.validity["gyro"], py.validity["gyro"])
     assert np.array_equal(c.isolated["gyro"], py.isolated["gyro"])
     assert py.isolated["gyro"][-1].nonzero()[0].tolist() == [bad]          # the fault was isolated ...
+    ever = np.flatnonzero(py.isolated["gyro"].any(axis=0)).tolist()
+    first = int(np.flatnonzero(py.isolated["gyro"][:, bad])[0])
+    assert ever == [bad] and py.t[first] >= py.t[int(0.6 * len(py.t))], (ever, py.t[first])  # ... alone, after its step
     assert np.count_nonzero(py.validity["gyro"] == 1) > 0                  # ... after alarms
     # the estimates (from the corrected outputs): 1e-12 of the noise
     x_c, x_py = c.x["gyro"], py.x["gyro"]
