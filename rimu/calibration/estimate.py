@@ -407,10 +407,15 @@ class LeastSquares:
                 ctxs = contexts(session, inst)
                 forms = [_input_form(ctxs[0], seg) for seg in segs]
                 # the sums, squares and first differences of every segment the noise level and the fit read, the
-                # short ones together in a few numpy calls
+                # short ones together in a few numpy calls; of a turn read as one integrated row, its column sums
+                # alone (unless the noise level reads it too)
                 need = {id(x): x for x in noise}
-                need.update((id(x), x) for x, (kind, _) in zip(segs, forms) if kind is not None or _is_turn(x, inst))
+                need.update((id(x), x) for x, (kind, _) in zip(segs, forms) if kind is not None)
+                turns = [x for x, (kind, _) in zip(segs, forms) if kind is None and id(x) not in need
+                         and _is_turn(x, inst)]
                 sums = dict(zip(need, sstats.sums_of(list(need.values()), inst, full=True)))
+                if turns:
+                    sstats.sums_of(turns, inst)
                 if self.sigma is not None and self.sigma.get(inst) is not None:
                     sig = _sigma_for(self.sigma, session, inst, sstats)
                 else:

@@ -1059,7 +1059,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
              accel_dir_jac: np.ndarray | None, accel_cov: np.ndarray | None, idx: Sequence[int], sigma: np.ndarray,
              H: np.ndarray, robust: bool = True, dir_cov: np.ndarray | None = None,
              preintegrate: bool = True, _stats: _RawStats | None = None, _ybar: np.ndarray | None = None,
-             _kern: Any = None, model: str = "full") -> GyroFit:
+             _kern: Any = None, model: str = "full", _start: np.ndarray | None = None) -> GyroFit:
     """Gyros from the rotations between poses (module docstring; Tedaldi et al. 2014, Eq. 14-18).
 
     Parameters
@@ -1398,7 +1398,9 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
 
     gain = np.diag(np.linalg.inv(H.T @ (H / sigma[:, None] ** 2)))  # per-sample rate variance / s0^2 (nominal)
     q_m = float(np.mean(gain)) / s0**2 * (np.array([d @ d for d in mot_dt]) + q_ab)
-    theta = theta0
+    # (``_start``: a solution of the same model on other motions, e.g. all of them where this fit leaves some out: the
+    # same minimum from nearer, fewer integrations; the weights and typical sizes are this fit's own)
+    theta = theta0 if _start is None else np.asarray(_start, dtype=float).copy()
     pre = None
     by_pose = {int(a): m for m, a in enumerate(ka)}
     for it in range(2):
@@ -1542,7 +1544,7 @@ def held_out_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]
             for g in range(k):
                 keep = [w for m, w in enumerate(windows) if group[m] != g]
                 gf = fit_gyro(session, keep, accel_dirs, None, None, idx, sigma, H, robust, dir_cov, model=model,
-                              **fit_kw)
+                              _start=full.theta, **fit_kw)
                 r[group == g] = misfit(gf.theta)[group == g]
         except (IdentifiabilityError, np.linalg.LinAlgError):
             return None

@@ -94,3 +94,24 @@ def test_the_mpu6050_session_s_gyro_step_from_the_cli(tmp_path, capsys):
                 if n.startswith("gyro: the misalignment step"))
     assert note in out and "(each left out in turn)" in note and "not applied" not in note, note
     np.testing.assert_allclose(_figures(note), np.radians([4.33, 2.209, 7.209, 7.172]), rtol=2e-3)
+
+
+def test_a_fold_fit_started_from_the_whole_fit_reaches_the_minimum_of_the_nominal_start():
+    # held_out_gyro starts each fold's fit from the fit on every motion (fewer integrations); the minimum must be
+    # the one the nominal start reaches, to the solver's tolerance (1e-8 of the typical sizes)
+    from rimu.calibration.handheld import _dirs_with_jacobian, _statics, fit_gyro, pose_windows, white_noise_sigma_hf
+
+    run = handheld_run(n_poses=12, static_s=1.0, seed=1)
+    s = run.session
+    res = HandHeld(instruments=["accel"]).fit(s)
+    dirs = _dirs_with_jacobian(res.fits["accel"][0], _statics(s), s, white_noise_sigma_hf(s, "accel"))[0]
+    sg, win = white_noise_sigma_hf(s, "gyro"), pose_windows(s)
+    keep = [w for m, w in enumerate(win) if m % 4 != 1]
+    for model in ("scale_bias", "full"):
+        whole = fit_gyro(s, win, dirs, None, None, [0, 1, 2], sg, np.eye(3), model=model)
+        cold = fit_gyro(s, keep, dirs, None, None, [0, 1, 2], sg, np.eye(3), model=model)
+        warm = fit_gyro(s, keep, dirs, None, None, [0, 1, 2], sg, np.eye(3), model=model, _start=whole.theta)
+        assert np.max(np.abs(whole.theta - cold.theta)) > 1e-6 * np.max(np.abs(cold.theta))  # a different fit
+        np.testing.assert_allclose(warm.theta, cold.theta, rtol=1e-6, atol=1e-9 * np.max(np.abs(cold.theta)))
+        np.testing.assert_allclose(warm.problem["rotation_misfit"](warm.theta),
+                                   cold.problem["rotation_misfit"](cold.theta), rtol=1e-4, atol=1e-9)
