@@ -105,13 +105,20 @@ def _magnitudes(session: Session, instrument: str) -> tuple[list[float], list[fl
     magnitude is known: gravity at rest for accelerometers; table rate or total angle for gyros."""
     g = session.geometries[instrument]
     Hp = np.linalg.pinv(g.H)
+    # at rest, each sub-unit that resolves a 3-vector on its own (a triad) gives gravity's magnitude whatever its
+    # attitude: the median over them is right for triads whose declared axes are off (a unit set up with parallel
+    # triads that are mounted tens of degrees apart read 6.7 m/s^2 through the unit's H^+, and was warned about)
+    own = [(list(su.members), np.linalg.pinv(g.H[list(su.members)])) for su in g.subunits
+           if len(g.subunits) > 1 and np.linalg.matrix_rank(g.H[list(su.members)]) == 3]
     meas, exp, labels = [], [], []
     for s in session.segments:
         y = s.raw[instrument]
         if instrument == "accel":
             if s.kind not in ("static", "static_unknown"):
                 continue
-            meas.append(float(np.linalg.norm(Hp @ y.mean(axis=0))))
+            ym = y.mean(axis=0)
+            meas.append(float(np.median([np.linalg.norm(P @ ym[m]) for m, P in own])) if own
+                        else float(np.linalg.norm(Hp @ ym)))
             exp.append(float(session.gravity))
         elif s.kind == "rate":
             w = float(np.linalg.norm(s.table_rate()))

@@ -163,3 +163,25 @@ def test_interrupted_session_write_leaves_nothing(tmp_path, monkeypatch):
         save_session(s, path)
     assert path.read_text() == "old content\n"
     assert sorted(x.name for x in tmp_path.iterdir()) == ["s.csv"]
+
+
+def test_parallel_triads_mounted_apart_pass_at_rest_and_a_wrong_unit_is_still_named():
+    """Three triads declared parallel but mounted 0, 60 and 120 degrees apart about x, still under gravity in m/s^2:
+    through the unit's H^+ their mean reads 2/3 g (a units warning on the NaveGo board set up with --parallel); each
+    triad on its own reads 1 g, so nothing is found. The same outputs declared in g are still named as m/s^2."""
+    from rimu.geometry import triads
+    from rimu.session import Segment, Session
+
+    rng = np.random.default_rng(0)
+    ys = []
+    for ang in np.radians([0.0, 60.0, 120.0]):
+        c, s = np.cos(ang), np.sin(ang)
+        R = np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+        ys.append(R.T @ np.array([0.0, 0.0, G0]))
+    y = np.tile(np.concatenate(ys), (200, 1)) + 0.01 * rng.standard_normal((200, 9))
+    geo = triads(3)
+    assert abs(np.linalg.norm(np.linalg.pinv(geo.H) @ y.mean(axis=0)) / G0 - 2 / 3) < 0.01   # the old measure
+    seg = Segment("rest", "static_unknown", np.arange(200) / 100.0, {"accel": y})
+    assert check_session(Session([seg], {"accel": geo}, 100.0, raw_unit="m/s^2"), "board") == []
+    found = check_session(Session([seg], {"accel": geo}, 100.0, raw_unit="g"), "board")
+    assert [f.check for f in found] == ["units"] and "m/s^2" in found[0].message
