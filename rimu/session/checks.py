@@ -108,8 +108,8 @@ def _magnitudes(session: Session, instrument: str) -> tuple[list[float], list[fl
     # at rest, each sub-unit that resolves a 3-vector on its own (a triad) gives gravity's magnitude whatever its
     # attitude: the median over them is right for triads whose declared axes are off (a unit set up with parallel
     # triads that are mounted tens of degrees apart read 6.7 m/s^2 through the unit's H^+, and was warned about)
-    own = [(list(su.members), np.linalg.pinv(g.H[list(su.members)])) for su in g.subunits
-           if len(g.subunits) > 1 and np.linalg.matrix_rank(g.H[list(su.members)]) == 3]
+    subs = [list(su.members) for su in g.subunits] if len(g.subunits) > 1 else []
+    own = [(m, np.linalg.pinv(g.H[m])) for m in subs if np.linalg.matrix_rank(g.H[m]) == 3]
     meas, exp, labels = [], [], []
     for s in session.segments:
         y = s.raw[instrument]

@@ -27,6 +27,16 @@ def _write(path, rng):  # type: ignore[no-untyped-def]
     np.savetxt(path, np.column_stack(cols), fmt="%.6f", delimiter=",", header=head, comments="")
 
 
+def _empty_imu1_gyro(path, rows) -> None:  # type: ignore[no-untyped-def]
+    """Blank imu1's three gyro cells on the given lines of a file written by :func:`_write` (line 0: the header)."""
+    lines = path.read_text().splitlines()
+    for r in rows:
+        cells = lines[r].split(",")
+        cells[8:11] = ["", "", ""]
+        lines[r] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+
+
 def test_declared_deg_s_and_g_are_applied(tmp_path, capsys):  # type: ignore[no-untyped-def]
     _write(tmp_path / "flight.csv", np.random.default_rng(3))
     assert main(["import", str(tmp_path / "flight.csv"), "-o", str(tmp_path / "a.npz")]) != 0
@@ -59,12 +69,7 @@ def test_setup_and_replay_take_the_log_itself(tmp_path, capsys):  # type: ignore
     _write(tmp_path / "fl.csv", np.random.default_rng(4))
     units = ["--gyro-unit", "deg/s", "--accel-unit", "g"]
     # 20 epochs (rows 1500-1519) where imu1's gyro cells are empty: replayed as invalid samples, not dropped
-    lines = (tmp_path / "fl.csv").read_text().splitlines()
-    for r in range(1501, 1521):
-        cells = lines[r].split(",")
-        cells[8:11] = ["", "", ""]
-        lines[r] = ",".join(cells)
-    (tmp_path / "fl.csv").write_text("\n".join(lines) + "\n")
+    _empty_imu1_gyro(tmp_path / "fl.csv", range(1501, 1521))
     assert main(["setup", str(tmp_path / "fl.csv"), *units, "-o", str(tmp_path / "u.json"), "--average", "0",
                  "-q"]) == 0
     assert main(["replay", str(tmp_path / "fl.csv"), *units, "--calibration", str(tmp_path / "u.json"),
@@ -79,12 +84,7 @@ def test_a_command_that_takes_all_valid_epochs_counts_what_it_leaves_out(tmp_pat
     """`rimu noise` of a log whose imu1 gyro is empty on 20 rows: those epochs are left out of its session, and the
     command says how many, of how many (they vanished without a word before)."""
     _write(tmp_path / "fl.csv", np.random.default_rng(5))
-    lines = (tmp_path / "fl.csv").read_text().splitlines()
-    for r in range(101, 121):
-        cells = lines[r].split(",")
-        cells[8:11] = ["", "", ""]
-        lines[r] = ",".join(cells)
-    (tmp_path / "fl.csv").write_text("\n".join(lines) + "\n")
+    _empty_imu1_gyro(tmp_path / "fl.csv", range(101, 121))
     main(["noise", str(tmp_path / "fl.csv"), "--gyro-unit", "deg/s", "--accel-unit", "g"])
     err = capsys.readouterr().err
     assert "20 of 2000 epochs left out: not every IMU has a valid sample there" in err, err
