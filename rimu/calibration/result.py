@@ -104,16 +104,29 @@ class InstrumentCalibration:
         if self.instrument not in INSTRUMENTS:
             raise ValueError(f"instrument must be one of {INSTRUMENTS}, got {self.instrument!r}")
         n = self.geometry.n
-        self.scale = _vec(self.scale, n, "scale")
-        self.bias = _vec(self.bias, n, "bias")
+        vecs = [self.scale, self.bias] if self.noise_sigma is None else [self.scale, self.bias, self.noise_sigma]
+        if all(type(v) is np.ndarray and v.shape == (n,) and v.dtype == np.float64 for v in vecs):
+            # (the common case, a fit's arrays: copied and checked together, one row each)
+            V = np.array(vecs)
+            if not _all(np.isfinite(V), axis=None):
+                for v, name in zip(vecs, ("scale", "bias", "noise_sigma")):
+                    _vec(v, n, name)  # (raises, naming the vector)
+            self.scale, self.bias = V[0], V[1]
+            if self.noise_sigma is not None:
+                self.noise_sigma = V[2]
+        else:
+            self.scale = _vec(self.scale, n, "scale")
+            self.bias = _vec(self.bias, n, "bias")
+            if self.noise_sigma is not None:
+                self.noise_sigma = _vec(self.noise_sigma, n, "noise_sigma")
         m = np.array(self.misalignment, dtype=float)
         if m.shape != (n, 3):
             raise ShapeError(f"misalignment must have shape ({n}, 3), got {m.shape}")
-        if not _all(np.isfinite(m), axis=None):
-            raise ShapeError("misalignment has non-finite entries")
         norms = np.sqrt(np.einsum("ij,ij->i", m, m))
         dev = np.abs(norms - 1.0)
-        if _any(dev > 1e-3):
+        if not _all(dev <= 1e-3):  # (false for a non-finite entry too: its norm is inf or nan)
+            if not _all(np.isfinite(m), axis=None):
+                raise ShapeError("misalignment has non-finite entries")
             i = int(np.argmax(dev))
             raise ShapeError(
                 f"misalignment row {i} ({self.geometry.names[i]}) has norm {norms[i]:.6f}; rows are unit vectors "
@@ -125,10 +138,8 @@ class InstrumentCalibration:
         self.misalignment = m
         if _any(self.scale == 0):
             raise ShapeError("a scale factor is zero; the sensor's output would carry no information")
-        if self.noise_sigma is not None:
-            self.noise_sigma = _vec(self.noise_sigma, n, "noise_sigma")
-            if _any(self.noise_sigma <= 0):
-                raise ShapeError("noise_sigma must be positive")
+        if self.noise_sigma is not None and _any(self.noise_sigma <= 0):
+            raise ShapeError("noise_sigma must be positive")
         if self.noise_period_s is not None:
             self.noise_period_s = float(self.noise_period_s)
             if not (np.isfinite(self.noise_period_s) and self.noise_period_s > 0):

@@ -196,6 +196,8 @@ class SessionStatistics:
         self.backend = backend
         self._kernel: object = False  # not resolved yet
         self._sums: dict[tuple[int, str], tuple[Segment, SegmentSums]] = {}
+        #: rows of a :meth:`moments` array, made into a SegmentSums only when :meth:`sums` asks for one
+        self._rows: dict[tuple[int, str], tuple[Segment, np.ndarray, int]] = {}
         self._rot: dict[int, tuple[Segment, RotationMoments | None]] = {}
 
     def sums(self, seg: Segment, instrument: str, full: bool = False) -> SegmentSums:
@@ -203,7 +205,7 @@ class SessionStatistics:
         first-difference sum computed now, together (one compiled pass over a long segment where numba is
         installed, :mod:`rimu.session._kernels`; numpy's passes otherwise), not on first use."""
         key = (id(seg), instrument)
-        hit = self._sums.get(key)
+        hit = self._sums.get(key) or self._from_rows(key, seg)
         if hit is not None and hit[0] is seg:
             out = hit[1]
             if full:
@@ -231,7 +233,7 @@ class SessionStatistics:
         out: list = []
         todo = []
         for seg in segs:
-            hit = cache.get((id(seg), instrument))
+            hit = cache.get((id(seg), instrument)) or self._from_rows((id(seg), instrument), seg)
             if hit is not None and hit[0] is seg:
                 if full:
                     self._fill(hit[1])
@@ -268,6 +270,53 @@ class SessionStatistics:
                 if out[j] is None:
                     out[j] = cache[(id(seg), instrument)][1]
         return out
+
+    def moments(self, segs: "list[Segment]", instrument: str) -> tuple[list[int], np.ndarray]:
+        """Every one of ``segs``' sums in one array: ``(n, M)``, ``n`` their numbers of samples and ``M`` (S, 3, k)
+        their column sums (``M[:, 0]``), sums of squares (``M[:, 1]``) and first-difference sums (``M[:, 2]``:
+        :attr:`SegmentSums.diff`, zero under three samples). Where the compiled pass is used, one call per segment
+        writes its row, and no object is made per segment (:meth:`sums` makes one from a row when asked); else the
+        sums of :meth:`sums_of`. Kept, as every statistic here.
+
+        >>> from rimu.sim import Simulator, cho_park_procedure
+        >>> s = Simulator(seed=1).run(cho_park_procedure(duration=1.0)).session
+        >>> n, M = SessionStatistics(s).moments(s.segments[:2], "accel")
+        >>> M.shape, bool(np.allclose(M[1, 0], s.segments[1].raw["accel"].sum(axis=0)))
+        ((2, 3, 6), True)
+        """
+        ys = [seg.raw[instrument] for seg in segs]
+        ns = [y.shape[0] for y in ys]
+        M = np.empty((len(ys), 3, ys[0].shape[1] if ys else 0))
+        kern = self._compiled()
+        if kern is None:
+            for j, st in enumerate(self.sums_of(segs, instrument, full=True)):
+                M[j, 0], M[j, 1], M[j, 2] = st.total, st.sumsq, st.diff[0]
+            return ns, M
+        cache, rows, f = self._sums, self._rows, kern.column_moments
+        for j, seg in enumerate(segs):
+            key = (id(seg), instrument)
+            hit = cache.get(key) or rows.get(key)
+            if hit is not None and hit[0] is seg:  # known already
+                st = self.sums(seg, instrument, full=True)
+                M[j, 0], M[j, 1], M[j, 2] = st.total, st.sumsq, st.diff[0]
+                continue
+            f(ys[j], M[j])
+            if ns[j] < 3:
+                M[j, 2] = 0.0
+            rows[key] = (seg, M, j)
+        return ns, M
+
+    def _from_rows(self, key: tuple[int, str], seg: Segment) -> tuple[Segment, SegmentSums] | None:
+        """The :class:`SegmentSums` of a :meth:`moments` row (made now and kept), or None."""
+        row = self._rows.get(key)
+        if row is None or row[0] is not seg:
+            return None
+        _, M, j = row
+        y = seg.raw[key[1]]
+        n = y.shape[0]
+        hit = self._sums[key] = (seg, SegmentSums(n, M[j, 0], y, M[j, 1], None,
+                                                  (M[j, 2], n - 2) if n >= 3 else (np.zeros(y.shape[1]), 0)))
+        return hit
 
     def _stacked(self, todo: "list[Segment]", instrument: str, full: bool) -> None:
         """The :class:`SegmentSums` of the short segments ``todo`` (stacked: a few numpy calls for all of them), kept.
