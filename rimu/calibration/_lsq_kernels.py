@@ -19,7 +19,7 @@ try:
 except ImportError as exc:  # pragma: no cover - the caller checks availability first
     raise ImportError("the compiled least-squares kernel needs numba: pip install rimu[fast]") from exc
 
-__all__ = ["base_solve"]
+__all__ = ["base_solve", "base_statistics"]
 
 #: IEEE arithmetic as numpy's (no exceptions, no reassociation)
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -104,3 +104,67 @@ def base_solve(Ginv, G, H, q, s2, which, EC, B, theta, tcov, bcov, rss):  # prag
                     acc += jg * Jm[c, m]
                 tcov[i, r, c] = acc * s
     return True
+
+
+@_jit
+def base_statistics(Ms, Zs, Ns, est, G, H, q, sig):  # pragma: no cover - compiled
+    """The normal equations and noise level of the base model for every instrument k at once (the numpy code of
+    :meth:`rimu.calibration.estimate.LeastSquares._base_statistics` and :func:`~rimu.calibration.estimate._noise_sigma_of`
+    is the reference). ``Ms[k]`` (S, 3, n): every segment's column sums, sums of squares and first-difference sums
+    (:meth:`rimu.session.SessionStatistics.moments`). ``Zs[k]`` (R, 8), one row per segment the fit reads, in order:
+    the design row ``x`` (4), its weight, its row j of ``Ms[k]``, the divisor of its totals and its kind (0: a
+    constant input, ``G += w x x^T``, ``H += x t^T``, ``q += M[j, 1]`` with ``t = M[j, 0]``; 1: an angle row, the
+    same with ``t = M[j, 0] / div`` and ``q += t^2``; 2: the sums of squares alone, ``q += M[j, 1]``). ``Ns[k]``
+    (m, 2): the noise level's rows j of ``Ms[k]`` and their degrees of freedom; where ``est[k]``, ``sig`` (the
+    instrument's columns) becomes ``sqrt(sum M[j, 2] / sum dof / 2)`` (a zero replaced by the largest, or 1).
+    ``G`` (K, 4, 4) and ``H`` (4, p) hold the segments' terms added before (turning segments), ``q``, ``sig`` (p,)
+    the sensors' columns of every instrument in turn."""
+    a = 0
+    for k in range(len(Ms)):
+        M = Ms[k]
+        Z = Zs[k]
+        n = M.shape[2]
+        for j in range(n):
+            q[a + j] = 0.0
+        for r in range(Z.shape[0]):
+            kind = Z[r, 7]
+            m = int(Z[r, 5])
+            if kind == 2.0:
+                for j in range(n):
+                    q[a + j] += M[m, 1, j]
+                continue
+            w = Z[r, 4]
+            for c in range(4):
+                xc = Z[r, c] * w
+                for d in range(4):
+                    G[k, c, d] += xc * Z[r, d]
+            div = Z[r, 6]
+            for j in range(n):
+                t = M[m, 0, j] / div
+                for c in range(4):
+                    H[c, a + j] += Z[r, c] * t
+                if kind == 1.0:
+                    q[a + j] += t * t
+                else:
+                    q[a + j] += M[m, 1, j]
+        if est[k]:
+            N = Ns[k]
+            cnt = 0.0
+            for j in range(n):
+                sig[a + j] = 0.0
+            for r in range(N.shape[0]):
+                if N[r, 1] > 0.0:
+                    cnt += N[r, 1]
+                    m = int(N[r, 0])
+                    for j in range(n):
+                        sig[a + j] += M[m, 2, j]
+            top = 0.0
+            for j in range(n):
+                s = math.sqrt(sig[a + j] / cnt / 2.0)
+                sig[a + j] = s
+                if s > top:
+                    top = s
+            for j in range(n):
+                if not sig[a + j] > 0.0:
+                    sig[a + j] = top if top > 0.0 else 1.0
+        a += n

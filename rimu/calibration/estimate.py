@@ -162,6 +162,63 @@ def _base_sensor_fits(session: Session, model: ErrorModel, inst: str, parts: lis
     return fits
 
 
+def _base_statistics_numpy(M: np.ndarray, Z: list, G0: np.ndarray | None, H0: np.ndarray | None, n_obs: int,
+                           labels: list[str], parts: list) -> tuple:
+    """The base model's normal equations ``G`` (4, 4), ``H`` (4, n), ``q`` (n,) of one instrument from the rows of
+    :meth:`LeastSquares._base_rows` by numpy (the reference of
+    :func:`rimu.calibration._lsq_kernels.base_statistics`): every row's terms in two products, the outputs' sums of
+    squares added segment by segment (row by row, in order). Returns ``G, H, q, n_obs, labels, parts``."""
+    n = M.shape[2]
+    G = np.zeros((4, 4)) if G0 is None else G0
+    H = np.zeros((4, n)) if H0 is None else H0
+    if not Z:
+        return G, H, np.zeros(n), n_obs, labels, parts
+    R = np.array(Z, dtype=float)
+    j = R[:, 5].astype(np.intp)
+    kind = R[:, 7]
+    fit = kind != 2.0
+    T = M[j[fit], 0] / R[fit, 6][:, None]  # each row's totals (an angle row's over sqrt(N))
+    Q = M[j, 1]
+    Q[kind == 1.0] = T[kind[fit] == 1.0] ** 2
+    q = np.add.reduce(Q, axis=0)
+    X = R[fit, :4]
+    G += (X.T * R[fit, 4]) @ X
+    H += X.T @ T
+    return G, H, q, n_obs, labels, parts
+
+
+def _base_statistics_compiled(kern: Any, rows: list[tuple]) -> list[tuple]:
+    """The base model's normal equations and noise level of every instrument in one compiled call
+    (:func:`rimu.calibration._lsq_kernels.base_statistics`) from :meth:`LeastSquares._base_rows`' rows; returns
+    ``per``: instrument, ``(G, H, q, n_obs, labels, parts)``, noise level, skipped segments."""
+    counts = [M.shape[2] for _, M, *_ in rows]
+    p = sum(counts)
+    G = np.zeros((len(rows), 4, 4))
+    H = np.zeros((4, p))
+    q, sig = np.empty(p), np.empty(p)
+    Zs, Ns, est = [], [], []
+    a = 0
+    for k, (_, _, _, nz, sg, _, (Z, G0, H0, *_)) in enumerate(rows):
+        b = a + counts[k]
+        if G0 is not None:
+            G[k] = G0
+            H[:, a:b] = H0
+        if nz is None:
+            sig[a:b] = sg
+        Zs.append(np.array(Z, dtype=float) if Z else np.zeros((0, 8)))
+        Ns.append(np.array(nz, dtype=float) if nz else np.zeros((0, 2)))
+        est.append(nz is not None)
+        a = b
+    kern.base_statistics(tuple(r[1] for r in rows), tuple(Zs), tuple(Ns), np.array(est), G, H, q, sig)
+    out = []
+    a = 0
+    for k, (inst, _, _, _, _, skipped, (_, _, _, n_obs, labels, parts)) in enumerate(rows):
+        b = a + counts[k]
+        out.append((inst, (G[k], H[:, a:b], q[a:b], n_obs, labels, parts), sig[a:b], skipped))
+        a = b
+    return out
+
+
 def _noise_segments(session: Session) -> list[Segment]:
     """The segments :func:`estimate_noise_sigma` reads: the static ones, or every segment where none is."""
     return [s for s in session.segments if s.kind in ("static", "static_unknown")] or list(session.segments)
@@ -504,9 +561,10 @@ class LeastSquares:
     def _fit_base(self, session: Session, model: ErrorModel, insts: list[str],
                   segs: list[Segment]) -> CalibrationResult:
         """The base model (scale/misalignment + bias) of every sensor of every instrument at once: per instrument the
-        sums of every segment it reads in one array (:meth:`~rimu.session.SessionStatistics.moments`), the noise level
-        and the normal equations from them in a few array operations, one ``G`` per instrument; then every sensor
-        solved together (:meth:`_base_solve`). The result holds the numbers as arrays
+        sums of every segment it reads in one array (:meth:`~rimu.session.SessionStatistics.moments`) and one row per
+        segment of what the normal equations take from them (:meth:`_base_rows`); the normal equations and the noise
+        level of every instrument from these (one compiled call where numba is loaded, else a few array operations);
+        then every sensor solved together (:meth:`_base_solve`). The result holds the numbers as arrays
         (:class:`~rimu.calibration.lsq.BaseArrays`); a sensor's :class:`SensorFit` is made when asked for."""
         kern = _lsq_kernel(self.backend)
         # the statistics take the compiled pass where the fit's kernel is used (one resolution of the backend)
@@ -514,7 +572,7 @@ class LeastSquares:
         known = self.sigma is not None
         noise = _noise_segments(session)
         notes: list[str] = []
-        per = []
+        rows = []
         for inst in insts:
             forms = _input_forms(session, inst, segs)
             # the segments whose sums the fit and the noise level read, each once (of a turn read as one integrated
@@ -526,14 +584,20 @@ class LeastSquares:
             ns, M = sstats.moments(list(todo.values()), inst)
             pos = dict(zip(todo, range(len(todo))))
             if given:
-                sig = _sigma_for(self.sigma, session, inst, sstats)
+                sig, nz = _sigma_for(self.sigma, session, inst, sstats), None
             else:
-                sig = _noise_sigma_of([pos[id(x)] for x in noise], ns, M, inst)
+                nz = [(j, ns[j] - 2 if ns[j] >= 3 else 0) for j in (pos[id(x)] for x in noise)]
+                if not any(d for _, d in nz):
+                    raise IdentifiabilityError(f"{inst}: no segment has enough samples to estimate the noise level")
+                sig = None
             skipped: dict[str, str] = {}
-            stats = self._base_statistics(sstats, segs, inst, forms, pos, ns, M, skipped, tuple(insts))
-            per.append((inst, stats, sig, skipped))
+            rows.append((inst, M, ns, nz, sig, skipped,
+                         self._base_rows(sstats, segs, inst, forms, pos, ns, M, skipped, tuple(insts))))
             if skipped:
                 notes.append(f"{inst}: segments not used: {sorted(skipped)}")
+        per = _base_statistics_compiled(kern, rows) if kern is not None else [
+            (inst, _base_statistics_numpy(M, *st), sig if nz is None else _noise_sigma_of([j for j, _ in nz], ns, M, inst),
+             skipped) for inst, M, ns, nz, sig, skipped, st in rows]
         Ginv = self._base_check(session, model, per)
         out = self._base_solve(session, model, per, known, segs, Ginv, kern)
         return CalibrationResult(f"least squares ({model.label})", out, session.raw_unit, notes)
@@ -662,68 +726,58 @@ class LeastSquares:
         return out
 
     @staticmethod
-    def _base_statistics(sstats: SessionStatistics, segs: list[Segment], inst: str, forms: list,
-                         pos: dict[int, int], ns: list[int], M: np.ndarray, skipped: dict[str, str],
-                         instruments: tuple[str, ...] = ()) -> tuple:
-        """Sufficient statistics of the base model for every sensor of ``inst`` at once: the known input u of a
-        segment is the same for all of them, so ``X = [u, 1]`` and ``X^T X`` are shared, ``X^T Y`` is one
-        product for all sensors. Every term comes from the segments' sums (``M``, rows ``pos[id(segment)]``, of
-        :meth:`~rimu.session.SessionStatistics.moments`): a static segment's constant input from its column sums,
-        all such segments in two products; a segment turning at a constant rate with known attitude, whose input
-        is ``B P`` in the basis ``B = [1, cos(theta), sin(theta)]`` of its angle, from ``B^T B`` and ``B^T Y``
-        (``X^T X = Q^T (B^T B) Q``, ``X^T Y = Q^T (B^T Y)``, ``Q = [P, e_1]``); only an input given sample by
-        sample (``specific_force_mb`` of shape (N, 3)) is built per sample. Returns ``G, H, q, n_obs, labels,
-        parts`` (parts: label, segment, and an angle row's ``("angle", x, y)``)."""
-        n = M.shape[2]
-        G = np.zeros((4, 4))
-        H = np.zeros((4, n))
-        n_obs, labels, parts = 0, [], []
-        # rows of one input for all samples (static positions) and angle rows: the row, its weight, its column sums;
-        # the outputs' sums of squares, in the order of the segments
-        rows, weights, totals, qs = [], [], [], []
+    def _base_rows(sstats: SessionStatistics, segs: list[Segment], inst: str, forms: list, pos: dict[int, int],
+                   ns: list[int], M: np.ndarray, skipped: dict[str, str], instruments: tuple[str, ...] = ()) -> tuple:
+        """What the base model's normal equations take from each segment ``inst`` reads: the known input u of a
+        segment is the same for every sensor, so ``X = [u, 1]`` and ``X^T X`` are shared, ``X^T Y`` is one product
+        for all sensors, and every term comes from the segments' sums (``M``, rows ``pos[id(segment)]``, of
+        :meth:`~rimu.session.SessionStatistics.moments`). Returns ``(Z, G0, H0, n_obs, labels, parts)``: ``Z`` one row
+        per segment read, in order (:func:`rimu.calibration._lsq_kernels.base_statistics`: the design row, its weight,
+        its row of ``M``, the divisor of its totals, its kind): a static segment's constant input (weight N, its
+        column sums), a turn of known angle as one integrated row (Zhang et al. 2010, Eq. 16-17: its totals over
+        ``sqrt(N)``, in units of the per-sample noise); ``G0``, ``H0`` the terms of the segments turning at a
+        constant rate with known attitude, whose input is ``B P`` in the basis ``B = [1, cos(theta), sin(theta)]`` of
+        its angle, from ``B^T B`` and ``B^T Y`` (``X^T X = Q^T (B^T B) Q``, ``X^T Y = Q^T (B^T Y)``, ``Q = [P, e_1]``),
+        and of an input given sample by sample (``specific_force_mb`` of shape (N, 3), built per sample); ``parts``:
+        label, segment, and an angle row's ``("angle", x, y)``."""
+        G0 = H0 = None
+        n_obs, labels, parts, Z = 0, [], [], []
         for seg, (kind, u) in zip(segs, forms):
             if kind is None:
                 if _is_turn(seg, inst):  # one row: the integral in units of the per-sample noise
                     x = _base_angle_row(seg)
-                    yv = M[pos[id(seg)], 0] / math.sqrt(seg.n_samples)
-                    rows.append(x)
-                    weights.append(1.0)
-                    totals.append(yv)
-                    qs.append(yv**2)
+                    j = pos[id(seg)]
+                    div = math.sqrt(ns[j])
+                    Z.append((*x, 1.0, j, div, 1.0))
                     n_obs += 1
                     labels.append(seg.label)
-                    parts.append((seg.label, seg, ("angle", x, yv)))
+                    parts.append((seg.label, seg, ("angle", x, M[j, 0] / div)))
                 else:
                     skipped[seg.label] = "the segment lacks inputs an effect needs (known rate, attitude or angle)"
                 continue
             j = pos[id(seg)]
             N = ns[j]
             if kind == "constant":  # one input for every sample (a static position): N x x^T, x total^T
-                rows.append((*u.tolist(), 1.0))
-                weights.append(N)
-                totals.append(M[j, 0])
-            elif kind == "basis":  # u = B P on a turning segment: from the moments of its angle
-                rm = sstats.rotation(seg)
-                Q = np.zeros((3, 4))
-                Q[:, :3] = u
-                Q[0, 3] = 1.0
-                G += Q.T @ rm.gram @ Q
-                H += Q.T @ sstats.basis_products(seg, tuple(dict.fromkeys((inst, *instruments))))[inst]
+                Z.append((*u.tolist(), 1.0, N, j, 1.0, 0.0))
             else:
-                X = np.column_stack([u, np.ones(N)])
-                G += X.T @ X
-                H += X.T @ seg.raw[inst]
-            qs.append(M[j, 1])
+                if G0 is None:
+                    G0, H0 = np.zeros((4, 4)), np.zeros((4, M.shape[2]))
+                if kind == "basis":  # u = B P on a turning segment: from the moments of its angle
+                    rm = sstats.rotation(seg)
+                    Q = np.zeros((3, 4))
+                    Q[:, :3] = u
+                    Q[0, 3] = 1.0
+                    G0 += Q.T @ rm.gram @ Q
+                    H0 += Q.T @ sstats.basis_products(seg, tuple(dict.fromkeys((inst, *instruments))))[inst]
+                else:
+                    X = np.column_stack([u, np.ones(N)])
+                    G0 += X.T @ X
+                    H0 += X.T @ seg.raw[inst]
+                Z.append((0.0, 0.0, 0.0, 0.0, 0.0, j, 1.0, 2.0))
             n_obs += N
             labels.append(seg.label)
             parts.append((seg.label, seg, None))
-        # the outputs' sums of squares added segment by segment (row by row, in order)
-        q = np.add.reduce(np.array(qs), axis=0) if qs else np.zeros(n)
-        if rows:  # every such segment's terms in two products
-            X = np.array(rows, dtype=float)
-            G += (X.T * np.array(weights, dtype=float)) @ X
-            H += X.T @ np.array(totals)
-        return G, H, q, n_obs, labels, parts
+        return Z, G0, H0, n_obs, labels, parts
 
     @staticmethod
     def _model_statistics(segs: list[Segment], inst: str, ctx: SensorContext, model: ErrorModel, base_only: bool,
