@@ -187,10 +187,11 @@ def _base_statistics_numpy(M: np.ndarray, Z: list, G0: np.ndarray | None, H0: np
     return G, H, q, n_obs, labels, parts
 
 
-def _base_statistics_compiled(kern: Any, rows: list[tuple]) -> list[tuple]:
+def _base_statistics_compiled(kern: Any, rows: list[tuple]) -> tuple[list[tuple], tuple]:
     """The base model's normal equations and noise level of every instrument in one compiled call
     (:func:`rimu.calibration._lsq_kernels.base_statistics`) from :meth:`LeastSquares._base_rows`' rows; returns
-    ``per``: instrument, ``(G, H, q, n_obs, labels, parts)``, noise level, skipped segments."""
+    ``per``: instrument, ``(G, H, q, n_obs, labels, parts)``, noise level, skipped segments; and every instrument's
+    ``G`` (K, 4, 4), ``H`` (4, p), ``q``, noise level (p,) in one array each (whose views ``per`` holds)."""
     counts = [M.shape[2] for _, M, *_ in rows]
     p = sum(counts)
     G = np.zeros((len(rows), 4, 4))
@@ -210,13 +211,13 @@ def _base_statistics_compiled(kern: Any, rows: list[tuple]) -> list[tuple]:
         est.append(nz is not None)
         a = b
     kern.base_statistics(tuple(r[1] for r in rows), tuple(Zs), tuple(Ns), np.array(est), G, H, q, sig)
-    out = []
+    out: list[tuple] = []
     a = 0
     for k, (inst, _, _, _, _, skipped, (_, _, _, n_obs, labels, parts)) in enumerate(rows):
         b = a + counts[k]
         out.append((inst, (G[k], H[:, a:b], q[a:b], n_obs, labels, parts), sig[a:b], skipped))
         a = b
-    return out
+    return out, (G, H, q, sig)
 
 
 def _noise_segments(session: Session) -> list[Segment]:
@@ -595,15 +596,19 @@ class LeastSquares:
                          self._base_rows(sstats, segs, inst, forms, pos, ns, M, skipped, tuple(insts))))
             if skipped:
                 notes.append(f"{inst}: segments not used: {sorted(skipped)}")
-        per = _base_statistics_compiled(kern, rows) if kern is not None else [
-            (inst, _base_statistics_numpy(M, *st), sig if nz is None else _noise_sigma_of([j for j, _ in nz], ns, M, inst),
-             skipped) for inst, M, ns, nz, sig, skipped, st in rows]
-        Ginv = self._base_check(session, model, per)
-        out = self._base_solve(session, model, per, known, segs, Ginv, kern)
+        whole = None  # every instrument's G (K, 4, 4), H (4, p), q and sigma (p,) as the compiled call leaves them
+        if kern is not None:
+            per, whole = _base_statistics_compiled(kern, rows)
+        else:
+            per = [(inst, _base_statistics_numpy(M, *st), sig if nz is None else
+                    _noise_sigma_of([j for j, _ in nz], ns, M, inst), skipped)
+                   for inst, M, ns, nz, sig, skipped, st in rows]
+        Ginv = self._base_check(session, model, per, None if whole is None else whole[0])
+        out = self._base_solve(session, model, per, known, segs, Ginv, kern, whole)
         return CalibrationResult(f"least squares ({model.label})", out, session.raw_unit, notes)
 
     @staticmethod
-    def _base_check(session: Session, model: ErrorModel, per: list[tuple]) -> np.ndarray:
+    def _base_check(session: Session, model: ErrorModel, per: list[tuple], G: np.ndarray | None = None) -> np.ndarray:
         """Refuse the first instrument (in order) whose base statistics identify no parameter set: no usable
         segment, or a Gram matrix with a direction the segments do not excite
         (:func:`~rimu.calibration.lsq.check_identifiable_gram`), naming the physical parameters involved. Returns
@@ -613,8 +618,8 @@ class LeastSquares:
         1e-12 of the largest. ``tr S = 4`` bounds the largest from above and ``1 / tr S^-1`` the smallest from
         below, and ``S^-1 = D G^-1 D`` comes from the inverse the fit needs anyway: where ``1 / tr S^-1 > 4e-12``
         no eigenvalue can fail, and only otherwise are the eigenvalues computed (by the check itself, which names
-        the parameters)."""
-        G = np.stack([st[0] for _, st, _, _ in per])
+        the parameters). ``G``: the instruments' Gram matrices stacked (K, 4, 4), if they are already."""
+        G = np.stack([st[0] for _, st, _, _ in per]) if G is None else G
         try:
             Ginv = np.linalg.inv(G)
             # tr S^-1 = sum_i G_ii (G^-1)_ii; a zero column (G_ii = 0) makes G singular: an error, inf or nan here
@@ -640,7 +645,8 @@ class LeastSquares:
 
     @staticmethod
     def _base_solve(session: Session, model: ErrorModel, per: list[tuple], sigma_known: bool, segs: list[Segment],
-                    Ginv_k: np.ndarray | None = None, kern: Any = None) -> dict[str, LsqResult]:
+                    Ginv_k: np.ndarray | None = None, kern: Any = None,
+                    whole: tuple | None = None) -> dict[str, LsqResult]:
         """The base model (scale/misalignment + bias) of every sensor of every instrument from the shared
         statistics (``per``: instrument, statistics, noise level, skipped segments; each checked by
         :meth:`_base_check`), as array operations over all the sensors at once: ``B = G^-1 H`` (4, n) per
@@ -649,7 +655,9 @@ class LeastSquares:
         :meth:`~rimu.calibration.effects.scale_misalignment.ScaleMisalignment.physical`, Cho & Park 2005, Eq. 10:
         ``SF = 1/|w|``, ``m = C w/|w|``, ``b = c SF``). The same numbers as the per-sensor path
         (:func:`make_sensor_fit`, to rounding; tested to 1e-10). Each instrument's :class:`LsqResult` holds them as
-        :class:`~rimu.calibration.lsq.BaseArrays`, its :class:`SensorFit` list made on first use."""
+        :class:`~rimu.calibration.lsq.BaseArrays`, its :class:`SensorFit` list made on first use. ``whole``: every
+        instrument's ``G`` (K, 4, 4), ``H`` (4, p), ``q`` and noise level (p,) in one array each, if they are
+        already."""
         if Ginv_k is None:  # (K, 4, 4): one call for all
             Ginv_k = np.linalg.inv(np.stack([st[0] for _, st, _, _ in per]))
         geos = [session.geometries[inst] for inst, _, _, _ in per]
@@ -659,15 +667,18 @@ class LeastSquares:
             return np.concatenate(xs, axis=axis) if len(xs) > 1 else xs[0]
 
         EC = cat([g.off_axis_projections() for g in geos])  # (p, 2, 3): E_i C_i
-        H = cat([st[1] for _, st, _, _ in per], 1)
-        q, sig = cat([st[2] for _, st, _, _ in per]), cat([x[2] for x in per])
+        if whole is None:
+            H = cat([st[1] for _, st, _, _ in per], 1)
+            q, sig = cat([st[2] for _, st, _, _ in per]), cat([x[2] for x in per])
+        else:
+            H, q, sig = whole[1], whole[2], whole[3]
         s2 = sig**2
         if kern is not None:  # numba loaded: every sensor's numbers in one compiled call (the same to rounding)
             p = H.shape[1]
             Bt, theta, rss = np.empty((p, 4)), np.empty((p, 4)), np.empty(p)
             tcov, beta_cov = np.empty((p, 4, 4)), np.empty((p, 4, 4))
-            which = np.repeat(np.arange(len(per)), counts)
-            G = np.stack([st[0] for _, st, _, _ in per])
+            which = np.array([k for k, c in enumerate(counts) for _ in range(c)], dtype=np.intp)
+            G = np.stack([st[0] for _, st, _, _ in per]) if whole is None else whole[0]
             if not kern.base_solve(Ginv_k, G, H, q, s2, which, EC, Bt, theta, tcov, beta_cov, rss):
                 raise IdentifiabilityError(_DEAD_SENSOR)
         else:
