@@ -107,7 +107,7 @@ def base_solve(Ginv, G, H, q, s2, which, EC, B, theta, tcov, bcov, rss):  # prag
 
 
 @_jit
-def base_statistics(Ms, Zs, Ns, est, G, H, q, sig):  # pragma: no cover - compiled
+def base_statistics(Ms, Zs, Ns, est, G, H, q, sig, Ginv, tr):  # pragma: no cover - compiled
     """The normal equations and noise level of the base model for every instrument k at once (the numpy code of
     :meth:`rimu.calibration.estimate.LeastSquares._base_statistics` and :func:`~rimu.calibration.estimate._noise_sigma_of`
     is the reference). ``Ms[k]`` (S, 3, n): every segment's column sums, sums of squares and first-difference sums
@@ -118,7 +118,9 @@ def base_statistics(Ms, Zs, Ns, est, G, H, q, sig):  # pragma: no cover - compil
     (m, 2): the noise level's rows j of ``Ms[k]`` and their degrees of freedom; where ``est[k]``, ``sig`` (the
     instrument's columns) becomes ``sqrt(sum M[j, 2] / sum dof / 2)`` (a zero replaced by the largest, or 1).
     ``G`` (K, 4, 4) and ``H`` (4, p) hold the segments' terms added before (turning segments), ``q``, ``sig`` (p,)
-    the sensors' columns of every instrument in turn."""
+    the sensors' columns of every instrument in turn. Then ``Ginv[k] = G[k]^-1`` (LAPACK's LU, as numpy's; raises
+    numpy's LinAlgError where a G is exactly singular) and ``tr[k] = sum_i G_ii (G^-1)_ii`` (the identifiability
+    bound of :meth:`rimu.calibration.estimate.LeastSquares._base_check`)."""
     a = 0
     for k in range(len(Ms)):
         M = Ms[k]
@@ -168,3 +170,11 @@ def base_statistics(Ms, Zs, Ns, est, G, H, q, sig):  # pragma: no cover - compil
                 if not sig[a + j] > 0.0:
                     sig[a + j] = top if top > 0.0 else 1.0
         a += n
+    for k in range(len(Ms)):
+        Gi = np.linalg.inv(G[k])
+        t = 0.0
+        for i in range(4):
+            t += G[k, i, i] * Gi[i, i]
+            for j in range(4):
+                Ginv[k, i, j] = Gi[i, j]
+        tr[k] = t

@@ -191,7 +191,8 @@ def _base_statistics_compiled(kern: Any, rows: list[tuple]) -> tuple[list[tuple]
     """The base model's normal equations and noise level of every instrument in one compiled call
     (:func:`rimu.calibration._lsq_kernels.base_statistics`) from :meth:`LeastSquares._base_rows`' rows; returns
     ``per``: instrument, ``(G, H, q, n_obs, labels, parts)``, noise level, skipped segments; and every instrument's
-    ``G`` (K, 4, 4), ``H`` (4, p), ``q``, noise level (p,) in one array each (whose views ``per`` holds)."""
+    ``G`` (K, 4, 4), ``H`` (4, p), ``q``, noise level (p,) in one array each (whose views ``per`` holds), ``G^-1``
+    and the bound ``tr`` of :meth:`LeastSquares._base_check` (None where a G is exactly singular)."""
     counts = [M.shape[2] for _, M, *_ in rows]
     p = sum(counts)
     G = np.zeros((len(rows), 4, 4))
@@ -210,14 +211,18 @@ def _base_statistics_compiled(kern: Any, rows: list[tuple]) -> tuple[list[tuple]
         Ns.append(np.array(nz, dtype=float) if nz else np.zeros((0, 2)))
         est.append(nz is not None)
         a = b
-    kern.base_statistics(tuple(r[1] for r in rows), tuple(Zs), tuple(Ns), np.array(est), G, H, q, sig)
+    Ginv, tr = np.empty((len(rows), 4, 4)), np.empty(len(rows))
+    try:
+        kern.base_statistics(tuple(r[1] for r in rows), tuple(Zs), tuple(Ns), np.array(est), G, H, q, sig, Ginv, tr)
+    except np.linalg.LinAlgError:  # an exactly singular G: the check names what is missing
+        Ginv = tr = None
     out: list[tuple] = []
     a = 0
     for k, (inst, _, _, _, _, skipped, (_, _, _, n_obs, labels, parts)) in enumerate(rows):
         b = a + counts[k]
         out.append((inst, (G[k], H[:, a:b], q[a:b], n_obs, labels, parts), sig[a:b], skipped))
         a = b
-    return out, (G, H, q, sig)
+    return out, (G, H, q, sig, Ginv, tr)
 
 
 def _noise_segments(session: Session) -> list[Segment]:
@@ -603,12 +608,13 @@ class LeastSquares:
             per = [(inst, _base_statistics_numpy(M, *st), sig if nz is None else
                     _noise_sigma_of([j for j, _ in nz], ns, M, inst), skipped)
                    for inst, M, ns, nz, sig, skipped, st in rows]
-        Ginv = self._base_check(session, model, per, None if whole is None else whole[0])
+        Ginv = self._base_check(session, model, per, *(() if whole is None else (whole[0], whole[4], whole[5])))
         out = self._base_solve(session, model, per, known, segs, Ginv, kern, whole)
         return CalibrationResult(f"least squares ({model.label})", out, session.raw_unit, notes)
 
     @staticmethod
-    def _base_check(session: Session, model: ErrorModel, per: list[tuple], G: np.ndarray | None = None) -> np.ndarray:
+    def _base_check(session: Session, model: ErrorModel, per: list[tuple], G: np.ndarray | None = None,
+                    Ginv: np.ndarray | None = None, tr: np.ndarray | None = None) -> np.ndarray:
         """Refuse the first instrument (in order) whose base statistics identify no parameter set: no usable
         segment, or a Gram matrix with a direction the segments do not excite
         (:func:`~rimu.calibration.lsq.check_identifiable_gram`), naming the physical parameters involved. Returns
@@ -618,12 +624,14 @@ class LeastSquares:
         1e-12 of the largest. ``tr S = 4`` bounds the largest from above and ``1 / tr S^-1`` the smallest from
         below, and ``S^-1 = D G^-1 D`` comes from the inverse the fit needs anyway: where ``1 / tr S^-1 > 4e-12``
         no eigenvalue can fail, and only otherwise are the eigenvalues computed (by the check itself, which names
-        the parameters). ``G``: the instruments' Gram matrices stacked (K, 4, 4), if they are already."""
+        the parameters). ``G``: the instruments' Gram matrices stacked (K, 4, 4), if they are already; ``Ginv``,
+        ``tr``: their inverses and ``tr S^-1``, if they are known (the compiled statistics give them)."""
         G = np.stack([st[0] for _, st, _, _ in per]) if G is None else G
         try:
-            Ginv = np.linalg.inv(G)
-            # tr S^-1 = sum_i G_ii (G^-1)_ii; a zero column (G_ii = 0) makes G singular: an error, inf or nan here
-            tr = np.einsum("kii,kii->k", Ginv, G)
+            if Ginv is None or tr is None:
+                Ginv = np.linalg.inv(G)
+                # tr S^-1 = sum_i G_ii (G^-1)_ii; a zero column (G_ii = 0) makes G singular: an error, inf or nan here
+                tr = np.einsum("kii,kii->k", Ginv, G)
             ok = ((tr > 0.0) & (tr * 4e-12 < 1.0)).tolist()  # (an inverse of a Gram matrix has a positive diagonal)
         except np.linalg.LinAlgError:  # exactly singular: the check below names what is missing
             Ginv, ok = None, [False] * len(per)
