@@ -26,12 +26,13 @@ _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 
 
 @_jit
-def base_solve(Ginv, G, H, q, s2, which, EC, B, theta, tcov, bcov, rss):  # pragma: no cover - compiled
+def base_solve(Ginv, G, H, q, s2, which, EC, C, B, theta, tcov, bcov, rss, mis):  # pragma: no cover - compiled
     """For every sensor i (column of ``H`` (4, p), instrument ``which[i]`` with ``G``/``Ginv`` (K, 4, 4)): the raw
     coefficients ``B[i] = G^-1 h`` (w_x, w_y, w_z, c), the residual sum of squares ``q - 2 b.h + b.G.b`` (at least
     0), the physical values (Cho & Park 2005, Eq. 10: ``SF = 1/|w|``, misalignment ``E C w/|w|`` with
     ``EC[i] = E_i C_i``, bias ``c SF``) and their covariance ``J (s2 G^-1) J^T`` with J the Jacobian of that map,
-    and ``bcov[i] = s2 G^-1``. Returns False where a sensor's ``w`` is zero (nothing written past it)."""
+    and ``bcov[i] = s2 G^-1``, and the unit misalignment row ``mis[i] = C_i w / |w|`` (``C[i]``: the sensor's sub-unit
+    rotation). Returns False where a sensor's ``w`` is zero (nothing written past it)."""
     p = H.shape[1]
     Jm = np.zeros((4, 4))
     for i in range(p):
@@ -75,6 +76,8 @@ def base_solve(Ginv, G, H, q, s2, which, EC, B, theta, tcov, bcov, rss):  # prag
         for a in range(2):
             theta[i, 1 + a] = EC[i, a, 0] * u0 + EC[i, a, 1] * u1 + EC[i, a, 2] * u2
         theta[i, 3] = b3 * sf
+        for r in range(3):
+            mis[i, r] = C[i, r, 0] * u0 + C[i, r, 1] * u1 + C[i, r, 2] * u2
         Jm[:, :] = 0.0
         Jm[0, 0] = d0
         Jm[0, 1] = d1

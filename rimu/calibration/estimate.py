@@ -675,6 +675,7 @@ class LeastSquares:
             return np.concatenate(xs, axis=axis) if len(xs) > 1 else xs[0]
 
         EC = cat([g.off_axis_projections() for g in geos])  # (p, 2, 3): E_i C_i
+        Cs = cat([g.subunit_rotations() for g in geos])  # (p, 3, 3): C_i
         if whole is None:
             H = cat([st[1] for _, st, _, _ in per], 1)
             q, sig = cat([st[2] for _, st, _, _ in per]), cat([x[2] for x in per])
@@ -687,7 +688,8 @@ class LeastSquares:
             tcov, beta_cov = np.empty((p, 4, 4)), np.empty((p, 4, 4))
             which = np.array([k for k, c in enumerate(counts) for _ in range(c)], dtype=np.intp)
             G = np.stack([st[0] for _, st, _, _ in per]) if whole is None else whole[0]
-            if not kern.base_solve(Ginv_k, G, H, q, s2, which, EC, Bt, theta, tcov, beta_cov, rss):
+            mis = np.empty((p, 3))
+            if not kern.base_solve(Ginv_k, G, H, q, s2, which, EC, Cs, Bt, theta, tcov, beta_cov, rss, mis):
                 raise IdentifiabilityError(_DEAD_SENSOR)
         else:
             Bs, GB = [], []
@@ -716,6 +718,7 @@ class LeastSquares:
             theta[:, 0] = sf
             theta[:, 1:3] = np.einsum("nij,nj->ni", EC, U)
             theta[:, 3] = B[3] * sf
+            mis = np.matmul(Cs, U[:, :, None])[:, :, 0]  # m_i = C_i w_i / |w_i|
             tcov = (J @ Gi @ J.transpose(0, 2, 1)) * s2[:, None, None]
             beta_cov = s2[:, None, None] * Gi
             Bt = np.ascontiguousarray(B.T)
@@ -736,7 +739,7 @@ class LeastSquares:
         a = 0
         for (inst, st, _, skipped), g, n in zip(per, geos, counts):
             b = a + n
-            arrays = BaseArrays(g, theta[a:b], tcov[a:b], Bt[a:b, :3], sig_l[a:b], rss_l[a:b], int(st[3]) - 4)
+            arrays = BaseArrays(g, theta[a:b], tcov[a:b], mis[a:b], sig_l[a:b], rss_l[a:b], int(st[3]) - 4)
             make = partial(_base_sensor_fits, session, model, inst, st[5], Bt[a:b], beta_cov[a:b], arrays,
                            sigma_known, int(st[3]))
             out[inst] = LsqResult(inst, model, None, [x.label for x in segs if x.label not in skipped], skipped,

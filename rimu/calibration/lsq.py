@@ -82,8 +82,9 @@ class BaseArrays:
         Physical values: scale (SI per raw unit), the two misalignment angles (rad), bias (SI).
     theta_cov : ndarray (n, 4, 4)
         Their covariance, per sensor.
-    w : ndarray (n, 3)
-        The raw-domain axis coefficients ``w_i`` (Cho & Park 2005, Eq. 5, 10).
+    misalignment : ndarray (n, 3)
+        The unit misalignment rows ``m_i = C_i w_i / |w_i|`` in each sensor's sub-unit basis, from the raw-domain
+        axis coefficients ``w_i`` (Cho & Park 2005, Eq. 5, 10).
     sigma : list of float
         Noise level per sample, raw units.
     rss : list of float
@@ -95,7 +96,7 @@ class BaseArrays:
     geometry: Any
     theta: np.ndarray
     theta_cov: np.ndarray
-    w: np.ndarray
+    misalignment: np.ndarray
     sigma: list[float]
     rss: list[float]
     dof: int
@@ -105,7 +106,19 @@ class BaseArrays:
         of :meth:`~rimu.calibration.effects.scale_misalignment.ScaleMisalignment.physical_parameters` and
         :class:`~rimu.calibration.effects.bias.Bias`)."""
         g = self.geometry
-        return [f"{nm}.{x}" for i, nm in enumerate(g.names) for x in ("scale", *g.off_axis_basis(i)[1], "bias")]
+        P = g.off_axis_projections()  # (a constant of the geometry's axes, shared by every Geometry with them)
+        key = (g.names, id(P))
+        hit = _THETA_NAMES.get(key)
+        if hit is None or hit[0] is not P:
+            if len(_THETA_NAMES) >= 256:
+                _THETA_NAMES.clear()
+            hit = _THETA_NAMES[key] = (P, [f"{nm}.{x}" for i, nm in enumerate(g.names)
+                                           for x in ("scale", *g.off_axis_basis(i)[1], "bias")])
+        return list(hit[1])
+
+
+#: :meth:`BaseArrays.theta_names` per sensor names and off-axis constants (held with them, so that an id is not reused)
+_THETA_NAMES: dict[tuple, tuple[np.ndarray, list[str]]] = {}
 
 
 class LsqResult:
@@ -151,13 +164,13 @@ class LsqResult:
 
     def to_calibration(self) -> InstrumentCalibration:
         """The result as an :class:`InstrumentCalibration` (needs scale/misalignment and bias in the model)."""
+        if self.base is not None:  # (a fit of the base model itself)
+            return self._from_base(self.base)
         if "scale_misalignment" not in self.model or "bias" not in self.model:
             raise IdentifiabilityError(
                 "a calibration needs the scale_misalignment and bias effects in the model; "
                 f"this model is {self.model.label}"
             )
-        if self.base is not None:
-            return self._from_base(self.base)
         g = self.sensors[0].ctx.geometry
         n = g.n
         if [e.name for e in self.model.effects] == ["scale_misalignment", "bias"] and len(self.sensors) == n:
@@ -190,11 +203,9 @@ class LsqResult:
         """:meth:`to_calibration` from :class:`BaseArrays`: the numbers of :meth:`_base_calibration`, without a
         :class:`SensorFit` per sensor."""
         g = b.geometry
-        theta, W = b.theta, b.w
+        theta = b.theta
         scale = theta[:, 0]
-        U = W / np.sqrt(np.einsum("ni,ni->n", W, W))[:, None]
-        mis = np.matmul(g.subunit_rotations(), U[:, :, None])[:, :, 0]  # m_i = C_i w_i / |w_i|
-        return InstrumentCalibration(self.instrument, g, scale, mis, theta[:, 3], np.array(b.sigma) * scale,
+        return InstrumentCalibration(self.instrument, g, scale, b.misalignment, theta[:, 3], np.array(b.sigma) * scale,
                                      _block_diag_stack(b.theta_cov), b.theta_names(), {})
 
     def _base_calibration(self, g: "object") -> InstrumentCalibration:

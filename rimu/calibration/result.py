@@ -122,7 +122,7 @@ class InstrumentCalibration:
         m = np.array(self.misalignment, dtype=float)
         if m.shape != (n, 3):
             raise ShapeError(f"misalignment must have shape ({n}, 3), got {m.shape}")
-        norms = np.sqrt(np.einsum("ij,ij->i", m, m))
+        norms = np.sqrt(np.add.reduce(m * m, axis=1))
         dev = np.abs(norms - 1.0)
         if not _all(dev <= 1e-3):  # (false for a non-finite entry too: its norm is inf or nan)
             if not _all(np.isfinite(m), axis=None):
