@@ -110,28 +110,31 @@ def base_solve(Ginv, G, H, q, s2, which, EC, C, B, theta, tcov, bcov, rss, mis):
 
 
 @_jit
-def base_statistics(Ms, Zs, Ns, est, G, H, q, sig, Ginv, tr):  # pragma: no cover - compiled
-    """The normal equations and noise level of the base model for every instrument k at once (the numpy code of
-    :meth:`rimu.calibration.estimate.LeastSquares._base_statistics` and :func:`~rimu.calibration.estimate._noise_sigma_of`
-    is the reference). ``Ms[k]`` (S, 3, n): every segment's column sums, sums of squares and first-difference sums
-    (:meth:`rimu.session.SessionStatistics.moments`). ``Zs[k]`` (R, 8), one row per segment the fit reads, in order:
-    the design row ``x`` (4), its weight, its row j of ``Ms[k]``, the divisor of its totals and its kind (0: a
-    constant input, ``G += w x x^T``, ``H += x t^T``, ``q += M[j, 1]`` with ``t = M[j, 0]``; 1: an angle row, the
-    same with ``t = M[j, 0] / div`` and ``q += t^2``; 2: the sums of squares alone, ``q += M[j, 1]``). ``Ns[k]``
-    (m, 2): the noise level's rows j of ``Ms[k]`` and their degrees of freedom; where ``est[k]``, ``sig`` (the
-    instrument's columns) becomes ``sqrt(sum M[j, 2] / sum dof / 2)`` (a zero replaced by the largest, or 1).
-    ``G`` (K, 4, 4) and ``H`` (4, p) hold the segments' terms added before (turning segments), ``q``, ``sig`` (p,)
-    the sensors' columns of every instrument in turn. Then ``Ginv[k] = G[k]^-1`` (LAPACK's LU, as numpy's; raises
-    numpy's LinAlgError where a G is exactly singular) and ``tr[k] = sum_i G_ii (G^-1)_ii`` (the identifiability
-    bound of :meth:`rimu.calibration.estimate.LeastSquares._base_check`)."""
+def base_statistics(M0, M1, Z, Nz, est, G, H, q, sig, Ginv, tr):  # pragma: no cover - compiled
+    """The normal equations and noise level of the base model for one or two instruments k at once (the numpy code
+    of :func:`rimu.calibration.estimate._base_statistics_numpy` and :func:`~rimu.calibration.estimate._noise_sigma_of`
+    is the reference). ``M0``, ``M1`` (S, 3, n): every segment's column sums, sums of squares and first-difference
+    sums of instrument 0 and 1 (:meth:`rimu.session.SessionStatistics.moments`; one instrument: ``M1`` is not read).
+    ``Z`` (R, 9), one row per segment a fit reads, in order: the design row ``x`` (4), its weight, its row j of ``M``,
+    the divisor of its totals, its kind (0: a constant input, ``G += w x x^T``, ``H += x t^T``, ``q += M[j, 1]``
+    with ``t = M[j, 0]``; 1: an angle row, the same with ``t = M[j, 0] / div`` and ``q += t^2``; 2: the sums of
+    squares alone, ``q += M[j, 1]``) and its instrument k. ``Nz`` (m, 3): the noise level's rows j of ``M``, their
+    degrees of freedom and instrument; where ``est[k]``, ``sig`` (the instrument's columns) becomes
+    ``sqrt(sum M[j, 2] / sum dof / 2)`` (a zero replaced by the largest, or 1). ``G`` (K, 4, 4) and ``H`` (4, p)
+    hold the segments' terms added before (turning segments), ``q``, ``sig`` (p,) the sensors' columns of every
+    instrument in turn. Then ``Ginv[k] = G[k]^-1`` (LAPACK's LU, as numpy's; raises numpy's LinAlgError where a G is
+    exactly singular) and ``tr[k] = sum_i G_ii (G^-1)_ii`` (the identifiability bound of
+    :meth:`rimu.calibration.estimate.LeastSquares._base_check`)."""
+    K = est.shape[0]
     a = 0
-    for k in range(len(Ms)):
-        M = Ms[k]
-        Z = Zs[k]
+    for k in range(K):
+        M = M0 if k == 0 else M1
         n = M.shape[2]
         for j in range(n):
             q[a + j] = 0.0
         for r in range(Z.shape[0]):
+            if Z[r, 8] != k:
+                continue
             kind = Z[r, 7]
             m = int(Z[r, 5])
             if kind == 2.0:
@@ -153,14 +156,13 @@ def base_statistics(Ms, Zs, Ns, est, G, H, q, sig, Ginv, tr):  # pragma: no cove
                 else:
                     q[a + j] += M[m, 1, j]
         if est[k]:
-            N = Ns[k]
             cnt = 0.0
             for j in range(n):
                 sig[a + j] = 0.0
-            for r in range(N.shape[0]):
-                if N[r, 1] > 0.0:
-                    cnt += N[r, 1]
-                    m = int(N[r, 0])
+            for r in range(Nz.shape[0]):
+                if Nz[r, 2] == k and Nz[r, 1] > 0.0:
+                    cnt += Nz[r, 1]
+                    m = int(Nz[r, 0])
                     for j in range(n):
                         sig[a + j] += M[m, 2, j]
             top = 0.0
@@ -173,7 +175,7 @@ def base_statistics(Ms, Zs, Ns, est, G, H, q, sig, Ginv, tr):  # pragma: no cove
                 if not sig[a + j] > 0.0:
                     sig[a + j] = top if top > 0.0 else 1.0
         a += n
-    for k in range(len(Ms)):
+    for k in range(K):
         Gi = np.linalg.inv(G[k])
         t = 0.0
         for i in range(4):

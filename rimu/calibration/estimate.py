@@ -198,22 +198,24 @@ def _base_statistics_compiled(kern: Any, rows: list[tuple]) -> tuple[list[tuple]
     G = np.zeros((len(rows), 4, 4))
     H = np.zeros((4, p))
     q, sig = np.empty(p), np.empty(p)
-    Zs, Ns, est = [], [], []
+    Z, Nz, est = [], [], []
     a = 0
-    for k, (_, _, _, nz, sg, _, (Z, G0, H0, *_)) in enumerate(rows):
+    for k, (_, _, _, nz, sg, _, (Zk, G0, H0, *_)) in enumerate(rows):
         b = a + counts[k]
         if G0 is not None:
             G[k] = G0
             H[:, a:b] = H0
         if nz is None:
             sig[a:b] = sg
-        Zs.append(np.array(Z, dtype=float) if Z else np.zeros((0, 8)))
-        Ns.append(np.array(nz, dtype=float) if nz else np.zeros((0, 2)))
+        else:
+            Nz += [(j, d, k) for j, d in nz]
+        Z += [(*z, k) for z in Zk]
         est.append(nz is not None)
         a = b
     Ginv, tr = np.empty((len(rows), 4, 4)), np.empty(len(rows))
     try:
-        kern.base_statistics(tuple(r[1] for r in rows), tuple(Zs), tuple(Ns), np.array(est), G, H, q, sig, Ginv, tr)
+        kern.base_statistics(rows[0][1], rows[-1][1], np.array(Z, dtype=float).reshape(-1, 9),
+                             np.array(Nz, dtype=float).reshape(-1, 3), np.array(est), G, H, q, sig, Ginv, tr)
     except np.linalg.LinAlgError:  # an exactly singular G: the check names what is missing
         Ginv = tr = None
     out: list[tuple] = []
@@ -602,7 +604,7 @@ class LeastSquares:
             if skipped:
                 notes.append(f"{inst}: segments not used: {sorted(skipped)}")
         whole = None  # every instrument's G (K, 4, 4), H (4, p), q and sigma (p,) as the compiled call leaves them
-        if kern is not None:
+        if kern is not None and len(rows) <= 2:
             per, whole = _base_statistics_compiled(kern, rows)
         else:
             per = [(inst, _base_statistics_numpy(M, *st), sig if nz is None else
