@@ -227,6 +227,16 @@ def _base_statistics_compiled(kern: Any, rows: list[tuple]) -> tuple[list[tuple]
     return out, (G, H, q, sig, Ginv, tr)
 
 
+_BASE_MODEL: list[ErrorModel] = []
+
+
+def _base_model() -> ErrorModel:
+    """:meth:`ErrorModel.base` (scale/misalignment + bias), made once: a model holds no state a fit changes."""
+    if not _BASE_MODEL:
+        _BASE_MODEL.append(ErrorModel.base())
+    return _BASE_MODEL[0]
+
+
 def _noise_segments(session: Session) -> list[Segment]:
     """The segments :func:`estimate_noise_sigma` reads: the static ones, or every segment where none is."""
     return [s for s in session.segments if s.kind in ("static", "static_unknown")] or list(session.segments)
@@ -524,7 +534,7 @@ class LeastSquares:
 
     def fit(self, session: Session) -> CalibrationResult:
         """Fit every instrument. Raises IdentifiabilityError naming what the segments cannot identify."""
-        model = self.model or ErrorModel.base()
+        model = self.model or _base_model()
         insts = list(self.instruments or session.instruments)
         segs = [session.segment(x) for x in self.segments] if self.segments is not None else list(session.segments)
         if [e.name for e in model.effects] == ["scale_misalignment", "bias"]:
@@ -634,7 +644,8 @@ class LeastSquares:
                 Ginv = np.linalg.inv(G)
                 # tr S^-1 = sum_i G_ii (G^-1)_ii; a zero column (G_ii = 0) makes G singular: an error, inf or nan here
                 tr = np.einsum("kii,kii->k", Ginv, G)
-            ok = ((tr > 0.0) & (tr * 4e-12 < 1.0)).tolist()  # (an inverse of a Gram matrix has a positive diagonal)
+            # (an inverse of a Gram matrix has a positive diagonal; nan fails)
+            ok = [0.0 < t and t * 4e-12 < 1.0 for t in tr.tolist()]
         except np.linalg.LinAlgError:  # exactly singular: the check below names what is missing
             Ginv, ok = None, [False] * len(per)
         for k, (inst, st, _, _) in enumerate(per):
@@ -724,11 +735,12 @@ class LeastSquares:
             tcov = (J @ Gi @ J.transpose(0, 2, 1)) * s2[:, None, None]
             beta_cov = s2[:, None, None] * Gi
             Bt = np.ascontiguousarray(B.T)
-        s2_l, chi2_l = s2.tolist(), (rss / s2).tolist()
-        small = rss < 1e-8 * q
-        if small.any():  # cancellation in the statistics: an exact second pass over those sensors' samples
+        s2_l, rss0 = s2.tolist(), rss.tolist()
+        chi2_l = [r / v for r, v in zip(rss0, s2_l)]  # (Python floats: the IEEE operations of numpy's, fewer calls)
+        small = [i for i, (r, qq) in enumerate(zip(rss0, q.tolist())) if r < 1e-8 * qq]
+        if small:  # cancellation in the statistics: an exact second pass over those sensors' samples
             starts = np.cumsum([0, *counts]).tolist()
-            for i in np.flatnonzero(small).tolist():
+            for i in small:
                 k = int(np.searchsorted(starts, i, side="right")) - 1
                 inst, st = per[k][0], per[k][1]
                 by_label = {lab: (seg, u) for lab, seg, u in st[5]}
