@@ -289,6 +289,15 @@ class SessionStatistics:
         M = np.empty((len(ys), 3, ys[0].shape[1] if ys else 0))
         kern = self._compiled()
         if kern is None:
+            if (ys and max(ns) < KERNEL_MIN_SAMPLES and sum(ns) <= STACK_ROWS and not self._sums
+                    and not self._rows):  # short segments, none known: numpy's stacked sums straight into M
+                R = _stacked_sums(ys, ns, True)
+                S = len(ys)
+                M[:, 0], M[:, 1], M[:, 2] = R[:S], R[S:2 * S], R[2 * S:]
+                M[[j for j, n in enumerate(ns) if n < 3], 2] = 0.0
+                for j, seg in enumerate(segs):
+                    self._rows[(id(seg), instrument)] = (seg, M, j)
+                return ns, M
             for j, st in enumerate(self.sums_of(segs, instrument, full=True)):
                 M[j, 0], M[j, 1], M[j, 2] = st.total, st.sumsq, st.diff[0]
             return ns, M
@@ -323,31 +332,14 @@ class SessionStatistics:
         Rows: the samples, their squares and their squared first differences (zero at each segment's first row);
         every sum of every segment in one ``np.add.reduceat``."""
         ys = [seg.raw[instrument] for seg in todo]
-        ns = np.array([y.shape[0] for y in ys], dtype=np.intp)
-        N, m = int(ns.sum()), len(ys)
-        starts = np.zeros(m, dtype=np.intp)
-        np.cumsum(ns[:-1], out=starts[1:])
-        # rows: the samples, their squares, their squared first differences (zero at each segment's first row)
-        Z = np.empty(((3 if full else 1) * N, ys[0].shape[1]))
-        Y = Z[:N]
-        np.concatenate(ys, out=Y)
-        idx = starts
-        if full:
-            np.square(Y, out=Z[N:2 * N])
-            D = Z[2 * N:]
-            np.subtract(Y[1:], Y[:-1], out=D[1:])
-            D[starts] = 0.0
-            np.square(D, out=D)
-            idx = np.concatenate([starts, starts + N, starts + 2 * N])
-        R = np.add.reduceat(Z, idx, axis=0)
-        if full:
-            ends = starts + ns - 1
-            R[2 * m:] -= (Y[ends] - Y[starts]) ** 2 / np.maximum(ns - 1, 1)[:, None]  # (:func:`_diff_from`)
-        for k, (seg, n) in enumerate(zip(todo, ns.tolist())):
+        ns = [y.shape[0] for y in ys]
+        R = _stacked_sums(ys, ns, full)
+        m = len(ys)
+        for k, (seg, n) in enumerate(zip(todo, ns)):
             if not full:
                 new = SegmentSums(n, R[k], ys[k])
             elif n < 3:
-                new = SegmentSums(n, R[k], ys[k], R[m + k], None, (np.zeros(Y.shape[1]), 0))
+                new = SegmentSums(n, R[k], ys[k], R[m + k], None, (np.zeros(R.shape[1]), 0))
             else:
                 new = SegmentSums(n, R[k], ys[k], R[m + k], None, (R[2 * m + k], n - 2))
             self._sums[(id(seg), instrument)] = (seg, new)
@@ -410,6 +402,34 @@ class SessionStatistics:
                 y = seg.raw[k]
                 rm.products[k] = np.vstack([self.sums(seg, k).total, c @ y, s @ y])
         return {k: rm.products[k] for k in instruments}
+
+
+def _stacked_sums(ys: "list[np.ndarray]", counts: "list[int]", full: bool) -> np.ndarray:
+    """The sums of the samples ``ys`` (each (n, k)) stacked: rows ``R[:m]`` their column sums and, if ``full``,
+    ``R[m:2m]`` their sums of squares and ``R[2m:]`` their first-difference sums (:attr:`SegmentSums.diff`; the
+    squared first differences, zero at each segment's first row, less ``(y[-1] - y[0])^2 / (n - 1)``): every sum of
+    every segment in one ``np.add.reduceat``."""
+    ns = np.array(counts, dtype=np.intp)
+    N, m = int(ns.sum()), len(ys)
+    starts = np.zeros(m, dtype=np.intp)
+    np.cumsum(ns[:-1], out=starts[1:])
+    # rows: the samples, their squares, their squared first differences (zero at each segment's first row)
+    Z = np.empty(((3 if full else 1) * N, ys[0].shape[1]))
+    Y = Z[:N]
+    np.concatenate(ys, out=Y)
+    idx = starts
+    if full:
+        np.square(Y, out=Z[N:2 * N])
+        D = Z[2 * N:]
+        np.subtract(Y[1:], Y[:-1], out=D[1:])
+        D[starts] = 0.0
+        np.square(D, out=D)
+        idx = np.concatenate([starts, starts + N, starts + 2 * N])
+    R = np.add.reduceat(Z, idx, axis=0)
+    if full:
+        ends = starts + ns - 1
+        R[2 * m:] -= (Y[ends] - Y[starts]) ** 2 / np.maximum(ns - 1, 1)[:, None]  # (:func:`_diff_from`)
+    return R
 
 
 def _angles(seg: Segment, wn: float) -> tuple[np.ndarray, np.ndarray]:
