@@ -289,8 +289,10 @@ class SessionStatistics:
         M = np.empty((len(ys), 3, ys[0].shape[1] if ys else 0))
         kern = self._compiled()
         if kern is None:
-            if (ys and max(ns) < KERNEL_MIN_SAMPLES and sum(ns) <= STACK_ROWS and not self._sums
-                    and not self._rows):  # short segments, none known: numpy's stacked sums straight into M
+            known = self._sums.keys() | self._rows.keys()
+            if (ys and max(ns) < KERNEL_MIN_SAMPLES and sum(ns) <= STACK_ROWS
+                    and not any((id(x), instrument) in known for x in segs)):
+                # short segments, none known: numpy's stacked sums straight into M
                 R = _stacked_sums(ys, ns, True)
                 S = len(ys)
                 M[:, 0], M[:, 1], M[:, 2] = R[:S], R[S:2 * S], R[2 * S:]
