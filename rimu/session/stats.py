@@ -304,13 +304,15 @@ class SessionStatistics:
                 M[j, 0], M[j, 1], M[j, 2] = st.total, st.sumsq, st.diff[0]
             return ns, M
         cache, rows, f = self._sums, self._rows, kern.column_moments
+        fresh = not cache and not rows  # (a fit's first call: nothing to look up)
         for j, seg in enumerate(segs):
             key = (id(seg), instrument)
-            hit = cache.get(key) or rows.get(key)
-            if hit is not None and hit[0] is seg:  # known already
-                st = self.sums(seg, instrument, full=True)
-                M[j, 0], M[j, 1], M[j, 2] = st.total, st.sumsq, st.diff[0]
-                continue
+            if not fresh:
+                hit = cache.get(key) or rows.get(key)
+                if hit is not None and hit[0] is seg:  # known already
+                    st = self.sums(seg, instrument, full=True)
+                    M[j, 0], M[j, 1], M[j, 2] = st.total, st.sumsq, st.diff[0]
+                    continue
             f(ys[j], M[j])
             if ns[j] < 3:
                 M[j, 2] = 0.0
