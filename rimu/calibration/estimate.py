@@ -114,9 +114,9 @@ def _noise_sigma_of(rows: list[int], ns: list[int], M: np.ndarray, instrument: s
 
 def _input_forms(session: Session, inst: str, segs: Sequence[Segment]) -> list[tuple[str | None, Any]]:
     """:func:`_input_form` of every segment for ``inst`` (its nominal contexts': the base model's), the common
-    cases without a context or a temporary array: a gyro at rest without a known Earth rate reads zero, an
-    accelerometer with one known specific force reads it, a gyro on a segment of neither known rate nor rest
-    reads nothing, an accelerometer without a known specific force or attitude reads nothing."""
+    cases without a context: a gyro at rest without a known Earth rate reads zero, an accelerometer with one known
+    specific force reads it, one at rest in a known attitude reads gravity in MB, a gyro on a segment of neither
+    known rate nor rest reads nothing, an accelerometer without a known specific force or attitude reads nothing."""
     out: list[tuple[str | None, Any]] = []
     ctx = None
     gyro = inst == "gyro"
@@ -133,9 +133,13 @@ def _input_forms(session: Session, inst: str, segs: Sequence[Segment]) -> list[t
             if f is not None and f.ndim == 1:
                 out.append(("constant", f))
                 continue
-            if f is None and seg.mat_ln_mb is None:
-                out.append((None, None))
-                continue
+            if f is None:
+                if seg.mat_ln_mb is None:
+                    out.append((None, None))
+                    continue
+                if seg.rate_mb is None:  # at rest in a known attitude: gravity seen in MB
+                    out.append(("constant", seg.mat_ln_mb.T @ np.array([0.0, 0.0, session.gravity])))
+                    continue
         if ctx is None:
             ctx = contexts(session, inst)[0]
         out.append(_input_form(ctx, seg))
