@@ -14,6 +14,8 @@ Eq. 5): ``y_i = u . w_i + c_i + ...`` with ``SF_i = 1/|w_i|`` (Eq. 10).
 from __future__ import annotations
 
 import math
+import os
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import partial
@@ -87,11 +89,24 @@ _LSQ_KERNELS: list = []
 def _lsq_kernel(backend: str | None) -> Any:
     """The compiled base-model kernel (:mod:`rimu.calibration._lsq_kernels`) where numba is loaded in the process
     already and the backend allows it, or numba is asked for by name; else None
-    (:func:`rimu._backend.resolve_loaded`: no calibration pays for importing numba unasked)."""
+    (:func:`rimu._backend.resolve_loaded`: no calibration pays for importing numba unasked). The answer for the same
+    request, ``RIMU_BACKEND`` and state of the process (numba loaded or not, the kernel importable or not) is kept."""
+    key = (backend, os.environ.get("RIMU_BACKEND"), "numba" in sys.modules, tuple(_LSQ_KERNELS))
+    hit = _LSQ_RESOLVED.get(key, False)
+    if hit is not False:
+        return hit
     if _resolve_loaded(backend, lambda: import_once(_LSQ_KERNELS, "rimu.calibration._lsq_kernels") is not None,
                        "the compiled least-squares kernel") != "numba":
-        return None
-    return import_once(_LSQ_KERNELS, "rimu.calibration._lsq_kernels")
+        out = None
+    else:
+        out = import_once(_LSQ_KERNELS, "rimu.calibration._lsq_kernels")
+    if len(_LSQ_RESOLVED) < 64:
+        _LSQ_RESOLVED[(backend, os.environ.get("RIMU_BACKEND"), "numba" in sys.modules, tuple(_LSQ_KERNELS))] = out
+    return out
+
+
+#: :func:`_lsq_kernel`'s answers (an error is raised again each time, never kept)
+_LSQ_RESOLVED: dict[tuple, Any] = {}
 
 
 def _noise_sigma_of(rows: list[int], ns: list[int], M: np.ndarray, instrument: str) -> np.ndarray:

@@ -352,6 +352,8 @@ class SessionStatistics:
         """The compiled kernel's module, or None: where numba is loaded in the process already and the backend
         allows it, or the backend asks for numba by name (:func:`rimu._backend.resolve_loaded`: the sums of a
         calibration never repay importing numba by themselves). Resolved once per object."""
+        if self._kernel is False and self.backend == "numba" and _KERNELS and _KERNELS[0] is not None:
+            self._kernel = _KERNELS[0]  # (asked for by name and imported already: nothing to resolve)
         if self._kernel is False:
             name = _resolve_loaded(self.backend, lambda: _kernels() is not None, "the compiled statistics kernel")
             self._kernel = _kernels() if name == "numba" else None
