@@ -110,14 +110,14 @@ def compare(rec, p_fa: float = 1e-3, confirm: int = 3, refine: bool = True) -> d
     ``refine``: the fixed calibration is the recipe's with every gyro's bias, scale and misalignment refitted on the
     first half (:func:`first_half_calibration`: the strongest fixed reference the first half gives); the tracker
     starts from it. Off: the recipe's calibration alone (``rms_recipe``, always reported, is its fixed rms)."""
-    t_end = max(u.t[-1] for u in rec.units)
-    su = setup_multi_imu(rec, average_s=0.1, fit_window_s=(-np.inf, 0.5 * t_end))
+    split = 0.5 * max(u.t[-1] for u in rec.units)      # s: the setup fits on t <= split, the second half is t > split
+    su = setup_multi_imu(rec, average_s=0.1, fit_window_s=(-np.inf, split))
     recipe = su.calibration["gyro"]
     blk = su.block
     Y, V, t = blk.raw["gyro"], blk.valid["gyro"], blk.t
     ok = np.all(V, axis=1) & np.all(np.isfinite(Y), axis=1)
-    second = (t >= t[0] + 0.5 * (t[-1] - t[0])) & ok
-    cal = first_half_calibration(recipe, Y, ok & ~(t >= t[0] + 0.5 * (t[-1] - t[0]))) if refine else recipe
+    second = (t > split) & ok
+    cal = first_half_calibration(recipe, Y, ok & (t <= split)) if refine else recipe
     trk = SelfCalTracker(cal, settings())
     mgr = RedundancyManager(InstrumentPipeline(cal), TrackedGltWindow(1, p_fa), p_fa=p_fa, confirm=confirm,
                             common_cause=True)
@@ -137,7 +137,7 @@ def compare(rec, p_fa: float = 1e-3, confirm: int = 3, refine: bool = True) -> d
             "alarms_tracked": float(res.replay.alarm.mean()), "alarms_fixed": float(res0.alarm.mean()),
             "result": res, "guard": run.loop.guard(), "tracker": trk, "t": t, "second": second, "z_second": cal.compensate(
                 np.where(np.isfinite(Y), Y, 0.0))[second], "z": cal.compensate(np.where(np.isfinite(Y), Y, 0.0)),
-            "first": ok & ~(t >= t[0] + 0.5 * (t[-1] - t[0])), "still": np.resize(np.asarray(su.still, bool), len(t)) & ok}
+            "first": ok & (t <= split), "still": np.resize(np.asarray(su.still, bool), len(t)) & ok}
 
 
 def _longest(mask: np.ndarray) -> slice:
