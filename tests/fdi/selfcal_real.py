@@ -137,7 +137,15 @@ def compare(rec, p_fa: float = 1e-3, confirm: int = 3, refine: bool = True) -> d
             "alarms_tracked": float(res.replay.alarm.mean()), "alarms_fixed": float(res0.alarm.mean()),
             "result": res, "guard": run.loop.guard(), "tracker": trk, "t": t, "second": second, "z_second": cal.compensate(
                 np.where(np.isfinite(Y), Y, 0.0))[second], "z": cal.compensate(np.where(np.isfinite(Y), Y, 0.0)),
-            "first": ok & (t <= split), "still": np.resize(np.asarray(su.still, bool), len(t)) & ok}
+            "first": ok & (t <= split), "still": _padded(su.still, len(t)) & ok}
+
+
+def _padded(mask, n: int) -> np.ndarray:
+    """``mask`` (the setup's epochs at rest: whole blocks only) as n epochs, False past its end."""
+    out = np.zeros(n, bool)
+    m = np.asarray(mask, bool)[:n]
+    out[:len(m)] = m
+    return out
 
 
 def _longest(mask: np.ndarray) -> slice:
