@@ -450,7 +450,10 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
     from ..units import fmt  # the field's units, as rimu calibrate prints them
     from ._common import check_outputs, fdi_settings, noise_at_rate
 
-    settings = fdi_settings(args, common_cause=True if args.common_cause else None)  # the one default otherwise
+    # the one default otherwise; refused as rimu monitor refuses (a setting the exported C cannot hold names its option)
+    settings = fdi_settings(args, common_cause=True if args.common_cause else None, readmit_after=readmit_after(args))
+    if args.no_readmit:
+        settings = type(settings)(**{**settings.as_dict(), "readmit_after": None})
     if args.estimates:  # a CSV without a sidecar: checked alone, then against the other outputs and the inputs
         from ..errors import OutputPathError
 
@@ -576,7 +579,7 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
     # the managers closed loop with the compensation of further effects (rimu.fdi.Runtime: the decisions of the
     # exported C filter, sample by sample)
     um = Runtime(unit, settings.replace(confirm=1 if args.detector == "cusum" else None), detectors=detectors,
-                 selfcal=trackers, selfcal_history=True, readmit_after=readmit_after(args), sample_rate=fs)
+                 selfcal=trackers, selfcal_history=True, sample_rate=fs)
     alarms = dict.fromkeys(insts, 0)
     events: dict[str, list] = {k: [] for k in insts}
     finite = dict.fromkeys(insts, True)
