@@ -1,7 +1,8 @@
 """One construction path for the runtime: ``rimu replay`` of a recording and ``rimu monitor`` fed the same recording
 build their managers, detectors, isolators and self-calibration loops through :class:`rimu.fdi.Runtime` alone, so
-they decide alike on every epoch (validity, isolated set, estimates to 1e-12, tracked terms), for a plain unit, a
-self-calibrating one, a unit set up on 0.1 s averages (its noise converted to the stream's rate, which monitor
+they decide alike on every epoch (validity, isolated set, estimates to 1e-12, tracked terms, events), for a plain
+unit, one with a noise model (the GLT whitened with it: replay's plain GLT once left it out), a self-calibrating one
+(the rate measured on the recording's first epochs), a unit set up on 0.1 s averages (its noise converted to the stream's rate, which monitor
 measures on the first epochs) and a motion-aware unit of eight triads (gyro and accelerometer motion terms stored in
 the unit file; the accelerometers' test takes the motion from the gyro manager).
 
@@ -39,6 +40,11 @@ def _unit(kind: str) -> Calibration:
     geo = preset("mimu4444") if kind == "motion" else cone6()  # eight triads
     g = InstrumentCalibration.nominal("gyro", geo, 1.0, noise_sigma=0.01)
     a = InstrumentCalibration.nominal("accel", geo, 1.0, noise_sigma=0.02)
+    if kind == "noise_model":  # rimu noise: a noise model, whose per-sample variances the GLT whitens with
+        from rimu.noise import InstrumentNoise
+
+        g.noise = InstrumentNoise.from_terms("gyro", g.geometry.names, FS,
+                                             white=0.01 / np.sqrt(FS) * np.array([1.0, 1.0, 1.0, 2.0, 2.0, 2.0]))
     if kind == "averaged":  # rimu setup --average 0.1: the noise of 10-sample averages
         g.noise_sigma, a.noise_sigma = g.noise_sigma / np.sqrt(10), a.noise_sigma / np.sqrt(10)
         g.noise_period_s = a.noise_period_s = 0.1
@@ -84,7 +90,7 @@ def _run(argv: list[str]) -> str:
     return out.getvalue()
 
 
-@pytest.mark.parametrize("kind", ["plain", "selfcal", "averaged", "motion"])
+@pytest.mark.parametrize("kind", ["plain", "noise_model", "selfcal", "averaged", "motion"])
 def test_replay_and_monitor_of_one_recording_decide_alike(kind, tmp_path):
     cal = _unit("plain" if kind == "selfcal" else kind)
     cal.save(tmp_path / "cal.json")
