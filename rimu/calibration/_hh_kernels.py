@@ -16,7 +16,7 @@ try:
 except ImportError as exc:  # pragma: no cover - the caller checks availability first
     raise ImportError("the compiled hand-held kernels need numba: pip install rimu[fast]") from exc
 
-__all__ = ["integrate_motions", "rotation_model", "segment_stats", "window_sums"]
+__all__ = ["accel_triad_batch", "integrate_motions", "rotation_model", "segment_stats", "window_sums"]
 
 #: IEEE arithmetic as numpy's (no exceptions, no fast-math)
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -391,3 +391,119 @@ def rotation_model(Gm, c, Rl, DG, Qc, G_l, c_l, SA_y, SB_y, SA_w, SB_w, u_a, u_b
             for k in range(p):
                 Jr[m, e, k] = T[m, e, 0] * dpred[0, k] + T[m, e, 1] * dpred[1, k] + T[m, e, 2] * dpred[2, k]
     return rr, Jr
+
+
+@_jit
+def accel_triad_batch(theta, free_pos, ybar, sd, gravity, keep, typ):  # pragma: no cover - compiled
+    """handheld._accel_triad_batch (the norm residuals of a triad's accelerometer fit and their Jacobian, for B
+    parameter vectors at once; the formulas of handheld._accel_problem), pose by pose, and the Gauss-Newton
+    normal equations of each: residuals ``r`` (B, K) times ``keep`` (B, K), the Jacobians scaled by ``typ``
+    ``Js`` (B, K, p), ``A = Js^T Js`` (B, p, p) and ``g = Js^T r`` (B, p). ``free_pos`` (9,): the parameter
+    index of each entry ``W[i, a]`` (row-major), -1 where it is fixed at zero; the biases follow the free
+    entries."""
+    B, p = theta.shape
+    K = ybar.shape[0]
+    nfree = p - 3
+    r = np.zeros((B, K))
+    Js = np.zeros((B, K, p))
+    A = np.zeros((B, p, p))
+    g = np.zeros((B, p))
+    W = np.zeros((3, 3))
+    info = np.empty((3, 3))
+    S = np.empty((3, 3))
+    rhs = np.empty(3)
+    f = np.empty(3)
+    u = np.empty(3)
+    Su = np.empty(3)
+    res = np.empty(3)
+    rho = np.empty(3)
+    w = np.empty(3)
+    SW = np.empty((3, 3))
+    df = np.empty((3, p))
+    dnf = np.empty(p)
+    ds2 = np.empty(p)
+    SuW = np.empty(3)
+    for b in range(B):
+        for q in range(9):
+            W[q // 3, q % 3] = theta[b, free_pos[q]] if free_pos[q] >= 0 else 0.0
+        for k in range(K):
+            if keep[b, k] == 0.0:
+                continue
+            for i in range(3):
+                w[i] = 1.0 / (sd[k, i] * sd[k, i])
+                res[i] = ybar[k, i] - theta[b, nfree + i]
+            for a in range(3):
+                s = 0.0
+                for i in range(3):
+                    s += w[i] * W[i, a] * res[i]
+                rhs[a] = s
+                for c in range(3):
+                    s = 0.0
+                    for i in range(3):
+                        s += w[i] * W[i, a] * W[i, c]
+                    info[a, c] = s
+            # inverse of the symmetric 3 x 3 information (cofactors)
+            c00 = info[1, 1] * info[2, 2] - info[1, 2] * info[2, 1]
+            c01 = info[1, 2] * info[2, 0] - info[1, 0] * info[2, 2]
+            c02 = info[1, 0] * info[2, 1] - info[1, 1] * info[2, 0]
+            det = info[0, 0] * c00 + info[0, 1] * c01 + info[0, 2] * c02
+            S[0, 0] = c00 / det
+            S[1, 0] = c01 / det
+            S[2, 0] = c02 / det
+            S[0, 1] = (info[0, 2] * info[2, 1] - info[0, 1] * info[2, 2]) / det
+            S[1, 1] = (info[0, 0] * info[2, 2] - info[0, 2] * info[2, 0]) / det
+            S[2, 1] = (info[0, 1] * info[2, 0] - info[0, 0] * info[2, 1]) / det
+            S[0, 2] = (info[0, 1] * info[1, 2] - info[0, 2] * info[1, 1]) / det
+            S[1, 2] = (info[0, 2] * info[1, 0] - info[0, 0] * info[1, 2]) / det
+            S[2, 2] = (info[0, 0] * info[1, 1] - info[0, 1] * info[1, 0]) / det
+            for a in range(3):
+                f[a] = S[a, 0] * rhs[0] + S[a, 1] * rhs[1] + S[a, 2] * rhs[2]
+            for i in range(3):
+                rho[i] = res[i] - (W[i, 0] * f[0] + W[i, 1] * f[1] + W[i, 2] * f[2])
+            nf = np.sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2])
+            for a in range(3):
+                u[a] = f[a] / nf
+            for a in range(3):
+                Su[a] = S[a, 0] * u[0] + S[a, 1] * u[1] + S[a, 2] * u[2]
+            den = np.sqrt(u[0] * Su[0] + u[1] * Su[1] + u[2] * Su[2])
+            d = nf - gravity
+            rk = d / den
+            r[b, k] = rk * keep[b, k]
+            for a in range(3):
+                for i in range(3):
+                    SW[a, i] = (S[a, 0] * W[i, 0] + S[a, 1] * W[i, 1] + S[a, 2] * W[i, 2]) * w[i]
+            for o in range(3):
+                for q in range(9):
+                    if free_pos[q] >= 0:
+                        i = q // 3
+                        a = q % 3
+                        df[o, free_pos[q]] = S[o, a] * w[i] * rho[i] - SW[o, i] * f[a]
+                for i in range(3):
+                    df[o, nfree + i] = -SW[o, i]
+            for i in range(3):
+                SuW[i] = Su[0] * W[i, 0] + Su[1] * W[i, 1] + Su[2] * W[i, 2]
+            for q in range(p):
+                dnf[q] = u[0] * df[0, q] + u[1] * df[1, q] + u[2] * df[2, q]
+                s = 0.0
+                for o in range(3):
+                    s += Su[o] * (df[o, q] - u[o] * dnf[q]) / nf
+                ds2[q] = 2.0 * s
+            for q in range(9):
+                if free_pos[q] >= 0:
+                    i = q // 3
+                    a = q % 3
+                    ds2[free_pos[q]] -= 2.0 * w[i] * Su[a] * SuW[i]
+            for q in range(p):
+                Js[b, k, q] = (dnf[q] / den - 0.5 * (d / den**3) * ds2[q]) * typ[q] * keep[b, k]
+        for q in range(p):
+            s = 0.0
+            for k in range(K):
+                s += Js[b, k, q] * r[b, k]
+            g[b, q] = s
+            for q2 in range(q, p):
+                s = 0.0
+                for k in range(K):
+                    s += Js[b, k, q] * Js[b, k, q2]
+                A[b, q, q2] = s
+                A[b, q2, q] = s
+    return r, Js, A, g
