@@ -1203,7 +1203,8 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
              accel_dir_jac: np.ndarray | None, accel_cov: np.ndarray | None, idx: Sequence[int], sigma: np.ndarray,
              H: np.ndarray, robust: bool = True, dir_cov: np.ndarray | None = None,
              preintegrate: bool = True, _stats: _RawStats | None = None, _ybar: np.ndarray | None = None,
-             _kern: Any = None, model: str = "full", _start: np.ndarray | None = None) -> GyroFit:
+             _kern: Any = None, model: str = "full", _start: np.ndarray | None = None, _share: tuple | None = None,
+             _pre: tuple | None = None) -> GyroFit:
     """Gyros from the rotations between poses (module docstring; Tedaldi et al. 2014, Eq. 14-18).
 
     Parameters
@@ -1250,40 +1251,55 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     seg_pos = {id(s): j for j, s in enumerate(session.segments)}
     # per window: the pose-k samples (first order: tremor and sway are small rotations), the motion samples
     # (exact rotations, padded to a common power-of-two length with identity steps) and the pose-(k+1) samples
-    L = 1
-    cols: list[tuple[int, int]] = []
-    parts_idx: list[tuple[np.ndarray, np.ndarray, np.ndarray, int, int]] = []
-    mot_dt = []
-    SA_w, SB_w = np.zeros(M), np.zeros(M)
-    Tw, Tw2 = np.zeros(M), np.zeros(M)
-    q_ab_list: list[float] = []
-    dt_all = np.zeros(len(rst.t))  # t[i+1] - t[i] (the last entry of every window is set below)
-    np.subtract(rst.t[1:], rst.t[:-1], out=dt_all[:-1])
-    ramp = np.arange(int(rst.counts.max()) + 1, dtype=float)
-    for m, (_, _, chain) in enumerate(windows):
-        j0, j1 = seg_pos[id(chain[0])], seg_pos[id(chain[-1])]
-        c0, c1 = int(rst.starts[j0]), int(rst.starts[j1] + rst.counts[j1])
-        cols.append((c0, c1))
-        # dt[i] = t[i+1] - t[i] within the window, the last sample's the one before it
-        dt = dt_all[c0:c1].copy() if c1 - c0 > 1 else np.array([1.0 / session.sample_rate])
-        if c1 - c0 > 1:
-            dt[-1] = dt_all[c1 - 2]
-        na, nb = int(rst.counts[j0]), int(rst.counts[j1])
-        # attitude at sample i of pose k relative to the end of the pose: -sum_{tau >= i} w dt; its mean
-        wa = dt[:na] * ramp[1:na + 1] / na
-        # attitude at sample j of pose k+1 relative to its start: sum_{tau < j} w dt; its mean
-        wb = dt[c1 - c0 - nb:] * ramp[nb - 1::-1] / nb
-        SA_w[m], SB_w[m] = wa.sum(), wb.sum()
-        q_ab_list.append(float(wa @ wa + wb @ wb))
-        mot_dt.append(dt[na:c1 - c0 - nb])
-        L = max(L, c1 - c0 - na - nb)
-        Tw[m], Tw2[m] = dt.sum(), dt @ dt
-        parts_idx.append((wa, wb, dt, na, nb))
-    L = 1 << int(np.ceil(np.log2(max(L, 1))))
-    q_ab = np.array(q_ab_list)
-    DM = np.zeros((M, L))
-    for m in range(M):
-        DM[m, :len(mot_dt[m])] = mot_dt[m]
+    if _share is not None:  # a subset of the windows of a fit on every window (held_out_gyro's folds): its sums
+        sh, sel = _share[0], np.asarray(_share[1], dtype=int)
+        cols = [sh["cols"][m] for m in sel]
+        parts_idx = [sh["parts_idx"][m] for m in sel]
+        mot_dt = [sh["mot_dt"][m] for m in sel]
+        SA_w, SB_w, Tw, Tw2, q_ab = (sh[k][sel] for k in ("SA_w", "SB_w", "Tw", "Tw2", "q_ab"))
+        L = 1 << int(np.ceil(np.log2(max(max(len(d) for d in mot_dt), 1))))
+        DM = np.ascontiguousarray(sh["DM"][sel, :L])
+        D0: dict[str, np.ndarray] | None = {
+            "SA_y": sh["D"]["SA_y"][sel], "SB_y": sh["D"]["SB_y"][sel], "Yint": sh["D"]["Yint"][sel],
+            "YD": np.ascontiguousarray(sh["D"]["YD"][:, sel, :L])}
+        dt_all = None
+    else:
+        L = 1
+        cols: list[tuple[int, int]] = []
+        parts_idx: list[tuple[np.ndarray, np.ndarray, np.ndarray, int, int]] = []
+        mot_dt = []
+        SA_w, SB_w = np.zeros(M), np.zeros(M)
+        Tw, Tw2 = np.zeros(M), np.zeros(M)
+        q_ab_list: list[float] = []
+        dt_all = np.zeros(len(rst.t))  # t[i+1] - t[i] (the last entry of every window is set below)
+        np.subtract(rst.t[1:], rst.t[:-1], out=dt_all[:-1])
+        ramp = np.arange(int(rst.counts.max()) + 1, dtype=float)
+        for m, (_, _, chain) in enumerate(windows):
+            j0, j1 = seg_pos[id(chain[0])], seg_pos[id(chain[-1])]
+            c0, c1 = int(rst.starts[j0]), int(rst.starts[j1] + rst.counts[j1])
+            cols.append((c0, c1))
+            # dt[i] = t[i+1] - t[i] within the window, the last sample's the one before it
+            dt = dt_all[c0:c1].copy() if c1 - c0 > 1 else np.array([1.0 / session.sample_rate])
+            if c1 - c0 > 1:
+                dt[-1] = dt_all[c1 - 2]
+            na, nb = int(rst.counts[j0]), int(rst.counts[j1])
+            # attitude at sample i of pose k relative to the end of the pose: -sum_{tau >= i} w dt; its mean
+            wa = dt[:na] * ramp[1:na + 1] / na
+            # attitude at sample j of pose k+1 relative to its start: sum_{tau < j} w dt; its mean
+            wb = dt[c1 - c0 - nb:] * ramp[nb - 1::-1] / nb
+            SA_w[m], SB_w[m] = wa.sum(), wb.sum()
+            q_ab_list.append(float(wa @ wa + wb @ wb))
+            mot_dt.append(dt[na:c1 - c0 - nb])
+            L = max(L, c1 - c0 - na - nb)
+            Tw[m], Tw2[m] = dt.sum(), dt @ dt
+            parts_idx.append((wa, wb, dt, na, nb))
+        L = 1 << int(np.ceil(np.log2(max(L, 1))))
+        q_ab = np.array(q_ab_list)
+        DM = np.zeros((M, L))
+        for m in range(M):
+            DM[m, :len(mot_dt[m])] = mot_dt[m]
+
+        D0 = None
 
     def window_samples(name: str) -> list:
         """The raw samples (N_m, n) of every window (gyro: the fitted columns; or the accelerometers'), built
@@ -1326,7 +1342,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
                 out["Yint"][m] = dt @ y
         return out
 
-    D = sums()
+    D = sums() if D0 is None else D0
     T = _tangent(accel_dirs[kb])  # (M, 2, 3) tangent basis at each measured end direction
     sig_int = sigma[None, :] * np.sqrt(Tw2)[:, None]
 
@@ -1336,7 +1352,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         wi = 1.0 / sigma**2
         return np.linalg.solve(W.T @ (W * wi[:, None]), W.T * wi)
 
-    def integrate(theta, jac=True):
+    def integrate(theta, jac=True, sel=None):
         """The rotation of every motion (M, 3, 3), exact (a quaternion per sample, combined pairwise), and with
         ``jac`` the pre-integration at theta: ``(theta, R, DG, Qc, G, c)`` for :func:`model_x`.
 
@@ -1350,7 +1366,10 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         W = theta[:3 * n].reshape(n, 3)
         c = theta[3 * n:]
         Gm = _G(W)
-        if not jac or _kern is None:
+        if sel is not None:  # (without jac) the rotations of these motions only
+            YD, DMs = D["YD"][:, sel], DM[sel]
+            omp = (Gm @ YD.reshape(n, -1)).reshape(3, len(DMs), L) - (Gm @ c)[:, None, None] * DMs
+        elif not jac or _kern is None:
             omp = (Gm @ D["YD"].reshape(n, -1)).reshape(3, M, L) - (Gm @ c)[:, None, None] * DM  # rad per sample
         if not jac:
             q = _qexp_planar(omp)
@@ -1401,11 +1420,13 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         phi_b = (D["SB_y"] - c * SB_w[:, None]) @ Gm.T  # mean attitude of pose k+1 relative to its start
         return Gm, psi_a, phi_b
 
-    def rotations(theta, pre=None):
+    def rotations(theta, pre=None, sel=None):
         """Cb^T Ca (pose-k body vector -> pose-(k+1) body) at theta; the motion rotations exact, or from the
-        pre-integration ``pre = (theta_l, R_l, Dth_l)``."""
+        pre-integration ``pre = (theta_l, R_l, Dth_l)``; ``sel``: of these motions only (exact)."""
         _, psi_a, phi_b = pose_rotations(theta)
-        Rm = integrate(theta, jac=False) if pre is None else pre[1] @ _rodrigues(model_x(theta, pre))
+        if sel is not None:
+            psi_a, phi_b = psi_a[sel], phi_b[sel]
+        Rm = integrate(theta, jac=False, sel=sel) if pre is None else pre[1] @ _rodrigues(model_x(theta, pre))
         Cb = Rm @ _rodrigues(phi_b)
         return np.einsum("mji,mjk->mik", Cb, _rodrigues(psi_a))
 
@@ -1416,6 +1437,13 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         rr = np.einsum("mai,mi->ma", T, pred - dirs[kb])
         rs = (ybar - c) / sd
         return rr, rs, parity(theta)
+
+    def misfit(theta, sel=None):
+        """The rotation residuals (M, 2) at theta, the motions integrated exactly; ``sel``: of these motions only."""
+        if sel is None:
+            return parts(theta, accel_dirs)[0]
+        pred = np.einsum("mij,mj->mi", rotations(theta, sel=sel), accel_dirs[ka[sel]])
+        return np.einsum("mai,mi->ma", T[sel], pred - accel_dirs[kb[sel]])
 
     def parity(theta):
         if n == 3:
@@ -1545,7 +1573,9 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     # (``_start``: a solution of the same model on other motions, e.g. all of them where this fit leaves some out: the
     # same minimum from nearer, fewer integrations; the weights and typical sizes are this fit's own)
     theta = theta0 if _start is None else np.asarray(_start, dtype=float).copy()
-    pre = None
+    # (``_pre``: the pre-integration of these motions at ``_start``, e.g. a subset of that of the fit on every motion;
+    # ``_share``: (that fit's ``problem["setup"]``, the indices of these windows in it): its sums, not formed again)
+    pre = _pre if _start is not None else None
     by_pose = {int(a): m for m, a in enumerate(ka)}
     for it in range(2):
         if preintegrate:
@@ -1633,7 +1663,9 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     W = theta[:3 * n].reshape(n, 3)
     c = theta[3 * n:]
     problem.update({"resid": resid, "jac": jac, "typ": typ, "dt": [p[2] for p in parts_idx], "n_rot": 2 * M,
-                    "rotation_misfit": lambda th: parts(th, accel_dirs)[0],
+                    "rotation_misfit": misfit,
+                    "setup": {"cols": cols, "parts_idx": parts_idx, "mot_dt": mot_dt, "SA_w": SA_w, "SB_w": SB_w,
+                              "Tw": Tw, "Tw2": Tw2, "q_ab": q_ab, "DM": DM, "D": D},
                     "rot_resid_shift": rot_resid_shift, "integrate": integrate, "model_x": model_x,
                     "model_fun": model_fun})
     ang = np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1, 1))
@@ -1684,12 +1716,18 @@ def held_out_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]
             full = fitted.get(model) or fit_gyro(session, windows, accel_dirs, None, None, idx, sigma, H, robust,
                                                  dir_cov, model=model, **fit_kw)
             misfit = full.problem["rotation_misfit"]
+            # every fold starts from the whole fit, with its sums and its pre-integration there (one for all folds)
+            setup = full.problem["setup"]
+            pre = full.problem["integrate"](full.theta)
             r = np.empty((M, 2))
             for g in range(k):
-                keep = [w for m, w in enumerate(windows) if group[m] != g]
+                sel = np.flatnonzero(group != g)
+                keep = [windows[m] for m in sel]
                 gf = fit_gyro(session, keep, accel_dirs, None, None, idx, sigma, H, robust, dir_cov, model=model,
-                              _start=full.theta, **fit_kw)
-                r[group == g] = misfit(gf.theta)[group == g]
+                              _start=full.theta, _share=(setup, sel),
+                              _pre=(pre[0], pre[1][sel], pre[2][sel], pre[3][sel], pre[4], pre[5]), **fit_kw)
+                out_g = np.flatnonzero(group == g)
+                r[out_g] = misfit(gf.theta, out_g)
         except (IdentifiabilityError, np.linalg.LinAlgError):
             return None
         ins.append(float(np.sqrt(np.mean(np.sum(full.rotation_residual ** 2, axis=1)))))
