@@ -16,7 +16,7 @@ try:
 except ImportError as exc:  # pragma: no cover - the caller checks availability first
     raise ImportError("the compiled hand-held kernels need numba: pip install rimu[fast]") from exc
 
-__all__ = ["accel_triad_batch", "integrate_motions", "rotation_model", "segment_stats", "window_sums"]
+__all__ = ["accel_triad_batch", "gauss_newton_model", "integrate_motions", "rotation_model", "segment_stats", "window_sums"]
 
 #: IEEE arithmetic as numpy's (no exceptions, no fast-math)
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -507,3 +507,122 @@ def accel_triad_batch(theta, free_pos, ybar, sd, gravity, keep, typ):  # pragma:
                 A[b, q, q2] = s
                 A[b, q2, q] = s
     return r, Js, A, g
+
+
+@_jit
+def _model_x_max(theta, DG, Qc, G_l, c_l):  # pragma: no cover - compiled
+    """handheld.fit_gyro's ``reach``: the largest |x| of ``model_x`` (a triad, G = W^-1) at theta."""
+    Gm = np.linalg.inv(theta[:9].reshape(3, 3).copy())
+    n = 3
+    v = np.zeros(3)
+    for a in range(3):
+        for i in range(n):
+            v[a] += Gm[a, i] * (theta[3 * n + i] - c_l[i])
+    big = 0.0
+    for m in range(DG.shape[0]):
+        for r in range(3):
+            s = 0.0
+            for a in range(3):
+                for i in range(n):
+                    s += DG[m, r, a * n + i] * (Gm[a, i] - G_l[a, i])
+            for b in range(3):
+                s -= Qc[m, r, b] * v[b]
+            big = max(big, abs(s))
+    return big
+
+
+@_jit
+def _model_residual(phi, Bm, full, Rl, DG, Qc, G_l, c_l, SA_y, SB_y, SA_w, SB_w, u_a, u_b, T, Lws, ybar, sd, w_st,
+                    J_st):  # pragma: no cover - compiled
+    """handheld.fit_gyro's ``reduced(model_fun(pre))`` of a triad: the weighted residuals and their Jacobian
+    with respect to phi (theta = Bm phi)."""
+    theta = phi.copy() if full else Bm @ phi
+    Gm = np.linalg.inv(theta[:9].reshape(3, 3).copy())
+    c = theta[9:].copy()
+    rr, Jr = rotation_model(Gm, c, Rl, DG, Qc, G_l, c_l, SA_y, SB_y, SA_w, SB_w, u_a, u_b, T)
+    M = rr.shape[0]
+    K = ybar.shape[0]
+    r = np.empty(2 * M + 3 * K)
+    J = np.empty((2 * M + 3 * K, 12))
+    rf = rr.reshape(2 * M)
+    Jf = Jr.reshape(2 * M, 12)
+    r[:2 * M] = Lws @ rf
+    J[:2 * M] = Lws @ Jf
+    for k in range(K):
+        for i in range(3):
+            r[2 * M + 3 * k + i] = (ybar[k, i] - c[i]) / sd[k, i] * w_st
+    J[2 * M:] = J_st
+    if full:
+        return r, J
+    return r, J @ Bm
+
+
+@_jit
+def _huber(r, robust, f_scale):  # pragma: no cover - compiled
+    """handheld._huber_cost and handheld._huber_weights."""
+    w = np.ones(r.shape[0])
+    if not robust:
+        return 0.5 * np.sum(r * r), w
+    cost = 0.0
+    for j in range(r.shape[0]):
+        z = (r[j] / f_scale) ** 2
+        cost += z if z <= 1.0 else 2.0 * np.sqrt(z) - 1.0
+        a = abs(r[j])
+        if a > f_scale:
+            w[j] = f_scale / max(a, 1e-300)
+    return 0.5 * f_scale**2 * cost, w
+
+
+@_jit
+def gauss_newton_model(phi, typ, robust, xtol, max_iter, radius, Bm, full, Rl, DG, Qc, G_l, c_l, SA_y, SB_y, SA_w,
+                       SB_w, u_a, u_b, T, Lws, ybar, sd, w_st, J_st):  # pragma: no cover - compiled
+    """handheld._gauss_newton (f_scale 3) on handheld.fit_gyro's model of a pre-integration, for a triad, with the
+    reach of the model (``_model_x_max``) against ``radius``: the same steps, compiled. Returns (phi, edge)."""
+    f_scale = 3.0
+    args = (Bm, full, Rl, DG, Qc, G_l, c_l, SA_y, SB_y, SA_w, SB_w, u_a, u_b, T, Lws, ybar, sd, w_st, J_st)
+    theta = phi.copy()
+    r, J = _model_residual(theta, *args)
+    cost, w = _huber(r, robust, f_scale)
+    lam = 0.0
+    near = False
+    p = theta.shape[0]
+    for _ in range(max_iter):
+        cost_w = _huber(r, robust, f_scale)
+        w = cost_w[1]
+        Js = J * typ
+        hw = w.copy()
+        if robust and near:
+            for j in range(w.shape[0]):
+                hw[j] = 1e-6 if w[j] < 1.0 else 1.0
+        A = Js.T @ (Js * hw.reshape(-1, 1))
+        g = Js.T @ (w * r)
+        dA = np.diag(A).copy()
+        here = _model_x_max(theta if full else Bm @ theta, DG, Qc, G_l, c_l)
+        while True:
+            Ad = A.copy()
+            for j in range(p):
+                Ad[j, j] += lam * dA[j]
+            try:
+                step = -np.linalg.solve(Ad, g)
+            except Exception:  # singular: the least-squares step, as handheld._gauss_newton
+                step = -np.linalg.lstsq(Ad, g)[0]
+            small = np.max(np.abs(step)) <= xtol
+            th_new = theta + step * typ
+            edge = False
+            far = _model_x_max(th_new if full else Bm @ th_new, DG, Qc, G_l, c_l)
+            if far > radius:
+                th_new = theta + step * typ * max(radius - here, 0.0) / max(far - here, 1e-300)
+                edge = True
+            r_new, J_new = _model_residual(th_new, *args)
+            c_new = _huber(r_new, robust, f_scale)[0]
+            if c_new <= cost * (1 + 1e-9) or small:
+                lam = lam / 10.0 if lam > 1e-6 else 0.0
+                break
+            lam = max(lam * 10.0, 1e-4)
+            if lam > 1e8:
+                return theta, False
+        theta, r, J, cost = th_new, r_new, J_new, c_new
+        near = lam == 0.0 and np.max(np.abs(step)) < 1e-3
+        if small or edge:
+            return theta, edge
+    return theta, False

@@ -1586,8 +1586,14 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
                 def reach(th, pre=pre):  # the largest change of a motion's rotation the model predicts, rad
                     return float(np.max(np.abs(model_x(th, pre))))
 
-                phi, _, _, edge = _gauss_newton(reduced(model_fun(pre)), to_phi(theta), typ_p, robust, xtol=1e-8,
-                                                reach=lambda p_, r_=reach: r_(Bm @ p_), radius=1.0)
+                if _kern is not None and n == 3:  # compiled: the same steps (_hh_kernels.gauss_newton_model)
+                    phi, edge = _kern.gauss_newton_model(
+                        to_phi(theta), typ_p, robust, 1e-8, 100, 1.0, Bm, model == "full", pre[1], pre[2], pre[3],
+                        pre[4], pre[5], D["SA_y"], D["SB_y"], SA_w, SB_w, accel_dirs[ka], accel_dirs[kb], T,
+                        Lwi * w_rot, ybar, sd, float(w_st), Js_static * w_st)
+                else:
+                    phi, _, _, edge = _gauss_newton(reduced(model_fun(pre)), to_phi(theta), typ_p, robust,
+                                                    xtol=1e-8, reach=lambda p_, r_=reach: r_(Bm @ p_), radius=1.0)
                 theta = Bm @ phi
                 # done when the model's correction turns no motion by more than 1 mrad: its error, second order
                 # in that, is below 1e-6 rad (the motions' residual scatter is ~1e-3 rad)
