@@ -16,7 +16,8 @@ try:
 except ImportError as exc:  # pragma: no cover - the caller checks availability first
     raise ImportError("the compiled hand-held kernels need numba: pip install rimu[fast]") from exc
 
-__all__ = ["accel_triad_batch", "gauss_newton_model", "integrate_motions", "rotation_model", "segment_stats", "window_sums"]
+__all__ = ["accel_triad_batch", "gauss_newton_model", "integrate_motions", "motion_rotations", "rotation_model",
+           "segment_stats", "window_sums"]
 
 #: IEEE arithmetic as numpy's (no exceptions, no fast-math)
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -626,3 +627,37 @@ def gauss_newton_model(phi, typ, robust, xtol, max_iter, radius, Bm, full, Rl, D
         if small or edge:
             return theta, edge
     return theta, False
+
+
+@_jit
+def motion_rotations(YD, DM, Gm, c):  # pragma: no cover - compiled
+    """The total quaternion of every motion (M, 4) (not normalised), sample by sample as ``integrate_motions``
+    forms it, without the pre-integration sums (handheld.fit_gyro's ``integrate`` without ``jac``)."""
+    n, M, L = YD.shape
+    tot = np.empty((M, 4))
+    for m in range(M):
+        ew, ex, ey, ez = 1.0, 0.0, 0.0, 0.0
+        for t in range(L):
+            dm = DM[m, t]
+            ox = 0.0
+            oy = 0.0
+            oz = 0.0
+            for i in range(n):
+                yi = YD[i, m, t] - c[i] * dm
+                ox += Gm[0, i] * yi
+                oy += Gm[1, i] * yi
+                oz += Gm[2, i] * yi
+            th = np.sqrt(ox * ox + oy * oy + oz * oz)
+            half = 0.5 * th
+            kk = np.sin(half) / th if th > 1e-12 else 0.5 - th * th / 48.0
+            qw, qx, qy, qz = np.cos(half), ox * kk, oy * kk, oz * kk
+            pw = ew * qw - ex * qx - ey * qy - ez * qz
+            px = ew * qx + ex * qw + ey * qz - ez * qy
+            py = ew * qy - ex * qz + ey * qw + ez * qx
+            pz = ew * qz + ex * qy - ey * qx + ez * qw
+            ew, ex, ey, ez = pw, px, py, pz
+        tot[m, 0] = ew
+        tot[m, 1] = ex
+        tot[m, 2] = ey
+        tot[m, 3] = ez
+    return tot

@@ -1343,7 +1343,8 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         return out
 
     D = sums() if D0 is None else D0
-    T = _tangent(accel_dirs[kb])  # (M, 2, 3) tangent basis at each measured end direction
+    # (M, 2, 3) tangent basis at each measured end direction
+    T = _tangent(accel_dirs[kb]) if _share is None else _share[0]["T"][_share[1]]
     sig_int = sigma[None, :] * np.sqrt(Tw2)[:, None]
 
     def _G(W):
@@ -1366,6 +1367,10 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         W = theta[:3 * n].reshape(n, 3)
         c = theta[3 * n:]
         Gm = _G(W)
+        if not jac and _kern is not None:  # compiled, sample by sample (_hh_kernels.motion_rotations)
+            YD, DMs = (D["YD"], DM) if sel is None else (np.ascontiguousarray(D["YD"][:, sel]), DM[sel])
+            tot = _kern.motion_rotations(YD, DMs, Gm, c).T
+            return _qmat_planar(tot / np.linalg.norm(tot, axis=0, keepdims=True))
         if sel is not None:  # (without jac) the rotations of these motions only
             YD, DMs = D["YD"][:, sel], DM[sel]
             omp = (Gm @ YD.reshape(n, -1)).reshape(3, len(DMs), L) - (Gm @ c)[:, None, None] * DMs
@@ -1503,7 +1508,12 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         typ_p = np.concatenate([np.full(n, abs(s0)), typ[3 * n:]])
 
     def to_phi(theta):
-        return np.linalg.lstsq(Bm, theta, rcond=None)[0] if model == "scale_bias" else theta
+        """The least-squares phi of theta (scale_bias: Bm's columns are orthogonal, each row's scale is its
+        projection on the nominal axis)."""
+        if model == "full":
+            return theta
+        Wt = theta[:3 * n].reshape(n, 3)
+        return np.concatenate([np.sum(Wt * H, axis=1) / np.sum(H * H, axis=1), theta[3 * n:]])
 
     def reduced(fun_):
         """``fun_`` (theta -> (r, J)) as a function of phi."""
@@ -1671,7 +1681,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     problem.update({"resid": resid, "jac": jac, "typ": typ, "dt": [p[2] for p in parts_idx], "n_rot": 2 * M,
                     "rotation_misfit": misfit,
                     "setup": {"cols": cols, "parts_idx": parts_idx, "mot_dt": mot_dt, "SA_w": SA_w, "SB_w": SB_w,
-                              "Tw": Tw, "Tw2": Tw2, "q_ab": q_ab, "DM": DM, "D": D},
+                              "Tw": Tw, "Tw2": Tw2, "q_ab": q_ab, "DM": DM, "D": D, "T": T},
                     "rot_resid_shift": rot_resid_shift, "integrate": integrate, "model_x": model_x,
                     "model_fun": model_fun})
     ang = np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1, 1))
@@ -1719,8 +1729,12 @@ def held_out_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]
     ins, out = [], []
     for model in ("scale_bias", "full"):
         try:
-            full = fitted.get(model) or fit_gyro(session, windows, accel_dirs, None, None, idx, sigma, H, robust,
-                                                 dir_cov, model=model, **fit_kw)
+            full = fitted.get(model)
+            if full is None:  # (with the window sums of a fit on the same windows, when there is one)
+                other = next(iter(fitted.values()), None)
+                share = None if other is None else (other.problem["setup"], np.arange(M))
+                full = fit_gyro(session, windows, accel_dirs, None, None, idx, sigma, H, robust, dir_cov,
+                                model=model, _share=share, **fit_kw)
             misfit = full.problem["rotation_misfit"]
             # every fold starts from the whole fit, with its sums and its pre-integration there (one for all folds)
             setup = full.problem["setup"]
