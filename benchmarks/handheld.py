@@ -167,7 +167,7 @@ def main(n_seeds: int = 20, n_poses: int = 30) -> dict:
           "fit / reference {:.1f} [{:.1f}, {:.1f}]".format(*eq["fit/reference"]))
     print("  stages of the fit with checks (timers around handheld's functions, separate rounds):")
     for k, v in eq["stages_ms"].items():
-        print(f"    {k:54s} {v:8.2f} ms")
+        print(f"    {k:72s} {v:8.2f} ms")
     print(json.dumps(out))
     return out
 
