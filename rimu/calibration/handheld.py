@@ -723,7 +723,7 @@ def held_out_accel(ybar: np.ndarray, sd: np.ndarray, H: np.ndarray, gravity: flo
     Gauss-Newton steps from the fit on every pose, all K problems at once (:func:`_accel_loo`), to 1e-12 of the
     typical parameter sizes (the refits from the linear start stop at 1e-8). ``refit=True``: the reference, every
     leave-one-out model fitted again from its own linear initial solution (:func:`fit_accel`); both give the same
-    figures (tested to 1e-7 relative) and verdicts.
+    figures (tested to 1e-9 relative, measured 5e-11) and verdicts.
     """
     K = len(ybar)
     if K < 10 or H.shape[0] != 3:
