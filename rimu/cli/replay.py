@@ -103,6 +103,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="track the calibration's drift in flight and compensate with it (docs/selfcal.md); the "
                         "tracker's settings: --selfcal-*")
     add_tracker_options(p, "selfcal-")
+    p.add_argument("--selfcal-cusum", action="store_true",
+                   help="with --selfcal: a CUSUM bank beside the window GLT that carries the tracker's covariance "
+                        "(half the false-alarm budget each; finds a step sooner, docs/selfcal.md)")
     p.add_argument("--out", action=Deprecated, new="--report DIR and --json FILE", convert=_old_out, metavar="DIR")
     add_accept_implausible(p)
     add_log_options(p)
@@ -544,6 +547,8 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
             yield blk if pipe is None else pipe.compensate(blk)
 
     trackers = {}
+    if args.selfcal_cusum and not args.selfcal:
+        raise OptionError("--selfcal-cusum only applies with --selfcal")
     if args.selfcal:
         from ..fdi.selfcal import SelfCalTracker
         from .selfcal import tracker_settings
@@ -567,7 +572,7 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
             from ..fdi.selfcal import TrackedGltWindow
 
             win = args.window if args.detector == "glt_window" else max(1, int(round(args.selfcal_window * fs)))
-            det = TrackedGltWindow(win, args.p_fa)
+            det = TrackedGltWindow(win, args.p_fa, cusum=args.selfcal_cusum)
         if args.motion_fit is not None and k == "gyro":
             det = _motion_detector(cal[k], _first_seconds(blocks(Pipeline(sub, temperature=scan.has_temp)),
                                                           t0 + args.motion_fit),

@@ -1137,7 +1137,7 @@ void {p}_glt_configure({p}_glt *G, const unsigned char *active)
         G->node[j] = {P}_CUSUM_NODES;
         G->inv_h[j] = 0.0;
     }}
-    if (G->r >= 1) {{
+    if (({p}_cusum_on != 0) && (G->r >= 1)) {{
         {p}_cusum_thresholds(G);
     }}
 }}
@@ -1150,7 +1150,7 @@ void {p}_glt_set_covariance({p}_glt *G, const double *sigma_c)
         G->sigma_c[i] = sigma_c[i];
     }}
     G->have_cov = 1;
-    if (G->r >= 1) {{
+    if (({p}_cusum_on != 0) && (G->r >= 1)) {{
         {p}_cusum_thresholds(G);
     }}
 }}
@@ -1202,7 +1202,7 @@ double {p}_glt_update({p}_glt *G, const double *z, double *threshold)
     }}
     *threshold = {p}_thr_det[d];
     /* the CUSUM bank: S+ = max(S+ + X - k, 0), S- = max(S- - X - k, 0) per active sensor; the largest S / h */
-    {{
+    if ({p}_cusum_on != 0) {{
         double ck = 0.5 * {p}_cusum_delta[d];
         for (j = 0; j < N; ++j) {{
             double X = 0.0, a, b;
@@ -1265,7 +1265,7 @@ double {p}_glt_update({p}_glt *G, const double *z, double *threshold)
 
 
 def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc", sample_rate: float | None = None,
-              detector_window: int | None = None, p_fa: float | None = None) -> tuple[str, str]:
+              detector_window: int | None = None, p_fa: float | None = None, cusum: bool = False) -> tuple[str, str]:
     """The header and the source (C99, double) of ``tracker``'s Kalman filter, functions named ``prefix_*``.
 
     Parameters
@@ -1280,6 +1280,8 @@ def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc", sample_rate: flo
         tracker's covariance at every window's start); None: no detector to inform.
     p_fa : float, optional
         With ``detector_window``: that detector as C too (``prefix_glt_*``), thresholds ``chi2_{1-p_fa}(dof)``.
+    cusum : bool
+        That detector with its CUSUM bank (``TrackedGltWindow(..., cusum=True)``: the window GLT at ``p_fa / 2``).
 
     Returns
     -------
@@ -1367,8 +1369,9 @@ def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc", sample_rate: flo
     if detector_window is not None and p_fa is not None:
         dofs = range(1, max(n - 3, 1) + 1)
         thr = [0.0] + [float(chdtri(d, p_fa)) for d in dofs]
-        half = [0.0] + [float(chdtri(d, p_fa / 2.0)) for d in dofs]
-        designs = [tracked_cusum_design(d, int(detector_window), float(p_fa)) for d in dofs]
+        half = [0.0] + [float(chdtri(d, p_fa / 2.0)) for d in dofs] if cusum else thr
+        designs = [tracked_cusum_design(d, int(detector_window), float(p_fa)) if cusum
+                   else (1.0, np.ones(CUSUM_RHO_NODES)) for d in dofs]
         delta = [0.0] + [dz for dz, _ in designs]
         htab = [np.full(CUSUM_RHO_NODES, 1.0)] + [h for _, h in designs]
         header = header.replace("\n#endif\n", _GLT_HEADER.format(P=P, p=prefix, W=int(detector_window)) + "\n#endif\n")
@@ -1376,6 +1379,8 @@ def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc", sample_rate: flo
                    "(entry 0 unused) */\n"
                    f"static const double {prefix}_thr_det[{len(thr)}] = {_array(thr)};",
                    f"static const double {prefix}_thr_half[{len(half)}] = {_array(half)};",
+                   f"/* the CUSUM bank beside the window GLT: on (1) or not (0) */\n"
+                   f"static const int {prefix}_cusum_on = {int(bool(cusum))};",
                    f"/* the CUSUM bank (rimu.fdi.selfcal.tracked_cusum_design): design shift delta by dof, thresholds h by dof "
                    f"and node (rho = node * step) */\n#define {P}_CUSUM_NODES {CUSUM_RHO_NODES}\n"
                    f"static const double {prefix}_cusum_step = {_num(CUSUM_RHO_STEP)};\n"
@@ -1397,7 +1402,7 @@ def unit_prefix(instrument: str) -> str:
 
 
 def unit_files(trackers: dict[str, SelfCalTracker], sample_rate: float, p_fa: float,
-               detector_window: int | None = None) -> dict[str, str]:
+               detector_window: int | None = None, cusum: bool = False) -> dict[str, str]:
     """The trackers' own translation units in an exported unit (:func:`rimu.export.export_c` with ``selfcal=``):
     each with its loop and the window GLT of the tracker's window (what :class:`rimu.fdi.Runtime` gives a tracked
     instrument's manager: ``TrackedGltWindow(round(window_s * rate), p_fa)``; ``detector_window``: of that many
@@ -1414,7 +1419,8 @@ def unit_files(trackers: dict[str, SelfCalTracker], sample_rate: float, p_fa: fl
     out = {}
     for k, trk in trackers.items():
         M = max(1, int(round(trk.settings.window_s * float(sample_rate))))
-        h, c = selfcal_c(trk, unit_prefix(k), sample_rate, M if detector_window is None else int(detector_window), p_fa)
+        h, c = selfcal_c(trk, unit_prefix(k), sample_rate, M if detector_window is None else int(detector_window), p_fa,
+                         cusum)
         out[f"{unit_prefix(k)}.h"] = h
         out[f"{unit_prefix(k)}.c"] = c
     return out

@@ -598,7 +598,7 @@ class TrackedGltWindow(GltWindow):
     minimum detectable bias grows by the factor :func:`minimum_detectable_bias` gives (1.08-1.11 after 2 h of the
     simulated flight of docs/selfcal.md), and a step is found later than by a fresh unit.
 
-    **The CUSUM** (``cusum=True``, the default). The tracker's error is persistent: per sample it moves the
+    **The CUSUM** (``cusum=True``; ``rimu replay --selfcal --selfcal-cusum``). The tracker's error is persistent: per sample it moves the
     unit-variance statistic ``X_j = u_j . p`` of sensor j (``u_j = v_j / |v_j|``) by a slowly varying mean
     ``mu_j ~ N(0, sigma_mu,j^2)``, ``sigma_mu,j^2 = u_j^T Vz Sigma_c Vz^T u_j``. Two one-sided CUSUMs per active
     sensor, ``S = max(0, S +- X_j - k)``, ``k = delta / 2`` with ``delta`` the shift of the window GLT's
@@ -609,7 +609,10 @@ class TrackedGltWindow(GltWindow):
     ``2 (dof + 3)`` times the bank's ARL). A sensor whose ``sigma_mu / k`` passes the table has no CUSUM (the window
     GLT still watches it). The CUSUM accumulates the evidence of a step from its onset, where the window GLT
     needs its window to fill (Lorden 1971: the CUSUM's delay is the least for a given false-alarm rate), so it finds a
-    step of the GLT's design size sooner even though it carries the tracker's covariance.
+    step of the GLT's design size sooner even though it carries the tracker's covariance. It is not the default: it
+    is as sensitive to any slow disagreement the drift model does not hold (an unmodelled g-sensitivity, the real
+    recordings' vibration) as to a fault, and isolates there where the window GLT alone does not
+    (``tests/fdi/test_selfcal_guard.py``, ``tests/fdi/test_selfcal_real.py``: docs/selfcal.md).
 
     :meth:`update` returns the larger of the GLT's statistic and the bank's ratio ``max S / h``, both on the
     scale of the ``chi2_(1 - p_fa)(dof)`` threshold it returns (the GLT's scaled by ``thr(p_fa) / thr(p_fa / 2)``,
@@ -618,7 +621,7 @@ class TrackedGltWindow(GltWindow):
     (the set GLT on the episode's evidence) or, with ``isolator="detector"``, the whitened window GLT's.
 
     :meth:`set_tracker_covariance` is called by whoever owns the tracker (SI^2, sensor space, (n, n)); until then
-    this is the plain window GLT (at ``p_fa / 2``) with a white-noise CUSUM.
+    this is the plain window GLT (with the bank: at ``p_fa / 2``, and a white-noise CUSUM).
 
     >>> from rimu.geometry import cone6
     >>> det = TrackedGltWindow(window=10, cusum=False)
@@ -640,7 +643,7 @@ class TrackedGltWindow(GltWindow):
 
     name = "glt_window_tracked"
 
-    def __init__(self, window: int = 5, p_fa: float = 1e-3, cusum: bool = True) -> None:
+    def __init__(self, window: int = 5, p_fa: float = 1e-3, cusum: bool = False) -> None:
         super().__init__(window, p_fa / 2.0 if cusum else p_fa, None)
         #: the false-alarm probability per sample of the whole detector (the window GLT's and the bank's shares)
         self.p_fa_total = float(p_fa)
@@ -656,6 +659,8 @@ class TrackedGltWindow(GltWindow):
         self._Sp = np.zeros(0)
         self._Sm = np.zeros(0)
         self._node = np.zeros(0, int)
+        #: the last :meth:`update`'s two parts on the returned threshold's scale: (window GLT, CUSUM bank)
+        self.last_parts = (0.0, 0.0)
 
     def whitening(self, Vz: np.ndarray, dof: int) -> np.ndarray | None:
         if self._sigma_c is None or dof < 1:
@@ -738,7 +743,8 @@ class TrackedGltWindow(GltWindow):
         self._Sp[off] = 0.0
         self._Sm[off] = 0.0
         ratio = float(np.max(np.maximum(self._Sp, self._Sm) * self._inv_h))
-        return max(stat * self._scale, ratio * thr), thr
+        self.last_parts = (stat * self._scale, ratio * thr)
+        return max(self.last_parts), thr
 
     def block(self, P: np.ndarray, Vz: np.ndarray, dof: int) -> tuple[np.ndarray, float, np.ndarray]:
         """The statistics of N samples of one set, one after the other (:meth:`configure`, then :meth:`update`):
@@ -884,7 +890,7 @@ class SelfCalLoop:
     >>> c = loop.terms()["bias"][0]                   # what the parity tells: the drift without its common mode
     >>> d = np.array([0.02, 0, 0, 0, 0, 0])
     >>> bool(np.abs(c - (d - trk.common_mode(d))).max() < 3e-3), loop.accepted, mgr.health.isolated
-    (True, 26, [])
+    (True, 29, [])
     >>> loop.guard()["groups"]["bias"]["applied"]      # the held-out check: the bias lowers the parity, applied
     True
     """
