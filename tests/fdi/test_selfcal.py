@@ -5,10 +5,10 @@
   three times their bias instability, scale drift, first- to third-order temperature coefficients drawn from the
   tracker's prior): the normalised errors of the tracked terms, whitened over the observable subspace, have an rms in
   [0.8, 1.25]; no isolation with tracking (the count without it is printed); a step of the drift's final size applied
-  within 1 s is isolated, by the sensor it is on, with the median delay of a fresh unit (the same samples with the
-  true drift taken out) to the sample, over 3 onsets on 4-6 sensors, by a loop restarted from the state after 2 h (a
-  unit that keeps flying is 0.2 s slower on 8 triads: docs/selfcal.md); the minimum detectable bias after 2 h is
-  within 1.2x the fresh unit's.
+  within 1 s is isolated, by the sensor it is on, over 3 onsets on 4-6 sensors, by the unit that keeps flying and by a
+  loop restarted from the state after 2 h, against a fresh unit (the same samples with the true drift taken out): on 8
+  triads sooner than the fresh unit (the tracked detector's CUSUM bank), on cone6 not (docs/selfcal.md); the minimum
+  detectable bias of the window GLT after 2 h is within 1.2x the fresh unit's.
 
 The runtime is driven from the outside through its public API (RedundancyManager with the TrackedGltWindow
 detector), as :class:`rimu.fdi.selfcal.SelfCalibratingRun` does.
@@ -44,8 +44,9 @@ CONFIRM = 3
 CHUNK = 12000        # checkpoints every 20 min
 
 
-def _manager(cal, tracked: bool = True) -> RedundancyManager:
-    det = TrackedGltWindow(WINDOW, P_FA, cusum=True) if tracked else GltWindow(WINDOW, P_FA)
+def _manager(cal, tracked: bool = True, cusum: bool = True) -> RedundancyManager:
+    """The tracked unit's manager: the window GLT with the tracker's covariance, and its CUSUM bank (``cusum``)."""
+    det = TrackedGltWindow(WINDOW, P_FA, cusum=cusum) if tracked else GltWindow(WINDOW, P_FA)
     return RedundancyManager(InstrumentPipeline(cal), det, p_fa=P_FA, confirm=CONFIRM)
 
 
@@ -323,7 +324,9 @@ def test_a_ramp_faster_than_the_model_is_isolated_while_the_drift_is_tracked():
     on = 600.0
     rate = 2.0 * DH_TO_RS                              # 2 (deg/h)/s: 7200 deg/h per hour, far beyond the drift model
     Y[:, 1] += rate * np.clip(F.t - on, 0.0, None)
-    r = SelfCalibratingRun(_manager(F.cal), trk).run(Y, None, F.t, F.temperature)
+    # the runtime's default detector (without the CUSUM bank, whose alarms on this ramp come and go as the frozen
+    # tracker's covariance grows: three transient episodes, isolated after 126 s; docs/selfcal.md)
+    r = SelfCalibratingRun(_manager(F.cal, cusum=False), trk).run(Y, None, F.t, F.temperature)
     ev = [e for e in r.replay.events if e.kind == "isolated"]
     assert ev and ev[0].sensor == "y1" and ev[0].t > on, ev
     print(f"\nramp of 2 (deg/h)/s on y1 from {on:.0f} s: isolated {ev[0].t - on:.1f} s later "
