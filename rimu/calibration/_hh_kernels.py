@@ -16,7 +16,8 @@ try:
 except ImportError as exc:  # pragma: no cover - the caller checks availability first
     raise ImportError("the compiled hand-held kernels need numba: pip install rimu[fast]") from exc
 
-__all__ = ["integrate_motions", "rotation_model", "segment_stats", "window_sums"]
+__all__ = ["accel_triad_batch", "gauss_newton_model", "integrate_motions", "motion_rotations", "rotation_model",
+           "segment_stats", "window_sums"]
 
 #: IEEE arithmetic as numpy's (no exceptions, no fast-math)
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -391,3 +392,272 @@ def rotation_model(Gm, c, Rl, DG, Qc, G_l, c_l, SA_y, SB_y, SA_w, SB_w, u_a, u_b
             for k in range(p):
                 Jr[m, e, k] = T[m, e, 0] * dpred[0, k] + T[m, e, 1] * dpred[1, k] + T[m, e, 2] * dpred[2, k]
     return rr, Jr
+
+
+@_jit
+def accel_triad_batch(theta, free_pos, ybar, sd, gravity, keep, typ):  # pragma: no cover - compiled
+    """handheld._accel_triad_batch (the norm residuals of a triad's accelerometer fit and their Jacobian, for B
+    parameter vectors at once; the formulas of handheld._accel_problem), pose by pose, and the Gauss-Newton
+    normal equations of each: residuals ``r`` (B, K) times ``keep`` (B, K), the Jacobians scaled by ``typ``
+    ``Js`` (B, K, p), ``A = Js^T Js`` (B, p, p) and ``g = Js^T r`` (B, p). ``free_pos`` (9,): the parameter
+    index of each entry ``W[i, a]`` (row-major), -1 where it is fixed at zero; the biases follow the free
+    entries."""
+    B, p = theta.shape
+    K = ybar.shape[0]
+    nfree = p - 3
+    r = np.zeros((B, K))
+    Js = np.zeros((B, K, p))
+    A = np.zeros((B, p, p))
+    g = np.zeros((B, p))
+    W = np.zeros((3, 3))
+    info = np.empty((3, 3))
+    S = np.empty((3, 3))
+    rhs = np.empty(3)
+    f = np.empty(3)
+    u = np.empty(3)
+    Su = np.empty(3)
+    res = np.empty(3)
+    rho = np.empty(3)
+    w = np.empty(3)
+    SW = np.empty((3, 3))
+    df = np.empty((3, p))
+    dnf = np.empty(p)
+    ds2 = np.empty(p)
+    SuW = np.empty(3)
+    for b in range(B):
+        for q in range(9):
+            W[q // 3, q % 3] = theta[b, free_pos[q]] if free_pos[q] >= 0 else 0.0
+        for k in range(K):
+            if keep[b, k] == 0.0:
+                continue
+            for i in range(3):
+                w[i] = 1.0 / (sd[k, i] * sd[k, i])
+                res[i] = ybar[k, i] - theta[b, nfree + i]
+            for a in range(3):
+                s = 0.0
+                for i in range(3):
+                    s += w[i] * W[i, a] * res[i]
+                rhs[a] = s
+                for c in range(3):
+                    s = 0.0
+                    for i in range(3):
+                        s += w[i] * W[i, a] * W[i, c]
+                    info[a, c] = s
+            # inverse of the symmetric 3 x 3 information (cofactors)
+            c00 = info[1, 1] * info[2, 2] - info[1, 2] * info[2, 1]
+            c01 = info[1, 2] * info[2, 0] - info[1, 0] * info[2, 2]
+            c02 = info[1, 0] * info[2, 1] - info[1, 1] * info[2, 0]
+            det = info[0, 0] * c00 + info[0, 1] * c01 + info[0, 2] * c02
+            S[0, 0] = c00 / det
+            S[1, 0] = c01 / det
+            S[2, 0] = c02 / det
+            S[0, 1] = (info[0, 2] * info[2, 1] - info[0, 1] * info[2, 2]) / det
+            S[1, 1] = (info[0, 0] * info[2, 2] - info[0, 2] * info[2, 0]) / det
+            S[2, 1] = (info[0, 1] * info[2, 0] - info[0, 0] * info[2, 1]) / det
+            S[0, 2] = (info[0, 1] * info[1, 2] - info[0, 2] * info[1, 1]) / det
+            S[1, 2] = (info[0, 2] * info[1, 0] - info[0, 0] * info[1, 2]) / det
+            S[2, 2] = (info[0, 0] * info[1, 1] - info[0, 1] * info[1, 0]) / det
+            for a in range(3):
+                f[a] = S[a, 0] * rhs[0] + S[a, 1] * rhs[1] + S[a, 2] * rhs[2]
+            for i in range(3):
+                rho[i] = res[i] - (W[i, 0] * f[0] + W[i, 1] * f[1] + W[i, 2] * f[2])
+            nf = np.sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2])
+            for a in range(3):
+                u[a] = f[a] / nf
+            for a in range(3):
+                Su[a] = S[a, 0] * u[0] + S[a, 1] * u[1] + S[a, 2] * u[2]
+            den = np.sqrt(u[0] * Su[0] + u[1] * Su[1] + u[2] * Su[2])
+            d = nf - gravity
+            rk = d / den
+            r[b, k] = rk * keep[b, k]
+            for a in range(3):
+                for i in range(3):
+                    SW[a, i] = (S[a, 0] * W[i, 0] + S[a, 1] * W[i, 1] + S[a, 2] * W[i, 2]) * w[i]
+            for o in range(3):
+                for q in range(9):
+                    if free_pos[q] >= 0:
+                        i = q // 3
+                        a = q % 3
+                        df[o, free_pos[q]] = S[o, a] * w[i] * rho[i] - SW[o, i] * f[a]
+                for i in range(3):
+                    df[o, nfree + i] = -SW[o, i]
+            for i in range(3):
+                SuW[i] = Su[0] * W[i, 0] + Su[1] * W[i, 1] + Su[2] * W[i, 2]
+            for q in range(p):
+                dnf[q] = u[0] * df[0, q] + u[1] * df[1, q] + u[2] * df[2, q]
+                s = 0.0
+                for o in range(3):
+                    s += Su[o] * (df[o, q] - u[o] * dnf[q]) / nf
+                ds2[q] = 2.0 * s
+            for q in range(9):
+                if free_pos[q] >= 0:
+                    i = q // 3
+                    a = q % 3
+                    ds2[free_pos[q]] -= 2.0 * w[i] * Su[a] * SuW[i]
+            for q in range(p):
+                Js[b, k, q] = (dnf[q] / den - 0.5 * (d / den**3) * ds2[q]) * typ[q] * keep[b, k]
+        for q in range(p):
+            s = 0.0
+            for k in range(K):
+                s += Js[b, k, q] * r[b, k]
+            g[b, q] = s
+            for q2 in range(q, p):
+                s = 0.0
+                for k in range(K):
+                    s += Js[b, k, q] * Js[b, k, q2]
+                A[b, q, q2] = s
+                A[b, q2, q] = s
+    return r, Js, A, g
+
+
+@_jit
+def _model_x_max(theta, DG, Qc, G_l, c_l):  # pragma: no cover - compiled
+    """handheld.fit_gyro's ``reach``: the largest |x| of ``model_x`` (a triad, G = W^-1) at theta."""
+    Gm = np.linalg.inv(theta[:9].reshape(3, 3).copy())
+    n = 3
+    v = np.zeros(3)
+    for a in range(3):
+        for i in range(n):
+            v[a] += Gm[a, i] * (theta[3 * n + i] - c_l[i])
+    big = 0.0
+    for m in range(DG.shape[0]):
+        for r in range(3):
+            s = 0.0
+            for a in range(3):
+                for i in range(n):
+                    s += DG[m, r, a * n + i] * (Gm[a, i] - G_l[a, i])
+            for b in range(3):
+                s -= Qc[m, r, b] * v[b]
+            big = max(big, abs(s))
+    return big
+
+
+@_jit
+def _model_residual(phi, Bm, full, Rl, DG, Qc, G_l, c_l, SA_y, SB_y, SA_w, SB_w, u_a, u_b, T, Lws, ybar, sd, w_st,
+                    J_st):  # pragma: no cover - compiled
+    """handheld.fit_gyro's ``reduced(model_fun(pre))`` of a triad: the weighted residuals and their Jacobian
+    with respect to phi (theta = Bm phi)."""
+    theta = phi.copy() if full else Bm @ phi
+    Gm = np.linalg.inv(theta[:9].reshape(3, 3).copy())
+    c = theta[9:].copy()
+    rr, Jr = rotation_model(Gm, c, Rl, DG, Qc, G_l, c_l, SA_y, SB_y, SA_w, SB_w, u_a, u_b, T)
+    M = rr.shape[0]
+    K = ybar.shape[0]
+    r = np.empty(2 * M + 3 * K)
+    J = np.empty((2 * M + 3 * K, 12))
+    rf = rr.reshape(2 * M)
+    Jf = Jr.reshape(2 * M, 12)
+    r[:2 * M] = Lws @ rf
+    J[:2 * M] = Lws @ Jf
+    for k in range(K):
+        for i in range(3):
+            r[2 * M + 3 * k + i] = (ybar[k, i] - c[i]) / sd[k, i] * w_st
+    J[2 * M:] = J_st
+    if full:
+        return r, J
+    return r, J @ Bm
+
+
+@_jit
+def _huber(r, robust, f_scale):  # pragma: no cover - compiled
+    """handheld._huber_cost and handheld._huber_weights."""
+    w = np.ones(r.shape[0])
+    if not robust:
+        return 0.5 * np.sum(r * r), w
+    cost = 0.0
+    for j in range(r.shape[0]):
+        z = (r[j] / f_scale) ** 2
+        cost += z if z <= 1.0 else 2.0 * np.sqrt(z) - 1.0
+        a = abs(r[j])
+        if a > f_scale:
+            w[j] = f_scale / max(a, 1e-300)
+    return 0.5 * f_scale**2 * cost, w
+
+
+@_jit
+def gauss_newton_model(phi, typ, robust, xtol, max_iter, radius, Bm, full, Rl, DG, Qc, G_l, c_l, SA_y, SB_y, SA_w,
+                       SB_w, u_a, u_b, T, Lws, ybar, sd, w_st, J_st):  # pragma: no cover - compiled
+    """handheld._gauss_newton (f_scale 3) on handheld.fit_gyro's model of a pre-integration, for a triad, with the
+    reach of the model (``_model_x_max``) against ``radius``: the same steps, compiled. Returns (phi, edge)."""
+    f_scale = 3.0
+    args = (Bm, full, Rl, DG, Qc, G_l, c_l, SA_y, SB_y, SA_w, SB_w, u_a, u_b, T, Lws, ybar, sd, w_st, J_st)
+    theta = phi.copy()
+    r, J = _model_residual(theta, *args)
+    cost, w = _huber(r, robust, f_scale)
+    lam = 0.0
+    near = False
+    p = theta.shape[0]
+    for _ in range(max_iter):
+        cost_w = _huber(r, robust, f_scale)
+        w = cost_w[1]
+        Js = J * typ
+        hw = w.copy()
+        if robust and near:
+            for j in range(w.shape[0]):
+                hw[j] = 1e-6 if w[j] < 1.0 else 1.0
+        A = Js.T @ (Js * hw.reshape(-1, 1))
+        g = Js.T @ (w * r)
+        dA = np.diag(A).copy()
+        here = _model_x_max(theta if full else Bm @ theta, DG, Qc, G_l, c_l)
+        while True:
+            Ad = A.copy()
+            for j in range(p):
+                Ad[j, j] += lam * dA[j]
+            try:
+                step = -np.linalg.solve(Ad, g)
+            except Exception:  # singular: the least-squares step, as handheld._gauss_newton
+                step = -np.linalg.lstsq(Ad, g)[0]
+            small = np.max(np.abs(step)) <= xtol
+            th_new = theta + step * typ
+            edge = False
+            far = _model_x_max(th_new if full else Bm @ th_new, DG, Qc, G_l, c_l)
+            if far > radius:
+                th_new = theta + step * typ * max(radius - here, 0.0) / max(far - here, 1e-300)
+                edge = True
+            r_new, J_new = _model_residual(th_new, *args)
+            c_new = _huber(r_new, robust, f_scale)[0]
+            if c_new <= cost * (1 + 1e-9) or small:
+                lam = lam / 10.0 if lam > 1e-6 else 0.0
+                break
+            lam = max(lam * 10.0, 1e-4)
+            if lam > 1e8:
+                return theta, False
+        theta, r, J, cost = th_new, r_new, J_new, c_new
+        near = lam == 0.0 and np.max(np.abs(step)) < 1e-3
+        if small or edge:
+            return theta, edge
+    return theta, False
+
+
+@_jit
+def motion_rotations(YD, DM, Gm, c):  # pragma: no cover - compiled
+    """The total quaternion of every motion (M, 4) (not normalised), sample by sample as ``integrate_motions``
+    forms it, without the pre-integration sums (handheld.fit_gyro's ``integrate`` without ``jac``)."""
+    n, M, L = YD.shape
+    tot = np.empty((M, 4))
+    for m in range(M):
+        ew, ex, ey, ez = 1.0, 0.0, 0.0, 0.0
+        for t in range(L):
+            dm = DM[m, t]
+            ox = 0.0
+            oy = 0.0
+            oz = 0.0
+            for i in range(n):
+                yi = YD[i, m, t] - c[i] * dm
+                ox += Gm[0, i] * yi
+                oy += Gm[1, i] * yi
+                oz += Gm[2, i] * yi
+            th = np.sqrt(ox * ox + oy * oy + oz * oz)
+            half = 0.5 * th
+            kk = np.sin(half) / th if th > 1e-12 else 0.5 - th * th / 48.0
+            qw, qx, qy, qz = np.cos(half), ox * kk, oy * kk, oz * kk
+            pw = ew * qw - ex * qx - ey * qy - ez * qz
+            px = ew * qx + ex * qw + ey * qz - ez * qy
+            py = ew * qy - ex * qz + ey * qw + ez * qx
+            pz = ew * qz + ex * qy - ey * qx + ez * qw
+            ew, ex, ey, ez = pw, px, py, pz
+        tot[m, 0] = ew
+        tot[m, 1] = ex
+        tot[m, 2] = ey
+        tot[m, 3] = ez
+    return tot

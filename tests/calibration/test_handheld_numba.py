@@ -7,7 +7,8 @@ is asked for and missing).
 ``np.diff`` (integer raw data: exact);
 the pre-integration of the motions (a sequential product instead of a prefix tree, another summation order) to
 1e-12 of the size of each quantity; the weighted rotation residuals and their Jacobian to 1e-9 of their largest;
-the whole calibration (parameters and covariance) to 1e-9 relative, far below any standard deviation (~1e-4
+the accelerometers' leave-one-out problems (residuals, Jacobians, normal equations) to 1e-10 of their largest;
+the whole calibration (parameters and covariance, the held-out checks' figures and verdicts) to 1e-9 relative, far below any standard deviation (~1e-4
 relative) and above the rounding of another order of operations (~1e-15).
 """
 
@@ -96,6 +97,39 @@ def test_preintegration_equal(run):
         np.testing.assert_allclose(Jb, Ja, rtol=0, atol=1e-9 * np.abs(Ja).max())
 
 
+def test_accel_triad_batch_equal():
+    """The compiled leave-one-out problems of a triad's accelerometers (residuals, Jacobians, normal equations)
+    against the numpy batch, and the batch against the one-problem reference (_accel_problem, whose Jacobian is
+    tested against central differences in test_handheld_fast.py)."""
+    pytest.importorskip("numba")
+    run = handheld_run(n_poses=12, static_s=1.0, seed=1)
+    s = run.session
+    sa = hh.white_noise_sigma_hf(s, "accel")
+    ybar, sd = hh._pose_stats(hh._statics(s), "accel", [0, 1, 2], sa)
+    K = len(ybar)
+    for model in ("scale_bias", "full"):
+        af = hh.fit_accel(ybar, sd, np.eye(3), s.gravity, "xyz", model=model, quick=True)
+        rng = np.random.default_rng(0)
+        theta = af.theta * (1 + 1e-4 * rng.standard_normal((K, len(af.theta))))  # K different points
+        r, J, _ = hh._accel_triad_batch(theta, af.free, ybar, sd, s.gravity)
+        # (r = (|f| - g) / sd(|f|): the rounding of |f| ~ g, 1e-15 g, divided by sd(|f|) ~ 1e-3 g: ~1e-12)
+        for b in (0, 7):
+            r1, J1, _ = hh._accel_problem(theta[b], af.free, np.zeros((3, 3)), ybar, sd, s.gravity, 0.0)
+            np.testing.assert_allclose(r[b], r1, rtol=0, atol=1e-10 * np.abs(r1).max())
+            np.testing.assert_allclose(J[b], J1, rtol=0, atol=1e-12 * np.abs(J1).max())
+        keep = 1.0 - np.eye(K)
+        typ = np.abs(af.theta) + 1.0
+        fp = np.full(9, -1, dtype=np.int64)
+        fp[af.free.ravel()] = np.arange(int(af.free.sum()))
+        rc, Jc, A, g = hh._kernels().accel_triad_batch(theta, fp, ybar, sd, float(s.gravity), keep, typ)
+        Js = J * (keep[..., None] * typ)
+        np.testing.assert_allclose(rc, r * keep, rtol=0, atol=1e-10 * np.abs(r).max())
+        np.testing.assert_allclose(Jc, Js, rtol=0, atol=1e-12 * np.abs(Js).max())
+        np.testing.assert_allclose(A, np.einsum("bkp,bkq->bpq", Js, Js), rtol=1e-11, atol=0)
+        np.testing.assert_allclose(g, np.einsum("bkp,bk->bp", Js, r * keep), rtol=0,
+                                   atol=1e-11 * np.abs(g).max())
+
+
 @pytest.mark.parametrize("seed", [5, 11])
 def test_calibration_equal(seed):
     pytest.importorskip("numba")
@@ -105,6 +139,12 @@ def test_calibration_equal(seed):
         fa, fb = a.fits[inst][0], b.fits[inst][0]
         np.testing.assert_allclose(fb.theta, fa.theta, rtol=1e-9, atol=0)
         np.testing.assert_allclose(fb.cov, fa.cov, rtol=0, atol=1e-9 * np.abs(fa.cov).max())
+    # the held-out checks (compiled leave-one-out Gauss-Newton of the accelerometers, compiled fold solves of the
+    # gyros) give the reference's figures and verdicts
+    for key in ("held_out_accel", "held_out_gyro"):
+        for part in ("in_sample", "held_out"):
+            np.testing.assert_allclose(b.extra[key][0][part], a.extra[key][0][part], rtol=1e-9)
+    assert [s["applied"] for s in b.extra["steps"]] == [s["applied"] for s in a.extra["steps"]]
     ca, cb = a.to_calibration(), b.to_calibration()
     for inst in ("accel", "gyro"):
         np.testing.assert_allclose(cb[inst].scale, ca[inst].scale, rtol=1e-9)
