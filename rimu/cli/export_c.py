@@ -66,6 +66,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="samples of the window GLT whose thresholds carry the tracker's covariance (rimu replay "
                         "--selfcal --detector glt_window --window N; default the tracker's window, as rimu replay "
                         "--selfcal with --detector glt)")
+    s.add_argument("--selfcal-cusum", action="store_true",
+                   help="the window GLT with a CUSUM bank beside it that carries the tracker's covariance (rimu replay "
+                        "--selfcal --selfcal-cusum; docs/selfcal.md)")
     add_tracker_options(s, "selfcal-")
     p.set_defaults(func=run, output_is_dir=True)  # -o names a folder (rimu.cli._common.check_outputs)
 
@@ -112,7 +115,8 @@ def run(args: argparse.Namespace) -> int:
         raise OptionError("--selfcal is generated in double precision only: drop --real float and --target cortex-m4")
     if not args.selfcal:
         given = [o for o, v in (("--sample-rate", args.sample_rate), ("--selfcal-temperature", args.selfcal_temperature),
-                                ("--selfcal-detector-window", args.selfcal_detector_window)) if v]
+                                ("--selfcal-detector-window", args.selfcal_detector_window),
+                                ("--selfcal-cusum", args.selfcal_cusum)) if v]
         if given:
             raise OptionError(f"{' and '.join(given)} only apply with --selfcal")
     if target:  # single precision with the Cortex-M4 harness (rimu.export.target)
@@ -126,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
         real = args.real or "double"
         trackers, rate = _trackers(args, cal, real) if args.selfcal else (None, None)
         files = export_c(cal, args.output, real=real, fdi=fdi, selfcal=trackers, sample_rate=rate,
-                         detector_window=args.selfcal_detector_window)
+                         detector_window=args.selfcal_detector_window, selfcal_cusum=args.selfcal_cusum)
         msg = f"wrote {', '.join(f.name for f in files)} to {out} ({real}; {settings}"
         if trackers:
             msg += (f"; self-calibration of {', '.join(trackers)} at {rate:g} Hz, terms "

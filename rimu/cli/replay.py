@@ -103,6 +103,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="track the calibration's drift in flight and compensate with it (docs/selfcal.md); the "
                         "tracker's settings: --selfcal-*")
     add_tracker_options(p, "selfcal-")
+    p.add_argument("--selfcal-cusum", action="store_true",
+                   help="with --selfcal: a CUSUM bank beside the window GLT that carries the tracker's covariance "
+                        "(half the false-alarm budget each; finds a step sooner, docs/selfcal.md)")
     p.add_argument("--out", action=Deprecated, new="--report DIR and --json FILE", convert=_old_out, metavar="DIR")
     add_accept_implausible(p)
     add_log_options(p)
@@ -543,6 +546,8 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
             yield blk if pipe is None else pipe.compensate(blk)
 
     trackers = {}
+    if args.selfcal_cusum and not args.selfcal:
+        raise OptionError("--selfcal-cusum only applies with --selfcal")
     if args.selfcal:
         from ..fdi.selfcal import SelfCalTracker
         from .selfcal import tracker_settings
@@ -562,10 +567,13 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
     stored = stored_motion_detectors(sub, args.p_fa, fs) if args.detector == "glt" and not trackers else {}
     for k in insts:
         if k in trackers:  # the window GLT with the tracker's covariance: --window samples, else the tracker's
-            if args.detector == "glt_window":
-                from ..fdi.selfcal import TrackedGltWindow
+            from ..fdi.selfcal import TrackedGltWindow
 
-                detectors[k] = TrackedGltWindow(args.window, args.p_fa)
+            if args.detector == "glt_window":
+                detectors[k] = TrackedGltWindow(args.window, args.p_fa, cusum=args.selfcal_cusum)
+            elif args.selfcal_cusum:  # the runtime's window (the tracker's), with the CUSUM bank
+                detectors[k] = TrackedGltWindow(max(1, int(round(trackers[k].settings.window_s * fs))), args.p_fa,
+                                                cusum=True)
         elif args.motion_fit is not None and k == "gyro":
             detectors[k] = _motion_detector(cal[k], _first_seconds(blocks(Pipeline(sub, temperature=scan.has_temp)),
                                                                    t0 + args.motion_fit),

@@ -592,7 +592,8 @@ clean:
 
 def export_c(calibration: Calibration, directory: str | os.PathLike[str], real: str = "double",
              fdi: FdiSettings | None = None, selfcal: dict[str, Any] | None = None,
-             sample_rate: float | None = None, detector_window: int | None = None) -> list[Path]:
+             sample_rate: float | None = None, detector_window: int | None = None,
+             selfcal_cusum: bool = False) -> list[Path]:
     """Write the C99 runtime of ``calibration`` into ``directory`` (created if needed).
 
     Parameters
@@ -619,6 +620,9 @@ def export_c(calibration: Calibration, directory: str | os.PathLike[str], real: 
     detector_window : int, optional
         With ``selfcal``: the tracked instruments' window GLT of this many samples (``rimu replay --selfcal
         --detector glt_window --window N``); default the tracker's window (``Runtime(selfcal=)``'s default).
+    selfcal_cusum : bool
+        With ``selfcal``: that window GLT with its CUSUM bank (``TrackedGltWindow(..., cusum=True)``, ``rimu replay
+        --selfcal --selfcal-cusum``).
 
     Returns
     -------
@@ -644,7 +648,8 @@ def export_c(calibration: Calibration, directory: str | os.PathLike[str], real: 
     sc = _check_selfcal(calibration, real, selfcal, sample_rate)
     if detector_window is not None and not 1 <= int(detector_window) <= 2**31 - 1:
         raise ExportError(f"detector_window must be a number of samples >= 1, got {detector_window}")
-    extra = c_selfcal.unit_files(sc, float(sample_rate), fdi.p_fa, detector_window) if sc else {}  # type: ignore[arg-type]
+    extra = c_selfcal.unit_files(sc, float(sample_rate), fdi.p_fa, detector_window,  # type: ignore[arg-type]
+                                 bool(selfcal_cusum)) if sc else {}
     make = _MAKEFILE.format(headers="".join(f" {f}" for f in extra if f.endswith(".h")),
                             sources="".join(f" {f}" for f in extra if f.endswith(".c")))
     files = {"rimu_unit.h": _header(calibration, real, fdi, sc), "rimu_unit.c": _source(calibration, real, fdi, sc),

@@ -55,7 +55,7 @@ import numpy as np
 from scipy.special import chdtri  # chdtri(d, p) = chi2.isf(p, d), without importing scipy.stats (~40 MB)
 
 from ..errors import ExportError
-from ..fdi.selfcal import BLOCKS, GROUPS, SelfCalTracker
+from ..fdi.selfcal import BLOCKS, CUSUM_RHO_NODES, CUSUM_RHO_STEP, GROUPS, SelfCalTracker, tracked_cusum_design
 
 __all__ = ["selfcal_c", "unit_files", "unit_header", "unit_prefix", "unit_source"]
 
@@ -627,6 +627,7 @@ typedef struct {{
     double g_last[{P}_S];           /* the previous window's rms regressors (signed) */
     int have_last;
     double recent[{P}_SPAN][{P}_N * {P}_N];  /* correction covariances of the windows the detector spans */
+    double recent_o[{P}_SPAN][{P}_N];  /* and the correction of their suspended groups (SI) */
     int nrecent, next_recent;
     {p}_window pend[{P}_NPEND];
     int npend, first;
@@ -725,6 +726,26 @@ int {p}_loop_correct({p}_loop *L, const double *y, const unsigned char *valid, d
             }}
             dt = ahead - L->s.t;
             {p}_cov_ahead(&L->s, (L->have_last != 0) ? L->g_last : g, dt, L->recent[L->next_recent]);
+            {{  /* SelfCalTracker.unapplied_correction: Pi Phi theta on the blocks of the suspended groups */
+                const double *gc = (L->have_last != 0) ? L->g_last : g;
+                double v[N];
+                for (i = 0; i < N; ++i) {{
+                    int b;
+                    v[i] = 0.0;
+                    for (b = 0; b < NB; ++b) {{
+                        if (L->applied[{p}_group[b]] == 0) {{
+                            v[i] += gc[(b * N) + i] * L->s.theta[(b * N) + i];
+                        }}
+                    }}
+                }}
+                for (i = 0; i < N; ++i) {{
+                    double o = 0.0;
+                    for (j = 0; j < N; ++j) {{
+                        o += {p}_Pi[(i * N) + j] * v[j];
+                    }}
+                    L->recent_o[L->next_recent][i] = o;
+                }}
+            }}
             L->next_recent = (L->next_recent + 1) % {P}_SPAN;
             if (L->nrecent < {P}_SPAN) {{
                 L->nrecent += 1;
@@ -743,6 +764,15 @@ int {p}_loop_correct({p}_loop *L, const double *y, const unsigned char *valid, d
             }}
             for (i = 0; i < (N * N); ++i) {{
                 sigma_c[i] = L->recent[best][i];
+            }}
+            /* the drift the suspended groups leave in: every spanned window's outer product, the oldest first */
+            for (r = 0; r < L->nrecent; ++r) {{
+                const double *o = L->recent_o[(L->next_recent - L->nrecent + r + (2 * {P}_SPAN)) % {P}_SPAN];
+                for (i = 0; i < N; ++i) {{
+                    for (j = 0; j < N; ++j) {{
+                        sigma_c[(i * N) + j] += o[i] * o[j];
+                    }}
+                }}
             }}
             fresh = 1;
         }}
@@ -1017,6 +1047,10 @@ typedef struct {{
     double buf[{P}_GLT_WINDOW][{P}_N], sum[{P}_N];
     int k, count, have_cov;
     double sigma_c[{P}_N * {P}_N];   /* the tracker's correction covariance, SI^2 */
+    /* the CUSUM bank beside it: per sensor A_j = Vz^T u_j (X_j = A_j . z), S+ and S-, 1 / threshold (0: off), the
+     * threshold's node of the table */
+    double A[{P}_N * {P}_N], Sp[{P}_N], Sm[{P}_N], inv_h[{P}_N];
+    int node[{P}_N];
 }} {p}_glt;
 
 void {p}_glt_configure({p}_glt *G, const unsigned char *active);
@@ -1026,6 +1060,46 @@ double {p}_glt_update({p}_glt *G, const double *z, double *threshold);
 
 _GLT_SOURCE = r'''
 /* ======================================================================== the window GLT (TrackedGltWindow) */
+/* each active sensor's CUSUM threshold for the tracker's covariance (TrackedGltWindow._cusum_thresholds): node
+ * ceil(rho / step), rho = sqrt(A_j^T Sigma_c A_j) / k, off past the table; a statistic restarts when its node falls
+ * and is held at zero while off */
+static void {p}_cusum_thresholds({p}_glt *G)
+{{
+    int j, i, l, d = G->r;
+    double ck = 0.5 * {p}_cusum_delta[d];
+    for (j = 0; j < N; ++j) {{
+        int node = {P}_CUSUM_NODES, on = 0;
+        for (i = 0; i < N; ++i) {{
+            if (G->A[(j * N) + i] != 0.0) {{
+                on = 1;
+            }}
+        }}
+        if (on != 0) {{
+            double var = 0.0, rho;
+            if (G->have_cov != 0) {{
+                for (i = 0; i < N; ++i) {{
+                    double v = 0.0;
+                    for (l = 0; l < N; ++l) {{
+                        v += G->sigma_c[(i * N) + l] * G->A[(j * N) + l];
+                    }}
+                    var += G->A[(j * N) + i] * v;
+                }}
+            }}
+            rho = sqrt((var > 0.0) ? var : 0.0) / ck;
+            node = (int)ceil((rho / {p}_cusum_step) - 1e-9);
+            if (node > {P}_CUSUM_NODES) {{
+                node = {P}_CUSUM_NODES;
+            }}
+        }}
+        if ((node >= {P}_CUSUM_NODES) || (node < G->node[j])) {{
+            G->Sp[j] = 0.0;
+            G->Sm[j] = 0.0;
+        }}
+        G->inv_h[j] = (node < {P}_CUSUM_NODES) ? (1.0 / {p}_cusum_h[d][node]) : 0.0;
+        G->node[j] = node;
+    }}
+}}
+
 /* a new active set: its parity rows, the window forgotten (GltWindow.configure) */
 void {p}_glt_configure({p}_glt *G, const unsigned char *active)
 {{
@@ -1041,9 +1115,34 @@ void {p}_glt_configure({p}_glt *G, const unsigned char *active)
     }}
     G->k = 0;
     G->count = 0;
+    /* the CUSUM bank: unit columns u_j = v_j / |v_j| (v_j = column j of V diag(w)), A_j = diag(w) V^T u_j */
+    for (j = 0; j < N; ++j) {{
+        double nv = 0.0;
+        int l;
+        for (i = 0; i < G->r; ++i) {{
+            nv += (G->V[(i * N) + j] * {p}_w[j]) * (G->V[(i * N) + j] * {p}_w[j]);
+        }}
+        nv = sqrt(nv);
+        for (l = 0; l < N; ++l) {{
+            double v = 0.0;
+            if (nv > 1e-12) {{
+                for (i = 0; i < G->r; ++i) {{
+                    v += ((G->V[(i * N) + j] * {p}_w[j]) / nv) * G->V[(i * N) + l];
+                }}
+            }}
+            G->A[(j * N) + l] = v * {p}_w[l];
+        }}
+        G->Sp[j] = 0.0;
+        G->Sm[j] = 0.0;
+        G->node[j] = {P}_CUSUM_NODES;
+        G->inv_h[j] = 0.0;
+    }}
+    if (({p}_cusum_on != 0) && (G->r >= 1)) {{
+        {p}_cusum_thresholds(G);
+    }}
 }}
 
-/* the tracker's covariance from now on (the window's sums are kept) */
+/* the tracker's covariance from now on (the window's sums and the CUSUMs are kept) */
 void {p}_glt_set_covariance({p}_glt *G, const double *sigma_c)
 {{
     int i;
@@ -1051,15 +1150,26 @@ void {p}_glt_set_covariance({p}_glt *G, const double *sigma_c)
         G->sigma_c[i] = sigma_c[i];
     }}
     G->have_cov = 1;
+    if (({p}_cusum_on != 0) && (G->r >= 1)) {{
+        {p}_cusum_thresholds(G);
+    }}
 }}
 
 /* one sample's compensated outputs z (N, SI; those of inactive sensors ignored): the statistic
  * S^T (I + W Vz Sigma_c Vz^T)^-1 S / count of the window sum S of the normalised parity (= |L S|^2 / count, L the
  * inverse Cholesky factor: the same in any orthonormal parity basis), and its threshold chi2_(1-p_fa)(r)
  * (HUGE_VAL and 0 without parity) */
+/* the detector's statistic on the scale of chi2_(1-p_fa)(d): the window GLT's (at p_fa / 2) scaled by
+ * thr(p_fa) / thr(p_fa / 2), or the CUSUM's ratio times thr(p_fa), the larger */
+static double {p}_combine(double glt, double ratio, int d)
+{{
+    double scale = {p}_thr_det[d] / {p}_thr_half[d], a = glt * scale, b = ratio * {p}_thr_det[d];
+    return (b > a) ? b : a;
+}}
+
 double {p}_glt_update({p}_glt *G, const double *z, double *threshold)
 {{
-    double p[R], old[R], C[R * R], x[R], stat = 0.0;
+    double p[R], old[R], C[R * R], x[R], stat = 0.0, ratio = 0.0;
     int i, j, l, d = G->r, k = G->k;
     *threshold = HUGE_VAL;
     if (d < 1) {{
@@ -1091,11 +1201,33 @@ double {p}_glt_update({p}_glt *G, const double *z, double *threshold)
         G->count += 1;
     }}
     *threshold = {p}_thr_det[d];
+    /* the CUSUM bank: S+ = max(S+ + X - k, 0), S- = max(S- - X - k, 0) per active sensor; the largest S / h */
+    if ({p}_cusum_on != 0) {{
+        double ck = 0.5 * {p}_cusum_delta[d];
+        for (j = 0; j < N; ++j) {{
+            double X = 0.0, a, b;
+            for (l = 0; l < N; ++l) {{
+                X += G->A[(j * N) + l] * z[l];
+            }}
+            a = (G->Sp[j] + X) - ck;
+            b = (G->Sm[j] - X) - ck;
+            G->Sp[j] = (a > 0.0) ? a : 0.0;
+            G->Sm[j] = (b > 0.0) ? b : 0.0;
+            if (G->inv_h[j] == 0.0) {{
+                G->Sp[j] = 0.0;
+                G->Sm[j] = 0.0;
+            }}
+            a = ((G->Sp[j] > G->Sm[j]) ? G->Sp[j] : G->Sm[j]) * G->inv_h[j];
+            if (a > ratio) {{
+                ratio = a;
+            }}
+        }}
+    }}
     if (G->have_cov == 0) {{
         for (i = 0; i < d; ++i) {{
             stat += G->sum[i] * G->sum[i];
         }}
-        return stat / (double)G->count;
+        return {p}_combine((stat / (double)G->count), ratio, d);
     }}
     /* C = I + W (V D) Sigma_c (V D)^T, D = diag(1 / sigma) */
     for (i = 0; i < d; ++i) {{
@@ -1127,13 +1259,13 @@ double {p}_glt_update({p}_glt *G, const double *z, double *threshold)
     for (i = 0; i < d; ++i) {{
         stat += G->sum[i] * x[i];
     }}
-    return stat / (double)G->count;
+    return {p}_combine((stat / (double)G->count), ratio, d);
 }}
 '''
 
 
 def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc", sample_rate: float | None = None,
-              detector_window: int | None = None, p_fa: float | None = None) -> tuple[str, str]:
+              detector_window: int | None = None, p_fa: float | None = None, cusum: bool = False) -> tuple[str, str]:
     """The header and the source (C99, double) of ``tracker``'s Kalman filter, functions named ``prefix_*``.
 
     Parameters
@@ -1148,6 +1280,8 @@ def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc", sample_rate: flo
         tracker's covariance at every window's start); None: no detector to inform.
     p_fa : float, optional
         With ``detector_window``: that detector as C too (``prefix_glt_*``), thresholds ``chi2_{1-p_fa}(dof)``.
+    cusum : bool
+        That detector with its CUSUM bank (``TrackedGltWindow(..., cusum=True)``: the window GLT at ``p_fa / 2``).
 
     Returns
     -------
@@ -1233,10 +1367,26 @@ def selfcal_c(tracker: SelfCalTracker, prefix: str = "rimu_sc", sample_rate: flo
                                          "    }\n" if guard else "")
         source += (_GUARD_CHECK.format(P=P, p=prefix) if guard else "") + loop
     if detector_window is not None and p_fa is not None:
-        thr = [0.0] + [float(chdtri(d, p_fa)) for d in range(1, max(n - 3, 1) + 1)]
+        dofs = range(1, max(n - 3, 1) + 1)
+        thr = [0.0] + [float(chdtri(d, p_fa)) for d in dofs]
+        half = [0.0] + [float(chdtri(d, p_fa / 2.0)) for d in dofs] if cusum else thr
+        designs = [tracked_cusum_design(d, int(detector_window), float(p_fa)) if cusum
+                   else (1.0, np.ones(CUSUM_RHO_NODES)) for d in dofs]
+        delta = [0.0] + [dz for dz, _ in designs]
+        htab = [np.full(CUSUM_RHO_NODES, 1.0)] + [h for _, h in designs]
         header = header.replace("\n#endif\n", _GLT_HEADER.format(P=P, p=prefix, W=int(detector_window)) + "\n#endif\n")
-        consts += [f"/* the detector's thresholds chi2_(1 - p_fa)(dof), p_fa = {p_fa!r} (entry 0 unused) */\n"
-                   f"static const double {prefix}_thr_det[{len(thr)}] = {_array(thr)};"]
+        consts += [f"/* the detector's thresholds chi2_(1 - p_fa)(dof), p_fa = {p_fa!r}, and its window GLT's at p_fa / 2 "
+                   "(entry 0 unused) */\n"
+                   f"static const double {prefix}_thr_det[{len(thr)}] = {_array(thr)};",
+                   f"static const double {prefix}_thr_half[{len(half)}] = {_array(half)};",
+                   f"/* the CUSUM bank beside the window GLT: on (1) or not (0) */\n"
+                   f"static const int {prefix}_cusum_on = {int(bool(cusum))};",
+                   f"/* the CUSUM bank (rimu.fdi.selfcal.tracked_cusum_design): design shift delta by dof, thresholds h by dof "
+                   f"and node (rho = node * step) */\n#define {P}_CUSUM_NODES {CUSUM_RHO_NODES}\n"
+                   f"static const double {prefix}_cusum_step = {_num(CUSUM_RHO_STEP)};\n"
+                   f"static const double {prefix}_cusum_delta[{len(delta)}] = {_array(delta)};\n"
+                   f"static const double {prefix}_cusum_h[{len(htab)}][{P}_CUSUM_NODES] = {{\n"
+                   + ",\n".join(_array(h) for h in htab) + "\n};"]
         source += _GLT_SOURCE.format(P=P, p=prefix)
     return header, "\n".join(consts) + source
 
@@ -1252,7 +1402,7 @@ def unit_prefix(instrument: str) -> str:
 
 
 def unit_files(trackers: dict[str, SelfCalTracker], sample_rate: float, p_fa: float,
-               detector_window: int | None = None) -> dict[str, str]:
+               detector_window: int | None = None, cusum: bool = False) -> dict[str, str]:
     """The trackers' own translation units in an exported unit (:func:`rimu.export.export_c` with ``selfcal=``):
     each with its loop and the window GLT of the tracker's window (what :class:`rimu.fdi.Runtime` gives a tracked
     instrument's manager: ``TrackedGltWindow(round(window_s * rate), p_fa)``; ``detector_window``: of that many
@@ -1269,7 +1419,8 @@ def unit_files(trackers: dict[str, SelfCalTracker], sample_rate: float, p_fa: fl
     out = {}
     for k, trk in trackers.items():
         M = max(1, int(round(trk.settings.window_s * float(sample_rate))))
-        h, c = selfcal_c(trk, unit_prefix(k), sample_rate, M if detector_window is None else int(detector_window), p_fa)
+        h, c = selfcal_c(trk, unit_prefix(k), sample_rate, M if detector_window is None else int(detector_window), p_fa,
+                         cusum)
         out[f"{unit_prefix(k)}.h"] = h
         out[f"{unit_prefix(k)}.c"] = c
     return out

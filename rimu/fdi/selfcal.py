@@ -60,12 +60,12 @@ from ..calibration.result import InstrumentCalibration
 from ..errors import MissingInputError, MissingNoiseError, ShapeError
 from ..geometry.base import null_space_rows
 from ..noise.model import FLICKER_AVAR
-from .glt import GltWindow, glt_threshold
+from .glt import GltSnapshot, GltWindow, glt_threshold
 from .health import SensorState
 
 __all__ = ["BLOCKS", "GROUPS", "SelfCalLoop", "SelfCalSettings", "SelfCalState", "SelfCalTracker", "SelfCalUpdate", "SelfCalibratingRun",
            "SelfCalRunResult", "TrackedGltWindow", "bias_random_walk", "minimum_detectable_bias",
-           "unobservable_basis"]
+           "tracked_cusum_design", "unobservable_basis", "CUSUM_RHO_NODES", "CUSUM_RHO_STEP"]
 
 #: the state's blocks, in order (each holds one value per sensor)
 BLOCKS = ("bias", "scale", "tc1", "tc2", "tc3")
@@ -434,11 +434,32 @@ class SelfCalTracker:
         d = np.einsum("kbn,bn->kn", g, th)
         return d @ self.Pi.T
 
-    def correction_covariance(self, state: SelfCalState, g: np.ndarray) -> np.ndarray:
-        """Covariance (n, n), SI^2, of the correction's error for regressors ``g`` (m, n) (e.g. rms values)."""
+    def correction_covariance(self, state: SelfCalState, g: np.ndarray, applied: np.ndarray | None = None
+                              ) -> np.ndarray:
+        """Covariance (n, n), SI^2, of the correction's error for regressors ``g`` (m, n) (e.g. rms values).
+
+        ``applied`` (m,) bool: the blocks the correction applies (default all). A block left out (the held-out check
+        of :class:`SelfCalLoop` suspends its group) leaves its whole term in the outputs, ``theta_b`` rather than
+        ``theta_b - theta_hat_b``: the error's second moment is then ``P + o o^T`` with ``o`` the estimate on the
+        blocks left out (zero elsewhere): what the data say of the drift the outputs still carry (its mean, the
+        estimate, and its uncertainty, P; the cross terms stay P's, the estimate's error having zero mean)::
+
+            Sigma_c = Pi Phi (P + o o^T) Phi^T Pi^T
+        """
         Phi = np.concatenate([np.diag(g[b]) for b in range(self.m)], axis=1)
         C = self.Pi @ Phi
-        return C @ state.P @ C.T
+        out = C @ state.P @ C.T
+        if applied is not None and not np.all(applied):
+            o = self.unapplied_correction(state, g, applied)
+            out = out + np.outer(o, o)
+        return out
+
+    def unapplied_correction(self, state: SelfCalState, g: np.ndarray, applied: np.ndarray) -> np.ndarray:
+        """``o`` (n,), SI: the correction the blocks not ``applied`` (m,) would make for regressors ``g`` (m, n)
+        (``Pi Phi`` of the estimate on those blocks): the drift the outputs still carry, as the tracker sees it."""
+        off = ~np.asarray(applied, bool)
+        th = state.theta.reshape(self.m, self.n)
+        return self.Pi @ np.einsum("bn,bn->n", np.asarray(g, dtype=float)[off], th[off])
 
     def parity_covariance(self, state: SelfCalState, g: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
         """The tracked terms' uncertainty in the normalised parity, ``Vz Sigma_c Vz^T`` (dof, dof), per sample
@@ -506,30 +527,140 @@ class SelfCalTracker:
                                      effects, None if cal.range_raw is None else cal.range_raw.copy(), cal.noise)
 
 
-class TrackedGltWindow(GltWindow):
-    """The window GLT with the tracker's uncertainty in its covariance (Daly, Gai & Harrison 1979, whitened).
+#: the CUSUM part of :class:`TrackedGltWindow` tabulates its thresholds over ``rho = sigma_mu / k`` at these steps and
+#: uses the next node up (conservative); beyond the last node the sensor's CUSUM is off (its window GLT remains)
+CUSUM_RHO_STEP = 1.0 / 32.0
+CUSUM_RHO_NODES = 29
 
-    The window sum S of M parity samples under no fault has covariance ``M (I + M Vz Sigma_c Vz^T)`` when the
-    compensation carries a persistent error of covariance Sigma_c (the tracked terms' uncertainty), so the
-    statistic ``|L S|^2 / M`` with ``L = chol(I + M Vz Sigma_c Vz^T)^-1`` is chi-square with dof degrees of
-    freedom again; isolation uses the whitened columns. :meth:`set_tracker_covariance` is called by whoever
-    owns the tracker (SI^2, sensor space, (n, n)); until then this is the plain window GLT.
+
+def _siegmund_arl(drift: np.ndarray, h: float) -> np.ndarray:
+    """Siegmund's ARL (rimu.fdi.cusum.siegmund_arl) for an array of drifts ``mu - k`` (units of X)."""
+    b = h + 1.166
+    d = np.where(np.abs(drift) < 1e-9, 1.0, drift)
+    with np.errstate(over="ignore"):
+        arl = (np.exp(-2.0 * d * b) + 2.0 * d * b - 1.0) / (2.0 * d * d)
+    return np.where(np.abs(drift) < 1e-9, b * b, arl)
+
+
+def tracked_cusum_design(dof: int, window: int, p_fa: float, p_d: float = 0.5) -> tuple[float, np.ndarray]:
+    """The CUSUM of :class:`TrackedGltWindow` for ``dof`` parity dimensions: its design shift ``delta`` (units of
+    the unit-variance statistic ``X_j = u_j . p``) and its thresholds ``h`` (:data:`CUSUM_RHO_NODES`,) over
+    ``rho = sigma_mu / k`` (``k = delta / 2``, ``rho = i *`` :data:`CUSUM_RHO_STEP`).
+
+    ``delta``: the shift of the window GLT's minimum detectable bias (probability ``p_d`` at its own threshold,
+    ``chi2_(1 - p_fa/2)(dof)`` over ``window`` samples): ``window delta^2 = lambda`` with
+    ``P(ncx2(dof, lambda) > thr) = p_d``, the smallest fault the window test is there for. The bank holds
+    ``2 (dof + 3)`` one-sided statistics (both signs of each sensor) and gets half of the false-alarm budget, a rate
+    of ``p_fa / 2`` per sample: each statistic is designed for an in-control ARL of ``2 (dof + 3) * 2 / p_fa``
+    samples, averaged over a slowly varying mean ``mu ~ N(0, sigma_mu^2)`` (the tracked terms' error along u_j:
+    :func:`rimu.fdi.cusum.cusum_threshold_mixture`, Siegmund 1985 Eq. 2.57, Gauss-Hermite over mu).
+
+    >>> delta, h = tracked_cusum_design(3, 20, 1e-6)
+    >>> round(delta, 3), bool(np.all(np.diff(h) > 0))        # thresholds grow with the tracker's uncertainty
+    (1.226, True)
+    """
+    thr = float(special.chdtri(dof, p_fa / 2.0))
+    lam = float(special.chndtrinc(thr, dof, 1.0 - p_d))
+    delta = math.sqrt(lam / float(window))
+    k = delta / 2.0
+    arl = 2.0 * (dof + 3) * 2.0 / p_fa
+    x, w = np.polynomial.hermite_e.hermegauss(40)
+    w = w / w.sum()
+    h = np.empty(CUSUM_RHO_NODES)
+    for i in range(CUSUM_RHO_NODES):
+        mu = (i * CUSUM_RHO_STEP * k) * x
+
+        def excess(hh: float, mu: np.ndarray = mu) -> float:
+            with np.errstate(divide="ignore"):
+                return float(np.log(np.sum(w / _siegmund_arl(mu - k, hh)) * arl))
+
+        lo, hi = 0.0, 1.0
+        while excess(hi) > 0.0:
+            lo, hi = hi, 2.0 * hi
+        for _ in range(60):       # bisection: the rate falls monotonically with h
+            mid = 0.5 * (lo + hi)
+            if excess(mid) > 0.0:
+                lo = mid
+            else:
+                hi = mid
+        h[i] = hi
+    return delta, h
+
+
+class TrackedGltWindow(GltWindow):
+    """The window GLT with the tracker's uncertainty in its covariance (Daly, Gai & Harrison 1979, whitened), and a
+    CUSUM bank beside it that carries the same uncertainty (Page 1954; Siegmund 1985 Eq. 2.57).
+
+    **The window GLT.** The window sum S of M parity samples under no fault has covariance
+    ``M (I + M Vz Sigma_c Vz^T)`` when the compensation carries a persistent error of covariance Sigma_c (the
+    tracked terms' uncertainty), so the statistic ``|L S|^2 / M`` with ``L = chol(I + M Vz Sigma_c Vz^T)^-1`` is
+    chi-square with dof degrees of freedom again; isolation uses the whitened columns. That costs detection: the
+    minimum detectable bias grows by the factor :func:`minimum_detectable_bias` gives (1.08-1.11 after 2 h of the
+    simulated flight of docs/selfcal.md), and a step is found later than by a fresh unit.
+
+    **The CUSUM** (``cusum=True``; ``rimu replay --selfcal --selfcal-cusum``). The tracker's error is persistent: per sample it moves the
+    unit-variance statistic ``X_j = u_j . p`` of sensor j (``u_j = v_j / |v_j|``) by a slowly varying mean
+    ``mu_j ~ N(0, sigma_mu,j^2)``, ``sigma_mu,j^2 = u_j^T Vz Sigma_c Vz^T u_j``. Two one-sided CUSUMs per active
+    sensor, ``S = max(0, S +- X_j - k)``, ``k = delta / 2`` with ``delta`` the shift of the window GLT's
+    minimum detectable bias (:func:`tracked_cusum_design`), alarm when ``S > h(sigma_mu,j / k)``: the threshold
+    whose false-alarm rate averaged over that mean is the bank's share (:func:`rimu.fdi.cusum.cusum_threshold_mixture`,
+    tabulated over ``sigma_mu / k``, the next node up). The false-alarm budget is split: the window GLT at
+    ``p_fa / 2`` per sample, the bank at a rate of ``p_fa / 2`` (``2 (dof + 3)`` statistics, each designed for
+    ``2 (dof + 3)`` times the bank's ARL). A sensor whose ``sigma_mu / k`` passes the table has no CUSUM (the window
+    GLT still watches it). The CUSUM accumulates the evidence of a step from its onset, where the window GLT
+    needs its window to fill (Lorden 1971: the CUSUM's delay is the least for a given false-alarm rate), so it finds a
+    step of the GLT's design size sooner even though it carries the tracker's covariance. It is not the default: it
+    is as sensitive to any slow disagreement the drift model does not hold (an unmodelled g-sensitivity, the real
+    recordings' vibration) as to a fault, and isolates there where the window GLT alone does not
+    (``tests/fdi/test_selfcal_guard.py``, ``tests/fdi/test_selfcal_real.py``: docs/selfcal.md).
+
+    :meth:`update` returns the larger of the GLT's statistic and the bank's ratio ``max S / h``, both on the
+    scale of the ``chi2_(1 - p_fa)(dof)`` threshold it returns (the GLT's scaled by ``thr(p_fa) / thr(p_fa / 2)``,
+    the bank's ratio times ``thr(p_fa)``): an alarm is either part's, the manager's threshold and watch levels are
+    unchanged. The bank restarts with the window (:meth:`configure`: a new active set). Isolation is the manager's
+    (the set GLT on the episode's evidence) or, with ``isolator="detector"``, the whitened window GLT's.
+
+    :meth:`set_tracker_covariance` is called by whoever owns the tracker (SI^2, sensor space, (n, n)); until then
+    this is the plain window GLT (with the bank: at ``p_fa / 2``, and a white-noise CUSUM).
 
     >>> from rimu.geometry import cone6
-    >>> det = TrackedGltWindow(window=10)
+    >>> det = TrackedGltWindow(window=10, cusum=False)
     >>> det.configure(cone6().parity_matrix() / 0.01, 3)
     >>> det.set_tracker_covariance(np.eye(6) * 0.001 ** 2)        # 0.1 sigma per sensor, persistent
     >>> L = det.whitening(cone6().parity_matrix() / 0.01, 3)
     >>> np.round(np.linalg.inv(L @ L.T), 6).tolist()[0]               # I + 10 * 0.01 I (orthonormal rows)
     [1.1, 0.0, 0.0]
+    >>> v = cone6().parity_matrix()[:, 2]
+    >>> for cusum in (False, True):                  # a 1.5-sigma step on z1 (no noise), 0.05 sigma tracker error
+    ...     det = TrackedGltWindow(window=20, p_fa=1e-6, cusum=cusum)
+    ...     det.configure(cone6().parity_matrix(), 3)
+    ...     det.set_tracker_covariance(np.eye(6) * 0.05 ** 2)
+    ...     alarms = [det.update(1.5 * v) for _ in range(40)]
+    ...     print(next((k + 1 for k, (s, thr) in enumerate(alarms) if s > thr), None))
+    None
+    30
     """
 
     name = "glt_window_tracked"
 
-    def __init__(self, window: int = 5, p_fa: float = 1e-3) -> None:
-        super().__init__(window, p_fa, None)
+    def __init__(self, window: int = 5, p_fa: float = 1e-3, cusum: bool = False) -> None:
+        super().__init__(window, p_fa / 2.0 if cusum else p_fa, None)
+        #: the false-alarm probability per sample of the whole detector (the window GLT's and the bank's shares)
+        self.p_fa_total = float(p_fa)
+        self.cusum = bool(cusum)
         self._sigma_c: np.ndarray | None = None
         self._Vraw = np.zeros((0, 0))
+        self._thr_full: dict[int, float] = {}
+        self._scale = 1.0
+        self._U = np.zeros((0, 0))
+        self._ck = 0.0
+        self._h = np.zeros(0)
+        self._inv_h = np.zeros(0)
+        self._Sp = np.zeros(0)
+        self._Sm = np.zeros(0)
+        self._node = np.zeros(0, int)
+        #: the last :meth:`update`'s two parts on the returned threshold's scale: (window GLT, CUSUM bank)
+        self.last_parts = (0.0, 0.0)
 
     def whitening(self, Vz: np.ndarray, dof: int) -> np.ndarray | None:
         if self._sigma_c is None or dof < 1:
@@ -538,15 +669,104 @@ class TrackedGltWindow(GltWindow):
         C = np.eye(dof) + self.window * (V @ self._sigma_c @ V.T)
         return np.linalg.inv(np.linalg.cholesky(0.5 * (C + C.T)))
 
+    def threshold(self, dof: int) -> float:
+        """``chi2_(1 - p_fa)(dof)`` of the whole detector (the statistic :meth:`update` returns is on its scale)."""
+        if not self.cusum:
+            return super().threshold(dof)
+        v = self._thr_full.get(dof)
+        if v is None:
+            v = self._thr_full[dof] = glt_threshold(self.p_fa_total, dof)
+        return v
+
     def configure(self, Vz: np.ndarray, dof: int) -> None:
         self._Vraw = np.asarray(Vz, dtype=float)[:dof].copy()
         super().configure(Vz, dof)
+        if not self.cusum:
+            return
+        d = max(int(dof), 0)
+        self._t = self.threshold(d) if d >= 1 else float("inf")
+        self._scale = self._t / GltSnapshot.threshold(self, d) if d >= 1 else 1.0
+        n = self._Vraw.shape[1] if self._Vraw.ndim == 2 else 0
+        self._Sp = np.zeros(n)
+        self._Sm = np.zeros(n)
+        self._node = np.full(n, CUSUM_RHO_NODES)
+        self._U = np.zeros((d, n))
+        self._inv_h = np.zeros(n)
+        if d < 1 or n == 0:
+            return
+        nv = np.sqrt(np.einsum("ij,ij->j", self._Vraw, self._Vraw))
+        act = nv > 1e-12
+        self._U[:, act] = self._Vraw[:, act] / nv[act]
+        delta, self._h = _cusum_design(d, self.window, self.p_fa_total)
+        self._ck = 0.5 * delta
+        self._cusum_thresholds()
+
+    def _cusum_thresholds(self) -> None:
+        """Each active sensor's CUSUM threshold for the current tracker covariance (its inverse; 0: off)."""
+        U = self._U
+        n = U.shape[1]
+        on = np.einsum("ij,ij->j", U, U) > 0.5
+        if self._sigma_c is None:
+            rho = np.zeros(n)
+        else:
+            W = self._Vraw.T @ U                                  # (n, n): column j = Vz^T u_j
+            var = np.einsum("ij,ij->j", W, self._sigma_c @ W)
+            rho = np.sqrt(np.clip(var, 0.0, None)) / self._ck
+        node = np.where(on, np.ceil(rho / CUSUM_RHO_STEP - 1e-9), CUSUM_RHO_NODES).astype(int)
+        ok = node < CUSUM_RHO_NODES
+        inv = np.zeros(n)
+        inv[ok] = 1.0 / self._h[node[ok]]
+        # a statistic restarts when its threshold falls (its sum was gathered under a larger uncertainty) and is held
+        # at zero while it is off
+        restart = ~ok | (node < self._node)
+        self._Sp[restart] = 0.0
+        self._Sm[restart] = 0.0
+        self._node = node
+        self._inv_h = inv
 
     def set_tracker_covariance(self, sigma_c: np.ndarray | None) -> None:
-        """Use ``sigma_c`` (n, n), SI^2, from now on (None: none); the window's sums are kept."""
+        """Use ``sigma_c`` (n, n), SI^2, from now on (None: none); the window's sums and the CUSUMs are kept."""
         self._sigma_c = None if sigma_c is None else np.asarray(sigma_c, dtype=float)
         self._L = self.whitening(self._Vraw, self._dof)
         self._V = self._Vraw if self._L is None else self._L @ self._Vraw
+        if self.cusum and self._dof >= 1 and self._U.size:
+            self._cusum_thresholds()
+
+    def update(self, parity: np.ndarray) -> tuple[float, float]:
+        stat, thr = super().update(parity)
+        if not self.cusum or self._dof < 1:
+            return stat, thr
+        X = np.asarray(parity, dtype=float)[:self._dof] @ self._U
+        np.maximum(self._Sp + X - self._ck, 0.0, out=self._Sp)
+        np.maximum(self._Sm - X - self._ck, 0.0, out=self._Sm)
+        off = self._inv_h == 0.0
+        self._Sp[off] = 0.0
+        self._Sm[off] = 0.0
+        ratio = float(np.max(np.maximum(self._Sp, self._Sm) * self._inv_h))
+        self.last_parts = (stat * self._scale, ratio * thr)
+        return max(self.last_parts), thr
+
+    def block(self, P: np.ndarray, Vz: np.ndarray, dof: int) -> tuple[np.ndarray, float, np.ndarray]:
+        """The statistics of N samples of one set, one after the other (:meth:`configure`, then :meth:`update`):
+        (statistic (N,), threshold, isolated (N,) by the whitened window sum)."""
+        self.configure(Vz, dof)
+        stat = np.zeros(len(P))
+        iso = np.full(len(P), -1)
+        thr = float("inf")
+        for i, p in enumerate(np.asarray(P, dtype=float)):
+            stat[i], thr = self.update(p)
+            iso[i] = self.isolate(p)[0]
+        return stat, thr, iso
+
+
+_DESIGNS: dict[tuple[int, int, float], tuple[float, np.ndarray]] = {}
+
+
+def _cusum_design(dof: int, window: int, p_fa: float) -> tuple[float, np.ndarray]:
+    key = (int(dof), int(window), float(p_fa))
+    if key not in _DESIGNS:
+        _DESIGNS[key] = tracked_cusum_design(*key)
+    return _DESIGNS[key]
 
 
 def minimum_detectable_bias(Vz: np.ndarray, window: int = 1, sigma_c: np.ndarray | None = None,
@@ -670,7 +890,7 @@ class SelfCalLoop:
     >>> c = loop.terms()["bias"][0]                   # what the parity tells: the drift without its common mode
     >>> d = np.array([0.02, 0, 0, 0, 0, 0])
     >>> bool(np.abs(c - (d - trk.common_mode(d))).max() < 3e-3), loop.accepted, mgr.health.isolated
-    (True, 26, [])
+    (True, 29, [])
     >>> loop.guard()["groups"]["bias"]["applied"]      # the held-out check: the bias lowers the parity, applied
     True
     """
@@ -834,9 +1054,16 @@ class SelfCalLoop:
             self._th = self.state.theta.reshape(trk.m, trk.n)
             if self.detector is not None:
                 st = trk.predict(self.state, max(float(t) + trk.settings.window_s, self.state.t))
-                self._recent.append(trk.correction_covariance(st, g if self._g_last is None else self._g_last))
+                gc = g if self._g_last is None else self._g_last
+                self._recent.append((trk.correction_covariance(st, gc), trk.unapplied_correction(st, gc, self._mask > 0.5)))
                 del self._recent[:-self.span]
-                self.detector.set_tracker_covariance(max(self._recent, key=lambda c: float(np.trace(c))))
+                # the estimate's error: the largest of the windows the sum spans; the drift left in by suspended
+                # groups: every window's, summed (the sum's share of each is a convex combination: bounded by the sum
+                # of the outer products)
+                cov = max((c for c, _ in self._recent), key=lambda c: float(np.trace(c))).copy()
+                for _, o in self._recent:
+                    cov += np.outer(o, o)
+                self.detector.set_tracker_covariance(cov)
             self._flag = False
             self._suspended_windows += ~self._applied
         c = trk.Pi @ np.einsum("bn,bn->n", g, self._th * self._mask[:, None])

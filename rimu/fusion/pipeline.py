@@ -244,6 +244,14 @@ class InstrumentPipeline:
                                  self._invalid, True, 0, self._saturated, Validity.NOMINAL)
         self._select(self.table.full_code)
 
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        """A copy (``copy.deepcopy``, pickle) keeps :attr:`result` a view of the step's buffers (a copied view is an
+        array of its own: the copy's result would never change again)."""
+        self.__dict__.update(state)
+        res = self.result
+        res.x, res.parity = self._out[:3], self._out[3:]
+        res.invalid, res.saturated = self._invalid, self._saturated
+
     # ------------------------------------------------------------------ the active set (Cho & Park Eq. 21)
     def _check_index(self, i: int) -> int:
         if isinstance(i, (bool, np.bool_)) or not isinstance(i, (int, np.integer)) or not 0 <= i < self.n:

@@ -69,14 +69,17 @@ def _run(argv: list[str]) -> str:
 
 
 @needs_cc
-@pytest.mark.parametrize("geo,window", [(cone6(), None), (triads(4), 30)], ids=["cone6", "triads4-window30"])
-def test_exported_selfcal_unit_decides_as_replay(tmp_path, geo, window):
+@pytest.mark.parametrize("geo,window,cusum", [(cone6(), None, False), (triads(4), 30, False), (cone6(), None, True)],
+                         ids=["cone6", "triads4-window30", "cone6-cusum"])
+def test_exported_selfcal_unit_decides_as_replay(tmp_path, geo, window, cusum):
     """cone6 with the default detector (the window GLT of the tracker's window); the triads with a window GLT of 30
-    samples (replay --detector glt_window --window 30, export-c --selfcal-detector-window 30)."""
+    samples (replay --detector glt_window --window 30, export-c --selfcal-detector-window 30); cone6 with the CUSUM
+    bank beside the window GLT (--selfcal-cusum on both sides)."""
     log, cal, bad = _unit(tmp_path, geo, seed=3)
     # the unit's drift as it is (told a slower one, the tracker is frozen by the alarms of the drift it may not
     # absorb, and healthy sensors are isolated before the step: tests/fdi/test_selfcal_isolation.py)
-    opts = ["--selfcal-bias-rw", repr(DRIFT_RW), "--selfcal-bias-sigma0", repr(OFFSET), "--selfcal-window", "0.5"]
+    opts = ["--selfcal-bias-rw", repr(DRIFT_RW), "--selfcal-bias-sigma0", repr(OFFSET), "--selfcal-window", "0.5"] \
+        + (["--selfcal-cusum"] if cusum else [])
     det = [] if window is None else ["--detector", "glt_window", "--window", str(window)]
     _run(["replay", str(log), "--calibration", str(cal), "--selfcal", *opts, *det, "--estimates",
           str(tmp_path / "py.csv"), "--json", str(tmp_path / "py.json"), "-q"])
