@@ -14,6 +14,8 @@ Eq. 5): ``y_i = u . w_i + c_i + ...`` with ``SF_i = 1/|w_i|`` (Eq. 10).
 from __future__ import annotations
 
 import math
+import os
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import partial
@@ -27,6 +29,7 @@ from ..errors import IdentifiabilityError
 from ..session import Segment, Session, SessionStatistics
 from ..units import raw_unit_for, scale_unit
 from .lsq import (
+    BaseArrays,
     LazyResiduals,
     LsqResult,
     SensorFit,
@@ -86,11 +89,171 @@ _LSQ_KERNELS: list = []
 def _lsq_kernel(backend: str | None) -> Any:
     """The compiled base-model kernel (:mod:`rimu.calibration._lsq_kernels`) where numba is loaded in the process
     already and the backend allows it, or numba is asked for by name; else None
-    (:func:`rimu._backend.resolve_loaded`: no calibration pays for importing numba unasked)."""
+    (:func:`rimu._backend.resolve_loaded`: no calibration pays for importing numba unasked). The answer for the same
+    request, ``RIMU_BACKEND`` and state of the process (numba loaded or not, the kernel importable or not) is kept."""
+    key = (backend, os.environ.get("RIMU_BACKEND"), "numba" in sys.modules, tuple(_LSQ_KERNELS))
+    hit = _LSQ_RESOLVED.get(key, False)
+    if hit is not False:
+        return hit
     if _resolve_loaded(backend, lambda: import_once(_LSQ_KERNELS, "rimu.calibration._lsq_kernels") is not None,
                        "the compiled least-squares kernel") != "numba":
-        return None
-    return import_once(_LSQ_KERNELS, "rimu.calibration._lsq_kernels")
+        out = None
+    else:
+        out = import_once(_LSQ_KERNELS, "rimu.calibration._lsq_kernels")
+    if len(_LSQ_RESOLVED) < 64:
+        _LSQ_RESOLVED[(backend, os.environ.get("RIMU_BACKEND"), "numba" in sys.modules, tuple(_LSQ_KERNELS))] = out
+    return out
+
+
+#: :func:`_lsq_kernel`'s answers (an error is raised again each time, never kept)
+_LSQ_RESOLVED: dict[tuple, Any] = {}
+
+
+def _noise_sigma_of(rows: list[int], ns: list[int], M: np.ndarray, instrument: str) -> np.ndarray:
+    """:func:`estimate_noise_sigma` from the rows ``rows`` (its segments, in order) of a
+    :meth:`~rimu.session.SessionStatistics.moments` array ``M`` (``ns``: their samples): the same sums in the same
+    order as :func:`_noise_sigma_from`."""
+    dofs = [ns[j] - 2 if ns[j] >= 3 else 0 for j in rows]
+    cnt = sum(dofs)
+    if cnt == 0:
+        raise IdentifiabilityError(f"{instrument}: no segment has enough samples to estimate the noise level")
+    used = [j for j, d in zip(rows, dofs) if d]
+    a = used[0]
+    # row by row: added in turn (a slice where the rows follow each other, as the static positions of a session)
+    acc = np.add.reduce(M[a:a + len(used), 2] if used == list(range(a, a + len(used))) else M[used, 2], axis=0)
+    sig = np.sqrt(acc / cnt / 2.0)
+    if np.logical_or.reduce(sig <= 0):
+        sig = np.where(sig > 0, sig, np.max(sig) if np.max(sig) > 0 else 1.0)
+    return sig
+
+
+def _input_forms(session: Session, inst: str, segs: Sequence[Segment]) -> list[tuple[str | None, Any]]:
+    """:func:`_input_form` of every segment for ``inst`` (its nominal contexts': the base model's), the common
+    cases without a context: a gyro at rest without a known Earth rate reads zero, an accelerometer with one known
+    specific force reads it, one at rest in a known attitude reads gravity in MB, a gyro on a segment of neither
+    known rate nor rest reads nothing, an accelerometer without a known specific force or attitude reads nothing."""
+    out: list[tuple[str | None, Any]] = []
+    ctx = None
+    gyro = inst == "gyro"
+    for seg in segs:
+        if gyro:
+            if seg.kind not in ("rate", "static"):
+                out.append((None, None))
+                continue
+            if seg.kind == "static" and seg.rate_mb is None and (seg.mat_ln_mb is None or session.latitude is None):
+                out.append(("constant", np.zeros(3)))
+                continue
+        else:
+            f = seg.specific_force_mb
+            if f is not None and f.ndim == 1:
+                out.append(("constant", f))
+                continue
+            if f is None:
+                if seg.mat_ln_mb is None:
+                    out.append((None, None))
+                    continue
+                if seg.rate_mb is None:  # at rest in a known attitude: gravity seen in MB
+                    out.append(("constant", seg.mat_ln_mb.T @ np.array([0.0, 0.0, session.gravity])))
+                    continue
+        if ctx is None:
+            ctx = contexts(session, inst)[0]
+        out.append(_input_form(ctx, seg))
+    return out
+
+
+def _base_sensor_fits(session: Session, model: ErrorModel, inst: str, parts: list[tuple], Bt: np.ndarray,
+                      beta_cov: np.ndarray, arrays: BaseArrays, sigma_known: bool, n_obs: int) -> list[SensorFit]:
+    """The :class:`SensorFit` of every sensor of ``inst`` from the base model's arrays (rows in the geometry's
+    order): raw coefficients ``Bt`` (n, 4) and their covariance, physical values and theirs, each sensor's residuals
+    per segment computed when asked for (:class:`~rimu.calibration.lsq.LazyResiduals`)."""
+    ctxs = contexts(session, inst)
+    effs = model.effects_for(ctxs[0])
+    local = [x.name for e in effs for x in e.parameters(ctxs[0])]  # w_x, w_y, w_z, bias: every sensor's
+    by_label = {lab: (seg, u) for lab, seg, u in parts}
+    fits = []
+    for i, ctx in enumerate(ctxs):
+        name = ctx.name
+        res = LazyResiduals(labels=by_label, compute=partial(_base_residual_of, by_label, inst, ctx, Bt[i]))
+        specs = _base_physical_specs(effs, ctx)
+        fits.append(SensorFit(ctx, [f"{name}.{x}" for x in local], Bt[i], beta_cov[i],
+                              [f"{name}.{x.name}" for x in specs], specs, arrays.theta[i], arrays.theta_cov[i],
+                              arrays.sigma[i], sigma_known, n_obs, arrays.rss[i], res))
+    return fits
+
+
+def _base_statistics_numpy(M: np.ndarray, Z: list, G0: np.ndarray | None, H0: np.ndarray | None, n_obs: int,
+                           labels: list[str], parts: list) -> tuple:
+    """The base model's normal equations ``G`` (4, 4), ``H`` (4, n), ``q`` (n,) of one instrument from the rows of
+    :meth:`LeastSquares._base_rows` by numpy (the reference of
+    :func:`rimu.calibration._lsq_kernels.base_statistics`): every row's terms in two products, the outputs' sums of
+    squares added segment by segment (row by row, in order). Returns ``G, H, q, n_obs, labels, parts``."""
+    n = M.shape[2]
+    G = np.zeros((4, 4)) if G0 is None else G0
+    H = np.zeros((4, n)) if H0 is None else H0
+    if not Z:
+        return G, H, np.zeros(n), n_obs, labels, parts
+    R = np.array(Z, dtype=float)
+    j = R[:, 5].astype(np.intp)
+    kind = R[:, 7]
+    fit = kind != 2.0
+    T = M[j[fit], 0] / R[fit, 6][:, None]  # each row's totals (an angle row's over sqrt(N))
+    Q = M[j, 1]
+    Q[kind == 1.0] = T[kind[fit] == 1.0] ** 2
+    q = np.add.reduce(Q, axis=0)
+    X = R[fit, :4]
+    G += (X.T * R[fit, 4]) @ X
+    H += X.T @ T
+    return G, H, q, n_obs, labels, parts
+
+
+def _base_statistics_compiled(kern: Any, rows: list[tuple]) -> tuple[list[tuple], tuple]:
+    """The base model's normal equations and noise level of every instrument in one compiled call
+    (:func:`rimu.calibration._lsq_kernels.base_statistics`) from :meth:`LeastSquares._base_rows`' rows; returns
+    ``per``: instrument, ``(G, H, q, n_obs, labels, parts)``, noise level, skipped segments; and every instrument's
+    ``G`` (K, 4, 4), ``H`` (4, p), ``q``, noise level (p,) in one array each (whose views ``per`` holds), ``G^-1``
+    and the bound ``tr`` of :meth:`LeastSquares._base_check` (None where a G is exactly singular)."""
+    counts = [M.shape[2] for _, M, *_ in rows]
+    p = sum(counts)
+    G = np.zeros((len(rows), 4, 4))
+    H = np.zeros((4, p))
+    q, sig = np.empty(p), np.empty(p)
+    Z, Nz, est = [], [], []
+    a = 0
+    for k, (_, _, _, nz, sg, _, (Zk, G0, H0, *_)) in enumerate(rows):
+        b = a + counts[k]
+        if G0 is not None:
+            G[k] = G0
+            H[:, a:b] = H0
+        if nz is None:
+            sig[a:b] = sg
+        else:
+            Nz += [(j, d, k) for j, d in nz]
+        Z += [(*z, k) for z in Zk]
+        est.append(nz is not None)
+        a = b
+    Ginv, tr = np.empty((len(rows), 4, 4)), np.empty(len(rows))
+    try:
+        kern.base_statistics(rows[0][1], rows[-1][1], np.array(Z, dtype=float).reshape(-1, 9),
+                             np.array(Nz, dtype=float).reshape(-1, 3), np.array(est), G, H, q, sig, Ginv, tr)
+    except np.linalg.LinAlgError:  # an exactly singular G: the check names what is missing
+        Ginv = tr = None
+    out: list[tuple] = []
+    a = 0
+    for k, (inst, _, _, _, _, skipped, (_, _, _, n_obs, labels, parts)) in enumerate(rows):
+        b = a + counts[k]
+        out.append((inst, (G[k], H[:, a:b], q[a:b], n_obs, labels, parts), sig[a:b], skipped))
+        a = b
+    return out, (G, H, q, sig, Ginv, tr)
+
+
+_BASE_MODEL: list[ErrorModel] = []
+
+
+def _base_model() -> ErrorModel:
+    """:meth:`ErrorModel.base` (scale/misalignment + bias), made once: a model holds no state a fit changes."""
+    if not _BASE_MODEL:
+        _BASE_MODEL.append(ErrorModel.base())
+    return _BASE_MODEL[0]
 
 
 def _noise_segments(session: Session) -> list[Segment]:
@@ -390,44 +553,17 @@ class LeastSquares:
 
     def fit(self, session: Session) -> CalibrationResult:
         """Fit every instrument. Raises IdentifiabilityError naming what the segments cannot identify."""
-        model = self.model or ErrorModel.base()
+        model = self.model or _base_model()
         insts = list(self.instruments or session.instruments)
         segs = [session.segment(x) for x in self.segments] if self.segments is not None else list(session.segments)
+        if [e.name for e in model.effects] == ["scale_misalignment", "bias"]:
+            return self._fit_base(session, model, insts, segs)  # every sensor of every instrument at once
         base_only = all(e.name in ("bias", "scale_misalignment") for e in model.effects)
-        base = [e.name for e in model.effects] == ["scale_misalignment", "bias"]
         out: dict[str, LsqResult] = {}
         notes: list[str] = []
         # each segment's sums (with their squares and first differences, in one pass) and rotation moments once for
         # every instrument and step of the fit
         sstats = SessionStatistics(session, self.backend)
-        if base:  # every sensor of every instrument at once (one G per instrument, array operations)
-            per = []
-            noise = _noise_segments(session)
-            for inst in insts:
-                ctxs = contexts(session, inst)
-                forms = [_input_form(ctxs[0], seg) for seg in segs]
-                # the sums, squares and first differences of every segment the noise level and the fit read, the
-                # short ones together in a few numpy calls; of a turn read as one integrated row, its column sums
-                # alone (unless the noise level reads it too)
-                need = {id(x): x for x in noise}
-                need.update((id(x), x) for x, (kind, _) in zip(segs, forms) if kind is not None)
-                turns = [x for x, (kind, _) in zip(segs, forms) if kind is None and id(x) not in need
-                         and _is_turn(x, inst)]
-                sums = dict(zip(need, sstats.sums_of(list(need.values()), inst, full=True)))
-                if turns:
-                    sstats.sums_of(turns, inst)
-                if self.sigma is not None and self.sigma.get(inst) is not None:
-                    sig = _sigma_for(self.sigma, session, inst, sstats)
-                else:
-                    sig = _noise_sigma_from([sums[id(x)] for x in noise], ctxs[0].geometry.n, inst)
-                skipped = {}
-                stats = self._base_statistics(session, segs, inst, ctxs[0], skipped, sstats, tuple(insts), forms)
-                per.append((inst, ctxs, stats, sig, skipped))
-                if skipped:
-                    notes.append(f"{inst}: segments not used: {sorted(skipped)}")
-            Ginv = self._base_check(model, per)
-            out = self._base_fit(model, per, self.sigma is not None, segs, Ginv, _lsq_kernel(self.backend))
-            return CalibrationResult(f"least squares ({model.label})", out, session.raw_unit, notes)
         for inst in insts:
             sig = _sigma_for(self.sigma, session, inst, sstats)
             skipped: dict[str, str] = {}
@@ -459,8 +595,57 @@ class LeastSquares:
                 notes.append(f"{inst}: segments not used: {sorted(skipped)}")
         return CalibrationResult(f"least squares ({model.label})", out, session.raw_unit, notes)
 
+    def _fit_base(self, session: Session, model: ErrorModel, insts: list[str],
+                  segs: list[Segment]) -> CalibrationResult:
+        """The base model (scale/misalignment + bias) of every sensor of every instrument at once: per instrument the
+        sums of every segment it reads in one array (:meth:`~rimu.session.SessionStatistics.moments`) and one row per
+        segment of what the normal equations take from them (:meth:`_base_rows`); the normal equations and the noise
+        level of every instrument from these (one compiled call where numba is loaded, else a few array operations);
+        then every sensor solved together (:meth:`_base_solve`). The result holds the numbers as arrays
+        (:class:`~rimu.calibration.lsq.BaseArrays`); a sensor's :class:`SensorFit` is made when asked for."""
+        kern = _lsq_kernel(self.backend)
+        # the statistics take the compiled pass where the fit's kernel is used (one resolution of the backend)
+        sstats = SessionStatistics(session, "numba" if kern is not None else "numpy")
+        known = self.sigma is not None
+        noise = _noise_segments(session)
+        notes: list[str] = []
+        rows = []
+        for inst in insts:
+            forms = _input_forms(session, inst, segs)
+            # the segments whose sums the fit and the noise level read, each once (of a turn read as one integrated
+            # row, its column sums: the compiled pass gives them with the rest, as fast as numpy's sums alone)
+            todo = {id(x): x for x, f in zip(segs, forms) if f[0] is not None or _is_turn(x, inst)}
+            given = known and self.sigma.get(inst) is not None  # type: ignore[union-attr]
+            if not given:
+                todo.update((id(x), x) for x in noise)
+            ns, M = sstats.moments(list(todo.values()), inst)
+            pos = dict(zip(todo, range(len(todo))))
+            if given:
+                sig, nz = _sigma_for(self.sigma, session, inst, sstats), None
+            else:
+                nz = [(j, ns[j] - 2 if ns[j] >= 3 else 0) for j in (pos[id(x)] for x in noise)]
+                if not any(d for _, d in nz):
+                    raise IdentifiabilityError(f"{inst}: no segment has enough samples to estimate the noise level")
+                sig = None
+            skipped: dict[str, str] = {}
+            rows.append((inst, M, ns, nz, sig, skipped,
+                         self._base_rows(sstats, segs, inst, forms, pos, ns, M, skipped, tuple(insts))))
+            if skipped:
+                notes.append(f"{inst}: segments not used: {sorted(skipped)}")
+        whole = None  # every instrument's G (K, 4, 4), H (4, p), q and sigma (p,) as the compiled call leaves them
+        if kern is not None and len(rows) <= 2:
+            per, whole = _base_statistics_compiled(kern, rows)
+        else:
+            per = [(inst, _base_statistics_numpy(M, *st), sig if nz is None else
+                    _noise_sigma_of([j for j, _ in nz], ns, M, inst), skipped)
+                   for inst, M, ns, nz, sig, skipped, st in rows]
+        Ginv = self._base_check(session, model, per, *(() if whole is None else (whole[0], whole[4], whole[5])))
+        out = self._base_solve(session, model, per, known, segs, Ginv, kern, whole)
+        return CalibrationResult(f"least squares ({model.label})", out, session.raw_unit, notes)
+
     @staticmethod
-    def _base_check(model: ErrorModel, per: list[tuple]) -> np.ndarray:
+    def _base_check(session: Session, model: ErrorModel, per: list[tuple], G: np.ndarray | None = None,
+                    Ginv: np.ndarray | None = None, tr: np.ndarray | None = None) -> np.ndarray:
         """Refuse the first instrument (in order) whose base statistics identify no parameter set: no usable
         segment, or a Gram matrix with a direction the segments do not excite
         (:func:`~rimu.calibration.lsq.check_identifiable_gram`), naming the physical parameters involved. Returns
@@ -470,66 +655,82 @@ class LeastSquares:
         1e-12 of the largest. ``tr S = 4`` bounds the largest from above and ``1 / tr S^-1`` the smallest from
         below, and ``S^-1 = D G^-1 D`` comes from the inverse the fit needs anyway: where ``1 / tr S^-1 > 4e-12``
         no eigenvalue can fail, and only otherwise are the eigenvalues computed (by the check itself, which names
-        the parameters)."""
-        G = np.stack([st[0] for _, _, st, _, _ in per])
+        the parameters). ``G``: the instruments' Gram matrices stacked (K, 4, 4), if they are already; ``Ginv``,
+        ``tr``: their inverses and ``tr S^-1``, if they are known (the compiled statistics give them)."""
+        G = np.stack([st[0] for _, st, _, _ in per]) if G is None else G
         try:
-            Ginv = np.linalg.inv(G)
-            # tr S^-1 = sum_i G_ii (G^-1)_ii; a zero column (G_ii = 0) makes G singular: an error, inf or nan here
-            tr = np.einsum("kii,kii->k", Ginv, G)
-            ok = (tr > 0.0) & (tr * 4e-12 < 1.0)  # (an inverse of a Gram matrix has a positive diagonal)
+            if Ginv is None or tr is None:
+                Ginv = np.linalg.inv(G)
+                # tr S^-1 = sum_i G_ii (G^-1)_ii; a zero column (G_ii = 0) makes G singular: an error, inf or nan here
+                tr = np.einsum("kii,kii->k", Ginv, G)
+            # (an inverse of a Gram matrix has a positive diagonal; nan fails)
+            ok = [0.0 < t and t * 4e-12 < 1.0 for t in tr.tolist()]
         except np.linalg.LinAlgError:  # exactly singular: the check below names what is missing
-            Ginv, ok = None, np.zeros(len(per), dtype=bool)
-        for k, (inst, ctxs, st, _, _) in enumerate(per):
+            Ginv, ok = None, [False] * len(per)
+        for k, (inst, st, _, _) in enumerate(per):
             if st[4] and st[3] >= G.shape[1] and ok[k]:
                 continue
-            names = model.parameter_names(ctxs[0])
+            ctx = contexts(session, inst)[0]
+            names = model.parameter_names(ctx)
             if not st[4]:
                 raise IdentifiabilityError(f"{inst}: no segment carries the inputs the model {model.label} needs",
                                            names)
             try:
                 check_identifiable_gram(st[0], st[3], names, inst)
             except IdentifiabilityError as exc:
-                raise IdentifiabilityError(str(exc), _physical_names(model, ctxs[0], exc.parameters)) from None
+                raise IdentifiabilityError(str(exc), _physical_names(model, ctx, exc.parameters)) from None
         if Ginv is None:  # (singular, yet not refused: cannot happen, the check refuses a rank-deficient G)
             Ginv = np.linalg.inv(G)
         return Ginv
 
     @staticmethod
-    def _base_fit(model: ErrorModel, per: list[tuple], sigma_known: bool, segs: list[Segment],
-                  Ginv_k: np.ndarray | None = None, kern: Any = None) -> dict[str, LsqResult]:
+    def _base_solve(session: Session, model: ErrorModel, per: list[tuple], sigma_known: bool, segs: list[Segment],
+                    Ginv_k: np.ndarray | None = None, kern: Any = None,
+                    whole: tuple | None = None) -> dict[str, LsqResult]:
         """The base model (scale/misalignment + bias) of every sensor of every instrument from the shared
-        statistics (``per``: instrument, contexts, statistics, noise level, skipped segments; each checked by
+        statistics (``per``: instrument, statistics, noise level, skipped segments; each checked by
         :meth:`_base_check`), as array operations over all the sensors at once: ``B = G^-1 H`` (4, n) per
         instrument, the residual sums of squares from the statistics, and the physical values with their Jacobian
         (:func:`~rimu.calibration.lsq.physical_from_beta` and
         :meth:`~rimu.calibration.effects.scale_misalignment.ScaleMisalignment.physical`, Cho & Park 2005, Eq. 10:
         ``SF = 1/|w|``, ``m = C w/|w|``, ``b = c SF``). The same numbers as the per-sensor path
-        (:func:`make_sensor_fit`, to rounding; tested to 1e-12)."""
+        (:func:`make_sensor_fit`, to rounding; tested to 1e-10). Each instrument's :class:`LsqResult` holds them as
+        :class:`~rimu.calibration.lsq.BaseArrays`, its :class:`SensorFit` list made on first use. ``whole``: every
+        instrument's ``G`` (K, 4, 4), ``H`` (4, p), ``q`` and noise level (p,) in one array each, if they are
+        already."""
         if Ginv_k is None:  # (K, 4, 4): one call for all
-            Ginv_k = np.linalg.inv(np.stack([st[0] for _, _, st, _, _ in per]))
+            Ginv_k = np.linalg.inv(np.stack([st[0] for _, st, _, _ in per]))
+        geos = [session.geometries[inst] for inst, _, _, _ in per]
+        counts = [g.n for g in geos]
+
         def cat(xs: list, axis: int = 0) -> np.ndarray:
             return np.concatenate(xs, axis=axis) if len(xs) > 1 else xs[0]
 
-        EC = cat([ctxs[0].geometry.off_axis_projections() for _, ctxs, _, _, _ in per])  # (p, 2, 3): E_i C_i
-        H = cat([st[1] for _, _, st, _, _ in per], 1)
-        q, sig = cat([st[2] for _, _, st, _, _ in per]), cat([x[3] for x in per])
+        EC = cat([g.off_axis_projections() for g in geos])  # (p, 2, 3): E_i C_i
+        Cs = cat([g.subunit_rotations() for g in geos])  # (p, 3, 3): C_i
+        if whole is None:
+            H = cat([st[1] for _, st, _, _ in per], 1)
+            q, sig = cat([st[2] for _, st, _, _ in per]), cat([x[2] for x in per])
+        else:
+            H, q, sig = whole[1], whole[2], whole[3]
         s2 = sig**2
         if kern is not None:  # numba loaded: every sensor's numbers in one compiled call (the same to rounding)
             p = H.shape[1]
             Bt, theta, rss = np.empty((p, 4)), np.empty((p, 4)), np.empty(p)
             tcov, beta_cov = np.empty((p, 4, 4)), np.empty((p, 4, 4))
-            which = np.repeat(np.arange(len(per)), [len(x[1]) for x in per])
-            G = np.stack([st[0] for _, _, st, _, _ in per])
-            if not kern.base_solve(Ginv_k, G, H, q, s2, which, EC, Bt, theta, tcov, beta_cov, rss):
+            which = np.array([k for k, c in enumerate(counts) for _ in range(c)], dtype=np.intp)
+            G = np.stack([st[0] for _, st, _, _ in per]) if whole is None else whole[0]
+            mis = np.empty((p, 3))
+            if not kern.base_solve(Ginv_k, G, H, q, s2, which, EC, Cs, Bt, theta, tcov, beta_cov, rss, mis):
                 raise IdentifiabilityError(_DEAD_SENSOR)
         else:
             Bs, GB = [], []
-            for k, (_, _, st, _, _) in enumerate(per):
+            for k, (_, st, _, _) in enumerate(per):
                 Bk = Ginv_k[k] @ st[1]  # (4, n_k): w_x, w_y, w_z, c of every sensor of instrument k
                 Bs.append(Bk)
                 GB.append(st[0] @ Bk)
             B, GB = cat(Bs, 1), cat(GB, 1)
-            Gi = Ginv_k[np.repeat(np.arange(len(per)), [len(x[1]) for x in per])]  # (p, 4, 4): each sensor's G^-1
+            Gi = Ginv_k[np.repeat(np.arange(len(per)), counts)]  # (p, 4, 4): each sensor's G^-1
             rss = np.maximum(q - 2.0 * np.einsum("pn,pn->n", B, H) + np.einsum("pn,pn->n", B, GB), 0.0)
             W = np.ascontiguousarray(B[:3].T)
             nw = np.sqrt(np.einsum("ni,ni->n", W, W))
@@ -549,101 +750,89 @@ class LeastSquares:
             theta[:, 0] = sf
             theta[:, 1:3] = np.einsum("nij,nj->ni", EC, U)
             theta[:, 3] = B[3] * sf
+            mis = np.matmul(Cs, U[:, :, None])[:, :, 0]  # m_i = C_i w_i / |w_i|
             tcov = (J @ Gi @ J.transpose(0, 2, 1)) * s2[:, None, None]
             beta_cov = s2[:, None, None] * Gi
             Bt = np.ascontiguousarray(B.T)
-        small = (rss < 1e-8 * q).tolist()
-        sig_l, s2_l, chi2_l = sig.tolist(), s2.tolist(), (rss / s2).tolist()
+        s2_l, rss0 = s2.tolist(), rss.tolist()
+        chi2_l = [r / v for r, v in zip(rss0, s2_l)]  # (Python floats: the IEEE operations of numpy's, fewer calls)
+        small = [i for i, (r, qq) in enumerate(zip(rss0, q.tolist())) if r < 1e-8 * qq]
+        if small:  # cancellation in the statistics: an exact second pass over those sensors' samples
+            starts = np.cumsum([0, *counts]).tolist()
+            for i in small:
+                k = int(np.searchsorted(starts, i, side="right")) - 1
+                inst, st = per[k][0], per[k][1]
+                by_label = {lab: (seg, u) for lab, seg, u in st[5]}
+                ctx = contexts(session, inst)[i - starts[k]]
+                chi2_l[i] = sum(float(np.sum(_base_residual_of(by_label, inst, ctx, Bt[i], lab) ** 2))
+                                for lab in by_label) / s2_l[i]
+        sig_l = sig.tolist()
+        rss_l = [c * v for c, v in zip(chi2_l, s2_l)]
         out: dict[str, LsqResult] = {}
         a = 0
-        for inst, ctxs, st, _, skipped in per:
-            n_obs, parts = int(st[3]), st[5]
-            effs = model.effects_for(ctxs[0])
-            local = [x.name for e in effs for x in e.parameters(ctxs[0])]  # w_x, w_y, w_z, bias: every sensor's
-            by_label = {lab: (seg, u) for lab, seg, u in parts}
-            fits = []
-            for ctx in ctxs:
-                i = a + ctx.index
-                name = ctx.name
-                res = LazyResiduals(labels=by_label, compute=partial(_base_residual_of, by_label, inst, ctx, Bt[i]))
-                if small[i]:  # cancellation in the statistics: an exact second pass
-                    chi2_l[i] = sum(float(np.sum(res[lab] ** 2)) for lab in res) / s2_l[i]
-                specs = _base_physical_specs(effs, ctx)
-                fits.append(SensorFit(ctx, [f"{name}.{x}" for x in local], Bt[i], beta_cov[i],
-                                      [f"{name}.{x.name}" for x in specs], specs, theta[i], tcov[i], sig_l[i],
-                                      sigma_known, n_obs, chi2_l[i] * s2_l[i], res))
-            a += len(ctxs)
-            out[inst] = LsqResult(inst, model, fits, [x.label for x in segs if x.label not in skipped], skipped)
+        for (inst, st, _, skipped), g, n in zip(per, geos, counts):
+            b = a + n
+            arrays = BaseArrays(g, theta[a:b], tcov[a:b], mis[a:b], sig_l[a:b], rss_l[a:b], int(st[3]) - 4)
+            make = partial(_base_sensor_fits, session, model, inst, st[5], Bt[a:b], beta_cov[a:b], arrays,
+                           sigma_known, int(st[3]))
+            out[inst] = LsqResult(inst, model, None, [x.label for x in segs if x.label not in skipped], skipped,
+                                  base=arrays, make_sensors=make)
+            a = b
         return out
 
     @staticmethod
-    def _base_statistics(session: Session, segs: list[Segment], inst: str, ctx0: SensorContext,
-                         skipped: dict[str, str], sstats: SessionStatistics | None = None,
-                         instruments: tuple[str, ...] = (), forms: list | None = None) -> tuple:
-        """Sufficient statistics of the base model for every sensor of ``inst`` at once: the known input u of a
-        segment is the same for all of them, so ``X = [u, 1]`` and ``X^T X`` are shared, ``X^T Y`` is one
-        product for all sensors. Every term comes from the segment's sums (:class:`~rimu.session.SessionStatistics`):
-        a static segment's constant input from its column sums; a segment turning at a constant rate with known
-        attitude, whose input is ``B P`` in the basis ``B = [1, cos(theta), sin(theta)]`` of its angle, from
-        ``B^T B`` and ``B^T Y`` (``X^T X = Q^T (B^T B) Q``, ``X^T Y = Q^T (B^T Y)``, ``Q = [P, e_1]``); only an input
-        given sample by sample (``specific_force_mb`` of shape (N, 3)) is built per sample."""
-        sstats = sstats or SessionStatistics(session)
-        n = session.geometries[inst].n
-        G = np.zeros((4, 4))
-        H = np.zeros((4, n))
-        q = np.zeros(n)
-        n_obs, labels, parts = 0, [], []
-        rows, weights, totals = [], [], []  # rows of one input for all samples (static positions) and angle rows
-        forms = forms or [_input_form(ctx0, seg) for seg in segs]  # (``forms``: these, known already)
-        qs = [q]  # the sums of squares of the sensors' outputs, added in the order of the segments
+    def _base_rows(sstats: SessionStatistics, segs: list[Segment], inst: str, forms: list, pos: dict[int, int],
+                   ns: list[int], M: np.ndarray, skipped: dict[str, str], instruments: tuple[str, ...] = ()) -> tuple:
+        """What the base model's normal equations take from each segment ``inst`` reads: the known input u of a
+        segment is the same for every sensor, so ``X = [u, 1]`` and ``X^T X`` are shared, ``X^T Y`` is one product
+        for all sensors, and every term comes from the segments' sums (``M``, rows ``pos[id(segment)]``, of
+        :meth:`~rimu.session.SessionStatistics.moments`). Returns ``(Z, G0, H0, n_obs, labels, parts)``: ``Z`` one row
+        per segment read, in order (:func:`rimu.calibration._lsq_kernels.base_statistics`: the design row, its weight,
+        its row of ``M``, the divisor of its totals, its kind): a static segment's constant input (weight N, its
+        column sums), a turn of known angle as one integrated row (Zhang et al. 2010, Eq. 16-17: its totals over
+        ``sqrt(N)``, in units of the per-sample noise); ``G0``, ``H0`` the terms of the segments turning at a
+        constant rate with known attitude, whose input is ``B P`` in the basis ``B = [1, cos(theta), sin(theta)]`` of
+        its angle, from ``B^T B`` and ``B^T Y`` (``X^T X = Q^T (B^T B) Q``, ``X^T Y = Q^T (B^T Y)``, ``Q = [P, e_1]``),
+        and of an input given sample by sample (``specific_force_mb`` of shape (N, 3), built per sample); ``parts``:
+        label, segment, and an angle row's ``("angle", x, y)``."""
+        G0 = H0 = None
+        n_obs, labels, parts, Z = 0, [], [], []
         for seg, (kind, u) in zip(segs, forms):
             if kind is None:
-                if _is_turn(seg, inst):
-                    st = sstats.sums(seg, inst)
+                if _is_turn(seg, inst):  # one row: the integral in units of the per-sample noise
                     x = _base_angle_row(seg)
-                    yv = st.total / math.sqrt(st.n)
-                    rows.append(x)
-                    weights.append(1.0)
-                    totals.append(yv)
-                    qs.append(yv**2)
+                    j = pos[id(seg)]
+                    div = math.sqrt(ns[j])
+                    Z.append((*x, 1.0, j, div, 1.0))
                     n_obs += 1
                     labels.append(seg.label)
-                    parts.append((seg.label, seg, ("angle", x, yv)))
+                    parts.append((seg.label, seg, ("angle", x, M[j, 0] / div)))
                 else:
                     skipped[seg.label] = "the segment lacks inputs an effect needs (known rate, attitude or angle)"
                 continue
-            st = sstats.sums(seg, inst)
-            N = st.n
+            j = pos[id(seg)]
+            N = ns[j]
             if kind == "constant":  # one input for every sample (a static position): N x x^T, x total^T
-                rows.append((*u.tolist(), 1.0))
-                weights.append(N)
-                totals.append(st.total)
-                qs.append(st.sumsq)
-                n_obs += N
-                labels.append(seg.label)
-                parts.append((seg.label, seg, None))
-                continue
-            if kind == "basis":  # u = B P on a turning segment: from the moments of its angle
-                rm = sstats.rotation(seg)
-                Q = np.zeros((3, 4))
-                Q[:, :3] = u
-                Q[0, 3] = 1.0
-                G += Q.T @ rm.gram @ Q
-                H += Q.T @ sstats.basis_products(seg, tuple(dict.fromkeys((inst, *instruments))))[inst]
+                Z.append((*u.tolist(), 1.0, N, j, 1.0, 0.0))
             else:
-                X = np.column_stack([u, np.ones(N)])
-                G += X.T @ X
-                H += X.T @ seg.raw[inst]
-            qs.append(st.sumsq)
+                if G0 is None:
+                    G0, H0 = np.zeros((4, 4)), np.zeros((4, M.shape[2]))
+                if kind == "basis":  # u = B P on a turning segment: from the moments of its angle
+                    rm = sstats.rotation(seg)
+                    Q = np.zeros((3, 4))
+                    Q[:, :3] = u
+                    Q[0, 3] = 1.0
+                    G0 += Q.T @ rm.gram @ Q
+                    H0 += Q.T @ sstats.basis_products(seg, tuple(dict.fromkeys((inst, *instruments))))[inst]
+                else:
+                    X = np.column_stack([u, np.ones(N)])
+                    G0 += X.T @ X
+                    H0 += X.T @ seg.raw[inst]
+                Z.append((0.0, 0.0, 0.0, 0.0, 0.0, j, 1.0, 2.0))
             n_obs += N
             labels.append(seg.label)
             parts.append((seg.label, seg, None))
-        q = np.add.reduce(np.array(qs), axis=0) if len(qs) > 1 else q  # (row by row, as q += each in turn)
-        if rows:  # every such segment's terms in two products
-            X = np.array(rows, dtype=float)
-            G += (X.T * np.array(weights, dtype=float)) @ X
-            H += X.T @ np.array(totals)
-        return G, H, q, n_obs, labels, parts
+        return Z, G0, H0, n_obs, labels, parts
 
     @staticmethod
     def _model_statistics(segs: list[Segment], inst: str, ctx: SensorContext, model: ErrorModel, base_only: bool,
@@ -690,7 +879,7 @@ def _base_residual_of(parts: dict[str, tuple[Segment, Any]], inst: str, ctx: Sen
     """The base model's residual of sensor ``ctx`` on the segment ``label`` (:func:`_base_residual`, bound)."""
     seg, u = parts[label]
     if isinstance(u, tuple):  # an angle row: its one integrated value
-        return np.array([float(float(u[2][ctx.index]) - u[1] @ beta)])
+        return np.array([float(float(u[2][ctx.index]) - np.asarray(u[1], dtype=float) @ beta)])
     return seg.raw[inst][:, ctx.index] - (_known_input(ctx, seg) @ beta[:3] + beta[3])
 
 
@@ -738,14 +927,15 @@ def _angle_row(seg: Segment, model: ErrorModel, ctx: SensorContext) -> np.ndarra
     return np.array(row)[None, :] / (dt * np.sqrt(seg.n_samples))
 
 
-def _base_angle_row(seg: Segment) -> np.ndarray:
+def _base_angle_row(seg: Segment) -> tuple[float, float, float, float]:
     """:func:`_angle_row` of the base model (scale/misalignment, then bias): ``[angle, N dt] / (dt sqrt(N))``
-    (in Python floats: the same IEEE operations, without four numpy calls)."""
-    N = seg.n_samples
-    dt = seg.duration / (N - 1)
+    (in Python floats: the same IEEE operations, without numpy calls)."""
+    t = seg.t
+    N = t.shape[0]
+    dt = float(t[-1] - t[0]) / (N - 1)
     w = dt * math.sqrt(N)
     a = (seg.angle_mb if seg.angle_mb.ndim == 1 else seg.angle_mb[-1]).tolist()
-    return np.array([a[0] / w, a[1] / w, a[2] / w, N * dt / w])
+    return (a[0] / w, a[1] / w, a[2] / w, N * dt / w)
 
 
 #: physical parameters of the base model per (effect types, instrument, off-axis names): ParamSpec is frozen, so

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -22,7 +23,7 @@ from .effects.scale_misalignment import ScaleMisalignment
 from .model import ErrorModel, ParamSpec, SensorContext, axes_from_w, contexts
 from .result import InstrumentCalibration
 
-__all__ = ["LazyResiduals", "LsqResult", "SensorFit", "central_jacobian", "check_identifiable_gram", "fit_lsq", "physical_from_beta",
+__all__ = ["BaseArrays", "LazyResiduals", "LsqResult", "SensorFit", "central_jacobian", "check_identifiable_gram", "fit_lsq", "physical_from_beta",
            "rss_from_statistics", "sensor_segments"]
 
 #: why a segment is left out of a sensor's fit (``skipped[label]``)
@@ -68,24 +69,103 @@ class SensorFit:
         return float(np.sqrt(self.theta_cov[k, k]))
 
 
-@dataclass
-class LsqResult:
-    """Result of :func:`fit_lsq` for one instrument."""
+@dataclass(eq=False)
+class BaseArrays:
+    """The base model's (scale/misalignment + bias) fit of every sensor of one instrument as arrays, rows in the
+    geometry's order: what :meth:`LsqResult.to_calibration` and :attr:`LsqResult.chi2_dof` read, so that a fit of
+    the base model needs no :class:`SensorFit` object unless one is asked for.
 
-    instrument: str
-    model: ErrorModel
-    sensors: list[SensorFit]
-    segments: list[str]
-    skipped: dict[str, str]
+    Attributes
+    ----------
+    geometry : Geometry
+    theta : ndarray (n, 4)
+        Physical values: scale (SI per raw unit), the two misalignment angles (rad), bias (SI).
+    theta_cov : ndarray (n, 4, 4)
+        Their covariance, per sensor.
+    misalignment : ndarray (n, 3)
+        The unit misalignment rows ``m_i = C_i w_i / |w_i|`` in each sensor's sub-unit basis, from the raw-domain
+        axis coefficients ``w_i`` (Cho & Park 2005, Eq. 5, 10).
+    sigma : list of float
+        Noise level per sample, raw units.
+    rss : list of float
+        Residual sum of squares, raw units squared.
+    dof : int
+        Observations less parameters (the same for every sensor).
+    """
+
+    geometry: Any
+    theta: np.ndarray
+    theta_cov: np.ndarray
+    misalignment: np.ndarray
+    sigma: list[float]
+    rss: list[float]
+    dof: int
+
+    def theta_names(self) -> list[str]:
+        """``"<sensor>.scale"``, its two off-axis misalignment names, ``"<sensor>.bias"`` for every sensor (the names
+        of :meth:`~rimu.calibration.effects.scale_misalignment.ScaleMisalignment.physical_parameters` and
+        :class:`~rimu.calibration.effects.bias.Bias`)."""
+        g = self.geometry
+        P = g.off_axis_projections()  # (a constant of the geometry's axes, shared by every Geometry with them)
+        key = (g.names, id(P))
+        hit = _THETA_NAMES.get(key)
+        if hit is None or hit[0] is not P:
+            if len(_THETA_NAMES) >= 256:
+                _THETA_NAMES.clear()
+            hit = _THETA_NAMES[key] = (P, [f"{nm}.{x}" for i, nm in enumerate(g.names)
+                                           for x in ("scale", *g.off_axis_basis(i)[1], "bias")])
+        return list(hit[1])
+
+
+#: :meth:`BaseArrays.theta_names` per sensor names and off-axis constants (held with them, so that an id is not reused)
+_THETA_NAMES: dict[tuple, tuple[np.ndarray, list[str]]] = {}
+
+
+class LsqResult:
+    """Result of :func:`fit_lsq` for one instrument: per-sensor fits (``sensors``), the segments used and those left
+    out (``skipped``, label -> why).
+
+    A fit of the base model over all the sensors at once (:class:`~rimu.calibration.estimate.LeastSquares`) gives
+    its numbers as :class:`BaseArrays` (``base``) with a function that makes the :class:`SensorFit` list
+    (``make_sensors``), called on the first read of ``sensors``."""
+
+    def __init__(self, instrument: str, model: ErrorModel, sensors: list[SensorFit] | None, segments: list[str],
+                 skipped: dict[str, str], base: BaseArrays | None = None,
+                 make_sensors: Callable[[], list[SensorFit]] | None = None) -> None:
+        if sensors is None and make_sensors is None:
+            raise ValueError("an LsqResult needs its sensors' fits or a function that makes them")
+        self.instrument = instrument
+        self.model = model
+        self._sensors = sensors
+        self._make_sensors = make_sensors
+        self.segments = segments
+        self.skipped = skipped
+        self.base = base
+
+    @property
+    def sensors(self) -> list[SensorFit]:
+        """Per-sensor fits, in the geometry's order (made on first use where the fit gave :class:`BaseArrays`)."""
+        if self._sensors is None:
+            self._sensors = self._make_sensors()  # type: ignore[misc]
+        return self._sensors
+
+    def __repr__(self) -> str:
+        return (f"LsqResult(instrument={self.instrument!r}, model={self.model!r}, segments={self.segments!r}, "
+                f"skipped={self.skipped!r})")
 
     @property
     def chi2_dof(self) -> float:
+        b = self.base
+        if self._sensors is None and b is not None:  # the same sums as over the sensors' fits
+            return float(sum(r / s**2 for r, s in zip(b.rss, b.sigma)) / (max(b.dof, 1) * len(b.rss)))
         rss = sum(s.rss / s.sigma**2 for s in self.sensors)
         dof = sum(max(s.dof, 1) for s in self.sensors)
         return float(rss / dof)
 
     def to_calibration(self) -> InstrumentCalibration:
         """The result as an :class:`InstrumentCalibration` (needs scale/misalignment and bias in the model)."""
+        if self.base is not None:  # (a fit of the base model itself)
+            return self._from_base(self.base)
         if "scale_misalignment" not in self.model or "bias" not in self.model:
             raise IdentifiabilityError(
                 "a calibration needs the scale_misalignment and bias effects in the model; "
@@ -118,6 +198,15 @@ class LsqResult:
         cov = _block_diag(blocks)
         return InstrumentCalibration(self.instrument, g, scale, mis, bias, sig, cov, names, effects)
 
+
+    def _from_base(self, b: BaseArrays) -> InstrumentCalibration:
+        """:meth:`to_calibration` from :class:`BaseArrays`: the numbers of :meth:`_base_calibration`, without a
+        :class:`SensorFit` per sensor."""
+        g = b.geometry
+        theta = b.theta
+        scale = theta[:, 0]
+        return InstrumentCalibration(self.instrument, g, scale, b.misalignment, theta[:, 3], np.array(b.sigma) * scale,
+                                     _block_diag_stack(b.theta_cov), b.theta_names(), {})
 
     def _base_calibration(self, g: "object") -> InstrumentCalibration:
         """:meth:`to_calibration` of the base model (every sensor's theta is scale, two misalignment angles, bias;
@@ -393,6 +482,20 @@ class LazyResiduals(Mapping):
 
     def __repr__(self) -> str:
         return f"LazyResiduals({list(self)})"
+
+
+def _block_diag_stack(blocks: np.ndarray) -> np.ndarray:
+    """The block-diagonal matrix (n m, n m) of ``blocks`` (n, m, m), in one assignment."""
+    n, m, _ = blocks.shape
+    if n <= 8:  # (a few sensors: a slice each is cheaper than the index arrays)
+        out = np.zeros((n * m, n * m))
+        for i in range(n):
+            out[i * m:(i + 1) * m, i * m:(i + 1) * m] = blocks[i]
+        return out
+    out = np.zeros((n, m, n, m))
+    k = np.arange(n)
+    out[k, :, k, :] = blocks
+    return out.reshape(n * m, n * m)
 
 
 def _block_diag(blocks: list[np.ndarray]) -> np.ndarray:

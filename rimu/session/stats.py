@@ -196,6 +196,8 @@ class SessionStatistics:
         self.backend = backend
         self._kernel: object = False  # not resolved yet
         self._sums: dict[tuple[int, str], tuple[Segment, SegmentSums]] = {}
+        #: rows of a :meth:`moments` array, made into a SegmentSums only when :meth:`sums` asks for one
+        self._rows: dict[tuple[int, str], tuple[Segment, np.ndarray, int]] = {}
         self._rot: dict[int, tuple[Segment, RotationMoments | None]] = {}
 
     def sums(self, seg: Segment, instrument: str, full: bool = False) -> SegmentSums:
@@ -203,7 +205,7 @@ class SessionStatistics:
         first-difference sum computed now, together (one compiled pass over a long segment where numba is
         installed, :mod:`rimu.session._kernels`; numpy's passes otherwise), not on first use."""
         key = (id(seg), instrument)
-        hit = self._sums.get(key)
+        hit = self._sums.get(key) or self._from_rows(key, seg)
         if hit is not None and hit[0] is seg:
             out = hit[1]
             if full:
@@ -231,7 +233,7 @@ class SessionStatistics:
         out: list = []
         todo = []
         for seg in segs:
-            hit = cache.get((id(seg), instrument))
+            hit = cache.get((id(seg), instrument)) or self._from_rows((id(seg), instrument), seg)
             if hit is not None and hit[0] is seg:
                 if full:
                     self._fill(hit[1])
@@ -269,36 +271,79 @@ class SessionStatistics:
                     out[j] = cache[(id(seg), instrument)][1]
         return out
 
+    def moments(self, segs: "list[Segment]", instrument: str) -> tuple[list[int], np.ndarray]:
+        """Every one of ``segs``' sums in one array: ``(n, M)``, ``n`` their numbers of samples and ``M`` (S, 3, k)
+        their column sums (``M[:, 0]``), sums of squares (``M[:, 1]``) and first-difference sums (``M[:, 2]``:
+        :attr:`SegmentSums.diff`, zero under three samples). Where the compiled pass is used, one call per segment
+        writes its row, and no object is made per segment (:meth:`sums` makes one from a row when asked); else the
+        sums of :meth:`sums_of`. Kept, as every statistic here.
+
+        >>> from rimu.sim import Simulator, cho_park_procedure
+        >>> s = Simulator(seed=1).run(cho_park_procedure(duration=1.0)).session
+        >>> n, M = SessionStatistics(s).moments(s.segments[:2], "accel")
+        >>> M.shape, bool(np.allclose(M[1, 0], s.segments[1].raw["accel"].sum(axis=0)))
+        ((2, 3, 6), True)
+        """
+        ys = [seg.raw[instrument] for seg in segs]
+        ns = [y.shape[0] for y in ys]
+        M = np.empty((len(ys), 3, ys[0].shape[1] if ys else 0))
+        kern = self._compiled()
+        if kern is None:
+            known = self._sums.keys() | self._rows.keys()
+            if (ys and max(ns) < KERNEL_MIN_SAMPLES and sum(ns) <= STACK_ROWS
+                    and not any((id(x), instrument) in known for x in segs)):
+                # short segments, none known: numpy's stacked sums straight into M
+                R = _stacked_sums(ys, ns, True)
+                S = len(ys)
+                M[:, 0], M[:, 1], M[:, 2] = R[:S], R[S:2 * S], R[2 * S:]
+                M[[j for j, n in enumerate(ns) if n < 3], 2] = 0.0
+                for j, seg in enumerate(segs):
+                    self._rows[(id(seg), instrument)] = (seg, M, j)
+                return ns, M
+            for j, st in enumerate(self.sums_of(segs, instrument, full=True)):
+                M[j, 0], M[j, 1], M[j, 2] = st.total, st.sumsq, st.diff[0]
+            return ns, M
+        cache, rows, f = self._sums, self._rows, kern.column_moments
+        fresh = not cache and not rows  # (a fit's first call: nothing to look up)
+        for j, seg in enumerate(segs):
+            key = (id(seg), instrument)
+            if not fresh:
+                hit = cache.get(key) or rows.get(key)
+                if hit is not None and hit[0] is seg:  # known already
+                    st = self.sums(seg, instrument, full=True)
+                    M[j, 0], M[j, 1], M[j, 2] = st.total, st.sumsq, st.diff[0]
+                    continue
+            f(ys[j], M[j])
+            if ns[j] < 3:
+                M[j, 2] = 0.0
+            rows[key] = (seg, M, j)
+        return ns, M
+
+    def _from_rows(self, key: tuple[int, str], seg: Segment) -> tuple[Segment, SegmentSums] | None:
+        """The :class:`SegmentSums` of a :meth:`moments` row (made now and kept), or None."""
+        row = self._rows.get(key)
+        if row is None or row[0] is not seg:
+            return None
+        _, M, j = row
+        y = seg.raw[key[1]]
+        n = y.shape[0]
+        hit = self._sums[key] = (seg, SegmentSums(n, M[j, 0], y, M[j, 1], None,
+                                                  (M[j, 2], n - 2) if n >= 3 else (np.zeros(y.shape[1]), 0)))
+        return hit
+
     def _stacked(self, todo: "list[Segment]", instrument: str, full: bool) -> None:
         """The :class:`SegmentSums` of the short segments ``todo`` (stacked: a few numpy calls for all of them), kept.
         Rows: the samples, their squares and their squared first differences (zero at each segment's first row);
         every sum of every segment in one ``np.add.reduceat``."""
         ys = [seg.raw[instrument] for seg in todo]
-        ns = np.array([y.shape[0] for y in ys], dtype=np.intp)
-        N, m = int(ns.sum()), len(ys)
-        starts = np.zeros(m, dtype=np.intp)
-        np.cumsum(ns[:-1], out=starts[1:])
-        # rows: the samples, their squares, their squared first differences (zero at each segment's first row)
-        Z = np.empty(((3 if full else 1) * N, ys[0].shape[1]))
-        Y = Z[:N]
-        np.concatenate(ys, out=Y)
-        idx = starts
-        if full:
-            np.square(Y, out=Z[N:2 * N])
-            D = Z[2 * N:]
-            np.subtract(Y[1:], Y[:-1], out=D[1:])
-            D[starts] = 0.0
-            np.square(D, out=D)
-            idx = np.concatenate([starts, starts + N, starts + 2 * N])
-        R = np.add.reduceat(Z, idx, axis=0)
-        if full:
-            ends = starts + ns - 1
-            R[2 * m:] -= (Y[ends] - Y[starts]) ** 2 / np.maximum(ns - 1, 1)[:, None]  # (:func:`_diff_from`)
-        for k, (seg, n) in enumerate(zip(todo, ns.tolist())):
+        ns = [y.shape[0] for y in ys]
+        R = _stacked_sums(ys, ns, full)
+        m = len(ys)
+        for k, (seg, n) in enumerate(zip(todo, ns)):
             if not full:
                 new = SegmentSums(n, R[k], ys[k])
             elif n < 3:
-                new = SegmentSums(n, R[k], ys[k], R[m + k], None, (np.zeros(Y.shape[1]), 0))
+                new = SegmentSums(n, R[k], ys[k], R[m + k], None, (np.zeros(R.shape[1]), 0))
             else:
                 new = SegmentSums(n, R[k], ys[k], R[m + k], None, (R[2 * m + k], n - 2))
             self._sums[(id(seg), instrument)] = (seg, new)
@@ -307,6 +352,8 @@ class SessionStatistics:
         """The compiled kernel's module, or None: where numba is loaded in the process already and the backend
         allows it, or the backend asks for numba by name (:func:`rimu._backend.resolve_loaded`: the sums of a
         calibration never repay importing numba by themselves). Resolved once per object."""
+        if self._kernel is False and self.backend == "numba" and _KERNELS and _KERNELS[0] is not None:
+            self._kernel = _KERNELS[0]  # (asked for by name and imported already: nothing to resolve)
         if self._kernel is False:
             name = _resolve_loaded(self.backend, lambda: _kernels() is not None, "the compiled statistics kernel")
             self._kernel = _kernels() if name == "numba" else None
@@ -361,6 +408,34 @@ class SessionStatistics:
                 y = seg.raw[k]
                 rm.products[k] = np.vstack([self.sums(seg, k).total, c @ y, s @ y])
         return {k: rm.products[k] for k in instruments}
+
+
+def _stacked_sums(ys: "list[np.ndarray]", counts: "list[int]", full: bool) -> np.ndarray:
+    """The sums of the samples ``ys`` (each (n, k)) stacked: rows ``R[:m]`` their column sums and, if ``full``,
+    ``R[m:2m]`` their sums of squares and ``R[2m:]`` their first-difference sums (:attr:`SegmentSums.diff`; the
+    squared first differences, zero at each segment's first row, less ``(y[-1] - y[0])^2 / (n - 1)``): every sum of
+    every segment in one ``np.add.reduceat``."""
+    ns = np.array(counts, dtype=np.intp)
+    N, m = int(ns.sum()), len(ys)
+    starts = np.zeros(m, dtype=np.intp)
+    np.cumsum(ns[:-1], out=starts[1:])
+    # rows: the samples, their squares, their squared first differences (zero at each segment's first row)
+    Z = np.empty(((3 if full else 1) * N, ys[0].shape[1]))
+    Y = Z[:N]
+    np.concatenate(ys, out=Y)
+    idx = starts
+    if full:
+        np.square(Y, out=Z[N:2 * N])
+        D = Z[2 * N:]
+        np.subtract(Y[1:], Y[:-1], out=D[1:])
+        D[starts] = 0.0
+        np.square(D, out=D)
+        idx = np.concatenate([starts, starts + N, starts + 2 * N])
+    R = np.add.reduceat(Z, idx, axis=0)
+    if full:
+        ends = starts + ns - 1
+        R[2 * m:] -= (Y[ends] - Y[starts]) ** 2 / np.maximum(ns - 1, 1)[:, None]  # (:func:`_diff_from`)
+    return R
 
 
 def _angles(seg: Segment, wn: float) -> tuple[np.ndarray, np.ndarray]:

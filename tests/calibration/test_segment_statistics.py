@@ -213,3 +213,33 @@ def test_the_known_input_forms_are_the_contexts_input(session, earth):
                 got = u
             assert np.max(np.abs(got - want)) <= 1e-12 * max(1.0, np.abs(want).max()), (inst, seg.label, kind)
     assert n_static >= 10
+
+
+@pytest.mark.parametrize("latitude", [None, 45.0])
+def test_the_fits_input_forms_are_input_form(latitude):
+    """``_input_forms`` (the base fit's forms of every segment, the common cases without a context) gives what
+    ``_input_form`` of the nominal context gives, array for array: on a Cho & Park session (static and turning
+    segments with known attitude), a Ferraris-style session (static positions and turns of known angle) and imucal's
+    real recording (known specific forces, turns without attitude), with and without a known latitude."""
+    from rimu.calibration.estimate import _input_form, _input_forms
+    from rimu.sim import rotation, static
+    from rimu.units import DEG_TO_RAD
+
+    fer = [static(k, up, 1.0) for k, up in (("x_p", (1, 0, 0)), ("z_a", (0, 0, -1)))]
+    fer.append(rotation("z_rot", np.array([0, 0, 36.0]) * DEG_TO_RAD, 10.0, report="angle"))
+    sessions = [Simulator(latitude_deg=latitude, seed=5).run(cho_park_procedure(duration=0.5)).session,
+                Simulator(latitude_deg=latitude, seed=6).run(fer).session]
+    from rimu.session import load_ferraris
+    from tests.conftest import shared_data
+
+    sessions.append(load_ferraris(shared_data("imucal_ferraris_session", "example_ferraris_session.csv")))
+    for s in sessions:
+        for inst in s.instruments:
+            ctx = contexts(s, inst)[0]
+            for seg, (kind, u) in zip(s.segments, _input_forms(s, inst, s.segments)):
+                want_kind, want_u = _input_form(ctx, seg)
+                assert kind == want_kind, (inst, seg.label)
+                if want_u is None:
+                    assert u is None
+                else:
+                    np.testing.assert_array_equal(u, want_u, err_msg=f"{inst} {seg.label}")
