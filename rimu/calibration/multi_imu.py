@@ -560,7 +560,6 @@ def pose_uncertainty(Y: np.ndarray, still: np.ndarray, ref_cols: slice, gains: S
     if len(segs) < MIN_POSES or len(live) < 3:
         return None
     n = Y.shape[1]
-    k = n // 3
     R = Y[:, ref_cols]
     P = len(segs)
     Zloo = np.zeros((P, n))
