@@ -580,10 +580,10 @@ def pose_uncertainty(Y: np.ndarray, still: np.ndarray, ref_cols: slice, gains: S
             mean_z.append(Z.mean(axis=0))
             halves.append((X[: len(X) // 2], Z[: len(X) // 2], X[len(X) // 2:], Z[len(X) // 2:]))
         SX, SZ = sum(XtX), sum(XtZ)
-        coef = np.linalg.solve(SX, SZ)
+        coef = np.linalg.lstsq(SX, SZ, rcond=None)[0]
         inv = np.linalg.inv(gains[j])  # to the reference's axes (as the noise levels are separated)
-        for p in range(P):
-            c = np.linalg.solve(SX - XtX[p], SZ - XtZ[p])
+        for p in range(P):  # (a pose alone in its direction: the others' fit extrapolates, and its error says so)
+            c = np.linalg.lstsq(SX - XtX[p], SZ - XtZ[p], rcond=None)[0]
             Zloo[p, cols] = (mean_z[p] - mean_x[p] @ c) @ inv.T
             X1, Z1, X2, Z2 = halves[p]
             Zhalf[p, cols] = ((Z1 - X1 @ coef).mean(axis=0) - (Z2 - X2 @ coef).mean(axis=0)) / 2.0 @ inv.T
