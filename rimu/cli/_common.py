@@ -51,6 +51,7 @@ __all__ = [
     "INPUT_OPTIONS",
     "json_dump",
     "plain_text",
+    "noise_at_rate",
 ]
 
 log = logging.getLogger("rimu.cli")
@@ -282,6 +283,21 @@ def readmit_after(args: argparse.Namespace) -> int | None:
     if args.no_readmit:
         return None
     return READMIT_AFTER if args.readmit_after is None else int(args.readmit_after)
+
+
+def noise_at_rate(cal: Any, fs: float, where: str, prefix: str = "  ") -> Any:
+    """The calibration with its noise at the stream's rate ``fs`` (Hz; :func:`rimu.fdi.unit.noise_at_rate`), each
+    conversion said on one line: what ``rimu replay`` (``where``: "the data's") and ``rimu monitor`` (the stream's
+    declared or measured rate) both do with a unit set up on averages."""
+    from ..fdi.unit import noise_at_rate as convert
+    from ..units import fmt
+
+    cal, was = convert(cal, fs)
+    for k, per in was.items():
+        print(f"{prefix}{k}: the calibration's noise is stated for epochs of {fmt(per, 'time', 's', digits=3)}; at "
+              f"{where} {fmt(fs, 'frequency', 'Hz', digits=4)} it is x{math.sqrt(per * fs):.3g} per sample (white "
+              "noise: sigma sqrt(T_noise / T))")
+    return cal
 
 
 def add_accept_implausible(p: argparse.ArgumentParser) -> None:

@@ -20,8 +20,13 @@ accounting identity, rejections by reason, isolations).
 --selfcal`` and the exported C of ``rimu export-c --selfcal`` (the same ``--selfcal-*`` options): each instrument's
 compensated outputs are corrected by the tracked terms before its manager, whose window GLT carries the tracker's
 covariance; ``--estimates`` then ends every row with the tracked terms and their 1-sigma (SI), and the summary
-shows the terms at the end. The windows are counted at ``--sample-rate`` (default: the layout's rate, the
-simulated device's, or the calibration's noise model's).
+shows the terms at the end. The windows are counted at the stream's rate.
+
+The stream's rate, where the runtime depends on it (a unit set up on averages, whose noise is stated for their
+period: ``rimu setup --average``; the unit file's motion-aware tests; ``--selfcal``), is ``--sample-rate``, else the
+simulated device's, the layout's or the transport's declared rate, else measured on the first 50 epochs (said on one
+line). The noise is then converted to that rate as ``rimu replay`` converts it to the data's (white noise: sigma
+sqrt(T_noise / T)); motion terms fitted at another rate refuse, as in ``rimu replay``.
 """
 
 from __future__ import annotations
@@ -77,14 +82,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="--simulate only: INSTRUMENT:SENSOR:T_S:SIGMAS step bias, or 'none'")
     p.add_argument("--sim-duration", type=positive_float, default=20.0, help="--simulate only: s of simulated data")
     add_json_option(p, "the final summary", allow_bare=True)
+    p.add_argument("--sample-rate", type=positive_float, default=None,
+                   help="the stream's rate, Hz (default: the simulated device's, the layout's or the transport's, "
+                        "else measured on the first epochs): the noise of a unit set up on averages, the motion "
+                        "terms and --selfcal's windows are taken at it")
     from .selfcal import add_tracker_options
 
     s = p.add_argument_group("in-flight self-calibration (docs/selfcal.md; the options of rimu replay --selfcal)")
     s.add_argument("--selfcal", action="store_true",
                    help="track the calibration's drift live and compensate with it, as rimu replay --selfcal")
-    s.add_argument("--sample-rate", type=positive_float, default=None,
-                   help="the unit's sample rate, Hz, with --selfcal (default: the layout's, the simulated device's, "
-                        "or the calibration's noise model's)")
     s.add_argument("--selfcal-temperature", action="store_true",
                    help="the epochs carry the unit's temperature: track the temperature coefficients")
     add_tracker_options(s, "selfcal-")
@@ -215,30 +221,16 @@ class _Monitor:
 
     def __init__(self, pipe: Any, settings: Any, estimates: str | None, detectors: dict | None = None,
                  selfcal: dict | None = None, rate: float | None = None) -> None:
-        from ..fdi import RedundancyManager, Runtime
+        from ..fdi import Runtime
 
-        if selfcal:  # the default managers, a tracked instrument's detector the window GLT with its covariance
-            self.rt = Runtime(pipe, settings, selfcal=selfcal, sample_rate=rate)
-            for loop in self.rt.selfcal.values():
-                loop.keep_history = True  # the terms after every window, for the estimates and the summary
-        elif detectors:  # the unit file's motion-aware tests (rimu setup --motion-fit); the others the default
-            kw = settings.manager_kwargs()
-            mgrs = {}
-            for k, ip in pipe.instruments.items():
-                kk = dict(kw)
-                if k in detectors:
-                    kk.pop("isolator")  # the manager picks the isolator that fits the detector
-                    kk["sample_rate"] = detectors[k].sample_rate
-                else:
-                    kk["isolator"] = settings.isolator()
-                mgrs[k] = RedundancyManager(ip, detectors.get(k), **kk)
-            self.rt = Runtime(pipe, mgrs)
-        else:
-            self.rt = Runtime(pipe, settings)
-        from .replay import _Tracked
-
-        self.tracked = {k: _Tracked(loop) for k, loop in self.rt.selfcal.items()}
+        # the runtime's default managers (rimu.fdi.Runtime: the rule rimu replay and the exported C share): the
+        # unit file's motion-aware tests (rimu setup --motion-fit) or the tracker's window GLT where given, the
+        # terms after every window kept for the estimates and the summary
+        self.rt = Runtime(pipe, settings, detectors=detectors, selfcal=selfcal, selfcal_history=True,
+                          sample_rate=rate)
         self.seen = {k: 0 for k in self.rt.managers}
+        #: alarm samples per instrument (the detector's test exceeded its threshold; confirmed or not)
+        self.alarms = dict.fromkeys(self.rt.managers, 0)
         self.events: list[dict] = []
         self.isolations: list[dict] = []
         self.est = estimates
@@ -253,6 +245,8 @@ class _Monitor:
 
             raise MissingInputError("--selfcal-temperature: the source's epochs carry no temperature; drop the option")
         res = self.rt.step(ep)
+        for k, r in res.items():
+            self.alarms[k] += bool(r.alarm)
         new = []
         for k, m in self.rt.managers.items():
             evs = m.events[self.seen[k]:]
@@ -264,11 +258,10 @@ class _Monitor:
                 if e.kind in ("isolated", "invalid_isolated"):
                     self.isolations.append(d)
         terms: dict = {}
-        if self.tracked:
+        if self.rt.selfcal_records:  # the terms of the last window that ended before this epoch
             import numpy as np
 
-            for tr in self.tracked.values():  # the terms of the last window that ended before this epoch
-                terms.update(tr.add(np.array([float(ep.t)])))
+            terms = self.rt.selfcal_columns(np.array([float(ep.t)]))
         if self.est is not None:
             self.rows.append((float(ep.t), {k: (r.x.copy(), int(r.validity), self.rt.managers[k].isolated)
                                             for k, r in res.items()}, terms))
@@ -283,10 +276,8 @@ class _Monitor:
         from ..export.estimates import estimate_columns
 
         self.fh = stack.enter_context(stack.enter_context(atomic_path(self.est)).open("w"))
-        from .replay import _tracked_columns
-
         self.fh.write(",".join(estimate_columns({k: m.n for k, m in self.rt.managers.items()})
-                               + _tracked_columns({k: loop.tracker for k, loop in self.rt.selfcal.items()})) + "\n")
+                               + [c for r in self.rt.selfcal_records.values() for c in r.columns()]) + "\n")
 
     def flush(self) -> None:
         if self.fh is None or not self.rows:
@@ -339,34 +330,38 @@ def _restore_sigint(old: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import contextlib
+    import itertools
 
     from ..fusion import Pipeline
     from ..io.accounting import Outages
     from ..io.recorded import CsvRecorder
-    from ._common import fdi_settings, readmit_after
+    from ._common import fdi_settings, noise_at_rate, readmit_after
 
     settings = fdi_settings(args, readmit_after=readmit_after(args), common_cause=True if args.common_cause else None)
     if args.no_readmit:
         settings = type(settings)(**{**settings.as_dict(), "readmit_after": None})
-    given = [o for o, v in (("--sample-rate", args.sample_rate), ("--selfcal-temperature", args.selfcal_temperature)) if v]
-    if given and not args.selfcal:
+    if args.selfcal_temperature and not args.selfcal:
         from ..errors import OptionError
 
-        raise OptionError(f"{' and '.join(given)} only apply with --selfcal")
+        raise OptionError("--selfcal-temperature only applies with --selfcal")
     src, cal, extra = _open(args)
-    pipe = Pipeline(cal)
-    if args.selfcal:
-        try:
-            trackers, rate = _trackers(args, cal, src, extra)
-        except BaseException:
-            src.close()
-            if extra.get("tx") is not None:
-                extra["thread"].stop.set()
-                extra["tx"].shutdown()
-            raise
-        mon = _Monitor(pipe, settings, args.estimates, selfcal=trackers, rate=rate)
-    else:
-        mon = _Monitor(pipe, settings, args.estimates, _stored_detectors(cal, settings))
+    try:
+        # the stream's rate (declared, else measured on its first epochs) where anything depends on it: the noise
+        # of a unit set up on averages, the unit file's motion-aware tests, the tracker's windows
+        rate, head, epochs = _rate(args, cal, src, extra)
+        if rate is not None:
+            cal = noise_at_rate(cal, rate, "the stream's", prefix="rimu monitor: ")
+        pipe = Pipeline(cal)
+        if args.selfcal:
+            mon = _Monitor(pipe, settings, args.estimates, selfcal=_trackers(args, cal, rate), rate=rate)
+        else:
+            mon = _Monitor(pipe, settings, args.estimates, _stored_detectors(cal, settings, rate), rate=rate)
+    except BaseException:
+        src.close()
+        if extra.get("tx") is not None:
+            extra["thread"].stop.set()
+            extra["tx"].shutdown()
+        raise
     stack = contextlib.ExitStack()
     mon.open(stack)
     rec = CsvRecorder(args.record) if args.record else None
@@ -391,7 +386,7 @@ def run(args: argparse.Namespace) -> int:
 
     old_handler = _install_sigint(_on_sigint)
     try:
-        for ep in src:
+        for ep in itertools.chain(head, epochs):
             if stop_requested:
                 break
             if t0 is None:
@@ -450,7 +445,7 @@ def run(args: argparse.Namespace) -> int:
                                                            if (args.can or args.serial) else ""))
     summary = {"epochs": n, "data_span_s": (t_last - t0) if n else 0.0, "wall_s": wall,
                "interrupted": interrupted, "accounting": a.as_dict(), "outages": outages.as_dict(),
-               "isolations": mon.isolations, "events": mon.events[:10000], "record": args.record,
+               "alarms": mon.alarms, "isolations": mon.isolations, "events": mon.events[:10000], "record": args.record,
                "estimates": args.estimates,
                "final_state": {k: m.health.state.value for k, m in mon.rt.managers.items()}}
     if tty:
@@ -470,11 +465,13 @@ def run(args: argparse.Namespace) -> int:
     for k, m in mon.rt.managers.items():
         print(f"  {k}: final state {m.health.state.value}" + (f", isolated {', '.join(m.health.isolated)}"
                                                             if m.health.isolated else ""))
-    if mon.tracked:
+    if mon.rt.selfcal:
+        from .selfcal import loop_summary
+
         summary["selfcal"] = {}
-        for k, tr in mon.tracked.items():
+        for k, loop in mon.rt.selfcal.items():
             print(f"  {k}:")
-            summary["selfcal"][k] = tr.summary(k)
+            summary["selfcal"][k] = loop_summary(k, loop)
     if args.estimates:
         print(f"  estimates: {Path(args.estimates)} ({mon.n_rows} rows)")
     if args.record:
@@ -491,48 +488,74 @@ def run(args: argparse.Namespace) -> int:
 __all__ = ["register", "run"]
 
 
-def _trackers(args: argparse.Namespace, cal: Any, src: Any, extra: dict) -> tuple[dict, float]:
-    """The trackers of every instrument (rimu replay --selfcal's, from the same options) and the unit's rate."""
+#: epochs the stream's rate is measured on when nothing declares it
+_RATE_EPOCHS = 50
+
+
+def _rate(args: argparse.Namespace, cal: Any, src: Any, extra: dict) -> tuple[float | None, list, Any]:
+    """The stream's rate (Hz) where the runtime depends on it (a noise stated for another period, the unit file's
+    motion terms, --selfcal), else None; the epochs read to measure it, and the rest of the stream.
+
+    Declared: ``--sample-rate``, the simulated device's, the layout's, the transport's (``sample_rate_hz``);
+    otherwise measured on the first epochs (1 / their median time step; ``rimu replay`` takes the data's median
+    time step). Said on one line; a stream that ends before two epochs refuses, rather than run thresholds wrong
+    by the square root of the averaging."""
+    from ..errors import OptionError
+
+    epochs = iter(src)
+    need = args.selfcal or bool(cal.metadata.get("motion_terms")) or any(
+        cal[k].noise_period_s is not None for k in cal.instruments)
+    layout = getattr(src, "layout", None)
+    declared = [(args.sample_rate, "--sample-rate"), (extra.get("rate"), "the simulated device's rate"),
+                (getattr(layout, "sample_rate_hz", None), "the layout's rate"),
+                (getattr(src, "sample_rate_hz", None), "the transport's declared rate")]
+    rate, how = next(((float(r), h) for r, h in declared if r), (None, ""))
+    if not need:
+        return rate, [], epochs
+    head: list = []
+    if rate is None:
+        for ep in epochs:
+            head.append(ep)
+            if len(head) >= _RATE_EPOCHS:
+                break
+        if not head:  # nothing came: the loop says so (no epoch came out of the source)
+            return None, head, epochs
+        import numpy as np
+
+        dt = np.diff([float(ep.t) for ep in head])
+        step = float(np.median(dt)) if dt.size else float("nan")
+        if not step > 0:
+            raise OptionError(f"the stream's rate cannot be measured ({len(head)} epoch(s) before it ended or stalled) "
+                              "and this unit depends on it (a noise stated for averages, motion terms or --selfcal): "
+                              "give --sample-rate HZ")
+        rate, how = 1.0 / step, f"measured on its first {len(head)} epochs"
+    print(f"rimu monitor: the stream's rate {fmt(rate, 'frequency', 'Hz', digits=4)} ({how})")
+    return rate, head, epochs
+
+
+def _trackers(args: argparse.Namespace, cal: Any, rate: float) -> dict:
+    """The trackers of every instrument (rimu replay --selfcal's, from the same options)."""
     from ..errors import OptionError
     from ..fdi.selfcal import SelfCalTracker
     from .selfcal import tracker_settings
 
-    layout = getattr(src, "layout", None)
-    rates = [args.sample_rate, extra.get("rate"), getattr(layout, "sample_rate_hz", None)]
-    rates += sorted({float(cal[k].noise.sample_rate) for k in cal.instruments if cal[k].noise is not None})
-    rate = next((float(r) for r in rates if r), None)
-    if rate is None:
-        raise OptionError("--selfcal counts the tracker's windows in samples: give the unit's --sample-rate (Hz; "
-                          "neither the source nor the calibration states it)")
     if args.selfcal_window * rate < 1:
         raise OptionError(f"--selfcal-window {args.selfcal_window:g} s is shorter than one sample at {rate:g} Hz")
     trackers = {k: SelfCalTracker(cal[k], tracker_settings(args, cal[k], k, args.selfcal_temperature, "selfcal-"))
                 for k in cal.instruments}
     print(f"rimu monitor: self-calibration of {', '.join(trackers)} at {rate:g} Hz (windows of "
           f"{args.selfcal_window:g} s; docs/selfcal.md)")
-    return trackers, rate
+    return trackers
 
 
-def _stored_detectors(cal: Any, settings: Any) -> dict:
-    """The motion-aware tests stored in the unit file by ``rimu setup --motion-fit`` (gyros), said once."""
-    from ..errors import CalibrationFileError, ShapeError
-    from ..fdi.motion import envelope_text, motion_detector_from_dict
+def _stored_detectors(cal: Any, settings: Any, rate: float | None) -> dict:
+    """The motion-aware tests stored in the unit file by ``rimu setup --motion-fit``
+    (:func:`rimu.fdi.unit.stored_motion_detectors`, checked against the stream's rate), said once."""
+    from ..fdi.motion import envelope_text
+    from ..fdi.unit import stored_motion_detectors
 
-    out = {}
-    for k in cal.instruments:  # a live source's rate is not known up front: the period the noise holds for is said
-        per = cal[k].noise_period_s
-        if per is not None and k not in (cal.metadata.get("motion_terms") or {}):
-            print(f"rimu monitor: {k}: the unit file's noise is stated for epochs of {per:.4g} s; the source must "
-                  f"deliver epochs at {1.0 / per:.4g} Hz (rimu replay converts it for a log at another rate)")
-    for k, d in (cal.metadata.get("motion_terms") or {}).items():
-        if k not in cal.instruments:
-            continue
-        try:
-            out[k] = motion_detector_from_dict(cal[k], d, settings.p_fa)
-        except ShapeError as exc:
-            raise CalibrationFileError(f"the calibration's {k} motion terms: {exc}") from None
-        det = out[k]
+    out = stored_motion_detectors(cal, settings.p_fa, rate)
+    for k, det in out.items():
         print(f"rimu monitor: {k}: motion-aware test of the unit file at {det.sample_rate:.4g} Hz"
-              + ("" if det.envelope is None else f" ({envelope_text(det.envelope)})")
-              + "; the source must deliver epochs at that rate")
+              + ("" if det.envelope is None else f" ({envelope_text(det.envelope)})"))
     return out

@@ -58,7 +58,7 @@ from ._common import (
     readmit_after,
 )
 from ._inputs import add_log_options
-from .selfcal import add_tracker_options
+from .selfcal import add_tracker_options, loop_summary, terms_figure
 
 DETECTORS = ["glt", "glt_window", "cusum", "kalman", "baseline"]
 
@@ -441,15 +441,19 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
     from ..errors import CalibrationFileError, GeometryMismatchError, OptionError, RimuError, SessionFormatError
     from ..experiments.faults import inject, parse_injection
     from ..export.estimates import Estimates, estimate_columns, write_estimates
-    from ..fdi import RedundancyManager, Runtime
+    from ..fdi import Runtime
     from ..fdi.detectors import make_detector
+    from ..fdi.unit import stored_motion_detectors
     from ..fusion import Pipeline
     from ..progress import bar
     from ..session import iter_blocks
     from ..units import fmt  # the field's units, as rimu calibrate prints them
-    from ._common import check_outputs, fdi_settings
+    from ._common import check_outputs, fdi_settings, noise_at_rate
 
-    settings = fdi_settings(args, common_cause=True if args.common_cause else None)  # the one default otherwise
+    # the one default otherwise; refused as rimu monitor refuses (a setting the exported C cannot hold names its option)
+    settings = fdi_settings(args, common_cause=True if args.common_cause else None, readmit_after=readmit_after(args))
+    if args.no_readmit:
+        settings = type(settings)(**{**settings.as_dict(), "readmit_after": None})
     if args.estimates:  # a CSV without a sidecar: checked alone, then against the other outputs and the inputs
         from ..errors import OutputPathError
 
@@ -501,13 +505,8 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
             if args.noise is None:
                 raise CalibrationFileError(f"the {k} calibration states no noise; pass --noise SIGMA (SI per sample)")
             cal[k].noise_sigma = np.full(cal[k].geometry.n, float(args.noise))
-        per = cal[k].noise_period_s  # the noise is stated for the epochs it was measured on (rimu setup's averages)
-        if per is not None and abs(per * scan.fs - 1.0) > 0.02:
-            cal[k].noise_sigma = cal[k].noise_sigma_at(1.0 / scan.fs)
-            cal[k].noise_period_s = 1.0 / scan.fs
-            print(f"  {k}: the calibration's noise is stated for epochs of {fmt(per, 'time', 's', digits=3)}; at the "
-                  f"data's {fmt(scan.fs, 'frequency', 'Hz', digits=4)} it is x{np.sqrt(per * scan.fs):.3g} per sample "
-                  "(white noise: sigma sqrt(T_noise / T))")
+    # the noise is stated for the epochs it was measured on (rimu setup's averages): at the data's rate
+    cal = noise_at_rate(cal, scan.fs, "the data's")
     injections = [parse_injection(s) for s in args.inject]
     for inj in injections:  # a fault outside the data would be "injected" without touching a sample
         if not t0 <= inj.start < t_end:
@@ -557,28 +556,30 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
                               f"{fs:g} Hz): the tracker would never absorb a window")
         trackers = {k: SelfCalTracker(cal[k], tracker_settings(args, cal[k], k, scan.has_temp, "selfcal-"))
                     for k in insts}
-    managers = {}
+    # the detector of each instrument; the managers, their isolators and the self-calibration loops are the
+    # runtime's (rimu.fdi.Runtime: the rule rimu monitor and the exported C share)
+    detectors = {}
+    stored = stored_motion_detectors(sub, args.p_fa, fs) if args.detector == "glt" and not trackers else {}
     for k in insts:
-        pipe = unit[k]
-        det = make_detector(args.detector, pipe.table.sigma, window=args.window, p_fa=args.p_fa, arl0=args.arl0)
-        stored = (cal.metadata.get("motion_terms") or {}).get(k) if args.detector == "glt" and k not in trackers \
-            else None
-        if k in trackers:
-            from ..fdi.selfcal import TrackedGltWindow
+        if k in trackers:  # the window GLT with the tracker's covariance: --window samples, else the tracker's
+            if args.detector == "glt_window":
+                from ..fdi.selfcal import TrackedGltWindow
 
-            win = args.window if args.detector == "glt_window" else max(1, int(round(args.selfcal_window * fs)))
-            det = TrackedGltWindow(win, args.p_fa)
-        if args.motion_fit is not None and k == "gyro":
-            det = _motion_detector(cal[k], _first_seconds(blocks(Pipeline(sub, temperature=scan.has_temp)),
-                                                          t0 + args.motion_fit),
-                                   args.motion_fit, args.motion_margin, args.p_fa, fs)
-        elif stored is not None:
-            det = _stored_motion_detector(cal[k], stored, args.p_fa, fs, k)
-        kw = settings.replace(confirm=1 if args.detector == "cusum" else None).manager_kwargs()
-        kw.update(readmit_after=readmit_after(args), sample_rate=fs)
-        if args.detector != "glt" or args.motion_fit is not None or stored is not None or k in trackers:
-            kw.pop("isolator")  # the manager picks the isolator that fits the detector
-        managers[k] = (RedundancyManager(pipe, det, **kw), det)
+                detectors[k] = TrackedGltWindow(args.window, args.p_fa)
+        elif args.motion_fit is not None and k == "gyro":
+            detectors[k] = _motion_detector(cal[k], _first_seconds(blocks(Pipeline(sub, temperature=scan.has_temp)),
+                                                                   t0 + args.motion_fit),
+                                            args.motion_fit, args.motion_margin, args.p_fa, fs)
+        elif k in stored:
+            detectors[k] = stored[k]
+            _say_stored(k, stored[k])
+        elif args.detector != "glt":
+            detectors[k] = make_detector(args.detector, unit[k].table.sigma, window=args.window, p_fa=args.p_fa,
+                                         arl0=args.arl0)
+    # the managers closed loop with the compensation of further effects (rimu.fdi.Runtime: the decisions of the
+    # exported C filter, sample by sample)
+    um = Runtime(unit, settings.replace(confirm=1 if args.detector == "cusum" else None), detectors=detectors,
+                 selfcal=trackers, selfcal_history=True, sample_rate=fs)
     alarms = dict.fromkeys(insts, 0)
     events: dict[str, list] = {k: [] for k in insts}
     finite = dict.fromkeys(insts, True)
@@ -596,14 +597,8 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
             from ..atomic import atomic_path
 
             est = stack.enter_context(stack.enter_context(atomic_path(args.estimates)).open("w"))
-            est.write(",".join(estimate_columns(insts) + _tracked_columns(trackers)) + "\n")
-        # the managers closed loop with the compensation of further effects (rimu.fdi.UnitManager: the decisions
-        # of the exported C filter, sample by sample)
-        from ..fdi.selfcal import SelfCalLoop
-
-        um = Runtime(unit, managers={k: managers[k][0] for k in insts},
-                     selfcal={k: SelfCalLoop(trk, fs, managers[k][1], history=True) for k, trk in trackers.items()})
-        tracked = {k: _Tracked(um.selfcal[k]) for k in trackers}
+            est.write(",".join(estimate_columns(insts) + [c for r in um.selfcal_records.values()
+                                                             for c in r.columns()]) + "\n")
         for blk in bar(blocks(), total=n_chunks, desc="replay", unit="chunk", enabled=None if n_chunks > 1 else False):
             results = um.run(blk)
             for k in insts:
@@ -621,9 +616,7 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
                 errors[k].add(np.asarray(r.x), blk.t, blk.meta["segment"])
                 if plots:
                     plots[k].add(r)
-            extra = {}
-            for tr in tracked.values():
-                extra.update(tr.add(blk.t))
+            extra = um.selfcal_columns(blk.t)
             if est is not None:
                 e = Estimates.from_replay(blk.t, results)
                 e.extra = extra or None
@@ -632,8 +625,8 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
                 px4.add(blk)
     summary: dict = {}
     for k in insts:
-        mgr, det = managers[k]
-        print(f"\n  {k}: {scan.n} samples, detector {getattr(det, 'name', args.detector)}; final state {mgr.state.value}"
+        mgr = um.managers[k]
+        print(f"\n  {k}: {scan.n} samples, detector {getattr(mgr.detector, 'name', args.detector)}; final state {mgr.state.value}"
               + (f", isolated {', '.join(mgr.health.isolated)}" if mgr.health.isolated else ""))
         shown = [e for e in events[k] if e.kind != "transient"]
         n_tr = sum(1 for e in events[k] if e.kind == "transient")
@@ -659,8 +652,8 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
                                  for i, (seg, st) in enumerate(zip(session.segments, scan.stats))]
             print(f"    alarm rate at rest (the session's static segments): {fmt(a / n, 'ratio', '%', digits=3)} of {n} "
                   f"samples (design: --p-fa {fmt(args.p_fa, 'ratio', '%', digits=3)})")
-        if k in tracked:
-            entry["selfcal"] = tracked[k].summary(k)
+        if k in um.selfcal:
+            entry["selfcal"] = loop_summary(k, um.selfcal[k])
         summary[k] = entry
     px4_doc = px4.report() if px4 is not None else None
     if args.estimates:
@@ -672,8 +665,8 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
         # final_state: the manager's state at the end, as printed and as summary.json has it, with the sensors
         # isolated then; last_sample_state: the last sample's label (an alarm's suspects left out of that sample's
         # set read as fault_isolated there though nothing is isolated; it was given as final_state)
-        doc = {k: {"events": [e.to_dict() for e in events[k]], "final_state": managers[k][0].state.value,
-                   "isolated_at_end": list(managers[k][0].health.isolated), "last_sample_state": last_state[k],
+        doc = {k: {"events": [e.to_dict() for e in events[k]], "final_state": um.managers[k].state.value,
+                   "isolated_at_end": list(um.managers[k].health.isolated), "last_sample_state": last_state[k],
                    **{f: v for f, v in summary[k].items() if f in keep}} for k in insts}
         if px4_doc is not None:
             doc["px4"] = px4_doc
@@ -684,9 +677,10 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
         series = {k: p.series() for k, p in plots.items()}
         page = _report(series, summary, events, args, console, fmt)
         if page is not None:  # the tracked terms: sections of the same page (and PDF), after the replay's figure
-            for k, tr in tracked.items():
+            for k, rec in um.selfcal_records.items():
                 page.heading(f"Self-calibration: {k}")
-                page.figure(tr.figure(k), f"{k}: the terms the in-flight self-calibration tracked over the replay "
+                page.figure(terms_figure(k, rec.loop.tracker, rec.series or [rec.last]),
+                            f"{k}: the terms the in-flight self-calibration tracked over the replay "
                                           "(docs/selfcal.md), each sensor with its 1-sigma band, in the field's units.")
         if page is None:
             print("  (matplotlib not installed: no plot; pip install 'rimu[plots]')")
@@ -694,7 +688,7 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
             png = page.save_figure(0, out / "replay.png", dpi=90)
             html, pdf = page.write(out, "replay_report")
             print(f"  plot:   {png}\n  report: {html} and {pdf}")
-            for j, k in enumerate(tracked, start=1):  # figure 0 is the replay's, then one per tracked instrument
+            for j, k in enumerate(um.selfcal_records, start=1):  # figure 0 is the replay's, then one per tracked instrument
                 print(f"  plot:   {page.save_figure(j, out / f'selfcal-{k}.png', dpi=90)}")
     if args.output:
         import json
@@ -749,106 +743,14 @@ class _Px4:
         return {"flags": flags}
 
 
-def _stored_motion_detector(cal, stored: dict, p_fa: float, fs: float, k: str):  # type: ignore[no-untyped-def]
-    """The motion-aware GLT of the terms ``rimu setup --motion-fit`` stored in the calibration."""
-    from ..errors import CalibrationFileError, ShapeError
-    from ..fdi.motion import envelope_text, motion_detector_from_dict
+def _say_stored(k: str, det) -> None:  # type: ignore[no-untyped-def]
+    """The motion-aware test of the terms ``rimu setup --motion-fit`` stored in the calibration, said once."""
+    from ..fdi.motion import envelope_text
 
-    try:
-        det = motion_detector_from_dict(cal, stored, p_fa)
-    except ShapeError as exc:
-        raise CalibrationFileError(f"the calibration's {k} motion terms: {exc}") from None
-    if abs(det.sample_rate / fs - 1.0) > 0.02:
-        raise CalibrationFileError(f"the calibration's {k} motion terms were fitted at {det.sample_rate:.4g} Hz and the "
-                                   f"data run at {fs:.4g} Hz: set the unit up at the data's rate (rimu setup --average)")
     print(f"  {k}: motion terms of the calibration (rimu setup --motion-fit, {det.fit_samples} epochs)"
           + ("" if det.envelope is None else
              f"; the thresholds assume {envelope_text(det.envelope)}: an alarm beyond is model_exceeded (output "
              "DEGRADED), nothing isolated"))
-    return det
-
-
-def _tracked_columns(trackers: dict) -> list[str]:
-    """The estimates file's columns of the tracked terms: ``{k}_{term}_{sensor}`` and ``..._sigma`` (SI)."""
-    cols = []
-    for k, trk in trackers.items():
-        for b in trk.blocks:
-            for nm in trk.calibration.geometry.names:
-                cols += [f"{k}_{b}_{nm}", f"{k}_{b}_{nm}_sigma"]
-    return cols
-
-
-class _Tracked:
-    """One instrument's tracked terms over the replay: per sample for the estimates file (the terms of the last
-    window absorbed or predicted), decimated for the plot, the last ones for the summary."""
-
-    def __init__(self, loop) -> None:  # type: ignore[no-untyped-def]
-        self.loop = loop
-        trk = loop.tracker
-        terms = loop.terms()
-        self.last = (float("-inf"), np.stack([terms[b][0] for b in trk.blocks]),
-                     np.stack([terms[b][1] for b in trk.blocks]))
-        self.series: list[tuple[float, np.ndarray, np.ndarray]] = []
-        self.stride = 1
-        self.seen = 0
-
-    def add(self, t: np.ndarray) -> dict[str, np.ndarray]:
-        trk = self.loop.tracker
-        hist = [(h[0], h[1], h[2]) for h in self.loop.take_history()]
-        T = np.array([self.last[0]] + [h[0] for h in hist])
-        V = np.stack([self.last[1]] + [h[1] for h in hist])
-        S = np.stack([self.last[2]] + [h[2] for h in hist])
-        # a sample takes the terms of the last window that ended before it (a window's terms apply after it)
-        idx = np.searchsorted(T, np.asarray(t, float), side="left") - 1
-        idx = np.clip(idx, 0, len(T) - 1)
-        out = {}
-        for b, name in enumerate(trk.blocks):
-            for i, nm in enumerate(trk.calibration.geometry.names):
-                out[f"{trk.calibration.instrument}_{name}_{nm}"] = V[idx, b, i]
-                out[f"{trk.calibration.instrument}_{name}_{nm}_sigma"] = S[idx, b, i]
-        for h in hist:
-            if self.seen % self.stride == 0:
-                self.series.append(h)
-            self.seen += 1
-            if len(self.series) > 20000:  # at most 20 000 points: every other one, twice the stride
-                self.series = self.series[::2]
-                self.stride *= 2
-        if hist:
-            self.last = hist[-1]
-        return out
-
-    def summary(self, inst: str) -> dict:
-        from .selfcal import print_terms
-
-        loop = self.loop
-        print(f"    self-calibration: {loop.accepted} windows absorbed, {loop.rejected} gated out, {loop.discarded} "
-              "thrown away (alarms); tracked terms at the end (common mode left as it was), value +- 1 sigma:")
-        rows = print_terms(inst, loop.tracker, loop.terms(), indent="    ")
-        if loop.discarded > loop.accepted:  # the alarms froze the tracker more than it tracked: say what may cause it
-            print(f"    note: the alarms threw away more windows ({loop.discarded}) than were absorbed ({loop.accepted}): "
-                  "a unit drifting faster than the tracker is told (--selfcal-bias-rw or --selfcal-drift-factor) or "
-                  "starting further off (--selfcal-bias-sigma0) alarms on its drift, the tracker stays frozen and "
-                  "healthy sensors may be isolated (docs/selfcal.md, Fault-aware)")
-        g = loop.guard()
-        if g["enabled"]:
-            print(f"    held-out check (docs/selfcal.md): parity rms {g['heldout_rms_fixed']:.3f} sigma with the fixed "
-                  f"calibration, {g['heldout_rms_applied']:.3f} sigma with the terms applied"
-                  + ("" if g["nis_per_dof"] is None else
-                     f"; innovations {g['nis_per_dof']:.2f} per dof (1: the model fits)"))
-            for name, v in g["groups"].items():
-                print(f"      {name}: {'applied' if v['applied'] else 'SUSPENDED'} at the end; suspended "
-                      f"{v['suspended_windows']} windows ({v['suspensions']} times switched off); held-out gain "
-                      f"{v['heldout_gain']:+.4g} sigma^2" + ("" if v["heldout_gain"] > 0 else
-                                                             " (it would have made the parity worse)"))
-        return {"windows_absorbed": loop.accepted, "windows_gated": loop.rejected, "windows_discarded": loop.discarded,
-                "blocks": list(loop.tracker.blocks), "units": "SI (rad/s or m/s^2, relative scale, SI/K^k)",
-                "sensors": rows, "guard": g}
-
-    def figure(self, inst: str):  # type: ignore[no-untyped-def]
-        """The tracked terms of every sensor over the replay, each with its 1-sigma band (:func:`terms_figure`)."""
-        from .selfcal import terms_figure
-
-        return terms_figure(inst, self.loop.tracker, self.series or [self.last])
 
 
 def _first_seconds(blocks, t_stop: float):  # type: ignore[no-untyped-def]

@@ -255,6 +255,35 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def loop_summary(inst: str, loop: Any) -> dict:
+    """Print the self-calibration of one instrument at the end of a run (windows absorbed, gated out, thrown away;
+    the tracked terms with their 1-sigma; the held-out check) and return it as the summary's dict: what ``rimu
+    replay --selfcal`` and ``rimu monitor --selfcal`` both show (``loop``: the runtime's
+    :class:`rimu.fdi.selfcal.SelfCalLoop`)."""
+    print(f"    self-calibration: {loop.accepted} windows absorbed, {loop.rejected} gated out, {loop.discarded} "
+          "thrown away (alarms); tracked terms at the end (common mode left as it was), value +- 1 sigma:")
+    rows = print_terms(inst, loop.tracker, loop.terms(), indent="    ")
+    if loop.discarded > loop.accepted:  # the alarms froze the tracker more than it tracked: say what may cause it
+        print(f"    note: the alarms threw away more windows ({loop.discarded}) than were absorbed ({loop.accepted}): "
+              "a unit drifting faster than the tracker is told (--selfcal-bias-rw or --selfcal-drift-factor) or "
+              "starting further off (--selfcal-bias-sigma0) alarms on its drift, the tracker stays frozen and "
+              "healthy sensors may be isolated (docs/selfcal.md, Fault-aware)")
+    g = loop.guard()
+    if g["enabled"]:
+        print(f"    held-out check (docs/selfcal.md): parity rms {g['heldout_rms_fixed']:.3f} sigma with the fixed "
+              f"calibration, {g['heldout_rms_applied']:.3f} sigma with the terms applied"
+              + ("" if g["nis_per_dof"] is None else
+                 f"; innovations {g['nis_per_dof']:.2f} per dof (1: the model fits)"))
+        for name, v in g["groups"].items():
+            print(f"      {name}: {'applied' if v['applied'] else 'SUSPENDED'} at the end; suspended "
+                  f"{v['suspended_windows']} windows ({v['suspensions']} times switched off); held-out gain "
+                  f"{v['heldout_gain']:+.4g} sigma^2" + ("" if v["heldout_gain"] > 0 else
+                                                         " (it would have made the parity worse)"))
+    return {"windows_absorbed": loop.accepted, "windows_gated": loop.rejected, "windows_discarded": loop.discarded,
+            "blocks": list(loop.tracker.blocks), "units": "SI (rad/s or m/s^2, relative scale, SI/K^k)",
+            "sensors": rows, "guard": g}
+
+
 def terms_figure(inst: str, trk: Any, hist: list[tuple[float, np.ndarray, np.ndarray]], max_points: int = 400) -> Any:
     """The tracked terms of every sensor over a log (``hist``: (t, values (m, n), 1-sigma (m, n)) per window, at most
     ``max_points`` of them drawn, evenly spaced), each with its 1-sigma band, one panel per term, each axis in the field unit of its values (rimu.units.field_unit;

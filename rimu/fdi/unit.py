@@ -20,6 +20,7 @@ decision. Without further effects it is one manager per instrument stepped on th
 
 from __future__ import annotations
 
+import copy
 from typing import Any
 
 import numpy as np
@@ -27,14 +28,14 @@ import numpy as np
 from ..epoch import Epoch, EpochBlock
 from ..errors import ShapeError
 from ..fusion import Pipeline
-from .glt import GltSnapshot
 from .health import SensorState
-from .manager import FdiEvent, FdiResult, RedundancyManager, ReplayResult, _Collector
+from .manager import FdiEvent, FdiResult, RedundancyManager, ReplayResult, _Collector, _evidence_detector
 from .multiple import FaultSetGlt
 from .selfcal import SelfCalLoop, SelfCalTracker, TrackedGltWindow
+from .selfcal_record import SelfCalRecord
 from .settings import DEFAULTS, NAMES, FdiSettings
 
-__all__ = ["Runtime", "UnitManager"]
+__all__ = ["Runtime", "UnitManager", "noise_at_rate", "stored_motion_detectors"]
 
 #: epochs of the first run after an isolation set changed (runs then double up to ``chunk``)
 _RESTART = 64
@@ -56,8 +57,20 @@ class Runtime:
         The unit's pipeline, or its calibration (a default :class:`rimu.fusion.Pipeline` is built).
     settings : FdiSettings, optional
         The fault management's settings (default :data:`rimu.fdi.settings.DEFAULTS`).
+    detectors : dict[str, detector], optional
+        The detector of these instruments (e.g. the motion-aware tests of a unit file,
+        :func:`stored_motion_detectors`; ``rimu replay --detector``'s); the others take ``detector_factory``'s,
+        else the default (below).
     detector_factory : callable, optional
         ``factory(instrument_pipeline) -> detector``: another detector than the GLT snapshot, per instrument.
+
+        The default managers are built by one rule, the one of ``rimu replay``, ``rimu monitor`` and the
+        exported C: the detector is ``detectors[k]``, else the factory's, else for a tracked instrument the window
+        GLT with the tracker's covariance, else the GLT snapshot under the calibration's noise (model); the
+        isolator is the ``isolator`` option when given, else the settings' set GLT
+        (:meth:`FdiSettings.isolator`, one per manager) for a detector whose alarms come from the parity vector's
+        size (the GLT family, the parity Kalman filter), else the detector's own choice (``"detector"``: the
+        motion-aware GLT, whose thresholds follow the motion; CUSUM; the baselines).
     managers : dict[str, RedundancyManager], optional
         Managers built on ``pipeline``'s own instrument pipelines (``pipeline[k]``), instead of ``settings``.
     selfcal : dict[str, SelfCalTracker or SelfCalLoop], optional
@@ -68,6 +81,10 @@ class Runtime:
         (a :class:`rimu.fdi.selfcal.TrackedGltWindow`; the default managers get one, of the tracker's window), and
         the tracker absorbs a window only ``hold_s`` after it without any alarm, never for isolated sensors. A
         tracker needs the managers' ``sample_rate`` (Hz).
+    selfcal_history : bool
+        Keep the tracked terms after every window (:attr:`selfcal_records`, :meth:`selfcal_columns`), for the
+        estimates files, summaries and reports of ``rimu replay`` and ``rimu monitor``; off, the memory of a
+        self-calibrating runtime does not grow with the run.
     **options
         Further keyword arguments of :class:`RedundancyManager` (``sample_rate``, ``max_events``, ``isolator``;
         or any setting, which then overrides ``settings``).
@@ -88,8 +105,9 @@ class Runtime:
     """
 
     def __init__(self, pipeline: Pipeline | Any, settings: FdiSettings | None = None, *,
-                 detector_factory: Any = None, managers: dict[str, RedundancyManager] | None = None,
-                 selfcal: dict[str, Any] | None = None, **options: Any) -> None:
+                 detectors: dict[str, Any] | None = None, detector_factory: Any = None,
+                 managers: dict[str, RedundancyManager] | None = None, selfcal: dict[str, Any] | None = None,
+                 selfcal_history: bool = False, **options: Any) -> None:
         if not isinstance(pipeline, Pipeline):
             pipeline = Pipeline(pipeline)
         if isinstance(settings, dict):  # Runtime(pipeline, managers)
@@ -99,30 +117,17 @@ class Runtime:
             own = {k: options.pop(k) for k in list(options) if k in NAMES}
             if own:
                 st = FdiSettings(**{**st.as_dict(), **own})
-            kw = st.manager_kwargs()
-            if detector_factory is not None and "isolator" not in options:
-                kw.pop("isolator")  # the manager picks the isolator that fits the detector
-            if selfcal and detector_factory is None:  # thresholds that carry the tracker's covariance
-                rate = options.get("sample_rate")
-                win = {k: max(1, int(round(_tracker(v).settings.window_s * rate))) if rate else 1
-                       for k, v in selfcal.items()}
-
-                def detector_factory(ip: Any, st: FdiSettings = st) -> Any:
-                    k = ip.calibration.instrument
-                    return TrackedGltWindow(win[k], st.p_fa) if k in win else GltSnapshot(
-                        st.p_fa, getattr(ip.calibration, "noise", None))
-            kw.update(options)
-            managers = {}
-            for k, ip in pipeline.instruments.items():
-                kk = dict(kw)
-                if isinstance(kk.get("isolator"), FaultSetGlt):
-                    kk["isolator"] = st.isolator()  # one isolator object per manager
-                managers[k] = RedundancyManager(ip, detector_factory(ip) if detector_factory else None, **kk)
+            unknown = sorted(set(detectors or {}) - set(pipeline.instruments))
+            if unknown:
+                raise ShapeError(f"detectors names {', '.join(unknown)}, not an instrument of the pipeline "
+                                 f"({sorted(pipeline.instruments)})")
+            managers = {k: _manager(ip, st, _detector(ip, st, detectors, detector_factory, selfcal, options), options)
+                        for k, ip in pipeline.instruments.items()}
             self.settings = st
         else:
-            if options or settings is not None or detector_factory is not None:
-                raise TypeError("settings, detector_factory and options are for the default managers; the given "
-                                "managers have their own")
+            if options or settings is not None or detector_factory is not None or detectors:
+                raise TypeError("settings, detectors, detector_factory and options are for the default managers; "
+                                "the given managers have their own")
             self.settings = None
         if set(managers) != set(pipeline.instruments):
             raise ShapeError(f"one manager per instrument of the pipeline ({sorted(pipeline.instruments)}), got "
@@ -145,13 +150,20 @@ class Runtime:
             if k not in managers:
                 raise ShapeError(f"selfcal names {k!r}, not an instrument of the pipeline ({sorted(managers)})")
             if isinstance(v, SelfCalLoop):
+                if selfcal_history and not v.keep_history:
+                    raise ValueError(f"selfcal_history: the given {k} SelfCalLoop keeps no history (SelfCalLoop(..., "
+                                     "history=True), or give its tracker)")
                 self.selfcal[k] = v
             else:
                 rate = managers[k].sample_rate
                 if not rate:
                     raise ValueError("a self-calibrating runtime needs the sample rate (sample_rate=, Hz): the "
                                      "tracker's windows are counted in samples")
-                self.selfcal[k] = SelfCalLoop(v, rate, managers[k].detector)
+                self.selfcal[k] = SelfCalLoop(v, rate, managers[k].detector, history=selfcal_history)
+        #: each tracked instrument's terms over the run (``selfcal_history=True``; else empty): what the estimates
+        #: files, the summaries and the reports show (:class:`rimu.fdi.selfcal_record.SelfCalRecord`)
+        self.selfcal_records: dict[str, SelfCalRecord] = (
+            {k: SelfCalRecord(loop) for k, loop in self.selfcal.items()} if selfcal_history else {})
 
     def _mstep(self, k: str, y: np.ndarray, valid: Any, t: float, temperature: float | None) -> FdiResult:
         """Instrument ``k``'s manager on one epoch's compensated outputs, corrected by its tracked terms first."""
@@ -182,6 +194,16 @@ class Runtime:
         alpha = (x - last[1]) / (t - last[0]) if last is not None and t > last[0] else np.zeros(3)
         self._gyro_last = (t, x)
         self._motion = (x, alpha)
+
+    def selfcal_columns(self, t: np.ndarray) -> dict[str, np.ndarray]:
+        """The tracked terms of every tracked instrument at the sample times ``t`` (s) of the epochs stepped since
+        the last call: per sample the terms of the last window that ended before it, as the estimates file's
+        columns ``{k}_{term}_{sensor}`` and ``..._sigma`` (SI; :meth:`SelfCalRecord.add`). Needs
+        ``selfcal_history=True``."""
+        out: dict[str, np.ndarray] = {}
+        for rec in self.selfcal_records.values():
+            out.update(rec.add(t))
+        return out
 
     def selfcal_terms(self) -> dict[str, dict[str, tuple[np.ndarray, np.ndarray]]]:
         """The tracked terms of every tracked instrument now, with their 1-sigma (SI; see
@@ -311,6 +333,109 @@ class Runtime:
 
 def _tracker(v: Any) -> SelfCalTracker:
     return v.tracker if isinstance(v, SelfCalLoop) else v
+
+
+def _detector(ip: Any, st: FdiSettings, detectors: dict[str, Any] | None, factory: Any,
+              selfcal: dict[str, Any] | None, options: dict[str, Any]) -> Any:
+    """The detector of one instrument's default manager, by the one rule of every entry point: the one given for
+    the instrument (``detectors``), else the factory's, else for a tracked instrument the window GLT whose
+    thresholds carry the tracker's covariance (of the tracker's window, counted at ``sample_rate``), else None
+    (the manager's GLT snapshot under the calibration's noise)."""
+    k = ip.calibration.instrument
+    if detectors and k in detectors:
+        return detectors[k]
+    if factory is not None:
+        return factory(ip)
+    if selfcal and k in selfcal:
+        rate = options.get("sample_rate")
+        win = max(1, int(round(_tracker(selfcal[k]).settings.window_s * rate))) if rate else 1
+        return TrackedGltWindow(win, st.p_fa)
+    return None
+
+
+def _manager(ip: Any, st: FdiSettings, det: Any, options: dict[str, Any]) -> RedundancyManager:
+    """One instrument's default manager, with the isolator rule of every entry point: the ``isolator`` option
+    when given; else a detector whose alarms come from the parity vector's size (the GLT family, the parity
+    Kalman filter, and the manager's default) gets the settings' set GLT (:meth:`FdiSettings.isolator`, one object
+    per manager), any other (the motion-aware GLT, CUSUM, the baselines) isolates on its own choice
+    (``"detector"``)."""
+    kw = {**st.manager_kwargs(), **options}
+    if "isolator" not in options:
+        kw["isolator"] = st.isolator() if det is None or _evidence_detector(det) else "detector"
+    elif isinstance(kw["isolator"], FaultSetGlt):
+        kw["isolator"] = copy.deepcopy(kw["isolator"])  # one isolator object per manager (it holds a cache)
+    return RedundancyManager(ip, det, **kw)
+
+
+def stored_motion_detectors(calibration: Any, p_fa: float, sample_rate: float | None = None) -> dict[str, Any]:
+    """The motion-aware tests a unit file holds (``rimu setup --motion-fit``: ``metadata["motion_terms"]``), per
+    instrument of ``calibration`` (:func:`rimu.fdi.motion.motion_detector_from_dict`), for ``Runtime(...,
+    detectors=)``: what ``rimu replay`` and ``rimu monitor`` both decide with.
+
+    The terms hold for the rate they were fitted at (the angular acceleration is a difference of successive
+    epochs): a stream at another ``sample_rate`` (Hz, more than 2 % off) raises
+    :class:`rimu.errors.CalibrationFileError`, as do malformed terms.
+
+    >>> from rimu.calibration import Calibration, InstrumentCalibration
+    >>> from rimu.geometry import cone6
+    >>> stored_motion_detectors(Calibration({"gyro": InstrumentCalibration.nominal("gyro", cone6())}), 1e-3)
+    {}
+    """
+    from ..errors import CalibrationFileError
+    from .motion import motion_detector_from_dict
+
+    out = {}
+    for k, d in (calibration.metadata.get("motion_terms") or {}).items():
+        if k not in calibration.instruments:
+            continue
+        try:
+            det = motion_detector_from_dict(calibration[k], d, p_fa)
+        except ShapeError as exc:
+            raise CalibrationFileError(f"the calibration's {k} motion terms: {exc}") from None
+        if sample_rate is not None and abs(det.sample_rate / sample_rate - 1.0) > 0.02:
+            raise CalibrationFileError(f"the calibration's {k} motion terms were fitted at {det.sample_rate:.4g} Hz "
+                                       f"and the data run at {sample_rate:.4g} Hz: set the unit up at the data's "
+                                       "rate (rimu setup --average)")
+        out[k] = det
+    return out
+
+
+def noise_at_rate(calibration: Any, sample_rate: float) -> tuple[Any, dict[str, float]]:
+    """The calibration with every instrument's noise at a stream's rate, and the periods converted.
+
+    ``rimu setup`` states the noise of the epochs it measured it on (its 0.1 s averages: ``noise_period_s``); a
+    stream at ``sample_rate`` (Hz) more than 2 % off that period takes
+    :meth:`rimu.calibration.InstrumentCalibration.noise_sigma_at` (white noise: ``sigma sqrt(T_noise / T)``)
+    with its period set to ``1 / sample_rate``. The other instruments are kept as they are (the same objects).
+    Returns the calibration (a new one when anything changed) and ``{instrument: period it was stated for (s)}``.
+    ``rimu replay`` (the data's rate) and ``rimu monitor`` (the stream's declared or measured rate) both convert
+    through it.
+
+    >>> from rimu.calibration import Calibration, InstrumentCalibration
+    >>> from rimu.geometry import triads
+    >>> g = InstrumentCalibration.nominal("gyro", triads(2), noise_sigma=0.001)
+    >>> g.noise_period_s = 0.1
+    >>> cal, was = noise_at_rate(Calibration({"gyro": g}), 100.0)
+    >>> was, round(float(cal["gyro"].noise_sigma[0]), 6), cal["gyro"].noise_period_s
+    ({'gyro': 0.1}, 0.003162, 0.01)
+    """
+    from dataclasses import replace
+
+    if not (sample_rate > 0 and np.isfinite(sample_rate)):
+        raise ValueError(f"sample_rate must be positive (Hz), got {sample_rate}")
+    was: dict[str, float] = {}
+    cals = {}
+    for k in calibration.instruments:
+        c = calibration[k]
+        per = c.noise_period_s
+        if per is not None and c.noise_sigma is not None and abs(per * sample_rate - 1.0) > 0.02:
+            c = replace(c, noise_sigma=c.noise_sigma_at(1.0 / sample_rate), noise_period_s=1.0 / sample_rate)
+            was[k] = per
+        cals[k] = c
+    if not was:
+        return calibration, was
+    return type(calibration)(cals, calibration.raw_unit, calibration.method, calibration.created,
+                             dict(calibration.metadata)), was
 
 
 #: the former name of :class:`Runtime`

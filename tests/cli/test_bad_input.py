@@ -303,8 +303,10 @@ CASES = [
     (["monitor", "--simulate", "--fault", "gyro:zz:1:1"], 2, ["--fault", "INSTRUMENT:SENSOR"]),
     (["monitor", "--ulog", "{s}", "--calibration", "{cal}"], 2, ["ULog"]),
     (["monitor", "--can", "virtual:x", "--calibration", "{cal}", "--layout", "{notjson}"], 2, ["notjson.json"]),
-    (["monitor", "--npz", "{s}", "--calibration", "{cal}", "--sample-rate", "100"], 2, ["--sample-rate", "--selfcal"]),
-    (["monitor", "--npz", "{s}", "--calibration", "{cal}", "--selfcal"], 2, ["--sample-rate"]),
+    # --sample-rate is the stream's rate (noise of a unit set up on averages, motion terms, --selfcal; else measured)
+    (["monitor", "--npz", "{s}", "--calibration", "{cal}", "--sample-rate", "0"], 2, ["--sample-rate"]),
+    (["monitor", "--npz", "{s}", "--calibration", "{cal}", "--selfcal-temperature"], 2,
+     ["--selfcal-temperature", "--selfcal"]),
     (["monitor", "--npz", "{s}", "--calibration", "{cal}", "--selfcal", "--sample-rate", "100"], 2,
      ["noise model", "--selfcal-bias-rw"]),
     (["monitor", "--npz", "{s}", "--calibration", "{cal}", "--selfcal", "--sample-rate", "100", "--selfcal-bias-rw",
