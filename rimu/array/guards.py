@@ -10,7 +10,14 @@ cut-off from the vibration spectrum, and whether a step made the agreement worse
   at least :data:`MARGIN` times the top of the motion band (where :data:`MOTION_POWER` of the common power
   lies below), clear of the motion; none when the triads agree up to 0.4 of the
   sample rate, or when less than :data:`VIBRATION_SHARE` of the parity power lies above the motion band (nothing
-  to remove: a clean recording's disagreement is its gains and misalignments, in the motion band).
+  to remove: a clean recording's disagreement is its gains and misalignments, in the motion band). The cut-off
+  also lies at least :data:`MARGIN` times above the motion's whole band: the frequency under which
+  :data:`MOTION_BAND_SHARE` of the array-mean rate's power lies (:func:`motion_band`), whatever the ratio does
+  below it; none where that is beyond 0.45 of the sample rate. The edge can lie inside the motion: on the
+  MIMU4444's hand rotation (triads disagreeing from 1.5 Hz on: clipping, 16 ms sampling) the rule cut at 1.46 Hz,
+  which passes 2.6 % of the rate's power and 0.1 % of the angular acceleration's, and the accelerometer positions
+  came out about 13 mm from nominal, all near the centre (0.29-1.03 mm without it). An explicit cut-off below the
+  band is the user's choice: the array report applies it, refuses its position step and says why.
 * **Never worse.** A step whose parity rms in motion (mean over triads) is above its input's is not applied; the
   report names it and the figures.
 
@@ -27,7 +34,8 @@ import numpy as np
 
 from ..units import G0, RAD_TO_DEG
 
-__all__ = ["MARGIN", "MOTION_POWER", "SNR_MIN", "VIBRATION_SHARE", "check_units", "choose_lowpass", "worse"]
+__all__ = ["MARGIN", "MOTION_BAND_SHARE", "MOTION_POWER", "SNR_MIN", "VIBRATION_SHARE", "check_units",
+           "band_share", "choose_lowpass", "motion_band", "worse"]
 
 #: common-to-parity power ratio below which a frequency band is vibration, not rigid-body motion
 SNR_MIN = 10.0
@@ -41,6 +49,51 @@ MOTION_POWER = 0.99
 VIBRATION_SHARE = 0.25
 #: a step raising the mean parity rms by more than this fraction of it is refused
 WORSE_TOL = 1e-3
+#: the motion's band holds this share of the array-mean rate's power (:func:`motion_band`); a low-pass below it cuts
+#: the motion (and the lever arms the positions are fitted from)
+MOTION_BAND_SHARE = 0.9
+
+
+def motion_band(t: np.ndarray, gyro: np.ndarray) -> tuple[float, float]:
+    """(frequency below which :data:`MOTION_BAND_SHARE` of the array-mean rate's power lies, Hz; the same for
+    the angular acceleration, its derivative), from Welch spectra of the mean over the triads (invalid samples as 0).
+
+    >>> t = np.arange(4000) / 100.0
+    >>> w = np.sin(2 * np.pi * 2.0 * t)[:, None, None] * np.ones((1, 3, 3))   # every triad turning at 2 Hz
+    >>> [round(f) for f in motion_band(t, w)]
+    [2, 2]
+    """
+    from scipy.signal import welch
+
+    t = np.asarray(t, dtype=float)
+    fs = 1.0 / float(np.median(np.diff(t)))
+    x = np.asarray(gyro, dtype=float)
+    m = np.where(np.isfinite(x), x, 0.0).mean(axis=1)
+    nper = int(min(512, max(8, len(m) // 4)))
+    out = []
+    for sig in (m, np.gradient(m, 1.0 / fs, axis=0)):
+        f, p = welch(sig, fs=fs, nperseg=nper, axis=0)
+        c = np.cumsum(p.sum(axis=-1))
+        out.append(float(f[min(int(np.searchsorted(c, MOTION_BAND_SHARE * c[-1])), len(f) - 1)]))
+    return out[0], out[1]
+
+
+def band_share(t: np.ndarray, gyro: np.ndarray, cutoff_hz: float) -> tuple[float, float]:
+    """Shares of the array-mean rate's and angular acceleration's power at or below ``cutoff_hz`` (Welch, as
+    :func:`motion_band`)."""
+    from scipy.signal import welch
+
+    t = np.asarray(t, dtype=float)
+    fs = 1.0 / float(np.median(np.diff(t)))
+    x = np.asarray(gyro, dtype=float)
+    m = np.where(np.isfinite(x), x, 0.0).mean(axis=1)
+    nper = int(min(512, max(8, len(m) // 4)))
+    out = []
+    for sig in (m, np.gradient(m, 1.0 / fs, axis=0)):
+        f, p = welch(sig, fs=fs, nperseg=nper, axis=0)
+        p = p.sum(axis=-1)
+        out.append(float(p[f <= cutoff_hz].sum() / max(float(p.sum()), 1e-300)))
+    return out[0], out[1]
 
 
 def check_units(gyro: np.ndarray, accel: "np.ndarray | None") -> list[str]:
@@ -117,17 +170,24 @@ def choose_lowpass(t: np.ndarray, gyro: np.ndarray, accel: "np.ndarray | None" =
     below = f < edge
     cum = np.cumsum(pm[below]) / max(float(pm[below].sum()), 1e-300)
     top = float(f[below][min(int(np.searchsorted(cum, MOTION_POWER)), int(below.sum()) - 1)]) if below.any() else 0.0
-    fc = float(min(max(edge, MARGIN * top), 0.45 * fs))
+    # and clear of the motion's whole band (MOTION_BAND_SHARE of the common rate's power, at every frequency): the
+    # edge can lie inside it (the MIMU4444's triads disagree from 1.5 Hz on in the fast rotation, whose band reaches
+    # 6.8 Hz); a cut-off that fits nowhere below 0.45 of the rate: none
+    f_band, _ = motion_band(t, gyro)
+    fc = float(max(edge, MARGIN * top, MARGIN * f_band))
+    if fc > 0.45 * fs:
+        return None, (f"the motion fills the band: {100 * MOTION_BAND_SHARE:g} % of the {what}' common rate power lies below "
+                      f"{f_band:.3g} Hz, and a cut-off {MARGIN:g} times above it passes 0.45 of the sample rate: no low-pass")
     share = float(pp[f >= fc].sum() / max(pp.sum(), 1e-300))
     if share < VIBRATION_SHARE:
-        return None, (f"the {what}' motion band ends near {top:.3g} Hz and their disagreement above {fc:.3g} Hz is "
+        return None, (f"the {what}' motion band ends near {max(top, f_band):.3g} Hz and their disagreement above {fc:.3g} Hz is "
                       f"{100 * share:.2g} % of all of it (below {100 * VIBRATION_SHARE:g} %: no vibration to remove): "
                       "no low-pass")
     return fc, (f"every triad low-passed at {fc:.3g} Hz (zero phase), chosen from the spectrum: above {edge:.3g} Hz the "
                 f"{what}' common signal falls below {SNR_MIN:g} times their disagreement (vibration, not rigid-body "
                 f"motion: {100 * share:.2g} % of the disagreement lies above the cut-off), and {100 * MOTION_POWER:g} % "
-                f"of the motion below it lies below {top:.3g} Hz (the cut-off at least {MARGIN:g} times above); "
-                "--lowpass-hz overrides")
+                f"of the motion below it lies below {top:.3g} Hz and {100 * MOTION_BAND_SHARE:g} % of all of it below "
+                f"{f_band:.3g} Hz (the cut-off at least {MARGIN:g} times above both); --lowpass-hz overrides")
 
 
 def worse(before: np.ndarray, after: np.ndarray) -> bool:

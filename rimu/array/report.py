@@ -17,7 +17,7 @@ import numpy as np
 
 from ..errors import IdentifiabilityError, ShapeError
 from ..units import RAD_TO_DEG, fmt
-from .guards import choose_lowpass, worse
+from .guards import MOTION_BAND_SHARE, band_share, choose_lowpass, motion_band, worse
 from .layout import ArrayLayout
 from .positions import PositionFit, aa_from_accelerometers_refusal, angular_acceleration_check, fit_positions
 from .relative import RelativeFit, fit_relative_gyro
@@ -218,6 +218,17 @@ def array_report(
         gyro = lowpass(t, gyro, lowpass_hz)
         accel = None if accel is None else lowpass(t, accel, lowpass_hz)
         notes.append(f"every triad low-passed at {lowpass_hz:g} Hz (zero phase) before the fits")
+    cut_motion = None  # a cut-off below the motion's band: the lever arms are filtered away, positions mean nothing
+    if lowpass_hz is not None and accel is not None:
+        band, band_aa = motion_band(t, gyro_unfiltered)
+        if lowpass_hz < band:
+            kept, kept_aa = band_share(t, gyro_unfiltered, lowpass_hz)
+            cut_motion = (f"accelerometer step '+ positions' not applied: the low-pass at {lowpass_hz:.3g} Hz lies below "
+                          f"the motion's band ({100 * MOTION_BAND_SHARE:g} % of the rate's power below {band:.3g} Hz, of "
+                          f"the angular acceleration's below {band_aa:.3g} Hz) and passes {100 * kept:.2g} % of the "
+                          f"rate's power and {100 * kept_aa:.2g} % of the angular acceleration's: the lever arms are "
+                          f"filtered away and fitted positions mean nothing; give a cut-off above {band:.3g} Hz or "
+                          "--lowpass-hz none")
     base = fit_relative_gyro(layout, t, gyro, motion_threshold_deg_s=motion_threshold_deg_s)
     steps = {"raw": base.parity_rms_rad_s["before"] * RAD_TO_DEG,
              "relative gain+bias": base.parity_rms_rad_s["after"] * RAD_TO_DEG}
@@ -269,18 +280,22 @@ def array_report(
         if best is None:
             return rep
         pf, a_steps, a_refused, mode = best
+        if cut_motion is not None:
+            for name in ("+ positions", AA_STEP):
+                a_steps.pop(name, None)
+            a_refused["+ positions"] = cut_motion
         rep.accel_steps = a_steps
         rep.refused.update(a_refused)
         why = aa_from_accelerometers_refusal(pf.positions_m)
-        if why is not None:
+        if why is not None and cut_motion is None:
             rep.refused[AA_STEP] = f"accelerometer step '{AA_STEP}' not identifiable: {why}"
-        if any(k != "raw" for k in a_steps):
+        if any(k != "raw" for k in a_steps) and cut_motion is None:
             rep.position_fit = pf
         if pf.lever_arm_invalid:
             notes.append(f"{pf.lever_arm_invalid} of {pf.moving_epochs} epochs in motion have no angular acceleration "
                          "(a clipped or missing gyro sample within the central difference's stencil): left out of "
                          "the accelerometer lever-arm step, not bridged")
-        if held_out:
+        if held_out and cut_motion is None:
             ho = _accel_held_out(layout, t, gyro, accel, fit, pf, nominal_positions_m, motion_threshold_deg_s, notes)
             if ho is not None:
                 ho_steps, rep.accel_remainder = ho

@@ -49,7 +49,7 @@ from .detect import _moving_var, detect_intervals
 from .result import Calibration, InstrumentCalibration
 from .timing import TimingResult, estimate_offsets
 
-__all__ = ["MultiImuSetup", "average_block", "setup_multi_imu", "still_epochs", "triad_noise"]
+__all__ = ["MultiImuSetup", "average_block", "pose_uncertainty", "setup_multi_imu", "still_epochs", "triad_noise"]
 
 
 @dataclass
@@ -86,6 +86,9 @@ class MultiImuSetup:
     spans: dict[str, float] = field(default_factory=dict)
     #: per unit with its own clock: offset and rate against the reference (rimu.calibration.timing.estimate_clocks)
     clocks: list = field(default_factory=list)
+    #: per instrument, each sensor's offset 1-sigma at a pose the relative gains were not fitted on (SI):
+    #: :func:`pose_uncertainty` (accelerometers with gains from ten poses or more)
+    pose_sigma: dict[str, np.ndarray] = field(default_factory=dict)
 
     def average(self, full_block: EpochBlock) -> EpochBlock:
         """Average a block on the full-rate time base (e.g. one with injected faults) as :attr:`block` was."""
@@ -118,6 +121,9 @@ class MultiImuSetup:
             if k in self.bias_sigma:
                 lines.append(f"{k} bias difference 1-sigma ({unit}): "
                              + " ".join(f"{v * f:.2g}" for v in self.bias_sigma[k]))
+            if k in self.pose_sigma:
+                lines.append(f"{k} offset 1-sigma at a new pose (leave-one-pose-out, beyond the pose means' noise; "
+                             f"{unit}): " + " ".join(f"{v * f:.2g}" for v in self.pose_sigma[k]))
         return "\n".join(lines)
 
 
@@ -398,6 +404,7 @@ def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: in
     geo = triads(rotations, None, names)
     cals = {}
     noise_scale: dict[str, float] = {}
+    pose_sigma: dict[str, np.ndarray] = {}
     gains = [rotations[j] for j in range(k)]   # each triad's axes in MB (rows); accelerometers: refined below
     accel_gains = False
     for inst in insts:
@@ -437,6 +444,11 @@ def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: in
             c = _chi2_scale(Yc, np.vstack([axes[j] for j in live]), sig[cols])
             sig *= np.sqrt(c)
             noise_scale[inst] = c
+        if inst == "accel" and accel_gains:
+            ps = pose_uncertainty(Y, st, ref_cols, axes, [j for j in range(k) if names[j] in delivering],
+                                  min_still_s / dt_avg)
+            if ps is not None:
+                pose_sigma[inst] = ps
         cals[inst] = InstrumentCalibration.nominal(inst, geo, scale=1.0, bias=bias, noise_sigma=sig)
         if inst == "accel" and accel_gains:  # each triad's gain: unit rows m_i (a_i = m_i C_j), norms into SF
             ci = cals[inst]
@@ -456,7 +468,7 @@ def setup_multi_imu(recording: Any, average_s: float | None = 0.1, reference: in
     cal = Calibration(cals, raw_unit="SI", method="multi-imu-setup", metadata=meta)
     meta["spans_s"] = spans
     return MultiImuSetup(cal, block, timing, alignments, delivering, (lo, hi), full, n_avg, still, bias_sigma,
-                         spans, clocks)
+                         spans, clocks, pose_sigma)
 
 
 #: the least spread of the reference accelerometer at rest, in its weakest direction, for the relative gains (m/s^2
@@ -489,6 +501,98 @@ def _accel_gains(Y: np.ndarray, still: np.ndarray, ref_cols: slice, k: int, refe
         X = np.column_stack([R[m], np.ones(m.sum())])
         coef = np.linalg.lstsq(X, Zj[m], rcond=None)[0]
         out.append(coef[:3].T)
+    return out
+
+
+#: poses at rest needed for the offset uncertainty at a new pose (:func:`pose_uncertainty`): the per-sensor levels
+#: are separated from the triads' disagreement over the poses (:func:`triad_noise` needs ten rows)
+MIN_POSES = 10
+
+
+def pose_uncertainty(Y: np.ndarray, still: np.ndarray, ref_cols: slice, gains: Sequence[np.ndarray],
+                     live: Sequence[int], min_len: float = 20.0) -> np.ndarray | None:
+    """Each accelerometer's offset 1-sigma at a pose the relative gains were not fitted on, (3k,) output units.
+
+    The gains ``y_j = G_j y_ref + c_j`` fitted on the poses at rest (:func:`setup_multi_imu`) leave, at a pose
+    they have not seen, an offset that no noise figure states: the gain's own error, and what a 3 x 3 gain does
+    not model (pose-dependent or slowly drifting terms). It acts on the parity at rest as an unknown constant,
+    which averaging does not remove. Measured by leaving each pose out: the gain fitted on the other poses
+    predicts the left-out pose's mean, ``e_pj = mean_p(y_j) - G_j^(-p) mean_p(y_ref) - c_j^(-p)``; its spread
+    over the poses holds that offset (triad j's and the reference's) plus the noise of a pose mean, measured
+    from the same poses as half the difference of their two halves' means (any correlation of the noise
+    included). Both are expressed on the reference's axes, separated per triad from the triads' disagreement
+    (:func:`triad_noise`, the reference's column 0), subtracted, and taken back to each sensor's axes.
+
+    Parameters
+    ----------
+    Y : ndarray (N, 3k)
+        Accelerometer samples (NaN where invalid) of the fit window.
+    still : ndarray (N,) of bool
+        The samples at rest; each run of at least ``min_len`` samples is a pose.
+    gains : sequence of ndarray (3, 3)
+        Each triad's gain against the reference (the reference's: I).
+    live : sequence of int
+        The triads that deliver (the others get the largest level).
+
+    Returns
+    -------
+    ndarray (3k,) or None
+        None with fewer than :data:`MIN_POSES` poses (or fewer than three live triads).
+
+    Examples
+    --------
+    Three triads in twelve poses; triad 2 carries a pose-dependent offset of 0.02 (a nonlinearity no gain
+    models) under noise of 0.01 per sample, 200 samples per pose:
+
+    >>> rng = np.random.default_rng(1)
+    >>> g = rng.normal(size=(12, 3)); g = 9.8 * g / np.linalg.norm(g, axis=1, keepdims=True)
+    >>> ref = np.repeat(g, 200, axis=0)
+    >>> off = np.repeat(0.02 * rng.standard_normal((12, 3)), 200, axis=0)
+    >>> Y = np.hstack([ref, ref, ref + off]) + 0.01 * rng.standard_normal((2400, 9))
+    >>> still = (np.arange(2400) % 200) < 190            # 190 samples at rest per pose
+    >>> s = pose_uncertainty(Y, still, slice(0, 3), [np.eye(3)] * 3, [0, 1, 2])
+    >>> bool(np.all(s[:6] < 0.006)), bool(np.all((s[6:] > 0.012) & (s[6:] < 0.04)))
+    (True, True)
+    """
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], np.asarray(still, bool).astype(np.int8), [0]])))
+    segs = [(a, b) for a, b in zip(edges[::2], edges[1::2]) if b - a >= max(4, min_len)]
+    live = list(live)
+    if len(segs) < MIN_POSES or len(live) < 3:
+        return None
+    n = Y.shape[1]
+    R = Y[:, ref_cols]
+    P = len(segs)
+    Zloo = np.zeros((P, n))
+    Zhalf = np.zeros((P, n))
+    for j in live:
+        cols = slice(3 * j, 3 * j + 3)
+        if cols == ref_cols:
+            continue
+        XtX, XtZ, mean_x, mean_z, halves = [], [], [], [], []
+        for a, b in segs:
+            X = np.column_stack([R[a:b], np.ones(b - a)])
+            Z = Y[a:b, cols]
+            ok = np.isfinite(X).all(axis=1) & np.isfinite(Z).all(axis=1)
+            X, Z = X[ok], Z[ok]
+            XtX.append(X.T @ X)
+            XtZ.append(X.T @ Z)
+            mean_x.append(X.mean(axis=0))
+            mean_z.append(Z.mean(axis=0))
+            halves.append((X[: len(X) // 2], Z[: len(X) // 2], X[len(X) // 2:], Z[len(X) // 2:]))
+        SX, SZ = sum(XtX), sum(XtZ)
+        coef = np.linalg.lstsq(SX, SZ, rcond=None)[0]
+        inv = np.linalg.inv(gains[j])  # to the reference's axes (as the noise levels are separated)
+        for p in range(P):  # (a pose alone in its direction: the others' fit extrapolates, and its error says so)
+            c = np.linalg.lstsq(SX - XtX[p], SZ - XtZ[p], rcond=None)[0]
+            Zloo[p, cols] = (mean_z[p] - mean_x[p] @ c) @ inv.T
+            X1, Z1, X2, Z2 = halves[p]
+            Zhalf[p, cols] = ((Z1 - X1 @ coef).mean(axis=0) - (Z2 - X2 @ coef).mean(axis=0)) / 2.0 @ inv.T
+    lc = np.concatenate([np.arange(3 * j, 3 * j + 3) for j in live])
+    v = np.clip(triad_noise(Zloo[:, lc]) ** 2 - triad_noise(Zhalf[:, lc]) ** 2, 0.0, None)
+    out = np.full(n, np.nan)
+    for q, j in enumerate(live):
+        out[3 * j:3 * j + 3] = np.sqrt(np.asarray(gains[j]) ** 2 @ v[3 * q:3 * q + 3])
+    out[~np.isfinite(out)] = np.nanmax(out)
     return out
 
 

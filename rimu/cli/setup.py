@@ -199,6 +199,7 @@ def _fit_accel_motion(su, gyro_det, win, fs: float, margin: float, window_s: flo
         det = fit_motion_detector(su.calibration["accel"], b.raw["accel"][win], b.valid["accel"][win], fs,
                                   margin=margin, window=max(1, round(window_s * fs)),
                                   still=np.asarray(su.still, bool)[win], rate=rate,
+                                  extra_var=su.pose_sigma["accel"] ** 2 if "accel" in su.pose_sigma else 0.0,
                                   terms=("time_offset", "rate", "accel") if su.spans.get("accel_gains_from_rest")
                                   else ("scale", "misalignment", "time_offset", "rate", "accel"))
     except ShapeError as exc:

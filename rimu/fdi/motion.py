@@ -414,11 +414,18 @@ class MotionAwareGlt:
         if env is not None and self.input_is_rate:
             w, dw = self.motion()
             self.model_exceeded = bool(w > env[0] or dw > env[1])
-        if self.bias_track_s is not None and stat <= self._thr and float(np.linalg.norm(self._u)) < self.rest_rate:
+        if self.bias_track_s is not None and stat <= self._thr and self._at_rest():
             al = min(1.0, 1.0 / (self.bias_track_s * self.sample_rate))  # at rest, no alarm: follow the drift
             a = self._act_n
             self.tracked_bias[a] += al * (self._r_raw[a] - self.tracked_bias[a])
         return stat, self._thr
+
+    def _at_rest(self) -> bool:
+        """The unit turns slower than ``rest_rate``: its estimate (gyros), or the rate :meth:`set_motion` gave
+        (accelerometers; unknown is not rest)."""
+        if self.input_is_rate:
+            return float(np.linalg.norm(self._u)) < self.rest_rate
+        return self._rate is not None and float(np.linalg.norm(self._rate)) < self.rest_rate
 
     def isolate(self, parity: np.ndarray) -> tuple[int, np.ndarray]:
         """Bias likelihood ratio of each active sensor for the last sample (after an alarm)."""
@@ -586,7 +593,7 @@ def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, val
                         terms: tuple[str, ...] = _FIT_TERMS[1:], min_samples: int = 50,
                         envelope: float | None = 1.0, window: int = 1,
                         bias_track_s: float | str | None = None, still: np.ndarray | None = None,
-                        rate: np.ndarray | None = None) -> MotionAwareGlt:
+                        rate: np.ndarray | None = None, extra_var: Any = 0.0) -> MotionAwareGlt:
     """A gyro (or, with ``rate``, accelerometer) :class:`MotionAwareGlt` whose motion terms are fitted on
     fault-free raw data of the unit.
 
@@ -630,7 +637,12 @@ def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, val
         instrument's input is then the specific force (scale and misalignment act on it, its difference is the
         time-offset term), the vibration terms and the envelope follow the rate and its difference (the
         accelerometers' lever-arm terms grow with both), and the detector takes them per sample by
-        ``set_motion`` (:class:`rimu.fdi.Runtime` feeds the gyros' estimate). No relative-bias tracker.
+        ``set_motion`` (:class:`rimu.fdi.Runtime` feeds the gyros' estimate); the relative-bias tracker follows
+        the accelerometers' residuals where that rate is below ``rest_rate``.
+    extra_var : float or ndarray (n,)
+        A constant variance of each sensor's output (output units^2) the calibration states beside its noise (e.g.
+        the offset at a new pose of gains fitted on poses, :func:`rimu.calibration.multi_imu.pose_uncertainty`,
+        squared): in the test's covariance, not fitted, not averaged down by the window.
 
     Returns
     -------
@@ -670,13 +682,15 @@ def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, val
         rest = full & (np.asarray(still, bool) if still is not None else np.linalg.norm(w, axis=1) < 0.02)
         du = np.gradient(x, 1.0 / sample_rate, axis=0)
         alpha = np.gradient(w, 1.0 / sample_rate, axis=0)
-        model = fit_motion_terms(MotionNoiseModel(calibration, sigma=pipe.table.sigma), res[full], pipe.table.G[0],
+        model = fit_motion_terms(MotionNoiseModel(calibration, sigma=pipe.table.sigma, extra_var=extra_var), res[full],
+                                 pipe.table.G[0],
                                  w[full], alpha[full], u=x[full], du=du[full], terms=terms, margin=margin)
         gain = _window_gain(res, rest, int(window)) if window > 1 else 1.0
+        bias_track_s, drift = _track(bias_track_s, res, rest, sample_rate)
         det = MotionAwareGlt(model, p_fa, sample_rate=sample_rate, input_is_rate=False, window=window,
-                             window_gain=gain)
+                             window_gain=gain, bias_track_s=bias_track_s)
         det.fit_samples = int(full.sum())
-        det.bias_drift = None
+        det.bias_drift = drift
         det.moving_samples = int((full & (np.linalg.norm(w, axis=1) >= MOTION_RATE)).sum())
         if envelope is not None:  # the gyros' motion over the fit samples (set_motion gives it at runtime)
             det.envelope = (float(envelope * np.linalg.norm(w[full], axis=1).max()),
@@ -684,22 +698,12 @@ def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, val
         return det
     x = x - level
     alpha = np.gradient(x, 1.0 / sample_rate, axis=0)
-    model = MotionNoiseModel(calibration, sigma=pipe.table.sigma)
+    model = MotionNoiseModel(calibration, sigma=pipe.table.sigma, extra_var=extra_var)
     moving = int((full & (np.linalg.norm(x, axis=1) >= MOTION_RATE)).sum())  # as the setup counts motion
     if moving >= min_samples:
         model = fit_motion_terms(model, res[full], pipe.table.G[0], x[full], alpha[full], terms=terms, margin=margin)
     gain = _window_gain(res, rest, int(window)) if window > 1 else 1.0
-    drift = None
-    if isinstance(bias_track_s, str):
-        if bias_track_s != "auto":
-            raise ValueError(f"bias_track_s must be a time (s), 'auto' or None, got {bias_track_s!r}")
-        from .bias_drift import bias_drift
-
-        try:
-            drift = bias_drift(res, rest, sample_rate)
-            bias_track_s = drift.tau_s
-        except ShapeError as exc:  # no drift can be measured: no tracker, and the reason said
-            drift, bias_track_s = f"no bias tracker: {exc}", None
+    bias_track_s, drift = _track(bias_track_s, res, rest, sample_rate)
     det = MotionAwareGlt(model, p_fa, sample_rate=sample_rate, window=window, window_gain=gain,
                          bias_track_s=bias_track_s, rest_level=level)
     det.fit_samples = int(full.sum())
@@ -710,6 +714,24 @@ def fit_motion_detector(calibration: InstrumentCalibration, raw: np.ndarray, val
         seen = full if moving >= min_samples or not rest.any() else rest  # no terms: the rest the noise came from
         det.envelope = (float(envelope * w[seen].max()), float(envelope * dw[seen].max()))
     return det
+
+
+def _track(bias_track_s: float | str | None, res: np.ndarray, rest: np.ndarray, sample_rate: float
+           ) -> tuple[float | None, Any]:
+    """The tracker's time constant (s, or None) and the drift it was measured from (``"auto"``:
+    :func:`rimu.fdi.bias_drift.bias_drift` on the residuals at rest; where none can be measured, no tracker and
+    the reason as a string)."""
+    if not isinstance(bias_track_s, str):
+        return bias_track_s, None
+    if bias_track_s != "auto":
+        raise ValueError(f"bias_track_s must be a time (s), 'auto' or None, got {bias_track_s!r}")
+    from .bias_drift import bias_drift
+
+    try:
+        drift = bias_drift(res, rest, sample_rate)
+    except ShapeError as exc:  # no drift can be measured: no tracker, and the reason said
+        return None, f"no bias tracker: {exc}"
+    return drift.tau_s, drift
 
 
 def _subunit_motion(model: MotionNoiseModel, x: np.ndarray, res: np.ndarray, ok: np.ndarray,
@@ -743,10 +765,18 @@ def envelope_text(envelope: tuple[float, float] | None) -> str:
     return f"{rt} and {at}"
 
 
+#: the least window gain used (a guard: a residual whose window means barely vary would otherwise get no noise; the
+#: MIMU4444's measured gains are 0.29-1.44)
+MIN_WINDOW_GAIN = 0.1
+
+
 def _window_gain(res: np.ndarray, rest: np.ndarray, L: int) -> np.ndarray:
     """Per sensor: the variance of an L-sample mean of its residual ``res`` (N, n) over ``var / L``, measured
     in the runs of ``rest`` of at least ``4 L`` samples with each run's mean removed; 1 where there is no rest
-    (white noise assumed), never below 1."""
+    (white noise assumed). Below 1 where neighbouring samples are anti-correlated (noise near the Nyquist
+    frequency: the MIMU4444's imu4 x accelerometer, 0.29 at 62.5 Hz, its per-sample noise 3.4 times the variance
+    of its 0.1 s means over 6): clamped at 1, a 0.3 m/s^2 bias on it was not confirmed within 1 s; at least
+    :data:`MIN_WINDOW_GAIN`."""
     n = res.shape[1]
     edges = np.flatnonzero(np.diff(np.concatenate([[0], rest.astype(np.int8), [0]])))
     num, den = np.zeros(n), np.zeros(n)
@@ -760,7 +790,7 @@ def _window_gain(res: np.ndarray, rest: np.ndarray, L: int) -> np.ndarray:
         den += (x * x).mean(axis=0) * (b - a)
     if not den.any():
         return np.ones(n)
-    return np.maximum(1.0, L * num / np.where(den > 0, den, 1.0))
+    return np.maximum(MIN_WINDOW_GAIN, L * num / np.where(den > 0, den, 1.0))
 
 
 #: rad/s: a sample of the fit span whose rate (from the rest level) reaches this is motion (the setup's threshold,

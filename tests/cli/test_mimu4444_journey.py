@@ -10,7 +10,10 @@ held-out half that setup's JSON lists). Fit on the first half (``--fit-window :5
   half is at most twice the design rate (p_fa 0.1 %);
 * every 1 deg/s bias is isolated on its own sensor within 1 s of its onset;
 * the accelerometers too (issue 32): fault-free no isolation, nominal, rest alarm rate at most twice the design
-  rate; a 0.3 m/s^2 bias per triad at rest in the held-out half isolated on its own sensor within 1 s;
+  rate; a 0.3 m/s^2 bias per triad at rest in the held-out half isolated on its own sensor within 1 s (no case
+  is excused: exp_6 and exp_9 at 0.1 s alarmed on 0.24 % and 0.23 % at rest, and imu4's x accelerometer was not
+  isolated within 1 s at 62.5 Hz on exp_5, exp_6 and exp_9, until the setup stated the offset at a new pose and
+  the window gains below 1 were kept; docs/real-units.md);
 * the PX4-style rule on the same samples flags no triad within the faults (its dead band is 7 deg/s); its
   smallest flagged bias, from 5, 7.5, 10 and 15 deg/s for 10 s later in the same replay (full rate only: the
   rule is a full-rate rule), is printed beside it.
@@ -32,11 +35,6 @@ DEG = np.pi / 180.0
 #: the accelerometer fault, m/s^2 (0.03 g): about 15 sigma of the noisiest accelerometer per 0.1 s (exp_5's setup:
 #: 0.013-0.026 m/s^2), chosen on exp_5 (0.1 m/s^2, 5 sigma there, was isolated within 1 s on 5 of 8 triads)
 ACCEL_BIAS = 0.3
-#: the accelerometer figures still short of the done-when (issue 32), by run and rate: the rest alarm rate above
-#: twice the design rate (4 alarms in 1679 and 1764 held-out samples), and imu4's x accelerometer at 62.5 Hz, whose
-#: alarms (52 in a row on exp_5) are not confirmed on one sensor set within 1 s. Any other shortfall fails.
-KNOWN_SHORT = {("exp_6", "0.1"): ("rest",), ("exp_9", "0.1"): ("rest",), ("exp_5", "0"): ("imu4_x",),
-               ("exp_6", "0"): ("imu4_x",), ("exp_9", "0"): ("imu4_x",)}
 
 
 def _documented() -> list[list[str]]:
@@ -100,7 +98,7 @@ def test_the_documented_journey(run, average, tmp_path, capsys):
         held = [s for s in g["segments"] if s["kind"] == "static_unknown" and s["t_start_s"] >= half]
         a, n = sum(s["alarms"] for s in held), sum(s["samples"] for s in held)
         assert n > 1000, (inst, n)
-        assert a / n <= 2e-3 or (inst == "accel" and "rest" in KNOWN_SHORT.get((run, average), ())), (inst, a, n)
+        assert a / n <= 2e-3, (inst, a, n)
         rest_rate[inst] = (a, n)
     a, n = rest_rate["gyro"]
 
@@ -117,13 +115,11 @@ def test_the_documented_journey(run, average, tmp_path, capsys):
     inject += [f"--inject=bias:gyro:{names[j]}_x:{t}:{v * DEG:.9g}:10" for j, (v, t) in enumerate(zip(sizes, grid_on))]
     assert main(_put(fault_cmd, files, average) + inject) == 0
     doc = json.loads((tmp_path / "faults.json").read_text())
-    a_delays, a_missed = [], []
+    a_delays = []
     for s, t in zip(sensors, a_onsets):                # the accelerometer bias, on its own sensor within 1 s
         first = [e for e in doc["accel"]["events"] if e["kind"] == "isolated" and t <= e["t"] < t + 2.0]
-        if first and first[0]["sensor"] == s and first[0]["t"] - t <= 1.0:
-            a_delays.append(first[0]["t"] - t)
-        else:
-            a_missed.append((s, t, first[:1]))
+        assert first and first[0]["sensor"] == s and first[0]["t"] - t <= 1.0, (s, t, first[:2])
+        a_delays.append(first[0]["t"] - t)
     ev = doc["gyro"]["events"]
     delays = []
     for s, t in zip(sensors, onsets):
@@ -136,8 +132,7 @@ def test_the_documented_journey(run, average, tmp_path, capsys):
            f"of {n} held-out samples; 1 deg/s isolated in {min(delays):.3g}-{max(delays):.3g} s on 8 of 8 triads; " \
            "PX4-style rule: none flagged; accelerometers: rest alarms " \
            f"{1e2 * rest_rate['accel'][0] / rest_rate['accel'][1]:.3g} % of {rest_rate['accel'][1]}, {ACCEL_BIAS} m/s^2 " \
-           f"isolated in {min(a_delays, default=float('nan')):.3g}-{max(a_delays, default=float('nan')):.3g} s on " \
-           f"{len(a_delays)} of 8 triads"
+           f"isolated in {min(a_delays):.3g}-{max(a_delays):.3g} s on 8 of 8 triads"
     if sizes:
         hit = [v for j, (v, t) in enumerate(zip(sizes, grid_on))
                if any(f["triad"] == names[j] and t <= f["t"] < t + 10.0 for f in px4)]
@@ -145,13 +140,3 @@ def test_the_documented_journey(run, average, tmp_path, capsys):
         line += f" (smallest it flags within 10 s: {min(hit, default=float('nan')):g} deg/s)"
     with capsys.disabled():
         print("\n  " + line)
-    short = []
-    ra, rn = rest_rate["accel"]
-    if ra / rn > 2e-3:
-        short.append(f"accelerometer rest alarms {1e2 * ra / rn:.3g} % of {rn} (design 0.1 %)")
-    for s, t, first in a_missed:    # never another sensor isolated for it; a miss only where it is known
-        assert not first or first[0]["sensor"] == s, (s, t, first)
-        assert s in KNOWN_SHORT.get((run, average), ()), (s, t, first)
-        short.append(f"{ACCEL_BIAS} m/s^2 on {s} not isolated within 1 s")
-    if short:  # the known shortfalls of the done-when, said with their figures (issue 32); anything else fails
-        pytest.xfail(f"{run} at {average}: " + "; ".join(short))
