@@ -152,8 +152,9 @@ def _input_forms(session: Session, inst: str, segs: Sequence[Segment]) -> list[t
                 if seg.mat_ln_mb is None:
                     out.append((None, None))
                     continue
-                if seg.rate_mb is None:  # at rest in a known attitude: gravity seen in MB
-                    out.append(("constant", seg.mat_ln_mb.T @ np.array([0.0, 0.0, session.gravity])))
+                if seg.rate_mb is None:  # at rest in a known attitude (or turning about it): gravity seen in MB
+                    g = seg.mat_ln_mb.T @ np.array([0.0, 0.0, session.gravity])
+                    out.append(("constant", g) if seg.fixed_under_turn(g) else (None, None))
                     continue
         if ctx is None:
             ctx = contexts(session, inst)[0]
@@ -338,6 +339,8 @@ def _input_form(ctx: SensorContext, seg: Segment) -> tuple[str | None, Any]:
     if seg.mat_ln_mb is None:
         return None, None
     x = seg.mat_ln_mb.T @ np.array([0.0, 0.0, ctx.gravity])
+    if not seg.fixed_under_turn(x):  # an 'angle' turn about a non-vertical axis at an unstated rate
+        return None, None
     return ("basis", _basis_coefficients(w, x)) if turning else ("constant", x)
 
 

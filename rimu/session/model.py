@@ -166,13 +166,38 @@ class Segment:
             return np.asarray(self.rate_mb, dtype=float) if self.rate_mb.ndim == 1 else self.rate_mb.mean(axis=0)
         return np.zeros(3)
 
+    def _turns_unknown(self) -> bool:
+        """An 'angle' segment without a table rate: it turns through ``angle_mb``, but when is not known."""
+        return self.kind == "angle" and self.rate_mb is None and self.angle_mb is not None and bool(
+            np.any(np.asarray(self.angle_mb, dtype=float).reshape(-1, 3)[-1]))
+
+    def fixed_under_turn(self, x: np.ndarray) -> bool:
+        """Whether the MB vector ``x`` (seen at the first sample) stays the same through this segment's turn:
+        true unless the segment is an 'angle' one without a table rate whose axis (``angle_mb``) is not parallel
+        to ``x`` (within 1e-6 of ``|x|``). A turn about the vertical leaves gravity where it is; a reported turn
+        about a horizontal axis, at a rate nobody stated, does not, and gravity during it is not known.
+
+        >>> import numpy as np
+        >>> t = np.arange(3) * 0.01
+        >>> s = Segment("z_rot", "angle", t, {"accel": np.zeros((3, 3))}, angle_mb=np.array([0, 0, 6.2832]),
+        ...             mat_ln_mb=np.eye(3))
+        >>> s.fixed_under_turn(np.array([0, 0, 9.81])), s.fixed_under_turn(np.array([9.81, 0, 0]))
+        (True, False)
+        """
+        if not self._turns_unknown():
+            return True
+        a = np.asarray(self.angle_mb, dtype=float).reshape(-1, 3)[-1]
+        k = a / np.linalg.norm(a)
+        x = np.asarray(x, dtype=float)
+        return bool(np.linalg.norm(x - k * float(k @ x)) <= 1e-6 * np.linalg.norm(x))
+
     def attitude(self) -> np.ndarray | None:
         """mat_ln_mb for every sample, (N, 3, 3), or None where the attitude is unknown.
 
         The body turns at the constant ``rate_mb`` about an axis fixed in MB:
         ``C(t) = C(t0) exp(skew(rate_mb (t - t0)))``.
         """
-        if self.mat_ln_mb is None:
+        if self.mat_ln_mb is None or self._turns_unknown():
             return None
         w = self.table_rate()
         if not np.any(w):  # at rest: one attitude for every sample
@@ -195,6 +220,8 @@ class Segment:
         w = self.table_rate()
         wn = float(np.linalg.norm(w))
         if wn == 0.0:
+            if self._turns_unknown() and not self.fixed_under_turn(x):
+                return None
             return np.broadcast_to(x, (self.n_samples, 3))
         k = w / wn
         th = wn * (self.t - self.t[0])
