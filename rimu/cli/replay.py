@@ -41,6 +41,7 @@ one chunk (a note says so).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -503,11 +504,15 @@ def _run(args: argparse.Namespace, console: list[str]) -> int:
         raise CalibrationFileError(f"the calibration ({', '.join(cal.instruments)}) and the data "
                                    f"({', '.join(session.instruments)}) have no instrument in common: nothing to replay")
     t0, t_end = scan.t_first, scan.t_last
+    stated = {}  # --noise for the instruments whose calibration states none: a new calibration, the file's untouched
     for k in insts:
         if cal[k].noise_sigma is None:
             if args.noise is None:
                 raise CalibrationFileError(f"the {k} calibration states no noise; pass --noise SIGMA (SI per sample)")
-            cal[k].noise_sigma = np.full(cal[k].geometry.n, float(args.noise))
+            stated[k] = dataclasses.replace(cal[k], noise_sigma=np.full(cal[k].geometry.n, float(args.noise)))
+    if stated:
+        cal = type(cal)({k: stated.get(k, cal[k]) for k in cal.instruments}, cal.raw_unit, cal.method, cal.created,
+                        dict(cal.metadata))
     # the noise is stated for the epochs it was measured on (rimu setup's averages): at the data's rate
     cal = noise_at_rate(cal, scan.fs, "the data's")
     injections = [parse_injection(s) for s in args.inject]

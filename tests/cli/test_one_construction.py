@@ -183,3 +183,32 @@ def test_no_cli_module_imports_another_cli_modules_private_names():
                 bad += [f"{p.name}: from .{node.module} import {a.name}" for a in node.names
                         if a.name.startswith("_") and not a.name.startswith("__")]
     assert not bad, bad
+
+
+def test_replay_noise_option_equals_a_stated_noise(tmp_path, capsys):
+    """``rimu replay --noise`` for a calibration that states none decides exactly as the same unit with that noise
+    stated (a new calibration object, not a write into the loaded one); without it, one line and exit 2."""
+    stated = _unit("plain")
+    stated.save(tmp_path / "stated.json")
+    bare = Calibration({k: InstrumentCalibration.nominal(k, cone6(), 1.0) for k in ("gyro", "accel")},
+                       raw_unit="SI", method="nominal")
+    assert bare["gyro"].noise_sigma is None
+    bare.save(tmp_path / "bare.json")
+    rec = tmp_path / "rec.csv"
+    write_csv(rec, _stream(stated))
+    capsys.readouterr()
+    assert main(["replay", str(rec), "--calibration", str(tmp_path / "bare.json"), "--estimates",
+                 str(tmp_path / "e.csv")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--noise" in err[0], err
+    # gyro 0.01 and accel 0.02 rad/s, m/s^2 in _unit: one --noise for both, so compare the gyro of a unit whose
+    # accelerometers state the same 0.01 too
+    same = _unit("plain")
+    same["accel"].noise_sigma = np.full(6, 0.01)
+    same.save(tmp_path / "same.json")
+    _run(["replay", str(rec), "--calibration", str(tmp_path / "bare.json"), "--noise", "0.01",
+          "--estimates", str(tmp_path / "n.csv")])
+    _run(["replay", str(rec), "--calibration", str(tmp_path / "same.json"), "--estimates", str(tmp_path / "s.csv")])
+    a, b = _read(tmp_path / "n.csv"), _read(tmp_path / "s.csv")
+    assert a == b and len(a["t"]) == 1200
+    assert sum(v != "" for v in a["gyro_isolated"]) >= 100  # the faulty gyro isolated: agreement on decisions
