@@ -1429,12 +1429,16 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     def rotations(theta, pre=None, sel=None):
         """Cb^T Ca (pose-k body vector -> pose-(k+1) body) at theta; the motion rotations exact, or from the
         pre-integration ``pre = (theta_l, R_l, Dth_l)``; ``sel``: of these motions only (exact)."""
-        _, psi_a, phi_b = pose_rotations(theta)
+        Gm, psi_a, phi_b = pose_rotations(theta)
         if sel is not None:
             psi_a, phi_b = psi_a[sel], phi_b[sel]
-        Rm = integrate(theta, jac=False, sel=sel) if pre is None else pre[1] @ _rodrigues(model_x(theta, pre))
-        Cb = Rm @ _rodrigues(phi_b)
-        return np.einsum("mji,mjk->mik", Cb, _rodrigues(psi_a))
+        if pre is None:
+            Rm = integrate(theta, jac=False, sel=sel)
+            Eb, Ea = np.split(_rodrigues(np.concatenate([phi_b, psi_a])), 2)  # (one call: the same per vector)
+        else:
+            Rx, Eb, Ea = np.split(_rodrigues(np.concatenate([model_x(theta, pre, Gm=Gm), phi_b, psi_a])), 3)
+            Rm = pre[1] @ Rx
+        return np.einsum("mji,mjk->mik", Rm @ Eb, Ea)
 
     def parts(theta, dirs, R=None):
         c = theta[3 * n:]
