@@ -936,8 +936,11 @@ def _theta_names(free: np.ndarray, names: Sequence[str], P_names=("x", "y", "z")
 def _check_jacobian(J: np.ndarray, typ: np.ndarray, names: list[str], inst: str) -> None:
     """Raise IdentifiabilityError naming the parameter combinations the data leave free."""
     Js = J * typ
-    _, s, Vt = np.linalg.svd(Js, full_matrices=True)
     p = Js.shape[1]
+    s = np.linalg.svd(Js, compute_uv=False)  # (the directions only when some are left free)
+    if len(s) == p and s[-1] >= 1e-7 * s[0]:
+        return
+    _, s, Vt = np.linalg.svd(Js, full_matrices=True)
     s_full = np.concatenate([s, np.zeros(p - len(s))])
     bad = np.flatnonzero(s_full < 1e-7 * s_full[0])
     if bad.size == 0:
