@@ -936,8 +936,11 @@ def _theta_names(free: np.ndarray, names: Sequence[str], P_names=("x", "y", "z")
 def _check_jacobian(J: np.ndarray, typ: np.ndarray, names: list[str], inst: str) -> None:
     """Raise IdentifiabilityError naming the parameter combinations the data leave free."""
     Js = J * typ
-    _, s, Vt = np.linalg.svd(Js, full_matrices=True)
     p = Js.shape[1]
+    s = np.linalg.svd(Js, compute_uv=False)  # (the directions only when some are left free)
+    if len(s) == p and s[-1] >= 1e-7 * s[0]:
+        return
+    _, s, Vt = np.linalg.svd(Js, full_matrices=True)
     s_full = np.concatenate([s, np.zeros(p - len(s))])
     bad = np.flatnonzero(s_full < 1e-7 * s_full[0])
     if bad.size == 0:
@@ -1256,7 +1259,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         cols = [sh["cols"][m] for m in sel]
         parts_idx = [sh["parts_idx"][m] for m in sel]
         mot_dt = [sh["mot_dt"][m] for m in sel]
-        SA_w, SB_w, Tw, Tw2, q_ab = (sh[k][sel] for k in ("SA_w", "SB_w", "Tw", "Tw2", "q_ab"))
+        SA_w, SB_w, Tw, Tw2, q_ab, mot_dd = (sh[k][sel] for k in ("SA_w", "SB_w", "Tw", "Tw2", "q_ab", "mot_dd"))
         L = 1 << int(np.ceil(np.log2(max(max(len(d) for d in mot_dt), 1))))
         DM = np.ascontiguousarray(sh["DM"][sel, :L])
         D0: dict[str, np.ndarray] | None = {
@@ -1295,6 +1298,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
             parts_idx.append((wa, wb, dt, na, nb))
         L = 1 << int(np.ceil(np.log2(max(L, 1))))
         q_ab = np.array(q_ab_list)
+        mot_dd = np.array([d @ d for d in mot_dt])  # (the motions' sum of dt^2, shared with the folds)
         DM = np.zeros((M, L))
         for m in range(M):
             DM[m, :len(mot_dt[m])] = mot_dt[m]
@@ -1428,12 +1432,16 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     def rotations(theta, pre=None, sel=None):
         """Cb^T Ca (pose-k body vector -> pose-(k+1) body) at theta; the motion rotations exact, or from the
         pre-integration ``pre = (theta_l, R_l, Dth_l)``; ``sel``: of these motions only (exact)."""
-        _, psi_a, phi_b = pose_rotations(theta)
+        Gm, psi_a, phi_b = pose_rotations(theta)
         if sel is not None:
             psi_a, phi_b = psi_a[sel], phi_b[sel]
-        Rm = integrate(theta, jac=False, sel=sel) if pre is None else pre[1] @ _rodrigues(model_x(theta, pre))
-        Cb = Rm @ _rodrigues(phi_b)
-        return np.einsum("mji,mjk->mik", Cb, _rodrigues(psi_a))
+        if pre is None:
+            Rm = integrate(theta, jac=False, sel=sel)
+            Eb, Ea = np.split(_rodrigues(np.concatenate([phi_b, psi_a])), 2)  # (one call: the same per vector)
+        else:
+            Rx, Eb, Ea = np.split(_rodrigues(np.concatenate([model_x(theta, pre, Gm=Gm), phi_b, psi_a])), 3)
+            Rm = pre[1] @ Rx
+        return np.einsum("mji,mjk->mik", Rm @ Eb, Ea)
 
     def parts(theta, dirs, R=None):
         c = theta[3 * n:]
@@ -1579,7 +1587,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
         return f
 
     gain = np.diag(np.linalg.inv(H.T @ (H / sigma[:, None] ** 2)))  # per-sample rate variance / s0^2 (nominal)
-    q_m = float(np.mean(gain)) / s0**2 * (np.array([d @ d for d in mot_dt]) + q_ab)
+    q_m = float(np.mean(gain)) / s0**2 * (mot_dd + q_ab)
     # (``_start``: a solution of the same model on other motions, e.g. all of them where this fit leaves some out: the
     # same minimum from nearer, fewer integrations; the weights and typical sizes are this fit's own)
     theta = theta0 if _start is None else np.asarray(_start, dtype=float).copy()
@@ -1681,7 +1689,7 @@ def fit_gyro(session: Session, windows: list[tuple[int, int, list[Segment]]], ac
     problem.update({"resid": resid, "jac": jac, "typ": typ, "dt": [p[2] for p in parts_idx], "n_rot": 2 * M,
                     "rotation_misfit": misfit,
                     "setup": {"cols": cols, "parts_idx": parts_idx, "mot_dt": mot_dt, "SA_w": SA_w, "SB_w": SB_w,
-                              "Tw": Tw, "Tw2": Tw2, "q_ab": q_ab, "DM": DM, "D": D, "T": T},
+                              "Tw": Tw, "Tw2": Tw2, "q_ab": q_ab, "mot_dd": mot_dd, "DM": DM, "D": D, "T": T},
                     "rot_resid_shift": rot_resid_shift, "integrate": integrate, "model_x": model_x,
                     "model_fun": model_fun})
     ang = np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1, 1))
