@@ -63,6 +63,16 @@ def motion_band(t: np.ndarray, gyro: np.ndarray) -> tuple[float, float]:
     >>> [round(f) for f in motion_band(t, w)]
     [2, 2]
     """
+    out = []
+    for f, p in _mean_rate_spectra(t, gyro):
+        c = np.cumsum(p)
+        out.append(float(f[min(int(np.searchsorted(c, MOTION_BAND_SHARE * c[-1])), len(f) - 1)]))
+    return out[0], out[1]
+
+
+def _mean_rate_spectra(t: np.ndarray, gyro: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Welch power spectra ``(f, p)`` (summed over the three axes) of the array-mean rate and of its derivative,
+    the angular acceleration: what :func:`motion_band` and :func:`band_share` both read."""
     from scipy.signal import welch
 
     t = np.asarray(t, dtype=float)
@@ -73,25 +83,15 @@ def motion_band(t: np.ndarray, gyro: np.ndarray) -> tuple[float, float]:
     out = []
     for sig in (m, np.gradient(m, 1.0 / fs, axis=0)):
         f, p = welch(sig, fs=fs, nperseg=nper, axis=0)
-        c = np.cumsum(p.sum(axis=-1))
-        out.append(float(f[min(int(np.searchsorted(c, MOTION_BAND_SHARE * c[-1])), len(f) - 1)]))
-    return out[0], out[1]
+        out.append((f, p.sum(axis=-1)))
+    return out
 
 
 def band_share(t: np.ndarray, gyro: np.ndarray, cutoff_hz: float) -> tuple[float, float]:
     """Shares of the array-mean rate's and angular acceleration's power at or below ``cutoff_hz`` (Welch, as
     :func:`motion_band`)."""
-    from scipy.signal import welch
-
-    t = np.asarray(t, dtype=float)
-    fs = 1.0 / float(np.median(np.diff(t)))
-    x = np.asarray(gyro, dtype=float)
-    m = np.where(np.isfinite(x), x, 0.0).mean(axis=1)
-    nper = int(min(512, max(8, len(m) // 4)))
     out = []
-    for sig in (m, np.gradient(m, 1.0 / fs, axis=0)):
-        f, p = welch(sig, fs=fs, nperseg=nper, axis=0)
-        p = p.sum(axis=-1)
+    for f, p in _mean_rate_spectra(t, gyro):
         out.append(float(p[f <= cutoff_hz].sum() / max(float(p.sum()), 1e-300)))
     return out[0], out[1]
 
